@@ -1,0 +1,240 @@
+//! Validated identifiers: cell ids, station names, MMS object names.
+//!
+//! Every name that crosses a process boundary or becomes part of a zenoh key
+//! is parsed into one of these newtypes once ("parse, don't validate"). Names
+//! are case-insensitive, as in the 1992 cell: station names and cell ids are
+//! kept in lower case (they are key chunks), MMS object names (domains,
+//! program invocations) in upper case (as `#NAME` lines print them).
+
+use std::fmt;
+
+/// Why a name was refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum NameError {
+    /// The name is empty.
+    #[error("{kind} is empty")]
+    Empty {
+        /// What kind of name it was meant to be.
+        kind: &'static str,
+    },
+    /// The name is longer than the limit.
+    #[error("{kind} `{name}` is longer than {max} characters")]
+    TooLong {
+        /// What kind of name it was meant to be.
+        kind: &'static str,
+        /// The offending name.
+        name: String,
+        /// The limit.
+        max: usize,
+    },
+    /// The name holds a character outside the allowed set.
+    #[error("{kind} `{name}` has `{bad}` at position {at}; allowed are {allowed}")]
+    BadCharacter {
+        /// What kind of name it was meant to be.
+        kind: &'static str,
+        /// The offending name.
+        name: String,
+        /// The first bad character.
+        bad: char,
+        /// Its position (0-based, in characters).
+        at: usize,
+        /// A description of the allowed set.
+        allowed: &'static str,
+    },
+    /// The name does not start with a letter.
+    #[error("{kind} `{name}` must start with a letter")]
+    BadStart {
+        /// What kind of name it was meant to be.
+        kind: &'static str,
+        /// The offending name.
+        name: String,
+    },
+}
+
+/// How a name kind is spelled and normalised.
+struct NameRule {
+    kind: &'static str,
+    max: usize,
+    upper: bool,
+    allowed: &'static str,
+    extra: &'static [char],
+}
+
+impl NameRule {
+    fn parse(&self, raw: &str) -> Result<String, NameError> {
+        let kind = self.kind;
+        if raw.is_empty() {
+            return Err(NameError::Empty { kind });
+        }
+        if raw.chars().count() > self.max {
+            return Err(NameError::TooLong {
+                kind,
+                name: raw.to_string(),
+                max: self.max,
+            });
+        }
+        for (at, c) in raw.chars().enumerate() {
+            if !(c.is_ascii_alphanumeric() || self.extra.contains(&c)) {
+                return Err(NameError::BadCharacter {
+                    kind,
+                    name: raw.to_string(),
+                    bad: c,
+                    at,
+                    allowed: self.allowed,
+                });
+            }
+        }
+        if !raw.starts_with(|c: char| c.is_ascii_alphabetic()) {
+            return Err(NameError::BadStart {
+                kind,
+                name: raw.to_string(),
+            });
+        }
+        Ok(if self.upper {
+            raw.to_ascii_uppercase()
+        } else {
+            raw.to_ascii_lowercase()
+        })
+    }
+}
+
+macro_rules! name_newtype {
+    ($(#[$doc:meta])* $name:ident, $rule:expr) => {
+        $(#[$doc])*
+        #[derive(Clone, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
+        #[serde(try_from = "String", into = "String")]
+        pub struct $name(String);
+
+        impl $name {
+            /// Parses and normalises a name.
+            pub fn new(raw: &str) -> Result<Self, NameError> {
+                $rule.parse(raw).map(Self)
+            }
+
+            /// The normalised name.
+            pub fn as_str(&self) -> &str {
+                &self.0
+            }
+        }
+
+        impl std::str::FromStr for $name {
+            type Err = NameError;
+            fn from_str(raw: &str) -> Result<Self, NameError> {
+                Self::new(raw)
+            }
+        }
+
+        impl TryFrom<String> for $name {
+            type Error = NameError;
+            fn try_from(raw: String) -> Result<Self, NameError> {
+                Self::new(&raw)
+            }
+        }
+
+        impl From<$name> for String {
+            fn from(name: $name) -> String {
+                name.0
+            }
+        }
+
+        impl fmt::Display for $name {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str(&self.0)
+            }
+        }
+
+        impl fmt::Debug for $name {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                write!(f, "{}({:?})", stringify!($name), self.0)
+            }
+        }
+    };
+}
+
+const KEY_CHUNK: NameRule = NameRule {
+    kind: "station name",
+    max: 32,
+    upper: false,
+    allowed: "letters, digits, `_` and `-`",
+    extra: &['_', '-'],
+};
+
+name_newtype!(
+    /// A station of the cell (`operator`, `cell`, `welding`, …): a zenoh key
+    /// chunk and the zenoh user name of the node. Lower case.
+    StationName,
+    KEY_CHUNK
+);
+
+name_newtype!(
+    /// The id of a cell (`falc1`): the second chunk of every key. Lower case.
+    CellId,
+    NameRule {
+        kind: "cell id",
+        ..KEY_CHUNK
+    }
+);
+
+name_newtype!(
+    /// An MMS object name: a domain (recipe text) or a program invocation
+    /// (a runnable recipe, the `#NAME` of a workstation recipe). Upper case.
+    ObjectName,
+    NameRule {
+        kind: "object name",
+        max: 32,
+        upper: true,
+        allowed: "letters, digits, `_` and `$`",
+        extra: &['_', '$'],
+    }
+);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn station_names_are_lower_case_key_chunks() {
+        assert_eq!(
+            StationName::new("Welding").map(|s| s.0),
+            Ok("welding".into())
+        );
+        assert!(matches!(
+            StationName::new("wel/ding"),
+            Err(NameError::BadCharacter {
+                bad: '/',
+                at: 3,
+                ..
+            })
+        ));
+        assert!(matches!(
+            StationName::new("*"),
+            Err(NameError::BadCharacter { .. })
+        ));
+        assert!(matches!(StationName::new(""), Err(NameError::Empty { .. })));
+        assert!(matches!(
+            StationName::new("1st"),
+            Err(NameError::BadStart { .. })
+        ));
+        assert!(matches!(
+            StationName::new(&"a".repeat(33)),
+            Err(NameError::TooLong { max: 32, .. })
+        ));
+    }
+
+    #[test]
+    fn object_names_are_upper_case() {
+        assert_eq!(
+            ObjectName::new("droog_dik").map(|s| s.0),
+            Ok("DROOG_DIK".into())
+        );
+        assert!(ObjectName::new("droog-dik").is_err());
+    }
+
+    #[test]
+    fn serde_validates() {
+        let ok: Result<StationName, _> = serde_json::from_str("\"Cell\"");
+        assert_eq!(ok.map(|s| s.0).ok(), Some("cell".to_string()));
+        let bad: Result<StationName, _> = serde_json::from_str("\"a b\"");
+        assert!(bad.is_err());
+    }
+}

@@ -1,0 +1,14 @@
+//! FALC shared library: everything the node binaries have in common.
+//!
+//! - [`ids`]: validated names (stations, cells, MMS objects);
+//! - [`topology`]: `launch/cell.toml`, the cell's stations and hierarchy;
+//! - [`mms`]: the MMS-equivalent service model, sans-I/O;
+//! - [`node`]: what every node binary does at start (arguments, logs);
+//! - [`bus`]: the zenoh binding: keys, envelope, sessions, credentials, ACL,
+//!   service client and server, stations with their associations.
+
+pub mod bus;
+pub mod ids;
+pub mod mms;
+pub mod node;
+pub mod topology;

@@ -1,0 +1,100 @@
+//! What every node binary does at start: the common command-line arguments
+//! (topology, router, credentials), logging setup, and turning them into
+//! [`BusSettings`].
+
+use crate::bus::credentials::{self, CredentialsError};
+use crate::bus::keys::KeySpace;
+use crate::bus::BusSettings;
+use crate::ids::StationName;
+use crate::topology::{Topology, TopologyError};
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Arguments every node takes.
+#[derive(Debug, Clone, clap::Args)]
+pub struct NodeArgs {
+    /// The cell topology file.
+    #[arg(long, default_value = "launch/cell.toml")]
+    pub topology: PathBuf,
+    /// The router endpoint; overrides the topology's `router`.
+    #[arg(long)]
+    pub router: Option<String>,
+    /// Directory of credential files (`<user>.toml`, mode 0600).
+    #[arg(long, default_value = "launch/credentials")]
+    pub credentials_dir: PathBuf,
+    /// This node's credentials file; default `<credentials-dir>/<station>.toml`.
+    #[arg(long)]
+    pub credentials: Option<PathBuf>,
+    /// How long to keep trying to reach the router at start, in ms.
+    #[arg(long, default_value_t = 10_000)]
+    pub connect_timeout_ms: u64,
+}
+
+/// Why a node could not be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum SetupError {
+    /// The topology is missing or invalid.
+    #[error(transparent)]
+    Topology(#[from] TopologyError),
+    /// The credentials are missing, unreadable or too open.
+    #[error(transparent)]
+    Credentials(#[from] CredentialsError),
+    /// The station is not in the topology.
+    #[error("station `{station}` is not defined in {topology}")]
+    UnknownStation {
+        /// The station.
+        station: StationName,
+        /// The topology file.
+        topology: String,
+    },
+}
+
+impl NodeArgs {
+    /// Loads the topology (with the router override applied).
+    pub fn topology(&self) -> Result<Topology, SetupError> {
+        let mut t = Topology::load(&self.topology)?;
+        if let Some(r) = &self.router {
+            t.set_router(r.clone());
+        }
+        Ok(t)
+    }
+
+    /// The bus settings of `station`.
+    pub fn settings(
+        &self,
+        topology: &Topology,
+        station: &StationName,
+    ) -> Result<BusSettings, SetupError> {
+        if topology.station(station).is_none() {
+            return Err(SetupError::UnknownStation {
+                station: station.clone(),
+                topology: self.topology.display().to_string(),
+            });
+        }
+        let path = self
+            .credentials
+            .clone()
+            .unwrap_or_else(|| self.credentials_dir.join(format!("{station}.toml")));
+        Ok(BusSettings {
+            keys: KeySpace::new(topology.cell().clone()),
+            me: station.clone(),
+            endpoint: topology.router().to_string(),
+            lease: topology.lease(),
+            credentials: Some(credentials::load(&path)?),
+            connect_timeout: Duration::from_millis(self.connect_timeout_ms),
+        })
+    }
+}
+
+/// Logs to stderr, filtered by `RUST_LOG` (default `info`; zenoh's own
+/// chatter at `warn`).
+pub fn init_tracing() {
+    use tracing_subscriber::EnvFilter;
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+        EnvFilter::new("info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn")
+    });
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+}

@@ -1,0 +1,304 @@
+//! The cell topology, `launch/cell.toml`: which stations exist, what kind each
+//! is, who commands whom, where each node's device is, and how nodes reach the
+//! router.
+//!
+//! Everything that depends on the hierarchy (keys a node serves, ACL rules,
+//! credentials, console panes) is derived from this one file. Validation is
+//! complete at load time: a topology that loads is a tree with exactly one
+//! root, unique names and known commanders.
+
+use crate::ids::{CellId, StationName};
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::time::Duration;
+
+/// The kind of controller a station runs; decides its command set.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StationKind {
+    /// The factory controller: order list, recipe store, journal. The root.
+    Operator,
+    /// The cell controller.
+    Cell,
+    /// A welding workstation bridging to a robot controller.
+    Welding,
+    /// A transport workstation driving a conveyor PLC.
+    Transport,
+}
+
+/// One station stanza.
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Station {
+    /// Its name: key chunk, zenoh user name, console pane title.
+    pub name: StationName,
+    /// Its controller kind.
+    pub kind: StationKind,
+    /// Its one commander; absent only for the root (the operator).
+    #[serde(default)]
+    pub commander: Option<StationName>,
+    /// Its device address (serial port, Modbus endpoint), if it has one.
+    #[serde(default)]
+    pub device: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawTopology {
+    cell: CellId,
+    router: String,
+    #[serde(default = "default_lease_ms")]
+    lease_ms: u64,
+    #[serde(rename = "station", default)]
+    stations: Vec<Station>,
+}
+
+fn default_lease_ms() -> u64 {
+    1000
+}
+
+/// A validated cell topology.
+#[derive(Debug, Clone)]
+pub struct Topology {
+    cell: CellId,
+    router: String,
+    lease: Duration,
+    stations: Vec<Station>,
+    index: BTreeMap<StationName, usize>,
+}
+
+/// Why a topology was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum TopologyError {
+    /// The file could not be read.
+    #[error("cannot read {path}: {source}")]
+    Read {
+        /// The file.
+        path: String,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The TOML is malformed or has unknown or missing fields.
+    #[error("{origin}: {message}")]
+    Syntax {
+        /// The file or source name.
+        origin: String,
+        /// The parser's message, with line and column.
+        message: String,
+    },
+    /// A rule of the hierarchy is broken.
+    #[error("{origin}: {message}")]
+    Hierarchy {
+        /// The file or source name.
+        origin: String,
+        /// What is wrong, naming the station.
+        message: String,
+    },
+}
+
+impl Topology {
+    /// Reads and validates a topology file.
+    pub fn load(path: &Path) -> Result<Self, TopologyError> {
+        let text = std::fs::read_to_string(path).map_err(|source| TopologyError::Read {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    /// Parses and validates topology text; `origin` names it in errors.
+    pub fn parse(text: &str, origin: &str) -> Result<Self, TopologyError> {
+        let raw: RawTopology = toml::from_str(text).map_err(|e| TopologyError::Syntax {
+            origin: origin.to_string(),
+            message: e.to_string().trim_end().to_string(),
+        })?;
+        let fail = |message: String| TopologyError::Hierarchy {
+            origin: origin.to_string(),
+            message,
+        };
+        if raw.lease_ms < 100 {
+            return Err(fail(format!(
+                "lease_ms = {} is too short; use at least 100",
+                raw.lease_ms
+            )));
+        }
+        let mut index = BTreeMap::new();
+        for (i, st) in raw.stations.iter().enumerate() {
+            if index.insert(st.name.clone(), i).is_some() {
+                return Err(fail(format!("station `{}` is defined twice", st.name)));
+            }
+        }
+        let roots: Vec<_> = raw
+            .stations
+            .iter()
+            .filter(|s| s.commander.is_none())
+            .collect();
+        match roots.as_slice() {
+            [root] if root.kind == StationKind::Operator => {}
+            [root] => {
+                return Err(fail(format!(
+                    "station `{}` has no commander but is not of kind operator",
+                    root.name
+                )))
+            }
+            [] => {
+                return Err(fail(
+                    "no station without commander: the operator is missing".into(),
+                ))
+            }
+            many => {
+                let names: Vec<_> = many.iter().map(|s| s.name.as_str()).collect();
+                return Err(fail(format!(
+                    "only the operator may lack a commander, but {} do",
+                    names.join(", ")
+                )));
+            }
+        }
+        for st in &raw.stations {
+            if let Some(cmd) = &st.commander {
+                if !index.contains_key(cmd) {
+                    return Err(fail(format!(
+                        "station `{}` names commander `{cmd}`, which is not defined",
+                        st.name
+                    )));
+                }
+                if cmd == &st.name {
+                    return Err(fail(format!("station `{}` commands itself", st.name)));
+                }
+            }
+            // Walk up: a tree reaches the root in fewer steps than stations.
+            let mut cur = st;
+            for _ in 0..=raw.stations.len() {
+                match &cur.commander {
+                    None => break,
+                    Some(c) => cur = &raw.stations[index[c]],
+                }
+            }
+            if cur.commander.is_some() {
+                return Err(fail(format!("station `{}` is in a command cycle", st.name)));
+            }
+        }
+        Ok(Self {
+            cell: raw.cell,
+            router: raw.router,
+            lease: Duration::from_millis(raw.lease_ms),
+            stations: raw.stations,
+            index,
+        })
+    }
+
+    /// The cell id (second key chunk).
+    pub fn cell(&self) -> &CellId {
+        &self.cell
+    }
+
+    /// The router endpoint nodes connect to (`tcp/127.0.0.1:7447`).
+    pub fn router(&self) -> &str {
+        &self.router
+    }
+
+    /// Replaces the router endpoint (tests and the launcher pick free ports).
+    pub fn set_router(&mut self, endpoint: String) {
+        self.router = endpoint;
+    }
+
+    /// The zenoh lease: how soon a frozen node or a cut cable is noticed.
+    pub fn lease(&self) -> Duration {
+        self.lease
+    }
+
+    /// Every station, in file order.
+    pub fn stations(&self) -> &[Station] {
+        &self.stations
+    }
+
+    /// One station by name.
+    pub fn station(&self, name: &StationName) -> Option<&Station> {
+        self.index.get(name).map(|&i| &self.stations[i])
+    }
+
+    /// The root station (the operator).
+    pub fn root(&self) -> &Station {
+        // Validated in `parse`: exactly one station has no commander.
+        self.stations
+            .iter()
+            .find(|s| s.commander.is_none())
+            .unwrap_or(&self.stations[0])
+    }
+
+    /// The commander of a station (None for the root or an unknown name).
+    pub fn commander_of(&self, name: &StationName) -> Option<&StationName> {
+        self.station(name).and_then(|s| s.commander.as_ref())
+    }
+
+    /// The direct subordinates of a station, in file order.
+    pub fn subordinates_of(&self, name: &StationName) -> Vec<&StationName> {
+        self.stations
+            .iter()
+            .filter(|s| s.commander.as_ref() == Some(name))
+            .map(|s| &s.name)
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const CELL: &str = r#"
+cell = "falc1"
+router = "tcp/127.0.0.1:7447"
+[[station]]
+name = "operator"
+kind = "operator"
+[[station]]
+name = "cell"
+kind = "cell"
+commander = "operator"
+[[station]]
+name = "welding"
+kind = "welding"
+commander = "cell"
+device = "/dev/ttyS0"
+"#;
+
+    #[test]
+    fn parses_the_tree() {
+        let t = Topology::parse(CELL, "cell.toml").expect("valid");
+        let cell = StationName::new("cell").expect("valid");
+        assert_eq!(t.root().name.as_str(), "operator");
+        assert_eq!(t.subordinates_of(&cell).len(), 1);
+        assert_eq!(t.commander_of(&cell).map(|s| s.as_str()), Some("operator"));
+        assert_eq!(t.lease(), Duration::from_secs(1));
+    }
+
+    fn refusal(text: &str) -> String {
+        match Topology::parse(text, "t.toml") {
+            Ok(_) => panic!("accepted: {text}"),
+            Err(e) => e.to_string(),
+        }
+    }
+
+    #[test]
+    fn refuses_broken_hierarchies() {
+        assert!(refusal(&format!(
+            "{CELL}[[station]]\nname=\"welding\"\nkind=\"welding\"\ncommander=\"cell\"\n"
+        ))
+        .contains("defined twice"));
+        assert!(
+            refusal(&CELL.replace("commander = \"cell\"", "commander = \"nobody\""))
+                .contains("`nobody`, which is not defined")
+        );
+        assert!(refusal(&CELL.replace("commander = \"operator\"", "")).contains("lack a commander"));
+        assert!(
+            refusal(&CELL.replace("commander = \"operator\"", "commander = \"welding\""))
+                .contains("cycle")
+        );
+        assert!(
+            refusal(&CELL.replace("kind = \"welding\"", "kind = \"painting\""))
+                .contains("painting")
+        );
+        assert!(refusal(&CELL.replace("name = \"cell\"", "name = \"c ell\"")).contains("c ell"));
+    }
+}

@@ -1,0 +1,142 @@
+//! `falc-demo-station`: a station with no device, for the foundation's
+//! multi-process tests and benchmarks. It serves every MMS-equivalent
+//! service of its place in the topology from an in-memory VMD (program
+//! invocations complete their transitions at once), takes part in
+//! associations, and prints one `EVENT …` line per association change on
+//! stdout so that tests can follow it. The real nodes replace it.
+
+use anyhow::Result;
+use clap::Parser;
+use falc_common::bus::station::{Station, StationEvent};
+use falc_common::ids::StationName;
+use falc_common::mms::error::{ErrorClass, ResourceError, ServiceError};
+use falc_common::mms::pdu::{Request, Response, Severity, Unconfirmed};
+use falc_common::mms::program::{PiCompletion, PiRequest};
+use falc_common::mms::vmd::{Identity, RecipeState, Vmd, VmdStatus};
+use falc_common::node::{init_tracing, NodeArgs};
+use std::io::Write;
+
+#[derive(Parser, Debug)]
+#[command(
+    version,
+    about = "FALC demo station (no device) for tests and benchmarks"
+)]
+struct Cli {
+    /// The station this process is.
+    #[arg(long)]
+    station: StationName,
+    #[command(flatten)]
+    node: NodeArgs,
+}
+
+fn event(line: std::fmt::Arguments<'_>) {
+    let mut out = std::io::stdout().lock();
+    let _ = writeln!(out, "EVENT {line}");
+    let _ = out.flush();
+}
+
+#[tokio::main]
+async fn main() -> Result<()> {
+    init_tracing();
+    let cli = Cli::parse();
+    let topology = cli.node.topology()?;
+    let settings = cli.node.settings(&topology, &cli.station)?;
+    let mut station = Station::open(settings, &topology).await?;
+    let me = station.bus().me().clone();
+    let mut vmd = Vmd::new(Identity {
+        vendor: "FALC".into(),
+        model: "demo-station".into(),
+        revision: env!("CARGO_PKG_VERSION").into(),
+    });
+    let status = |vmd: &Vmd| VmdStatus {
+        local_detail: if vmd
+            .programs()
+            .any(|p| p.state() == falc_common::mms::program::PiState::Running)
+        {
+            RecipeState::Executing
+        } else {
+            RecipeState::Idle
+        },
+        ..VmdStatus::default()
+    };
+    event(format_args!(
+        "ready station={} session={}",
+        me.station, me.session
+    ));
+    loop {
+        let ev = tokio::select! {
+            ev = station.next() => ev,
+            _ = tokio::signal::ctrl_c() => None,
+        };
+        let Some(ev) = ev else { break };
+        match ev {
+            StationEvent::Indication(ind) => {
+                let result = match &ind.request {
+                    Request::Status => Ok(Response::Status(status(&vmd))),
+                    Request::Output { lines } => {
+                        for l in lines {
+                            event(format_args!("output {l}"));
+                        }
+                        Ok(Response::Done)
+                    }
+                    Request::Input { .. } => Err(ServiceError::new(
+                        ErrorClass::Resource(ResourceError::CapabilityUnavailable),
+                        "the demo station has no operator console",
+                    )),
+                    other => match vmd.handle(other) {
+                        Some((result, transition)) => {
+                            if let Some(t) = transition {
+                                let done = match t.request {
+                                    PiRequest::Start => Some(PiCompletion::Started),
+                                    PiRequest::Stop => Some(PiCompletion::Stopped),
+                                    PiRequest::Resume => Some(PiCompletion::Resumed),
+                                    PiRequest::Reset => Some(PiCompletion::ResetDone),
+                                    PiRequest::Kill | PiRequest::Delete => None,
+                                };
+                                if let Some(c) = done {
+                                    let _ = vmd.complete(&t.name, c);
+                                }
+                                station
+                                    .bus()
+                                    .publish(&Unconfirmed::Status {
+                                        station: me.station.clone(),
+                                        status: status(&vmd),
+                                    })
+                                    .await;
+                            }
+                            result
+                        }
+                        None => Err(ServiceError::malformed(format!(
+                            "{} is not served by a demo station",
+                            other.service()
+                        ))),
+                    },
+                };
+                ind.responder.respond(result).await;
+            }
+            StationEvent::Associated(p) => {
+                event(format_args!("associated commander={}", p.station))
+            }
+            StationEvent::Concluded(p) => event(format_args!("concluded commander={}", p.station)),
+            StationEvent::Abort(a) => {
+                event(format_args!(
+                    "abort-indication role={:?} peer={} reason={}",
+                    a.role, a.peer.station, a.reason
+                ));
+                station
+                    .bus()
+                    .publish(&Unconfirmed::Report {
+                        station: me.station.clone(),
+                        severity: Severity::Alarm,
+                        text: format!(
+                            "no connection with station {}: {}",
+                            a.peer.station, a.reason
+                        ),
+                    })
+                    .await;
+            }
+        }
+    }
+    event(format_args!("stopped station={}", me.station));
+    Ok(())
+}

@@ -1,0 +1,205 @@
+//! Multi-process test harness: a cell on free localhost ports with a real
+//! `falc-router` and real node processes. Every process is killed when its
+//! guard drops, also when a test fails.
+
+#![allow(dead_code)]
+
+use falc_common::bus::credentials;
+use falc_common::bus::keys::KeySpace;
+use falc_common::bus::{Bus, BusError, BusSettings};
+use falc_common::ids::StationName;
+use falc_common::topology::Topology;
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::{channel, Receiver, RecvTimeoutError};
+use std::time::{Duration, Instant};
+
+/// The topology the foundation tests use: operator → cell → welding, transport.
+pub const TOPOLOGY: &str = r#"
+cell = "falc1"
+router = "ROUTER"
+lease_ms = 1000
+[[station]]
+name = "operator"
+kind = "operator"
+[[station]]
+name = "cell"
+kind = "cell"
+commander = "operator"
+[[station]]
+name = "welding"
+kind = "welding"
+commander = "cell"
+[[station]]
+name = "transport"
+kind = "transport"
+commander = "cell"
+"#;
+
+/// A free TCP port on 127.0.0.1.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("a free port on 127.0.0.1")
+}
+
+/// A child process, killed on drop, with its stdout lines on a channel.
+pub struct Proc {
+    pub name: String,
+    child: Child,
+    lines: Receiver<String>,
+    seen: Vec<String>,
+}
+
+impl Proc {
+    pub fn spawn(name: &str, mut cmd: Command) -> Proc {
+        cmd.stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .stdin(Stdio::null());
+        let mut child = cmd
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
+        let stdout = child.stdout.take().expect("piped stdout");
+        let (tx, rx) = channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        Proc {
+            name: name.to_string(),
+            child,
+            lines: rx,
+            seen: Vec::new(),
+        }
+    }
+
+    /// Waits for a stdout line containing `needle`; returns it.
+    pub fn expect_line(&mut self, needle: &str, timeout: Duration) -> String {
+        match self.wait_line(needle, timeout) {
+            Some(l) => l,
+            None => panic!(
+                "{}: no line containing {needle:?} within {timeout:?}; saw {:?}",
+                self.name, self.seen
+            ),
+        }
+    }
+
+    /// Waits for a stdout line containing `needle`, or None at the timeout.
+    pub fn wait_line(&mut self, needle: &str, timeout: Duration) -> Option<String> {
+        if let Some(l) = self.seen.iter().find(|l| l.contains(needle)) {
+            return Some(l.clone());
+        }
+        let end = Instant::now() + timeout;
+        loop {
+            let left = end.saturating_duration_since(Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok(l) => {
+                    self.seen.push(l.clone());
+                    if l.contains(needle) {
+                        return Some(l);
+                    }
+                }
+                Err(RecvTimeoutError::Timeout | RecvTimeoutError::Disconnected) => return None,
+            }
+        }
+    }
+
+    /// SIGKILL, and reap.
+    pub fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// A cell under test: a temp dir with topology and credentials, and a router.
+pub struct TestCell {
+    pub dir: tempfile::TempDir,
+    pub topology: Topology,
+    pub topology_path: PathBuf,
+    pub endpoint: String,
+    pub router: Proc,
+}
+
+impl TestCell {
+    /// Writes the topology with a free router port and starts the router.
+    pub fn start() -> TestCell {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+        let text = TOPOLOGY.replace("ROUTER", &endpoint);
+        let topology_path = dir.path().join("cell.toml");
+        std::fs::write(&topology_path, &text).expect("write topology");
+        let topology = Topology::parse(&text, "test").expect("valid topology");
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-router"));
+        cmd.arg("--topology")
+            .arg(&topology_path)
+            .arg("--credentials-dir")
+            .arg(dir.path().join("credentials"))
+            .arg("run");
+        let mut router = Proc::spawn("falc-router", cmd);
+        router.expect_line("falc-router ready", Duration::from_secs(20));
+        TestCell {
+            dir,
+            topology,
+            topology_path,
+            endpoint,
+            router,
+        }
+    }
+
+    pub fn credentials_dir(&self) -> PathBuf {
+        self.dir.path().join("credentials")
+    }
+
+    /// Starts a demo station process and waits until it is on the bus.
+    pub fn demo_station(&self, station: &str) -> Proc {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-demo-station"));
+        cmd.arg("--station")
+            .arg(station)
+            .arg("--topology")
+            .arg(&self.topology_path)
+            .arg("--credentials-dir")
+            .arg(self.credentials_dir());
+        let mut p = Proc::spawn(station, cmd);
+        p.expect_line("EVENT ready", Duration::from_secs(20));
+        p
+    }
+
+    /// Bus settings for a session of `station` from this process.
+    pub fn settings(&self, station: &str) -> BusSettings {
+        let me = StationName::new(station).expect("valid station");
+        let creds = credentials::load(&self.credentials_dir().join(format!("{station}.toml")))
+            .expect("credentials written by the router");
+        BusSettings {
+            keys: KeySpace::new(self.topology.cell().clone()),
+            me,
+            endpoint: self.endpoint.clone(),
+            lease: self.topology.lease(),
+            credentials: Some(creds),
+            connect_timeout: Duration::ZERO,
+        }
+    }
+
+    /// A session of `station` from this test process.
+    pub async fn bus(&self, station: &str) -> Result<Bus, BusError> {
+        Bus::open(self.settings(station)).await
+    }
+}
+
+pub fn st(s: &str) -> StationName {
+    StationName::new(s).expect("valid station")
+}
