@@ -72,7 +72,6 @@ async fn main() -> Result<()> {
         match ev {
             StationEvent::Indication(ind) => {
                 let result = match &ind.request {
-                    Request::Status => Ok(Response::Status(status(&vmd))),
                     Request::Output { lines } => {
                         for l in lines {
                             event(format_args!("output {l}"));
@@ -96,13 +95,7 @@ async fn main() -> Result<()> {
                                 if let Some(c) = done {
                                     let _ = vmd.complete(&t.name, c);
                                 }
-                                station
-                                    .bus()
-                                    .publish(&Unconfirmed::Status {
-                                        station: me.station.clone(),
-                                        status: status(&vmd),
-                                    })
-                                    .await;
+                                station.set_status(status(&vmd)).await;
                             }
                             result
                         }

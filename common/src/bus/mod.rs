@@ -26,8 +26,10 @@ pub mod station;
 use crate::ids::StationName;
 use crate::mms::error::ServiceError;
 use crate::mms::pdu::{Peer, Request, Response, ServiceName, Unconfirmed};
+use crate::mms::vmd::VmdStatus;
 use credentials::Credentials;
 use keys::KeySpace;
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 use tokio::sync::mpsc::UnboundedSender;
 use zenoh::query::{ConsolidationMode, Query, QueryTarget};
@@ -125,6 +127,28 @@ impl Responder {
     }
 }
 
+/// A station's current VMD status, from which the bus answers the Status
+/// service at once, in zenoh's callback: Status stays answered while the
+/// node's loop is busy (initiating subordinates, say), and it costs no hop
+/// to that loop. The node sets it whenever its status changes.
+#[derive(Debug, Clone, Default)]
+pub struct StatusBoard(Arc<Mutex<VmdStatus>>);
+
+impl StatusBoard {
+    /// The status now.
+    pub fn get(&self) -> VmdStatus {
+        *self.0.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Replaces the status; true if it changed.
+    pub fn set(&self, status: VmdStatus) -> bool {
+        let mut s = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        let changed = *s != status;
+        *s = status;
+        changed
+    }
+}
+
 /// A node's session to the router, with its liveliness token.
 pub struct Bus {
     session: zenoh::Session,
@@ -173,6 +197,38 @@ impl Bus {
             me,
             _token: token,
         })
+    }
+
+    /// Returns once the router has processed every declaration this session
+    /// made so far (queryables, subscribers, the token): a liveliness query
+    /// travels the same link after them, and the query ends with the
+    /// router's final reply. (Whether our own token is among the replies is
+    /// not reliable, so only a timeout counts as failure.) Nodes call it
+    /// before they say "ready", so that a commander's first request never
+    /// races their queryables.
+    pub async fn sync_with_router(&self) -> Result<(), BusError> {
+        let key = self.keys.alive(&self.me.station, &self.me.session);
+        let fail = |message: String| BusError::Declare {
+            what: "router barrier (liveliness query)",
+            key: key.clone(),
+            message,
+        };
+        let replies = self
+            .session
+            .liveliness()
+            .get(&key)
+            .timeout(DEFAULT_DEADLINE)
+            .await
+            .map_err(|e| fail(e.to_string()))?;
+        while let Ok(reply) = replies.recv_async().await {
+            if let Err(e) = reply.result() {
+                return Err(fail(format!(
+                    "no final reply from the router: {}",
+                    String::from_utf8_lossy(&e.payload().to_bytes())
+                )));
+            }
+        }
+        Ok(())
     }
 
     /// This node as a peer (station and session id).
@@ -243,20 +299,23 @@ impl Bus {
         }
     }
 
-    /// Serves `services` on this node's keys; indications go to `events`.
+    /// Serves `services` on this node's keys: Status from `board`, the
+    /// others as indications to `events`.
     pub async fn serve(
         &self,
         services: &[ServiceName],
+        board: &StatusBoard,
         events: UnboundedSender<BusEvent>,
     ) -> Result<Vec<Declaration>, BusError> {
         let mut out = Vec::with_capacity(services.len());
         for &service in services {
             let key = self.keys.service(&self.me.station, service);
             let tx = events.clone();
+            let board = board.clone();
             let q = self
                 .session
                 .declare_queryable(&key)
-                .callback(move |query| on_query(service, query, &tx))
+                .callback(move |query| on_query(service, query, &board, &tx))
                 .await
                 .map_err(|e| BusError::Declare {
                     what: "queryable",
@@ -359,8 +418,14 @@ impl Bus {
     }
 }
 
-/// The queryable callback: decode, check the key matches, hand over or refuse.
-fn on_query(service: ServiceName, query: Query, events: &UnboundedSender<BusEvent>) {
+/// The queryable callback: decode, check the key matches, answer Status
+/// from the board, hand the rest over, refuse what is malformed.
+fn on_query(
+    service: ServiceName,
+    query: Query,
+    board: &StatusBoard,
+    events: &UnboundedSender<BusEvent>,
+) {
     let decoded = match query.payload() {
         None => Err(format!(
             "request on {} carries no payload",
@@ -377,6 +442,12 @@ fn on_query(service: ServiceName, query: Query, events: &UnboundedSender<BusEven
         },
     };
     match decoded {
+        Ok(Request::Status) => {
+            let bytes = envelope::encode(&Response::Status(board.get()));
+            if let Err(e) = query.reply(query.key_expr().clone(), bytes).wait() {
+                tracing::warn!("status reply not sent: {e}");
+            }
+        }
         Ok(request) => {
             let ind = Indication {
                 request,

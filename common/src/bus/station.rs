@@ -7,11 +7,14 @@
 //! what it must act on: the other indications, association changes and
 //! abort indications.
 
-use super::{acl, Bus, BusError, BusEvent, BusSettings, Declaration, Indication, Responder};
+use super::{
+    acl, Bus, BusError, BusEvent, BusSettings, Declaration, Indication, Responder, StatusBoard,
+};
 use crate::ids::StationName;
 use crate::mms::association::{AbortIndication, Associations, InitiateOutcome, InitiateStep};
 use crate::mms::error::{ApplicationReferenceError, ErrorClass, ServiceError};
-use crate::mms::pdu::{Peer, Request, Response};
+use crate::mms::pdu::{Peer, Request, Response, Unconfirmed};
+use crate::mms::vmd::VmdStatus;
 use crate::topology::Topology;
 use std::collections::HashMap;
 use std::time::Duration;
@@ -37,6 +40,7 @@ pub struct Station {
     tx: UnboundedSender<BusEvent>,
     rx: UnboundedReceiver<BusEvent>,
     watches: HashMap<Peer, Declaration>,
+    board: StatusBoard,
     _served: Vec<Declaration>,
     deadline: Duration,
 }
@@ -52,15 +56,18 @@ impl Station {
             topology.subordinates_of(&me).into_iter().cloned(),
         );
         let (tx, rx) = unbounded_channel();
+        let board = StatusBoard::default();
         let served = bus
-            .serve(&acl::served_services(topology, &me), tx.clone())
+            .serve(&acl::served_services(topology, &me), &board, tx.clone())
             .await?;
+        bus.sync_with_router().await?;
         Ok(Self {
             bus,
             assoc,
             tx,
             rx,
             watches: HashMap::new(),
+            board,
             _served: served,
             deadline: super::DEFAULT_DEADLINE,
         })
@@ -69,6 +76,24 @@ impl Station {
     /// The bus (to request services of subordinates, publish, subscribe).
     pub fn bus(&self) -> &Bus {
         &self.bus
+    }
+
+    /// Sets this station's status (answered to Status requests) and, if it
+    /// changed, publishes it as unsolicited status.
+    pub async fn set_status(&self, status: VmdStatus) {
+        if self.board.set(status) {
+            self.bus
+                .publish(&Unconfirmed::Status {
+                    station: self.bus.me().station.clone(),
+                    status,
+                })
+                .await;
+        }
+    }
+
+    /// This station's status now.
+    pub fn status(&self) -> VmdStatus {
+        self.board.get()
     }
 
     /// The association state.
