@@ -4,6 +4,7 @@
 //! - [`topology`]: `launch/cell.toml`, the cell's stations and hierarchy;
 //! - [`mms`]: the MMS-equivalent service model, sans-I/O;
 //! - [`node`]: what every node binary does at start (arguments, logs);
+//! - [`recipe`]: the recipe language: parser, checker, engine, diagrams;
 //! - [`bus`]: the zenoh binding: keys, envelope, sessions, credentials, ACL,
 //!   service client and server, stations with their associations.
 
@@ -11,4 +12,5 @@ pub mod bus;
 pub mod ids;
 pub mod mms;
 pub mod node;
+pub mod recipe;
 pub mod topology;

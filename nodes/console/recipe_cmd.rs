@@ -1,0 +1,115 @@
+//! `falc recipe …`: check recipes (one line per problem, exit 1 if any) and
+//! draw one as Graphviz DOT.
+
+use clap::Subcommand;
+use falc_common::recipe::check::{check, check_set};
+use falc_common::recipe::commands::RecipeKind;
+use falc_common::recipe::dot::to_dot;
+use falc_common::recipe::files;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Subcommand, Debug)]
+pub enum RecipeCommand {
+    /// Check recipe files, station directories or a recipe tree; exit 1 and
+    /// print `file:line: state N: reason` per problem.
+    Check {
+        /// The kind of every file given (else the directory name tells).
+        #[arg(long)]
+        kind: Option<RecipeKind>,
+        /// Files or directories (default `recipes`).
+        paths: Vec<PathBuf>,
+    },
+    /// Print a recipe as a Graphviz DOT state diagram.
+    Dot {
+        /// The kind (else the directory name tells).
+        #[arg(long)]
+        kind: Option<RecipeKind>,
+        /// Highlight this state (a running recipe's).
+        #[arg(long)]
+        current: Option<u16>,
+        /// The recipe file.
+        file: PathBuf,
+    },
+}
+
+pub fn run(cmd: RecipeCommand) -> ExitCode {
+    match cmd {
+        RecipeCommand::Check { kind, paths } => {
+            let paths = if paths.is_empty() {
+                vec![PathBuf::from("recipes")]
+            } else {
+                paths
+            };
+            let entries = match files::load(&paths, kind) {
+                Ok(e) => e,
+                Err(errors) => {
+                    for e in errors {
+                        println!("{e}");
+                    }
+                    return ExitCode::FAILURE;
+                }
+            };
+            let (programs, problems) = check_set(&entries);
+            for p in &problems {
+                println!("{p}");
+            }
+            if problems.is_empty() {
+                eprintln!("{} recipes checked: no problems", programs.len());
+                ExitCode::SUCCESS
+            } else {
+                eprintln!(
+                    "{} recipes checked: {} problems",
+                    entries.len(),
+                    problems.len()
+                );
+                ExitCode::FAILURE
+            }
+        }
+        RecipeCommand::Dot {
+            kind,
+            current,
+            file,
+        } => {
+            let entries = match files::load(std::slice::from_ref(&file), kind) {
+                Ok(e) => e,
+                Err(errors) => {
+                    for e in errors {
+                        eprintln!("{e}");
+                    }
+                    return ExitCode::FAILURE;
+                }
+            };
+            let Some(entry) = entries.first() else {
+                eprintln!("{}: no recipe", file.display());
+                return ExitCode::FAILURE;
+            };
+            match check(&entry.recipe, entry.kind) {
+                Ok(program) => {
+                    let title = program.name.as_ref().map_or_else(
+                        || {
+                            file.file_stem()
+                                .map_or("recipe".into(), |s| s.to_string_lossy().into_owned())
+                        },
+                        |n| n.to_string(),
+                    );
+                    print!(
+                        "{}",
+                        to_dot(
+                            &program,
+                            &title,
+                            current.map(falc_common::recipe::syntax::StateNo)
+                        )
+                    );
+                    ExitCode::SUCCESS
+                }
+                Err(problems) => {
+                    for p in problems {
+                        eprintln!("{p}");
+                    }
+                    ExitCode::FAILURE
+                }
+            }
+        }
+    }
+}

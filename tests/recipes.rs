@@ -1,0 +1,276 @@
+//! The shipped recipes and the thesis' recipes as printed: checking, every
+//! criterion path of every shipped recipe on a fake clock, and the `falc
+//! recipe` commands.
+
+use falc_common::ids::StationName;
+use falc_common::recipe::check::{check_set, Command, Program};
+use falc_common::recipe::engine::{Action, Engine, Event, JobEnd, Outcome};
+use falc_common::recipe::files;
+use falc_common::recipe::problem::ProblemKind;
+use falc_common::recipe::syntax::{Criterion, StateNo};
+use std::collections::BTreeSet;
+use std::path::PathBuf;
+use std::process::Command as Process;
+use std::sync::Arc;
+use std::time::Duration;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn shipped() -> Vec<(StationName, Program)> {
+    let entries = files::load(&[root().join("recipes")], None).expect("recipes load");
+    let (programs, problems) = check_set(&entries);
+    assert!(
+        problems.is_empty(),
+        "shipped recipes have problems: {problems:#?}"
+    );
+    programs
+}
+
+#[test]
+fn every_shipped_recipe_checks_clean() {
+    let programs = shipped();
+    let count = |s: &str| programs.iter().filter(|(st, _)| st.as_str() == s).count();
+    assert_eq!(
+        (count("cell"), count("welding"), count("transport")),
+        (3, 3, 5)
+    );
+}
+
+/// The thesis' recipes as printed are rejected with exactly these defects.
+#[test]
+fn the_printed_recipes_are_rejected_with_their_defects() {
+    let entries = files::load(&[root().join("tests/fixtures/thesis_printed")], None).expect("load");
+    let (_, problems) = check_set(&entries);
+    let of = |file: &str| -> BTreeSet<(Option<u16>, ProblemKind)> {
+        problems
+            .iter()
+            .filter(|p| p.origin.ends_with(file))
+            .map(|p| (p.state.map(|s| s.0), p.kind))
+            .collect()
+    };
+    use ProblemKind::*;
+    assert_eq!(
+        of("testrcp3.rcp"),
+        BTreeSet::from([
+            (Some(7), Inconsistent),
+            (Some(16), MissingBranch),
+            (Some(17), MissingBranch),
+            (Some(17), Unreachable)
+        ])
+    );
+    assert_eq!(
+        of("testrcp1.rcp"),
+        BTreeSet::from([
+            (Some(1), WrongCriterion),
+            (Some(2), NoCriterion),
+            (Some(4), WrongCriterion),
+            (Some(5), NoCriterion)
+        ])
+    );
+    assert_eq!(
+        of("testrcp2.rcp"),
+        BTreeSet::from([(Some(1), WrongCriterion), (Some(2), NoCriterion)])
+    );
+    let pip = of("pipdroog.rcp");
+    assert!(
+        pip.iter().all(|(_, k)| *k == MalformedLine) && pip.len() == 17,
+        "{pip:?}"
+    );
+    for clean in [
+        "dikdroog.rcp",
+        "dundroog.rcp",
+        "testrcp4.rcp",
+        "testrcp5.rcp",
+        "droog_dik.rcp",
+        "droog_dun.rcp",
+        "droog_pijp.rcp",
+    ] {
+        assert_eq!(of(clean), BTreeSet::new(), "{clean}");
+    }
+    let line = problems
+        .iter()
+        .find(|p| p.origin.ends_with("testrcp3.rcp") && p.kind == Inconsistent)
+        .expect("found");
+    assert!(line.to_string().ends_with("testrcp3.rcp:14: state 7: inconsistent: line 13 has `waitline D 1 30`, line 14 has `waitline d 1 90`"), "{line}");
+}
+
+/// What makes a criterion of the current state true, as the world would.
+fn trigger(e: &mut Engine, now: &mut Duration, c: &Option<Criterion>) {
+    let st = e.program().states[&e.state()].clone();
+    let target = match &st.command {
+        Command::Start { target, .. } | Command::Wait { target, .. } => Some(target.clone()),
+        _ => None,
+    };
+    let ended = |end| Event::Ended(target.clone().expect("a job command"), end);
+    match c {
+        None => unreachable!("waiting states have criteria"),
+        Some(Criterion::Timeout) => {
+            *now = e
+                .poll_timeout()
+                .expect("a timeout branch needs a running deadline");
+            e.handle_timeout(*now);
+        }
+        Some(Criterion::Started) => e.handle(*now, Event::Started(target.expect("start"))),
+        Some(Criterion::Done) if matches!(st.command, Command::WaitInput { .. }) => {
+            e.handle(*now, Event::InputReached)
+        }
+        Some(Criterion::Done) => e.handle(*now, ended(JobEnd::Done)),
+        Some(Criterion::BadProduct) => e.handle(*now, ended(JobEnd::BadProduct)),
+        Some(Criterion::FailedSafe) => e.handle(*now, ended(JobEnd::FailedSafe)),
+        Some(Criterion::FailedDanger) => e.handle(*now, ended(JobEnd::FailedDanger)),
+        Some(Criterion::Answer(a)) => e.handle(*now, Event::Answer(a.to_uppercase())),
+        Some(Criterion::AnswerAny) => e.handle(*now, Event::Answer("iets anders".into())),
+    }
+}
+
+/// Explores every branch of a program from its first state: each
+/// (state, criterion) is taken once; returns the rows covered and the
+/// outcomes reached.
+fn explore(program: &Arc<Program>) -> (BTreeSet<(StateNo, Option<Criterion>)>, BTreeSet<String>) {
+    let mut covered = BTreeSet::new();
+    let mut outcomes = BTreeSet::new();
+    let mut e = Engine::new(program.clone());
+    e.start(Duration::ZERO);
+    let first: Vec<Action> = std::iter::from_fn(|| e.poll_action()).collect();
+    let mut stack = vec![(e, Duration::ZERO, first)];
+    while let Some((e, now, actions)) = stack.pop() {
+        // Unconditional rows passed on the way.
+        for a in &actions {
+            if let Action::Entered(s) = a {
+                if !program.states[s].command.waits() {
+                    covered.insert((*s, None));
+                }
+            }
+        }
+        if let Some(o) = e.outcome() {
+            outcomes.insert(match o {
+                Outcome::Done => "done".to_string(),
+                Outcome::Alarm(_) => "alarm".to_string(),
+            });
+            continue;
+        }
+        let st = program.states[&e.state()].clone();
+        assert!(
+            st.command.waits(),
+            "stuck in state {} of {}",
+            st.no,
+            program.origin
+        );
+        for (c, next) in &st.branches {
+            if !covered.insert((st.no, c.clone())) {
+                continue;
+            }
+            let mut branch = e.clone();
+            let mut t = now;
+            trigger(&mut branch, &mut t, c);
+            let actions: Vec<Action> = std::iter::from_fn(|| branch.poll_action()).collect();
+            let took = if *next == StateNo::END {
+                branch.outcome().is_some()
+            } else {
+                actions.contains(&Action::Entered(*next))
+            };
+            assert!(
+                took,
+                "{}: state {} {:?} should lead to {next}; actions {actions:?}",
+                program.origin, st.no, c
+            );
+            stack.push((branch, t, actions));
+        }
+    }
+    (covered, outcomes)
+}
+
+#[test]
+fn every_criterion_path_of_every_shipped_recipe_runs() {
+    for (_, program) in shipped() {
+        let program = Arc::new(program);
+        let (covered, outcomes) = explore(&program);
+        for st in program.states.values() {
+            for (c, _) in &st.branches {
+                assert!(
+                    covered.contains(&(st.no, c.clone())),
+                    "{}: state {} {:?} never taken",
+                    program.origin,
+                    st.no,
+                    c
+                );
+            }
+        }
+        assert!(
+            outcomes.contains("done"),
+            "{}: no path ends done",
+            program.origin
+        );
+        assert!(
+            outcomes.contains("alarm"),
+            "{}: no path ends in alarm",
+            program.origin
+        );
+    }
+}
+
+fn falc(args: &[&str]) -> (i32, String) {
+    let out = Process::new(env!("CARGO_BIN_EXE_falc"))
+        .args(args)
+        .current_dir(root())
+        .output()
+        .expect("falc runs");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+    )
+}
+
+#[test]
+fn falc_recipe_check_and_dot() {
+    let (code, out) = falc(&["recipe", "check", "recipes"]);
+    assert_eq!((code, out.as_str()), (0, ""));
+    let (code, out) = falc(&[
+        "recipe",
+        "check",
+        "tests/fixtures/thesis_printed/transport/testrcp3.rcp",
+    ]);
+    assert_eq!(code, 1);
+    assert_eq!(out.lines().count(), 4, "{out}");
+    assert!(
+        out.lines()
+            .all(|l| l.starts_with("tests/fixtures/thesis_printed/transport/testrcp3.rcp:")),
+        "{out}"
+    );
+    // The cell recipes alone cannot be cross-checked: their workstations are missing.
+    let (code, out) = falc(&["recipe", "check", "recipes/cell"]);
+    assert_eq!(code, 1);
+    assert!(
+        out.contains("state 9: no connection with station transport"),
+        "{out}"
+    );
+    // --kind overrides the directory.
+    let (code, _) = falc(&[
+        "recipe",
+        "check",
+        "--kind",
+        "cell",
+        "recipes/welding/droog_dik.rcp",
+    ]);
+    assert_eq!(code, 1, "a welding recipe is not a cell recipe");
+    let (code, dot) = falc(&[
+        "recipe",
+        "dot",
+        "--current",
+        "2",
+        "recipes/welding/droog_dik.rcp",
+    ]);
+    assert_eq!(code, 0);
+    assert!(dot.starts_with("digraph \"DROOG_DIK\" {"), "{dot}");
+    assert!(dot.contains("s1 -> s2 [label=\"started\"];"), "{dot}");
+    assert!(
+        dot.contains("s2 [label=\"2\\nwait rcm 170\", style=\"rounded,filled\""),
+        "{dot}"
+    );
+    assert!(
+        dot.contains("s3 [label=\"3\\n| alarm\", color=red"),
+        "{dot}"
+    );
+}
