@@ -250,7 +250,10 @@ async fn a_second_commanders_initiate_is_refused() {
             assert_eq!(e.class.class_name(), "initiate", "{e}");
             assert!(e.description.contains("already has a commander"), "{e}");
         }
-        Ok(r) => panic!("second commander accepted: {r:?}"),
+        Ok(r) => {
+            let l = welding.wait_line("abort", Duration::from_secs(1));
+            panic!("second commander accepted: {r:?} {l:?}")
+        }
     }
     // State-changing services need the association: the second session's
     // Start is refused, the first one's gets a definition error (no such PI).

@@ -380,12 +380,29 @@ impl Bus {
     ) -> Result<Declaration, BusError> {
         let key = self.keys.alive(&peer.station, &peer.session);
         let (p, tx) = (peer.clone(), events.clone());
+        let (seen_tx, seen_rx) = tokio::sync::oneshot::channel::<()>();
+        let seen_tx = Mutex::new(Some(seen_tx));
+        // history(true): the router declares the peer's current token to us
+        // (that Put is our proof of presence), and only a token it declared
+        // to us is undeclared to us when the peer goes. Without history the
+        // Delete was lost at random; a separate liveliness query for
+        // presence then returns nothing (both measured with zenoh 1.10.2).
         let sub = self
             .session
             .liveliness()
             .declare_subscriber(&key)
-            .callback(move |sample| {
-                if sample.kind() == SampleKind::Delete {
+            .history(true)
+            .callback(move |sample| match sample.kind() {
+                SampleKind::Put => {
+                    if let Some(s) = seen_tx
+                        .lock()
+                        .unwrap_or_else(PoisonError::into_inner)
+                        .take()
+                    {
+                        let _ = s.send(());
+                    }
+                }
+                SampleKind::Delete => {
                     let _ = tx.send(BusEvent::PeerLost {
                         peer: p.clone(),
                         reason: format!("lost the liveliness token of {p}"),
@@ -398,17 +415,10 @@ impl Bus {
                 key: key.clone(),
                 message: e.to_string(),
             })?;
-        let present = match self
-            .session
-            .liveliness()
-            .get(&key)
-            .timeout(DEFAULT_DEADLINE)
-            .await
-        {
-            Ok(replies) => matches!(replies.recv_async().await, Ok(r) if r.result().is_ok()),
-            Err(_) => false,
-        };
-        if !present {
+        if !matches!(
+            tokio::time::timeout(DEFAULT_DEADLINE, seen_rx).await,
+            Ok(Ok(()))
+        ) {
             let _ = events.send(BusEvent::PeerLost {
                 peer: peer.clone(),
                 reason: format!("{peer} holds no liveliness token"),
