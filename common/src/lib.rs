@@ -4,11 +4,13 @@
 //! - [`topology`]: `launch/cell.toml`, the cell's stations and hierarchy;
 //! - [`mms`]: the MMS-equivalent service model, sans-I/O;
 //! - [`node`]: what every node binary does at start (arguments, logs);
+//! - [`dnc`]: the DNC link to the robot controller (3964R, telegrams);
 //! - [`recipe`]: the recipe language: parser, checker, engine, diagrams;
 //! - [`bus`]: the zenoh binding: keys, envelope, sessions, credentials, ACL,
 //!   service client and server, stations with their associations.
 
 pub mod bus;
+pub mod dnc;
 pub mod ids;
 pub mod mms;
 pub mod node;

@@ -1,0 +1,701 @@
+//! The 3964R link procedure, sans-I/O: bytes and the clock in, bytes and
+//! events out (`handle_bytes`, `handle_timeout` / `poll_transmit`,
+//! `poll_event`, `poll_timeout`). The driver owns the serial port.
+//!
+//! The rules (Siemens 3964R, as the RCM 815 DNC link uses it):
+//! - to send, a station sends STX and waits for DLE within the
+//!   acknowledgement delay (2 s); then the block, every DLE doubled, closed
+//!   by DLE ETX and the BCC (XOR of every byte after STX, DLE ETX
+//!   included); then waits for DLE within the acknowledgement delay;
+//! - NAK, a wrong character or no answer: the connection (STX) is tried up
+//!   to 6 times, the transmission (block) up to 6 times, then the telegram
+//!   fails;
+//! - the receiver answers STX with DLE, takes characters with at most the
+//!   character delay (220 ms) between them, checks the BCC and answers DLE,
+//!   or NAK on a bad BCC, a timeout or an overflow;
+//! - initialisation conflict (both send STX): the low-priority station
+//!   (FALC's workstation) answers the other's STX with DLE and sends its own
+//!   telegram afterwards; the high-priority station (the RCM) waits on.
+
+use std::collections::VecDeque;
+use std::time::Duration;
+
+/// Start of text.
+pub const STX: u8 = 0x02;
+/// End of text.
+pub const ETX: u8 = 0x03;
+/// Data link escape: positive acknowledgement, and escape in the block.
+pub const DLE: u8 = 0x10;
+/// Negative acknowledgement.
+pub const NAK: u8 = 0x15;
+
+/// The procedure's timing and limits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Timing {
+    /// Character delay (ZVZ): the longest gap inside a received block.
+    pub char_delay: Duration,
+    /// Acknowledgement delay (QVZ): how long a sender waits for DLE.
+    pub ack_delay: Duration,
+    /// Connection attempts (STX → DLE).
+    pub connect_attempts: u8,
+    /// Transmission attempts (block → DLE).
+    pub transmit_attempts: u8,
+    /// The longest block accepted.
+    pub max_block: usize,
+}
+
+impl Default for Timing {
+    fn default() -> Self {
+        Self {
+            char_delay: Duration::from_millis(220),
+            ack_delay: Duration::from_secs(2),
+            connect_attempts: 6,
+            transmit_attempts: 6,
+            max_block: 1024,
+        }
+    }
+}
+
+/// Which side wins an initialisation conflict.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Priority {
+    /// The robot controller.
+    High,
+    /// The workstation.
+    Low,
+}
+
+/// Why a telegram could not be sent.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SendError {
+    /// No DLE to STX in every connection attempt.
+    #[error("no connection: no DLE to STX after {attempts} attempts ({last})")]
+    NoConnection {
+        /// Attempts made.
+        attempts: u8,
+        /// What happened last.
+        last: String,
+    },
+    /// No DLE to the block in every transmission attempt.
+    #[error("not acknowledged: no DLE to the block after {attempts} attempts ({last})")]
+    NotAcknowledged {
+        /// Attempts made.
+        attempts: u8,
+        /// What happened last.
+        last: String,
+    },
+}
+
+/// What the procedure reports.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum LinkEvent {
+    /// A telegram arrived intact (DLEs undoubled, without DLE ETX BCC).
+    Received(Vec<u8>),
+    /// A telegram of ours was acknowledged.
+    Sent(Vec<u8>),
+    /// A telegram of ours failed.
+    Failed {
+        /// The telegram.
+        telegram: Vec<u8>,
+        /// Why.
+        error: SendError,
+    },
+    /// A received block was refused with NAK (bad BCC, timeout, overflow).
+    Refused(String),
+}
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum State {
+    Idle,
+    /// STX sent, waiting for DLE.
+    AwaitStartAck {
+        deadline: Duration,
+    },
+    /// Block sent, waiting for DLE.
+    AwaitFinalAck {
+        deadline: Duration,
+    },
+    /// Receiving a block.
+    Receiving {
+        buf: Vec<u8>,
+        escaped: bool,
+        deadline: Duration,
+    },
+    /// DLE ETX received, waiting for the BCC.
+    AwaitBcc {
+        buf: Vec<u8>,
+        bcc: u8,
+        deadline: Duration,
+    },
+}
+
+/// The block bytes of a telegram: data with every DLE doubled, DLE ETX,
+/// and the BCC.
+pub fn frame(data: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(data.len() + 4);
+    for &b in data {
+        out.push(b);
+        if b == DLE {
+            out.push(DLE);
+        }
+    }
+    out.extend([DLE, ETX]);
+    let bcc = out.iter().fold(0u8, |a, b| a ^ b);
+    out.push(bcc);
+    out
+}
+
+/// One end of a 3964R link.
+#[derive(Debug, Clone)]
+pub struct Link {
+    timing: Timing,
+    priority: Priority,
+    state: State,
+    queue: VecDeque<Vec<u8>>,
+    connect_tries: u8,
+    transmit_tries: u8,
+    out: VecDeque<u8>,
+    events: VecDeque<LinkEvent>,
+}
+
+impl Link {
+    /// A link end with `priority` and `timing`.
+    pub fn new(priority: Priority, timing: Timing) -> Self {
+        Self {
+            timing,
+            priority,
+            state: State::Idle,
+            queue: VecDeque::new(),
+            connect_tries: 0,
+            transmit_tries: 0,
+            out: VecDeque::new(),
+            events: VecDeque::new(),
+        }
+    }
+
+    /// Queues a telegram; it is sent when the link is free.
+    pub fn send(&mut self, now: Duration, telegram: Vec<u8>) {
+        self.queue.push_back(telegram);
+        self.start_next(now);
+    }
+
+    /// Whether nothing is being sent or received and nothing is queued.
+    pub fn is_idle(&self) -> bool {
+        self.state == State::Idle && self.queue.is_empty()
+    }
+
+    /// Bytes to write to the line.
+    pub fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+        if self.out.is_empty() {
+            None
+        } else {
+            Some(self.out.drain(..).collect())
+        }
+    }
+
+    /// The next event.
+    pub fn poll_event(&mut self) -> Option<LinkEvent> {
+        self.events.pop_front()
+    }
+
+    /// When `handle_timeout` must be called next.
+    pub fn poll_timeout(&self) -> Option<Duration> {
+        match &self.state {
+            State::Idle => None,
+            State::AwaitStartAck { deadline }
+            | State::AwaitFinalAck { deadline }
+            | State::Receiving { deadline, .. }
+            | State::AwaitBcc { deadline, .. } => Some(*deadline),
+        }
+    }
+
+    fn start_next(&mut self, now: Duration) {
+        if self.state == State::Idle && !self.queue.is_empty() {
+            self.connect_tries = 1;
+            self.transmit_tries = 1;
+            self.send_stx(now);
+        }
+    }
+
+    fn send_stx(&mut self, now: Duration) {
+        self.out.push_back(STX);
+        self.state = State::AwaitStartAck {
+            deadline: now + self.timing.ack_delay,
+        };
+    }
+
+    /// A connection attempt failed: try again or give up.
+    fn retry_connect(&mut self, now: Duration, why: &str) {
+        if self.connect_tries < self.timing.connect_attempts {
+            self.connect_tries += 1;
+            self.send_stx(now);
+        } else {
+            let attempts = self.connect_tries;
+            self.fail(
+                now,
+                SendError::NoConnection {
+                    attempts,
+                    last: why.to_string(),
+                },
+            );
+        }
+    }
+
+    /// A transmission attempt failed: the whole telegram again, from STX.
+    fn retry_transmit(&mut self, now: Duration, why: &str) {
+        if self.transmit_tries < self.timing.transmit_attempts {
+            self.transmit_tries += 1;
+            self.connect_tries = 1;
+            self.send_stx(now);
+        } else {
+            let attempts = self.transmit_tries;
+            self.fail(
+                now,
+                SendError::NotAcknowledged {
+                    attempts,
+                    last: why.to_string(),
+                },
+            );
+        }
+    }
+
+    fn fail(&mut self, now: Duration, error: SendError) {
+        self.state = State::Idle;
+        if let Some(telegram) = self.queue.pop_front() {
+            self.events.push_back(LinkEvent::Failed { telegram, error });
+        }
+        self.start_next(now);
+    }
+
+    fn refuse(&mut self, now: Duration, why: String) {
+        self.out.push_back(NAK);
+        self.events.push_back(LinkEvent::Refused(why));
+        self.state = State::Idle;
+        self.start_next(now);
+    }
+
+    fn begin_receive(&mut self, now: Duration) {
+        self.out.push_back(DLE);
+        self.state = State::Receiving {
+            buf: Vec::new(),
+            escaped: false,
+            deadline: now + self.timing.char_delay,
+        };
+    }
+
+    /// The clock reached `now`.
+    pub fn handle_timeout(&mut self, now: Duration) {
+        if !self.poll_timeout().is_some_and(|d| d <= now) {
+            return;
+        }
+        match self.state {
+            State::AwaitStartAck { .. } => {
+                self.retry_connect(now, "no answer within the acknowledgement delay")
+            }
+            State::AwaitFinalAck { .. } => {
+                self.retry_transmit(now, "no answer within the acknowledgement delay")
+            }
+            State::Receiving { .. } | State::AwaitBcc { .. } => {
+                self.refuse(now, "character delay exceeded inside a block".into())
+            }
+            State::Idle => {}
+        }
+    }
+
+    /// Bytes arrived from the line.
+    pub fn handle_bytes(&mut self, now: Duration, bytes: &[u8]) {
+        for &b in bytes {
+            self.handle_byte(now, b);
+        }
+    }
+
+    fn handle_byte(&mut self, now: Duration, b: u8) {
+        let char_deadline = now + self.timing.char_delay;
+        match std::mem::replace(&mut self.state, State::Idle) {
+            State::Idle => {
+                if b == STX {
+                    self.begin_receive(now);
+                }
+                // Anything else while idle is line noise: ignored.
+            }
+            State::AwaitStartAck { deadline } => match b {
+                DLE => {
+                    let block = self.queue.front().map(|t| frame(t)).unwrap_or_default();
+                    self.out.extend(block);
+                    self.state = State::AwaitFinalAck {
+                        deadline: now + self.timing.ack_delay,
+                    };
+                }
+                STX if self.priority == Priority::Low => {
+                    // Initialisation conflict: the other side has priority.
+                    // Receive its telegram; ours goes afterwards, afresh.
+                    self.begin_receive(now);
+                }
+                STX => self.state = State::AwaitStartAck { deadline },
+                NAK => self.retry_connect(now, "NAK to STX"),
+                other => self.retry_connect(now, &format!("0x{other:02x} instead of DLE to STX")),
+            },
+            State::AwaitFinalAck { .. } => match b {
+                DLE => {
+                    self.state = State::Idle;
+                    if let Some(t) = self.queue.pop_front() {
+                        self.events.push_back(LinkEvent::Sent(t));
+                    }
+                    self.start_next(now);
+                }
+                NAK => self.retry_transmit(now, "NAK to the block"),
+                other => {
+                    self.retry_transmit(now, &format!("0x{other:02x} instead of DLE to the block"))
+                }
+            },
+            State::Receiving {
+                mut buf, escaped, ..
+            } => {
+                if escaped {
+                    match b {
+                        DLE => {
+                            buf.push(DLE);
+                            self.state = State::Receiving {
+                                buf,
+                                escaped: false,
+                                deadline: char_deadline,
+                            };
+                        }
+                        ETX => {
+                            let bcc = buf
+                                .iter()
+                                .flat_map(|&x| if x == DLE { vec![DLE, DLE] } else { vec![x] })
+                                .fold(0u8, |a, x| a ^ x)
+                                ^ DLE
+                                ^ ETX;
+                            self.state = State::AwaitBcc {
+                                buf,
+                                bcc,
+                                deadline: char_deadline,
+                            };
+                        }
+                        other => self
+                            .refuse(now, format!("DLE followed by 0x{other:02x} inside a block")),
+                    }
+                } else if b == DLE {
+                    self.state = State::Receiving {
+                        buf,
+                        escaped: true,
+                        deadline: char_deadline,
+                    };
+                } else if buf.len() >= self.timing.max_block {
+                    self.refuse(
+                        now,
+                        format!("block longer than {} bytes", self.timing.max_block),
+                    );
+                } else {
+                    buf.push(b);
+                    self.state = State::Receiving {
+                        buf,
+                        escaped: false,
+                        deadline: char_deadline,
+                    };
+                }
+            }
+            State::AwaitBcc { buf, bcc, .. } => {
+                if b == bcc {
+                    self.out.push_back(DLE);
+                    self.events.push_back(LinkEvent::Received(buf));
+                    self.start_next(now);
+                } else {
+                    self.refuse(now, format!("bad BCC: 0x{b:02x}, expected 0x{bcc:02x}"));
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ms(n: u64) -> Duration {
+        Duration::from_millis(n)
+    }
+
+    fn low() -> Link {
+        Link::new(Priority::Low, Timing::default())
+    }
+
+    fn tx(l: &mut Link) -> Vec<u8> {
+        l.poll_transmit().unwrap_or_default()
+    }
+
+    fn events(l: &mut Link) -> Vec<LinkEvent> {
+        std::iter::from_fn(|| l.poll_event()).collect()
+    }
+
+    #[test]
+    fn dle_is_doubled_and_bcc_covers_dle_etx() {
+        let f = frame(&[0x41, DLE, 0x42]);
+        assert_eq!(&f[..6], &[0x41, DLE, DLE, 0x42, DLE, ETX]);
+        assert_eq!(f[6], 0x41 ^ DLE ^ DLE ^ 0x42 ^ DLE ^ ETX);
+        assert_eq!(frame(&[]), vec![DLE, ETX, DLE ^ ETX]);
+    }
+
+    #[test]
+    fn a_telegram_is_sent_and_acknowledged() {
+        let mut l = low();
+        l.send(ms(0), b"S064".to_vec());
+        assert_eq!(tx(&mut l), vec![STX]);
+        assert_eq!(l.poll_timeout(), Some(ms(2000)));
+        l.handle_bytes(ms(5), &[DLE]);
+        assert_eq!(tx(&mut l), frame(b"S064"));
+        l.handle_bytes(ms(30), &[DLE]);
+        assert_eq!(events(&mut l), vec![LinkEvent::Sent(b"S064".to_vec())]);
+        assert!(l.is_idle());
+    }
+
+    #[test]
+    fn a_telegram_is_received_with_dle_undoubled() {
+        let mut l = low();
+        l.handle_bytes(ms(0), &[0x55, STX]); // noise while idle is ignored
+        assert_eq!(tx(&mut l), vec![DLE]);
+        let block = frame(&[b'M', DLE, b'7']);
+        l.handle_bytes(ms(10), &block);
+        assert_eq!(tx(&mut l), vec![DLE]);
+        assert_eq!(
+            events(&mut l),
+            vec![LinkEvent::Received(vec![b'M', DLE, b'7'])]
+        );
+    }
+
+    #[test]
+    fn bad_bcc_is_refused_with_nak() {
+        let mut l = low();
+        l.handle_bytes(ms(0), &[STX]);
+        tx(&mut l);
+        let mut block = frame(b"E065");
+        let last = block.len() - 1;
+        block[last] ^= 0xff;
+        l.handle_bytes(ms(10), &block);
+        assert_eq!(tx(&mut l), vec![NAK]);
+        assert!(
+            matches!(events(&mut l).as_slice(), [LinkEvent::Refused(why)] if why.starts_with("bad BCC"))
+        );
+    }
+
+    #[test]
+    fn character_delay_exceeded_is_refused() {
+        let mut l = low();
+        l.handle_bytes(ms(0), &[STX, b'A']);
+        tx(&mut l);
+        assert_eq!(l.poll_timeout(), Some(ms(220)));
+        l.handle_timeout(ms(219));
+        assert_eq!(tx(&mut l), Vec::<u8>::new());
+        l.handle_timeout(ms(220));
+        assert_eq!(tx(&mut l), vec![NAK]);
+        assert!(l.is_idle());
+    }
+
+    #[test]
+    fn overflow_is_refused() {
+        let mut l = Link::new(
+            Priority::Low,
+            Timing {
+                max_block: 4,
+                ..Timing::default()
+            },
+        );
+        l.handle_bytes(ms(0), &[STX, 1, 2, 3, 4, 5]);
+        assert_eq!(tx(&mut l), vec![DLE, NAK]);
+    }
+
+    #[test]
+    fn six_connection_attempts_then_failure() {
+        let mut l = low();
+        l.send(ms(0), b"G".to_vec());
+        let mut now = ms(0);
+        let mut stx_sent = 0;
+        for _ in 0..10 {
+            if tx(&mut l) == vec![STX] {
+                stx_sent += 1;
+            }
+            match l.poll_timeout() {
+                Some(t) => {
+                    now = t;
+                    l.handle_timeout(now);
+                }
+                None => break,
+            }
+        }
+        assert_eq!(stx_sent, 6);
+        assert_eq!(now, ms(12_000), "6 × the acknowledgement delay");
+        match events(&mut l).as_slice() {
+            [LinkEvent::Failed {
+                telegram,
+                error: SendError::NoConnection { attempts: 6, .. },
+            }] => {
+                assert_eq!(telegram, b"G")
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn nak_to_stx_retries_the_connection() {
+        let mut l = low();
+        l.send(ms(0), b"G".to_vec());
+        tx(&mut l);
+        l.handle_bytes(ms(1), &[NAK]);
+        assert_eq!(tx(&mut l), vec![STX], "second attempt at once");
+        l.handle_bytes(ms(2), &[0x7f]);
+        assert_eq!(
+            tx(&mut l),
+            vec![STX],
+            "a wrong character counts as a failed attempt"
+        );
+        l.handle_bytes(ms(3), &[DLE]);
+        assert_eq!(tx(&mut l), frame(b"G"));
+    }
+
+    #[test]
+    fn six_transmission_attempts_then_failure() {
+        let mut l = low();
+        l.send(ms(0), b"H".to_vec());
+        let mut blocks = 0;
+        for i in 0..20u64 {
+            let out = tx(&mut l);
+            if out == vec![STX] {
+                l.handle_bytes(ms(i), &[DLE]);
+            } else if !out.is_empty() {
+                blocks += 1;
+                // Lost acknowledgement on odd rounds, NAK on even ones.
+                if blocks % 2 == 0 {
+                    l.handle_bytes(ms(i), &[NAK]);
+                } else if let Some(t) = l.poll_timeout() {
+                    l.handle_timeout(t);
+                }
+            } else {
+                break;
+            }
+        }
+        assert_eq!(blocks, 6);
+        assert!(matches!(
+            events(&mut l).as_slice(),
+            [LinkEvent::Failed {
+                error: SendError::NotAcknowledged { attempts: 6, .. },
+                ..
+            }]
+        ));
+    }
+
+    #[test]
+    fn initialisation_conflict_goes_to_the_rcm() {
+        // Both ends send STX at once.
+        let mut ws = low();
+        let mut rcm = Link::new(Priority::High, Timing::default());
+        ws.send(ms(0), b"S065".to_vec());
+        rcm.send(ms(0), b"E064".to_vec());
+        let (a, b) = (tx(&mut ws), tx(&mut rcm));
+        assert_eq!(
+            (a.as_slice(), b.as_slice()),
+            ([STX].as_slice(), [STX].as_slice())
+        );
+        // Each sees the other's STX.
+        ws.handle_bytes(ms(1), &b);
+        rcm.handle_bytes(ms(1), &a);
+        // The workstation yields with DLE; the RCM keeps waiting.
+        let ws_out = tx(&mut ws);
+        assert_eq!(ws_out, vec![DLE]);
+        assert_eq!(tx(&mut rcm), Vec::<u8>::new());
+        // Shuttle bytes both ways until both are quiet.
+        let mut now = ms(2);
+        let mut to_rcm = ws_out;
+        for _ in 0..20 {
+            rcm.handle_bytes(now, &to_rcm);
+            let to_ws = tx(&mut rcm);
+            ws.handle_bytes(now, &to_ws);
+            to_rcm = tx(&mut ws);
+            now += ms(1);
+            if ws.is_idle() && rcm.is_idle() && to_rcm.is_empty() {
+                break;
+            }
+        }
+        assert_eq!(
+            events(&mut ws),
+            vec![
+                LinkEvent::Received(b"E064".to_vec()),
+                LinkEvent::Sent(b"S065".to_vec())
+            ]
+        );
+        assert_eq!(
+            events(&mut rcm),
+            vec![
+                LinkEvent::Sent(b"E064".to_vec()),
+                LinkEvent::Received(b"S065".to_vec())
+            ]
+        );
+    }
+
+    mod prop {
+        use super::*;
+        use proptest::prelude::*;
+
+        /// Two link ends wired back to back, on a virtual clock.
+        fn exchange(ws: &mut Link, rcm: &mut Link, now: &mut Duration) {
+            for _ in 0..10_000 {
+                let a = tx(ws);
+                let b = tx(rcm);
+                if a.is_empty() && b.is_empty() {
+                    match [ws.poll_timeout(), rcm.poll_timeout()]
+                        .into_iter()
+                        .flatten()
+                        .min()
+                    {
+                        Some(t) => {
+                            *now = t;
+                            ws.handle_timeout(t);
+                            rcm.handle_timeout(t);
+                            continue;
+                        }
+                        None => return,
+                    }
+                }
+                *now += ms(1);
+                rcm.handle_bytes(*now, &a);
+                ws.handle_bytes(*now, &b);
+            }
+        }
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(500))]
+            #[test]
+            fn never_panics_on_any_input(chunks in proptest::collection::vec((proptest::collection::vec(any::<u8>(), 0..16), 0u64..3000), 0..40)) {
+                let mut l = Link::new(Priority::Low, Timing::default());
+                l.send(Duration::ZERO, b"S065".to_vec());
+                let mut now = Duration::ZERO;
+                for (bytes, dt) in chunks {
+                    now += ms(dt);
+                    l.handle_timeout(now);
+                    l.handle_bytes(now, &bytes);
+                    while l.poll_event().is_some() {}
+                    let _ = l.poll_transmit();
+                }
+            }
+
+            #[test]
+            fn any_telegram_arrives_intact(data in proptest::collection::vec(any::<u8>(), 0..200), noise in proptest::collection::vec(any::<u8>(), 0..8)) {
+                let mut ws = Link::new(Priority::Low, Timing::default());
+                let mut rcm = Link::new(Priority::High, Timing::default());
+                let mut now = Duration::ZERO;
+                // Noise on an idle line is ignored (an STX in it starts a
+                // block that then times out with NAK; that must not hurt).
+                rcm.handle_bytes(now, &noise);
+                let _ = tx(&mut rcm);
+                if let Some(t) = rcm.poll_timeout() { now = t; rcm.handle_timeout(t); }
+                let _ = tx(&mut rcm);
+                while rcm.poll_event().is_some() {}
+                ws.send(now, data.clone());
+                exchange(&mut ws, &mut rcm, &mut now);
+                prop_assert_eq!(events(&mut rcm), vec![LinkEvent::Received(data.clone())]);
+                prop_assert_eq!(events(&mut ws), vec![LinkEvent::Sent(data)]);
+            }
+        }
+    }
+}
