@@ -9,9 +9,10 @@ use falc_common::bus::keys::KeySpace;
 use falc_common::bus::{Bus, BusError, BusSettings};
 use falc_common::ids::StationName;
 use falc_common::topology::Topology;
+use std::io::Write;
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::mpsc::{channel, Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
@@ -49,6 +50,7 @@ pub fn free_port() -> u16 {
 pub struct Proc {
     pub name: String,
     child: Child,
+    stdin: Option<ChildStdin>,
     lines: Receiver<String>,
     seen: Vec<String>,
 }
@@ -57,10 +59,11 @@ impl Proc {
     pub fn spawn(name: &str, mut cmd: Command) -> Proc {
         cmd.stdout(Stdio::piped())
             .stderr(Stdio::inherit())
-            .stdin(Stdio::null());
+            .stdin(Stdio::piped());
         let mut child = cmd
             .spawn()
             .unwrap_or_else(|e| panic!("cannot start {name}: {e}"));
+        let stdin = child.stdin.take();
         let stdout = child.stdout.take().expect("piped stdout");
         let (tx, rx) = channel();
         std::thread::spawn(move || {
@@ -73,6 +76,7 @@ impl Proc {
         Proc {
             name: name.to_string(),
             child,
+            stdin,
             lines: rx,
             seen: Vec::new(),
         }
@@ -107,6 +111,17 @@ impl Proc {
                 Err(RecvTimeoutError::Timeout | RecvTimeoutError::Disconnected) => return None,
             }
         }
+    }
+
+    /// Writes a line to the process's stdin (a twin's control interface)
+    /// and waits for its `ok` answer.
+    pub fn control(&mut self, line: &str) {
+        let stdin = self.stdin.as_mut().expect("stdin piped");
+        writeln!(stdin, "{line}").expect("control line written");
+        stdin.flush().expect("flushed");
+        self.expect_line(&format!("ok {line}"), Duration::from_secs(10));
+        // Answered lines are consumed, so the same control can be sent again.
+        self.seen.retain(|l| l != &format!("ok {line}"));
     }
 
     /// SIGKILL, and reap.

@@ -4,5 +4,6 @@
 //! numbers into `RobotStatusDetail` and recipe criteria ([`alarms`]).
 
 pub mod alarms;
+pub mod driver;
 pub mod procedure;
 pub mod telegram;

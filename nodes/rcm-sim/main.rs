@@ -1,0 +1,205 @@
+//! `falc-rcm-sim`: the digital twin of the RCM 815 robot controller. It
+//! speaks DNC over 3964R (with the RCM's priority) on a pty pair (default;
+//! it prints the port to connect to) and keeps the real controller's modes
+//! and program table, scaled by `--time-scale`. Optional wire timing
+//! (`--wire-baud`) makes every byte take as long as on a real line.
+//!
+//! Control lines on stdin (answered `ok …` or `error …` on stdout):
+//! `estop`, `estop-clear`, `person-in`, `person-out`, `limit-switch`,
+//! `abort-weld`, `alarm <code>`, `mode manual|automatic|aue`, `noise <n>`
+//! (n random bytes on the line), `unplug`, `replug`.
+
+mod pty;
+mod robot;
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use falc_common::dnc::procedure::{Link, LinkEvent, Priority, Timing};
+use falc_common::dnc::telegram::{Mode, Telegram};
+use robot::{Control, Robot};
+use std::io::Write;
+use std::time::Duration;
+use tokio::io::{AsyncBufReadExt, BufReader};
+use tokio::time::Instant;
+
+#[derive(Parser, Debug)]
+#[command(
+    version,
+    about = "Digital twin of the RCM 815 robot controller (DNC over 3964R on a pty)"
+)]
+struct Cli {
+    /// Program durations are divided by this (10 = ten times faster).
+    #[arg(long, default_value_t = 1.0)]
+    time_scale: f64,
+    /// Emulate the wire time of each byte at this baud rate (0 = off).
+    #[arg(long, default_value_t = 0)]
+    wire_baud: u32,
+    /// The mode at start: manual, automatic or aue (automatic-external, DNC).
+    #[arg(long, default_value = "aue")]
+    mode: String,
+}
+
+fn parse_mode(s: &str) -> Option<Mode> {
+    match s {
+        "manual" => Some(Mode::Manual),
+        "automatic" => Some(Mode::Automatic),
+        "aue" => Some(Mode::AutomaticExternal),
+        _ => None,
+    }
+}
+
+fn say(line: &str) {
+    let mut out = std::io::stdout().lock();
+    let _ = writeln!(out, "{line}");
+    let _ = out.flush();
+}
+
+enum Line {
+    Control(Control),
+    Noise(usize),
+    Unplug,
+    Replug,
+}
+
+fn parse_control(line: &str) -> Result<Line, String> {
+    let words: Vec<&str> = line.split_whitespace().collect();
+    Ok(match words.as_slice() {
+        ["estop"] => Line::Control(Control::EStop),
+        ["estop-clear"] => Line::Control(Control::EStopClear),
+        ["person-in"] => Line::Control(Control::PersonIn),
+        ["person-out"] => Line::Control(Control::PersonOut),
+        ["limit-switch"] => Line::Control(Control::LimitSwitch),
+        ["abort-weld"] => Line::Control(Control::AbortWeld),
+        ["alarm", code] => Line::Control(Control::Alarm(
+            code.parse()
+                .map_err(|_| format!("bad alarm code `{code}`"))?,
+        )),
+        ["mode", m] => Line::Control(Control::Mode(
+            parse_mode(m).ok_or(format!("unknown mode `{m}`"))?,
+        )),
+        ["noise", n] => Line::Noise(n.parse().map_err(|_| format!("bad count `{n}`"))?),
+        ["unplug"] => Line::Unplug,
+        ["replug"] => Line::Replug,
+        _ => return Err(format!("unknown control `{line}`")),
+    })
+}
+
+#[tokio::main(flavor = "current_thread")]
+async fn main() -> Result<()> {
+    falc_common::node::init_tracing();
+    let cli = Cli::parse();
+    let mode = parse_mode(&cli.mode)
+        .with_context(|| format!("unknown mode `{}` (manual, automatic, aue)", cli.mode))?;
+    let pty = pty::Pty::open().context("cannot open a pty pair")?;
+    let mut robot = Robot::new(mode, cli.time_scale);
+    let mut link = Link::new(Priority::High, Timing::default());
+    let byte_time = if cli.wire_baud > 0 {
+        Duration::from_secs_f64(10.0 / f64::from(cli.wire_baud))
+    } else {
+        Duration::ZERO
+    };
+    say(&format!("falc-rcm-sim serial port: {}", pty.path));
+    let origin = Instant::now();
+    let now = || Instant::now().duration_since(origin);
+    let mut stdin = BufReader::new(tokio::io::stdin()).lines();
+    let mut stdin_open = true;
+    let mut plugged = true;
+    let mut buf = [0u8; 256];
+    loop {
+        while let Some(ev) = link.poll_event() {
+            match ev {
+                LinkEvent::Received(t) => match Telegram::decode(&t) {
+                    Ok(t) => {
+                        tracing::debug!(?t, "from the host");
+                        for reply in robot.handle(now(), t) {
+                            link.send(now(), reply.encode());
+                        }
+                    }
+                    Err(e) => {
+                        tracing::warn!("undecodable telegram: {e}");
+                        link.send(
+                            now(),
+                            Telegram::Ack {
+                                of: t.first().copied().unwrap_or(b'?'),
+                                error: Some(falc_common::dnc::telegram::AckError::Malformed),
+                            }
+                            .encode(),
+                        );
+                    }
+                },
+                LinkEvent::Failed { telegram, error } => {
+                    tracing::warn!("telegram {} lost: {error}", telegram.escape_ascii())
+                }
+                LinkEvent::Sent(_) | LinkEvent::Refused(_) => {}
+            }
+        }
+        // Then what the link has to send (events above may have queued more).
+        if let Some(bytes) = link.poll_transmit() {
+            if plugged {
+                wire_delay(byte_time * bytes.len() as u32);
+                tracing::debug!(bytes = %bytes.escape_ascii(), "to the line");
+                pty.write_all(&bytes).await.context("pty write")?;
+            }
+        }
+        let deadline = [link.poll_timeout(), robot.poll_timeout()]
+            .into_iter()
+            .flatten()
+            .min()
+            .map_or(Instant::now() + Duration::from_secs(3600), |t| origin + t);
+        tokio::select! {
+            n = pty.read(&mut buf) => {
+                let n = n.context("pty read")?;
+                tracing::debug!(bytes = %buf[..n].escape_ascii(), plugged, "from the line");
+                if plugged && n > 0 {
+                    wire_delay(byte_time * n as u32);
+                    link.handle_bytes(now(), &buf[..n]);
+                }
+            }
+            line = stdin.next_line(), if stdin_open => match line {
+                Ok(Some(line)) if line.trim().is_empty() => {}
+                Ok(Some(line)) => match parse_control(line.trim()) {
+                    Ok(Line::Control(c)) => {
+                        for t in robot.control(now(), c) {
+                            link.send(now(), t.encode());
+                        }
+                        say(&format!("ok {}", line.trim()));
+                    }
+                    Ok(Line::Noise(n)) => {
+                        let noise: Vec<u8> = (0..n).map(|_| rand_byte()).collect();
+                        pty.write_all(&noise).await.context("pty write")?;
+                        say(&format!("ok {}", line.trim()));
+                    }
+                    Ok(Line::Unplug) => {
+                        plugged = false;
+                        say("ok unplug");
+                    }
+                    Ok(Line::Replug) => {
+                        plugged = true;
+                        say("ok replug");
+                    }
+                    Err(e) => say(&format!("error {e}")),
+                },
+                Ok(None) | Err(_) => stdin_open = false,
+            },
+            _ = tokio::time::sleep_until(deadline) => {
+                link.handle_timeout(now());
+                for t in robot.handle_timeout(now()) {
+                    link.send(now(), t.encode());
+                }
+            }
+        }
+    }
+}
+
+/// The time bytes take on the emulated line. A precise thread sleep, not a
+/// tokio timer (1 ms granularity would add up to a millisecond to every
+/// one-byte DLE); the line is busy meanwhile, so blocking is faithful.
+fn wire_delay(d: Duration) {
+    if !d.is_zero() {
+        std::thread::sleep(d);
+    }
+}
+
+fn rand_byte() -> u8 {
+    rand::random()
+}

@@ -1,0 +1,348 @@
+//! The robot controller's behaviour, sans-I/O: modes, the program table,
+//! the running program on an injected clock, and the faults a test or a
+//! person injects. Telegrams in, telegrams out.
+
+use falc_common::dnc::telegram::{AckError, EndResult, Mode, Program, ProgramState, Telegram};
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+/// A fault or event injected through the control interface.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Control {
+    /// Emergency stop pressed: the program stops, alarm 24.
+    EStop,
+    /// Emergency stop released.
+    EStopClear,
+    /// A person enters the work area: motion pauses (alarm 30).
+    PersonIn,
+    /// … and leaves: motion resumes (31).
+    PersonOut,
+    /// A hardware limit switch is hit: the program stops (40).
+    LimitSwitch,
+    /// The weld is aborted: the program ends with a bad product (50).
+    AbortWeld,
+    /// Any alarm code.
+    Alarm(u16),
+    /// Change mode.
+    Mode(Mode),
+}
+
+#[derive(Debug, Clone)]
+struct Run {
+    program: Program,
+    left: Duration,
+    since: Option<Duration>,
+}
+
+/// The robot controller.
+#[derive(Debug, Clone)]
+pub struct Robot {
+    mode: Mode,
+    estop: bool,
+    programs: BTreeMap<u16, Duration>,
+    selected: Option<Program>,
+    run: Option<Run>,
+}
+
+/// The program table: number → duration at time scale 1.
+pub fn program_table() -> BTreeMap<u16, Duration> {
+    BTreeMap::from([
+        (10, Duration::from_secs(30)),  // reference run
+        (64, Duration::from_secs(60)),  // DROOG_PIJP
+        (65, Duration::from_secs(120)), // DROOG_DIK
+        (66, Duration::from_secs(120)), // DROOG_DUN
+    ])
+}
+
+impl Robot {
+    /// A robot in `mode` with the program table scaled by `time_scale`.
+    pub fn new(mode: Mode, time_scale: f64) -> Self {
+        let programs = program_table()
+            .into_iter()
+            .map(|(n, d)| (n, d.div_f64(time_scale.max(1e-6))))
+            .collect();
+        Self {
+            mode,
+            estop: false,
+            programs,
+            selected: None,
+            run: None,
+        }
+    }
+
+    fn status(&self) -> Telegram {
+        let (program, state) = match (&self.run, self.selected) {
+            (Some(r), _) if r.since.is_none() => (Some(r.program), ProgramState::Paused),
+            (Some(r), _) => (Some(r.program), ProgramState::Running),
+            (None, Some(p)) => (Some(p), ProgramState::Selected),
+            (None, None) => (None, ProgramState::Idle),
+        };
+        Telegram::ProgramStatus {
+            program,
+            state,
+            mode: self.mode,
+        }
+    }
+
+    fn refuse(&self, code: u8) -> Option<AckError> {
+        if self.mode != Mode::AutomaticExternal && code != b'Q' {
+            Some(AckError::NotInDncMode)
+        } else if self.estop && matches!(code, b'S' | b'G') {
+            Some(AckError::EmergencyStop)
+        } else {
+            None
+        }
+    }
+
+    /// A telegram from the host; the replies.
+    pub fn handle(&mut self, now: Duration, t: Telegram) -> Vec<Telegram> {
+        let code = t.encode().first().copied().unwrap_or(b'?');
+        let ack = |error| Telegram::Ack { of: code, error };
+        if let Some(e) = self.refuse(code) {
+            return vec![ack(Some(e))];
+        }
+        match t {
+            Telegram::InitiateDnc | Telegram::CloseDnc | Telegram::ConfirmAlarm(_) => {
+                vec![ack(None)]
+            }
+            Telegram::StatusRequest => vec![self.status()],
+            Telegram::SelectProgram(p) => {
+                if self.run.is_some() {
+                    vec![ack(Some(AckError::ProgramRunning))]
+                } else if !self.programs.contains_key(&p.number()) {
+                    vec![ack(Some(AckError::UnknownProgram))]
+                } else {
+                    self.selected = Some(p);
+                    vec![ack(None)]
+                }
+            }
+            Telegram::StartProgram => match (self.selected, &self.run) {
+                (_, Some(_)) => vec![ack(Some(AckError::ProgramRunning))],
+                (None, None) => vec![ack(Some(AckError::NoProgramSelected))],
+                (Some(p), None) => {
+                    let left = self.programs.get(&p.number()).copied().unwrap_or_default();
+                    self.run = Some(Run {
+                        program: p,
+                        left,
+                        since: Some(now),
+                    });
+                    vec![ack(None), self.status()]
+                }
+            },
+            Telegram::StopProgram => match self.run.take() {
+                Some(_) => vec![
+                    ack(None),
+                    Telegram::ProgramStatus {
+                        program: self.selected,
+                        state: ProgramState::Stopped,
+                        mode: self.mode,
+                    },
+                ],
+                None => vec![ack(Some(AckError::NotRunning))],
+            },
+            // Telegrams only the RCM sends: not understood from the host.
+            Telegram::Ack { .. }
+            | Telegram::ProgramStatus { .. }
+            | Telegram::ProgramEnd { .. }
+            | Telegram::Alarm(_) => {
+                vec![ack(Some(AckError::Malformed))]
+            }
+        }
+    }
+
+    /// When the running program ends (None when paused or idle).
+    pub fn poll_timeout(&self) -> Option<Duration> {
+        self.run.as_ref().and_then(|r| r.since.map(|s| s + r.left))
+    }
+
+    /// The clock reached `now`: a program that is due ends.
+    pub fn handle_timeout(&mut self, now: Duration) -> Vec<Telegram> {
+        if self.poll_timeout().is_some_and(|t| t <= now) {
+            if let Some(r) = self.run.take() {
+                return vec![Telegram::ProgramEnd {
+                    program: r.program,
+                    result: EndResult::Complete,
+                }];
+            }
+        }
+        Vec::new()
+    }
+
+    /// An injected fault or event; the telegrams it causes.
+    pub fn control(&mut self, now: Duration, c: Control) -> Vec<Telegram> {
+        match c {
+            Control::EStop => {
+                self.estop = true;
+                self.run = None;
+                vec![Telegram::Alarm(24)]
+            }
+            Control::EStopClear => {
+                self.estop = false;
+                Vec::new()
+            }
+            Control::PersonIn => {
+                if let Some(r) = &mut self.run {
+                    if let Some(s) = r.since.take() {
+                        r.left = r.left.saturating_sub(now.saturating_sub(s));
+                    }
+                }
+                vec![Telegram::Alarm(30)]
+            }
+            Control::PersonOut => {
+                if let Some(r) = &mut self.run {
+                    r.since.get_or_insert(now);
+                }
+                vec![Telegram::Alarm(31)]
+            }
+            Control::LimitSwitch => {
+                self.run = None;
+                vec![Telegram::Alarm(40)]
+            }
+            Control::AbortWeld => match self.run.take() {
+                Some(r) => vec![
+                    Telegram::Alarm(50),
+                    Telegram::ProgramEnd {
+                        program: r.program,
+                        result: EndResult::WeldAborted,
+                    },
+                ],
+                None => vec![Telegram::Alarm(50)],
+            },
+            Control::Alarm(code) => vec![Telegram::Alarm(code)],
+            Control::Mode(m) => {
+                self.mode = m;
+                Vec::new()
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn secs(n: u64) -> Duration {
+        Duration::from_secs(n)
+    }
+
+    fn p(n: u16) -> Program {
+        Program::new(n).expect("valid")
+    }
+
+    #[test]
+    fn select_start_end_scaled() {
+        let mut r = Robot::new(Mode::AutomaticExternal, 10.0);
+        assert_eq!(
+            r.handle(secs(0), Telegram::SelectProgram(p(65))),
+            vec![Telegram::Ack {
+                of: b'S',
+                error: None
+            }]
+        );
+        let out = r.handle(secs(1), Telegram::StartProgram);
+        assert_eq!(
+            out[0],
+            Telegram::Ack {
+                of: b'G',
+                error: None
+            }
+        );
+        assert_eq!(r.poll_timeout(), Some(secs(13)), "120 s at time scale 10");
+        assert_eq!(r.handle_timeout(secs(12)), vec![]);
+        assert_eq!(
+            r.handle_timeout(secs(13)),
+            vec![Telegram::ProgramEnd {
+                program: p(65),
+                result: EndResult::Complete
+            }]
+        );
+    }
+
+    #[test]
+    fn remote_commands_need_automatic_external_mode() {
+        let mut r = Robot::new(Mode::Manual, 1.0);
+        assert_eq!(
+            r.handle(secs(0), Telegram::SelectProgram(p(65))),
+            vec![Telegram::Ack {
+                of: b'S',
+                error: Some(AckError::NotInDncMode)
+            }]
+        );
+        assert!(matches!(
+            r.handle(secs(0), Telegram::StatusRequest).as_slice(),
+            [Telegram::ProgramStatus {
+                mode: Mode::Manual,
+                ..
+            }]
+        ));
+        assert_eq!(
+            r.handle(secs(0), Telegram::SelectProgram(p(99))),
+            vec![Telegram::Ack {
+                of: b'S',
+                error: Some(AckError::NotInDncMode)
+            }]
+        );
+        r.control(secs(0), Control::Mode(Mode::AutomaticExternal));
+        assert_eq!(
+            r.handle(secs(0), Telegram::SelectProgram(p(99))),
+            vec![Telegram::Ack {
+                of: b'S',
+                error: Some(AckError::UnknownProgram)
+            }]
+        );
+        assert_eq!(
+            r.handle(secs(0), Telegram::StartProgram),
+            vec![Telegram::Ack {
+                of: b'G',
+                error: Some(AckError::NoProgramSelected)
+            }]
+        );
+    }
+
+    #[test]
+    fn pause_freezes_the_program_and_estop_stops_it() {
+        let mut r = Robot::new(Mode::AutomaticExternal, 1.0);
+        r.handle(secs(0), Telegram::SelectProgram(p(64)));
+        r.handle(secs(0), Telegram::StartProgram);
+        assert_eq!(
+            r.control(secs(10), Control::PersonIn),
+            vec![Telegram::Alarm(30)]
+        );
+        assert_eq!(r.poll_timeout(), None);
+        r.control(secs(40), Control::PersonOut);
+        assert_eq!(
+            r.poll_timeout(),
+            Some(secs(90)),
+            "50 s left after 30 s paused"
+        );
+        assert_eq!(
+            r.control(secs(50), Control::EStop),
+            vec![Telegram::Alarm(24)]
+        );
+        assert_eq!(r.poll_timeout(), None);
+        assert_eq!(
+            r.handle(secs(51), Telegram::StartProgram),
+            vec![Telegram::Ack {
+                of: b'G',
+                error: Some(AckError::EmergencyStop)
+            }]
+        );
+    }
+
+    #[test]
+    fn aborted_weld_ends_with_a_bad_product() {
+        let mut r = Robot::new(Mode::AutomaticExternal, 1.0);
+        r.handle(secs(0), Telegram::SelectProgram(p(66)));
+        r.handle(secs(0), Telegram::StartProgram);
+        assert_eq!(
+            r.control(secs(5), Control::AbortWeld),
+            vec![
+                Telegram::Alarm(50),
+                Telegram::ProgramEnd {
+                    program: p(66),
+                    result: EndResult::WeldAborted
+                }
+            ]
+        );
+    }
+}
