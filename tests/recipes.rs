@@ -148,6 +148,7 @@ fn explore(program: &Arc<Program>) -> (BTreeSet<(StateNo, Option<Criterion>)>, B
             outcomes.insert(match o {
                 Outcome::Done => "done".to_string(),
                 Outcome::Alarm(_) => "alarm".to_string(),
+                Outcome::Failed(_) => "failed".to_string(),
             });
             continue;
         }

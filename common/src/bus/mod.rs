@@ -330,7 +330,9 @@ impl Bus {
     /// Publishes an unconfirmed service on this node's `status` or `report` key.
     pub async fn publish(&self, message: &Unconfirmed) {
         let key = match message {
-            Unconfirmed::Status { .. } => self.keys.status(&self.me.station),
+            Unconfirmed::Status { .. } | Unconfirmed::Job { .. } => {
+                self.keys.status(&self.me.station)
+            }
             Unconfirmed::Report { .. } => self.keys.report(&self.me.station),
         };
         if let Err(e) = self.session.put(&key, envelope::encode(message)).await {

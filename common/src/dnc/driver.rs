@@ -74,6 +74,7 @@ async fn run<P>(
     let mut buf = [0u8; 256];
     loop {
         if let Some(bytes) = link.poll_transmit() {
+            tracing::trace!(bytes = %bytes.escape_ascii(), "to the line");
             if let Err(e) = port.write_all(&bytes).await {
                 tracing::warn!("DNC line write failed: {e}");
                 return;
@@ -98,7 +99,10 @@ async fn run<P>(
                     tracing::warn!("DNC line closed");
                     return;
                 }
-                Ok(n) => link.handle_bytes(now(), &buf[..n]),
+                Ok(n) => {
+                    tracing::trace!(bytes = %buf[..n].escape_ascii(), "from the line");
+                    link.handle_bytes(now(), &buf[..n])
+                }
             },
             _ = tokio::time::sleep_until(sleep) => link.handle_timeout(now()),
         }

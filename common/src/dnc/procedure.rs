@@ -9,7 +9,9 @@
 //!   included); then waits for DLE within the acknowledgement delay;
 //! - NAK, a wrong character or no answer: the connection (STX) is tried up
 //!   to 6 times, the transmission (block) up to 6 times, then the telegram
-//!   fails;
+//!   fails; after NAK or a wrong character the sender first lets the line
+//!   settle for one character delay (so a burst of noise costs one
+//!   attempt, not all six at once);
 //! - the receiver answers STX with DLE, takes characters with at most the
 //!   character delay (220 ms) between them, checks the BCC and answers DLE,
 //!   or NAK on a bad BCC, a timeout or an overflow;
@@ -115,6 +117,10 @@ enum State {
     AwaitFinalAck {
         deadline: Duration,
     },
+    /// After NAK or a wrong character: wait, then STX again.
+    Backoff {
+        until: Duration,
+    },
     /// Receiving a block.
     Receiving {
         buf: Vec<u8>,
@@ -204,6 +210,7 @@ impl Link {
             State::Idle => None,
             State::AwaitStartAck { deadline }
             | State::AwaitFinalAck { deadline }
+            | State::Backoff { until: deadline }
             | State::Receiving { deadline, .. }
             | State::AwaitBcc { deadline, .. } => Some(*deadline),
         }
@@ -224,11 +231,22 @@ impl Link {
         };
     }
 
-    /// A connection attempt failed: try again or give up.
+    /// A connection attempt failed: try again or give up. After a NAK or a
+    /// wrong character (`settle`) the next STX waits one character delay.
     fn retry_connect(&mut self, now: Duration, why: &str) {
+        self.retry_connect_after(now, why, false)
+    }
+
+    fn retry_connect_after(&mut self, now: Duration, why: &str, settle: bool) {
         if self.connect_tries < self.timing.connect_attempts {
             self.connect_tries += 1;
-            self.send_stx(now);
+            if settle {
+                self.state = State::Backoff {
+                    until: now + self.timing.char_delay,
+                };
+            } else {
+                self.send_stx(now);
+            }
         } else {
             let attempts = self.connect_tries;
             self.fail(
@@ -243,10 +261,20 @@ impl Link {
 
     /// A transmission attempt failed: the whole telegram again, from STX.
     fn retry_transmit(&mut self, now: Duration, why: &str) {
+        self.retry_transmit_after(now, why, false)
+    }
+
+    fn retry_transmit_after(&mut self, now: Duration, why: &str, settle: bool) {
         if self.transmit_tries < self.timing.transmit_attempts {
             self.transmit_tries += 1;
             self.connect_tries = 1;
-            self.send_stx(now);
+            if settle {
+                self.state = State::Backoff {
+                    until: now + self.timing.char_delay,
+                };
+            } else {
+                self.send_stx(now);
+            }
         } else {
             let attempts = self.transmit_tries;
             self.fail(
@@ -295,6 +323,7 @@ impl Link {
             State::AwaitFinalAck { .. } => {
                 self.retry_transmit(now, "no answer within the acknowledgement delay")
             }
+            State::Backoff { .. } => self.send_stx(now),
             State::Receiving { .. } | State::AwaitBcc { .. } => {
                 self.refuse(now, "character delay exceeded inside a block".into())
             }
@@ -332,8 +361,12 @@ impl Link {
                     self.begin_receive(now);
                 }
                 STX => self.state = State::AwaitStartAck { deadline },
-                NAK => self.retry_connect(now, "NAK to STX"),
-                other => self.retry_connect(now, &format!("0x{other:02x} instead of DLE to STX")),
+                NAK => self.retry_connect_after(now, "NAK to STX", true),
+                other => self.retry_connect_after(
+                    now,
+                    &format!("0x{other:02x} instead of DLE to STX"),
+                    true,
+                ),
             },
             State::AwaitFinalAck { .. } => match b {
                 DLE => {
@@ -343,11 +376,21 @@ impl Link {
                     }
                     self.start_next(now);
                 }
-                NAK => self.retry_transmit(now, "NAK to the block"),
-                other => {
-                    self.retry_transmit(now, &format!("0x{other:02x} instead of DLE to the block"))
-                }
+                NAK => self.retry_transmit_after(now, "NAK to the block", true),
+                other => self.retry_transmit_after(
+                    now,
+                    &format!("0x{other:02x} instead of DLE to the block"),
+                    true,
+                ),
             },
+            State::Backoff { until } => {
+                if b == STX {
+                    // The partner wants to send: take its telegram first.
+                    self.begin_receive(now);
+                } else {
+                    self.state = State::Backoff { until };
+                }
+            }
             State::Receiving {
                 mut buf, escaped, ..
             } => {
@@ -538,19 +581,33 @@ mod tests {
     }
 
     #[test]
-    fn nak_to_stx_retries_the_connection() {
+    fn nak_to_stx_retries_the_connection_after_the_line_settles() {
         let mut l = low();
         l.send(ms(0), b"G".to_vec());
         tx(&mut l);
         l.handle_bytes(ms(1), &[NAK]);
-        assert_eq!(tx(&mut l), vec![STX], "second attempt at once");
-        l.handle_bytes(ms(2), &[0x7f]);
+        assert_eq!(tx(&mut l), Vec::<u8>::new(), "the line settles first");
+        l.handle_bytes(ms(50), &[0x7f, 0x55]);
+        assert_eq!(
+            l.poll_timeout(),
+            Some(ms(221)),
+            "noise while settling is ignored"
+        );
+        l.handle_timeout(ms(221));
         assert_eq!(
             tx(&mut l),
             vec![STX],
-            "a wrong character counts as a failed attempt"
+            "second attempt after one character delay"
         );
-        l.handle_bytes(ms(3), &[DLE]);
+        l.handle_bytes(ms(222), &[0x7f, 0x7f, 0x7f]);
+        assert_eq!(
+            tx(&mut l),
+            Vec::<u8>::new(),
+            "a burst of noise costs one attempt"
+        );
+        l.handle_timeout(ms(442));
+        assert_eq!(tx(&mut l), vec![STX], "third attempt");
+        l.handle_bytes(ms(443), &[DLE]);
         assert_eq!(tx(&mut l), frame(b"G"));
     }
 
@@ -568,7 +625,8 @@ mod tests {
                 // Lost acknowledgement on odd rounds, NAK on even ones.
                 if blocks % 2 == 0 {
                     l.handle_bytes(ms(i), &[NAK]);
-                } else if let Some(t) = l.poll_timeout() {
+                }
+                if let Some(t) = l.poll_timeout() {
                     l.handle_timeout(t);
                 }
             } else {

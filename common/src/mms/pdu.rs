@@ -348,6 +348,26 @@ pub enum Severity {
     Alarm,
 }
 
+/// What happened to a running job (a started program invocation), as its
+/// commander's `wait` needs it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum JobEvent {
+    /// Paused (a person in the work area): time limits freeze.
+    Paused,
+    /// Going on after a pause.
+    Resumed,
+    /// Ended normally.
+    Done,
+    /// Ended, the product is bad (weld aborted).
+    BadProduct,
+    /// Failed without danger.
+    FailedSafe,
+    /// Failed with danger (outside its own work area).
+    FailedDanger,
+    /// Ended in alarm, with the cause.
+    Alarm(String),
+}
+
 /// An unconfirmed service, published upward (`…/<st>/status`, `…/<st>/report`).
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Unconfirmed {
@@ -357,6 +377,15 @@ pub enum Unconfirmed {
         station: StationName,
         /// Its status.
         status: VmdStatus,
+    },
+    /// A job event (on `…/<st>/status`): the commander's `wait` criteria.
+    Job {
+        /// Who reports.
+        station: StationName,
+        /// The program invocation.
+        program: ObjectName,
+        /// What happened.
+        event: JobEvent,
     },
     /// An information report (message, alarm).
     Report {

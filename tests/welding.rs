@@ -1,0 +1,212 @@
+//! The welding workstation end to end: a real router, `falc-rcm-sim` on a
+//! pty, `falc-welding`, and this test process as its commander (the cell):
+//! it associates, downloads a welding recipe as a domain, creates the
+//! program invocation, starts it and reads the job events.
+
+mod support;
+
+use falc_common::bus::{Bus, DEFAULT_DEADLINE};
+use falc_common::ids::ObjectName;
+use falc_common::mms::pdu::{JobEvent, Request, Response, Unconfirmed};
+use std::process::Command;
+use std::time::Duration;
+use support::{st, Proc, TestCell};
+use tokio::sync::mpsc::UnboundedReceiver;
+
+struct Rig {
+    _cell: TestCell,
+    rcm: Proc,
+    path: String,
+    _welding: Proc,
+    bus: Bus,
+    events: UnboundedReceiver<Unconfirmed>,
+    _subs: Vec<falc_common::bus::Declaration>,
+}
+
+async fn rig(time_scale: &str) -> Rig {
+    let cell = TestCell::start();
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-rcm-sim"));
+    cmd.args(["--time-scale", time_scale]);
+    let mut rcm = Proc::spawn("falc-rcm-sim", cmd);
+    let line = rcm.expect_line("serial port: ", Duration::from_secs(10));
+    let path = line.rsplit(' ').next().unwrap_or_default().to_string();
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-welding"));
+    cmd.args(["--station", "welding", "--device", &path])
+        .arg("--topology")
+        .arg(&cell.topology_path)
+        .arg("--credentials-dir")
+        .arg(cell.credentials_dir());
+    let mut welding = Proc::spawn("falc-welding", cmd);
+    welding.expect_line("EVENT ready", Duration::from_secs(20));
+    let bus = cell.bus("cell").await.expect("cell session");
+    let r = bus
+        .request(
+            &st("welding"),
+            &Request::Initiate {
+                calling: bus.me().clone(),
+            },
+            DEFAULT_DEADLINE,
+        )
+        .await;
+    assert!(matches!(r, Ok(Response::Initiate { .. })), "{r:?}");
+    let (tx, events) = tokio::sync::mpsc::unbounded_channel();
+    let subs = bus.subscribe(&st("welding"), tx).await.expect("subscribe");
+    Rig {
+        _cell: cell,
+        rcm,
+        path,
+        _welding: welding,
+        bus,
+        events,
+        _subs: subs,
+    }
+}
+
+impl Rig {
+    async fn call(&self, r: Request) -> Result<Response, falc_common::mms::error::ServiceError> {
+        self.bus.request(&st("welding"), &r, DEFAULT_DEADLINE).await
+    }
+
+    /// Downloads `text` as domain `name` and creates its program invocation.
+    async fn load(&self, name: &str, text: &str) {
+        let name = ObjectName::new(name).expect("valid");
+        let steps = [
+            Request::InitiateDownloadSequence {
+                domain: name.clone(),
+            },
+            Request::DownloadSegment {
+                domain: name.clone(),
+                data: text.as_bytes().to_vec(),
+                more_follows: false,
+            },
+            Request::TerminateDownloadSequence {
+                domain: name.clone(),
+                discard: None,
+            },
+            Request::CreateProgramInvocation {
+                name: name.clone(),
+                domains: vec![name.clone()],
+                reusable: true,
+            },
+        ];
+        for s in steps {
+            let r = self.call(s.clone()).await;
+            assert_eq!(r, Ok(Response::Done), "{s:?}");
+        }
+    }
+
+    async fn start(&self, name: &str) {
+        let r = self
+            .call(Request::Start {
+                name: ObjectName::new(name).expect("valid"),
+                argument: String::new(),
+            })
+            .await;
+        assert!(
+            matches!(r, Ok(Response::ProgramInvocationState(_))),
+            "{r:?}"
+        );
+    }
+
+    /// The next job event.
+    async fn job(&mut self, within: Duration) -> JobEvent {
+        let end = tokio::time::Instant::now() + within;
+        loop {
+            match tokio::time::timeout_at(end, self.events.recv()).await {
+                Ok(Some(Unconfirmed::Job { event, .. })) => return event,
+                Ok(Some(_)) => continue,
+                other => panic!("no job event within {within:?}: {other:?}"),
+            }
+        }
+    }
+}
+
+fn droog_dik() -> String {
+    std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/recipes/welding/droog_dik.rcp"
+    ))
+    .expect("shipped recipe")
+}
+
+/// A recipe with a short limit, to see it frozen while a person is in the area.
+const SHORT: &str = "#SHORT\n-1 | start rcm 65 | | gestart | 2\n-1 | start rcm 65 | | tijdlimiet | 3\n-2 | wait rcm 3 | | klaar | 0\n-2 | wait rcm 3 | | tijdlimiet | 3\n-3 | | alarm | | 0\n";
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn droog_dik_runs_to_done_despite_line_noise() {
+    let mut rig = rig("100").await;
+    rig.load("droog_dik", &droog_dik()).await;
+    rig.start("droog_dik").await;
+    // Noise while the program runs (the line idle between telegrams).
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    for _ in 0..3 {
+        rig.rcm.control("noise 16");
+    }
+    assert_eq!(rig.job(Duration::from_secs(20)).await, JobEvent::Done);
+    // Reusable: it runs again.
+    rig.start("droog_dik").await;
+    assert_eq!(rig.job(Duration::from_secs(20)).await, JobEvent::Done);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_person_in_the_area_pauses_and_the_limit_freezes() {
+    // Program 65 takes 1.2 s here; the recipe allows 3 s; the pause lasts 4 s.
+    let mut rig = rig("100").await;
+    rig.load("short", SHORT).await;
+    rig.start("short").await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    rig.rcm.control("person-in");
+    tokio::time::sleep(Duration::from_secs(4)).await;
+    rig.rcm.control("person-out");
+    assert_eq!(
+        rig.job(Duration::from_secs(10)).await,
+        JobEvent::Done,
+        "the 3 s limit stood still"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn emergency_stop_limit_switch_and_aborted_weld() {
+    let mut rig = rig("10").await;
+    rig.load("droog_dik", &droog_dik()).await;
+    rig.start("droog_dik").await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    rig.rcm.control("estop");
+    match rig.job(Duration::from_secs(10)).await {
+        JobEvent::Alarm(text) => assert!(text.contains("emergency stop"), "{text}"),
+        other => panic!("{other:?}"),
+    }
+    rig.rcm.control("estop-clear");
+    rig.start("droog_dik").await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    rig.rcm.control("limit-switch");
+    assert_eq!(
+        rig.job(Duration::from_secs(10)).await,
+        JobEvent::FailedDanger
+    );
+    rig.start("droog_dik").await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    rig.rcm.control("abort-weld");
+    assert_eq!(rig.job(Duration::from_secs(10)).await, JobEvent::BadProduct);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_unplugged_line_ends_in_alarm_and_the_station_recovers() {
+    let mut rig = rig("100").await;
+    rig.load("droog_dik", &droog_dik()).await;
+    rig.rcm.control("unplug");
+    rig.start("droog_dik").await;
+    // 6 connection attempts × 2 s acknowledgement delay.
+    match rig.job(Duration::from_secs(30)).await {
+        JobEvent::Alarm(text) => {
+            assert!(
+                text.contains(&format!("no connection with RCM on {}", rig.path)),
+                "{text}"
+            )
+        }
+        other => panic!("{other:?}"),
+    }
+    rig.rcm.control("replug");
+    rig.start("droog_dik").await;
+    assert_eq!(rig.job(Duration::from_secs(20)).await, JobEvent::Done);
+}
