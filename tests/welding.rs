@@ -210,3 +210,27 @@ async fn an_unplugged_line_ends_in_alarm_and_the_station_recovers() {
     rig.start("droog_dik").await;
     assert_eq!(rig.job(Duration::from_secs(20)).await, JobEvent::Done);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stop_and_kill_from_the_commander_reach_the_robot() {
+    use falc_common::mms::program::PiState;
+    let mut rig = rig("1").await; // 120 s programs: they are still running when stopped
+    rig.load("droog_dik", &droog_dik()).await;
+    rig.start("droog_dik").await;
+    rig.rcm.take_line("rx G", Duration::from_secs(10));
+    let name = ObjectName::new("droog_dik").expect("valid");
+    let r = rig.call(Request::Stop { name: name.clone() }).await;
+    assert_eq!(r, Ok(Response::ProgramInvocationState(PiState::Stopped)));
+    rig.rcm.take_line("rx H", Duration::from_secs(10));
+    // Reset, start again, and kill: the robot is stopped again.
+    assert_eq!(
+        rig.call(Request::Reset { name: name.clone() }).await,
+        Ok(Response::ProgramInvocationState(PiState::Idle))
+    );
+    rig.start("droog_dik").await;
+    rig.rcm.take_line("rx G", Duration::from_secs(10));
+    let r = rig.call(Request::Kill { name: name.clone() }).await;
+    assert_eq!(r, Ok(Response::ProgramInvocationState(PiState::Unrunnable)));
+    // A second, new `rx H`: the kill reached the robot too.
+    rig.rcm.take_line("rx H", Duration::from_secs(10));
+}

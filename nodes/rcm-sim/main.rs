@@ -4,6 +4,9 @@
 //! and program table, scaled by `--time-scale`. Optional wire timing
 //! (`--wire-baud`) makes every byte take as long as on a real line.
 //!
+//! On stdout: the port line, then `rx <telegram>` for each telegram
+//! received from the host (`rx S065`, `rx G`, `rx H`).
+//!
 //! Control lines on stdin (answered `ok …` or `error …` on stdout):
 //! `estop`, `estop-clear`, `person-in`, `person-out`, `limit-switch`,
 //! `abort-weld`, `alarm <code>`, `mode manual|automatic|aue`, `noise <n>`
@@ -110,7 +113,8 @@ async fn main() -> Result<()> {
             match ev {
                 LinkEvent::Received(t) => match Telegram::decode(&t) {
                     Ok(t) => {
-                        tracing::debug!(?t, "from the host");
+                        // One line per telegram received, for tests and people.
+                        say(&format!("rx {}", String::from_utf8_lossy(&t.encode())));
                         for reply in robot.handle(now(), t) {
                             link.send(now(), reply.encode());
                         }

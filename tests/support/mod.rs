@@ -113,6 +113,16 @@ impl Proc {
         }
     }
 
+    /// Like `expect_line`, but removes the line it found, so that the next
+    /// call needs a new one (counting repeated lines).
+    pub fn take_line(&mut self, needle: &str, timeout: Duration) -> String {
+        let line = self.expect_line(needle, timeout);
+        if let Some(i) = self.seen.iter().position(|l| *l == line) {
+            self.seen.remove(i);
+        }
+        line
+    }
+
     /// Writes a line to the process's stdin (a twin's control interface)
     /// and waits for its `ok` answer.
     pub fn control(&mut self, line: &str) {
