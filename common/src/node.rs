@@ -98,3 +98,12 @@ pub fn init_tracing() {
         .with_writer(std::io::stderr)
         .try_init();
 }
+
+/// Prints one line on stdout and flushes it: the events a node announces
+/// for tests, launchers and people (`EVENT ready …`, a twin's port).
+pub fn say(line: &str) {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    let _ = writeln!(out, "{line}");
+    let _ = out.flush();
+}

@@ -14,7 +14,6 @@ use falc_common::mms::pdu::{Request, Response, Severity, Unconfirmed};
 use falc_common::mms::program::{PiCompletion, PiRequest};
 use falc_common::mms::vmd::{Identity, RecipeState, Vmd, VmdStatus};
 use falc_common::node::{init_tracing, NodeArgs};
-use std::io::Write;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -30,9 +29,7 @@ struct Cli {
 }
 
 fn event(line: std::fmt::Arguments<'_>) {
-    let mut out = std::io::stdout().lock();
-    let _ = writeln!(out, "EVENT {line}");
-    let _ = out.flush();
+    falc_common::node::say(&format!("EVENT {line}"));
 }
 
 #[tokio::main]

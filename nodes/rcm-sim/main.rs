@@ -19,8 +19,8 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use falc_common::dnc::procedure::{Link, LinkEvent, Priority, Timing};
 use falc_common::dnc::telegram::{Mode, Telegram};
+use falc_common::node::say;
 use robot::{Control, Robot};
-use std::io::Write;
 use std::time::Duration;
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::time::Instant;
@@ -49,12 +49,6 @@ fn parse_mode(s: &str) -> Option<Mode> {
         "aue" => Some(Mode::AutomaticExternal),
         _ => None,
     }
-}
-
-fn say(line: &str) {
-    let mut out = std::io::stdout().lock();
-    let _ = writeln!(out, "{line}");
-    let _ = out.flush();
 }
 
 enum Line {

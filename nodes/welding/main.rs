@@ -20,13 +20,12 @@ use falc_common::mms::error::{DefinitionError, ErrorClass, ServiceError};
 use falc_common::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
 use falc_common::mms::program::{PiCompletion, PiRequest};
 use falc_common::mms::vmd::{Identity, RecipeState, Vmd, VmdStatus};
-use falc_common::node::{init_tracing, NodeArgs};
+use falc_common::node::{init_tracing, say, NodeArgs};
 use falc_common::recipe::check::{check, Job};
 use falc_common::recipe::commands::RecipeKind;
 use falc_common::recipe::engine::{Action, Engine, JobEnd, Outcome};
 use falc_common::recipe::syntax::parse;
 use host::{Host, Out};
-use std::io::Write;
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::time::Instant;
@@ -69,12 +68,6 @@ struct Node {
     origin: Instant,
     /// A link failure not yet reported.
     link_alarm: Option<String>,
-}
-
-fn say(line: &str) {
-    let mut out = std::io::stdout().lock();
-    let _ = writeln!(out, "{line}");
-    let _ = out.flush();
 }
 
 impl Node {

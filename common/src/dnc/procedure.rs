@@ -151,6 +151,15 @@ pub fn frame(data: &[u8]) -> Vec<u8> {
     out
 }
 
+/// Which kind of attempt failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Attempt {
+    /// STX → DLE.
+    Connect,
+    /// Block → DLE.
+    Transmit,
+}
+
 /// One end of a 3964R link.
 #[derive(Debug, Clone)]
 pub struct Link {
@@ -231,59 +240,53 @@ impl Link {
         };
     }
 
-    /// A connection attempt failed: try again or give up. After a NAK or a
-    /// wrong character (`settle`) the next STX waits one character delay.
+    /// A connection attempt (STX → DLE) failed: try again or give up.
     fn retry_connect(&mut self, now: Duration, why: &str) {
-        self.retry_connect_after(now, why, false)
+        self.retry(now, why, Attempt::Connect, false)
     }
 
-    fn retry_connect_after(&mut self, now: Duration, why: &str, settle: bool) {
-        if self.connect_tries < self.timing.connect_attempts {
-            self.connect_tries += 1;
-            if settle {
-                self.state = State::Backoff {
-                    until: now + self.timing.char_delay,
-                };
-            } else {
-                self.send_stx(now);
-            }
-        } else {
-            let attempts = self.connect_tries;
-            self.fail(
-                now,
-                SendError::NoConnection {
-                    attempts,
-                    last: why.to_string(),
-                },
-            );
-        }
-    }
-
-    /// A transmission attempt failed: the whole telegram again, from STX.
+    /// A transmission attempt (block → DLE) failed: the whole telegram
+    /// again, from STX, or give up.
     fn retry_transmit(&mut self, now: Duration, why: &str) {
-        self.retry_transmit_after(now, why, false)
+        self.retry(now, why, Attempt::Transmit, false)
     }
 
-    fn retry_transmit_after(&mut self, now: Duration, why: &str, settle: bool) {
-        if self.transmit_tries < self.timing.transmit_attempts {
-            self.transmit_tries += 1;
-            self.connect_tries = 1;
-            if settle {
-                self.state = State::Backoff {
-                    until: now + self.timing.char_delay,
-                };
-            } else {
-                self.send_stx(now);
-            }
-        } else {
-            let attempts = self.transmit_tries;
-            self.fail(
-                now,
-                SendError::NotAcknowledged {
-                    attempts,
-                    last: why.to_string(),
+    /// Counts a failed attempt of `kind`; the next STX goes at once, or
+    /// after one character delay when the line must settle (`settle`:
+    /// after NAK or a wrong character); past the limit the telegram fails.
+    fn retry(&mut self, now: Duration, why: &str, kind: Attempt, settle: bool) {
+        let (tries, limit) = match kind {
+            Attempt::Connect => (self.connect_tries, self.timing.connect_attempts),
+            Attempt::Transmit => (self.transmit_tries, self.timing.transmit_attempts),
+        };
+        if tries >= limit {
+            let last = why.to_string();
+            let error = match kind {
+                Attempt::Connect => SendError::NoConnection {
+                    attempts: tries,
+                    last,
                 },
-            );
+                Attempt::Transmit => SendError::NotAcknowledged {
+                    attempts: tries,
+                    last,
+                },
+            };
+            self.fail(now, error);
+            return;
+        }
+        match kind {
+            Attempt::Connect => self.connect_tries += 1,
+            Attempt::Transmit => {
+                self.transmit_tries += 1;
+                self.connect_tries = 1;
+            }
+        }
+        if settle {
+            self.state = State::Backoff {
+                until: now + self.timing.char_delay,
+            };
+        } else {
+            self.send_stx(now);
         }
     }
 
@@ -361,10 +364,11 @@ impl Link {
                     self.begin_receive(now);
                 }
                 STX => self.state = State::AwaitStartAck { deadline },
-                NAK => self.retry_connect_after(now, "NAK to STX", true),
-                other => self.retry_connect_after(
+                NAK => self.retry(now, "NAK to STX", Attempt::Connect, true),
+                other => self.retry(
                     now,
                     &format!("0x{other:02x} instead of DLE to STX"),
+                    Attempt::Connect,
                     true,
                 ),
             },
@@ -376,10 +380,11 @@ impl Link {
                     }
                     self.start_next(now);
                 }
-                NAK => self.retry_transmit_after(now, "NAK to the block", true),
-                other => self.retry_transmit_after(
+                NAK => self.retry(now, "NAK to the block", Attempt::Transmit, true),
+                other => self.retry(
                     now,
                     &format!("0x{other:02x} instead of DLE to the block"),
+                    Attempt::Transmit,
                     true,
                 ),
             },
