@@ -1,6 +1,6 @@
 //! `falc-rcm-sim`: the digital twin of the RCM 815 robot controller. It
 //! speaks DNC over 3964R (with the RCM's priority) on a pty pair (default;
-//! it prints the port to connect to) and keeps the real controller's modes
+//! it prints the port to connect to) or a given serial device (`--device`) and keeps the real controller's modes
 //! and program table, scaled by `--time-scale`. Optional wire timing
 //! (`--wire-baud`) makes every byte take as long as on a real line.
 //!
@@ -40,6 +40,39 @@ struct Cli {
     /// The mode at start: manual, automatic or aue (automatic-external, DNC).
     #[arg(long, default_value = "aue")]
     mode: String,
+    /// Use this serial device instead of a new pty pair.
+    #[arg(long)]
+    device: Option<String>,
+    /// Baud rate of `--device`.
+    #[arg(long, default_value_t = 9600)]
+    baud: u32,
+    /// Parity of `--device`: none, even, odd.
+    #[arg(long, default_value = "none")]
+    parity: String,
+}
+
+/// The twin's end of the line: a pty it made, or a serial device.
+enum Port {
+    Pty(pty::Pty),
+    Serial(tokio_serial::SerialStream),
+}
+
+impl Port {
+    async fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        use tokio::io::AsyncReadExt;
+        match self {
+            Port::Pty(p) => p.read(buf).await,
+            Port::Serial(s) => s.read(buf).await,
+        }
+    }
+
+    async fn write_all(&mut self, data: &[u8]) -> std::io::Result<()> {
+        use tokio::io::AsyncWriteExt;
+        match self {
+            Port::Pty(p) => p.write_all(data).await,
+            Port::Serial(s) => s.write_all(data).await,
+        }
+    }
 }
 
 fn parse_mode(s: &str) -> Option<Mode> {
@@ -87,7 +120,23 @@ async fn main() -> Result<()> {
     let cli = Cli::parse();
     let mode = parse_mode(&cli.mode)
         .with_context(|| format!("unknown mode `{}` (manual, automatic, aue)", cli.mode))?;
-    let pty = pty::Pty::open().context("cannot open a pty pair")?;
+    let (mut port, path) = match &cli.device {
+        Some(device) => {
+            let line = falc_common::dnc::driver::LineSettings {
+                path: device.clone(),
+                baud: cli.baud,
+                parity: cli.parity.clone(),
+            };
+            let serial =
+                falc_common::dnc::driver::open_serial(&line).map_err(anyhow::Error::msg)?;
+            (Port::Serial(serial), device.clone())
+        }
+        None => {
+            let pty = pty::Pty::open().context("cannot open a pty pair")?;
+            let path = pty.path.clone();
+            (Port::Pty(pty), path)
+        }
+    };
     let mut robot = Robot::new(mode, cli.time_scale);
     let mut link = Link::new(Priority::High, Timing::default());
     let byte_time = if cli.wire_baud > 0 {
@@ -95,7 +144,7 @@ async fn main() -> Result<()> {
     } else {
         Duration::ZERO
     };
-    say(&format!("falc-rcm-sim serial port: {}", pty.path));
+    say(&format!("falc-rcm-sim serial port: {path}"));
     let origin = Instant::now();
     let now = || Instant::now().duration_since(origin);
     let mut stdin = BufReader::new(tokio::io::stdin()).lines();
@@ -136,7 +185,7 @@ async fn main() -> Result<()> {
             if plugged {
                 wire_delay(byte_time * bytes.len() as u32);
                 tracing::debug!(bytes = %bytes.escape_ascii(), "to the line");
-                pty.write_all(&bytes).await.context("pty write")?;
+                port.write_all(&bytes).await.context("pty write")?;
             }
         }
         let deadline = [link.poll_timeout(), robot.poll_timeout()]
@@ -145,7 +194,7 @@ async fn main() -> Result<()> {
             .min()
             .map_or(Instant::now() + Duration::from_secs(3600), |t| origin + t);
         tokio::select! {
-            n = pty.read(&mut buf) => {
+            n = port.read(&mut buf) => {
                 let n = n.context("pty read")?;
                 tracing::debug!(bytes = %buf[..n].escape_ascii(), plugged, "from the line");
                 if plugged && n > 0 {
@@ -164,7 +213,7 @@ async fn main() -> Result<()> {
                     }
                     Ok(Line::Noise(n)) => {
                         let noise: Vec<u8> = (0..n).map(|_| rand_byte()).collect();
-                        pty.write_all(&noise).await.context("pty write")?;
+                        port.write_all(&noise).await.context("pty write")?;
                         say(&format!("ok {}", line.trim()));
                     }
                     Ok(Line::Unplug) => {
