@@ -137,7 +137,11 @@ async fn droog_dik_runs_to_done_despite_line_noise() {
     let mut rig = rig("100").await;
     rig.load("droog_dik", &droog_dik()).await;
     rig.start("droog_dik").await;
-    // Noise while the program runs (the line idle between telegrams).
+    // A burst of noise in the middle of the select/start exchange …
+    for _ in 0..3 {
+        rig.rcm.control("noise 16");
+    }
+    // … and more while the program runs, the line idle between telegrams.
     tokio::time::sleep(Duration::from_millis(300)).await;
     for _ in 0..3 {
         rig.rcm.control("noise 16");

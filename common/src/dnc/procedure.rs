@@ -9,9 +9,11 @@
 //!   included); then waits for DLE within the acknowledgement delay;
 //! - NAK, a wrong character or no answer: the connection (STX) is tried up
 //!   to 6 times, the transmission (block) up to 6 times, then the telegram
-//!   fails; after NAK or a wrong character the sender first lets the line
-//!   settle for one character delay (so a burst of noise costs one
-//!   attempt, not all six at once);
+//!   fails; after NAK or a wrong character the sender first waits for a
+//!   quiet line (two character delays without a byte; an STX from the
+//!   partner is taken), so a burst of noise costs one attempt, not all six
+//!   at once, and a late NAK of the partner's own timeout cannot meet every
+//!   new STX (with a back-off equal to the character delay they resonate);
 //! - the receiver answers STX with DLE, takes characters with at most the
 //!   character delay (220 ms) between them, checks the BCC and answers DLE,
 //!   or NAK on a bad BCC, a timeout or an overflow;
@@ -283,7 +285,7 @@ impl Link {
         }
         if settle {
             self.state = State::Backoff {
-                until: now + self.timing.char_delay,
+                until: now + 2 * self.timing.char_delay,
             };
         } else {
             self.send_stx(now);
@@ -388,12 +390,15 @@ impl Link {
                     true,
                 ),
             },
-            State::Backoff { until } => {
+            State::Backoff { .. } => {
                 if b == STX {
                     // The partner wants to send: take its telegram first.
                     self.begin_receive(now);
                 } else {
-                    self.state = State::Backoff { until };
+                    // Not quiet yet: wait again from this byte.
+                    self.state = State::Backoff {
+                        until: now + 2 * self.timing.char_delay,
+                    };
                 }
             }
             State::Receiving {
@@ -586,34 +591,42 @@ mod tests {
     }
 
     #[test]
-    fn nak_to_stx_retries_the_connection_after_the_line_settles() {
+    fn nak_to_stx_retries_the_connection_after_the_line_is_quiet() {
         let mut l = low();
         l.send(ms(0), b"G".to_vec());
         tx(&mut l);
         l.handle_bytes(ms(1), &[NAK]);
         assert_eq!(tx(&mut l), Vec::<u8>::new(), "the line settles first");
+        assert_eq!(l.poll_timeout(), Some(ms(441)), "two character delays");
         l.handle_bytes(ms(50), &[0x7f, 0x55]);
         assert_eq!(
             l.poll_timeout(),
-            Some(ms(221)),
-            "noise while settling is ignored"
+            Some(ms(490)),
+            "each byte restarts the wait"
         );
-        l.handle_timeout(ms(221));
-        assert_eq!(
-            tx(&mut l),
-            vec![STX],
-            "second attempt after one character delay"
-        );
-        l.handle_bytes(ms(222), &[0x7f, 0x7f, 0x7f]);
+        l.handle_timeout(ms(490));
+        assert_eq!(tx(&mut l), vec![STX], "second attempt on a quiet line");
+        l.handle_bytes(ms(491), &[0x7f, 0x7f, 0x7f]);
         assert_eq!(
             tx(&mut l),
             Vec::<u8>::new(),
             "a burst of noise costs one attempt"
         );
-        l.handle_timeout(ms(442));
+        l.handle_timeout(ms(931));
         assert_eq!(tx(&mut l), vec![STX], "third attempt");
-        l.handle_bytes(ms(443), &[DLE]);
+        l.handle_bytes(ms(932), &[DLE]);
         assert_eq!(tx(&mut l), frame(b"G"));
+    }
+
+    #[test]
+    fn an_stx_while_backing_off_is_received() {
+        let mut l = low();
+        l.send(ms(0), b"G".to_vec());
+        tx(&mut l);
+        l.handle_bytes(ms(1), &[NAK, STX]);
+        assert_eq!(tx(&mut l), vec![DLE], "the partner's telegram first");
+        l.handle_bytes(ms(5), &frame(b"M024"));
+        assert_eq!(tx(&mut l), vec![DLE, STX], "then ours, afresh");
     }
 
     #[test]
