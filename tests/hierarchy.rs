@@ -379,3 +379,47 @@ async fn garbage_payload_gets_an_error_reply_and_the_server_keeps_serving() {
         "still serving: {ok:?}"
     );
 }
+
+/// A frozen node (SIGSTOP: its process alive, its socket open) is noticed
+/// when the zenoh lease (1 s here) runs out: the commander gets an abort
+/// indication, later than after a SIGKILL but within a few leases.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_frozen_subordinate_is_noticed_after_the_lease() {
+    use falc_common::bus::BusEvent;
+    use nix::sys::signal::{kill, Signal};
+    use nix::unistd::Pid;
+    let cell = TestCell::start();
+    let welding = cell.demo_station("welding");
+    let bus = cell.bus("cell").await.expect("session");
+    let peer = match bus
+        .request(
+            &st("welding"),
+            &Request::Initiate {
+                calling: bus.me().clone(),
+            },
+            DEFAULT_DEADLINE,
+        )
+        .await
+    {
+        Ok(Response::Initiate { responding }) => responding,
+        other => panic!("{other:?}"),
+    };
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    let _watch = bus.watch(&peer, tx).await.expect("watch");
+    let pid = Pid::from_raw(welding.pid() as i32);
+    let t = std::time::Instant::now();
+    kill(pid, Signal::SIGSTOP).expect("SIGSTOP");
+    let got = tokio::time::timeout(Duration::from_secs(10), rx.recv()).await;
+    let _ = kill(pid, Signal::SIGCONT);
+    match got {
+        Ok(Some(BusEvent::PeerLost { .. })) => {
+            let after = t.elapsed();
+            assert!(
+                after >= Duration::from_millis(500),
+                "noticed too early to be the lease: {after:?}"
+            );
+            eprintln!("frozen subordinate noticed after {after:?} (lease 1 s)");
+        }
+        other => panic!("no abort indication for a frozen node: {other:?}"),
+    }
+}
