@@ -40,15 +40,9 @@ struct Cli {
     /// The mode at start: manual, automatic or aue (automatic-external, DNC).
     #[arg(long, default_value = "aue")]
     mode: String,
-    /// Use this serial device instead of a new pty pair.
-    #[arg(long)]
-    device: Option<String>,
-    /// Baud rate of `--device`.
-    #[arg(long, default_value_t = 9600)]
-    baud: u32,
-    /// Parity of `--device`: none, even, odd.
-    #[arg(long, default_value = "none")]
-    parity: String,
+    /// A serial device to use instead of a new pty pair, and its settings.
+    #[command(flatten)]
+    line: falc_common::dnc::driver::LineArgs,
 }
 
 /// The twin's end of the line: a pty it made, or a serial device.
@@ -120,16 +114,11 @@ async fn main() -> Result<()> {
     let cli = Cli::parse();
     let mode = parse_mode(&cli.mode)
         .with_context(|| format!("unknown mode `{}` (manual, automatic, aue)", cli.mode))?;
-    let (mut port, path) = match &cli.device {
-        Some(device) => {
-            let line = falc_common::dnc::driver::LineSettings {
-                path: device.clone(),
-                baud: cli.baud,
-                parity: cli.parity.clone(),
-            };
+    let (mut port, path) = match cli.line.settings(None) {
+        Some(line) => {
             let serial =
                 falc_common::dnc::driver::open_serial(&line).map_err(anyhow::Error::msg)?;
-            (Port::Serial(serial), device.clone())
+            (Port::Serial(serial), line.path)
         }
         None => {
             let pty = pty::Pty::open().context("cannot open a pty pair")?;

@@ -39,15 +39,10 @@ struct Cli {
     /// The station this process is (a station of kind welding).
     #[arg(long, default_value = "welding")]
     station: StationName,
-    /// The robot controller's serial port; default the topology's `device`.
-    #[arg(long)]
-    device: Option<String>,
-    /// Baud rate.
-    #[arg(long, default_value_t = 9600)]
-    baud: u32,
-    /// Parity: none, even, odd.
-    #[arg(long, default_value = "none")]
-    parity: String,
+    /// The robot controller's serial line; the device defaults to the
+    /// topology's `device` of this station.
+    #[command(flatten)]
+    line: falc_common::dnc::driver::LineArgs,
     #[command(flatten)]
     node: NodeArgs,
 }
@@ -302,20 +297,14 @@ async fn main() -> Result<()> {
     let cli = Cli::parse();
     let topology = cli.node.topology()?;
     let settings = cli.node.settings(&topology, &cli.station)?;
-    let path = cli
-        .device
-        .clone()
-        .or_else(|| {
+    let line = cli
+        .line
+        .settings(
             topology
                 .station(&cli.station)
-                .and_then(|s| s.device.clone())
-        })
+                .and_then(|s| s.device.clone()),
+        )
         .context("no serial port: give --device or a `device` in the topology")?;
-    let line = LineSettings {
-        path,
-        baud: cli.baud,
-        parity: cli.parity.clone(),
-    };
     let station = Station::open(settings, &topology).await?;
     let dnc = match driver::open_serial(&line) {
         Ok(port) => Some(driver::spawn(port, Priority::Low, Timing::default())),

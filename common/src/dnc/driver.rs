@@ -20,6 +20,32 @@ pub struct LineSettings {
     pub parity: String,
 }
 
+/// The serial-line arguments of every node on a DNC line (workstation and
+/// twin alike).
+#[derive(Debug, Clone, clap::Args)]
+pub struct LineArgs {
+    /// The serial device (a real port, or a pty's `/dev/pts/N`).
+    #[arg(long)]
+    pub device: Option<String>,
+    /// Baud rate.
+    #[arg(long, default_value_t = 9600)]
+    pub baud: u32,
+    /// Parity: none, even, odd.
+    #[arg(long, default_value = "none")]
+    pub parity: String,
+}
+
+impl LineArgs {
+    /// The line settings, with `fallback` as the device when none is given.
+    pub fn settings(&self, fallback: Option<String>) -> Option<LineSettings> {
+        self.device.clone().or(fallback).map(|path| LineSettings {
+            path,
+            baud: self.baud,
+            parity: self.parity.clone(),
+        })
+    }
+}
+
 /// Opens a serial device (or a pty's slave end) with 8 data bits, 1 stop
 /// bit, no flow control, and `settings`' baud rate and parity.
 pub fn open_serial(settings: &LineSettings) -> Result<tokio_serial::SerialStream, String> {
