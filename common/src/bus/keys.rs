@@ -26,34 +26,9 @@ impl KeySpace {
         Self { cell }
     }
 
-    /// The cell id.
-    pub fn cell(&self) -> &CellId {
-        &self.cell
-    }
-
     /// `falc/<cell>/<st>/svc/<service>`.
     pub fn service(&self, station: &StationName, service: ServiceName) -> String {
         format!("falc/{}/{station}/svc/{service}", self.cell)
-    }
-
-    /// Parses a service key of this cell back into station and service.
-    pub fn parse_service(&self, key: &str) -> Option<(StationName, ServiceName)> {
-        let mut parts = key.split('/');
-        match (
-            parts.next(),
-            parts.next(),
-            parts.next(),
-            parts.next(),
-            parts.next(),
-            parts.next(),
-        ) {
-            (Some("falc"), Some(cell), Some(st), Some("svc"), Some(svc), None)
-                if cell == self.cell.as_str() =>
-            {
-                Some((StationName::new(st).ok()?, ServiceName::from_key(svc)?))
-            }
-            _ => None,
-        }
     }
 
     /// `falc/<cell>/<st>/status`.
@@ -82,17 +57,14 @@ mod tests {
     use super::*;
 
     #[test]
-    fn service_keys_round_trip() {
+    fn service_keys() {
         let k = KeySpace::new(CellId::new("falc1").expect("valid"));
         let w = StationName::new("welding").expect("valid");
-        let key = k.service(&w, ServiceName::InitiateDownloadSequence);
-        assert_eq!(key, "falc/falc1/welding/svc/initiate-download-sequence");
         assert_eq!(
-            k.parse_service(&key),
-            Some((w, ServiceName::InitiateDownloadSequence))
+            k.service(&w, ServiceName::InitiateDownloadSequence),
+            "falc/falc1/welding/svc/initiate-download-sequence"
         );
-        assert_eq!(k.parse_service("falc/other/welding/svc/status"), None);
-        assert_eq!(k.parse_service("falc/falc1/welding/svc/nope"), None);
-        assert_eq!(k.parse_service("falc/falc1/welding/svc/status/x"), None);
+        assert_eq!(k.alive(&w, "ab12"), "falc/falc1/alive/welding/ab12");
+        assert_eq!(k.alive_any(&w), "falc/falc1/alive/welding/*");
     }
 }

@@ -91,11 +91,6 @@ impl Station {
         }
     }
 
-    /// This station's status now.
-    pub fn status(&self) -> VmdStatus {
-        self.board.get()
-    }
-
     /// The association state.
     pub fn associations(&self) -> &Associations {
         &self.assoc
