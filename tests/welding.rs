@@ -5,22 +5,18 @@
 
 mod support;
 
-use falc_common::bus::{Bus, DEFAULT_DEADLINE};
 use falc_common::ids::ObjectName;
-use falc_common::mms::pdu::{JobEvent, Request, Response, Unconfirmed};
+use falc_common::mms::pdu::{JobEvent, Request, Response};
 use std::process::Command;
 use std::time::Duration;
-use support::{st, Proc, TestCell};
-use tokio::sync::mpsc::UnboundedReceiver;
+use support::{Commander, Proc, TestCell};
 
 struct Rig {
     _cell: TestCell,
     rcm: Proc,
     path: String,
     _welding: Proc,
-    bus: Bus,
-    events: UnboundedReceiver<Unconfirmed>,
-    _subs: Vec<falc_common::bus::Declaration>,
+    commander: Commander,
 }
 
 async fn rig(time_scale: &str) -> Rig {
@@ -38,86 +34,31 @@ async fn rig(time_scale: &str) -> Rig {
         .arg(cell.credentials_dir());
     let mut welding = Proc::spawn("falc-welding", cmd);
     welding.expect_line("EVENT ready", Duration::from_secs(20));
-    let bus = cell.bus("cell").await.expect("cell session");
-    let r = bus
-        .request(
-            &st("welding"),
-            &Request::Initiate {
-                calling: bus.me().clone(),
-            },
-            DEFAULT_DEADLINE,
-        )
-        .await;
-    assert!(matches!(r, Ok(Response::Initiate { .. })), "{r:?}");
-    let (tx, events) = tokio::sync::mpsc::unbounded_channel();
-    let subs = bus.subscribe(&st("welding"), tx).await.expect("subscribe");
+    let commander = Commander::associate(&cell, "welding").await;
     Rig {
         _cell: cell,
         rcm,
         path,
         _welding: welding,
-        bus,
-        events,
-        _subs: subs,
+        commander,
     }
 }
 
 impl Rig {
     async fn call(&self, r: Request) -> Result<Response, falc_common::mms::error::ServiceError> {
-        self.bus.request(&st("welding"), &r, DEFAULT_DEADLINE).await
+        self.commander.call(r).await
     }
 
-    /// Downloads `text` as domain `name` and creates its program invocation.
     async fn load(&self, name: &str, text: &str) {
-        let name = ObjectName::new(name).expect("valid");
-        let steps = [
-            Request::InitiateDownloadSequence {
-                domain: name.clone(),
-            },
-            Request::DownloadSegment {
-                domain: name.clone(),
-                data: text.as_bytes().to_vec(),
-                more_follows: false,
-            },
-            Request::TerminateDownloadSequence {
-                domain: name.clone(),
-                discard: None,
-            },
-            Request::CreateProgramInvocation {
-                name: name.clone(),
-                domains: vec![name.clone()],
-                reusable: true,
-            },
-        ];
-        for s in steps {
-            let r = self.call(s.clone()).await;
-            assert_eq!(r, Ok(Response::Done), "{s:?}");
-        }
+        self.commander.load(name, text).await
     }
 
     async fn start(&self, name: &str) {
-        let r = self
-            .call(Request::Start {
-                name: ObjectName::new(name).expect("valid"),
-                argument: String::new(),
-            })
-            .await;
-        assert!(
-            matches!(r, Ok(Response::ProgramInvocationState(_))),
-            "{r:?}"
-        );
+        self.commander.start(name).await
     }
 
-    /// The next job event.
     async fn job(&mut self, within: Duration) -> JobEvent {
-        let end = tokio::time::Instant::now() + within;
-        loop {
-            match tokio::time::timeout_at(end, self.events.recv()).await {
-                Ok(Some(Unconfirmed::Job { event, .. })) => return event,
-                Ok(Some(_)) => continue,
-                other => panic!("no job event within {within:?}: {other:?}"),
-            }
-        }
+        self.commander.job(within).await
     }
 }
 

@@ -4,31 +4,26 @@
 //! to the robot controller over the DNC serial link. Job events (done,
 //! alarm, paused, bad product, failed) go up as unsolicited status.
 //!
-//! A thin driver: the rules live in `host` (DNC ↔ engine), the recipe
-//! engine, the VMD and the 3964R procedure.
+//! A thin driver: the recipe runtime is `falc_common::workstation`, the
+//! rules of the link live in `host` (DNC ↔ engine) and the 3964R procedure.
 
 mod host;
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use falc_common::bus::station::{Station, StationEvent};
-use falc_common::dnc::driver::{self, DncHandle, LineSettings};
+use falc_common::bus::station::Station;
+use falc_common::dnc::driver::{self, LineSettings};
 use falc_common::dnc::procedure::{LinkEvent, Priority, Timing};
 use falc_common::dnc::telegram::{Program, Telegram};
-use falc_common::ids::{ObjectName, StationName};
-use falc_common::mms::error::{DefinitionError, ErrorClass, ServiceError};
-use falc_common::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
-use falc_common::mms::program::{PiCompletion, PiRequest};
-use falc_common::mms::vmd::{Identity, RecipeState, Vmd, VmdStatus};
+use falc_common::ids::StationName;
+use falc_common::mms::vmd::{RobotStatusDetail, VmdStatus};
 use falc_common::node::{init_tracing, say, NodeArgs};
-use falc_common::recipe::check::{check, Job};
+use falc_common::recipe::check::Job;
 use falc_common::recipe::commands::RecipeKind;
-use falc_common::recipe::engine::{Action, Engine, JobEnd, Outcome};
-use falc_common::recipe::syntax::parse;
+use falc_common::recipe::engine::{Action, Event};
+use falc_common::workstation::{Device, Workstation};
 use host::{Host, Out};
-use std::sync::Arc;
 use std::time::Duration;
-use tokio::time::Instant;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -47,67 +42,23 @@ struct Cli {
     node: NodeArgs,
 }
 
-struct Running {
-    name: ObjectName,
-    engine: Engine,
-}
-
-struct Node {
-    station: Station,
-    vmd: Vmd,
+/// The robot controller behind its DNC line.
+struct Robot {
     host: Host,
-    dnc: Option<DncHandle>,
+    /// Telegrams to the line (None while the port is closed).
+    dnc: Option<tokio::sync::mpsc::UnboundedSender<Vec<u8>>>,
     line: LineSettings,
-    running: Option<Running>,
-    status: VmdStatus,
-    origin: Instant,
+    detail: Option<RobotStatusDetail>,
     /// A link failure not yet reported.
     link_alarm: Option<String>,
 }
 
-impl Node {
-    fn now(&self) -> Duration {
-        Instant::now().duration_since(self.origin)
-    }
-
-    async fn publish_status(&mut self) {
-        self.status.local_detail = if self.running.is_some() {
-            RecipeState::Executing
-        } else {
-            RecipeState::Idle
-        };
-        self.station.set_status(self.status).await;
-    }
-
-    async fn job_event(&self, program: &ObjectName, event: JobEvent) {
-        let me = self.station.bus().me().station.clone();
-        self.station
-            .bus()
-            .publish(&Unconfirmed::Job {
-                station: me,
-                program: program.clone(),
-                event,
-            })
-            .await;
-    }
-
-    async fn report(&self, severity: Severity, text: String) {
-        let me = self.station.bus().me().station.clone();
-        self.station
-            .bus()
-            .publish(&Unconfirmed::Report {
-                station: me,
-                severity,
-                text,
-            })
-            .await;
-    }
-
-    fn send(&mut self, t: Telegram) {
+impl Robot {
+    fn send(&mut self, t: Telegram, out: &mut Vec<Event>) {
         let sent = self
             .dnc
             .as_ref()
-            .map(|d| d.send.send(t.encode()).is_ok())
+            .map(|d| d.send(t.encode()).is_ok())
             .unwrap_or(false);
         if !sent {
             let why = format!(
@@ -115,179 +66,80 @@ impl Node {
                 self.line.path
             );
             let outs = self.host.link_failed(why);
-            self.apply_now(outs);
+            self.apply(outs, out);
         }
     }
 
-    /// Applies host outputs that need no await (telegrams, engine events).
-    fn apply_now(&mut self, outs: Vec<Out>) {
-        let now = self.now();
+    /// Carries out host outputs; engine events go to `out`.
+    fn apply(&mut self, outs: Vec<Out>, out: &mut Vec<Event>) {
         for o in outs {
             match o {
-                Out::Telegram(t) => self.send(t),
-                Out::Engine(ev) => {
-                    if let Some(r) = &mut self.running {
-                        r.engine.handle(now, ev);
-                    }
-                }
-                Out::Detail(d) => self.status.additional = Some(d),
+                Out::Telegram(t) => self.send(t, out),
+                Out::Engine(ev) => out.push(ev),
+                Out::Detail(d) => self.detail = Some(d),
                 Out::Info(text) => tracing::info!("{text}"),
             }
         }
     }
 
-    /// Runs the engine's actions and finishes the job when it ended.
-    async fn pump(&mut self) {
-        loop {
-            let Some(r) = &mut self.running else { return };
-            let Some(action) = r.engine.poll_action() else {
-                break;
-            };
-            match action {
-                Action::Start {
-                    job: Job::Program(n),
-                    ..
-                } => match Program::new(n) {
-                    Some(p) => {
-                        let outs = self.host.start(p);
-                        self.apply_now(outs);
-                    }
-                    None => tracing::warn!("program {n} out of range"),
-                },
-                Action::Stop(_) => {
-                    let outs = self.host.stop();
-                    self.apply_now(outs);
-                }
-                Action::Alarm(text) => self.report(Severity::Alarm, text).await,
-                Action::Entered(s) => tracing::debug!(state = %s, "recipe state"),
-                other => tracing::warn!("a welding recipe cannot {other:?}"),
-            }
-        }
-        let ended = self
-            .running
-            .as_ref()
-            .and_then(|r| r.engine.outcome().cloned());
-        let Some(outcome) = ended else { return };
-        // Only now, with the outcome known, is the job taken out.
-        if let Some(r) = self.running.take() {
-            let _ = self.vmd.complete(&r.name, PiCompletion::Finished);
-            let event = match outcome {
-                Outcome::Done => JobEvent::Done,
-                Outcome::Alarm(c) => JobEvent::Alarm(c),
-                Outcome::Failed(JobEnd::BadProduct) => JobEvent::BadProduct,
-                Outcome::Failed(JobEnd::FailedSafe) => JobEvent::FailedSafe,
-                Outcome::Failed(JobEnd::FailedDanger) => JobEvent::FailedDanger,
-                Outcome::Failed(other) => JobEvent::Alarm(format!("{other:?}")),
-            };
-            say(&format!("EVENT job program={} event={event:?}", r.name));
-            self.job_event(&r.name, event).await;
-            self.publish_status().await;
-        }
-    }
-
-    /// Builds the engine for program invocation `name` from its domain.
-    fn engine_for(&self, name: &ObjectName) -> Result<Engine, ServiceError> {
-        let text = self
-            .vmd
-            .program(name)
-            .and_then(|p| p.domains().first())
-            .and_then(|d| self.vmd.domain(d))
-            .map(|d| String::from_utf8_lossy(d.content()).into_owned())
-            .ok_or_else(|| {
-                ServiceError::undefined(format!("program invocation {name} has no recipe domain"))
-            })?;
-        let recipe = parse(&text, name.as_str());
-        let program = check(&recipe, RecipeKind::Welding).map_err(|problems| {
-            let lines: Vec<String> = problems.iter().map(|p| p.to_string()).collect();
-            ServiceError::new(
-                ErrorClass::Definition(DefinitionError::ObjectAttributeInconsistent),
-                format!("error in recipe {name}: {}", lines.join("; ")),
-            )
-        })?;
-        // select + start: 2 telegrams, each up to 6 × 2 s on a dead line.
-        Ok(Engine::new(Arc::new(program)).with_confirm_limit(Duration::from_secs(30)))
-    }
-
-    async fn indication(&mut self, req: &Request) -> Result<Response, ServiceError> {
-        let Some((result, transition)) = self.vmd.handle(req) else {
-            return Err(ServiceError::malformed(format!(
-                "{} is not served by a welding station",
-                req.service()
-            )));
-        };
-        let Some(t) = transition else { return result };
-        let now = self.now();
-        let done = match t.request {
-            PiRequest::Start | PiRequest::Resume => {
-                if self.running.is_some() {
-                    let _ = self.vmd.complete(&t.name, PiCompletion::StartFailed);
-                    return Err(ServiceError::state_conflict(
-                        "another welding recipe is running",
-                    ));
-                }
-                match self.engine_for(&t.name) {
-                    Ok(mut engine) => {
-                        engine.start(now);
-                        self.running = Some(Running {
-                            name: t.name.clone(),
-                            engine,
-                        });
-                        if t.request == PiRequest::Start {
-                            PiCompletion::Started
-                        } else {
-                            PiCompletion::Resumed
-                        }
-                    }
-                    Err(e) => {
-                        let _ = self.vmd.complete(&t.name, PiCompletion::StartFailed);
-                        return Err(e);
-                    }
-                }
-            }
-            PiRequest::Stop | PiRequest::Kill => {
-                if let Some(r) = &mut self.running {
-                    r.engine.abort(&format!("{:?} by the commander", t.request));
-                }
-                let outs = self.host.stop();
-                self.apply_now(outs);
-                if t.request == PiRequest::Kill {
-                    self.running = None;
-                    self.publish_status().await;
-                    return result;
-                }
-                self.running = None;
-                PiCompletion::Stopped
-            }
-            PiRequest::Reset => PiCompletion::ResetDone,
-            PiRequest::Delete => return result,
-        };
-        let state = self.vmd.complete(&t.name, done).unwrap_or_else(|s| s);
-        self.pump().await;
-        self.publish_status().await;
-        Ok(Response::ProgramInvocationState(state))
-    }
-
-    fn dnc_event(&mut self, ev: LinkEvent) {
+    fn dnc_event(&mut self, ev: LinkEvent) -> Vec<Event> {
+        let mut out = Vec::new();
         match ev {
             LinkEvent::Received(bytes) => match Telegram::decode(&bytes) {
                 Ok(t) => {
                     tracing::debug!(?t, "from the RCM");
                     let outs = self.host.telegram(t);
-                    tracing::debug!(?outs, running = self.running.is_some(), "host");
-                    self.apply_now(outs);
+                    self.apply(outs, &mut out);
                 }
                 Err(e) => tracing::warn!("undecodable telegram from the RCM: {e}"),
             },
             LinkEvent::Failed { error, .. } => {
                 let why = format!("no connection with RCM on {}: {error}", self.line.path);
-                tracing::warn!("{why}");
-                self.link_alarm = Some(why.clone());
-                let outs = self.host.link_failed(why);
-                self.apply_now(outs);
+                self.lost(why, &mut out);
             }
             LinkEvent::Refused(why) => tracing::debug!("block refused: {why}"),
             LinkEvent::Sent(_) => {}
         }
+        out
+    }
+
+    fn lost(&mut self, why: String, out: &mut Vec<Event>) {
+        tracing::warn!("{why}");
+        self.link_alarm = Some(why.clone());
+        let outs = self.host.link_failed(why);
+        self.apply(outs, out);
+    }
+}
+
+impl Device for Robot {
+    fn unavailable(&self) -> Option<String> {
+        None
+    }
+
+    fn act(&mut self, _now: Duration, action: Action, out: &mut Vec<Event>) {
+        match action {
+            Action::Start {
+                job: Job::Program(n),
+                ..
+            } => match Program::new(n) {
+                Some(p) => {
+                    let outs = self.host.start(p);
+                    self.apply(outs, out);
+                }
+                None => tracing::warn!("program {n} out of range"),
+            },
+            Action::Stop(_) => self.halt(out),
+            other => tracing::warn!("a welding recipe cannot {other:?}"),
+        }
+    }
+
+    fn halt(&mut self, out: &mut Vec<Event>) {
+        let outs = self.host.stop();
+        self.apply(outs, out);
+    }
+
+    fn status(&self, status: &mut VmdStatus) {
+        status.additional = self.detail;
     }
 }
 
@@ -306,89 +158,69 @@ async fn main() -> Result<()> {
         )
         .context("no serial port: give --device or a `device` in the topology")?;
     let station = Station::open(settings, &topology).await?;
-    let dnc = match driver::open_serial(&line) {
-        Ok(port) => Some(driver::spawn(port, Priority::Low, Timing::default())),
+    let (dnc, mut dnc_events) = match driver::open_serial(&line) {
+        Ok(port) => {
+            let h = driver::spawn(port, Priority::Low, Timing::default());
+            (Some(h.send), Some(h.events))
+        }
         Err(e) => {
             tracing::warn!("{e}; retrying every second");
-            None
+            (None, None)
         }
     };
-    let mut node = Node {
-        station,
-        vmd: Vmd::new(Identity {
-            vendor: "FALC".into(),
-            model: "welding".into(),
-            revision: env!("CARGO_PKG_VERSION").into(),
-        }),
+    let robot = Robot {
         host: Host::new(),
         dnc,
         line,
-        running: None,
-        status: VmdStatus::default(),
-        origin: Instant::now(),
+        detail: None,
         link_alarm: None,
     };
-    node.publish_status().await;
+    // select + start: 2 telegrams, each up to 6 × 2 s on a dead line, so
+    // the link's own, clearer failure arrives before the confirm limit.
+    let mut ws = Workstation::new(station, RecipeKind::Welding, Duration::from_secs(30), robot);
+    ws.publish_status().await;
     say(&format!(
         "EVENT ready station={} device={}",
-        cli.station, node.line.path
+        cli.station, ws.device.line.path
     ));
     let mut reopen = tokio::time::interval(Duration::from_secs(1));
     loop {
-        let deadline = node
-            .running
-            .as_ref()
-            .and_then(|r| r.engine.poll_timeout())
-            .map_or(Instant::now() + Duration::from_secs(3600), |t| {
-                node.origin + t
-            });
+        let deadline = ws.deadline();
         tokio::select! {
-            ev = node.station.next() => match ev {
-                Some(StationEvent::Indication(ind)) => {
-                    let result = node.indication(&ind.request).await;
-                    ind.responder.respond(result).await;
-                }
-                Some(StationEvent::Abort(a)) => {
-                    say(&format!("EVENT abort-indication peer={}", a.peer.station));
-                    if let Some(r) = &mut node.running {
-                        r.engine.abort(&format!("no connection with station {}", a.peer.station));
+            ev = ws.station_next() => if !ws.station_event(ev).await { break },
+            ev = async { match &mut dnc_events { Some(e) => e.recv().await, None => std::future::pending().await } } => {
+                let events = match ev {
+                    Some(ev) => ws.device.dnc_event(ev),
+                    None => {
+                        ws.device.dnc = None;
+                        dnc_events = None;
+                        let why = format!("no connection with RCM on {}: the line closed", ws.device.line.path);
+                        let mut out = Vec::new();
+                        ws.device.lost(why, &mut out);
+                        out
                     }
-                }
-                Some(StationEvent::Associated(p)) => say(&format!("EVENT associated commander={}", p.station)),
-                Some(StationEvent::Concluded(_)) => {}
-                None => break,
+                };
+                ws.feed(events);
             },
-            ev = async { match &mut node.dnc { Some(d) => d.events.recv().await, None => std::future::pending().await } } => match ev {
-                Some(ev) => node.dnc_event(ev),
-                None => {
-                    let why = format!("no connection with RCM on {}: the line closed", node.line.path);
-                    tracing::warn!("{why}");
-                    node.dnc = None;
-                    let outs = node.host.link_failed(why);
-                    node.apply_now(outs);
-                }
-            },
-            _ = reopen.tick(), if node.dnc.is_none() => {
-                if let Ok(port) = driver::open_serial(&node.line) {
-                    tracing::info!(path = %node.line.path, "line to the RCM open again");
-                    node.dnc = Some(driver::spawn(port, Priority::Low, Timing::default()));
+            _ = reopen.tick(), if ws.device.dnc.is_none() => {
+                if let Ok(port) = driver::open_serial(&ws.device.line) {
+                    tracing::info!(path = %ws.device.line.path, "line to the RCM open again");
+                    let h = driver::spawn(port, Priority::Low, Timing::default());
+                    ws.device.dnc = Some(h.send);
+                    dnc_events = Some(h.events);
                 }
             }
-            _ = tokio::time::sleep_until(deadline) => {
-                let now = node.now();
-                if let Some(r) = &mut node.running { r.engine.handle_timeout(now); }
-            }
+            _ = tokio::time::sleep_until(deadline) => ws.on_timeout(),
             _ = tokio::signal::ctrl_c() => break,
         }
-        node.pump().await;
-        if let Some(why) = node.link_alarm.take() {
-            node.report(Severity::Alarm, why).await;
+        ws.settle().await;
+        if let Some(why) = ws.device.link_alarm.take() {
+            ws.report(falc_common::mms::pdu::Severity::Alarm, why).await;
         }
-        node.publish_status().await;
     }
-    if node.running.is_some() {
-        let outs = node.host.stop();
-        node.apply_now(outs);
+    if ws.is_running() {
+        let mut out = Vec::new();
+        ws.device.halt(&mut out);
     }
     say("EVENT stopped");
     Ok(())

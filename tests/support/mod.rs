@@ -6,8 +6,10 @@
 
 use falc_common::bus::credentials;
 use falc_common::bus::keys::KeySpace;
-use falc_common::bus::{Bus, BusError, BusSettings};
-use falc_common::ids::StationName;
+use falc_common::bus::{Bus, BusError, BusSettings, DEFAULT_DEADLINE};
+use falc_common::ids::{ObjectName, StationName};
+use falc_common::mms::error::ServiceError;
+use falc_common::mms::pdu::{JobEvent, Request, Response, Unconfirmed};
 use falc_common::topology::Topology;
 use std::io::Write;
 use std::io::{BufRead, BufReader};
@@ -227,4 +229,120 @@ impl TestCell {
 
 pub fn st(s: &str) -> StationName {
     StationName::new(s).expect("valid station")
+}
+
+/// This test process as a workstation's commander (the cell's part):
+/// associated, subscribed to the station's status and reports.
+pub struct Commander {
+    pub bus: Bus,
+    station: StationName,
+    events: tokio::sync::mpsc::UnboundedReceiver<Unconfirmed>,
+    _subs: Vec<falc_common::bus::Declaration>,
+}
+
+impl Commander {
+    /// Opens a `cell` session and associates with `station`.
+    pub async fn associate(cell: &TestCell, station: &str) -> Commander {
+        let bus = cell.bus("cell").await.expect("cell session");
+        let r = bus
+            .request(
+                &st(station),
+                &Request::Initiate {
+                    calling: bus.me().clone(),
+                },
+                DEFAULT_DEADLINE,
+            )
+            .await;
+        assert!(matches!(r, Ok(Response::Initiate { .. })), "{r:?}");
+        let (tx, events) = tokio::sync::mpsc::unbounded_channel();
+        let subs = bus.subscribe(&st(station), tx).await.expect("subscribe");
+        Commander {
+            bus,
+            station: st(station),
+            events,
+            _subs: subs,
+        }
+    }
+
+    pub async fn call(&self, r: Request) -> Result<Response, ServiceError> {
+        self.bus.request(&self.station, &r, DEFAULT_DEADLINE).await
+    }
+
+    /// Downloads `text` as domain `name` and creates its program invocation.
+    pub async fn load(&self, name: &str, text: &str) {
+        let name = ObjectName::new(name).expect("valid");
+        let steps = [
+            Request::InitiateDownloadSequence {
+                domain: name.clone(),
+            },
+            Request::DownloadSegment {
+                domain: name.clone(),
+                data: text.as_bytes().to_vec(),
+                more_follows: false,
+            },
+            Request::TerminateDownloadSequence {
+                domain: name.clone(),
+                discard: None,
+            },
+            Request::CreateProgramInvocation {
+                name: name.clone(),
+                domains: vec![name.clone()],
+                reusable: true,
+            },
+        ];
+        for s in steps {
+            let r = self.call(s.clone()).await;
+            assert_eq!(r, Ok(Response::Done), "{s:?}");
+        }
+    }
+
+    /// Starts program invocation `name`.
+    pub async fn try_start(&self, name: &str) -> Result<Response, ServiceError> {
+        self.call(Request::Start {
+            name: ObjectName::new(name).expect("valid"),
+            argument: String::new(),
+        })
+        .await
+    }
+
+    /// Starts program invocation `name`; it must be confirmed.
+    pub async fn start(&self, name: &str) {
+        let r = self.try_start(name).await;
+        assert!(
+            matches!(r, Ok(Response::ProgramInvocationState(_))),
+            "{r:?}"
+        );
+    }
+
+    /// The next job event.
+    pub async fn job(&mut self, within: Duration) -> JobEvent {
+        let end = tokio::time::Instant::now() + within;
+        loop {
+            match tokio::time::timeout_at(end, self.events.recv()).await {
+                Ok(Some(Unconfirmed::Job { event, .. })) => return event,
+                Ok(Some(_)) => continue,
+                other => panic!("no job event within {within:?}: {other:?}"),
+            }
+        }
+    }
+
+    /// The next job event, which must be an alarm: its text.
+    pub async fn alarm(&mut self, within: Duration) -> String {
+        match self.job(within).await {
+            JobEvent::Alarm(text) => text,
+            other => panic!("expected an alarm, got {other:?}"),
+        }
+    }
+
+    /// Waits for a report whose text contains `needle`; returns the text.
+    pub async fn report(&mut self, needle: &str, within: Duration) -> String {
+        let end = tokio::time::Instant::now() + within;
+        loop {
+            match tokio::time::timeout_at(end, self.events.recv()).await {
+                Ok(Some(Unconfirmed::Report { text, .. })) if text.contains(needle) => return text,
+                Ok(Some(_)) => continue,
+                other => panic!("no report with {needle:?} within {within:?}: {other:?}"),
+            }
+        }
+    }
 }

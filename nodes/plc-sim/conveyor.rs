@@ -1,0 +1,790 @@
+//! The conveyor, sans-I/O: where the two carriers are, which lines run,
+//! and what the PLC's inputs show, driven by coil writes, control faults and
+//! an injected clock (`handle_timeout(now)` / `poll_timeout()`).
+//!
+//! The map (seconds of travel at time scale 1):
+//!
+//! | line | from | to | s |      | station | fed from | s |
+//! |---|---|---|---|---|---|---|---|
+//! | A | W6 | W2 | 8 |  | 1 | W6 | 3 |
+//! | B | W2 | W6 | 8 |  | 2 | W3 | 3 |
+//! | C | S1 | W6 | 4 |  | 3 (manipulator table) | W5 | 3 |
+//! | D | W4 | W2 | 6 |
+//! | E | W2 | W5 | 10 |
+//! | F | S3 | W4 | 5 |
+//! | G | W5 | W4 | 4 |
+//! | H | W3 | W5 | 6 |
+//! | J | S2 | W3 | 4 |
+//! | K | W2 | W3 | 8 |
+//! | L | W3 | W4 | 5 |
+//!
+//! W2 (the start place) holds two carriers, every other place and station
+//! one. With external control on and no emergency stop, pressing a line's
+//! button (a rising edge) sends the front carrier at its start along it; the
+//! line runs until the carrier reaches its end (the button may be released
+//! meanwhile). Pressed with no carrier at its start, the line runs empty
+//! for up to 20 s, and a carrier that arrives at its start goes straight on.
+//! A station's button takes the carrier from its feed place onto the
+//! station, which is busy while it holds one; a carrier leaves a station
+//! only once its button is released. A carrier whose end is full waits at
+//! the end of its line, the line running. An emergency stop halts every
+//! line and freezes carriers in travel (they go on when their line is
+//! pressed again after the stop is cleared); a jammed line keeps running
+//! but its carrier does not move; a stuck sensor shows a fixed value.
+
+use falc_common::plc::map::{Coil, Input, Inputs, COILS};
+use falc_common::recipe::check::{Button, Signal};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::fmt;
+use std::time::Duration;
+
+/// A place on the conveyor or a station.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Spot {
+    /// Place W2–W6.
+    Place(u8),
+    /// Station 1–3.
+    Station(u8),
+}
+
+impl Spot {
+    fn capacity(self) -> usize {
+        if self == Spot::Place(2) {
+            2
+        } else {
+            1
+        }
+    }
+
+    /// Parses `W2`…`W6`, `S1`…`S3`.
+    pub fn parse(s: &str) -> Option<Spot> {
+        let s = s.to_ascii_uppercase();
+        let n: u8 = s.get(1..)?.parse().ok()?;
+        match s.chars().next()? {
+            'W' if (2..=6).contains(&n) => Some(Spot::Place(n)),
+            'S' if (1..=3).contains(&n) => Some(Spot::Station(n)),
+            _ => None,
+        }
+    }
+}
+
+impl fmt::Display for Spot {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Spot::Place(n) => write!(f, "W{n}"),
+            Spot::Station(n) => write!(f, "S{n}"),
+        }
+    }
+}
+
+struct Segment {
+    line: char,
+    from: Spot,
+    to: Spot,
+    seconds: f64,
+}
+
+const fn seg(line: char, from: Spot, to: Spot, seconds: f64) -> Segment {
+    Segment {
+        line,
+        from,
+        to,
+        seconds,
+    }
+}
+
+use Spot::{Place as W, Station as S};
+
+const SEGMENTS: [Segment; 11] = [
+    seg('A', W(6), W(2), 8.0),
+    seg('B', W(2), W(6), 8.0),
+    seg('C', S(1), W(6), 4.0),
+    seg('D', W(4), W(2), 6.0),
+    seg('E', W(2), W(5), 10.0),
+    seg('F', S(3), W(4), 5.0),
+    seg('G', W(5), W(4), 4.0),
+    seg('H', W(3), W(5), 6.0),
+    seg('J', S(2), W(3), 4.0),
+    seg('K', W(2), W(3), 8.0),
+    seg('L', W(3), W(4), 5.0),
+];
+
+/// Station n's feed place.
+fn feed(station: u8) -> Option<Spot> {
+    match station {
+        1 => Some(W(6)),
+        2 => Some(W(3)),
+        3 => Some(W(5)),
+        _ => None,
+    }
+}
+
+const TRANSFER_S: f64 = 3.0;
+const RUN_EMPTY_S: f64 = 20.0;
+
+fn segment(line: char) -> Option<&'static Segment> {
+    SEGMENTS.iter().find(|s| s.line == line)
+}
+
+/// How a carrier travels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Via {
+    Line(char),
+    Station(u8),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Pos {
+    At(Spot),
+    /// Travelling: `due` is the arrival time while it moves; None while
+    /// frozen (`left` to go) or waiting for a full end (`left` zero).
+    Moving {
+        via: Via,
+        to: Spot,
+        due: Option<Duration>,
+        left: Duration,
+    },
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Carrier {
+    pos: Pos,
+    /// Arrival order at its spot (front = smallest).
+    seq: u64,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+struct Line {
+    running: bool,
+    /// Running empty until then, waiting for a carrier at its start.
+    empty_until: Option<Duration>,
+}
+
+/// A fault injected by a person or a test.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Control {
+    /// Emergency stop pressed.
+    EStop,
+    /// … and released.
+    EStopClear,
+    /// The carrier on this line stops moving (the line keeps running).
+    Jam(char),
+    /// … moves again.
+    Unjam(char),
+    /// This place's sensor shows this value whatever is there.
+    Stuck(u8, bool),
+    /// … shows the truth again.
+    Unstuck(u8),
+}
+
+/// The conveyor.
+pub struct Conveyor {
+    scale: f64,
+    carriers: Vec<Carrier>,
+    lines: BTreeMap<char, Line>,
+    coils: [bool; COILS as usize],
+    estop: bool,
+    jammed: BTreeSet<char>,
+    stuck: BTreeMap<u8, bool>,
+    seq: u64,
+    last_change: Option<Duration>,
+    notes: VecDeque<String>,
+}
+
+impl Conveyor {
+    /// A conveyor with carriers at `layout` (carrier 1 first), travel times
+    /// divided by `scale`.
+    pub fn new(layout: &[Spot], scale: f64) -> Result<Self, String> {
+        let mut c = Self {
+            scale: if scale > 0.0 { scale } else { 1.0 },
+            carriers: Vec::new(),
+            lines: SEGMENTS.iter().map(|s| (s.line, Line::default())).collect(),
+            coils: [false; COILS as usize],
+            estop: false,
+            jammed: BTreeSet::new(),
+            stuck: BTreeMap::new(),
+            seq: 0,
+            last_change: None,
+            notes: VecDeque::new(),
+        };
+        c.set_layout(layout)?;
+        Ok(c)
+    }
+
+    /// Puts the carriers at `layout` (all lines stopped, coils kept).
+    pub fn set_layout(&mut self, layout: &[Spot]) -> Result<(), String> {
+        for spot in layout {
+            let n = layout.iter().filter(|s| *s == spot).count();
+            if n > spot.capacity() {
+                return Err(format!(
+                    "{spot} holds {} carrier(s), not {n}",
+                    spot.capacity()
+                ));
+            }
+        }
+        self.carriers = layout
+            .iter()
+            .enumerate()
+            .map(|(i, s)| Carrier {
+                pos: Pos::At(*s),
+                seq: i as u64,
+            })
+            .collect();
+        self.seq = layout.len() as u64;
+        for l in self.lines.values_mut() {
+            *l = Line::default();
+        }
+        Ok(())
+    }
+
+    fn secs(&self, s: f64) -> Duration {
+        Duration::from_secs_f64(s / self.scale)
+    }
+
+    fn note(&mut self, s: String) {
+        self.notes.push_back(s);
+    }
+
+    /// The next line to print.
+    pub fn poll_note(&mut self) -> Option<String> {
+        self.notes.pop_front()
+    }
+
+    /// Where the carriers are: `carriers: 1@W3 2@K>W3`.
+    pub fn describe(&self) -> String {
+        let parts: Vec<String> = self
+            .carriers
+            .iter()
+            .enumerate()
+            .map(|(i, c)| match c.pos {
+                Pos::At(s) => format!("{}@{s}", i + 1),
+                Pos::Moving { via, to, .. } => {
+                    let v = match via {
+                        Via::Line(l) => l.to_string(),
+                        Via::Station(n) => format!("S{n}"),
+                    };
+                    format!("{}@{v}>{to}", i + 1)
+                }
+            })
+            .collect();
+        format!("carriers: {}", parts.join(" "))
+    }
+
+    /// The PLC's inputs now.
+    pub fn inputs(&self) -> Inputs {
+        let mut i = Inputs::default();
+        for (c, l) in &self.lines {
+            i.set(Input::Signal(Signal::Line(*c)), l.running);
+        }
+        for n in 2..=6u8 {
+            let real = self.count_at(W(n)) > 0;
+            let shown = self.stuck.get(&n).copied().unwrap_or(real);
+            i.set(Input::Signal(Signal::Place(n)), shown);
+        }
+        for n in 1..=3u8 {
+            i.set(Input::Signal(Signal::Station(n)), self.count_at(S(n)) > 0);
+        }
+        i.set(Input::Ready, !self.estop);
+        i.set(Input::EStop, self.estop);
+        i
+    }
+
+    /// The coils as last written.
+    pub fn coils(&self) -> &[bool] {
+        &self.coils
+    }
+
+    fn count_at(&self, s: Spot) -> usize {
+        self.carriers.iter().filter(|c| c.pos == Pos::At(s)).count()
+    }
+
+    fn front_at(&self, s: Spot) -> Option<usize> {
+        self.carriers
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| c.pos == Pos::At(s))
+            .min_by_key(|(_, c)| c.seq)
+            .map(|(i, _)| i)
+    }
+
+    fn on(&self, via: Via) -> Option<usize> {
+        self.carriers
+            .iter()
+            .position(|c| matches!(c.pos, Pos::Moving { via: v, .. } if v == via))
+    }
+
+    fn coil(&self, b: Button) -> bool {
+        Coil::Button(b)
+            .offset()
+            .and_then(|o| self.coils.get(usize::from(o)))
+            .copied()
+            .unwrap_or(false)
+    }
+
+    /// Runs `f`, and if the inputs changed, remembers `at` as the time of
+    /// the last input change.
+    fn changing(&mut self, at: Duration, f: impl FnOnce(&mut Self)) {
+        let before = self.inputs();
+        f(self);
+        if self.inputs() != before {
+            self.last_change = Some(at);
+        }
+    }
+
+    /// A coil write; false if `offset` is outside the map.
+    pub fn write_coil(&mut self, now: Duration, offset: u16, value: bool) -> bool {
+        let Some(coil) = Coil::at(offset) else {
+            return false;
+        };
+        self.handle_timeout(now);
+        let old = self.coils[usize::from(offset)];
+        self.coils[usize::from(offset)] = value;
+        if old == value {
+            return true;
+        }
+        let reaction = self
+            .last_change
+            .map(|t| format!(" reaction_us={}", now.saturating_sub(t).as_micros()))
+            .unwrap_or_default();
+        self.note(format!("coil {coil} {}{reaction}", u8::from(value)));
+        let external = self.coils[usize::from(Coil::ExternalControl.offset().unwrap_or(14))];
+        if self.estop || !external {
+            if value && matches!(coil, Coil::Button(_)) {
+                self.note(format!(
+                    "ignored {coil}: {}",
+                    if self.estop {
+                        "emergency stop"
+                    } else {
+                        "external control off"
+                    }
+                ));
+            }
+            return true;
+        }
+        self.changing(now, |c| match (coil, value) {
+            (Coil::Button(Button::Line(l)), true) => c.press_line(now, l),
+            (Coil::Button(Button::Station(n)), true) => c.press_station(now, n),
+            (Coil::Button(Button::Station(n)), false) => c.release_station(now, n),
+            _ => {}
+        });
+        true
+    }
+
+    fn press_line(&mut self, now: Duration, l: char) {
+        let Some(seg) = segment(l) else { return };
+        if let Some(i) = self.on(Via::Line(l)) {
+            if let Pos::Moving {
+                due: None, left, ..
+            } = &mut self.carriers[i].pos
+            {
+                if !left.is_zero() && !self.jammed.contains(&l) {
+                    let left = *left;
+                    self.resume(now, i, left);
+                    self.note(format!("line {l} restarted, carrier {} goes on", i + 1));
+                }
+            }
+            self.lines.entry(l).or_default().running = true;
+            return;
+        }
+        let ready = self.front_at(seg.from).filter(|_| match seg.from {
+            Spot::Station(n) => !self.coil(Button::Station(n)),
+            Spot::Place(_) => true,
+        });
+        let line = self.lines.entry(l).or_default();
+        line.running = true;
+        match ready {
+            Some(i) => {
+                line.empty_until = None;
+                self.depart(now, i, Via::Line(l), seg.to, seg.seconds);
+            }
+            None => {
+                line.empty_until = Some(now + Duration::from_secs_f64(RUN_EMPTY_S / self.scale));
+                self.note(format!("line {l} runs empty: no carrier at {}", seg.from));
+            }
+        }
+    }
+
+    fn press_station(&mut self, now: Duration, n: u8) {
+        if let Some(i) = self.on(Via::Station(n)) {
+            if let Pos::Moving {
+                due: None, left, ..
+            } = self.carriers[i].pos
+            {
+                if !left.is_zero() {
+                    self.resume(now, i, left);
+                }
+            }
+            return;
+        }
+        let Some(from) = feed(n) else { return };
+        if self.count_at(S(n)) > 0 {
+            return;
+        }
+        match self.front_at(from) {
+            Some(i) => self.depart(now, i, Via::Station(n), S(n), TRANSFER_S),
+            None => self.note(format!("station {n}: no carrier at {from}")),
+        }
+    }
+
+    fn release_station(&mut self, now: Duration, n: u8) {
+        // A line waiting empty at this station takes its carrier now.
+        let waiting = SEGMENTS.iter().find(|s| {
+            s.from == S(n)
+                && self
+                    .lines
+                    .get(&s.line)
+                    .is_some_and(|l| l.empty_until.is_some())
+        });
+        if let (Some(seg), Some(i)) = (waiting, self.front_at(S(n))) {
+            if let Some(l) = self.lines.get_mut(&seg.line) {
+                l.empty_until = None;
+            }
+            self.depart(now, i, Via::Line(seg.line), seg.to, seg.seconds);
+        }
+    }
+
+    fn resume(&mut self, now: Duration, i: usize, left: Duration) {
+        if let Pos::Moving { due, .. } = &mut self.carriers[i].pos {
+            *due = Some(now + left);
+        }
+    }
+
+    fn depart(&mut self, now: Duration, i: usize, via: Via, to: Spot, seconds: f64) {
+        let Pos::At(from) = self.carriers[i].pos else {
+            return;
+        };
+        let travel = self.secs(seconds);
+        let jammed = matches!(via, Via::Line(l) if self.jammed.contains(&l));
+        self.carriers[i].pos = Pos::Moving {
+            via,
+            to,
+            due: (!jammed).then_some(now + travel),
+            left: travel,
+        };
+        let how = match via {
+            Via::Line(l) => format!("on line {l}"),
+            Via::Station(n) => format!("onto station {n}"),
+        };
+        self.note(format!("carrier {} leaves {from} {how} for {to}", i + 1));
+        self.admit_waiting(now, from);
+    }
+
+    /// A carrier waiting at the end of its line for `spot` comes in.
+    fn admit_waiting(&mut self, now: Duration, spot: Spot) {
+        let waiting = self.carriers.iter().position(|c| {
+            matches!(c.pos, Pos::Moving { to, due: None, left, .. } if to == spot && left.is_zero())
+        });
+        if let Some(i) = waiting {
+            if !self.estop {
+                self.arrive(now, i);
+            }
+        }
+    }
+
+    fn arrive(&mut self, now: Duration, i: usize) {
+        let Pos::Moving { via, to, .. } = self.carriers[i].pos else {
+            return;
+        };
+        if self.count_at(to) >= to.capacity() {
+            self.carriers[i].pos = Pos::Moving {
+                via,
+                to,
+                due: None,
+                left: Duration::ZERO,
+            };
+            self.note(format!("carrier {} waits: {to} is full", i + 1));
+            return;
+        }
+        self.seq += 1;
+        self.carriers[i] = Carrier {
+            pos: Pos::At(to),
+            seq: self.seq,
+        };
+        if let Via::Line(l) = via {
+            if let Some(line) = self.lines.get_mut(&l) {
+                line.running = false;
+            }
+        }
+        self.note(format!("carrier {} at {to}", i + 1));
+        // A line running empty from here takes it straight on.
+        let onward = SEGMENTS.iter().find(|s| {
+            s.from == to
+                && matches!(to, Spot::Place(_))
+                && self
+                    .lines
+                    .get(&s.line)
+                    .is_some_and(|l| l.empty_until.is_some())
+        });
+        if let Some(seg) = onward {
+            if let Some(l) = self.lines.get_mut(&seg.line) {
+                l.empty_until = None;
+            }
+            self.depart(now, i, Via::Line(seg.line), seg.to, seg.seconds);
+        }
+    }
+
+    /// When `handle_timeout` must run next.
+    pub fn poll_timeout(&self) -> Option<Duration> {
+        let arrivals = self.carriers.iter().filter_map(|c| match c.pos {
+            Pos::Moving { due, .. } => due,
+            Pos::At(_) => None,
+        });
+        let empty = self.lines.values().filter_map(|l| l.empty_until);
+        arrivals.chain(empty).min()
+    }
+
+    /// Carries out everything due by `now`, in time order.
+    pub fn handle_timeout(&mut self, now: Duration) {
+        while let Some(t) = self.poll_timeout().filter(|t| *t <= now) {
+            let arriving = self
+                .carriers
+                .iter()
+                .position(|c| matches!(c.pos, Pos::Moving { due: Some(d), .. } if d == t));
+            if let Some(i) = arriving {
+                self.changing(t, |c| c.arrive(t, i));
+                continue;
+            }
+            let empty = self
+                .lines
+                .iter()
+                .find(|(_, l)| l.empty_until == Some(t))
+                .map(|(c, _)| *c);
+            if let Some(l) = empty {
+                self.changing(t, |c| {
+                    if let Some(line) = c.lines.get_mut(&l) {
+                        *line = Line::default();
+                    }
+                });
+                self.note(format!("line {l} stopped: no carrier came"));
+            }
+        }
+    }
+
+    /// Injects a fault (or clears it).
+    pub fn control(&mut self, now: Duration, control: Control) {
+        self.handle_timeout(now);
+        self.changing(now, |c| match control {
+            Control::EStop => {
+                c.estop = true;
+                for car in &mut c.carriers {
+                    if let Pos::Moving { due, left, .. } = &mut car.pos {
+                        if let Some(d) = due.take() {
+                            *left = d.saturating_sub(now);
+                        }
+                    }
+                }
+                for l in c.lines.values_mut() {
+                    *l = Line::default();
+                }
+            }
+            Control::EStopClear => c.estop = false,
+            Control::Jam(l) => {
+                c.jammed.insert(l);
+                if let Some(i) = c.on(Via::Line(l)) {
+                    if let Pos::Moving { due, left, .. } = &mut c.carriers[i].pos {
+                        if let Some(d) = due.take() {
+                            *left = d.saturating_sub(now);
+                        }
+                    }
+                }
+            }
+            Control::Unjam(l) => {
+                c.jammed.remove(&l);
+                let running = c.lines.get(&l).is_some_and(|x| x.running);
+                if let Some(i) = c.on(Via::Line(l)) {
+                    if let Pos::Moving {
+                        due: None, left, ..
+                    } = c.carriers[i].pos
+                    {
+                        if running && !left.is_zero() {
+                            c.resume(now, i, left);
+                        }
+                    }
+                }
+            }
+            Control::Stuck(p, v) => {
+                c.stuck.insert(p, v);
+            }
+            Control::Unstuck(p) => {
+                c.stuck.remove(&p);
+            }
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ms(n: u64) -> Duration {
+        Duration::from_millis(n)
+    }
+
+    /// A conveyor at scale 1 with external control on.
+    fn conveyor(layout: &[Spot]) -> Conveyor {
+        let mut c = Conveyor::new(layout, 1.0).expect("layout");
+        assert!(c.write_coil(ms(0), 14, true));
+        c
+    }
+
+    fn press(c: &mut Conveyor, t: Duration, b: Button, v: bool) {
+        let o = Coil::Button(b).offset().expect("in map");
+        assert!(c.write_coil(t, o, v));
+    }
+
+    fn place(c: &Conveyor, n: u8) -> bool {
+        c.inputs().signal(Signal::Place(n))
+    }
+
+    fn line(c: &Conveyor, l: char) -> bool {
+        c.inputs().signal(Signal::Line(l))
+    }
+
+    #[test]
+    fn store_moves_the_front_carrier_from_w2_to_w3() {
+        let mut c = conveyor(&[W(2), W(2)]);
+        press(&mut c, ms(10), Button::Line('K'), true);
+        assert!(line(&c, 'K'));
+        assert!(place(&c, 2), "carrier 2 still at W2");
+        c.handle_timeout(ms(8009));
+        assert!(!place(&c, 3));
+        c.handle_timeout(ms(8010));
+        assert!(place(&c, 3) && !line(&c, 'K'));
+        assert_eq!(c.describe(), "carriers: 1@W3 2@W2");
+        // The reaction time is measured from the arrival.
+        press(&mut c, ms(8015), Button::Line('K'), false);
+        let notes: Vec<String> = std::iter::from_fn(|| c.poll_note()).collect();
+        assert!(
+            notes
+                .iter()
+                .any(|n| n == "coil button line K 0 reaction_us=5000"),
+            "{notes:?}"
+        );
+    }
+
+    #[test]
+    fn move_to_man_then_station_3_takes_the_carrier() {
+        let mut c = conveyor(&[W(2), W(2)]);
+        press(&mut c, ms(0), Button::Line('E'), true);
+        c.handle_timeout(ms(10_000));
+        assert!(place(&c, 5));
+        press(&mut c, ms(10_000), Button::Line('E'), false);
+        press(&mut c, ms(10_000), Button::Station(3), true);
+        assert!(!place(&c, 5), "the table takes it at once");
+        c.handle_timeout(ms(13_000));
+        assert!(c.inputs().signal(Signal::Station(3)));
+        assert_eq!(c.describe(), "carriers: 1@S3 2@W2");
+    }
+
+    #[test]
+    fn a_carrier_leaves_a_station_only_once_its_button_is_released() {
+        let mut c = conveyor(&[S(3), W(2)]);
+        press(&mut c, ms(0), Button::Station(3), true);
+        press(&mut c, ms(0), Button::Line('F'), true);
+        assert!(line(&c, 'F') && c.inputs().signal(Signal::Station(3)));
+        press(&mut c, ms(100), Button::Station(3), false);
+        assert!(!c.inputs().signal(Signal::Station(3)));
+        c.handle_timeout(ms(5100));
+        assert!(place(&c, 4) && !line(&c, 'F'));
+    }
+
+    #[test]
+    fn unload_and_load_d_runs_empty_and_takes_the_carrier_on() {
+        let mut c = conveyor(&[S(3), W(3)]);
+        press(&mut c, ms(0), Button::Line('F'), true);
+        press(&mut c, ms(10), Button::Line('D'), true);
+        assert!(line(&c, 'D'), "D runs empty");
+        c.handle_timeout(ms(5000));
+        assert_eq!(c.describe(), "carriers: 1@D>W2 2@W3");
+        assert!(!place(&c, 4));
+        c.handle_timeout(ms(11_000));
+        assert_eq!(c.describe(), "carriers: 1@W2 2@W3");
+        assert!(!line(&c, 'D'));
+    }
+
+    #[test]
+    fn an_empty_line_stops_after_20_s() {
+        let mut c = conveyor(&[W(2), W(2)]);
+        press(&mut c, ms(0), Button::Line('L'), true);
+        c.handle_timeout(ms(19_999));
+        assert!(line(&c, 'L'));
+        c.handle_timeout(ms(20_000));
+        assert!(!line(&c, 'L'));
+    }
+
+    #[test]
+    fn buttons_need_external_control_and_no_emergency_stop() {
+        let mut c = Conveyor::new(&[W(2), W(2)], 1.0).expect("layout");
+        press(&mut c, ms(0), Button::Line('K'), true);
+        assert!(!line(&c, 'K'), "external control is off");
+        assert!(c.write_coil(ms(0), 14, true));
+        press(&mut c, ms(0), Button::Line('K'), false);
+        c.control(ms(0), Control::EStop);
+        assert!(c.inputs().get(Input::EStop) && !c.inputs().get(Input::Ready));
+        press(&mut c, ms(0), Button::Line('K'), true);
+        assert!(!line(&c, 'K'));
+    }
+
+    #[test]
+    fn emergency_stop_freezes_travel_until_the_line_is_pressed_again() {
+        let mut c = conveyor(&[W(2), W(2)]);
+        press(&mut c, ms(0), Button::Line('K'), true);
+        c.control(ms(3000), Control::EStop);
+        assert!(!line(&c, 'K'));
+        c.handle_timeout(ms(60_000));
+        assert_eq!(c.describe(), "carriers: 1@K>W3 2@W2");
+        c.control(ms(60_000), Control::EStopClear);
+        press(&mut c, ms(60_000), Button::Line('K'), false);
+        press(&mut c, ms(60_000), Button::Line('K'), true);
+        c.handle_timeout(ms(64_999));
+        assert!(!place(&c, 3));
+        c.handle_timeout(ms(65_000));
+        assert!(place(&c, 3));
+    }
+
+    #[test]
+    fn a_jammed_line_runs_but_its_carrier_does_not_arrive() {
+        let mut c = conveyor(&[W(2), W(2)]);
+        c.control(ms(0), Control::Jam('E'));
+        press(&mut c, ms(0), Button::Line('E'), true);
+        c.handle_timeout(ms(60_000));
+        assert!(line(&c, 'E') && !place(&c, 5));
+        c.control(ms(60_000), Control::Unjam('E'));
+        c.handle_timeout(ms(70_000));
+        assert!(place(&c, 5) && !line(&c, 'E'));
+    }
+
+    #[test]
+    fn a_stuck_sensor_shows_its_value() {
+        let mut c = conveyor(&[W(2), W(2)]);
+        c.control(ms(0), Control::Stuck(3, false));
+        press(&mut c, ms(0), Button::Line('K'), true);
+        c.handle_timeout(ms(9000));
+        assert!(!line(&c, 'K'), "the line stopped: the carrier is there");
+        assert!(!place(&c, 3), "but the sensor says empty");
+        c.control(ms(9000), Control::Unstuck(3));
+        assert!(place(&c, 3));
+    }
+
+    #[test]
+    fn a_full_place_holds_the_carrier_at_the_end_of_its_line() {
+        let mut c = conveyor(&[W(4), W(2)]);
+        press(&mut c, ms(0), Button::Line('E'), true);
+        c.handle_timeout(ms(10_000));
+        press(&mut c, ms(10_000), Button::Line('G'), true);
+        c.handle_timeout(ms(14_000));
+        assert!(line(&c, 'G'), "W4 is full: G keeps running");
+        press(&mut c, ms(14_000), Button::Line('D'), true);
+        assert_eq!(c.describe(), "carriers: 1@D>W2 2@W4");
+        assert!(!line(&c, 'G'));
+    }
+
+    #[test]
+    fn layouts_are_checked() {
+        assert!(Conveyor::new(&[W(3), W(3)], 1.0).is_err());
+        assert!(Conveyor::new(&[W(2), W(2)], 1.0).is_ok());
+        assert_eq!(Spot::parse("s3"), Some(S(3)));
+        assert_eq!(Spot::parse("W7"), None);
+        assert_eq!(Spot::parse("X"), None);
+    }
+}

@@ -1,0 +1,210 @@
+//! `falc-transport`: the transport workstation. Serves the MMS-equivalent
+//! services to its commander (domains, program invocations, status), runs
+//! transport recipes (`activate`, `reset`, `waitline`, `waitplace`,
+//! `waitstation`) against the conveyor PLC over Modbus TCP, polling its
+//! inputs (default every 10 ms). Link faults, Modbus exceptions, timeouts
+//! and an emergency stop become alarms naming the cause; the link
+//! reconnects by itself.
+//!
+//! `falc-transport io [--watch] [--map]` is the commissioning check: it
+//! shows the live inputs (and never writes a coil).
+//!
+//! A thin driver: the recipe runtime is `falc_common::workstation`, the
+//! Modbus link `falc_common::plc::driver`, the recipe ↔ I/O rules `plc`.
+
+mod plc;
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+use falc_common::bus::station::Station;
+use falc_common::ids::StationName;
+use falc_common::mms::pdu::Severity;
+use falc_common::node::{init_tracing, say, NodeArgs};
+use falc_common::plc::driver::{self, PlcArgs, PlcEvent, PlcSettings};
+use falc_common::recipe::commands::RecipeKind;
+use falc_common::topology::Topology;
+use falc_common::workstation::{Device, Workstation};
+use plc::Plc;
+use std::path::PathBuf;
+use std::time::Duration;
+
+#[derive(Parser, Debug)]
+#[command(
+    version,
+    about = "FALC transport workstation: recipes and the Modbus TCP link to the conveyor PLC"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Cmd>,
+    /// The station this process is (a station of kind transport).
+    #[arg(long, default_value = "transport")]
+    station: StationName,
+    #[command(flatten)]
+    plc: PlcArgs,
+    #[command(flatten)]
+    node: NodeArgs,
+}
+
+#[derive(Subcommand, Debug)]
+enum Cmd {
+    /// Commissioning: read the PLC's inputs and show them (writes nothing).
+    Io {
+        /// Keep showing every change, with its time, until Ctrl-C.
+        #[arg(long)]
+        watch: bool,
+        /// Print the I/O map (addresses at the given bases) and exit.
+        #[arg(long)]
+        map: bool,
+        /// The station whose `device` is the PLC's address.
+        #[arg(long, default_value = "transport")]
+        station: StationName,
+        /// The cell topology file (for the PLC's address).
+        #[arg(long, default_value = "launch/cell.toml")]
+        topology: PathBuf,
+        #[command(flatten)]
+        plc: PlcArgs,
+    },
+}
+
+fn plc_settings(
+    plc: &PlcArgs,
+    topology: Option<&Topology>,
+    station: &StationName,
+) -> Result<PlcSettings> {
+    let device = topology
+        .and_then(|t| t.station(station))
+        .and_then(|s| s.device.clone());
+    plc.settings(device).map_err(anyhow::Error::msg)
+}
+
+/// `io`: show the inputs once, or every change with `--watch`.
+async fn io(settings: PlcSettings, watch: bool) -> Result<()> {
+    let address = settings.address.clone();
+    let mut link = driver::spawn(settings);
+    let start = tokio::time::Instant::now();
+    let mut last = None;
+    loop {
+        let ev = tokio::select! {
+            ev = link.events.recv() => ev,
+            _ = tokio::signal::ctrl_c() => return Ok(()),
+        };
+        match ev {
+            Some(PlcEvent::Connected) => say(&format!("connected to {address}")),
+            Some(PlcEvent::Inputs { inputs, .. }) => {
+                if let (Some(before), true) = (last, watch) {
+                    let changes: Vec<String> =
+                        falc_common::plc::map::Inputs::changes(&before, &inputs)
+                            .map(|(i, v)| format!("{i} {}", u8::from(v)))
+                            .collect();
+                    say(&format!(
+                        "{:>9.3} s  {inputs}   ({})",
+                        start.elapsed().as_secs_f64(),
+                        changes.join(", ")
+                    ));
+                } else {
+                    say(&format!(
+                        "{:>9.3} s  {inputs}",
+                        start.elapsed().as_secs_f64()
+                    ));
+                }
+                if !watch {
+                    return Ok(());
+                }
+                last = Some(inputs);
+            }
+            Some(PlcEvent::Fault(why)) => {
+                say(&format!("fault: {why}"));
+                if !watch {
+                    anyhow::bail!(why);
+                }
+            }
+            None => anyhow::bail!("the PLC link stopped"),
+        }
+    }
+}
+
+#[tokio::main]
+async fn main() -> Result<()> {
+    init_tracing();
+    let cli = Cli::parse();
+    if let Some(Cmd::Io {
+        watch,
+        map,
+        station,
+        topology,
+        plc,
+    }) = &cli.command
+    {
+        if *map {
+            print!("{}", plc.map.map()?.table());
+            return Ok(());
+        }
+        let topology = Topology::load(topology).ok();
+        return io(plc_settings(plc, topology.as_ref(), station)?, *watch).await;
+    }
+    let topology = cli.node.topology()?;
+    let settings = cli.node.settings(&topology, &cli.station)?;
+    let plc_settings =
+        plc_settings(&cli.plc, Some(&topology), &cli.station).context("no PLC address")?;
+    let address = plc_settings.address.clone();
+    let poll = plc_settings.poll;
+    let station = Station::open(settings, &topology).await?;
+    let mut link = driver::spawn(plc_settings);
+    let plc = Plc::new(address.clone(), link.commands.clone());
+    let mut ws = Workstation::new(station, RecipeKind::Transport, Duration::from_secs(10), plc);
+    ws.publish_status().await;
+    say(&format!(
+        "EVENT ready station={} plc={address} poll_ms={}",
+        cli.station,
+        poll.as_millis()
+    ));
+    loop {
+        let deadline = ws.deadline();
+        tokio::select! {
+            ev = ws.station_next() => if !ws.station_event(ev).await { break },
+            ev = link.events.recv() => match ev {
+                Some(PlcEvent::Connected) => {
+                    say(&format!("EVENT plc-connected address={address}"));
+                    ws.device.connected();
+                }
+                Some(PlcEvent::Inputs { inputs, commands_done }) => {
+                    let was_down = ws.device.unavailable();
+                    let (events, alarm) = ws.device.inputs(inputs, commands_done);
+                    ws.feed(events);
+                    if let Some(why) = alarm {
+                        ws.fault(&why).await;
+                    } else if was_down.is_some() && ws.device.unavailable().is_none() {
+                        say("EVENT plc-ready");
+                        ws.report(Severity::Info, format!("conveyor PLC at {address} ready")).await;
+                    }
+                }
+                Some(PlcEvent::Fault(why)) => {
+                    ws.device.link_down(&why);
+                    ws.fault(&why).await;
+                }
+                None => {
+                    ws.fault("the PLC link task stopped").await;
+                    break;
+                }
+            },
+            _ = tokio::time::sleep_until(deadline) => ws.on_timeout(),
+            _ = tokio::signal::ctrl_c() => break,
+        }
+        ws.settle().await;
+    }
+    // Leave the conveyor as a person expects: no button held by FALC.
+    ws.device.shutdown();
+    let issued = ws.device.issued();
+    let _ = tokio::time::timeout(Duration::from_millis(500), async {
+        while let Some(ev) = link.events.recv().await {
+            if matches!(ev, PlcEvent::Inputs { commands_done, .. } if commands_done >= issued)
+                || matches!(ev, PlcEvent::Fault(_))
+            {
+                break;
+            }
+        }
+    })
+    .await;
+    say("EVENT stopped");
+    Ok(())
+}

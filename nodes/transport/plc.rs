@@ -1,0 +1,439 @@
+//! The transport workstation's device: the conveyor PLC as its recipes see
+//! it. Turns the engine's `activate` / `reset` into coil writes and
+//! `waitline` / `waitplace` / `waitstation` into watches on the polled
+//! inputs; says why no recipe can start (no link, emergency stop, PLC not
+//! ready); turns a rising emergency stop into an alarm; and, when a wait
+//! runs out, says what the inputs show (a line still running: a jammed
+//! carrier; a line that stopped without the place filling: a faulty
+//! sensor). It knows only the documented I/O map, never the conveyor's
+//! layout, so it works with any PLC that honours the map.
+//!
+//! Sans-I/O but for the command channel to the link task (an in-memory
+//! channel in the unit tests).
+
+use falc_common::mms::vmd::{PhysicalStatus, VmdStatus};
+use falc_common::plc::driver::PlcCommand;
+use falc_common::plc::map::{Coil, Input, Inputs, SignalName};
+use falc_common::recipe::check::{Button, Signal};
+use falc_common::recipe::engine::{Action, Event, Outcome};
+use falc_common::workstation::Device;
+use std::time::Duration;
+use tokio::sync::mpsc::UnboundedSender;
+
+#[derive(Debug, Clone, Copy)]
+struct Watch {
+    signal: Signal,
+    level: bool,
+    since: Duration,
+    /// Commands issued before the watch: a reading must come after them.
+    after: u64,
+}
+
+/// The conveyor PLC behind its link.
+pub struct Plc {
+    address: String,
+    commands: UnboundedSender<PlcCommand>,
+    issued: u64,
+    /// The link's fault, while it lasts.
+    down: Option<String>,
+    inputs: Option<Inputs>,
+    /// Commands carried out before `inputs` was read.
+    inputs_after: u64,
+    watch: Option<Watch>,
+    /// Buttons this node holds pressed.
+    pressed: Vec<Button>,
+    /// The line last pressed by the running recipe.
+    last_line: Option<char>,
+}
+
+impl Plc {
+    /// A PLC at `address` (for messages), commanded through `commands`.
+    pub fn new(address: String, commands: UnboundedSender<PlcCommand>) -> Self {
+        Self {
+            address,
+            commands,
+            issued: 0,
+            down: Some("not connected to the conveyor PLC yet".into()),
+            inputs: None,
+            inputs_after: 0,
+            watch: None,
+            pressed: Vec::new(),
+            last_line: None,
+        }
+    }
+
+    fn send(&mut self, c: PlcCommand) {
+        self.issued += 1;
+        if self.commands.send(c).is_err() {
+            tracing::error!("the PLC link task is gone");
+        }
+    }
+
+    fn write(&mut self, b: Button, value: bool) {
+        self.pressed.retain(|p| *p != b);
+        if value {
+            self.pressed.push(b);
+            if let Button::Line(l) = b {
+                self.last_line = Some(l);
+            }
+        }
+        self.send(PlcCommand::Write(Coil::Button(b), value));
+    }
+
+    /// (Re)connected: the coils' state is unknown, so every button is
+    /// released and external control taken, in one write.
+    pub fn connected(&mut self) {
+        self.down = None;
+        self.pressed.clear();
+        let mut all = [false; falc_common::plc::map::COILS as usize];
+        if let Some(o) = Coil::ExternalControl.offset() {
+            all[usize::from(o)] = true;
+        }
+        self.send(PlcCommand::WriteAll(all));
+    }
+
+    /// The link failed: `why` is the alarm.
+    pub fn link_down(&mut self, why: &str) {
+        self.down = Some(why.to_string());
+        self.inputs = None;
+    }
+
+    /// A new reading. Returns what it means for the running recipe, and an
+    /// alarm if the PLC went into emergency stop or out of ready.
+    pub fn inputs(&mut self, inputs: Inputs, commands_done: u64) -> (Vec<Event>, Option<String>) {
+        let before = self.inputs.replace(inputs);
+        self.inputs_after = commands_done;
+        let mut events = Vec::new();
+        if self.watch_met() {
+            self.watch = None;
+            events.push(Event::InputReached);
+        }
+        let was = |i: Input| before.is_some_and(|b| b.get(i));
+        let alarm = if inputs.get(Input::EStop) && !was(Input::EStop) {
+            Some(format!(
+                "emergency stop on the conveyor PLC at {}",
+                self.address
+            ))
+        } else if !inputs.get(Input::Ready)
+            && !inputs.get(Input::EStop)
+            && (was(Input::Ready) || before.is_none())
+        {
+            Some(format!(
+                "the conveyor PLC at {} is not ready (input `PLC ready` off)",
+                self.address
+            ))
+        } else {
+            None
+        };
+        (events, alarm)
+    }
+
+    fn watch_met(&self) -> bool {
+        match (self.watch, self.inputs) {
+            (Some(w), Some(i)) => self.inputs_after >= w.after && i.signal(w.signal) == w.level,
+            _ => false,
+        }
+    }
+
+    /// Releases every line button this node holds (station buttons hold a
+    /// workpiece on its station and stay as they are).
+    fn release_lines(&mut self) {
+        let lines: Vec<Button> = self
+            .pressed
+            .iter()
+            .copied()
+            .filter(|b| matches!(b, Button::Line(_)))
+            .collect();
+        for b in lines {
+            self.write(b, false);
+        }
+    }
+
+    /// Releases every button and external control (the node stops).
+    pub fn shutdown(&mut self) {
+        if self.down.is_none() {
+            self.send(PlcCommand::WriteAll(
+                [false; falc_common::plc::map::COILS as usize],
+            ));
+        }
+    }
+
+    /// Commands issued so far (to wait until the link carried them out).
+    pub fn issued(&self) -> u64 {
+        self.issued
+    }
+}
+
+fn on_off(v: bool) -> &'static str {
+    if v {
+        "on"
+    } else {
+        "off"
+    }
+}
+
+impl Device for Plc {
+    fn unavailable(&self) -> Option<String> {
+        if let Some(why) = &self.down {
+            return Some(why.clone());
+        }
+        let Some(i) = self.inputs else {
+            return Some(format!(
+                "no reading from the conveyor PLC at {} yet",
+                self.address
+            ));
+        };
+        if i.get(Input::EStop) {
+            return Some(format!(
+                "emergency stop on the conveyor PLC at {}",
+                self.address
+            ));
+        }
+        if !i.get(Input::Ready) {
+            return Some(format!("the conveyor PLC at {} is not ready", self.address));
+        }
+        None
+    }
+
+    fn act(&mut self, now: Duration, action: Action, out: &mut Vec<Event>) {
+        match action {
+            Action::Activate(b) => self.write(b, true),
+            Action::Reset(b) => self.write(b, false),
+            Action::Watch { signal, level } => {
+                self.watch = Some(Watch {
+                    signal,
+                    level,
+                    since: now,
+                    after: self.issued,
+                });
+                if self.watch_met() {
+                    self.watch = None;
+                    out.push(Event::InputReached);
+                }
+            }
+            Action::Unwatch => self.watch = None,
+            other => tracing::warn!("a transport recipe cannot {other:?}"),
+        }
+    }
+
+    fn halt(&mut self, _out: &mut Vec<Event>) {
+        self.watch = None;
+        self.release_lines();
+    }
+
+    fn finished(&mut self, outcome: &Outcome) {
+        self.watch = None;
+        if *outcome != Outcome::Done {
+            self.release_lines();
+        }
+        self.last_line = None;
+    }
+
+    fn explain_timeout(&self, now: Duration) -> Option<String> {
+        let w = self.watch?;
+        let Some(i) = self.inputs else {
+            return Some(format!(
+                "{} not seen: no reading from the conveyor PLC",
+                SignalName(w.signal)
+            ));
+        };
+        let line = self.last_line.map(|l| (l, i.signal(Signal::Line(l))));
+        let what = match (w.signal, w.level) {
+            (Signal::Place(p), true) => match line {
+                Some((l, true)) => format!(
+                    "place {p} still empty, line {l} still running: carrier jammed on line {l}?"
+                ),
+                Some((l, false)) => format!(
+                    "place {p} still empty though line {l} stopped: sensor of place {p} faulty, or the carrier did not arrive"
+                ),
+                None => format!("place {p} still empty"),
+            },
+            (Signal::Place(p), false) => match line {
+                Some((l, true)) => format!(
+                    "place {p} still occupied, line {l} running: carrier jammed leaving place {p}?"
+                ),
+                _ => format!(
+                    "place {p} still occupied with no line running: sensor of place {p} stuck, or the carrier did not leave"
+                ),
+            },
+            (Signal::Line(l), true) => format!(
+                "line {l} did not start (button line {l} {}): does the PLC have external control?",
+                on_off(self.pressed.contains(&Button::Line(l)))
+            ),
+            (Signal::Line(l), false) => format!(
+                "line {l} still running: carrier jammed on line {l}, or its end place full?"
+            ),
+            (Signal::Station(n), v) => format!(
+                "station {n} still {} (button station {n} {})",
+                if v { "not busy" } else { "busy" },
+                on_off(self.pressed.contains(&Button::Station(n)))
+            ),
+        };
+        Some(format!(
+            "waited {:.1} s for {} = {}: {what}",
+            now.saturating_sub(w.since).as_secs_f64(),
+            SignalName(w.signal),
+            u8::from(w.level)
+        ))
+    }
+
+    fn status(&self, status: &mut VmdStatus) {
+        status.physical = if self.unavailable().is_some() {
+            PhysicalStatus::Inoperable
+        } else {
+            PhysicalStatus::Operational
+        };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver};
+
+    fn plc() -> (Plc, UnboundedReceiver<PlcCommand>) {
+        let (tx, rx) = unbounded_channel();
+        (Plc::new("plc:502".into(), tx), rx)
+    }
+
+    fn ready() -> Inputs {
+        let mut i = Inputs::default();
+        i.set(Input::Ready, true);
+        i
+    }
+
+    fn drain(rx: &mut UnboundedReceiver<PlcCommand>) -> Vec<PlcCommand> {
+        std::iter::from_fn(|| rx.try_recv().ok()).collect()
+    }
+
+    fn act(p: &mut Plc, now: u64, a: Action) -> Vec<Event> {
+        let mut out = Vec::new();
+        p.act(Duration::from_secs(now), a, &mut out);
+        out
+    }
+
+    #[test]
+    fn unavailable_until_connected_and_read_and_while_estop() {
+        let (mut p, mut rx) = plc();
+        assert!(p.unavailable().is_some());
+        p.connected();
+        let mut all = [false; 15];
+        all[14] = true;
+        assert_eq!(
+            drain(&mut rx),
+            vec![PlcCommand::WriteAll(all)],
+            "buttons off, external control on"
+        );
+        assert_eq!(
+            p.unavailable().as_deref(),
+            Some("no reading from the conveyor PLC at plc:502 yet")
+        );
+        assert_eq!(p.inputs(ready(), 1), (vec![], None));
+        assert_eq!(p.unavailable(), None);
+        let mut stop = ready();
+        stop.set(Input::EStop, true);
+        stop.set(Input::Ready, false);
+        let (_, alarm) = p.inputs(stop, 1);
+        assert_eq!(
+            alarm.as_deref(),
+            Some("emergency stop on the conveyor PLC at plc:502")
+        );
+        assert!(p
+            .unavailable()
+            .is_some_and(|w| w.contains("emergency stop")));
+        // Still stopped: no second alarm.
+        assert_eq!(p.inputs(stop, 1).1, None);
+        p.link_down("gone");
+        assert_eq!(p.unavailable().as_deref(), Some("gone"));
+    }
+
+    #[test]
+    fn a_watch_only_counts_readings_taken_after_its_own_writes() {
+        let (mut p, mut rx) = plc();
+        p.connected();
+        p.inputs(ready(), 1);
+        assert!(act(&mut p, 0, Action::Activate(Button::Line('D'))).is_empty());
+        let mut running = ready();
+        running.set(Input::Signal(Signal::Line('D')), true);
+        // Wait for D to stop: the last reading (before the press) shows it
+        // stopped, but it was read before the write: no event yet.
+        let watch = Action::Watch {
+            signal: Signal::Line('D'),
+            level: false,
+        };
+        assert!(act(&mut p, 0, watch).is_empty());
+        // A reading from before the press arrives late: still not enough.
+        assert_eq!(p.inputs(ready(), 1).0, vec![]);
+        // After the press, D runs; then it stops.
+        assert_eq!(p.inputs(running, 2).0, vec![]);
+        assert_eq!(p.inputs(ready(), 2).0, vec![Event::InputReached]);
+        assert_eq!(
+            drain(&mut rx).last(),
+            Some(&PlcCommand::Write(Coil::Button(Button::Line('D')), true))
+        );
+    }
+
+    #[test]
+    fn a_met_watch_fires_at_once() {
+        let (mut p, _rx) = plc();
+        p.connected();
+        let mut i = ready();
+        i.set(Input::Signal(Signal::Place(3)), true);
+        p.inputs(i, 1);
+        let watch = Action::Watch {
+            signal: Signal::Place(3),
+            level: true,
+        };
+        assert_eq!(act(&mut p, 0, watch), vec![Event::InputReached]);
+    }
+
+    #[test]
+    fn an_alarm_releases_line_buttons_but_not_station_buttons() {
+        let (mut p, mut rx) = plc();
+        p.connected();
+        p.inputs(ready(), 1);
+        act(&mut p, 0, Action::Activate(Button::Station(3)));
+        act(&mut p, 0, Action::Activate(Button::Line('E')));
+        drain(&mut rx);
+        p.finished(&Outcome::Alarm("x".into()));
+        assert_eq!(
+            drain(&mut rx),
+            vec![PlcCommand::Write(Coil::Button(Button::Line('E')), false)]
+        );
+        // Done leaves everything as the recipe left it.
+        act(&mut p, 0, Action::Activate(Button::Line('K')));
+        drain(&mut rx);
+        p.finished(&Outcome::Done);
+        assert_eq!(drain(&mut rx), vec![]);
+    }
+
+    #[test]
+    fn timeouts_are_explained_from_the_inputs() {
+        let (mut p, _rx) = plc();
+        p.connected();
+        p.inputs(ready(), 1);
+        act(&mut p, 10, Action::Activate(Button::Line('E')));
+        let watch = Action::Watch {
+            signal: Signal::Place(5),
+            level: true,
+        };
+        act(&mut p, 10, watch);
+        let mut jam = ready();
+        jam.set(Input::Signal(Signal::Line('E')), true);
+        p.inputs(jam, 2);
+        assert_eq!(
+            p.explain_timeout(Duration::from_secs(70)).as_deref(),
+            Some("waited 60.0 s for place 5 occupied = 1: place 5 still empty, line E still running: carrier jammed on line E?")
+        );
+        p.inputs(ready(), 2);
+        let text = p
+            .explain_timeout(Duration::from_secs(70))
+            .unwrap_or_default();
+        assert!(
+            text.contains("though line E stopped: sensor of place 5 faulty"),
+            "{text}"
+        );
+        act(&mut p, 70, Action::Unwatch);
+        assert_eq!(p.explain_timeout(Duration::from_secs(70)), None);
+    }
+}

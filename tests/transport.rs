@@ -1,0 +1,335 @@
+//! The transport workstation end to end: a real router, `falc-plc-sim` on
+//! Modbus TCP (a free port), `falc-transport`, and this test process as its
+//! commander (the cell): it downloads transport recipes as domains, starts
+//! them, and reads the job events; the twin's `show` tells where the
+//! carriers went.
+
+mod support;
+
+use falc_common::mms::pdu::JobEvent;
+use std::process::Command;
+use std::time::Duration;
+use support::{Commander, Proc, TestCell};
+
+const SCALE: &str = "20";
+const RUN: Duration = Duration::from_secs(30);
+
+struct Rig {
+    cell: TestCell,
+    plc: Proc,
+    address: String,
+    transport: Proc,
+    commander: Commander,
+}
+
+fn plc_sim(extra: &[&str]) -> (Proc, String) {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-plc-sim"));
+    cmd.args(["--listen", "127.0.0.1:0", "--time-scale", SCALE])
+        .args(extra);
+    let mut plc = Proc::spawn("falc-plc-sim", cmd);
+    let line = plc.expect_line("listening on ", Duration::from_secs(10));
+    let address = line.rsplit(' ').next().unwrap_or_default().to_string();
+    (plc, address)
+}
+
+fn transport(cell: &TestCell, address: &str, extra: &[&str]) -> Proc {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-transport"));
+    cmd.args(["--station", "transport", "--plc", address])
+        .args(extra)
+        .arg("--topology")
+        .arg(&cell.topology_path)
+        .arg("--credentials-dir")
+        .arg(cell.credentials_dir());
+    let mut p = Proc::spawn("falc-transport", cmd);
+    p.expect_line("EVENT ready", Duration::from_secs(20));
+    p
+}
+
+async fn rig_with(plc_args: &[&str], node_args: &[&str]) -> Rig {
+    let cell = TestCell::start();
+    let (plc, address) = plc_sim(plc_args);
+    let transport = transport(&cell, &address, node_args);
+    let commander = Commander::associate(&cell, "transport").await;
+    Rig {
+        cell,
+        plc,
+        address,
+        transport,
+        commander,
+    }
+}
+
+async fn rig() -> Rig {
+    let mut r = rig_with(&[], &[]).await;
+    r.transport
+        .expect_line("EVENT plc-ready", Duration::from_secs(10));
+    r
+}
+
+fn shipped(name: &str) -> String {
+    std::fs::read_to_string(format!(
+        "{}/recipes/transport/{name}.rcp",
+        env!("CARGO_MANIFEST_DIR")
+    ))
+    .expect("shipped recipe")
+}
+
+impl Rig {
+    /// The carriers as the twin shows them now.
+    fn carriers(&mut self) -> String {
+        self.plc.control("show");
+        self.plc.take_line("carriers: ", Duration::from_secs(5))
+    }
+
+    /// Waits until the twin shows `want` (a line still running may take a
+    /// carrier on after a recipe ended).
+    async fn carriers_become(&mut self, want: &str) {
+        let end = tokio::time::Instant::now() + Duration::from_secs(10);
+        loop {
+            let now = self.carriers();
+            if now == format!("carriers: {want}") {
+                return;
+            }
+            assert!(
+                tokio::time::Instant::now() < end,
+                "carriers {now:?}, expected {want:?}"
+            );
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    }
+
+    async fn run(&mut self, name: &str) -> JobEvent {
+        self.commander.start(name).await;
+        self.commander.job(RUN).await
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_five_shipped_recipes_do_what_their_names_say() {
+    let mut rig = rig().await;
+    for name in [
+        "store",
+        "move_to_man",
+        "unstore",
+        "unload",
+        "unload_and_load",
+    ] {
+        rig.commander.load(name, &shipped(name)).await;
+    }
+    assert_eq!(rig.carriers(), "carriers: 1@W2 2@W2", "the thesis' start");
+    // dikdroog's order: store one carrier, bring the other to the robot,
+    // take the stored one back, unload the welded one.
+    assert_eq!(rig.run("store").await, JobEvent::Done);
+    assert_eq!(rig.carriers(), "carriers: 1@W3 2@W2");
+    assert_eq!(rig.run("move_to_man").await, JobEvent::Done);
+    assert_eq!(rig.carriers(), "carriers: 1@W3 2@S3");
+    assert_eq!(rig.run("unstore").await, JobEvent::Done);
+    assert_eq!(rig.carriers(), "carriers: 1@W2 2@S3");
+    assert_eq!(rig.run("unload").await, JobEvent::Done);
+    assert_eq!(
+        rig.carriers(),
+        "carriers: 1@W2 2@W2",
+        "both back at the start"
+    );
+    // Unload and load: the welded carrier leaves the table, the stored one
+    // takes its place.
+    rig.plc.control("layout S3 W3");
+    assert_eq!(rig.run("unload_and_load").await, JobEvent::Done);
+    rig.carriers_become("1@W2 2@S3").await;
+    // The buttons the recipes pressed: each one released again, but
+    // station 3's (it holds the carrier on the table).
+    for line in ["K", "E", "L", "D", "F", "H"] {
+        rig.plc
+            .expect_line(&format!("coil button line {line} 0"), RUN);
+    }
+}
+
+/// MOVE_TO_MAN with 2 s limits: a jammed carrier runs them out.
+const MOVE_SHORT: &str = "#MOVE_SHORT
+-1 | activate e        | | | 2
+-2 | waitplace 5 1 2   | | klaar | 3
+-2 | waitplace 5 1 2   | | tijdlimiet | 7
+-3 | reset e           | | | 4
+-4 | activate 3        | | | 5
+-5 | waitstation 3 1 2 | | klaar | 0
+-5 | waitstation 3 1 2 | | tijdlimiet | 6
+-6 | reset 3           | alarm | | 0
+-7 | reset e           | alarm | | 0
+";
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_jammed_carrier_runs_out_the_limit_takes_the_failure_path_and_recovers() {
+    let mut rig = rig().await;
+    rig.commander.load("move_short", MOVE_SHORT).await;
+    rig.plc.control("jam E");
+    rig.commander.start("move_short").await;
+    let text = rig.commander.alarm(RUN).await;
+    assert!(
+        text.contains("alarm in state 7"),
+        "the failure path: {text}"
+    );
+    assert!(
+        text.contains("place 5 still empty, line E still running: carrier jammed on line E"),
+        "{text}"
+    );
+    // State 7 released line E's button.
+    rig.plc
+        .expect_line("coil button line E 0", Duration::from_secs(5));
+    rig.plc.control("unjam E");
+    rig.carriers_become("1@W5 2@W2").await;
+    rig.plc.control("layout W2 W2");
+    assert_eq!(rig.run("move_short").await, JobEvent::Done);
+    assert_eq!(rig.carriers(), "carriers: 1@S3 2@W2");
+}
+
+const STORE_SHORT: &str = "#STORE_SHORT
+-1 | activate k       | | | 2
+-2 | waitplace 3 1 2  | | klaar | 3
+-2 | waitplace 3 1 2  | | tijdlimiet | 4
+-3 | reset k          | | | 0
+-4 | reset k          | alarm | | 0
+";
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stuck_sensor_is_named_in_the_alarm() {
+    let mut rig = rig().await;
+    rig.commander.load("store_short", STORE_SHORT).await;
+    rig.plc.control("stuck 3 0");
+    rig.commander.start("store_short").await;
+    let text = rig.commander.alarm(RUN).await;
+    assert!(
+        text.contains("place 3 still empty though line K stopped: sensor of place 3 faulty"),
+        "{text}"
+    );
+    rig.plc.control("unstuck 3");
+    rig.plc.control("layout W2 W2");
+    assert_eq!(rig.run("store_short").await, JobEvent::Done);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn emergency_stop_ends_in_alarm_refuses_starts_and_recovers() {
+    let mut rig = rig().await;
+    rig.commander.load("store", &shipped("store")).await;
+    rig.commander.start("store").await;
+    rig.plc
+        .expect_line("carrier 1 leaves W2 on line K", Duration::from_secs(5));
+    rig.plc.control("estop");
+    let text = rig.commander.alarm(Duration::from_secs(5)).await;
+    assert_eq!(
+        text,
+        format!("emergency stop on the conveyor PLC at {}", rig.address)
+    );
+    let refused = rig.commander.try_start("store").await;
+    assert!(
+        matches!(&refused, Err(e) if e.to_string().contains("emergency stop on the conveyor PLC")),
+        "{refused:?}"
+    );
+    rig.plc.control("estop-clear");
+    rig.transport
+        .take_line("EVENT plc-ready", Duration::from_secs(5));
+    rig.transport
+        .take_line("EVENT plc-ready", Duration::from_secs(5));
+    rig.plc.control("layout W2 W2");
+    assert_eq!(rig.run("store").await, JobEvent::Done);
+    assert_eq!(rig.carriers(), "carriers: 1@W3 2@W2");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn plc_offline_ends_in_alarm_and_the_node_reconnects() {
+    let mut rig = rig().await;
+    rig.commander.load("store", &shipped("store")).await;
+    rig.commander.start("store").await;
+    rig.plc
+        .expect_line("carrier 1 leaves W2 on line K", Duration::from_secs(5));
+    rig.plc.control("offline");
+    let text = rig.commander.alarm(Duration::from_secs(5)).await;
+    assert!(
+        text.contains(&format!("the conveyor PLC at {}", rig.address)),
+        "{text}"
+    );
+    // While it is away, a start is refused, naming the PLC.
+    let no_connection = format!("no connection with the conveyor PLC at {}", rig.address);
+    rig.commander
+        .report(&no_connection, Duration::from_secs(5))
+        .await;
+    let refused = rig.commander.try_start("store").await;
+    assert!(
+        matches!(&refused, Err(e) if e.to_string().contains(&no_connection)),
+        "{refused:?}"
+    );
+    rig.plc.control("online");
+    rig.transport
+        .take_line("EVENT plc-connected", Duration::from_secs(5));
+    rig.transport
+        .take_line("EVENT plc-connected", Duration::from_secs(5));
+    rig.transport
+        .take_line("EVENT plc-ready", Duration::from_secs(5));
+    rig.transport
+        .take_line("EVENT plc-ready", Duration::from_secs(5));
+    rig.plc.control("layout W2 W2");
+    assert_eq!(rig.run("store").await, JobEvent::Done);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_plc_that_stops_answering_times_out_into_an_alarm() {
+    let mut rig = rig_with(&[], &["--modbus-timeout-ms", "200"]).await;
+    rig.transport
+        .expect_line("EVENT plc-ready", Duration::from_secs(10));
+    rig.commander.load("store", &shipped("store")).await;
+    rig.commander.start("store").await;
+    rig.plc.control("mute");
+    let text = rig.commander.alarm(Duration::from_secs(5)).await;
+    assert!(
+        text.contains(&format!(
+            "the conveyor PLC at {} did not answer the read of discrete inputs 0..20 within 200ms",
+            rig.address
+        )),
+        "{text}"
+    );
+    rig.plc.control("unmute");
+    rig.transport
+        .take_line("EVENT plc-ready", Duration::from_secs(5));
+    rig.transport
+        .take_line("EVENT plc-ready", Duration::from_secs(5));
+    rig.plc.control("layout W2 W2");
+    assert_eq!(rig.run("store").await, JobEvent::Done);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_map_sits_at_configurable_bases_and_a_wrong_one_is_a_clear_alarm() {
+    // The PLC has the map at coils 100.., inputs 200..; a node that looks
+    // at 0.. gets Modbus exceptions, named in its alarm.
+    let bases = ["--coil-base", "100", "--input-base", "200"];
+    let mut rig = rig_with(&bases, &[]).await;
+    rig.commander.load("store", &shipped("store")).await;
+    // The fault is reported once, when it begins (maybe before this
+    // commander subscribed): read it from the node's own event line; a
+    // start meanwhile is refused with the same cause.
+    let line = rig
+        .transport
+        .expect_line("EVENT report severity=Alarm", Duration::from_secs(10));
+    let prefix = format!("the conveyor PLC at {} answered the ", rig.address);
+    let exception = "with Modbus exception Illegal data address";
+    assert!(
+        line.contains(&prefix)
+            && line.ends_with(exception)
+            && (line.contains("read of discrete inputs 0..20")
+                || line.contains("write of all coils 0..14")),
+        "{line}"
+    );
+    let refused = rig.commander.try_start("store").await;
+    assert!(
+        matches!(&refused, Err(e) if e.to_string().contains(exception)),
+        "{refused:?}"
+    );
+    rig.transport.kill();
+    drop(rig.commander);
+    let mut right = transport(&rig.cell, &rig.address, &bases);
+    right.expect_line("EVENT plc-ready", Duration::from_secs(10));
+    let mut commander = Commander::associate(&rig.cell, "transport").await;
+    commander.load("store", &shipped("store")).await;
+    commander.start("store").await;
+    assert_eq!(commander.job(RUN).await, JobEvent::Done);
+    rig.plc
+        .expect_line("coil button line K 1", Duration::from_secs(5));
+}
