@@ -14,9 +14,7 @@ mod support;
 use falc_common::dnc::driver::{self, DncHandle, LineSettings};
 use falc_common::dnc::procedure::{frame, LinkEvent, Priority, Timing};
 use falc_common::dnc::telegram::{Program, Telegram};
-use std::process::Command;
 use std::time::{Duration, Instant};
-use support::Proc;
 
 const BAUD: u32 = 9600;
 const ROUNDS: usize = 20;
@@ -52,16 +50,16 @@ fn ms(d: Duration) -> f64 {
 
 #[tokio::main]
 async fn main() {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-rcm-sim"));
-    cmd.args([
-        "--wire-baud",
-        &BAUD.to_string(),
-        "--time-scale",
-        &TIME_SCALE.to_string(),
-    ]);
-    let mut rcm = Proc::spawn("falc-rcm-sim", cmd);
-    let line = rcm.expect_line("serial port: ", Duration::from_secs(10));
-    let path = line.rsplit(' ').next().unwrap_or_default().to_string();
+    let (_rcm, path) = support::twin(
+        env!("CARGO_BIN_EXE_falc-rcm-sim"),
+        &[
+            "--wire-baud",
+            &BAUD.to_string(),
+            "--time-scale",
+            &TIME_SCALE.to_string(),
+        ],
+        "serial port: ",
+    );
     let port = driver::open_serial(&LineSettings {
         path,
         baud: BAUD,

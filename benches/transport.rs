@@ -13,9 +13,8 @@
 mod support;
 
 use falc_common::mms::pdu::JobEvent;
-use std::process::Command;
 use std::time::{Duration, Instant};
-use support::{Commander, Proc, TestCell};
+use support::{twin, Commander, Proc, TestCell};
 use tokio_modbus::client::Reader;
 
 const ROUNDS: usize = 40;
@@ -37,13 +36,12 @@ fn store() -> String {
 /// Runs STORE `ROUNDS` times with the node polling every `poll_ms`;
 /// returns the reaction times in ms.
 async fn reactions(cell: &TestCell, plc: &mut Proc, address: &str, poll_ms: u64) -> Vec<f64> {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-transport"));
-    cmd.args(["--plc", address, "--poll-ms", &poll_ms.to_string()])
-        .arg("--topology")
-        .arg(&cell.topology_path)
-        .arg("--credentials-dir")
-        .arg(cell.credentials_dir());
-    let mut node = Proc::spawn("falc-transport", cmd);
+    let poll = poll_ms.to_string();
+    let mut node = cell.start_node(
+        env!("CARGO_BIN_EXE_falc-transport"),
+        "transport",
+        &["--plc", address, "--poll-ms", &poll],
+    );
     node.expect_line("EVENT plc-ready", Duration::from_secs(20));
     let mut commander = Commander::associate(cell, "transport").await;
     commander.load("store", &store()).await;
@@ -68,11 +66,11 @@ async fn reactions(cell: &TestCell, plc: &mut Proc, address: &str, poll_ms: u64)
 #[tokio::main]
 async fn main() {
     let cell = TestCell::start();
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-plc-sim"));
-    cmd.args(["--listen", "127.0.0.1:0", "--time-scale", "40"]);
-    let mut plc = Proc::spawn("falc-plc-sim", cmd);
-    let line = plc.expect_line("listening on ", Duration::from_secs(10));
-    let address = line.rsplit(' ').next().unwrap_or_default().to_string();
+    let (mut plc, address) = twin(
+        env!("CARGO_BIN_EXE_falc-plc-sim"),
+        &["--listen", "127.0.0.1:0", "--time-scale", "40"],
+        "listening on ",
+    );
 
     // The floor: a bare Modbus read of the map's inputs, same twin.
     let sock = address.parse().expect("socket address");

@@ -7,21 +7,13 @@ mod support;
 use falc_common::dnc::driver::{self, DncHandle, LineSettings};
 use falc_common::dnc::procedure::{LinkEvent, Priority, SendError, Timing};
 use falc_common::dnc::telegram::{AckError, EndResult, Program, Telegram};
-use std::process::Command;
 use std::time::Duration;
 use support::Proc;
 
 const WAIT: Duration = Duration::from_secs(10);
 
 fn twin(args: &[&str]) -> (Proc, String) {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-rcm-sim"));
-    cmd.args(args);
-    let mut p = Proc::spawn("falc-rcm-sim", cmd);
-    let line = p.expect_line("falc-rcm-sim serial port: ", WAIT);
-    let path = line
-        .trim_start_matches("falc-rcm-sim serial port: ")
-        .to_string();
-    (p, path)
+    support::twin(env!("CARGO_BIN_EXE_falc-rcm-sim"), args, "serial port: ")
 }
 
 fn connect(path: &str, timing: Timing) -> DncHandle {

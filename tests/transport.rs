@@ -7,9 +7,8 @@
 mod support;
 
 use falc_common::mms::pdu::JobEvent;
-use std::process::Command;
 use std::time::Duration;
-use support::{Commander, Proc, TestCell};
+use support::{twin, Commander, Proc, TestCell};
 
 const SCALE: &str = "20";
 const RUN: Duration = Duration::from_secs(30);
@@ -23,26 +22,15 @@ struct Rig {
 }
 
 fn plc_sim(extra: &[&str]) -> (Proc, String) {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-plc-sim"));
-    cmd.args(["--listen", "127.0.0.1:0", "--time-scale", SCALE])
-        .args(extra);
-    let mut plc = Proc::spawn("falc-plc-sim", cmd);
-    let line = plc.expect_line("listening on ", Duration::from_secs(10));
-    let address = line.rsplit(' ').next().unwrap_or_default().to_string();
-    (plc, address)
+    let mut args = vec!["--listen", "127.0.0.1:0", "--time-scale", SCALE];
+    args.extend(extra);
+    twin(env!("CARGO_BIN_EXE_falc-plc-sim"), &args, "listening on ")
 }
 
 fn transport(cell: &TestCell, address: &str, extra: &[&str]) -> Proc {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-transport"));
-    cmd.args(["--station", "transport", "--plc", address])
-        .args(extra)
-        .arg("--topology")
-        .arg(&cell.topology_path)
-        .arg("--credentials-dir")
-        .arg(cell.credentials_dir());
-    let mut p = Proc::spawn("falc-transport", cmd);
-    p.expect_line("EVENT ready", Duration::from_secs(20));
-    p
+    let mut args = vec!["--plc", address];
+    args.extend(extra);
+    cell.start_node(env!("CARGO_BIN_EXE_falc-transport"), "transport", &args)
 }
 
 async fn rig_with(plc_args: &[&str], node_args: &[&str]) -> Rig {
@@ -63,6 +51,7 @@ async fn rig() -> Rig {
     let mut r = rig_with(&[], &[]).await;
     r.transport
         .expect_line("EVENT plc-ready", Duration::from_secs(10));
+    r.transport.forget("EVENT plc-ready");
     r
 }
 
@@ -96,6 +85,17 @@ impl Rig {
             );
             tokio::time::sleep(Duration::from_millis(100)).await;
         }
+    }
+
+    /// After a fault cleared: the node says the PLC is ready again, and
+    /// STORE runs to done from the start layout.
+    async fn recovers(&mut self) {
+        self.transport
+            .expect_line("EVENT plc-ready", Duration::from_secs(5));
+        self.transport.forget("EVENT plc-ready");
+        self.plc.control("layout W2 W2");
+        assert_eq!(self.run("store").await, JobEvent::Done);
+        assert_eq!(self.carriers(), "carriers: 1@W3 2@W2");
     }
 
     async fn run(&mut self, name: &str) -> JobEvent {
@@ -225,13 +225,7 @@ async fn emergency_stop_ends_in_alarm_refuses_starts_and_recovers() {
         "{refused:?}"
     );
     rig.plc.control("estop-clear");
-    rig.transport
-        .take_line("EVENT plc-ready", Duration::from_secs(5));
-    rig.transport
-        .take_line("EVENT plc-ready", Duration::from_secs(5));
-    rig.plc.control("layout W2 W2");
-    assert_eq!(rig.run("store").await, JobEvent::Done);
-    assert_eq!(rig.carriers(), "carriers: 1@W3 2@W2");
+    rig.recovers().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -258,16 +252,7 @@ async fn plc_offline_ends_in_alarm_and_the_node_reconnects() {
         "{refused:?}"
     );
     rig.plc.control("online");
-    rig.transport
-        .take_line("EVENT plc-connected", Duration::from_secs(5));
-    rig.transport
-        .take_line("EVENT plc-connected", Duration::from_secs(5));
-    rig.transport
-        .take_line("EVENT plc-ready", Duration::from_secs(5));
-    rig.transport
-        .take_line("EVENT plc-ready", Duration::from_secs(5));
-    rig.plc.control("layout W2 W2");
-    assert_eq!(rig.run("store").await, JobEvent::Done);
+    rig.recovers().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -275,6 +260,7 @@ async fn a_plc_that_stops_answering_times_out_into_an_alarm() {
     let mut rig = rig_with(&[], &["--modbus-timeout-ms", "200"]).await;
     rig.transport
         .expect_line("EVENT plc-ready", Duration::from_secs(10));
+    rig.transport.forget("EVENT plc-ready");
     rig.commander.load("store", &shipped("store")).await;
     rig.commander.start("store").await;
     rig.plc.control("mute");
@@ -287,12 +273,7 @@ async fn a_plc_that_stops_answering_times_out_into_an_alarm() {
         "{text}"
     );
     rig.plc.control("unmute");
-    rig.transport
-        .take_line("EVENT plc-ready", Duration::from_secs(5));
-    rig.transport
-        .take_line("EVENT plc-ready", Duration::from_secs(5));
-    rig.plc.control("layout W2 W2");
-    assert_eq!(rig.run("store").await, JobEvent::Done);
+    rig.recovers().await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -7,9 +7,8 @@ mod support;
 
 use falc_common::ids::ObjectName;
 use falc_common::mms::pdu::{JobEvent, Request, Response};
-use std::process::Command;
 use std::time::Duration;
-use support::{Commander, Proc, TestCell};
+use support::{twin, Commander, Proc, TestCell};
 
 struct Rig {
     _cell: TestCell,
@@ -21,19 +20,16 @@ struct Rig {
 
 async fn rig(time_scale: &str) -> Rig {
     let cell = TestCell::start();
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-rcm-sim"));
-    cmd.args(["--time-scale", time_scale]);
-    let mut rcm = Proc::spawn("falc-rcm-sim", cmd);
-    let line = rcm.expect_line("serial port: ", Duration::from_secs(10));
-    let path = line.rsplit(' ').next().unwrap_or_default().to_string();
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-welding"));
-    cmd.args(["--station", "welding", "--device", &path])
-        .arg("--topology")
-        .arg(&cell.topology_path)
-        .arg("--credentials-dir")
-        .arg(cell.credentials_dir());
-    let mut welding = Proc::spawn("falc-welding", cmd);
-    welding.expect_line("EVENT ready", Duration::from_secs(20));
+    let (rcm, path) = twin(
+        env!("CARGO_BIN_EXE_falc-rcm-sim"),
+        &["--time-scale", time_scale],
+        "serial port: ",
+    );
+    let welding = cell.start_node(
+        env!("CARGO_BIN_EXE_falc-welding"),
+        "welding",
+        &["--device", &path],
+    );
     let commander = Commander::associate(&cell, "welding").await;
     Rig {
         _cell: cell,

@@ -125,6 +125,12 @@ impl Proc {
         line
     }
 
+    /// Forgets the lines seen so far that contain `needle`, so that the
+    /// next `expect_line` waits for a new one.
+    pub fn forget(&mut self, needle: &str) {
+        self.seen.retain(|l| !l.contains(needle));
+    }
+
     /// Writes a line to the process's stdin (a twin's control interface)
     /// and waits for its `ok` answer.
     pub fn control(&mut self, line: &str) {
@@ -151,6 +157,21 @@ impl Drop for Proc {
     fn drop(&mut self) {
         self.kill();
     }
+}
+
+/// Starts a twin (`bin` with `args`) and reads where to reach it from its
+/// first line, `… <announces> <where>` (a pty path, a Modbus address).
+pub fn twin(bin: &str, args: &[&str], announces: &str) -> (Proc, String) {
+    let mut cmd = Command::new(bin);
+    cmd.args(args);
+    let name = std::path::Path::new(bin)
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| bin.to_string());
+    let mut p = Proc::spawn(&name, cmd);
+    let line = p.expect_line(announces, Duration::from_secs(10));
+    let at = line.rsplit(' ').next().unwrap_or_default().to_string();
+    (p, at)
 }
 
 /// A cell under test: a temp dir with topology and credentials, and a router.
@@ -192,11 +213,12 @@ impl TestCell {
         self.dir.path().join("credentials")
     }
 
-    /// Starts a demo station process and waits until it is on the bus.
-    pub fn demo_station(&self, station: &str) -> Proc {
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-demo-station"));
-        cmd.arg("--station")
-            .arg(station)
+    /// Starts node binary `bin` as `station` of this cell (with `args`) and
+    /// waits until it says it is ready.
+    pub fn start_node(&self, bin: &str, station: &str, args: &[&str]) -> Proc {
+        let mut cmd = Command::new(bin);
+        cmd.args(["--station", station])
+            .args(args)
             .arg("--topology")
             .arg(&self.topology_path)
             .arg("--credentials-dir")
@@ -204,6 +226,11 @@ impl TestCell {
         let mut p = Proc::spawn(station, cmd);
         p.expect_line("EVENT ready", Duration::from_secs(20));
         p
+    }
+
+    /// Starts a demo station process and waits until it is on the bus.
+    pub fn demo_station(&self, station: &str) -> Proc {
+        self.start_node(env!("CARGO_BIN_EXE_falc-demo-station"), station, &[])
     }
 
     /// Bus settings for a session of `station` from this process.
