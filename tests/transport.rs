@@ -314,3 +314,109 @@ async fn the_map_sits_at_configurable_bases_and_a_wrong_one_is_a_clear_alarm() {
     rig.plc
         .expect_line("coil button line K 1", Duration::from_secs(5));
 }
+
+/// A plain Modbus TCP server with the map's coils and inputs and no
+/// conveyor at all: the test plays the PLC by setting inputs itself.
+mod plain_plc {
+    use falc_common::plc::map::{COILS, INPUTS};
+    use std::future::Future;
+    use std::pin::Pin;
+    use std::sync::{Arc, Mutex};
+    use tokio_modbus::server::tcp::{accept_tcp_connection, Server};
+    use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
+
+    #[derive(Default)]
+    pub struct Image {
+        pub coils: [bool; COILS as usize],
+        pub inputs: [bool; INPUTS as usize],
+    }
+
+    #[derive(Clone)]
+    struct Service(Arc<Mutex<Image>>);
+
+    fn range(addr: u16, n: usize, size: u16) -> Result<std::ops::Range<usize>, ExceptionCode> {
+        let (a, end) = (usize::from(addr), usize::from(addr) + n);
+        if n == 0 || end > usize::from(size) {
+            return Err(ExceptionCode::IllegalDataAddress);
+        }
+        Ok(a..end)
+    }
+
+    impl tokio_modbus::server::Service for Service {
+        type Request = SlaveRequest<'static>;
+        type Response = Response;
+        type Exception = ExceptionCode;
+        type Future = Pin<Box<dyn Future<Output = Result<Response, ExceptionCode>> + Send>>;
+
+        fn call(&self, req: Self::Request) -> Self::Future {
+            let mut img = self.0.lock().expect("image");
+            let r = match req.request {
+                Request::ReadDiscreteInputs(a, n) => range(a, n.into(), INPUTS)
+                    .map(|r| Response::ReadDiscreteInputs(img.inputs[r].to_vec())),
+                Request::WriteSingleCoil(a, v) => range(a, 1, COILS).map(|r| {
+                    img.coils[r.start] = v;
+                    Response::WriteSingleCoil(a, v)
+                }),
+                Request::WriteMultipleCoils(a, vs) => range(a, vs.len(), COILS).map(|r| {
+                    img.coils[r].copy_from_slice(&vs);
+                    Response::WriteMultipleCoils(a, vs.len() as u16)
+                }),
+                _ => Err(ExceptionCode::IllegalFunction),
+            };
+            Box::pin(std::future::ready(r))
+        }
+    }
+
+    /// Serves `image` on a free port until the test ends; its address.
+    pub async fn serve(image: Arc<Mutex<Image>>) -> String {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+            .await
+            .expect("bind");
+        let addr = listener.local_addr().expect("address");
+        tokio::spawn(async move {
+            let service = Service(image);
+            let on_connected = |stream, peer| {
+                let s = service.clone();
+                async move { accept_tcp_connection(stream, peer, move |_| Ok(Some(s.clone()))) }
+            };
+            let _ = Server::new(listener).serve(&on_connected, |_| {}).await;
+        });
+        addr.to_string()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_node_needs_nothing_but_the_documented_map() {
+    use falc_common::plc::map::{Coil, Input};
+    use falc_common::recipe::check::{Button, Signal};
+    use std::sync::{Arc, Mutex};
+    let image = Arc::new(Mutex::new(plain_plc::Image::default()));
+    let offset = |i: Input| usize::from(i.offset().expect("in map"));
+    let coil = |c: Coil| usize::from(c.offset().expect("in map"));
+    image.lock().expect("image").inputs[offset(Input::Ready)] = true;
+    let address = plain_plc::serve(image.clone()).await;
+    let cell = TestCell::start();
+    let mut node = transport(&cell, &address, &[]);
+    node.expect_line("EVENT plc-ready", Duration::from_secs(10));
+    let mut commander = Commander::associate(&cell, "transport").await;
+    commander.load("store", &shipped("store")).await;
+    commander.start("store").await;
+    // The node takes external control and presses K …
+    let k = coil(Coil::Button(Button::Line('K')));
+    let end = tokio::time::Instant::now() + Duration::from_secs(5);
+    loop {
+        let pressed = {
+            let img = image.lock().expect("image");
+            img.coils[k] && img.coils[coil(Coil::ExternalControl)]
+        };
+        if pressed {
+            break;
+        }
+        assert!(tokio::time::Instant::now() < end, "button K never pressed");
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    // … and when place 3 reports occupied, releases it and is done.
+    image.lock().expect("image").inputs[offset(Input::Signal(Signal::Place(3)))] = true;
+    assert_eq!(commander.job(Duration::from_secs(5)).await, JobEvent::Done);
+    assert!(!image.lock().expect("image").coils[k], "K released");
+}
