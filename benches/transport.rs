@@ -48,6 +48,11 @@ async fn reactions(cell: &TestCell, plc: &mut Proc, address: &str, poll_ms: u64)
     let mut out = Vec::new();
     for _ in 0..ROUNDS {
         plc.control("layout W2 W2");
+        // A random phase against the poll period: without it every start
+        // follows the last run's final poll by the same few ms, and so
+        // does every arrival (travel times are whole poll periods).
+        let phase = Duration::from_secs_f64(rand::random::<f64>() * 0.02);
+        tokio::time::sleep(phase).await;
         commander.start("store").await;
         assert_eq!(commander.job(Duration::from_secs(30)).await, JobEvent::Done);
         let line = plc.take_line("coil button line K 0 reaction_us=", Duration::from_secs(5));
