@@ -30,8 +30,8 @@ pub trait Device {
     /// Why no recipe can start now (no link, emergency stop), if so.
     fn unavailable(&self) -> Option<String>;
     /// Carries out a device action of the running recipe (`Start`, `Stop`,
-    /// `Activate`, `Reset`, `Watch`, `Unwatch`); events that follow at once
-    /// go into `out`.
+    /// `Activate`, `Reset`, `Watch`, `Unwatch`, `Output`, `Input`); events
+    /// that follow at once go into `out`.
     fn act(&mut self, now: Duration, action: Action, out: &mut Vec<Event>);
     /// The commander stopped or killed the recipe: stop the device.
     fn halt(&mut self, out: &mut Vec<Event>);
@@ -44,6 +44,10 @@ pub trait Device {
     }
     /// The device's part of the status (physical status, additional detail).
     fn status(&self, status: &mut VmdStatus);
+    /// An association was lost (the commander, or a subordinate of a cell).
+    fn lost(&mut self, _station: &crate::ids::StationName) {}
+    /// The commander associated (and with it every subordinate).
+    fn associated(&mut self) {}
 }
 
 struct Running {
@@ -202,9 +206,6 @@ impl<D: Device> Workstation<D> {
                     self.report(Severity::Alarm, text).await;
                 }
                 Action::Entered(s) => tracing::debug!(state = %s, "recipe state"),
-                a @ (Action::Output(_) | Action::Input(_)) => {
-                    tracing::warn!("a {} recipe cannot {a:?}", self.kind)
-                }
                 a => {
                     let mut out = Vec::new();
                     self.device.act(now, a, &mut out);
@@ -245,15 +246,19 @@ impl<D: Device> Workstation<D> {
                 let result = self.indication(&ind.request).await;
                 ind.responder.respond(result).await;
             }
+            Some(StationEvent::Abort(a)) if self.running.is_some() => {
+                say(&format!("EVENT abort-indication peer={}", a.peer.station));
+                let why = format!("no connection with station {}", a.peer.station);
+                self.device.lost(&a.peer.station);
+                self.fault(&why).await;
+            }
             Some(StationEvent::Abort(a)) => {
                 say(&format!("EVENT abort-indication peer={}", a.peer.station));
-                if let Some(r) = &mut self.running {
-                    r.engine
-                        .abort(&format!("no connection with station {}", a.peer.station));
-                }
+                self.device.lost(&a.peer.station);
             }
             Some(StationEvent::Associated(p)) => {
-                say(&format!("EVENT associated commander={}", p.station))
+                say(&format!("EVENT associated commander={}", p.station));
+                self.device.associated();
             }
             Some(StationEvent::Concluded(_)) => {}
             None => return false,
@@ -283,7 +288,20 @@ impl<D: Device> Workstation<D> {
         Ok(Engine::new(Arc::new(program)).with_confirm_limit(self.confirm_limit))
     }
 
-    async fn indication(&mut self, req: &Request) -> Result<Response, ServiceError> {
+    /// The object store (domains, program invocations).
+    pub fn vmd(&self) -> &Vmd {
+        &self.vmd
+    }
+
+    /// Takes a domain back out (a delivery that failed).
+    pub fn discard_domain(&mut self, name: &ObjectName) {
+        let _ = self.vmd.handle(&Request::DeleteDomain {
+            domain: name.clone(),
+        });
+    }
+
+    /// Answers one indication (the node answers it to the commander).
+    pub async fn indication(&mut self, req: &Request) -> Result<Response, ServiceError> {
         let Some((result, transition)) = self.vmd.handle(req) else {
             return Err(ServiceError::malformed(format!(
                 "{} is not served by a {} station",

@@ -270,7 +270,12 @@ pub struct Commander {
 impl Commander {
     /// Opens a `cell` session and associates with `station`.
     pub async fn associate(cell: &TestCell, station: &str) -> Commander {
-        let bus = cell.bus("cell").await.expect("cell session");
+        Self::associate_as(cell, "cell", station).await
+    }
+
+    /// Opens a session of `me` and associates with `station`.
+    pub async fn associate_as(cell: &TestCell, me: &str, station: &str) -> Commander {
+        let bus = cell.bus(me).await.expect("session");
         let r = bus
             .request(
                 &st(station),
@@ -297,6 +302,20 @@ impl Commander {
 
     /// Downloads `text` as domain `name` and creates its program invocation.
     pub async fn load(&self, name: &str, text: &str) {
+        self.download(name, text).await;
+        let name = ObjectName::new(name).expect("valid");
+        let r = self
+            .call(Request::CreateProgramInvocation {
+                name: name.clone(),
+                domains: vec![name.clone()],
+                reusable: true,
+            })
+            .await;
+        assert_eq!(r, Ok(Response::Done), "create {name}");
+    }
+
+    /// Downloads `text` as domain `name`.
+    pub async fn download(&self, name: &str, text: &str) {
         let name = ObjectName::new(name).expect("valid");
         let steps = [
             Request::InitiateDownloadSequence {
@@ -310,11 +329,6 @@ impl Commander {
             Request::TerminateDownloadSequence {
                 domain: name.clone(),
                 discard: None,
-            },
-            Request::CreateProgramInvocation {
-                name: name.clone(),
-                domains: vec![name.clone()],
-                reusable: true,
             },
         ];
         for s in steps {
@@ -343,12 +357,21 @@ impl Commander {
 
     /// The next job event.
     pub async fn job(&mut self, within: Duration) -> JobEvent {
+        match self.try_job(within).await {
+            Some(job) => job,
+            None => panic!("no job event within {within:?}"),
+        }
+    }
+
+    /// The next job event, if one comes within `within`.
+    pub async fn try_job(&mut self, within: Duration) -> Option<JobEvent> {
         let end = tokio::time::Instant::now() + within;
         loop {
             match tokio::time::timeout_at(end, self.events.recv()).await {
-                Ok(Some(Unconfirmed::Job { event, .. })) => return event,
+                Ok(Some(Unconfirmed::Job { event, .. })) => return Some(event),
                 Ok(Some(_)) => continue,
-                other => panic!("no job event within {within:?}: {other:?}"),
+                Ok(None) => panic!("the subscription ended"),
+                Err(_) => return None,
             }
         }
     }

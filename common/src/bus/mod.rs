@@ -149,12 +149,15 @@ impl StatusBoard {
     }
 }
 
-/// A node's session to the router, with its liveliness token.
+/// A node's session to the router, with its liveliness token. Clones share
+/// the session (to issue requests from tasks); the token lives while any
+/// clone does.
+#[derive(Clone)]
 pub struct Bus {
     session: zenoh::Session,
     keys: KeySpace,
     me: Peer,
-    _token: zenoh::liveliness::LivelinessToken,
+    _token: std::sync::Arc<zenoh::liveliness::LivelinessToken>,
 }
 
 /// Keeps a declaration alive; dropping it undeclares.
@@ -195,7 +198,7 @@ impl Bus {
             session,
             keys: settings.keys,
             me,
-            _token: token,
+            _token: std::sync::Arc::new(token),
         })
     }
 
