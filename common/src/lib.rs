@@ -1,5 +1,6 @@
 //! FALC shared library: everything the node binaries have in common.
 //!
+//! - [`api`]: the operator API consoles use (requests, orders, journal);
 //! - [`ids`]: validated names (stations, cells, MMS objects);
 //! - [`topology`]: `launch/cell.toml`, the cell's stations and hierarchy;
 //! - [`mms`]: the MMS-equivalent service model, sans-I/O;
@@ -12,6 +13,7 @@
 //! - [`bus`]: the zenoh binding: keys, envelope, sessions, credentials, ACL,
 //!   service client and server, stations with their associations.
 
+pub mod api;
 pub mod bus;
 pub mod dnc;
 pub mod ids;

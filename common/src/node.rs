@@ -39,8 +39,8 @@ pub enum SetupError {
     /// The credentials are missing, unreadable or too open.
     #[error(transparent)]
     Credentials(#[from] CredentialsError),
-    /// The station is not in the topology.
-    #[error("station `{station}` is not defined in {topology}")]
+    /// The station (or console user) is not in the topology.
+    #[error("station or console `{station}` is not defined in {topology}")]
     UnknownStation {
         /// The station.
         station: StationName,
@@ -59,13 +59,13 @@ impl NodeArgs {
         Ok(t)
     }
 
-    /// The bus settings of `station`.
+    /// The bus settings of `station` (or of a console user).
     pub fn settings(
         &self,
         topology: &Topology,
         station: &StationName,
     ) -> Result<BusSettings, SetupError> {
-        if topology.station(station).is_none() {
+        if topology.station(station).is_none() && topology.console(station).is_none() {
             return Err(SetupError::UnknownStation {
                 station: station.clone(),
                 topology: self.topology.display().to_string(),

@@ -43,6 +43,28 @@ pub struct Station {
     pub device: Option<String>,
 }
 
+/// What a console user may do through the operator API (DESIGN.md §4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Role {
+    /// Reads everything: status, order list, messages, journal.
+    Observer,
+    /// Also orders, start/stop, answers, acknowledgements, shut down.
+    Operator,
+    /// Also recipes.
+    Engineer,
+}
+
+/// One console user stanza: a person (or script) using `falc`.
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Console {
+    /// The zenoh user name; named in every journal entry it causes.
+    pub name: StationName,
+    /// What it may do.
+    pub role: Role,
+}
+
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawTopology {
@@ -52,6 +74,8 @@ struct RawTopology {
     lease_ms: u64,
     #[serde(rename = "station", default)]
     stations: Vec<Station>,
+    #[serde(rename = "console", default)]
+    consoles: Vec<Console>,
 }
 
 fn default_lease_ms() -> u64 {
@@ -65,6 +89,7 @@ pub struct Topology {
     router: String,
     lease: Duration,
     stations: Vec<Station>,
+    consoles: Vec<Console>,
     index: BTreeMap<StationName, usize>,
 }
 
@@ -129,6 +154,17 @@ impl Topology {
                 return Err(fail(format!("station `{}` is defined twice", st.name)));
             }
         }
+        for c in &raw.consoles {
+            if index.contains_key(&c.name) {
+                return Err(fail(format!(
+                    "console `{}` has the name of a station; each zenoh user needs its own name",
+                    c.name
+                )));
+            }
+            if raw.consoles.iter().filter(|o| o.name == c.name).count() > 1 {
+                return Err(fail(format!("console `{}` is defined twice", c.name)));
+            }
+        }
         let roots: Vec<_> = raw
             .stations
             .iter()
@@ -184,6 +220,7 @@ impl Topology {
             router: raw.router,
             lease: Duration::from_millis(raw.lease_ms),
             stations: raw.stations,
+            consoles: raw.consoles,
             index,
         })
     }
@@ -216,6 +253,24 @@ impl Topology {
     /// One station by name.
     pub fn station(&self, name: &StationName) -> Option<&Station> {
         self.index.get(name).map(|&i| &self.stations[i])
+    }
+
+    /// Every console user, in file order.
+    pub fn consoles(&self) -> &[Console] {
+        &self.consoles
+    }
+
+    /// One console user by name.
+    pub fn console(&self, name: &StationName) -> Option<&Console> {
+        self.consoles.iter().find(|c| &c.name == name)
+    }
+
+    /// Every zenoh user of the cell: stations, then consoles.
+    pub fn users(&self) -> impl Iterator<Item = &StationName> {
+        self.stations
+            .iter()
+            .map(|s| &s.name)
+            .chain(self.consoles.iter().map(|c| &c.name))
     }
 
     /// The root station (the operator).
@@ -300,5 +355,24 @@ device = "/dev/ttyS0"
                 .contains("painting")
         );
         assert!(refusal(&CELL.replace("name = \"cell\"", "name = \"c ell\"")).contains("c ell"));
+    }
+
+    #[test]
+    fn consoles_have_roles_and_their_own_names() {
+        let t = Topology::parse(
+            &format!("{CELL}[[console]]\nname=\"ann\"\nrole=\"operator\"\n"),
+            "t",
+        )
+        .expect("valid");
+        let ann = StationName::new("ann").expect("valid");
+        assert_eq!(t.console(&ann).map(|c| c.role), Some(Role::Operator));
+        assert_eq!(t.users().count(), 4);
+        assert!(refusal(&format!(
+            "{CELL}[[console]]\nname=\"cell\"\nrole=\"observer\"\n"
+        ))
+        .contains("has the name of a station"));
+        assert!(
+            refusal(&format!("{CELL}[[console]]\nname=\"ann\"\nrole=\"boss\"\n")).contains("boss")
+        );
     }
 }

@@ -146,9 +146,18 @@ impl Device for Below {
                 });
             }
             Action::Stop(target) => {
+                // Stop, then Reset on the same lane: the program invocation
+                // is idle again for the next order (a stopped one refuses
+                // Start). A Reset refused because the job had already ended
+                // is harmless.
                 if let Some(name) = self.started.get(&target).cloned() {
                     let what = format!("Stop of {name} on {target}");
-                    self.request(target, Request::Stop { name }, CONFIRM_LIMIT, move |r| {
+                    let stop = Request::Stop { name: name.clone() };
+                    self.request(target.clone(), stop, CONFIRM_LIMIT, move |r| {
+                        Reply::Other(what, r.map(|_| ()))
+                    });
+                    let what = format!("Reset of {name} on {target}");
+                    self.request(target, Request::Reset { name }, CONFIRM_LIMIT, move |r| {
                         Reply::Other(what, r.map(|_| ()))
                     });
                 }

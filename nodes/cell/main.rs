@@ -15,20 +15,19 @@
 //! requests and job events of the level below live in `below`.
 
 mod below;
+mod delivery;
 
 use anyhow::Result;
 use below::{Below, Reply};
 use clap::Parser;
+use delivery::{workstation_domain, Passer};
 use falc_common::bus::station::{Station, StationEvent};
-use falc_common::bus::Bus;
-use falc_common::ids::{ObjectName, StationName};
-use falc_common::mms::error::{DefinitionError, ErrorClass, ServiceError};
+use falc_common::ids::StationName;
+use falc_common::mms::error::ServiceError;
 use falc_common::mms::pdu::{Request, Response, Severity, Unconfirmed};
 use falc_common::node::{init_tracing, say, NodeArgs};
 use falc_common::recipe::commands::RecipeKind;
 use falc_common::workstation::Workstation;
-use std::collections::{hash_map::DefaultHasher, BTreeMap};
-use std::hash::{Hash, Hasher};
 use std::time::Duration;
 
 #[derive(Parser, Debug)]
@@ -42,85 +41,6 @@ struct Cli {
     station: StationName,
     #[command(flatten)]
     node: NodeArgs,
-}
-
-/// Download segments to a workstation are at most this long.
-const SEGMENT: usize = 8 * 1024;
-
-/// What was last delivered to each workstation: content hash per domain.
-type Delivered = BTreeMap<(StationName, ObjectName), u64>;
-
-/// `STATION$NAME` → the workstation and the recipe's name there.
-fn workstation_domain(domain: &ObjectName) -> Option<(StationName, ObjectName)> {
-    let (st, name) = domain.as_str().split_once('$')?;
-    Some((StationName::new(st).ok()?, ObjectName::new(name).ok()?))
-}
-
-/// Passes `content` on to `station` as domain `name` with a reusable
-/// program invocation of the same name, replacing what was there.
-async fn deliver(
-    bus: &Bus,
-    station: &StationName,
-    name: &ObjectName,
-    content: &[u8],
-) -> Result<(), ServiceError> {
-    let limit = Duration::from_secs(10);
-    // What was there before goes first (absent is fine).
-    for req in [
-        Request::DeleteProgramInvocation { name: name.clone() },
-        Request::DeleteDomain {
-            domain: name.clone(),
-        },
-    ] {
-        let _ = bus.request(station, &req, limit).await;
-    }
-    let mut steps = vec![Request::InitiateDownloadSequence {
-        domain: name.clone(),
-    }];
-    let chunks: Vec<&[u8]> = if content.is_empty() {
-        vec![content]
-    } else {
-        content.chunks(SEGMENT).collect()
-    };
-    let n = chunks.len();
-    for (i, c) in chunks.into_iter().enumerate() {
-        steps.push(Request::DownloadSegment {
-            domain: name.clone(),
-            data: c.to_vec(),
-            more_follows: i + 1 < n,
-        });
-    }
-    steps.push(Request::TerminateDownloadSequence {
-        domain: name.clone(),
-        discard: None,
-    });
-    steps.push(Request::CreateProgramInvocation {
-        name: name.clone(),
-        domains: vec![name.clone()],
-        reusable: true,
-    });
-    for req in steps {
-        if let Err(e) = bus.request(station, &req, limit).await {
-            // Leave nothing half there.
-            let _ = bus
-                .request(
-                    station,
-                    &Request::DeleteDomain {
-                        domain: name.clone(),
-                    },
-                    limit,
-                )
-                .await;
-            return Err(ServiceError::new(
-                ErrorClass::Definition(DefinitionError::ObjectAttributeInconsistent),
-                format!(
-                    "recipe {name} cannot be created on WS {}: {e}",
-                    station.as_str().to_uppercase()
-                ),
-            ));
-        }
-    }
-    Ok(())
 }
 
 #[tokio::main]
@@ -148,7 +68,7 @@ async fn main() -> Result<()> {
         rtx,
     );
     let mut ws = Workstation::new(station, RecipeKind::Cell, Duration::from_secs(10), below);
-    let mut delivered = Delivered::new();
+    let mut passer = Passer::default();
     ws.publish_status().await;
     say(&format!("EVENT ready station={}", cli.station));
     loop {
@@ -166,24 +86,11 @@ async fn main() -> Result<()> {
                                 )))
                             } else {
                                 let content = ws.vmd().domain(domain).map(|d| d.content().to_vec()).unwrap_or_default();
-                                let mut h = DefaultHasher::new();
-                                content.hash(&mut h);
-                                let hash = h.finish();
-                                let key = (st.clone(), name.clone());
-                                if delivered.get(&key) == Some(&hash) {
-                                    Ok(Response::Done)
-                                } else {
-                                    match deliver(&bus, &st, &name, &content).await {
-                                        Ok(()) => {
-                                            say(&format!("EVENT delivered station={st} recipe={name}"));
-                                            delivered.insert(key, hash);
-                                            Ok(Response::Done)
-                                        }
-                                        Err(e) => {
-                                            ws.discard_domain(domain);
-                                            delivered.remove(&key);
-                                            Err(e)
-                                        }
+                                match passer.pass_on(&bus, &st, &name, &content).await {
+                                    Ok(()) => Ok(Response::Done),
+                                    Err(e) => {
+                                        ws.discard_domain(domain);
+                                        Err(e)
                                     }
                                 }
                             };
@@ -192,13 +99,17 @@ async fn main() -> Result<()> {
                     ind.responder.respond(result).await;
                 }
                 other => {
-                    if matches!(other, Some(StationEvent::Abort(_))) {
+                    let associated = matches!(other, Some(StationEvent::Associated(_)));
+                    if let Some(StationEvent::Abort(a)) = &other {
                         // A workstation that comes back starts empty.
-                        if let Some(StationEvent::Abort(a)) = &other {
-                            delivered.retain(|(st, _), _| *st != a.peer.station);
-                        }
+                        passer.forget(&a.peer.station);
                     }
                     if !ws.station_event(other).await { break }
+                    if associated {
+                        for failure in passer.catch_up(&bus, ws.vmd()).await {
+                            ws.report(Severity::Alarm, failure).await;
+                        }
+                    }
                 }
             },
             r = replies.recv() => match r {

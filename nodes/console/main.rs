@@ -1,7 +1,9 @@
-//! `falc`: the operator's console. For now the recipe tools; the operator
-//! API commands (status, orders, answers) and the TUI come with the
-//! operator node.
+//! `falc`: the operator's console. `recipe` (check, draw) works on files
+//! alone (`recipe_cmd`); every other command talks to the operator node
+//! through the operator API as a console user (`cell_cmd`). The TUI comes
+//! with the console issue.
 
+mod cell_cmd;
 mod recipe_cmd;
 
 use clap::{Parser, Subcommand};
@@ -11,11 +13,13 @@ use std::process::ExitCode;
 #[command(
     name = "falc",
     version,
-    about = "FALC console: recipes, and (soon) the cell"
+    about = "FALC console: run the cell (orders, answers, alarms, journal) and check recipes"
 )]
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    #[command(flatten)]
+    console: cell_cmd::ConsoleArgs,
 }
 
 #[derive(Subcommand, Debug)]
@@ -23,6 +27,8 @@ enum Command {
     /// Recipe tools: check, draw.
     #[command(subcommand)]
     Recipe(recipe_cmd::RecipeCommand),
+    #[command(flatten)]
+    Cell(cell_cmd::CellCommand),
 }
 
 fn main() -> ExitCode {
@@ -30,5 +36,16 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Recipe(r) => recipe_cmd::run(r),
+        Command::Cell(c) => match tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .enable_all()
+            .build()
+        {
+            Ok(rt) => rt.block_on(cell_cmd::run(c, cli.console)),
+            Err(e) => {
+                eprintln!("falc: cannot start the async runtime: {e}");
+                ExitCode::from(2)
+            }
+        },
     }
 }

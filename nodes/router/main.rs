@@ -53,9 +53,8 @@ enum Command {
 fn ensure_credentials(topology: &Topology, dir: &Path) -> Result<Vec<credentials::Credentials>> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     topology
-        .stations()
-        .iter()
-        .map(|s| credentials::ensure(dir, s.name.as_str()).map_err(Into::into))
+        .users()
+        .map(|u| credentials::ensure(dir, u.as_str()).map_err(Into::into))
         .collect()
 }
 

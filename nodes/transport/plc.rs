@@ -138,13 +138,13 @@ impl Plc {
     /// Releases every line button this node holds (station buttons hold a
     /// workpiece on its station and stay as they are).
     fn release_lines(&mut self) {
-        let lines: Vec<Button> = self
-            .pressed
-            .iter()
-            .copied()
-            .filter(|b| matches!(b, Button::Line(_)))
-            .collect();
-        for b in lines {
+        self.release(|b| matches!(b, Button::Line(_)));
+    }
+
+    /// Releases the buttons this node holds that `which` selects.
+    fn release(&mut self, which: impl Fn(&Button) -> bool) {
+        let held: Vec<Button> = self.pressed.iter().copied().filter(which).collect();
+        for b in held {
             self.write(b, false);
         }
     }
@@ -219,6 +219,13 @@ impl Device for Plc {
     fn halt(&mut self, _out: &mut Vec<Event>) {
         self.watch = None;
         self.release_lines();
+    }
+
+    fn lost(&mut self, _commander: &falc_common::ids::StationName) {
+        // The commander is gone and with it the cell's whole job (the weld
+        // is stopped too): nothing holds a workpiece any more, every button
+        // is released, so the next commander starts from a known state.
+        self.release(|_| true);
     }
 
     fn finished(&mut self, outcome: &Outcome) {
@@ -405,6 +412,13 @@ mod tests {
         drain(&mut rx);
         p.finished(&Outcome::Done);
         assert_eq!(drain(&mut rx), vec![]);
+        // The commander lost: the station button goes too.
+        p.lost(&falc_common::ids::StationName::new("cell").expect("valid"));
+        let released = drain(&mut rx);
+        assert!(
+            released.contains(&PlcCommand::Write(Coil::Button(Button::Station(3)), false)),
+            "{released:?}"
+        );
     }
 
     #[test]

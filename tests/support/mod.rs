@@ -38,6 +38,12 @@ commander = "cell"
 name = "transport"
 kind = "transport"
 commander = "cell"
+[[console]]
+name = "console"
+role = "operator"
+[[console]]
+name = "observer"
+role = "observer"
 "#;
 
 /// A free TCP port on 127.0.0.1.
@@ -226,6 +232,32 @@ impl TestCell {
         let mut p = Proc::spawn(station, cmd);
         p.expect_line("EVENT ready", Duration::from_secs(20));
         p
+    }
+
+    /// Runs the console `falc` as console user `user` with `args`; its exit
+    /// code and stdout (stderr is appended to the text on failure).
+    pub fn falc_as(&self, user: &str, args: &[&str]) -> (i32, String) {
+        let out = Command::new(env!("CARGO_BIN_EXE_falc"))
+            .arg("--topology")
+            .arg(&self.topology_path)
+            .arg("--credentials-dir")
+            .arg(self.credentials_dir())
+            .args(["--user", user])
+            .args(args)
+            .output()
+            .expect("run falc");
+        let mut text = String::from_utf8_lossy(&out.stdout).into_owned();
+        if !out.status.success() {
+            text.push_str(&String::from_utf8_lossy(&out.stderr));
+        }
+        (out.status.code().unwrap_or(-1), text)
+    }
+
+    /// `falc` as the operator console user; must succeed; its stdout.
+    pub fn falc(&self, args: &[&str]) -> String {
+        let (code, text) = self.falc_as("console", args);
+        assert_eq!(code, 0, "falc {args:?}: {text}");
+        text
     }
 
     /// Starts a demo station process and waits until it is on the bus.

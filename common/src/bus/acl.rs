@@ -10,14 +10,18 @@
 //! - a direct subordinate of the operator (the cell) may query the
 //!   operator's `input` and `output` (operator communication).
 //!
+//! - the operator serves the operator API (`api/<call>`); each console user
+//!   may query the calls its role allows ([`Call::role`]) and nothing else.
+//!
 //! Everything else is denied by the router: a workstation commanding another
 //! or its commander, the operator commanding a workstation, anyone
 //! publishing on another station's keys.
 
 use super::keys::KeySpace;
+use crate::api::Call;
 use crate::ids::StationName;
 use crate::mms::pdu::ServiceName;
-use crate::topology::{StationKind, Topology};
+use crate::topology::{Console, StationKind, Topology};
 use serde_json::{json, Value};
 
 /// One allow rule for one subject.
@@ -86,6 +90,22 @@ pub fn rules_of(topology: &Topology, station: &StationName) -> Vec<Rule> {
         &["declare_subscriber"],
         own_pub,
     ));
+
+    if topology.station(me).map(|s| s.kind) == Some(StationKind::Operator) {
+        let api: Vec<String> = Call::ALL.iter().map(|&c| keys.api(me, c)).collect();
+        out.push(rule(
+            format!("{me}/api-serve-in"),
+            "ingress",
+            &["declare_queryable", "reply"],
+            api.clone(),
+        ));
+        out.push(rule(
+            format!("{me}/api-serve-out"),
+            "egress",
+            &["query"],
+            api,
+        ));
+    }
 
     let subordinates = topology.subordinates_of(me);
     for sub in &subordinates {
@@ -166,6 +186,34 @@ pub fn rules_of(topology: &Topology, station: &StationName) -> Vec<Rule> {
     out
 }
 
+/// Every allow rule of a console user: its liveliness token, and queries
+/// on the operator API calls its role allows.
+pub fn console_rules(topology: &Topology, console: &Console) -> Vec<Rule> {
+    let keys = KeySpace::new(topology.cell().clone());
+    let me = &console.name;
+    let operator = &topology.root().name;
+    let api: Vec<String> = Call::ALL
+        .iter()
+        .filter(|c| c.role() <= console.role)
+        .map(|&c| keys.api(operator, c))
+        .collect();
+    vec![
+        rule(
+            format!("{me}/alive-in"),
+            "ingress",
+            &["liveliness_token"],
+            vec![keys.alive_any(me)],
+        ),
+        rule(format!("{me}/api-in"), "ingress", &["query"], api.clone()),
+        rule(
+            format!("{me}/api-out"),
+            "egress",
+            &["reply", "declare_queryable"],
+            api,
+        ),
+    ]
+}
+
 /// The hierarchy matrix as a Markdown table: what each station (row) may do
 /// towards each other station (column), read off the generated rules.
 pub fn matrix(topology: &Topology) -> String {
@@ -224,15 +272,23 @@ pub fn access_control(topology: &Topology) -> Value {
     let mut rules = Vec::new();
     let mut subjects = Vec::new();
     let mut policies = Vec::new();
-    for st in topology.stations() {
-        let mine = rules_of(topology, &st.name);
+    let users = topology
+        .stations()
+        .iter()
+        .map(|st| (&st.name, rules_of(topology, &st.name)))
+        .chain(
+            topology
+                .consoles()
+                .iter()
+                .map(|c| (&c.name, console_rules(topology, c))),
+        );
+    for (name, mine) in users {
         policies.push(json!({
-            "id": format!("{}/policy", st.name),
+            "id": format!("{name}/policy"),
             "rules": mine.iter().map(|r| r.id.clone()).collect::<Vec<_>>(),
-            "subjects": [format!("{}/subject", st.name)],
+            "subjects": [format!("{name}/subject")],
         }));
-        subjects
-            .push(json!({ "id": format!("{}/subject", st.name), "usernames": [st.name.as_str()] }));
+        subjects.push(json!({ "id": format!("{name}/subject"), "usernames": [name.as_str()] }));
         rules.extend(mine.into_iter().map(|r| {
             json!({
                 "id": r.id,
@@ -256,9 +312,7 @@ pub fn access_control(topology: &Topology) -> Value {
 mod tests {
     use super::*;
 
-    fn topo() -> Topology {
-        Topology::parse(
-            r#"
+    const TOPO: &str = r#"
 cell = "falc1"
 router = "tcp/127.0.0.1:7447"
 [[station]]
@@ -276,10 +330,10 @@ commander = "cell"
 name = "transport"
 kind = "transport"
 commander = "cell"
-"#,
-            "t",
-        )
-        .expect("valid")
+"#;
+
+    fn topo() -> Topology {
+        Topology::parse(TOPO, "t").expect("valid")
     }
 
     fn allowed(t: &Topology, who: &str, flow: &str, msg: &str, key: &str) -> bool {
@@ -353,5 +407,47 @@ commander = "cell"
         assert_eq!(ids.len(), unique.len());
         assert_eq!(v["default_permission"], "deny");
         assert_eq!(v["subjects"].as_array().map(|a| a.len()), Some(4));
+    }
+
+    #[test]
+    fn consoles_reach_only_the_api_calls_of_their_role() {
+        let t = Topology::parse(
+            &format!(
+                "{TOPO}\n[[console]]\nname = \"olga\"\nrole = \"observer\"\n[[console]]\nname = \"piet\"\nrole = \"operator\"\n"
+            ),
+            "t",
+        )
+        .expect("valid");
+        let can = |who: &str, call: Call| {
+            let c = t
+                .console(&StationName::new(who).expect("valid"))
+                .expect("console");
+            console_rules(&t, c).iter().any(|r| {
+                r.flow == "ingress"
+                    && r.messages.contains(&"query")
+                    && r.keys.contains(&format!("falc/falc1/operator/api/{call}"))
+            })
+        };
+        assert!(can("olga", Call::Status));
+        assert!(!can("olga", Call::Start));
+        assert!(can("piet", Call::Start));
+        assert!(can("piet", Call::Answer));
+        // The operator serves every call; no station may query the API.
+        assert!(allowed(
+            &t,
+            "operator",
+            "ingress",
+            "declare_queryable",
+            "falc/falc1/operator/api/start"
+        ));
+        assert!(!allowed(
+            &t,
+            "cell",
+            "ingress",
+            "query",
+            "falc/falc1/operator/api/start"
+        ));
+        let v = access_control(&t);
+        assert_eq!(v["subjects"].as_array().map(|a| a.len()), Some(6));
     }
 }

@@ -6,11 +6,13 @@
 //! | `falc/<cell>/<st>/status` | put: unsolicited status |
 //! | `falc/<cell>/<st>/report` | put: information reports |
 //! | `falc/<cell>/alive/<st>/<session>` | liveliness token |
+//! | `falc/<cell>/<operator>/api/<call>` | queryable: operator API |
 //!
 //! The liveliness key carries the session id as a last chunk so that an
 //! abort indication always refers to the one session that was associated,
 //! even while a restarted node already holds a new token.
 
+use crate::api::Call;
 use crate::ids::{CellId, StationName};
 use crate::mms::pdu::ServiceName;
 
@@ -46,6 +48,11 @@ impl KeySpace {
         format!("falc/{}/alive/{station}/{session}", self.cell)
     }
 
+    /// `falc/<cell>/<operator>/api/<call>`: one operator API call.
+    pub fn api(&self, operator: &StationName, call: Call) -> String {
+        format!("falc/{}/{operator}/api/{call}", self.cell)
+    }
+
     /// `falc/<cell>/alive/<st>/*`: every token of a station (ACL rules).
     pub fn alive_any(&self, station: &StationName) -> String {
         format!("falc/{}/alive/{station}/*", self.cell)
@@ -66,5 +73,10 @@ mod tests {
         );
         assert_eq!(k.alive(&w, "ab12"), "falc/falc1/alive/welding/ab12");
         assert_eq!(k.alive_any(&w), "falc/falc1/alive/welding/*");
+        let op = StationName::new("operator").expect("valid");
+        assert_eq!(
+            k.api(&op, Call::OrderAdd),
+            "falc/falc1/operator/api/order-add"
+        );
     }
 }

@@ -13,12 +13,14 @@
 //!   [`Bus::watch`] reports a peer's lost token as [`BusEvent::PeerLost`].
 //!
 //! Sub-modules: [`keys`] (every key), [`envelope`] (the payload format),
-//! [`credentials`], [`config`] (generated zenoh configs), [`acl`] (the
+//! [`credentials`], [`download`] (recipe delivery), [`api`] (operator API), [`config`] (generated zenoh configs), [`acl`] (the
 //! generated access control), [`station`] (a node's association runtime).
 
 pub mod acl;
+pub mod api;
 pub mod config;
 pub mod credentials;
+pub mod download;
 pub mod envelope;
 pub mod keys;
 pub mod station;
@@ -270,6 +272,18 @@ impl Bus {
         deadline: Duration,
         what: &str,
     ) -> Result<Response, ServiceError> {
+        self.query(key, payload, deadline, what).await
+    }
+
+    /// A query on `key` whose one reply is an envelope of `T` (or of a
+    /// [`ServiceError`] as an error reply).
+    pub(crate) async fn query<T: serde::de::DeserializeOwned>(
+        &self,
+        key: &str,
+        payload: Vec<u8>,
+        deadline: Duration,
+        what: &str,
+    ) -> Result<T, ServiceError> {
         let replies = self
             .session
             .get(key)

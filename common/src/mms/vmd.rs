@@ -177,6 +177,11 @@ impl Vmd {
         self.domains.get(name)
     }
 
+    /// Every domain.
+    pub fn domains(&self) -> impl Iterator<Item = &Domain> {
+        self.domains.values()
+    }
+
     /// A program invocation by name.
     pub fn program(&self, name: &ObjectName) -> Option<&ProgramInvocation> {
         self.programs.get(name)

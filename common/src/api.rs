@@ -1,0 +1,364 @@
+//! The operator API (DESIGN.md §3, §8): what a console (`falc`) asks the
+//! operator node, and what it answers. One zenoh key per call,
+//! `falc/<cell>/operator/api/<call>`, so the router's ACL can grant calls
+//! per role ([`Call::role`]). The transport is in `bus::api`; the operator
+//! node owns the behaviour.
+
+use crate::ids::StationName;
+use crate::mms::vmd::VmdStatus;
+use crate::topology::Role;
+use serde::{Deserialize, Serialize};
+use std::fmt;
+
+macro_rules! calls {
+    ($($variant:ident = $key:literal, $role:ident;)+) => {
+        /// One operator API call: a key chunk, and the least role allowed it.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+        pub enum Call { $($variant),+ }
+
+        impl Call {
+            /// Every call.
+            pub const ALL: &'static [Call] = &[$(Call::$variant),+];
+
+            /// The key chunk (`order-add`).
+            pub fn as_str(self) -> &'static str {
+                match self { $(Call::$variant => $key),+ }
+            }
+
+            /// The least role that may make this call.
+            pub fn role(self) -> Role {
+                match self { $(Call::$variant => Role::$role),+ }
+            }
+        }
+    };
+}
+
+calls! {
+    Status = "status", Observer;
+    OrderList = "order-list", Observer;
+    Messages = "messages", Observer;
+    Journal = "journal", Observer;
+    OrderAdd = "order-add", Operator;
+    OrderRemove = "order-rm", Operator;
+    Start = "start", Operator;
+    Stop = "stop", Operator;
+    Ack = "ack", Operator;
+    Answer = "answer", Operator;
+    Shutdown = "shutdown", Operator;
+}
+
+impl fmt::Display for Call {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// A console's request.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ApiRequest {
+    /// The cell at a glance.
+    Status,
+    /// The order list (queued, running and the ended ones).
+    OrderList,
+    /// Messages (operator outputs, questions, reports, alarms) after an id.
+    Messages {
+        /// Only entries with a larger id.
+        after: i64,
+    },
+    /// The journal after an id, optionally of one order.
+    Journal {
+        /// Only this order's entries.
+        order: Option<i64>,
+        /// Only entries with a larger id.
+        after: i64,
+    },
+    /// Adds an order for a cell recipe at the end of the list.
+    OrderAdd {
+        /// The cell recipe's name.
+        recipe: String,
+    },
+    /// Removes a queued order.
+    OrderRemove {
+        /// The order id.
+        id: i64,
+    },
+    /// Starts (or resumes) working through the list.
+    Start,
+    /// Stops the running order and the list.
+    Stop,
+    /// Acknowledges the alarm.
+    Ack,
+    /// Answers the waiting operator question.
+    Answer {
+        /// The answer (`ja`, `nee`, …).
+        text: String,
+    },
+    /// Shuts the cell down once the list is done.
+    Shutdown,
+}
+
+impl ApiRequest {
+    /// The call (key) this request belongs to.
+    pub fn call(&self) -> Call {
+        match self {
+            Self::Status => Call::Status,
+            Self::OrderList => Call::OrderList,
+            Self::Messages { .. } => Call::Messages,
+            Self::Journal { .. } => Call::Journal,
+            Self::OrderAdd { .. } => Call::OrderAdd,
+            Self::OrderRemove { .. } => Call::OrderRemove,
+            Self::Start => Call::Start,
+            Self::Stop => Call::Stop,
+            Self::Ack => Call::Ack,
+            Self::Answer { .. } => Call::Answer,
+            Self::Shutdown => Call::Shutdown,
+        }
+    }
+}
+
+/// A request with the console user who makes it (journalled as "who").
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ApiEnvelope {
+    /// The console user.
+    pub user: StationName,
+    /// The request.
+    pub request: ApiRequest,
+}
+
+/// Where an order is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OrderState {
+    /// Waiting in the list.
+    Queued,
+    /// Its recipe runs in the cell.
+    Running,
+    /// Ended normally.
+    Done,
+    /// Ended in alarm or with a failure criterion.
+    Failed,
+    /// Stopped by an operator.
+    Stopped,
+    /// Was running when the operator node died; never re-run by itself.
+    Interrupted,
+}
+
+impl OrderState {
+    /// The word stored and shown.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Queued => "queued",
+            Self::Running => "running",
+            Self::Done => "done",
+            Self::Failed => "failed",
+            Self::Stopped => "stopped",
+            Self::Interrupted => "interrupted",
+        }
+    }
+
+    /// Parses the stored word.
+    pub fn parse(word: &str) -> Option<Self> {
+        [
+            Self::Queued,
+            Self::Running,
+            Self::Done,
+            Self::Failed,
+            Self::Stopped,
+            Self::Interrupted,
+        ]
+        .into_iter()
+        .find(|s| s.as_str() == word)
+    }
+}
+
+impl fmt::Display for OrderState {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// One order.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Order {
+    /// Its id (also its position: lower runs first).
+    pub id: i64,
+    /// The cell recipe.
+    pub recipe: String,
+    /// Where it is.
+    pub state: OrderState,
+    /// Who added it.
+    pub added_by: String,
+    /// When it started (ms since the Unix epoch).
+    pub started_ms: Option<i64>,
+    /// When it ended (ms since the Unix epoch).
+    pub ended_ms: Option<i64>,
+    /// How it ended, in words.
+    pub result: Option<String>,
+}
+
+/// What a journal entry records.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum EntryKind {
+    /// An order started or ended.
+    Order,
+    /// An alarm.
+    Alarm,
+    /// A line the cell showed the operator (`output`).
+    Message,
+    /// A question the cell asked (`input`).
+    Question,
+    /// The answer given.
+    Answer,
+    /// A report from a station.
+    Report,
+    /// An operator's action.
+    Action,
+    /// The operator node itself (start, recovery, recipes).
+    System,
+}
+
+impl EntryKind {
+    /// Every kind.
+    pub const ALL: [EntryKind; 8] = [
+        Self::Order,
+        Self::Alarm,
+        Self::Message,
+        Self::Question,
+        Self::Answer,
+        Self::Report,
+        Self::Action,
+        Self::System,
+    ];
+
+    /// The word stored and shown.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Order => "order",
+            Self::Alarm => "alarm",
+            Self::Message => "message",
+            Self::Question => "question",
+            Self::Answer => "answer",
+            Self::Report => "report",
+            Self::Action => "action",
+            Self::System => "system",
+        }
+    }
+
+    /// Parses the stored word.
+    pub fn parse(word: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|k| k.as_str() == word)
+    }
+
+    /// Whether `falc messages` shows it (what the 1992 message screen showed).
+    pub fn is_message(self) -> bool {
+        matches!(
+            self,
+            Self::Alarm | Self::Message | Self::Question | Self::Answer | Self::Report
+        )
+    }
+}
+
+/// One journal entry.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Entry {
+    /// Its id (increasing).
+    pub id: i64,
+    /// When (ms since the Unix epoch).
+    pub at_ms: i64,
+    /// The order it belongs to.
+    pub order: Option<i64>,
+    /// What it records.
+    pub kind: EntryKind,
+    /// Who: a console user, or the station that reported.
+    pub who: String,
+    /// What, for a person.
+    pub text: String,
+}
+
+/// What the order list does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ListState {
+    /// Not working through the list.
+    Idle,
+    /// Working through the list.
+    Running,
+    /// Stopped by an alarm: `ack`, then `start`.
+    Alarm,
+}
+
+/// A station as the operator sees it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StationView {
+    /// The station.
+    pub name: StationName,
+    /// Its last published status, if any.
+    pub status: Option<VmdStatus>,
+}
+
+/// The cell at a glance (`falc status`).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CellStatus {
+    /// The order list.
+    pub list: ListState,
+    /// Whether the cell is associated.
+    pub cell_associated: bool,
+    /// Why not, or what else is wrong (the last association refusal).
+    pub problem: Option<String>,
+    /// The alarm waiting for `ack`.
+    pub alarm: Option<String>,
+    /// The running order.
+    pub running: Option<Order>,
+    /// Orders waiting.
+    pub queued: usize,
+    /// The question waiting for `answer`.
+    pub question: Option<String>,
+    /// Set when `shutdown` waits for the list to end.
+    pub shutdown_pending: bool,
+    /// Every station below the operator.
+    pub stations: Vec<StationView>,
+}
+
+/// A positive answer.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ApiReply {
+    /// `status`.
+    Status(CellStatus),
+    /// `order list`.
+    Orders(Vec<Order>),
+    /// `order add`.
+    Order(Order),
+    /// `messages`, `journal`.
+    Entries(Vec<Entry>),
+    /// Done, with what happened in words.
+    Done(String),
+}
+
+/// The answer to a request: the reply, or why it was refused.
+pub type ApiResult = Result<ApiReply, String>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keys_are_unique_and_every_request_has_its_call() {
+        let mut seen = std::collections::BTreeSet::new();
+        for c in Call::ALL {
+            assert!(seen.insert(c.as_str()), "{c}");
+            assert!(!c.as_str().contains(['*', '/', '$', '?', '#']));
+        }
+        assert_eq!(ApiRequest::Start.call(), Call::Start);
+        assert_eq!(Call::Status.role(), Role::Observer);
+        assert_eq!(Call::Answer.role(), Role::Operator);
+        for k in EntryKind::ALL {
+            assert_eq!(EntryKind::parse(k.as_str()), Some(k));
+        }
+        assert_eq!(
+            OrderState::parse("interrupted"),
+            Some(OrderState::Interrupted)
+        );
+        assert_eq!(OrderState::parse("lost"), None);
+    }
+}

@@ -1,0 +1,145 @@
+//! The operator API on the bus: the operator node serves one queryable per
+//! [`Call`] (`falc/<cell>/<operator>/api/<call>`), a console queries the
+//! one key of its call. The router's ACL decides which console user may
+//! query which key (by role), so a refused call ends like a call nobody
+//! serves: "no reply". Payloads are [`envelope`]s of [`ApiEnvelope`] and
+//! [`ApiResult`]; a malformed request is answered with an error by the bus.
+
+use super::{envelope, Bus, BusError, Declaration};
+use crate::api::{ApiEnvelope, ApiReply, ApiRequest, ApiResult, Call};
+use crate::ids::StationName;
+use std::time::Duration;
+use tokio::sync::mpsc::UnboundedSender;
+use zenoh::query::Query;
+use zenoh::Wait;
+
+/// A console's request that arrived at the operator node.
+#[derive(Debug)]
+pub struct ApiIndication {
+    /// The console user who asks (named in the journal).
+    pub user: StationName,
+    /// The request.
+    pub request: ApiRequest,
+    /// Answers it.
+    pub responder: ApiResponder,
+}
+
+/// Sends the answer to one API request.
+#[derive(Debug)]
+pub struct ApiResponder {
+    query: Query,
+}
+
+impl ApiResponder {
+    /// Sends the answer; a failure to send (the console left) is logged.
+    pub async fn respond(self, result: ApiResult) {
+        let key = self.query.key_expr().clone();
+        if let Err(e) = self
+            .query
+            .reply(key.clone(), envelope::encode(&result))
+            .await
+        {
+            tracing::warn!(%key, "API answer not sent: {e}");
+        }
+    }
+}
+
+fn answer_now(query: &Query, result: &ApiResult) {
+    if let Err(e) = query
+        .reply(query.key_expr().clone(), envelope::encode(result))
+        .wait()
+    {
+        tracing::warn!("API answer not sent: {e}");
+    }
+}
+
+fn on_query(call: Call, query: Query, tx: &UnboundedSender<ApiIndication>) {
+    let decoded = match query.payload() {
+        None => Err(format!(
+            "API request on {} carries no payload",
+            query.key_expr()
+        )),
+        Some(p) => match envelope::decode::<ApiEnvelope>(&p.to_bytes()) {
+            Ok(e) if e.request.call() == call => Ok(e),
+            Ok(e) => Err(format!(
+                "a {} request was sent to the {call} key {}",
+                e.request.call(),
+                query.key_expr()
+            )),
+            Err(e) => Err(format!(
+                "malformed API request on {}: {e}",
+                query.key_expr()
+            )),
+        },
+    };
+    match decoded {
+        Ok(ApiEnvelope { user, request }) => {
+            let ind = ApiIndication {
+                user,
+                request,
+                responder: ApiResponder { query },
+            };
+            if let Err(e) = tx.send(ind) {
+                answer_now(
+                    &e.0.responder.query,
+                    &Err("the operator node is shutting down".into()),
+                );
+            }
+        }
+        Err(text) => {
+            tracing::warn!("{text}");
+            answer_now(&query, &Err(text));
+        }
+    }
+}
+
+impl Bus {
+    /// Serves every operator API call of this (operator) node; requests go
+    /// to `tx`.
+    pub async fn serve_api(
+        &self,
+        tx: UnboundedSender<ApiIndication>,
+    ) -> Result<Vec<Declaration>, BusError> {
+        let mut out = Vec::with_capacity(Call::ALL.len());
+        for &call in Call::ALL {
+            let key = self.keys.api(&self.me.station, call);
+            let tx = tx.clone();
+            let q = self
+                .session
+                .declare_queryable(&key)
+                .callback(move |query| on_query(call, query, &tx))
+                .await
+                .map_err(|e| BusError::Declare {
+                    what: "API queryable",
+                    key: key.clone(),
+                    message: e.to_string(),
+                })?;
+            out.push(Declaration(Box::new(q)));
+        }
+        Ok(out)
+    }
+
+    /// Makes an operator API call as this session's user; the reply, or why
+    /// the call failed or was refused, in words.
+    pub async fn api(
+        &self,
+        operator: &StationName,
+        request: ApiRequest,
+        deadline: Duration,
+    ) -> Result<ApiReply, String> {
+        let call = request.call();
+        let key = self.keys.api(operator, call);
+        let payload = envelope::encode(&ApiEnvelope {
+            user: self.me.station.clone(),
+            request,
+        });
+        let what = format!("`{call}` of the operator API ({key})");
+        match self
+            .query::<ApiResult>(&key, payload, deadline, &what)
+            .await
+        {
+            Ok(result) => result,
+            Err(e) => Err(e.description),
+        }
+    }
+}

@@ -1,0 +1,290 @@
+//! `falc status|order|start|stop|ack|answer|messages|journal|shutdown`: the
+//! operator API from the command line. Human-readable output by default,
+//! one JSON document per answer with `--json` (for scripts). Exit status: 0
+//! done, 1 refused by the operator node (the reason on stderr), 2 the
+//! operator node could not be reached.
+
+use clap::{Args, Subcommand};
+use falc_common::api::{ApiReply, ApiRequest, CellStatus, Entry, Order};
+use falc_common::bus::Bus;
+use falc_common::ids::StationName;
+use falc_common::node::NodeArgs;
+use std::process::ExitCode;
+use std::time::Duration;
+
+/// How long one API call may take.
+const CALL_LIMIT: Duration = Duration::from_secs(15);
+/// How often `--watch` and `--follow` ask again.
+const POLL: Duration = Duration::from_millis(250);
+
+/// How the console reaches the cell.
+#[derive(Args, Debug)]
+pub struct ConsoleArgs {
+    /// The console user (a `[[console]]` of the topology); its credentials
+    /// are `<credentials-dir>/<user>.toml`.
+    #[arg(long, global = true, default_value = "console")]
+    pub user: StationName,
+    /// Print JSON instead of text.
+    #[arg(long, global = true)]
+    pub json: bool,
+    #[command(flatten)]
+    pub node: NodeArgs,
+}
+
+/// An operator API command.
+#[derive(Subcommand, Debug)]
+pub enum CellCommand {
+    /// The cell at a glance: list, running order, question, alarm, stations.
+    Status {
+        /// Show it again whenever it changes, until Ctrl-C.
+        #[arg(long)]
+        watch: bool,
+    },
+    /// The order list.
+    #[command(subcommand)]
+    Order(OrderCommand),
+    /// Start (or resume) working through the order list.
+    Start,
+    /// Stop the running order and the list.
+    Stop,
+    /// Acknowledge the alarm.
+    Ack,
+    /// Answer the cell's waiting question.
+    Answer {
+        /// The answer (`ja`, `nee`, …).
+        text: String,
+    },
+    /// The messages: what the cell showed and asked, reports, alarms.
+    Messages {
+        /// Keep showing new messages, until Ctrl-C.
+        #[arg(long)]
+        follow: bool,
+    },
+    /// The journal: orders, alarms, messages, every operator action.
+    Journal {
+        /// Only this order's entries.
+        #[arg(long)]
+        order: Option<i64>,
+    },
+    /// Shut the cell down once the running order has ended.
+    Shutdown,
+}
+
+/// `falc order …`.
+#[derive(Subcommand, Debug)]
+pub enum OrderCommand {
+    /// Add an order for a cell recipe at the end of the list.
+    Add {
+        /// The cell recipe (`dikdroog`).
+        recipe: String,
+    },
+    /// Remove a queued order.
+    Rm {
+        /// The order id.
+        id: i64,
+    },
+    /// Show the list.
+    List,
+}
+
+/// Time of day (UTC) of a journal time stamp.
+fn clock(ms: i64) -> String {
+    let s = ms.div_euclid(1000).rem_euclid(86_400);
+    format!(
+        "{:02}:{:02}:{:02}.{:03}",
+        s / 3600,
+        s / 60 % 60,
+        s % 60,
+        ms.rem_euclid(1000)
+    )
+}
+
+fn show_order(o: &Order) -> String {
+    let mut line = format!(
+        "{:>4}  {:<12} {:<11} by {}",
+        o.id, o.recipe, o.state, o.added_by
+    );
+    if let Some(r) = &o.result {
+        line.push_str(&format!("  ({r})"));
+    }
+    line
+}
+
+fn show_entry(e: &Entry) -> String {
+    let order = e.order.map(|o| format!(" #{o}")).unwrap_or_default();
+    format!(
+        "{} {:<8}{order} {}: {}",
+        clock(e.at_ms),
+        e.kind.as_str(),
+        e.who,
+        e.text
+    )
+}
+
+fn show_status(s: &CellStatus) -> String {
+    let mut out = Vec::new();
+    let list = format!("{:?}", s.list).to_lowercase();
+    out.push(match &s.running {
+        Some(o) => format!("list {list}; running order {} ({})", o.id, o.recipe),
+        None => format!("list {list}; no order running"),
+    });
+    out.push(format!("queued orders: {}", s.queued));
+    out.push(if s.cell_associated {
+        "cell: associated".to_string()
+    } else {
+        format!(
+            "cell: NOT associated: {}",
+            s.problem.as_deref().unwrap_or("not yet tried")
+        )
+    });
+    if let Some(a) = &s.alarm {
+        out.push(format!("ALARM: {a}  (falc ack)"));
+    }
+    if let Some(q) = &s.question {
+        out.push(format!(
+            "QUESTION: {}  (falc answer …)",
+            q.replace('\n', " / ")
+        ));
+    }
+    if s.shutdown_pending {
+        out.push("shutting down when the running order ends".into());
+    }
+    for st in &s.stations {
+        out.push(match &st.status {
+            Some(v) => format!(
+                "  {:<10} {:?}, {:?}, recipe {:?}",
+                st.name.as_str(),
+                v.physical,
+                v.logical,
+                v.local_detail
+            ),
+            None => format!("  {:<10} no status seen", st.name.as_str()),
+        });
+    }
+    out.join("\n")
+}
+
+fn print(reply: &ApiReply, json: bool) {
+    if json {
+        match serde_json::to_string(reply) {
+            Ok(s) => println!("{s}"),
+            Err(e) => eprintln!("falc: cannot write JSON: {e}"),
+        }
+        return;
+    }
+    match reply {
+        ApiReply::Status(s) => println!("{}", show_status(s)),
+        ApiReply::Orders(v) if v.is_empty() => println!("the order list is empty"),
+        ApiReply::Orders(v) => v.iter().for_each(|o| println!("{}", show_order(o))),
+        ApiReply::Order(o) => println!("added: {}", show_order(o)),
+        ApiReply::Entries(v) => v.iter().for_each(|e| println!("{}", show_entry(e))),
+        ApiReply::Done(text) => println!("{text}"),
+    }
+}
+
+async fn connect(args: &ConsoleArgs) -> Result<(Bus, StationName), String> {
+    let topology = args.node.topology().map_err(|e| e.to_string())?;
+    if topology.console(&args.user).is_none() {
+        return Err(format!(
+            "`{}` is not a console user of {}: add a [[console]] stanza",
+            args.user,
+            args.node.topology.display()
+        ));
+    }
+    let settings = args
+        .node
+        .settings(&topology, &args.user)
+        .map_err(|e| e.to_string())?;
+    let bus = Bus::open(settings).await.map_err(|e| e.to_string())?;
+    Ok((bus, topology.root().name.clone()))
+}
+
+/// One call: printed, or the refusal on stderr.
+async fn once(bus: &Bus, operator: &StationName, req: ApiRequest, json: bool) -> ExitCode {
+    match bus.api(operator, req, CALL_LIMIT).await {
+        Ok(reply) => {
+            print(&reply, json);
+            ExitCode::SUCCESS
+        }
+        Err(why) => {
+            eprintln!("falc: {why}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Runs an operator API command.
+pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
+    let (bus, operator) = match connect(&args).await {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("falc: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let json = args.json;
+    let req = match cmd {
+        CellCommand::Status { watch: true } => return watch(&bus, &operator, json).await,
+        CellCommand::Messages { follow: true } => return follow(&bus, &operator, json).await,
+        CellCommand::Status { watch: false } => ApiRequest::Status,
+        CellCommand::Order(OrderCommand::Add { recipe }) => ApiRequest::OrderAdd { recipe },
+        CellCommand::Order(OrderCommand::Rm { id }) => ApiRequest::OrderRemove { id },
+        CellCommand::Order(OrderCommand::List) => ApiRequest::OrderList,
+        CellCommand::Start => ApiRequest::Start,
+        CellCommand::Stop => ApiRequest::Stop,
+        CellCommand::Ack => ApiRequest::Ack,
+        CellCommand::Answer { text } => ApiRequest::Answer { text },
+        CellCommand::Messages { follow: false } => ApiRequest::Messages { after: 0 },
+        CellCommand::Journal { order } => ApiRequest::Journal { order, after: 0 },
+        CellCommand::Shutdown => ApiRequest::Shutdown,
+    };
+    once(&bus, &operator, req, json).await
+}
+
+async fn watch(bus: &Bus, operator: &StationName, json: bool) -> ExitCode {
+    let mut last = None;
+    loop {
+        tokio::select! {
+            r = bus.api(operator, ApiRequest::Status, CALL_LIMIT) => match r {
+                Ok(reply) => {
+                    if last.as_ref() != Some(&reply) {
+                        if !json {
+                            println!("---");
+                        }
+                        print(&reply, json);
+                        last = Some(reply);
+                    }
+                }
+                Err(why) => {
+                    eprintln!("falc: {why}");
+                    return ExitCode::FAILURE;
+                }
+            },
+            _ = tokio::signal::ctrl_c() => return ExitCode::SUCCESS,
+        }
+        tokio::time::sleep(POLL).await;
+    }
+}
+
+async fn follow(bus: &Bus, operator: &StationName, json: bool) -> ExitCode {
+    let mut after = 0;
+    loop {
+        tokio::select! {
+            r = bus.api(operator, ApiRequest::Messages { after }, CALL_LIMIT) => match r {
+                Ok(ApiReply::Entries(v)) => {
+                    for e in &v {
+                        after = after.max(e.id);
+                        print(&ApiReply::Entries(vec![e.clone()]), json);
+                    }
+                }
+                Ok(other) => print(&other, json),
+                Err(why) => {
+                    eprintln!("falc: {why}");
+                    return ExitCode::FAILURE;
+                }
+            },
+            _ = tokio::signal::ctrl_c() => return ExitCode::SUCCESS,
+        }
+        tokio::time::sleep(POLL).await;
+    }
+}

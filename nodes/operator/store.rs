@@ -1,0 +1,367 @@
+//! The operator's durable state in one SQLite file (WAL, synchronous FULL):
+//! the order list and the journal. Every change is one transaction, so a
+//! crash loses nothing that was confirmed; [`Store::recover`] marks an order
+//! that was running when the node died as interrupted (never re-run by
+//! itself) and journals it.
+
+use falc_common::api::{Entry, EntryKind, Order, OrderState};
+use rusqlite::{params, Connection, OptionalExtension, Row};
+use std::path::Path;
+use std::time::{SystemTime, UNIX_EPOCH};
+
+/// A database failure, with the file and what was being done.
+#[derive(Debug, thiserror::Error)]
+#[error("order list and journal {path}: {what}: {source}")]
+pub struct StoreError {
+    path: String,
+    what: &'static str,
+    source: rusqlite::Error,
+}
+
+/// Milliseconds since the Unix epoch, now.
+pub fn now_ms() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX))
+        .unwrap_or(0)
+}
+
+/// The order list and the journal.
+pub struct Store {
+    conn: Connection,
+    path: String,
+}
+
+const SCHEMA: &str = "
+CREATE TABLE IF NOT EXISTS orders (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    recipe TEXT NOT NULL,
+    state TEXT NOT NULL,
+    added_by TEXT NOT NULL,
+    added_ms INTEGER NOT NULL,
+    started_ms INTEGER,
+    ended_ms INTEGER,
+    result TEXT
+);
+CREATE TABLE IF NOT EXISTS journal (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    at_ms INTEGER NOT NULL,
+    order_id INTEGER,
+    kind TEXT NOT NULL,
+    who TEXT NOT NULL,
+    text TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS journal_order ON journal(order_id);
+";
+
+const ORDER_COLUMNS: &str = "id, recipe, state, added_by, started_ms, ended_ms, result";
+
+fn order_of(row: &Row<'_>) -> rusqlite::Result<Order> {
+    let state: String = row.get(2)?;
+    Ok(Order {
+        id: row.get(0)?,
+        recipe: row.get(1)?,
+        // A word this version does not know reads as interrupted: shown, never run.
+        state: OrderState::parse(&state).unwrap_or(OrderState::Interrupted),
+        added_by: row.get(3)?,
+        started_ms: row.get(4)?,
+        ended_ms: row.get(5)?,
+        result: row.get(6)?,
+    })
+}
+
+fn entry_of(row: &Row<'_>) -> rusqlite::Result<Entry> {
+    let kind: String = row.get(3)?;
+    Ok(Entry {
+        id: row.get(0)?,
+        at_ms: row.get(1)?,
+        order: row.get(2)?,
+        kind: EntryKind::parse(&kind).unwrap_or(EntryKind::System),
+        who: row.get(4)?,
+        text: row.get(5)?,
+    })
+}
+
+impl Store {
+    /// Opens (creating if needed) the database at `path`.
+    pub fn open(path: &Path) -> Result<Self, StoreError> {
+        let name = path.display().to_string();
+        let fail = |what: &'static str| {
+            let name = name.clone();
+            move |source| StoreError {
+                path: name,
+                what,
+                source,
+            }
+        };
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            // A missing directory shows up as the open error below.
+            let _ = std::fs::create_dir_all(dir);
+        }
+        let conn = Connection::open(path).map_err(fail("cannot open"))?;
+        conn.pragma_update(None, "journal_mode", "WAL")
+            .map_err(fail("cannot switch to WAL"))?;
+        conn.pragma_update(None, "synchronous", "FULL")
+            .map_err(fail("cannot set synchronous"))?;
+        conn.busy_timeout(std::time::Duration::from_secs(5))
+            .map_err(fail("cannot set the busy timeout"))?;
+        conn.execute_batch(SCHEMA)
+            .map_err(fail("cannot create the tables"))?;
+        Ok(Self { conn, path: name })
+    }
+
+    fn fail(&self, what: &'static str) -> impl FnOnce(rusqlite::Error) -> StoreError + '_ {
+        move |source| StoreError {
+            path: self.path.clone(),
+            what,
+            source,
+        }
+    }
+
+    /// After a crash: every order still marked running becomes interrupted,
+    /// with a journal entry. Returns those orders.
+    pub fn recover(&mut self) -> Result<Vec<Order>, StoreError> {
+        let running = self.orders_in(OrderState::Running)?;
+        let now = now_ms();
+        let tx = self.conn.transaction().map_err(|source| StoreError {
+            path: self.path.clone(),
+            what: "cannot begin recovery",
+            source,
+        })?;
+        for o in &running {
+            tx.execute(
+                "UPDATE orders SET state = 'interrupted', ended_ms = ?1, result = ?2 WHERE id = ?3",
+                params![now, "interrupted: the operator node stopped while it ran", o.id],
+            )
+            .and_then(|_| {
+                tx.execute(
+                    "INSERT INTO journal (at_ms, order_id, kind, who, text) VALUES (?1, ?2, 'order', 'operator', ?3)",
+                    params![
+                        now,
+                        o.id,
+                        format!(
+                            "order {} ({}) interrupted: the operator node stopped while it ran; not restarted",
+                            o.id, o.recipe
+                        )
+                    ],
+                )
+            })
+            .map_err(|source| StoreError {
+                path: self.path.clone(),
+                what: "cannot mark an order interrupted",
+                source,
+            })?;
+        }
+        tx.commit().map_err(|source| StoreError {
+            path: self.path.clone(),
+            what: "cannot commit recovery",
+            source,
+        })?;
+        Ok(running
+            .into_iter()
+            .map(|o| Order {
+                state: OrderState::Interrupted,
+                ..o
+            })
+            .collect())
+    }
+
+    /// Adds a queued order at the end of the list.
+    pub fn add_order(&mut self, recipe: &str, who: &str) -> Result<Order, StoreError> {
+        self.conn
+            .execute(
+                "INSERT INTO orders (recipe, state, added_by, added_ms) VALUES (?1, 'queued', ?2, ?3)",
+                params![recipe, who, now_ms()],
+            )
+            .map_err(self.fail("cannot add an order"))?;
+        let id = self.conn.last_insert_rowid();
+        self.order(id)?.ok_or_else(|| StoreError {
+            path: self.path.clone(),
+            what: "the order just added is gone",
+            source: rusqlite::Error::QueryReturnedNoRows,
+        })
+    }
+
+    /// One order.
+    pub fn order(&self, id: i64) -> Result<Option<Order>, StoreError> {
+        self.conn
+            .query_row(
+                &format!("SELECT {ORDER_COLUMNS} FROM orders WHERE id = ?1"),
+                params![id],
+                order_of,
+            )
+            .optional()
+            .map_err(self.fail("cannot read an order"))
+    }
+
+    /// Every order, in list order.
+    pub fn orders(&self) -> Result<Vec<Order>, StoreError> {
+        let mut st = self
+            .conn
+            .prepare(&format!("SELECT {ORDER_COLUMNS} FROM orders ORDER BY id"))
+            .map_err(self.fail("cannot list orders"))?;
+        let rows = st
+            .query_map([], order_of)
+            .map_err(self.fail("cannot list orders"))?;
+        rows.collect::<Result<_, _>>()
+            .map_err(self.fail("cannot list orders"))
+    }
+
+    fn orders_in(&self, state: OrderState) -> Result<Vec<Order>, StoreError> {
+        Ok(self
+            .orders()?
+            .into_iter()
+            .filter(|o| o.state == state)
+            .collect())
+    }
+
+    /// The first queued order.
+    pub fn next_queued(&self) -> Result<Option<Order>, StoreError> {
+        Ok(self.orders_in(OrderState::Queued)?.into_iter().next())
+    }
+
+    /// How many orders are queued.
+    pub fn queued(&self) -> Result<usize, StoreError> {
+        Ok(self.orders_in(OrderState::Queued)?.len())
+    }
+
+    /// Removes a queued order; refuses any other.
+    pub fn remove_order(&mut self, id: i64) -> Result<Result<Order, String>, StoreError> {
+        let Some(order) = self.order(id)? else {
+            return Ok(Err(format!("there is no order {id}")));
+        };
+        if order.state != OrderState::Queued {
+            return Ok(Err(format!(
+                "order {id} is {}: only a queued order can be removed",
+                order.state
+            )));
+        }
+        self.conn
+            .execute("DELETE FROM orders WHERE id = ?1", params![id])
+            .map_err(self.fail("cannot remove an order"))?;
+        Ok(Ok(order))
+    }
+
+    /// Marks an order running.
+    pub fn set_running(&mut self, id: i64) -> Result<(), StoreError> {
+        self.conn
+            .execute(
+                "UPDATE orders SET state = 'running', started_ms = ?1 WHERE id = ?2",
+                params![now_ms(), id],
+            )
+            .map_err(self.fail("cannot mark an order running"))
+            .map(|_| ())
+    }
+
+    /// Ends an order in `state` with `result` in words.
+    pub fn end_order(
+        &mut self,
+        id: i64,
+        state: OrderState,
+        result: &str,
+    ) -> Result<(), StoreError> {
+        self.conn
+            .execute(
+                "UPDATE orders SET state = ?1, ended_ms = ?2, result = ?3 WHERE id = ?4",
+                params![state.as_str(), now_ms(), result, id],
+            )
+            .map_err(self.fail("cannot end an order"))
+            .map(|_| ())
+    }
+
+    /// Appends a journal entry.
+    pub fn journal(
+        &mut self,
+        kind: EntryKind,
+        order: Option<i64>,
+        who: &str,
+        text: &str,
+    ) -> Result<Entry, StoreError> {
+        let at_ms = now_ms();
+        self.conn
+            .execute(
+                "INSERT INTO journal (at_ms, order_id, kind, who, text) VALUES (?1, ?2, ?3, ?4, ?5)",
+                params![at_ms, order, kind.as_str(), who, text],
+            )
+            .map_err(self.fail("cannot write the journal"))?;
+        Ok(Entry {
+            id: self.conn.last_insert_rowid(),
+            at_ms,
+            order,
+            kind,
+            who: who.to_string(),
+            text: text.to_string(),
+        })
+    }
+
+    /// Journal entries after id `after` (at most `limit`), optionally of one
+    /// order, optionally only messages.
+    pub fn entries(
+        &self,
+        after: i64,
+        order: Option<i64>,
+        messages_only: bool,
+        limit: usize,
+    ) -> Result<Vec<Entry>, StoreError> {
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT id, at_ms, order_id, kind, who, text FROM journal
+                 WHERE id > ?1 AND (?2 IS NULL OR order_id = ?2) ORDER BY id",
+            )
+            .map_err(self.fail("cannot read the journal"))?;
+        let rows = st
+            .query_map(params![after, order], entry_of)
+            .map_err(self.fail("cannot read the journal"))?;
+        let mut out = Vec::new();
+        for r in rows {
+            let e = r.map_err(self.fail("cannot read the journal"))?;
+            if !messages_only || e.kind.is_message() {
+                out.push(e);
+                if out.len() == limit {
+                    break;
+                }
+            }
+        }
+        Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn orders_and_journal_survive_a_reopen_and_running_becomes_interrupted() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("falc.db");
+        {
+            let mut s = Store::open(&path).expect("open");
+            let a = s.add_order("dikdroog", "ann").expect("add");
+            let b = s.add_order("dundroog", "ann").expect("add");
+            s.set_running(a.id).expect("run");
+            s.journal(EntryKind::Order, Some(a.id), "operator", "started")
+                .expect("journal");
+            assert_eq!(s.next_queued().expect("next").map(|o| o.id), Some(b.id));
+            assert!(s.remove_order(a.id).expect("db").is_err(), "running");
+            // Dropped without ending the order: a crash.
+        }
+        let mut s = Store::open(&path).expect("reopen");
+        let interrupted = s.recover().expect("recover");
+        assert_eq!(interrupted.len(), 1);
+        let orders = s.orders().expect("orders");
+        assert_eq!(orders[0].state, OrderState::Interrupted);
+        assert_eq!(orders[1].state, OrderState::Queued);
+        let j = s
+            .entries(0, Some(orders[0].id), false, 100)
+            .expect("entries");
+        assert_eq!(j.len(), 2);
+        assert!(j[1].text.contains("interrupted"), "{j:?}");
+        assert!(s.entries(0, None, true, 100).expect("m").is_empty());
+        assert_eq!(
+            s.remove_order(orders[1].id).expect("db").map(|o| o.recipe),
+            Ok("dundroog".into())
+        );
+        assert!(s.remove_order(99).expect("db").is_err());
+    }
+}

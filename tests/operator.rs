@@ -1,0 +1,425 @@
+//! The whole cell end to end, driven only through the `falc` CLI: a real
+//! router, both twins, both workstations, `falc-cell` and `falc-operator`
+//! (recipes from a copy of `recipes/`, order list and journal in a SQLite
+//! file in the test's temp dir). Time-scaled twins.
+
+mod support;
+
+use falc_common::api::{ApiReply, CellStatus, Entry, EntryKind, ListState, Order, OrderState};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+use support::{twin, Proc, TestCell};
+
+struct Rig {
+    cell: TestCell,
+    rcm: Proc,
+    plc: Proc,
+    rcm_path: String,
+    plc_address: String,
+    welding: Option<Proc>,
+    transport: Option<Proc>,
+    _cell_node: Proc,
+    operator: Option<Proc>,
+    recipes: PathBuf,
+    db: PathBuf,
+}
+
+fn copy_recipes(to: &Path) {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes");
+    for sub in ["cell", "welding", "transport"] {
+        std::fs::create_dir_all(to.join(sub)).expect("mkdir");
+        for f in std::fs::read_dir(src.join(sub)).expect("recipe dir") {
+            let f = f.expect("entry").path();
+            std::fs::copy(&f, to.join(sub).join(f.file_name().expect("name"))).expect("copy");
+        }
+    }
+}
+
+fn rig(rcm_scale: &str) -> Rig {
+    let cell = TestCell::start();
+    let (rcm, rcm_path) = twin(
+        env!("CARGO_BIN_EXE_falc-rcm-sim"),
+        &["--time-scale", rcm_scale],
+        "serial port: ",
+    );
+    let (plc, plc_address) = twin(
+        env!("CARGO_BIN_EXE_falc-plc-sim"),
+        &["--listen", "127.0.0.1:0", "--time-scale", "20"],
+        "listening on ",
+    );
+    let recipes = cell.dir.path().join("recipes");
+    copy_recipes(&recipes);
+    let db = cell.dir.path().join("var/falc.db");
+    let mut rig = Rig {
+        rcm,
+        plc,
+        rcm_path,
+        plc_address,
+        welding: None,
+        transport: None,
+        _cell_node: cell.start_node(env!("CARGO_BIN_EXE_falc-cell"), "cell", &[]),
+        operator: None,
+        recipes,
+        db,
+        cell,
+    };
+    rig.start_welding();
+    rig.start_transport();
+    rig.start_operator();
+    rig
+}
+
+impl Rig {
+    fn start_welding(&mut self) {
+        self.welding = Some(self.cell.start_node(
+            env!("CARGO_BIN_EXE_falc-welding"),
+            "welding",
+            &["--device", &self.rcm_path],
+        ));
+    }
+
+    fn start_transport(&mut self) {
+        let mut t = self.cell.start_node(
+            env!("CARGO_BIN_EXE_falc-transport"),
+            "transport",
+            &["--plc", &self.plc_address],
+        );
+        t.expect_line("EVENT plc-ready", Duration::from_secs(10));
+        self.transport = Some(t);
+    }
+
+    fn operator_command(&self) -> std::process::Command {
+        let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_falc-operator"));
+        cmd.arg("--recipes")
+            .arg(&self.recipes)
+            .arg("--db")
+            .arg(&self.db)
+            .arg("--topology")
+            .arg(&self.cell.topology_path)
+            .arg("--credentials-dir")
+            .arg(self.cell.credentials_dir());
+        cmd
+    }
+
+    /// Starts the operator node; returns once it delivered the recipes.
+    fn start_operator(&mut self) {
+        let mut p = Proc::spawn("operator", self.operator_command());
+        p.expect_line("EVENT ready", Duration::from_secs(20));
+        p.expect_line("EVENT delivered recipe=PIPDROOG", Duration::from_secs(20));
+        self.operator = Some(p);
+    }
+
+    fn operator(&mut self) -> &mut Proc {
+        self.operator.as_mut().expect("operator running")
+    }
+
+    /// Answers questions with `ja` until the robot starts its program (the
+    /// twin receives `G`): the order is mid-weld.
+    fn until_welding(&mut self) {
+        let end = Instant::now() + Duration::from_secs(30);
+        while self.rcm.wait_line("rx G", Duration::ZERO).is_none() {
+            assert!(Instant::now() < end, "the weld never started");
+            if self.status().question.is_some() {
+                self.cell.falc(&["answer", "ja"]);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    fn reply(&self, args: &[&str]) -> ApiReply {
+        let mut all = vec!["--json"];
+        all.extend_from_slice(args);
+        let text = self.cell.falc(&all);
+        serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"))
+    }
+
+    fn status(&self) -> CellStatus {
+        match self.reply(&["status"]) {
+            ApiReply::Status(s) => s,
+            other => panic!("status answered {other:?}"),
+        }
+    }
+
+    fn orders(&self) -> Vec<Order> {
+        match self.reply(&["order", "list"]) {
+            ApiReply::Orders(v) => v,
+            other => panic!("order list answered {other:?}"),
+        }
+    }
+
+    fn journal(&self, order: Option<i64>) -> Vec<Entry> {
+        let id = order.map(|o| o.to_string());
+        let mut args = vec!["journal"];
+        if let Some(id) = &id {
+            args.extend(["--order", id]);
+        }
+        match self.reply(&args) {
+            ApiReply::Entries(v) => v,
+            other => panic!("journal answered {other:?}"),
+        }
+    }
+
+    /// Plays the operator through the CLI until the list stops running:
+    /// answers every question with `answer`. Returns the questions seen.
+    fn work_list(&self, answer: &str, within: Duration) -> Vec<String> {
+        let end = Instant::now() + within;
+        let mut questions = Vec::new();
+        loop {
+            let s = self.status();
+            if let Some(q) = &s.question {
+                questions.push(q.clone());
+                self.cell.falc(&["answer", answer]);
+                continue;
+            }
+            if s.list != ListState::Running && s.running.is_none() {
+                return questions;
+            }
+            assert!(
+                Instant::now() < end,
+                "the list did not end within {within:?}: {s:?}"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
+
+#[test]
+fn three_orders_run_in_sequence_to_done_with_questions_answered_via_the_cli() {
+    let rig = rig("100");
+    for r in ["dikdroog", "dundroog", "pipdroog"] {
+        let out = rig.cell.falc(&["order", "add", r]);
+        assert!(out.contains(r), "{out}");
+    }
+    let out = rig.cell.falc(&["start"]);
+    assert!(out.contains("order 1 (dikdroog) started"), "{out}");
+    let questions = rig.work_list("ja", Duration::from_secs(180));
+    let orders = rig.orders();
+    assert_eq!(
+        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
+        vec![OrderState::Done; 3],
+        "{orders:?}"
+    );
+    // In sequence: each started after the one before ended.
+    for w in orders.windows(2) {
+        assert!(w[1].started_ms >= w[0].ended_ms, "{orders:?}");
+    }
+    assert_eq!(questions.len(), 3, "{questions:?}");
+    assert!(
+        questions[0].contains("staat blok 1 in de uitgangspositie ?"),
+        "the question shows what the cell said before it: {questions:?}"
+    );
+    // The journal holds the order's steps, the answer with who gave it.
+    let j = rig.journal(Some(orders[0].id));
+    let has =
+        |kind: EntryKind, text: &str| j.iter().any(|e| e.kind == kind && e.text.contains(text));
+    assert!(has(EntryKind::Order, "started"), "{j:?}");
+    assert!(has(EntryKind::Message, "dikke plaat droog"), "{j:?}");
+    assert!(has(EntryKind::Question, "ja/nee"), "{j:?}");
+    assert!(
+        j.iter()
+            .any(|e| e.kind == EntryKind::Answer && e.who == "console" && e.text == "ja"),
+        "{j:?}"
+    );
+    assert!(has(EntryKind::Order, "done"), "{j:?}");
+    let all = rig.journal(None);
+    assert!(all.iter().any(|e| e.kind == EntryKind::Action
+        && e.who == "console"
+        && e.text.contains("added order 3")));
+    assert_eq!(rig.status().list, ListState::Idle);
+    let text = rig.cell.falc(&["order", "list"]);
+    assert!(text.contains("pipdroog") && text.contains("done"), "{text}");
+}
+
+#[test]
+fn answering_nee_ends_the_order_cleanly() {
+    let rig = rig("100");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    rig.work_list("nee", Duration::from_secs(30));
+    let orders = rig.orders();
+    assert_eq!(orders[0].state, OrderState::Done, "{orders:?}");
+    let messages = rig.cell.falc(&["messages"]);
+    assert!(messages.trim_end().ends_with("cell: einde"), "{messages}");
+}
+
+#[test]
+fn robot_emergency_stop_mid_weld_raises_a_cell_alarm_with_the_cause() {
+    let mut rig = rig("10");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["order", "add", "dundroog"]);
+    rig.cell.falc(&["start"]);
+    rig.until_welding();
+    rig.rcm.control("estop");
+    rig.operator().expect_line(
+        "EVENT order-ended id=1 state=failed",
+        Duration::from_secs(10),
+    );
+    let s = rig.status();
+    assert_eq!(s.list, ListState::Alarm, "{s:?}");
+    let alarm = s.alarm.unwrap_or_default();
+    assert!(alarm.contains("emergency stop"), "{alarm}");
+    // The list stopped: the second order did not start; nothing moves.
+    assert_eq!(rig.orders()[1].state, OrderState::Queued);
+    let transport = s
+        .stations
+        .iter()
+        .find(|v| v.name.as_str() == "transport")
+        .and_then(|v| v.status)
+        .expect("transport status seen");
+    assert_ne!(
+        transport.local_detail,
+        falc_common::mms::vmd::RecipeState::Executing
+    );
+    let messages = rig.cell.falc(&["messages"]);
+    assert!(messages.contains("emergency stop"), "{messages}");
+    // Start is refused until the alarm is acknowledged.
+    let (code, text) = rig.cell.falc_as("console", &["start"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("falc ack"), "{text}");
+}
+
+#[test]
+fn sigkill_of_a_workstation_mid_order_then_start_refused_until_it_returns() {
+    let mut rig = rig("10");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    rig.until_welding();
+    rig.operator().forget("JOURNAL");
+    let killed = Instant::now();
+    if let Some(t) = rig.transport.as_mut() {
+        t.kill();
+    }
+    let line = rig
+        .operator()
+        .expect_line(" alarm ", Duration::from_secs(5));
+    let took = killed.elapsed();
+    println!("SIGKILL of the transport workstation → alarm at the operator: {took:?} ({line})");
+    assert!(
+        line.contains("no connection with station transport"),
+        "{line}"
+    );
+    assert!(
+        took < Duration::from_millis(500),
+        "noticed by the lost connection, not by the 1 s lease: {took:?}"
+    );
+    // The welding workstation was stopped: the robot got its stop.
+    rig.rcm.expect_line("rx H", Duration::from_secs(5));
+    assert_eq!(rig.orders()[0].state, OrderState::Failed);
+    rig.cell.falc(&["ack"]);
+    let (code, text) = rig.cell.falc_as("console", &["start"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(
+        text.contains("no connection with station transport"),
+        "{text}"
+    );
+    assert_eq!(rig.orders()[1].state, OrderState::Queued);
+    // The workstation returns (empty); the operator puts the carriers back
+    // where an order starts (by hand, as in 1992); ack + start resume.
+    rig.start_transport();
+    rig.plc.control("layout W2 W2");
+    rig.cell.falc(&["ack"]);
+    let out = rig.cell.falc(&["start"]);
+    assert!(out.contains("order 2 (dikdroog) started"), "{out}");
+    rig.work_list("ja", Duration::from_secs(120));
+    assert_eq!(
+        rig.orders()[1].state,
+        OrderState::Done,
+        "{:#?}",
+        rig.journal(Some(2))
+    );
+}
+
+#[test]
+fn sigkill_of_the_operator_mid_order_keeps_list_and_journal_and_marks_it_interrupted() {
+    let mut rig = rig("10");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["order", "add", "dundroog"]);
+    rig.cell.falc(&["start"]);
+    rig.until_welding();
+    let before = rig.journal(None);
+    rig.operator().kill();
+    rig.operator = None;
+    // The cell lost its commander: it stops the weld.
+    rig.rcm.expect_line("rx H", Duration::from_secs(5));
+    rig.start_operator();
+    rig.operator()
+        .expect_line("EVENT associated", Duration::from_secs(1));
+    let orders = rig.orders();
+    assert_eq!(orders[0].state, OrderState::Interrupted, "{orders:?}");
+    assert_eq!(orders[1].state, OrderState::Queued, "{orders:?}");
+    let after = rig.journal(None);
+    assert_eq!(&after[..before.len()], &before[..], "the journal is intact");
+    assert!(after
+        .iter()
+        .any(|e| e.order == Some(1) && e.text.contains("interrupted")));
+    // Never re-run by itself: start runs the next queued order (once the
+    // operator has put the carriers back by hand).
+    rig.plc.control("layout W2 W2");
+    let out = rig.cell.falc(&["start"]);
+    assert!(out.contains("order 2 (dundroog) started"), "{out}");
+    rig.work_list("ja", Duration::from_secs(120));
+    let orders = rig.orders();
+    assert_eq!(orders[0].state, OrderState::Interrupted);
+    assert_eq!(
+        orders[1].state,
+        OrderState::Done,
+        "{:#?}",
+        rig.journal(Some(2))
+    );
+}
+
+#[test]
+fn a_recipe_defect_refuses_start_with_file_line_and_reason_and_downloads_nothing() {
+    let mut rig = rig("100");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    let bad = rig.recipes.join("transport/store.rcp");
+    let text = std::fs::read_to_string(&bad).expect("read");
+    std::fs::write(&bad, text.replace("waitplace", "waitplase")).expect("write");
+    rig.operator().forget("EVENT delivered");
+    let (code, out) = rig.cell.falc_as("console", &["start"]);
+    assert_eq!(code, 1, "{out}");
+    assert!(out.contains("store.rcp:"), "{out}");
+    assert!(out.contains("waitplase"), "{out}");
+    assert!(
+        rig.operator()
+            .wait_line("EVENT delivered", Duration::from_millis(500))
+            .is_none(),
+        "nothing delivered"
+    );
+    assert_eq!(rig.orders()[0].state, OrderState::Queued);
+    // At start-up the same defect stops the operator before it connects.
+    rig.operator().kill();
+    let out = rig.operator_command().output().expect("run falc-operator");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(2), "{stdout}");
+    assert!(
+        stdout.contains("store.rcp:") && stdout.contains("waitplase"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("nothing downloaded"), "{stdout}");
+    assert!(!stdout.contains("EVENT delivered"), "{stdout}");
+    // Mended, it delivers only what changed and runs the order.
+    std::fs::write(&bad, text).expect("write");
+    rig.start_operator();
+    let out = rig.cell.falc(&["start"]);
+    assert!(out.contains("started"), "{out}");
+    rig.work_list("ja", Duration::from_secs(60));
+    assert_eq!(rig.orders()[0].state, OrderState::Done);
+}
+
+#[test]
+fn an_observer_reads_but_cannot_command() {
+    let rig = rig("100");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    let (code, text) = rig.cell.falc_as("observer", &["order", "list"]);
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("dikdroog"), "{text}");
+    let (code, text) = rig.cell.falc_as("observer", &["start"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("no reply"), "refused by the router: {text}");
+    assert_eq!(rig.orders()[0].state, OrderState::Queued);
+    let (code, text) = rig.cell.falc_as("console", &["order", "add", "nosuch"]);
+    assert_eq!(code, 1);
+    assert!(text.contains("no cell recipe nosuch"), "{text}");
+}
