@@ -228,6 +228,17 @@ fn falc(args: &[&str]) -> (i32, String) {
 fn falc_recipe_check_and_dot() {
     let (code, out) = falc(&["recipe", "check", "recipes"]);
     assert_eq!((code, out.as_str()), (0, ""));
+    let (code, out) = falc(&["recipe", "list"]);
+    assert_eq!(code, 0, "{out}");
+    assert_eq!(out.lines().count(), 11, "{out}");
+    assert!(
+        out.lines()
+            .any(|l| l.starts_with("welding") && l.contains("DROOG_DIK") && l.contains("ok")),
+        "{out}"
+    );
+    let (code, out) = falc(&["recipe", "list", "tests/fixtures/thesis_printed/transport"]);
+    assert_eq!(code, 1);
+    assert!(out.contains("problem(s)"), "{out}");
     let (code, out) = falc(&[
         "recipe",
         "check",

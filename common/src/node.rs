@@ -87,14 +87,16 @@ impl NodeArgs {
 }
 
 /// Logs to stderr, filtered by `RUST_LOG` (default `info`; zenoh's own
-/// chatter at `warn`).
+/// chatter at `warn`); colours only on a terminal.
 pub fn init_tracing() {
     use tracing_subscriber::EnvFilter;
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| {
         EnvFilter::new("info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn")
     });
+    use std::io::IsTerminal;
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
+        .with_ansi(std::io::stderr().is_terminal())
         .with_writer(std::io::stderr)
         .try_init();
 }
@@ -106,4 +108,43 @@ pub fn say(line: &str) {
     let mut out = std::io::stdout().lock();
     let _ = writeln!(out, "{line}");
     let _ = out.flush();
+}
+
+/// Ctrl-C (SIGINT) or SIGTERM (systemd, the launcher): a node's request to
+/// stop, after which it concludes its associations and releases its device.
+/// Both are listened for from creation on, so a signal that arrives while
+/// the node's loop is busy elsewhere is not lost (a fresh
+/// `tokio::signal::ctrl_c()` per loop turn would miss it).
+pub struct Shutdown {
+    signals: Vec<tokio::signal::unix::Signal>,
+}
+
+impl Default for Shutdown {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Shutdown {
+    /// Listens for SIGINT and SIGTERM from now on.
+    pub fn new() -> Self {
+        use tokio::signal::unix::{signal, SignalKind};
+        let mut signals = Vec::new();
+        for kind in [SignalKind::interrupt(), SignalKind::terminate()] {
+            match signal(kind) {
+                Ok(s) => signals.push(s),
+                Err(e) => tracing::warn!("cannot listen for signal {kind:?}: {e}"),
+            }
+        }
+        Self { signals }
+    }
+
+    /// Returns when a stop was asked for.
+    pub async fn requested(&mut self) {
+        if self.signals.is_empty() {
+            return std::future::pending().await;
+        }
+        let waits = self.signals.iter_mut().map(|s| Box::pin(s.recv()));
+        futures::future::select_all(waits).await;
+    }
 }

@@ -71,6 +71,7 @@ async fn main() -> Result<()> {
     let mut passer = Passer::default();
     ws.publish_status().await;
     say(&format!("EVENT ready station={}", cli.station));
+    let mut shutdown = falc_common::node::Shutdown::new();
     loop {
         let deadline = ws.deadline();
         tokio::select! {
@@ -136,7 +137,7 @@ async fn main() -> Result<()> {
                 None => break,
             },
             _ = tokio::time::sleep_until(deadline) => ws.on_timeout(),
-            _ = tokio::signal::ctrl_c() => break,
+            _ = shutdown.requested() => break,
         }
         ws.settle().await;
     }

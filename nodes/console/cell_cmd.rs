@@ -243,6 +243,7 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
 
 async fn watch(bus: &Bus, operator: &StationName, json: bool) -> ExitCode {
     let mut last = None;
+    let mut stop = falc_common::node::Shutdown::new();
     loop {
         tokio::select! {
             r = bus.api(operator, ApiRequest::Status, CALL_LIMIT) => match r {
@@ -260,14 +261,18 @@ async fn watch(bus: &Bus, operator: &StationName, json: bool) -> ExitCode {
                     return ExitCode::FAILURE;
                 }
             },
-            _ = tokio::signal::ctrl_c() => return ExitCode::SUCCESS,
+            _ = stop.requested() => return ExitCode::SUCCESS,
         }
-        tokio::time::sleep(POLL).await;
+        tokio::select! {
+            _ = tokio::time::sleep(POLL) => {}
+            _ = stop.requested() => return ExitCode::SUCCESS,
+        }
     }
 }
 
 async fn follow(bus: &Bus, operator: &StationName, json: bool) -> ExitCode {
     let mut after = 0;
+    let mut stop = falc_common::node::Shutdown::new();
     loop {
         tokio::select! {
             r = bus.api(operator, ApiRequest::Messages { after }, CALL_LIMIT) => match r {
@@ -283,8 +288,11 @@ async fn follow(bus: &Bus, operator: &StationName, json: bool) -> ExitCode {
                     return ExitCode::FAILURE;
                 }
             },
-            _ = tokio::signal::ctrl_c() => return ExitCode::SUCCESS,
+            _ = stop.requested() => return ExitCode::SUCCESS,
         }
-        tokio::time::sleep(POLL).await;
+        tokio::select! {
+            _ = tokio::time::sleep(POLL) => {}
+            _ = stop.requested() => return ExitCode::SUCCESS,
+        }
     }
 }

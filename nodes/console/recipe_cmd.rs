@@ -1,5 +1,5 @@
-//! `falc recipe …`: check recipes (one line per problem, exit 1 if any) and
-//! draw one as Graphviz DOT.
+//! `falc recipe …`: check recipes (one line per problem, exit 1 if any),
+//! list them, and draw one as Graphviz DOT.
 
 use clap::Subcommand;
 use falc_common::recipe::check::{check, check_set};
@@ -20,6 +20,12 @@ pub enum RecipeCommand {
         /// Files or directories (default `recipes`).
         paths: Vec<PathBuf>,
     },
+    /// List the recipes of a recipe tree: station, name, states, file, and
+    /// whether it checks clean.
+    List {
+        /// Files or directories (default `recipes`).
+        paths: Vec<PathBuf>,
+    },
     /// Print a recipe as a Graphviz DOT state diagram.
     Dot {
         /// The kind (else the directory name tells).
@@ -35,6 +41,52 @@ pub enum RecipeCommand {
 
 pub fn run(cmd: RecipeCommand) -> ExitCode {
     match cmd {
+        RecipeCommand::List { paths } => {
+            let paths = if paths.is_empty() {
+                vec![PathBuf::from("recipes")]
+            } else {
+                paths
+            };
+            let entries = match files::load(&paths, None) {
+                Ok(e) => e,
+                Err(errors) => {
+                    for e in errors {
+                        eprintln!("{e}");
+                    }
+                    return ExitCode::FAILURE;
+                }
+            };
+            let (_, problems) = check_set(&entries);
+            for e in &entries {
+                let origin = &e.recipe.origin;
+                let name = match &e.recipe.name {
+                    Some((n, _)) => n.to_string(),
+                    None => std::path::Path::new(origin)
+                        .file_stem()
+                        .map_or_else(String::new, |s| s.to_string_lossy().to_uppercase()),
+                };
+                let states: std::collections::BTreeSet<_> =
+                    e.recipe.rows.iter().map(|r| r.state).collect();
+                let n = problems.iter().filter(|p| &p.origin == origin).count();
+                let verdict = if n == 0 {
+                    "ok".to_string()
+                } else {
+                    format!("{n} problem(s)")
+                };
+                println!(
+                    "{:<10} {:<14} {:>3} states  {:<14} {origin}",
+                    e.station.as_str(),
+                    name,
+                    states.len(),
+                    verdict
+                );
+            }
+            if problems.is_empty() {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::FAILURE
+            }
+        }
         RecipeCommand::Check { kind, paths } => {
             let paths = if paths.is_empty() {
                 vec![PathBuf::from("recipes")]

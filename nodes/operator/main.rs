@@ -115,15 +115,7 @@ async fn run(cli: Cli) -> Result<ExitCode> {
     let _ = op.connect().await;
     let mut retry = tokio::time::interval(RETRY);
     retry.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
-                s.recv().await;
-            }
-            Err(_) => std::future::pending().await,
-        }
-    };
-    tokio::pin!(term);
+    let mut shutdown = falc_common::node::Shutdown::new();
     loop {
         tokio::select! {
             ev = op.station.next() => match ev {
@@ -138,8 +130,7 @@ async fn run(cli: Cli) -> Result<ExitCode> {
             }
             Some(u) = publications.recv() => op.publication(u).await,
             _ = retry.tick() => { let _ = op.connect().await; }
-            _ = tokio::signal::ctrl_c() => break,
-            _ = &mut term => break,
+            _ = shutdown.requested() => break,
         }
         if op.should_stop() {
             break;

@@ -173,7 +173,8 @@ impl Operator {
         }
     }
 
-    /// Sends every recipe whose content the cell does not have yet.
+    /// Sends every recipe whose content the cell does not have yet; says
+    /// `EVENT cell-ready` when the cell holds them all after a change.
     async fn deliver(&mut self) -> Result<(), String> {
         let todo: Vec<_> = self
             .recipes
@@ -182,6 +183,7 @@ impl Operator {
             .filter(|d| self.delivered.get(&d.domain) != Some(&content_hash(&d.content)))
             .cloned()
             .collect();
+        let sent_any = !todo.is_empty();
         for d in todo {
             let bus = self.station.bus().clone();
             let sent = if d.is_cell {
@@ -199,6 +201,12 @@ impl Operator {
             self.delivered
                 .insert(d.domain.clone(), content_hash(&d.content));
             say(&format!("EVENT delivered recipe={}", d.domain));
+        }
+        if sent_any {
+            say(&format!(
+                "EVENT cell-ready recipes={}",
+                self.recipes.deliveries.len()
+            ));
         }
         Ok(())
     }

@@ -278,6 +278,7 @@ async fn main() -> Result<()> {
     say(&format!("falc-plc-sim listening on {addr}"));
     let mut stdin = BufReader::new(tokio::io::stdin()).lines();
     let mut stdin_open = true;
+    let mut shutdown = falc_common::node::Shutdown::new();
     loop {
         let deadline = {
             let t = lock(&twin)?;
@@ -316,7 +317,7 @@ async fn main() -> Result<()> {
                 }
                 Ok(None) | Err(_) => stdin_open = false,
             },
-            _ = tokio::signal::ctrl_c() => break,
+            _ = shutdown.requested() => break,
         }
         let mut t = lock(&twin)?;
         let now = t.now();

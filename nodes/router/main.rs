@@ -122,7 +122,7 @@ async fn run(
     // The one line on stdout: tests and the launcher wait for it.
     println!("falc-router ready on {listen}");
     let reporter = denials.map(|d| tokio::spawn(denials::report(d)));
-    shutdown_signal().await;
+    falc_common::node::Shutdown::new().requested().await;
     tracing::info!("router stopping");
     if let Some(r) = reporter {
         r.abort();
@@ -132,19 +132,4 @@ async fn run(
         .await
         .map_err(|e| anyhow::anyhow!("closing the router: {e}"))?;
     Ok(())
-}
-
-async fn shutdown_signal() {
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
-                s.recv().await;
-            }
-            Err(_) => std::future::pending().await,
-        }
-    };
-    tokio::select! {
-        _ = tokio::signal::ctrl_c() => {}
-        _ = term => {}
-    }
 }

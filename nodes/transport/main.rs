@@ -78,7 +78,9 @@ fn plc_settings(
 }
 
 /// `io`: show the inputs once, or every change with `--watch`.
-async fn io(settings: PlcSettings, watch: bool) -> Result<()> {
+async fn io(mut settings: PlcSettings, watch: bool) -> Result<()> {
+    // Commissioning watches at the busy period throughout.
+    settings.idle_poll = settings.poll;
     let address = settings.address.clone();
     let mut link = driver::spawn(settings);
     let start = tokio::time::Instant::now();
@@ -158,6 +160,7 @@ async fn main() -> Result<()> {
         cli.station,
         poll.as_millis()
     ));
+    let mut shutdown = falc_common::node::Shutdown::new();
     loop {
         let deadline = ws.deadline();
         tokio::select! {
@@ -188,7 +191,7 @@ async fn main() -> Result<()> {
                 }
             },
             _ = tokio::time::sleep_until(deadline) => ws.on_timeout(),
-            _ = tokio::signal::ctrl_c() => break,
+            _ = shutdown.requested() => break,
         }
         ws.settle().await;
     }

@@ -12,7 +12,7 @@
 //! channel in the unit tests).
 
 use falc_common::mms::vmd::{PhysicalStatus, VmdStatus};
-use falc_common::plc::driver::PlcCommand;
+use falc_common::plc::driver::{Pace, PlcCommand};
 use falc_common::plc::map::{Coil, Input, Inputs, SignalName};
 use falc_common::recipe::check::{Button, Signal};
 use falc_common::recipe::engine::{Action, Event, Outcome};
@@ -44,6 +44,8 @@ pub struct Plc {
     pressed: Vec<Button>,
     /// The line last pressed by the running recipe.
     last_line: Option<char>,
+    /// Whether the link polls at the busy period.
+    busy: bool,
 }
 
 impl Plc {
@@ -59,6 +61,19 @@ impl Plc {
             watch: None,
             pressed: Vec::new(),
             last_line: None,
+            busy: false,
+        }
+    }
+
+    /// Polls fast while a recipe runs, slowly while the node is idle.
+    fn pace(&mut self, busy: bool) {
+        if self.busy != busy {
+            self.busy = busy;
+            // Not counted in `issued`: a watch waits for writes, not for this.
+            let pace = if busy { Pace::Busy } else { Pace::Idle };
+            if self.commands.send(PlcCommand::Pace(pace)).is_err() {
+                tracing::error!("the PLC link task is gone");
+            }
         }
     }
 
@@ -196,6 +211,7 @@ impl Device for Plc {
     }
 
     fn act(&mut self, now: Duration, action: Action, out: &mut Vec<Event>) {
+        self.pace(true);
         match action {
             Action::Activate(b) => self.write(b, true),
             Action::Reset(b) => self.write(b, false),
@@ -230,6 +246,7 @@ impl Device for Plc {
 
     fn finished(&mut self, outcome: &Outcome) {
         self.watch = None;
+        self.pace(false);
         if *outcome != Outcome::Done {
             self.release_lines();
         }
@@ -405,13 +422,23 @@ mod tests {
         p.finished(&Outcome::Alarm("x".into()));
         assert_eq!(
             drain(&mut rx),
-            vec![PlcCommand::Write(Coil::Button(Button::Line('E')), false)]
+            vec![
+                PlcCommand::Pace(Pace::Idle),
+                PlcCommand::Write(Coil::Button(Button::Line('E')), false)
+            ]
         );
         // Done leaves everything as the recipe left it.
         act(&mut p, 0, Action::Activate(Button::Line('K')));
-        drain(&mut rx);
+        assert_eq!(
+            drain(&mut rx),
+            vec![
+                PlcCommand::Pace(Pace::Busy),
+                PlcCommand::Write(Coil::Button(Button::Line('K')), true)
+            ],
+            "a running recipe polls at the busy period"
+        );
         p.finished(&Outcome::Done);
-        assert_eq!(drain(&mut rx), vec![]);
+        assert_eq!(drain(&mut rx), vec![PlcCommand::Pace(Pace::Idle)]);
         // The commander lost: the station button goes too.
         p.lost(&falc_common::ids::StationName::new("cell").expect("valid"));
         let released = drain(&mut rx);

@@ -184,6 +184,7 @@ async fn main() -> Result<()> {
         cli.station, ws.device.line.path
     ));
     let mut reopen = tokio::time::interval(Duration::from_secs(1));
+    let mut shutdown = falc_common::node::Shutdown::new();
     loop {
         let deadline = ws.deadline();
         tokio::select! {
@@ -211,7 +212,7 @@ async fn main() -> Result<()> {
                 }
             }
             _ = tokio::time::sleep_until(deadline) => ws.on_timeout(),
-            _ = tokio::signal::ctrl_c() => break,
+            _ = shutdown.requested() => break,
         }
         ws.settle().await;
         if let Some(why) = ws.device.link_alarm.take() {

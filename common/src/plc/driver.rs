@@ -47,9 +47,13 @@ pub struct PlcArgs {
     /// Modbus unit (slave) id.
     #[arg(long, default_value_t = 1)]
     pub unit: u8,
-    /// Poll period of the discrete inputs, in ms.
+    /// Poll period of the discrete inputs while a recipe runs, in ms.
     #[arg(long, default_value_t = 10)]
     pub poll_ms: u64,
+    /// Poll period while no recipe runs, in ms (an idle cell costs little;
+    /// an emergency stop or a lost PLC is still seen within this).
+    #[arg(long, default_value_t = 100)]
+    pub idle_poll_ms: u64,
     /// How long one Modbus request may take, in ms.
     #[arg(long, default_value_t = 500)]
     pub modbus_timeout_ms: u64,
@@ -67,8 +71,10 @@ pub struct PlcSettings {
     pub unit: u8,
     /// The I/O map.
     pub map: IoMap,
-    /// Poll period.
+    /// Poll period while busy (a recipe runs).
     pub poll: Duration,
+    /// Poll period while idle.
+    pub idle_poll: Duration,
     /// Per-request limit.
     pub timeout: Duration,
 }
@@ -89,6 +95,7 @@ impl PlcArgs {
             unit: self.unit,
             map: self.map.map().map_err(|e| e.to_string())?,
             poll: Duration::from_millis(self.poll_ms),
+            idle_poll: Duration::from_millis(self.idle_poll_ms.max(self.poll_ms)),
             timeout: Duration::from_millis(self.modbus_timeout_ms.max(1)),
         })
     }
@@ -101,6 +108,17 @@ pub enum PlcCommand {
     Write(Coil, bool),
     /// Write every coil of the map at once (offset order).
     WriteAll([bool; COILS as usize]),
+    /// Poll at the busy or the idle period from now on (no Modbus request).
+    Pace(Pace),
+}
+
+/// How fast the link polls.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Pace {
+    /// A recipe runs: every `poll`.
+    Busy,
+    /// Nothing runs: every `idle_poll`.
+    Idle,
 }
 
 /// What the link reports.
@@ -160,6 +178,7 @@ struct Link {
     done: u64,
     last: Option<Inputs>,
     fault: Option<String>,
+    pace: Pace,
 }
 
 /// Why one request failed, and whether the connection is still usable.
@@ -176,6 +195,7 @@ impl Link {
             done: 0,
             last: None,
             fault: None,
+            pace: Pace::Idle,
         }
     }
 
@@ -260,6 +280,7 @@ impl Link {
                 let what = format!("the write of {coil} := {} (coil {addr})", u8::from(*value));
                 self.call(what, ctx.write_single_coil(addr, *value)).await
             }
+            PlcCommand::Pace(_) => Ok(()),
             PlcCommand::WriteAll(values) => {
                 let what = format!(
                     "the write of all coils {}..{}",
@@ -290,6 +311,7 @@ impl Link {
         loop {
             tokio::select! {
                 c = rx.recv() => match c {
+                    Some(PlcCommand::Pace(p)) => self.pace = p,
                     Some(c) => {
                         tracing::warn!(?c, "PLC link down: command dropped");
                         self.done += 1;
@@ -317,7 +339,11 @@ impl Link {
                 return;
             }
             self.last = None;
-            let mut tick = tokio::time::interval(self.s.poll);
+            let period = |pace: Pace| match pace {
+                Pace::Busy => self.s.poll,
+                Pace::Idle => self.s.idle_poll,
+            };
+            let mut tick = tokio::time::interval(period(self.pace));
             tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
             let failure = loop {
                 let mut wrote = false;
@@ -328,6 +354,18 @@ impl Link {
                         let mut next = Some(c);
                         let mut failed = None;
                         while let Some(c) = next.take() {
+                            if let PlcCommand::Pace(p) = c {
+                                // Not a write: not counted in `done`.
+                                if p != self.pace {
+                                    self.pace = p;
+                                    tick = tokio::time::interval(period(p));
+                                    tick.set_missed_tick_behavior(
+                                        tokio::time::MissedTickBehavior::Delay,
+                                    );
+                                }
+                                next = rx.try_recv().ok();
+                                continue;
+                            }
                             let r = self.write(&mut ctx, &c).await;
                             self.done += 1;
                             if let Err(f) = r {

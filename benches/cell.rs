@@ -1,0 +1,340 @@
+//! Whole-cell benchmark, through `falc-launch` (release binaries): router,
+//! both twins, both workstations, cell and operator on this machine.
+//!
+//! Prints:
+//! - start-up time of the all-in-one cell to ready (spawn → operator
+//!   associated with the cell and every recipe delivered), median of runs;
+//! - control overhead per recipe step, p50/p99: the time between two
+//!   consecutive `output` steps of dikdroog (states 1→5), each one cell
+//!   engine step, an Output request to the operator, its journal entry
+//!   (SQLite, synchronous FULL) and the confirm;
+//! - the hand-over between workstation jobs, p50/p99: STORE done at the
+//!   transport → MOVE_TO_MAN's first coil write at the PLC twin (a cell
+//!   `wait` step, a cell `start` step, a transport `activate` step, the
+//!   Modbus write);
+//! - a dikdroog order's wall time next to the twins' simulated time (the
+//!   union of the intervals in which a carrier moved or the robot welded),
+//!   and what is left: control plus operator answers (the bench answers
+//!   each question as soon as it sees it);
+//! - each node's idle CPU and RSS after the orders.
+//!
+//! Run: `cargo bench --bench cell`. Prints figures; asserts nothing about
+//! time.
+
+#[path = "../tests/support/mod.rs"]
+mod support;
+
+use falc_common::api::ApiRequest;
+use falc_common::bus::credentials;
+use falc_common::bus::keys::KeySpace;
+use falc_common::bus::{Bus, BusSettings};
+use falc_common::ids::{CellId, StationName};
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::{channel, Receiver};
+use std::time::{Duration, Instant};
+use support::{free_port, TOPOLOGY};
+
+const SCALE: &str = "100";
+const ORDERS: usize = 10;
+const STARTS: usize = 5;
+
+struct Launched {
+    dir: tempfile::TempDir,
+    child: Child,
+    lines: Receiver<(Instant, String)>,
+    spawned: Instant,
+    endpoint: String,
+}
+
+impl Drop for Launched {
+    fn drop(&mut self) {
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(self.child.id() as i32),
+            nix::sys::signal::Signal::SIGINT,
+        );
+        let _ = self.child.wait();
+    }
+}
+
+fn launch() -> Launched {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let topology = dir.path().join("cell.toml");
+    std::fs::write(&topology, TOPOLOGY.replace("ROUTER", &endpoint)).expect("topology");
+    let bin_dir = Path::new(env!("CARGO_BIN_EXE_falc"))
+        .parent()
+        .expect("bin dir")
+        .to_path_buf();
+    let spawned = Instant::now();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_falc-launch"))
+        .arg("--topology")
+        .arg(&topology)
+        .arg("--credentials-dir")
+        .arg(dir.path().join("credentials"))
+        .arg("--db")
+        .arg(dir.path().join("falc.db"))
+        .arg("--recipes")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes"))
+        .arg("--bin-dir")
+        .arg(bin_dir)
+        .args(["--plc-listen", "127.0.0.1:0", "--time-scale", SCALE])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .env("RUST_LOG", "warn")
+        .spawn()
+        .expect("falc-launch");
+    let (tx, lines) = channel();
+    let out = child.stdout.take().expect("stdout");
+    std::thread::spawn(move || {
+        for l in BufReader::new(out).lines().map_while(Result::ok) {
+            if tx.send((Instant::now(), l)).is_err() {
+                break;
+            }
+        }
+    });
+    Launched {
+        dir,
+        child,
+        lines,
+        spawned,
+        endpoint,
+    }
+}
+
+impl Launched {
+    fn until(&self, needle: &str) -> Instant {
+        loop {
+            match self.lines.recv_timeout(Duration::from_secs(60)) {
+                Ok((t, l)) if l.contains(needle) => return t,
+                Ok(_) => {}
+                Err(e) => panic!("no `{needle}`: {e}"),
+            }
+        }
+    }
+
+    async fn console(&self) -> Bus {
+        let creds = credentials::load(&self.dir.path().join("credentials/console.toml"))
+            .expect("console credentials");
+        Bus::open(BusSettings {
+            keys: KeySpace::new(CellId::new("falc1").expect("valid")),
+            me: StationName::new("console").expect("valid"),
+            endpoint: self.endpoint.clone(),
+            lease: Duration::from_secs(1),
+            credentials: Some(creds),
+            connect_timeout: Duration::from_secs(5),
+        })
+        .await
+        .expect("console session")
+    }
+}
+
+fn percentile(v: &mut [f64], p: f64) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let i = ((v.len() as f64 - 1.0) * p).round() as usize;
+    v[i.min(v.len() - 1)]
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1000.0
+}
+
+/// Length of the union of intervals.
+fn union(mut v: Vec<(Instant, Instant)>) -> Duration {
+    v.sort_by_key(|i| i.0);
+    let mut total = Duration::ZERO;
+    let mut cur: Option<(Instant, Instant)> = None;
+    for (a, b) in v {
+        cur = match cur {
+            Some((s, e)) if a <= e => Some((s, e.max(b))),
+            Some((s, e)) => {
+                total += e - s;
+                Some((a, b))
+            }
+            None => Some((a, b)),
+        };
+    }
+    if let Some((s, e)) = cur {
+        total += e - s;
+    }
+    total
+}
+
+/// (pid, name) of the launcher's children.
+fn nodes(parent: u32) -> Vec<(u32, String)> {
+    let mut v = Vec::new();
+    for e in std::fs::read_dir("/proc").expect("/proc").flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(e.path().join("stat")) else {
+            continue;
+        };
+        let Some((head, rest)) = stat.rsplit_once(')') else {
+            continue;
+        };
+        let ppid = rest.split_whitespace().nth(1).and_then(|p| p.parse().ok());
+        if ppid == Some(parent) {
+            let name = head.split_once('(').map(|x| x.1).unwrap_or("?").to_string();
+            v.push((pid, name));
+        }
+    }
+    v.sort();
+    v
+}
+
+/// utime + stime in clock ticks.
+fn cpu_ticks(pid: u32) -> u64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    let rest = stat.rsplit_once(')').map(|x| x.1).unwrap_or("");
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let n = |i: usize| f.get(i).and_then(|x| x.parse::<u64>().ok()).unwrap_or(0);
+    n(11) + n(12)
+}
+
+fn rss_mib(pid: u32) -> f64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    status
+        .lines()
+        .find(|l| l.starts_with("VmRSS:"))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|k| k.parse::<f64>().ok())
+        .map_or(0.0, |k| k / 1024.0)
+}
+
+#[tokio::main(flavor = "multi_thread", worker_threads = 2)]
+async fn main() {
+    // 1. Start-up to ready.
+    let mut starts = Vec::new();
+    for _ in 0..STARTS {
+        let l = launch();
+        let t = l.until("falc-launch: cell ready in");
+        starts.push(ms(t - l.spawned));
+    }
+    let mut s = starts.clone();
+    println!(
+        "start-up of the all-in-one cell to ready (router, 2 twins, 2 workstations, cell, operator; recipes delivered): median {:.0} ms, max {:.0} ms (n={STARTS}; goal ≤ 3000 ms)",
+        percentile(&mut s, 0.5),
+        percentile(&mut s, 1.0)
+    );
+
+    // 2. Orders.
+    let l = launch();
+    l.until("falc-launch: cell ready in");
+    let bus = l.console().await;
+    let operator = StationName::new("operator").expect("valid");
+    let api = |r: ApiRequest| {
+        let bus = bus.clone();
+        let operator = operator.clone();
+        async move {
+            bus.api(&operator, r, Duration::from_secs(10))
+                .await
+                .expect("API call")
+        }
+    };
+    for _ in 0..ORDERS {
+        api(ApiRequest::OrderAdd {
+            recipe: "dikdroog".into(),
+        })
+        .await;
+    }
+    let mut steps = Vec::new();
+    let mut handovers = Vec::new();
+    let mut walls = Vec::new();
+    let mut busy = Vec::new();
+    api(ApiRequest::Start).await;
+    for n in 1..=ORDERS {
+        let begin = l.until(&format!("EVENT order-started id={n}"));
+        let mut outputs: Vec<Instant> = Vec::new();
+        let mut moving: std::collections::BTreeMap<String, Instant> = Default::default();
+        let mut intervals = Vec::new();
+        let mut weld: Option<Instant> = None;
+        let mut transport_done: Option<Instant> = None;
+        let end = loop {
+            let (t, line) = l.lines.recv_timeout(Duration::from_secs(60)).expect("line");
+            if line.contains("JOURNAL") && line.contains(" message cell:") && outputs.len() < 5 {
+                outputs.push(t);
+            } else if line.contains("EVENT question") {
+                api(ApiRequest::Answer { text: "ja".into() }).await;
+            } else if let Some(rest) = line.split("] carrier ").nth(1) {
+                let carrier = rest.split(' ').next().unwrap_or("?").to_string();
+                if rest.contains(" leaves ") {
+                    moving.insert(carrier, t);
+                } else if rest.contains(" at ") {
+                    if let Some(s) = moving.remove(&carrier) {
+                        intervals.push((s, t));
+                    }
+                }
+            } else if line.contains("rx G") {
+                weld = Some(t);
+            } else if line.contains("[welding  ] EVENT job") && line.contains("Done") {
+                if let Some(s) = weld.take() {
+                    intervals.push((s, t));
+                }
+            } else if line.contains("[transport] EVENT job program=STORE event=Done") {
+                // dikdroog starts MOVE_TO_MAN right after STORE (states 10, 11).
+                transport_done = Some(t);
+            } else if line.contains("coil button line")
+                && (line.ends_with(" 1") || line.contains(" 1 reaction"))
+            {
+                if let Some(d) = transport_done.take() {
+                    handovers.push(ms(t - d));
+                }
+            } else if line.contains(&format!("EVENT order-ended id={n}")) {
+                assert!(line.contains("state=done"), "{line}");
+                break t;
+            }
+        };
+        steps.extend(outputs.windows(2).map(|w| ms(w[1] - w[0])));
+        walls.push(ms(end - begin));
+        busy.push(ms(union(intervals)));
+    }
+    let (mut st, mut ho) = (steps.clone(), handovers.clone());
+    println!(
+        "control overhead per recipe step (cell output step: engine → Output → operator journal → confirm): p50 {:.2} ms, p99 {:.2} ms (n={}; goal p50 ≤ 2 ms)",
+        percentile(&mut st, 0.5),
+        percentile(&mut st, 0.99),
+        steps.len()
+    );
+    println!(
+        "hand-over between workstation jobs (STORE done → MOVE_TO_MAN's first coil write at the PLC): p50 {:.2} ms, p99 {:.2} ms (n={})",
+        percentile(&mut ho, 0.5),
+        percentile(&mut ho, 0.99),
+        handovers.len()
+    );
+    let (mut w, mut b) = (walls.clone(), busy.clone());
+    let (w50, b50) = (percentile(&mut w, 0.5), percentile(&mut b, 0.5));
+    println!(
+        "dikdroog order at time scale {SCALE}: wall time median {w50:.0} ms; twins' simulated time (carriers moving or robot welding) median {b50:.0} ms; ratio {:.2}; the rest ({:.0} ms) is recipe steps, PLC polling and the bench's answers (n={ORDERS})",
+        w50 / b50,
+        w50 - b50
+    );
+
+    // 3. Idle.
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let nodes = nodes(l.child.id());
+    let ticks: Vec<u64> = nodes.iter().map(|(p, _)| cpu_ticks(*p)).collect();
+    let window = Duration::from_secs(10);
+    tokio::time::sleep(window).await;
+    // /proc reports CPU time in USER_HZ ticks, 100 per second on Linux.
+    let hz = 100.0;
+    let (mut cpu_total, mut rss_total) = (0.0, 0.0);
+    println!(
+        "idle, {} s after the orders, over {} s:",
+        2,
+        window.as_secs()
+    );
+    for ((pid, name), t0) in nodes.iter().zip(ticks) {
+        let cpu = (cpu_ticks(*pid).saturating_sub(t0)) as f64 / hz / window.as_secs_f64() * 100.0;
+        let rss = rss_mib(*pid);
+        cpu_total += cpu;
+        rss_total += rss;
+        println!("  {name:<16} CPU {cpu:5.2} %  RSS {rss:6.1} MiB");
+    }
+    println!(
+        "  all {} nodes      CPU {cpu_total:5.2} %  RSS {rss_total:6.1} MiB (goals < 2 %, ≤ 150 MB)",
+        nodes.len()
+    );
+}

@@ -1,0 +1,405 @@
+//! `falc-launch`: the whole cell on one machine. Starts, bottom-up, the
+//! router, a digital twin per device (`falc-rcm-sim` on a pty for a welding
+//! station, `falc-plc-sim` on Modbus TCP for a transport station), every
+//! workstation, the cell and the operator, all from `launch/cell.toml`;
+//! prefixes each node's log lines with its name; says when the cell is
+//! ready and how to operate it; routes `rcm …` / `plc …` lines typed on its
+//! stdin to the twins' control interfaces; and stops everything (SIGTERM,
+//! then SIGKILL after 3 s) on Ctrl-C, SIGTERM, or as soon as any node dies.
+//!
+//! `launch/run` builds the binaries and runs this; the one-node-per-PC
+//! deployment uses the systemd units in `launch/systemd/` instead.
+
+use anyhow::{bail, Context, Result};
+use clap::Parser;
+use falc_common::node::say;
+use falc_common::topology::{StationKind, Topology};
+use std::path::{Path, PathBuf};
+use std::process::{ExitCode, Stdio};
+use std::time::{Duration, Instant};
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+use tokio::process::{Child, ChildStdin, Command};
+use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
+
+#[derive(Parser, Debug)]
+#[command(
+    version,
+    about = "FALC all-in-one: router, twins, workstations, cell and operator on this machine"
+)]
+struct Cli {
+    /// The cell topology.
+    #[arg(long, default_value = "launch/cell.toml")]
+    topology: PathBuf,
+    /// Directory of credential files (created by the router if missing).
+    #[arg(long, default_value = "launch/credentials")]
+    credentials_dir: PathBuf,
+    /// The router endpoint; overrides the topology's `router`.
+    #[arg(long)]
+    router: Option<String>,
+    /// The twins run this many times faster than the real cell.
+    #[arg(long, default_value_t = 1.0)]
+    time_scale: f64,
+    /// The recipe tree the operator delivers.
+    #[arg(long, default_value = "recipes")]
+    recipes: PathBuf,
+    /// The operator's order list and journal.
+    #[arg(long, default_value = "var/falc.db")]
+    db: PathBuf,
+    /// Where the FALC binaries are; default: next to this one.
+    #[arg(long)]
+    bin_dir: Option<PathBuf>,
+    /// Modbus address for a transport twin whose topology `device` is not
+    /// a host:port (default: the topology's device).
+    #[arg(long)]
+    plc_listen: Option<String>,
+}
+
+/// A line from a child, for the launcher's loop.
+enum Line {
+    Out(usize, String),
+    Exited(usize, String),
+}
+
+struct Node {
+    name: String,
+    child: Child,
+    stdin: Option<ChildStdin>,
+}
+
+/// Everything started so far; stopped in reverse order.
+struct Cell {
+    nodes: Vec<Node>,
+    tx: UnboundedSender<Line>,
+    rx: UnboundedReceiver<Line>,
+    bin_dir: PathBuf,
+}
+
+impl Cell {
+    fn spawn(&mut self, name: &str, bin: &str, args: &[String]) -> Result<usize> {
+        let path = self.bin_dir.join(bin);
+        let mut child = Command::new(&path)
+            .args(args)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .kill_on_drop(true)
+            .spawn()
+            .with_context(|| {
+                format!(
+                    "cannot start {} (build it first: launch/run does)",
+                    path.display()
+                )
+            })?;
+        let id = self.nodes.len();
+        for stream in [
+            child
+                .stdout
+                .take()
+                .map(|s| Box::new(s) as Box<dyn tokio::io::AsyncRead + Unpin + Send>),
+            child
+                .stderr
+                .take()
+                .map(|s| Box::new(s) as Box<dyn tokio::io::AsyncRead + Unpin + Send>),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            let tx = self.tx.clone();
+            tokio::spawn(async move {
+                let mut lines = BufReader::new(stream).lines();
+                while let Ok(Some(l)) = lines.next_line().await {
+                    let _ = tx.send(Line::Out(id, l));
+                }
+            });
+        }
+        self.nodes.push(Node {
+            name: name.to_string(),
+            stdin: child.stdin.take(),
+            child,
+        });
+        Ok(id)
+    }
+
+    /// Prints lines until one from node `id` contains `needle`; returns it.
+    /// Fails if any node exits meanwhile or nothing comes within `limit`.
+    async fn wait_for(&mut self, id: usize, needle: &str, limit: Duration) -> Result<String> {
+        let end = tokio::time::Instant::now() + limit;
+        loop {
+            self.check_exits();
+            let line = tokio::time::timeout_at(end, self.next_line()).await;
+            match line {
+                Err(_) => bail!(
+                    "{} did not say `{needle}` within {limit:?}",
+                    self.nodes[id].name
+                ),
+                Ok(Line::Exited(who, status)) => {
+                    bail!("{} stopped: {status}", self.nodes[who].name)
+                }
+                Ok(Line::Out(who, text)) => {
+                    let hit = who == id && text.contains(needle);
+                    self.print(who, &text);
+                    if hit {
+                        return Ok(text);
+                    }
+                }
+            }
+        }
+    }
+
+    fn print(&self, who: usize, text: &str) {
+        say(&format!("[{:<9}] {text}", self.nodes[who].name));
+    }
+
+    fn check_exits(&mut self) {
+        for (i, n) in self.nodes.iter_mut().enumerate() {
+            if let Ok(Some(status)) = n.child.try_wait() {
+                let _ = self.tx.send(Line::Exited(i, status.to_string()));
+            }
+        }
+    }
+
+    async fn next_line(&mut self) -> Line {
+        loop {
+            tokio::select! {
+                l = self.rx.recv() => if let Some(l) = l { return l },
+                _ = tokio::time::sleep(Duration::from_millis(200)) => self.check_exits(),
+            }
+        }
+    }
+
+    /// Sends a control line to the first node whose name starts with `to`.
+    async fn control(&mut self, to: &str, line: &str) -> bool {
+        let Some(n) = self.nodes.iter_mut().find(|n| n.name.starts_with(to)) else {
+            return false;
+        };
+        match n.stdin.as_mut() {
+            Some(s) => s.write_all(format!("{line}\n").as_bytes()).await.is_ok(),
+            None => false,
+        }
+    }
+
+    /// Stops the nodes top-down (newest first: operator, cell, workstations,
+    /// twins, router), each with SIGTERM and 3 s to go before SIGKILL, so
+    /// each can still conclude with the ones below it.
+    async fn stop(&mut self) {
+        for n in self.nodes.iter_mut().rev() {
+            if let Some(pid) = n.child.id().and_then(|p| i32::try_from(p).ok()) {
+                let _ = nix::sys::signal::kill(
+                    nix::unistd::Pid::from_raw(pid),
+                    nix::sys::signal::Signal::SIGTERM,
+                );
+            }
+            if tokio::time::timeout(Duration::from_secs(3), n.child.wait())
+                .await
+                .is_err()
+            {
+                let _ = n.child.kill().await;
+            }
+        }
+        // What the nodes said while stopping.
+        while let Ok(l) = self.rx.try_recv() {
+            if let Line::Out(who, text) = l {
+                self.print(who, &text);
+            }
+        }
+    }
+}
+
+fn node_args(cli: &Cli, topology_path: &Path, station: &str, router: &str) -> Vec<String> {
+    vec![
+        "--station".into(),
+        station.into(),
+        "--topology".into(),
+        topology_path.display().to_string(),
+        "--credentials-dir".into(),
+        cli.credentials_dir.display().to_string(),
+        "--router".into(),
+        router.into(),
+    ]
+}
+
+async fn start(cli: &Cli, cell: &mut Cell) -> Result<Duration> {
+    let t0 = Instant::now();
+    let mut topology = Topology::load(&cli.topology)?;
+    if let Some(r) = &cli.router {
+        topology.set_router(r.clone());
+    }
+    let router = topology.router().to_string();
+    let listen = router.clone();
+    let scale = cli.time_scale.to_string();
+    let id = cell.spawn(
+        "router",
+        "falc-router",
+        &[
+            "--topology".into(),
+            cli.topology.display().to_string(),
+            "--credentials-dir".into(),
+            cli.credentials_dir.display().to_string(),
+            "run".into(),
+            "--listen".into(),
+            listen,
+        ],
+    )?;
+    cell.wait_for(id, "falc-router ready", Duration::from_secs(20))
+        .await?;
+    let limit = Duration::from_secs(30);
+    // Workstations (with their twins) first, then the cell, then the operator.
+    let order = [
+        StationKind::Welding,
+        StationKind::Transport,
+        StationKind::Cell,
+        StationKind::Operator,
+    ];
+    for kind in order {
+        for st in topology.stations().iter().filter(|s| s.kind == kind) {
+            let name = st.name.as_str();
+            let mut args = node_args(cli, &cli.topology, name, &router);
+            let bin = match kind {
+                StationKind::Welding => {
+                    let twin = cell.spawn(
+                        &format!("rcm-{name}"),
+                        "falc-rcm-sim",
+                        &["--time-scale".into(), scale.clone()],
+                    )?;
+                    let line = cell.wait_for(twin, "serial port: ", limit).await?;
+                    let port = line.rsplit(' ').next().unwrap_or_default().to_string();
+                    args.extend(["--device".into(), port]);
+                    "falc-welding"
+                }
+                StationKind::Transport => {
+                    let at = cli
+                        .plc_listen
+                        .clone()
+                        .or_else(|| st.device.clone())
+                        .unwrap_or_else(|| "127.0.0.1:0".into());
+                    let twin = cell.spawn(
+                        &format!("plc-{name}"),
+                        "falc-plc-sim",
+                        &["--listen".into(), at, "--time-scale".into(), scale.clone()],
+                    )?;
+                    let line = cell.wait_for(twin, "listening on ", limit).await?;
+                    let address = line.rsplit(' ').next().unwrap_or_default().to_string();
+                    args.extend(["--plc".into(), address]);
+                    "falc-transport"
+                }
+                StationKind::Cell => "falc-cell",
+                StationKind::Operator => {
+                    args.extend([
+                        "--recipes".into(),
+                        cli.recipes.display().to_string(),
+                        "--db".into(),
+                        cli.db.display().to_string(),
+                    ]);
+                    "falc-operator"
+                }
+            };
+            let id = cell.spawn(name, bin, &args)?;
+            cell.wait_for(id, "EVENT ready", limit).await?;
+            if kind == StationKind::Operator {
+                cell.wait_for(id, "EVENT cell-ready", limit).await?;
+            }
+        }
+    }
+    Ok(t0.elapsed())
+}
+
+/// How to operate the launched cell, with the console next to this binary.
+fn help(bin_dir: &Path) -> String {
+    let falc = bin_dir.join("falc");
+    let falc = falc.display();
+    format!(
+        "\
+operate it from another terminal (in this directory):
+  {falc} status             the cell at a glance (--watch to follow)
+  {falc} order add dikdroog  (also dundroog, pipdroog)
+  {falc} start              work through the order list
+  {falc} messages --follow
+  {falc} answer ja          answer the cell's question
+  {falc} ack                acknowledge an alarm
+  {falc} journal
+  {falc} shutdown           stop when the running order ends
+type here to disturb the twins: `rcm estop`, `rcm estop-clear`, `plc jam K`,
+`plc unjam K`, `plc show`, `plc layout W2 W2` …; Ctrl-C stops the cell."
+    )
+}
+
+#[tokio::main]
+async fn main() -> ExitCode {
+    falc_common::node::init_tracing();
+    let cli = Cli::parse();
+    let bin_dir = match cli.bin_dir.clone().or_else(|| {
+        std::env::current_exe()
+            .ok()
+            .and_then(|p| p.parent().map(Path::to_path_buf))
+    }) {
+        Some(d) => d,
+        None => {
+            eprintln!("falc-launch: cannot tell where the binaries are; give --bin-dir");
+            return ExitCode::FAILURE;
+        }
+    };
+    let (tx, rx) = unbounded_channel();
+    let mut cell = Cell {
+        nodes: Vec::new(),
+        tx,
+        rx,
+        bin_dir,
+    };
+    let code = run(&cli, &mut cell).await;
+    cell.stop().await;
+    say("falc-launch: every node stopped");
+    code
+}
+
+async fn run(cli: &Cli, cell: &mut Cell) -> ExitCode {
+    let mut shutdown = falc_common::node::Shutdown::new();
+    let started = tokio::select! {
+        r = start(cli, cell) => r,
+        _ = shutdown.requested() => return ExitCode::SUCCESS,
+    };
+    match started {
+        Ok(took) => {
+            say(&format!(
+                "falc-launch: cell ready in {} ms (time scale {})",
+                took.as_millis(),
+                cli.time_scale
+            ));
+            say(&help(&cell.bin_dir));
+        }
+        Err(e) => {
+            say(&format!("falc-launch: the cell did not start: {e:#}"));
+            return ExitCode::FAILURE;
+        }
+    }
+    let mut stdin = BufReader::new(tokio::io::stdin()).lines();
+    let mut stdin_open = true;
+    loop {
+        tokio::select! {
+            l = cell.next_line() => match l {
+                Line::Out(who, text) => cell.print(who, &text),
+                Line::Exited(who, status) => {
+                    say(&format!(
+                        "falc-launch: {} stopped ({status}): stopping the cell",
+                        cell.nodes[who].name
+                    ));
+                    return if cell.nodes[who].name == "operator" && status.contains("exit status: 0") {
+                        ExitCode::SUCCESS
+                    } else {
+                        ExitCode::FAILURE
+                    };
+                }
+            },
+            line = stdin.next_line(), if stdin_open => match line {
+                Ok(Some(line)) => {
+                    let line = line.trim();
+                    let (to, rest) = line.split_once(' ').unwrap_or((line, ""));
+                    if !["rcm", "plc"].contains(&to) || !cell.control(to, rest).await {
+                        say(&format!("falc-launch: `{line}`: type `rcm <control>` or `plc <control>`"));
+                    }
+                }
+                _ => stdin_open = false,
+            },
+            _ = shutdown.requested() => return ExitCode::SUCCESS,
+        }
+    }
+}

@@ -1,0 +1,150 @@
+//! The all-in-one launcher: `falc-launch` starts router, twins, both
+//! workstations, cell and operator from a topology, an order runs through
+//! the `falc` CLI, and the launcher stops every node on SIGINT, or on its
+//! own as soon as one node dies.
+
+mod support;
+
+use nix::sys::signal::{kill, Signal};
+use nix::unistd::Pid;
+use std::path::Path;
+use std::process::Command;
+use std::time::{Duration, Instant};
+use support::{free_port, Proc, TOPOLOGY};
+
+struct Launched {
+    dir: tempfile::TempDir,
+    launcher: Proc,
+}
+
+fn launch() -> Launched {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let topology = dir.path().join("cell.toml");
+    std::fs::write(&topology, TOPOLOGY.replace("ROUTER", &endpoint)).expect("topology");
+    let bin_dir = Path::new(env!("CARGO_BIN_EXE_falc"))
+        .parent()
+        .expect("bin dir")
+        .to_path_buf();
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-launch"));
+    cmd.arg("--topology")
+        .arg(&topology)
+        .arg("--credentials-dir")
+        .arg(dir.path().join("credentials"))
+        .arg("--db")
+        .arg(dir.path().join("falc.db"))
+        .arg("--recipes")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes"))
+        .arg("--bin-dir")
+        .arg(bin_dir)
+        .args(["--plc-listen", "127.0.0.1:0", "--time-scale", "50"]);
+    let mut launcher = Proc::spawn("falc-launch", cmd);
+    launcher.expect_line("falc-launch: cell ready in", Duration::from_secs(60));
+    Launched { dir, launcher }
+}
+
+impl Launched {
+    fn falc(&self, args: &[&str]) -> String {
+        let out = Command::new(env!("CARGO_BIN_EXE_falc"))
+            .arg("--topology")
+            .arg(self.dir.path().join("cell.toml"))
+            .arg("--credentials-dir")
+            .arg(self.dir.path().join("credentials"))
+            .args(args)
+            .output()
+            .expect("run falc");
+        let text = String::from_utf8_lossy(&out.stdout).into_owned();
+        assert!(
+            out.status.success(),
+            "falc {args:?}: {text}{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        text
+    }
+}
+
+/// The launcher's child processes (by parent pid).
+fn children(parent: u32) -> Vec<u32> {
+    let mut v = Vec::new();
+    for e in std::fs::read_dir("/proc").expect("/proc").flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(e.path().join("stat")) else {
+            continue;
+        };
+        // pid (comm) state ppid …; comm may hold spaces: split after ')'.
+        let ppid = stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+            .and_then(|p| p.parse::<u32>().ok());
+        if ppid == Some(parent) {
+            v.push(pid);
+        }
+    }
+    v
+}
+
+fn gone(pid: u32) -> bool {
+    !Path::new(&format!("/proc/{pid}")).exists()
+}
+
+#[test]
+fn the_launched_cell_runs_an_order_and_ctrl_c_stops_every_node() {
+    let mut l = launch();
+    let nodes = children(l.launcher.pid());
+    assert_eq!(
+        nodes.len(),
+        7,
+        "router, 2 twins, 2 workstations, cell, operator"
+    );
+    // Every node's lines come prefixed with its name.
+    l.launcher
+        .expect_line("[transport] EVENT ready", Duration::ZERO);
+    l.falc(&["order", "add", "dikdroog"]);
+    l.falc(&["start"]);
+    let end = Instant::now() + Duration::from_secs(60);
+    loop {
+        let status = l.falc(&["status"]);
+        if status.contains("QUESTION") {
+            l.falc(&["answer", "ja"]);
+        }
+        if status.contains("list idle") {
+            break;
+        }
+        assert!(Instant::now() < end, "order not done: {status}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(l.falc(&["order", "list"]).contains("done"));
+    kill(Pid::from_raw(l.launcher.pid() as i32), Signal::SIGINT).expect("SIGINT");
+    l.launcher
+        .expect_line("every node stopped", Duration::from_secs(30));
+    for pid in nodes {
+        assert!(gone(pid), "node {pid} still runs");
+    }
+}
+
+#[test]
+fn the_launcher_stops_the_cell_when_a_node_dies() {
+    let mut l = launch();
+    let nodes = children(l.launcher.pid());
+    let cell = nodes
+        .iter()
+        .copied()
+        .find(|p| {
+            std::fs::read(format!("/proc/{p}/cmdline"))
+                .map(|c| String::from_utf8_lossy(&c).contains("falc-cell"))
+                .unwrap_or(false)
+        })
+        .expect("the cell controller process");
+    kill(Pid::from_raw(cell as i32), Signal::SIGKILL).expect("SIGKILL");
+    let line = l
+        .launcher
+        .expect_line("stopping the cell", Duration::from_secs(10));
+    assert!(line.starts_with("falc-launch: cell stopped"), "{line}");
+    l.launcher
+        .expect_line("every node stopped", Duration::from_secs(30));
+    for pid in nodes {
+        assert!(gone(pid), "node {pid} still runs");
+    }
+}
