@@ -30,11 +30,10 @@ use falc_common::bus::keys::KeySpace;
 use falc_common::bus::{Bus, BusSettings};
 use falc_common::ids::{CellId, StationName};
 use std::io::{BufRead, BufReader};
-use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::sync::mpsc::{channel, Receiver};
 use std::time::{Duration, Instant};
-use support::{free_port, TOPOLOGY};
+use support::launcher;
 
 const SCALE: &str = "100";
 const ORDERS: usize = 10;
@@ -60,26 +59,9 @@ impl Drop for Launched {
 
 fn launch() -> Launched {
     let dir = tempfile::tempdir().expect("tempdir");
-    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    let topology = dir.path().join("cell.toml");
-    std::fs::write(&topology, TOPOLOGY.replace("ROUTER", &endpoint)).expect("topology");
-    let bin_dir = Path::new(env!("CARGO_BIN_EXE_falc"))
-        .parent()
-        .expect("bin dir")
-        .to_path_buf();
+    let (mut cmd, endpoint) = launcher(dir.path(), SCALE);
     let spawned = Instant::now();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_falc-launch"))
-        .arg("--topology")
-        .arg(&topology)
-        .arg("--credentials-dir")
-        .arg(dir.path().join("credentials"))
-        .arg("--db")
-        .arg(dir.path().join("falc.db"))
-        .arg("--recipes")
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes"))
-        .arg("--bin-dir")
-        .arg(bin_dir)
-        .args(["--plc-listen", "127.0.0.1:0", "--time-scale", SCALE])
+    let mut child = cmd
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::null())

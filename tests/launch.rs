@@ -10,7 +10,7 @@ use nix::unistd::Pid;
 use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
-use support::{free_port, Proc, TOPOLOGY};
+use support::{launcher, Proc};
 
 struct Launched {
     dir: tempfile::TempDir,
@@ -19,25 +19,7 @@ struct Launched {
 
 fn launch() -> Launched {
     let dir = tempfile::tempdir().expect("tempdir");
-    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    let topology = dir.path().join("cell.toml");
-    std::fs::write(&topology, TOPOLOGY.replace("ROUTER", &endpoint)).expect("topology");
-    let bin_dir = Path::new(env!("CARGO_BIN_EXE_falc"))
-        .parent()
-        .expect("bin dir")
-        .to_path_buf();
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-launch"));
-    cmd.arg("--topology")
-        .arg(&topology)
-        .arg("--credentials-dir")
-        .arg(dir.path().join("credentials"))
-        .arg("--db")
-        .arg(dir.path().join("falc.db"))
-        .arg("--recipes")
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes"))
-        .arg("--bin-dir")
-        .arg(bin_dir)
-        .args(["--plc-listen", "127.0.0.1:0", "--time-scale", "50"]);
+    let (cmd, _) = launcher(dir.path(), "50");
     let mut launcher = Proc::spawn("falc-launch", cmd);
     launcher.expect_line("falc-launch: cell ready in", Duration::from_secs(60));
     Launched { dir, launcher }

@@ -423,3 +423,41 @@ fn an_observer_reads_but_cannot_command() {
     assert_eq!(code, 1);
     assert!(text.contains("no cell recipe nosuch"), "{text}");
 }
+
+#[test]
+fn shutdown_waits_until_the_list_is_done() {
+    let mut rig = rig("100");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    let out = rig.cell.falc(&["shutdown"]);
+    assert!(out.contains("when the order list is done"), "{out}");
+    let (code, text) = rig.cell.falc_as("console", &["start"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("shutting down"), "{text}");
+    // Answer the questions until the operator stops by itself.
+    let end = Instant::now() + Duration::from_secs(60);
+    while rig
+        .operator()
+        .wait_line("EVENT stopped", Duration::ZERO)
+        .is_none()
+    {
+        assert!(Instant::now() < end, "the operator did not stop");
+        let (_, status) = rig.cell.falc_as("console", &["--json", "status"]);
+        if status.contains("\"question\":\"") {
+            rig.cell.falc_as("console", &["answer", "ja"]);
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // Both orders ran; the journal says who asked for the shut down.
+    rig.operator = None;
+    rig.start_operator();
+    let orders = rig.orders();
+    assert_eq!(
+        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
+        vec![OrderState::Done, OrderState::Done]
+    );
+    assert!(rig.journal(None).iter().any(|e| e.kind == EntryKind::Action
+        && e.who == "console"
+        && e.text.contains("shut down")));
+}

@@ -287,6 +287,16 @@ impl Topology {
         self.station(name).and_then(|s| s.commander.as_ref())
     }
 
+    /// How many levels of subordinates a station has below it (0 for a
+    /// workstation, 1 for a cell of workstations).
+    pub fn height(&self, name: &StationName) -> u32 {
+        self.subordinates_of(name)
+            .into_iter()
+            .map(|s| 1 + self.height(s))
+            .max()
+            .unwrap_or(0)
+    }
+
     /// The direct subordinates of a station, in file order.
     pub fn subordinates_of(&self, name: &StationName) -> Vec<&StationName> {
         self.stations
@@ -326,6 +336,8 @@ device = "/dev/ttyS0"
         assert_eq!(t.subordinates_of(&cell).len(), 1);
         assert_eq!(t.commander_of(&cell).map(|s| s.as_str()), Some("operator"));
         assert_eq!(t.lease(), Duration::from_secs(1));
+        assert_eq!(t.height(&t.root().name), 2);
+        assert_eq!(t.height(&cell), 1);
     }
 
     fn refusal(text: &str) -> String {

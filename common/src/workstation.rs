@@ -11,6 +11,7 @@
 //! [`Workstation::fault`]) and calls [`Workstation::settle`] after each.
 
 use crate::bus::station::{Station, StationEvent};
+use crate::bus::BusEvent;
 use crate::ids::ObjectName;
 use crate::mms::error::{DefinitionError, ErrorClass, ServiceError};
 use crate::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
@@ -98,9 +99,27 @@ impl<D: Device> Workstation<D> {
         self.running.is_some()
     }
 
-    /// The next event from the station (await it in the node's loop).
-    pub async fn station_next(&mut self) -> Option<StationEvent> {
-        self.station.next().await
+    /// The next raw bus event of the station (cancel-safe: a `select!`
+    /// branch); None when the bus is gone.
+    pub async fn station_recv(&mut self) -> Option<BusEvent> {
+        self.station.recv().await
+    }
+
+    /// Handles a raw bus event to the end (in a branch's body, never as a
+    /// branch): what the node must act on, if anything.
+    pub async fn station_handle(&mut self, ev: BusEvent) -> Option<StationEvent> {
+        self.station.handle(ev).await
+    }
+
+    /// Receives and handles the next bus event as a workstation does
+    /// (indications answered, aborts and associations taken in); false
+    /// when the bus is gone.
+    pub async fn station_step(&mut self, ev: Option<BusEvent>) -> bool {
+        let Some(ev) = ev else { return false };
+        match self.station_handle(ev).await {
+            Some(e) => self.station_event(Some(e)).await,
+            None => true,
+        }
     }
 
     /// When the running recipe's next limit runs out (far away if none).
@@ -259,6 +278,8 @@ impl<D: Device> Workstation<D> {
             Some(StationEvent::Associated(p)) => {
                 say(&format!("EVENT associated commander={}", p.station));
                 self.device.associated();
+                self.publish_status().await;
+                self.station.republish_status().await;
             }
             Some(StationEvent::Concluded(_)) => {}
             None => return false,

@@ -75,7 +75,10 @@ async fn main() -> Result<()> {
     loop {
         let deadline = ws.deadline();
         tokio::select! {
-            ev = ws.station_next() => match ev {
+            ev = ws.station_recv() => {
+                let Some(ev) = ev else { break };
+                match ws.station_handle(ev).await {
+                None => {}
                 Some(StationEvent::Indication(ind)) => {
                     let mut result = ws.indication(&ind.request).await;
                     if let (Ok(_), Request::TerminateDownloadSequence { domain, discard: None }) = (&result, &ind.request) {
@@ -112,6 +115,7 @@ async fn main() -> Result<()> {
                         }
                     }
                 }
+            }
             },
             r = replies.recv() => match r {
                 Some(Reply::Started(st, Ok(()))) => ws.feed(vec![falc_common::recipe::engine::Event::Started(st)]),

@@ -66,7 +66,7 @@ pub enum CellCommand {
         #[arg(long)]
         order: Option<i64>,
     },
-    /// Shut the cell down once the running order has ended.
+    /// Shut the cell down once the order list is done (at once if idle).
     Shutdown,
 }
 
@@ -241,21 +241,20 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
     once(&bus, &operator, req, json).await
 }
 
-async fn watch(bus: &Bus, operator: &StationName, json: bool) -> ExitCode {
-    let mut last = None;
+/// Asks `request(state)` again every `POLL` until Ctrl-C or a failure;
+/// `show` prints what is new and updates the state.
+async fn poll<S>(
+    bus: &Bus,
+    operator: &StationName,
+    mut state: S,
+    request: impl Fn(&S) -> ApiRequest,
+    mut show: impl FnMut(&mut S, ApiReply),
+) -> ExitCode {
     let mut stop = falc_common::node::Shutdown::new();
     loop {
         tokio::select! {
-            r = bus.api(operator, ApiRequest::Status, CALL_LIMIT) => match r {
-                Ok(reply) => {
-                    if last.as_ref() != Some(&reply) {
-                        if !json {
-                            println!("---");
-                        }
-                        print(&reply, json);
-                        last = Some(reply);
-                    }
-                }
+            r = bus.api(operator, request(&state), CALL_LIMIT) => match r {
+                Ok(reply) => show(&mut state, reply),
                 Err(why) => {
                     eprintln!("falc: {why}");
                     return ExitCode::FAILURE;
@@ -270,29 +269,37 @@ async fn watch(bus: &Bus, operator: &StationName, json: bool) -> ExitCode {
     }
 }
 
+/// `status --watch`: the status whenever it changed.
+async fn watch(bus: &Bus, operator: &StationName, json: bool) -> ExitCode {
+    let show = |last: &mut Option<ApiReply>, reply: ApiReply| {
+        if last.as_ref() != Some(&reply) {
+            if !json {
+                println!("---");
+            }
+            print(&reply, json);
+            *last = Some(reply);
+        }
+    };
+    poll(bus, operator, None, |_| ApiRequest::Status, show).await
+}
+
+/// `messages --follow`: every new message, one per line.
 async fn follow(bus: &Bus, operator: &StationName, json: bool) -> ExitCode {
-    let mut after = 0;
-    let mut stop = falc_common::node::Shutdown::new();
-    loop {
-        tokio::select! {
-            r = bus.api(operator, ApiRequest::Messages { after }, CALL_LIMIT) => match r {
-                Ok(ApiReply::Entries(v)) => {
-                    for e in &v {
-                        after = after.max(e.id);
-                        print(&ApiReply::Entries(vec![e.clone()]), json);
-                    }
-                }
-                Ok(other) => print(&other, json),
-                Err(why) => {
-                    eprintln!("falc: {why}");
-                    return ExitCode::FAILURE;
-                }
-            },
-            _ = stop.requested() => return ExitCode::SUCCESS,
+    let show = |after: &mut i64, reply: ApiReply| match reply {
+        ApiReply::Entries(v) => {
+            for e in v {
+                *after = (*after).max(e.id);
+                print(&ApiReply::Entries(vec![e]), json);
+            }
         }
-        tokio::select! {
-            _ = tokio::time::sleep(POLL) => {}
-            _ = stop.requested() => return ExitCode::SUCCESS,
-        }
-    }
+        other => print(&other, json),
+    };
+    poll(
+        bus,
+        operator,
+        0,
+        |&after| ApiRequest::Messages { after },
+        show,
+    )
+    .await
 }

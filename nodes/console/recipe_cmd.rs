@@ -39,22 +39,31 @@ pub enum RecipeCommand {
     },
 }
 
+/// Loads `paths` (default `recipes`); on failure says each error with `say`.
+fn load_or_say(
+    paths: Vec<PathBuf>,
+    kind: Option<RecipeKind>,
+    say: impl Fn(&str),
+) -> Option<Vec<falc_common::recipe::check::Entry>> {
+    let paths = if paths.is_empty() {
+        vec![PathBuf::from("recipes")]
+    } else {
+        paths
+    };
+    match files::load(&paths, kind) {
+        Ok(e) => Some(e),
+        Err(errors) => {
+            errors.iter().for_each(|e| say(e));
+            None
+        }
+    }
+}
+
 pub fn run(cmd: RecipeCommand) -> ExitCode {
     match cmd {
         RecipeCommand::List { paths } => {
-            let paths = if paths.is_empty() {
-                vec![PathBuf::from("recipes")]
-            } else {
-                paths
-            };
-            let entries = match files::load(&paths, None) {
-                Ok(e) => e,
-                Err(errors) => {
-                    for e in errors {
-                        eprintln!("{e}");
-                    }
-                    return ExitCode::FAILURE;
-                }
+            let Some(entries) = load_or_say(paths, None, |e| eprintln!("{e}")) else {
+                return ExitCode::FAILURE;
             };
             let (_, problems) = check_set(&entries);
             for e in &entries {
@@ -88,19 +97,9 @@ pub fn run(cmd: RecipeCommand) -> ExitCode {
             }
         }
         RecipeCommand::Check { kind, paths } => {
-            let paths = if paths.is_empty() {
-                vec![PathBuf::from("recipes")]
-            } else {
-                paths
-            };
-            let entries = match files::load(&paths, kind) {
-                Ok(e) => e,
-                Err(errors) => {
-                    for e in errors {
-                        println!("{e}");
-                    }
-                    return ExitCode::FAILURE;
-                }
+            // Problems go to stdout, one per line, for scripts.
+            let Some(entries) = load_or_say(paths, kind, |e| println!("{e}")) else {
+                return ExitCode::FAILURE;
             };
             let (programs, problems) = check_set(&entries);
             for p in &problems {

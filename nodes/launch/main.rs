@@ -317,7 +317,7 @@ operate it from another terminal (in this directory):
   {falc} answer ja          answer the cell's question
   {falc} ack                acknowledge an alarm
   {falc} journal
-  {falc} shutdown           stop when the running order ends
+  {falc} shutdown           stop when the order list is done
 type here to disturb the twins: `rcm estop`, `rcm estop-clear`, `plc jam K`,
 `plc unjam K`, `plc show`, `plc layout W2 W2` …; Ctrl-C stops the cell."
     )

@@ -118,12 +118,14 @@ async fn run(cli: Cli) -> Result<ExitCode> {
     let mut shutdown = falc_common::node::Shutdown::new();
     loop {
         tokio::select! {
-            ev = op.station.next() => match ev {
-                Some(StationEvent::Indication(ind)) => op.upward(ind.request, ind.responder).await,
-                Some(StationEvent::Abort(a)) => op.cell_lost(&a.reason),
-                Some(StationEvent::Associated(_) | StationEvent::Concluded(_)) => {}
-                None => anyhow::bail!("the cell network session ended"),
-            },
+            ev = op.station.recv() => {
+                let Some(ev) = ev else { anyhow::bail!("the cell network session ended") };
+                match op.station.handle(ev).await {
+                    Some(StationEvent::Indication(ind)) => op.upward(ind.request, ind.responder).await,
+                    Some(StationEvent::Abort(a)) => op.cell_lost(&a.reason),
+                    Some(StationEvent::Associated(_) | StationEvent::Concluded(_)) | None => {}
+                }
+            }
             Some(ind) = api.recv() => {
                 let result = op.api(&ind.user, ind.request).await;
                 ind.responder.respond(result).await;

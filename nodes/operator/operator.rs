@@ -542,8 +542,7 @@ impl Operator {
                 self.shutdown_pending = true;
                 if self.running.is_some() {
                     Ok(ApiReply::Done(
-                        "the cell shuts down when the running order ends; the list stops after it"
-                            .into(),
+                        "the cell shuts down when the order list is done".into(),
                     ))
                 } else {
                     Ok(ApiReply::Done("shutting down".into()))

@@ -164,7 +164,7 @@ async fn main() -> Result<()> {
     loop {
         let deadline = ws.deadline();
         tokio::select! {
-            ev = ws.station_next() => if !ws.station_event(ev).await { break },
+            ev = ws.station_recv() => if !ws.station_step(ev).await { break },
             ev = link.events.recv() => match ev {
                 Some(PlcEvent::Connected) => {
                     say(&format!("EVENT plc-connected address={address}"));

@@ -188,7 +188,7 @@ async fn main() -> Result<()> {
     loop {
         let deadline = ws.deadline();
         tokio::select! {
-            ev = ws.station_next() => if !ws.station_event(ev).await { break },
+            ev = ws.station_recv() => if !ws.station_step(ev).await { break },
             ev = async { match &mut dnc_events { Some(e) => e.recv().await, None => std::future::pending().await } } => {
                 let events = match ev {
                     Some(ev) => ws.device.dnc_event(ev),

@@ -180,6 +180,32 @@ pub fn twin(bin: &str, args: &[&str], announces: &str) -> (Proc, String) {
     (p, at)
 }
 
+/// A `falc-launch` command for a whole cell in `dir`: the topology written
+/// there with a free router port (returned), credentials and database
+/// there, the shipped recipes, the twins at `time_scale`.
+pub fn launcher(dir: &std::path::Path, time_scale: &str) -> (Command, String) {
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let topology = dir.join("cell.toml");
+    std::fs::write(&topology, TOPOLOGY.replace("ROUTER", &endpoint)).expect("topology");
+    let bin_dir = std::path::Path::new(env!("CARGO_BIN_EXE_falc"))
+        .parent()
+        .expect("bin dir")
+        .to_path_buf();
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-launch"));
+    cmd.arg("--topology")
+        .arg(&topology)
+        .arg("--credentials-dir")
+        .arg(dir.join("credentials"))
+        .arg("--db")
+        .arg(dir.join("falc.db"))
+        .arg("--recipes")
+        .arg(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes"))
+        .arg("--bin-dir")
+        .arg(bin_dir)
+        .args(["--plc-listen", "127.0.0.1:0", "--time-scale", time_scale]);
+    (cmd, endpoint)
+}
+
 /// A cell under test: a temp dir with topology and credentials, and a router.
 pub struct TestCell {
     pub dir: tempfile::TempDir,

@@ -43,6 +43,9 @@ pub struct Station {
     board: StatusBoard,
     _served: Vec<Declaration>,
     deadline: Duration,
+    /// How long an Initiate of each subordinate may take: one deadline per
+    /// level of its subtree (it initiates its own subordinates first).
+    initiate_limits: HashMap<StationName, Duration>,
 }
 
 impl Station {
@@ -61,6 +64,14 @@ impl Station {
             .serve(&acl::served_services(topology, &me), &board, tx.clone())
             .await?;
         bus.sync_with_router().await?;
+        let initiate_limits = topology
+            .subordinates_of(&me)
+            .into_iter()
+            .map(|sub| {
+                let levels = 1 + topology.height(sub);
+                (sub.clone(), super::DEFAULT_DEADLINE * levels)
+            })
+            .collect();
         Ok(Self {
             bus,
             assoc,
@@ -70,6 +81,7 @@ impl Station {
             board,
             _served: served,
             deadline: super::DEFAULT_DEADLINE,
+            initiate_limits,
         })
     }
 
@@ -91,22 +103,49 @@ impl Station {
         }
     }
 
+    /// Publishes the current status again, changed or not (a new commander
+    /// and the operator see it at once, not at the next change).
+    pub async fn republish_status(&self) {
+        self.bus
+            .publish(&Unconfirmed::Status {
+                station: self.bus.me().station.clone(),
+                status: self.board.get(),
+            })
+            .await;
+    }
+
     /// The association state.
     pub fn associations(&self) -> &Associations {
         &self.assoc
     }
 
     /// The next event the node must act on; None when the bus is gone.
+    /// Not cancel-safe (an Initiate in progress would be dropped half
+    /// done): in a `select!` use [`Station::recv`] and [`Station::handle`].
     pub async fn next(&mut self) -> Option<StationEvent> {
         loop {
-            let event = match self.rx.recv().await {
-                Some(BusEvent::Indication(ind)) => self.on_indication(ind).await,
-                Some(BusEvent::PeerLost { peer, reason }) => self.on_lost(&peer, &reason).await,
-                None => return None,
-            };
-            if event.is_some() {
-                return event;
+            let ev = self.recv().await?;
+            if let Some(event) = self.handle(ev).await {
+                return Some(event);
             }
+        }
+    }
+
+    /// The next raw bus event; None when the bus is gone. Cancel-safe: the
+    /// branch of a node's `select!`.
+    pub async fn recv(&mut self) -> Option<BusEvent> {
+        self.rx.recv().await
+    }
+
+    /// Handles a raw bus event (association services, lost tokens) and
+    /// returns what the node must act on, if anything. Await it to the end
+    /// (in the body of a `select!` branch, never as a branch): an Initiate
+    /// waits for the subordinates' confirms, and dropping it half done
+    /// would leave the association pending and the commander unanswered.
+    pub async fn handle(&mut self, ev: BusEvent) -> Option<StationEvent> {
+        match ev {
+            BusEvent::Indication(ind) => self.on_indication(ind).await,
+            BusEvent::PeerLost { peer, reason } => self.on_lost(&peer, &reason).await,
         }
     }
 
@@ -247,7 +286,12 @@ impl Station {
         let req = Request::Initiate {
             calling: self.bus.me().clone(),
         };
-        match self.bus.request(sub, &req, self.deadline).await? {
+        let limit = self
+            .initiate_limits
+            .get(sub)
+            .copied()
+            .unwrap_or(self.deadline);
+        match self.bus.request(sub, &req, limit).await? {
             Response::Initiate { responding } if &responding.station == sub => Ok(responding),
             other => Err(ServiceError::malformed(format!(
                 "station {sub} answered Initiate with {other:?}"
