@@ -22,6 +22,7 @@ use below::{Below, Reply};
 use clap::Parser;
 use delivery::{workstation_domain, Passer};
 use falc_common::bus::station::{Station, StationEvent};
+use falc_common::bus::Bus;
 use falc_common::ids::StationName;
 use falc_common::mms::error::ServiceError;
 use falc_common::mms::pdu::{Request, Response, Severity, Unconfirmed};
@@ -41,6 +42,71 @@ struct Cli {
     station: StationName,
     #[command(flatten)]
     node: NodeArgs,
+}
+
+/// Acts on what the station hands the cell: indications (a finished
+/// download of `STATION$NAME` is passed on to that workstation before it is
+/// confirmed), aborts (a lost workstation comes back empty) and
+/// associations (a returned workstation gets its recipes again). False
+/// when the bus is gone.
+async fn on_station(
+    ws: &mut Workstation<Below>,
+    passer: &mut Passer,
+    bus: &Bus,
+    subordinates: &[StationName],
+    ev: StationEvent,
+) -> bool {
+    let ind = match ev {
+        StationEvent::Indication(ind) => ind,
+        other => {
+            let associated = matches!(other, StationEvent::Associated(_));
+            if let StationEvent::Abort(a) = &other {
+                passer.forget(&a.peer.station);
+            }
+            if !ws.station_event(Some(other)).await {
+                return false;
+            }
+            if associated {
+                for failure in passer.catch_up(bus, ws.vmd()).await {
+                    ws.report(Severity::Alarm, failure).await;
+                }
+            }
+            return true;
+        }
+    };
+    let mut result = ws.indication(&ind.request).await;
+    if let (
+        Ok(_),
+        Request::TerminateDownloadSequence {
+            domain,
+            discard: None,
+        },
+    ) = (&result, &ind.request)
+    {
+        if let Some((st, name)) = workstation_domain(domain) {
+            result = if !subordinates.contains(&st) {
+                ws.discard_domain(domain);
+                Err(ServiceError::undefined(format!(
+                    "recipe {domain}: {st} is not a workstation of this cell"
+                )))
+            } else {
+                let content = ws
+                    .vmd()
+                    .domain(domain)
+                    .map(|d| d.content().to_vec())
+                    .unwrap_or_default();
+                match passer.pass_on(bus, &st, &name, &content).await {
+                    Ok(()) => Ok(Response::Done),
+                    Err(e) => {
+                        ws.discard_domain(domain);
+                        Err(e)
+                    }
+                }
+            };
+        }
+    }
+    ind.responder.respond(result).await;
+    true
 }
 
 #[tokio::main]
@@ -77,46 +143,12 @@ async fn main() -> Result<()> {
         tokio::select! {
             ev = ws.station_recv() => {
                 let Some(ev) = ev else { break };
-                match ws.station_handle(ev).await {
-                None => {}
-                Some(StationEvent::Indication(ind)) => {
-                    let mut result = ws.indication(&ind.request).await;
-                    if let (Ok(_), Request::TerminateDownloadSequence { domain, discard: None }) = (&result, &ind.request) {
-                        if let Some((st, name)) = workstation_domain(domain) {
-                            result = if !subordinates.contains(&st) {
-                                ws.discard_domain(domain);
-                                Err(ServiceError::undefined(format!(
-                                    "recipe {domain}: {st} is not a workstation of this cell"
-                                )))
-                            } else {
-                                let content = ws.vmd().domain(domain).map(|d| d.content().to_vec()).unwrap_or_default();
-                                match passer.pass_on(&bus, &st, &name, &content).await {
-                                    Ok(()) => Ok(Response::Done),
-                                    Err(e) => {
-                                        ws.discard_domain(domain);
-                                        Err(e)
-                                    }
-                                }
-                            };
-                        }
-                    }
-                    ind.responder.respond(result).await;
-                }
-                other => {
-                    let associated = matches!(other, Some(StationEvent::Associated(_)));
-                    if let Some(StationEvent::Abort(a)) = &other {
-                        // A workstation that comes back starts empty.
-                        passer.forget(&a.peer.station);
-                    }
-                    if !ws.station_event(other).await { break }
-                    if associated {
-                        for failure in passer.catch_up(&bus, ws.vmd()).await {
-                            ws.report(Severity::Alarm, failure).await;
-                        }
+                if let Some(ev) = ws.station_handle(ev).await {
+                    if !on_station(&mut ws, &mut passer, &bus, &subordinates, ev).await {
+                        break;
                     }
                 }
             }
-            },
             r = replies.recv() => match r {
                 Some(Reply::Started(st, Ok(()))) => ws.feed(vec![falc_common::recipe::engine::Event::Started(st)]),
                 Some(Reply::Started(st, Err(e))) => {
