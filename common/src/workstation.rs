@@ -38,6 +38,12 @@ pub trait Device {
     fn halt(&mut self, out: &mut Vec<Event>);
     /// The recipe ended: leave the device safe.
     fn finished(&mut self, _outcome: &Outcome) {}
+    /// Whether outputs the recipe issued are not carried out yet: a job
+    /// that ended well is reported done only once they are (the commander
+    /// must not start the next job while, say, a coil write is in flight).
+    fn settling(&self) -> bool {
+        false
+    }
     /// A limit is about to run out: what the device sees, for the alarm
     /// text (e.g. which input was not reached, which line still runs).
     fn explain_timeout(&self, _now: Duration) -> Option<String> {
@@ -235,7 +241,8 @@ impl<D: Device> Workstation<D> {
         let ended = self
             .running
             .as_ref()
-            .and_then(|r| r.engine.outcome().cloned());
+            .and_then(|r| r.engine.outcome().cloned())
+            .filter(|o| *o != Outcome::Done || !self.device.settling());
         if let Some(outcome) = ended {
             // Only now, with the outcome known, is the job taken out.
             if let Some(r) = self.running.take() {

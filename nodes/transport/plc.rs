@@ -237,6 +237,12 @@ impl Device for Plc {
         self.release_lines();
     }
 
+    fn settling(&self) -> bool {
+        // Dropped commands count as carried out; a link that is down never
+        // holds a job back (its fault is the alarm).
+        self.down.is_none() && self.inputs_after < self.issued
+    }
+
     fn lost(&mut self, _commander: &falc_common::ids::StationName) {
         // The commander is gone and with it the cell's whole job (the weld
         // is stopped too): nothing holds a workpiece any more, every button
@@ -437,6 +443,10 @@ mod tests {
             ],
             "a running recipe polls at the busy period"
         );
+        // Done is reported only once the PLC has the writes.
+        assert!(p.settling(), "the write of K is in flight");
+        p.inputs(ready(), p.issued());
+        assert!(!p.settling());
         p.finished(&Outcome::Done);
         assert_eq!(drain(&mut rx), vec![PlcCommand::Pace(Pace::Idle)]);
         // The commander lost: the station button goes too.
