@@ -206,8 +206,9 @@ async fn a_workstation_killed_mid_order_stops_the_other_and_raises_a_cell_alarm(
     }
     let killed = std::time::Instant::now();
     rig.transport.kill();
-    let job = rig.run_order("ja", Duration::from_secs(10)).await;
+    let job = rig.drive("ja", Duration::from_secs(10)).await;
     let took = killed.elapsed();
+    let job = job.expect("a job event within 10 s");
     match job {
         JobEvent::Alarm(text) => assert!(
             text.contains("no connection with station transport"),
