@@ -33,7 +33,7 @@ use std::io::{BufRead, BufReader};
 use std::process::{Child, Stdio};
 use std::sync::mpsc::{channel, Receiver};
 use std::time::{Duration, Instant};
-use support::launcher;
+use support::{children, launcher};
 
 const SCALE: &str = "100";
 const ORDERS: usize = 10;
@@ -142,29 +142,6 @@ fn union(mut v: Vec<(Instant, Instant)>) -> Duration {
         total += e - s;
     }
     total
-}
-
-/// (pid, name) of the launcher's children.
-fn nodes(parent: u32) -> Vec<(u32, String)> {
-    let mut v = Vec::new();
-    for e in std::fs::read_dir("/proc").expect("/proc").flatten() {
-        let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else {
-            continue;
-        };
-        let Ok(stat) = std::fs::read_to_string(e.path().join("stat")) else {
-            continue;
-        };
-        let Some((head, rest)) = stat.rsplit_once(')') else {
-            continue;
-        };
-        let ppid = rest.split_whitespace().nth(1).and_then(|p| p.parse().ok());
-        if ppid == Some(parent) {
-            let name = head.split_once('(').map(|x| x.1).unwrap_or("?").to_string();
-            v.push((pid, name));
-        }
-    }
-    v.sort();
-    v
 }
 
 /// utime + stime in clock ticks.
@@ -296,7 +273,7 @@ async fn main() {
 
     // 3. Idle.
     tokio::time::sleep(Duration::from_secs(2)).await;
-    let nodes = nodes(l.child.id());
+    let nodes = children(l.child.id());
     let ticks: Vec<u64> = nodes.iter().map(|(p, _)| cpu_ticks(*p)).collect();
     let window = Duration::from_secs(10);
     tokio::time::sleep(window).await;

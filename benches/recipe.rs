@@ -47,6 +47,7 @@ fn main() {
                 station: StationName::new(&kind.to_string()).expect("valid"),
                 kind: *kind,
                 recipe: parse(text, origin),
+                text: text.to_string(),
             })
             .collect();
         check_set(&entries)

@@ -10,7 +10,7 @@ use nix::unistd::Pid;
 use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
-use support::{launcher, Proc};
+use support::{children, launcher, Proc};
 
 struct Launched {
     dir: tempfile::TempDir,
@@ -45,26 +45,9 @@ impl Launched {
     }
 }
 
-/// The launcher's child processes (by parent pid).
-fn children(parent: u32) -> Vec<u32> {
-    let mut v = Vec::new();
-    for e in std::fs::read_dir("/proc").expect("/proc").flatten() {
-        let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else {
-            continue;
-        };
-        let Ok(stat) = std::fs::read_to_string(e.path().join("stat")) else {
-            continue;
-        };
-        // pid (comm) state ppid …; comm may hold spaces: split after ')'.
-        let ppid = stat
-            .rsplit_once(')')
-            .and_then(|(_, rest)| rest.split_whitespace().nth(1))
-            .and_then(|p| p.parse::<u32>().ok());
-        if ppid == Some(parent) {
-            v.push(pid);
-        }
-    }
-    v
+/// The launcher's child processes.
+fn nodes(launcher: u32) -> Vec<u32> {
+    children(launcher).into_iter().map(|(pid, _)| pid).collect()
 }
 
 fn gone(pid: u32) -> bool {
@@ -74,7 +57,7 @@ fn gone(pid: u32) -> bool {
 #[test]
 fn the_launched_cell_runs_an_order_and_ctrl_c_stops_every_node() {
     let mut l = launch();
-    let nodes = children(l.launcher.pid());
+    let nodes = nodes(l.launcher.pid());
     assert_eq!(
         nodes.len(),
         7,
@@ -109,7 +92,7 @@ fn the_launched_cell_runs_an_order_and_ctrl_c_stops_every_node() {
 #[test]
 fn the_launcher_stops_the_cell_when_a_node_dies() {
     let mut l = launch();
-    let nodes = children(l.launcher.pid());
+    let nodes = nodes(l.launcher.pid());
     let cell = nodes
         .iter()
         .copied()

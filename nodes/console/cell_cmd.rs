@@ -234,11 +234,49 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
         CellCommand::Stop => ApiRequest::Stop,
         CellCommand::Ack => ApiRequest::Ack,
         CellCommand::Answer { text } => ApiRequest::Answer { text },
-        CellCommand::Messages { follow: false } => ApiRequest::Messages { after: 0 },
-        CellCommand::Journal { order } => ApiRequest::Journal { order, after: 0 },
+        CellCommand::Messages { follow: false } => {
+            return all_entries(&bus, &operator, json, |after| ApiRequest::Messages {
+                after,
+            })
+            .await
+        }
+        CellCommand::Journal { order } => {
+            return all_entries(&bus, &operator, json, |after| ApiRequest::Journal {
+                order,
+                after,
+            })
+            .await
+        }
         CellCommand::Shutdown => ApiRequest::Shutdown,
     };
     once(&bus, &operator, req, json).await
+}
+
+/// Every entry, page after page (the operator answers a page at a time).
+async fn all_entries(
+    bus: &Bus,
+    operator: &StationName,
+    json: bool,
+    request: impl Fn(i64) -> ApiRequest,
+) -> ExitCode {
+    let mut all = Vec::new();
+    loop {
+        let after = all.last().map_or(0, |e: &falc_common::api::Entry| e.id);
+        match bus.api(operator, request(after), CALL_LIMIT).await {
+            Ok(ApiReply::Entries(page)) if page.is_empty() => break,
+            Ok(ApiReply::Entries(page)) => all.extend(page),
+            Ok(other) => {
+                print(&other, json);
+                return ExitCode::SUCCESS;
+            }
+            Err(why) => {
+                eprintln!("falc: {why}");
+                return ExitCode::FAILURE;
+            }
+        }
+    }
+    print(&ApiReply::Entries(all), json);
+    ExitCode::SUCCESS
 }
 
 /// Asks `request(state)` again every `POLL` until Ctrl-C or a failure;

@@ -68,12 +68,7 @@ pub fn run(cmd: RecipeCommand) -> ExitCode {
             let (_, problems) = check_set(&entries);
             for e in &entries {
                 let origin = &e.recipe.origin;
-                let name = match &e.recipe.name {
-                    Some((n, _)) => n.to_string(),
-                    None => std::path::Path::new(origin)
-                        .file_stem()
-                        .map_or_else(String::new, |s| s.to_string_lossy().to_uppercase()),
-                };
+                let name = e.name().map_or_else(|_| "?".to_string(), |n| n.to_string());
                 let states: std::collections::BTreeSet<_> =
                     e.recipe.rows.iter().map(|r| r.state).collect();
                 let n = problems.iter().filter(|p| &p.origin == origin).count();

@@ -370,25 +370,29 @@ impl Operator {
                         self.end(order, OrderState::Done, "done");
                         self.continue_list().await;
                     }
-                    JobEvent::Alarm(text) => {
-                        self.running = None;
-                        self.question = None;
-                        self.end(order.clone(), OrderState::Failed, &format!("alarm: {text}"));
-                        self.raise(format!("order {} ({}): {text}", order.id, order.recipe));
-                    }
-                    other => {
-                        let word = match other {
-                            JobEvent::BadProduct => "bad_product",
-                            JobEvent::FailedSafe => "failed_safe",
-                            _ => "failed_danger",
+                    failure => {
+                        let (result, alarm) = match failure {
+                            JobEvent::Alarm(text) => (
+                                format!("alarm: {text}"),
+                                format!("order {} ({}): {text}", order.id, order.recipe),
+                            ),
+                            other => {
+                                let word = match other {
+                                    JobEvent::BadProduct => "bad_product",
+                                    JobEvent::FailedSafe => "failed_safe",
+                                    _ => "failed_danger",
+                                };
+                                let alarm = format!(
+                                    "order {} ({}) ended with {word}",
+                                    order.id, order.recipe
+                                );
+                                (word.to_string(), alarm)
+                            }
                         };
                         self.running = None;
                         self.question = None;
-                        self.end(order.clone(), OrderState::Failed, word);
-                        self.raise(format!(
-                            "order {} ({}) ended with {word}",
-                            order.id, order.recipe
-                        ));
+                        self.end(order, OrderState::Failed, &result);
+                        self.raise(alarm);
                     }
                 }
             }

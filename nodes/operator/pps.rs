@@ -53,34 +53,30 @@ pub fn load(dir: &Path, topology: &Topology, cell: &StationName) -> Result<Recip
     let mut cells = Vec::new();
     let mut stations = Vec::new();
     for (station, program) in &programs {
+        // The text that was checked, not the file read again.
+        let Some(entry) = entries.iter().find(|e| e.recipe.origin == program.origin) else {
+            continue;
+        };
         let origin = &program.origin;
-        let content = match std::fs::read(origin) {
-            Ok(c) => c,
+        let name = match entry.name() {
+            Ok(n) => n,
             Err(e) => {
-                errors.push(format!("{origin}: {e}"));
+                errors.push(e);
                 continue;
             }
         };
+        let content = entry.text.clone().into_bytes();
         if program.kind == RecipeKind::Cell {
-            let stem = Path::new(origin)
-                .file_stem()
-                .and_then(|s| s.to_str())
-                .unwrap_or_default();
-            match ObjectName::new(stem) {
-                Ok(domain) => cells.push(Delivery {
-                    domain,
-                    is_cell: true,
-                    content,
-                }),
-                Err(e) => errors.push(format!(
-                    "{origin}:1: the file name is the cell recipe's name: {e}"
-                )),
-            }
+            cells.push(Delivery {
+                domain: name,
+                is_cell: true,
+                content,
+            });
         } else if !workstations.contains(&station) {
             errors.push(format!(
                 "{origin}:1: station {station} is not a workstation of {cell} in the topology"
             ));
-        } else if let Some(name) = &program.name {
+        } else {
             let domain = format!("{}${name}", station.as_str().to_uppercase());
             match ObjectName::new(&domain) {
                 Ok(domain) => stations.push(Delivery {

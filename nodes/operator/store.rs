@@ -208,11 +208,17 @@ impl Store {
     }
 
     fn orders_in(&self, state: OrderState) -> Result<Vec<Order>, StoreError> {
-        Ok(self
-            .orders()?
-            .into_iter()
-            .filter(|o| o.state == state)
-            .collect())
+        let mut st = self
+            .conn
+            .prepare(&format!(
+                "SELECT {ORDER_COLUMNS} FROM orders WHERE state = ?1 ORDER BY id"
+            ))
+            .map_err(self.fail("cannot list orders"))?;
+        let rows = st
+            .query_map(params![state.as_str()], order_of)
+            .map_err(self.fail("cannot list orders"))?;
+        rows.collect::<Result<_, _>>()
+            .map_err(self.fail("cannot list orders"))
     }
 
     /// The first queued order.
@@ -303,26 +309,29 @@ impl Store {
         messages_only: bool,
         limit: usize,
     ) -> Result<Vec<Entry>, StoreError> {
+        // The kinds asked for, in SQL: a page is `limit` matching entries,
+        // however many others the journal holds between them.
+        let kinds: Vec<&str> = EntryKind::ALL
+            .into_iter()
+            .filter(|k| !messages_only || k.is_message())
+            .map(EntryKind::as_str)
+            .collect();
         let mut st = self
             .conn
-            .prepare(
+            .prepare(&format!(
                 "SELECT id, at_ms, order_id, kind, who, text FROM journal
-                 WHERE id > ?1 AND (?2 IS NULL OR order_id = ?2) ORDER BY id",
-            )
+                 WHERE id > ?1 AND (?2 IS NULL OR order_id = ?2) AND kind IN ('{}')
+                 ORDER BY id LIMIT ?3",
+                kinds.join("','")
+            ))
             .map_err(self.fail("cannot read the journal"))?;
+        let limit = i64::try_from(limit).unwrap_or(i64::MAX);
         let rows = st
-            .query_map(params![after, order], entry_of)
+            .query_map(params![after, order, limit], entry_of)
             .map_err(self.fail("cannot read the journal"))?;
-        let mut out = Vec::new();
-        for r in rows {
-            let e = r.map_err(self.fail("cannot read the journal"))?;
-            if !messages_only || e.kind.is_message() {
-                out.push(e);
-                if out.len() == limit {
-                    break;
-                }
-            }
-        }
+        let out = rows
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(self.fail("cannot read the journal"))?;
         Ok(out)
     }
 }
@@ -363,5 +372,14 @@ mod tests {
             Ok("dundroog".into())
         );
         assert!(s.remove_order(99).expect("db").is_err());
+        // A page holds `limit` matching entries, whatever lies between them.
+        for _ in 0..5 {
+            s.journal(EntryKind::Action, None, "ann", "x")
+                .expect("journal");
+        }
+        let m = s
+            .journal(EntryKind::Message, Some(2), "cell", "einde")
+            .expect("journal");
+        assert_eq!(s.entries(0, None, true, 1).expect("page"), vec![m]);
     }
 }

@@ -206,6 +206,33 @@ pub fn launcher(dir: &std::path::Path, time_scale: &str) -> (Command, String) {
     (cmd, endpoint)
 }
 
+/// The child processes of `parent` (pid and command name), from /proc.
+pub fn children(parent: u32) -> Vec<(u32, String)> {
+    let mut v = Vec::new();
+    let Ok(dir) = std::fs::read_dir("/proc") else {
+        return v;
+    };
+    for e in dir.flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<u32>() else {
+            continue;
+        };
+        let Ok(stat) = std::fs::read_to_string(e.path().join("stat")) else {
+            continue;
+        };
+        // pid (comm) state ppid …; comm may hold spaces: split at the last ')'.
+        let Some((head, rest)) = stat.rsplit_once(')') else {
+            continue;
+        };
+        let ppid = rest.split_whitespace().nth(1).and_then(|p| p.parse().ok());
+        if ppid == Some(parent) {
+            let name = head.split_once('(').map_or("?", |x| x.1).to_string();
+            v.push((pid, name));
+        }
+    }
+    v.sort();
+    v
+}
+
 /// A cell under test: a temp dir with topology and credentials, and a router.
 pub struct TestCell {
     pub dir: tempfile::TempDir,

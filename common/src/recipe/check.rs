@@ -577,6 +577,25 @@ pub struct Entry {
     pub kind: RecipeKind,
     /// The parsed text.
     pub recipe: Recipe,
+    /// The text as read: what is checked is what is delivered.
+    pub text: String,
+}
+
+impl Entry {
+    /// The recipe's name: its `#NAME`, else (a cell recipe) its file name
+    /// without extension; an error says why neither is a valid name.
+    pub fn name(&self) -> Result<ObjectName, String> {
+        if let Some((n, _)) = &self.recipe.name {
+            return Ok(n.clone());
+        }
+        let origin = &self.recipe.origin;
+        let stem = std::path::Path::new(origin)
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .unwrap_or_default();
+        ObjectName::new(stem)
+            .map_err(|e| format!("{origin}:1: the file name is the recipe's name: {e}"))
+    }
 }
 
 /// Checks a set of recipes: each one, then across them. Returns the
@@ -843,6 +862,7 @@ mod tests {
             station: StationName::new(station).expect("valid"),
             kind,
             recipe: parse(text, &format!("{station}.rcp")),
+            text: text.to_string(),
         };
         let cell = "-1 | start welding droog_dik | | gestart | 2\n-1 | start welding droog_dik | | tijdlimiet | 3\n-2 | wait welding 10 | | klaar | 0\n-2 | wait welding 10 | | tijdlimiet | 3\n-3 | | alarm | | 0\n";
         let set = [

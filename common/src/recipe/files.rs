@@ -39,6 +39,7 @@ fn read_entry(path: &Path, kind: Option<RecipeKind>) -> Result<Entry, String> {
         station,
         kind,
         recipe: parse(&text, &path.display().to_string()),
+        text,
     })
 }
 
