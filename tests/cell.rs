@@ -204,6 +204,17 @@ async fn a_workstation_killed_mid_order_stops_the_other_and_raises_a_cell_alarm(
         assert!(std::time::Instant::now() < end, "the weld never started");
         assert_eq!(rig.drive("ja", Duration::from_millis(50)).await, None);
     }
+    // Mid-weld, with the transport's UNSTORE (started with the weld) done:
+    // the cell waits for the welder only. Killed earlier, the cell's Start
+    // of UNSTORE may fail first and take the recipe's own failure path.
+    while rig
+        .transport
+        .wait_line("EVENT job program=UNSTORE event=Done", Duration::ZERO)
+        .is_none()
+    {
+        assert!(std::time::Instant::now() < end, "UNSTORE never ended");
+        assert_eq!(rig.drive("ja", Duration::from_millis(50)).await, None);
+    }
     let killed = std::time::Instant::now();
     rig.transport.kill();
     let job = rig.drive("ja", Duration::from_secs(10)).await;

@@ -285,6 +285,15 @@ fn sigkill_of_a_workstation_mid_order_then_start_refused_until_it_returns() {
     rig.cell.falc(&["order", "add", "dikdroog"]);
     rig.cell.falc(&["start"]);
     rig.until_welding();
+    // Killed only once UNSTORE (started with the weld) is done: the cell
+    // then waits for the welder only (earlier, its Start of UNSTORE may
+    // fail first and take the recipe's own failure path).
+    if let Some(t) = rig.transport.as_mut() {
+        t.expect_line(
+            "EVENT job program=UNSTORE event=Done",
+            Duration::from_secs(30),
+        );
+    }
     rig.operator().forget("JOURNAL");
     let killed = Instant::now();
     if let Some(t) = rig.transport.as_mut() {
