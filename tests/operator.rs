@@ -264,7 +264,7 @@ fn robot_emergency_stop_mid_weld_raises_a_cell_alarm_with_the_cause() {
         .stations
         .iter()
         .find(|v| v.name.as_str() == "transport")
-        .and_then(|v| v.status)
+        .and_then(|v| v.status.clone())
         .expect("transport status seen");
     assert_ne!(
         transport.local_detail,

@@ -286,3 +286,30 @@ fn falc_recipe_check_and_dot() {
         "{dot}"
     );
 }
+
+#[test]
+fn falc_recipe_view_draws_with_graphviz_or_says_how_to_get_it() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let out = tmp.path().join("droog_dik.svg");
+    let run = Process::new(env!("CARGO_BIN_EXE_falc"))
+        .args(["recipe", "view", "--current", "2", "--out"])
+        .arg(&out)
+        .arg("recipes/welding/droog_dik.rcp")
+        .current_dir(root())
+        .output()
+        .expect("falc runs");
+    let graphviz = Process::new("dot").arg("-V").output().is_ok();
+    if graphviz {
+        assert!(run.status.success(), "{run:?}");
+        let svg = std::fs::read_to_string(&out).expect("svg written");
+        assert!(svg.contains("<svg"), "{svg}");
+    } else {
+        assert_eq!(run.status.code(), Some(1));
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(
+            err.contains("install graphviz") && err.contains("falc recipe dot"),
+            "{err}"
+        );
+        assert!(!out.exists());
+    }
+}

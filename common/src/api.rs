@@ -1,8 +1,9 @@
 //! The operator API (DESIGN.md §3, §8): what a console (`falc`) asks the
-//! operator node, and what it answers. One zenoh key per call,
-//! `falc/<cell>/operator/api/<call>`, so the router's ACL can grant calls
-//! per role ([`Call::role`]). The transport is in `bus::api`; the operator
-//! node owns the behaviour.
+//! operator node, and what it answers. One zenoh key per call and user,
+//! `falc/<cell>/operator/api/<call>/<user>`, so the router's ACL grants
+//! calls per role ([`Call::role`]) and each user speaks only in its own
+//! name. The transport is in `bus::api`; the operator node owns the
+//! behaviour.
 
 use crate::ids::StationName;
 use crate::mms::vmd::VmdStatus;
@@ -45,6 +46,9 @@ calls! {
     Ack = "ack", Operator;
     Answer = "answer", Operator;
     Shutdown = "shutdown", Operator;
+    RecipeList = "recipe-list", Observer;
+    RecipeGet = "recipe-get", Observer;
+    RecipePut = "recipe-put", Engineer;
 }
 
 impl fmt::Display for Call {
@@ -95,6 +99,118 @@ pub enum ApiRequest {
     },
     /// Shuts the cell down once the list is done.
     Shutdown,
+    /// Every recipe file in the recipe store.
+    RecipeList,
+    /// One recipe file's text.
+    RecipeGet {
+        /// Which file.
+        file: RecipeFile,
+    },
+    /// Replaces (or creates) one recipe file: checked with the whole set
+    /// first, saved only when clean; the cell gets it at the next start.
+    RecipePut {
+        /// Which file.
+        file: RecipeFile,
+        /// The new text.
+        text: String,
+        /// The content hash of the text the edit started from (None for a
+        /// new file): refused if the file changed meanwhile.
+        base: Option<u64>,
+    },
+}
+
+/// A recipe file of the store: a station's directory and a file name
+/// (`welding`, `droog_dik.rcp`); validated so it never leaves its
+/// directory.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(try_from = "RecipeFileWire", into = "RecipeFileWire")]
+pub struct RecipeFile {
+    station: StationName,
+    file: String,
+}
+
+#[derive(Serialize, Deserialize)]
+struct RecipeFileWire {
+    station: StationName,
+    file: String,
+}
+
+impl TryFrom<RecipeFileWire> for RecipeFile {
+    type Error = String;
+    fn try_from(w: RecipeFileWire) -> Result<Self, String> {
+        RecipeFile::new(w.station, &w.file)
+    }
+}
+
+impl From<RecipeFile> for RecipeFileWire {
+    fn from(r: RecipeFile) -> Self {
+        Self {
+            station: r.station,
+            file: r.file,
+        }
+    }
+}
+
+impl RecipeFile {
+    /// `file` must be `name.rcp` with a name of lowercase letters, digits,
+    /// `_` and `-` (at most 40); a name without `.rcp` gets it.
+    pub fn new(station: StationName, file: &str) -> Result<Self, String> {
+        let file = file.trim().to_lowercase();
+        let file = if file.ends_with(".rcp") {
+            file
+        } else {
+            format!("{file}.rcp")
+        };
+        let stem = &file[..file.len() - 4];
+        let ok = !stem.is_empty()
+            && stem.len() <= 40
+            && stem
+                .chars()
+                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_' || c == '-');
+        if ok {
+            Ok(Self { station, file })
+        } else {
+            Err(format!(
+                "recipe file name {file:?}: use letters, digits, _ and - (at most 40), ending in .rcp"
+            ))
+        }
+    }
+
+    /// The station whose directory holds it.
+    pub fn station(&self) -> &StationName {
+        &self.station
+    }
+
+    /// The file name (`droog_dik.rcp`).
+    pub fn file(&self) -> &str {
+        &self.file
+    }
+}
+
+impl fmt::Display for RecipeFile {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}/{}", self.station, self.file)
+    }
+}
+
+/// One recipe of the store, as listed.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RecipeInfo {
+    /// Its file.
+    pub file: RecipeFile,
+    /// Its name (`#NAME`, else the file name), if the text says.
+    pub name: Option<String>,
+}
+
+/// One recipe's text.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RecipeText {
+    /// Its file.
+    pub file: RecipeFile,
+    /// The text.
+    pub text: String,
+    /// Its content hash (the `base` of a later `RecipePut`).
+    pub hash: u64,
 }
 
 impl ApiRequest {
@@ -112,17 +228,11 @@ impl ApiRequest {
             Self::Ack => Call::Ack,
             Self::Answer { .. } => Call::Answer,
             Self::Shutdown => Call::Shutdown,
+            Self::RecipeList => Call::RecipeList,
+            Self::RecipeGet { .. } => Call::RecipeGet,
+            Self::RecipePut { .. } => Call::RecipePut,
         }
     }
-}
-
-/// A request with the console user who makes it (journalled as "who").
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct ApiEnvelope {
-    /// The console user.
-    pub user: StationName,
-    /// The request.
-    pub request: ApiRequest,
 }
 
 /// Where an order is.
@@ -333,6 +443,10 @@ pub enum ApiReply {
     Entries(Vec<Entry>),
     /// Done, with what happened in words.
     Done(String),
+    /// `recipe list`.
+    Recipes(Vec<RecipeInfo>),
+    /// `recipe get`.
+    Recipe(RecipeText),
 }
 
 /// The answer to a request: the reply, or why it was refused.
@@ -360,5 +474,28 @@ mod tests {
             Some(OrderState::Interrupted)
         );
         assert_eq!(OrderState::parse("lost"), None);
+    }
+
+    #[test]
+    fn recipe_files_stay_in_their_directory() {
+        let w = StationName::new("welding").expect("valid");
+        let f = RecipeFile::new(w.clone(), "Droog_Dik").expect("valid");
+        assert_eq!(f.to_string(), "welding/droog_dik.rcp");
+        for bad in [
+            "../x.rcp",
+            "a/b.rcp",
+            ".rcp",
+            "",
+            "x y.rcp",
+            "x.rcp.rcp.",
+            "ü.rcp",
+        ] {
+            assert!(RecipeFile::new(w.clone(), bad).is_err(), "{bad}");
+        }
+        // The same rule holds for what arrives on the wire.
+        let wire = r#"{"station":"welding","file":"../../etc/passwd"}"#;
+        assert!(serde_json::from_str::<RecipeFile>(wire).is_err());
+        let ok = r#"{"station":"welding","file":"store.rcp"}"#;
+        assert!(serde_json::from_str::<RecipeFile>(ok).is_ok());
     }
 }

@@ -16,7 +16,7 @@ use crate::ids::ObjectName;
 use crate::mms::error::{DefinitionError, ErrorClass, ServiceError};
 use crate::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
 use crate::mms::program::{PiCompletion, PiRequest};
-use crate::mms::vmd::{Identity, RecipeState, Vmd, VmdStatus};
+use crate::mms::vmd::{Identity, ProgramState, RecipeState, Vmd, VmdStatus};
 use crate::node::say;
 use crate::recipe::check::check;
 use crate::recipe::commands::RecipeKind;
@@ -207,6 +207,10 @@ impl<D: Device> Workstation<D> {
             } else {
                 RecipeState::Idle
             },
+            program: self.running.as_ref().map(|r| ProgramState {
+                name: r.name.clone(),
+                state: r.engine.state().0,
+            }),
             ..VmdStatus::default()
         };
         self.device.status(&mut status);

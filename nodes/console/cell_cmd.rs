@@ -4,8 +4,9 @@
 //! done, 1 refused by the operator node (the reason on stderr), 2 the
 //! operator node could not be reached.
 
+use crate::edit;
 use clap::{Args, Subcommand};
-use falc_common::api::{ApiReply, ApiRequest, CellStatus, Entry, Order};
+use falc_common::api::{ApiReply, ApiRequest, CellStatus, Entry, Order, RecipeFile};
 use falc_common::bus::Bus;
 use falc_common::ids::StationName;
 use falc_common::node::NodeArgs;
@@ -13,7 +14,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 /// How long one API call may take.
-const CALL_LIMIT: Duration = Duration::from_secs(15);
+pub const CALL_LIMIT: Duration = Duration::from_secs(15);
 /// How often `--watch` and `--follow` ask again.
 const POLL: Duration = Duration::from_millis(250);
 
@@ -68,6 +69,50 @@ pub enum CellCommand {
     },
     /// Shut the cell down once the order list is done (at once if idle).
     Shutdown,
+    /// The operator's screens: F1 overview, F2 messages, F3 commands, F4
+    /// recipe (keyboard only; q quits).
+    Tui,
+    /// The operator's recipe store: list, show, save (engineers), edit.
+    #[command(subcommand)]
+    Store(StoreCommand),
+}
+
+/// `falc store …`: the recipes the operator delivers (not local files:
+/// those are `falc recipe …`).
+#[derive(Subcommand, Debug)]
+pub enum StoreCommand {
+    /// Every recipe file in the store.
+    List,
+    /// Print one recipe file.
+    Show {
+        /// The station's directory (`cell`, `welding`, `transport`).
+        station: StationName,
+        /// The file (`droog_dik.rcp`; `.rcp` may be left out).
+        file: String,
+    },
+    /// Save a local file as a store recipe (engineer): checked with the
+    /// whole set first, saved only if clean; the cell gets it at the next
+    /// start.
+    Put {
+        /// The station's directory.
+        station: StationName,
+        /// The file name in the store.
+        file: String,
+        /// The local file to send.
+        path: std::path::PathBuf,
+        /// Create a new recipe (else it must exist and is replaced).
+        #[arg(long)]
+        new: bool,
+    },
+    /// Edit a store recipe in `$VISUAL`/`$EDITOR` (engineer); a new file if
+    /// it does not exist. Saved only when it checks clean; on findings you
+    /// may edit again.
+    Edit {
+        /// The station's directory.
+        station: StationName,
+        /// The file name in the store.
+        file: String,
+    },
 }
 
 /// `falc order …`.
@@ -179,6 +224,14 @@ fn print(reply: &ApiReply, json: bool) {
         ApiReply::Order(o) => println!("added: {}", show_order(o)),
         ApiReply::Entries(v) => v.iter().for_each(|e| println!("{}", show_entry(e))),
         ApiReply::Done(text) => println!("{text}"),
+        ApiReply::Recipes(v) => v.iter().for_each(|r| {
+            println!(
+                "{:<28} {}",
+                r.file.to_string(),
+                r.name.as_deref().unwrap_or("?")
+            )
+        }),
+        ApiReply::Recipe(r) => print!("{}", r.text),
     }
 }
 
@@ -197,6 +250,12 @@ async fn connect(args: &ConsoleArgs) -> Result<(Bus, StationName), String> {
         .map_err(|e| e.to_string())?;
     let bus = Bus::open(settings).await.map_err(|e| e.to_string())?;
     Ok((bus, topology.root().name.clone()))
+}
+
+/// Says why and exits 1.
+fn refuse(why: &str) -> ExitCode {
+    eprintln!("falc: {why}");
+    ExitCode::FAILURE
 }
 
 /// One call: printed, or the refusal on stderr.
@@ -225,6 +284,12 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
     let json = args.json;
     let req = match cmd {
         CellCommand::Status { watch: true } => return watch(&bus, &operator, json).await,
+        CellCommand::Tui => {
+            return match args.node.topology() {
+                Ok(t) => crate::tui::run(&bus, &operator, t, args.user.clone()).await,
+                Err(e) => refuse(&e.to_string()),
+            }
+        }
         CellCommand::Messages { follow: true } => return follow(&bus, &operator, json).await,
         CellCommand::Status { watch: false } => ApiRequest::Status,
         CellCommand::Order(OrderCommand::Add { recipe }) => ApiRequest::OrderAdd { recipe },
@@ -248,6 +313,45 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
             .await
         }
         CellCommand::Shutdown => ApiRequest::Shutdown,
+        CellCommand::Store(StoreCommand::List) => ApiRequest::RecipeList,
+        CellCommand::Store(StoreCommand::Show { station, file }) => {
+            match RecipeFile::new(station, &file) {
+                Ok(file) => ApiRequest::RecipeGet { file },
+                Err(e) => return refuse(&e),
+            }
+        }
+        CellCommand::Store(StoreCommand::Put {
+            station,
+            file,
+            path,
+            new,
+        }) => {
+            let file = match RecipeFile::new(station, &file) {
+                Ok(f) => f,
+                Err(e) => return refuse(&e),
+            };
+            let text = match std::fs::read_to_string(&path) {
+                Ok(t) => t,
+                Err(e) => return refuse(&format!("{}: {e}", path.display())),
+            };
+            let base = if new {
+                None
+            } else {
+                match edit::fetch(&bus, &operator, &file).await {
+                    Ok(Some(r)) => Some(r.hash),
+                    Ok(None) => return refuse(&format!("there is no recipe {file}: use --new")),
+                    Err(e) => return refuse(&e),
+                }
+            };
+            ApiRequest::RecipePut { file, text, base }
+        }
+        CellCommand::Store(StoreCommand::Edit { station, file }) => {
+            let file = match RecipeFile::new(station, &file) {
+                Ok(f) => f,
+                Err(e) => return refuse(&e),
+            };
+            return edit::interactive(&bus, &operator, &file).await;
+        }
     };
     once(&bus, &operator, req, json).await
 }

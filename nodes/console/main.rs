@@ -1,10 +1,13 @@
 //! `falc`: the operator's console. `recipe` (check, draw) works on files
 //! alone (`recipe_cmd`); every other command talks to the operator node
-//! through the operator API as a console user (`cell_cmd`). The TUI comes
-//! with the console issue.
+//! through the operator API as a console user (`cell_cmd`), `falc tui`
+//! draws the operator's screens (`tui`), and `falc store edit` and the TUI
+//! edit store recipes in `$EDITOR` (`edit`).
 
 mod cell_cmd;
+mod edit;
 mod recipe_cmd;
+mod tui;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;

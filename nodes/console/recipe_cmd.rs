@@ -37,6 +37,77 @@ pub enum RecipeCommand {
         /// The recipe file.
         file: PathBuf,
     },
+    /// Draw a recipe's state diagram to SVG or PNG with Graphviz `dot`
+    /// (default: next to the recipe, `FILE.svg`).
+    View {
+        /// The kind (else the directory name tells).
+        #[arg(long)]
+        kind: Option<RecipeKind>,
+        /// Highlight this state (a running recipe's).
+        #[arg(long)]
+        current: Option<u16>,
+        /// `svg` or `png`.
+        #[arg(long, default_value = "svg", value_parser = ["svg", "png"])]
+        format: String,
+        /// Where to write the drawing.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// The recipe file.
+        file: PathBuf,
+    },
+}
+
+/// The DOT text of one recipe file, or every reason it has none.
+fn dot_of(
+    file: &std::path::Path,
+    kind: Option<RecipeKind>,
+    current: Option<u16>,
+) -> Result<String, Vec<String>> {
+    let entries = files::load(&[file.to_path_buf()], kind)?;
+    let Some(entry) = entries.first() else {
+        return Err(vec![format!("{}: no recipe", file.display())]);
+    };
+    let program = check(&entry.recipe, entry.kind)
+        .map_err(|p| p.iter().map(ToString::to_string).collect::<Vec<_>>())?;
+    let title = program.name.as_ref().map_or_else(
+        || {
+            file.file_stem()
+                .map_or("recipe".into(), |s| s.to_string_lossy().into_owned())
+        },
+        |n| n.to_string(),
+    );
+    Ok(to_dot(
+        &program,
+        &title,
+        current.map(falc_common::recipe::syntax::StateNo),
+    ))
+}
+
+/// Runs Graphviz `dot -T<format> -o <out>` on `dot`.
+fn graphviz(dot: &str, format: &str, out: &std::path::Path) -> Result<(), String> {
+    use std::io::Write;
+    let mut child = std::process::Command::new("dot")
+        .arg(format!("-T{format}"))
+        .arg("-o")
+        .arg(out)
+        .stdin(std::process::Stdio::piped())
+        .spawn()
+        .map_err(|e| {
+            format!(
+                "cannot run Graphviz `dot` ({e}): install graphviz (apt-get install graphviz), or use `falc recipe dot FILE` and any DOT viewer"
+            )
+        })?;
+    if let Some(mut stdin) = child.stdin.take() {
+        stdin
+            .write_all(dot.as_bytes())
+            .map_err(|e| format!("writing to `dot`: {e}"))?;
+    }
+    let status = child.wait().map_err(|e| format!("`dot`: {e}"))?;
+    if status.success() {
+        Ok(())
+    } else {
+        Err(format!("`dot` ended with {status}"))
+    }
 }
 
 /// Loads `paths` (default `recipes`); on failure says each error with `say`.
@@ -61,6 +132,32 @@ fn load_or_say(
 
 pub fn run(cmd: RecipeCommand) -> ExitCode {
     match cmd {
+        RecipeCommand::View {
+            kind,
+            current,
+            format,
+            out,
+            file,
+        } => {
+            let dot = match dot_of(&file, kind, current) {
+                Ok(d) => d,
+                Err(errors) => {
+                    errors.iter().for_each(|e| eprintln!("{e}"));
+                    return ExitCode::FAILURE;
+                }
+            };
+            let out = out.unwrap_or_else(|| file.with_extension(&format));
+            match graphviz(&dot, &format, &out) {
+                Ok(()) => {
+                    println!("{}", out.display());
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("falc: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
         RecipeCommand::List { paths } => {
             let Some(entries) = load_or_say(paths, None, |e| eprintln!("{e}")) else {
                 return ExitCode::FAILURE;
@@ -116,46 +213,15 @@ pub fn run(cmd: RecipeCommand) -> ExitCode {
             kind,
             current,
             file,
-        } => {
-            let entries = match files::load(std::slice::from_ref(&file), kind) {
-                Ok(e) => e,
-                Err(errors) => {
-                    for e in errors {
-                        eprintln!("{e}");
-                    }
-                    return ExitCode::FAILURE;
-                }
-            };
-            let Some(entry) = entries.first() else {
-                eprintln!("{}: no recipe", file.display());
-                return ExitCode::FAILURE;
-            };
-            match check(&entry.recipe, entry.kind) {
-                Ok(program) => {
-                    let title = program.name.as_ref().map_or_else(
-                        || {
-                            file.file_stem()
-                                .map_or("recipe".into(), |s| s.to_string_lossy().into_owned())
-                        },
-                        |n| n.to_string(),
-                    );
-                    print!(
-                        "{}",
-                        to_dot(
-                            &program,
-                            &title,
-                            current.map(falc_common::recipe::syntax::StateNo)
-                        )
-                    );
-                    ExitCode::SUCCESS
-                }
-                Err(problems) => {
-                    for p in problems {
-                        eprintln!("{p}");
-                    }
-                    ExitCode::FAILURE
-                }
+        } => match dot_of(&file, kind, current) {
+            Ok(d) => {
+                print!("{d}");
+                ExitCode::SUCCESS
             }
-        }
+            Err(errors) => {
+                errors.iter().for_each(|e| eprintln!("{e}"));
+                ExitCode::FAILURE
+            }
+        },
     }
 }

@@ -461,7 +461,7 @@ impl Operator {
                 .filter(|s| s.commander.is_some())
                 .map(|s| StationView {
                     name: s.name.clone(),
-                    status: self.statuses.get(&s.name).copied(),
+                    status: self.statuses.get(&s.name).cloned(),
                 })
                 .collect(),
         })
@@ -470,6 +470,20 @@ impl Operator {
     /// Answers one operator API request from console user `user`.
     pub async fn api(&mut self, user: &StationName, request: ApiRequest) -> ApiResult {
         let who = user.as_str();
+        // The router already refused what the user's role does not allow;
+        // checked again here so a mis-generated ACL cannot widen a role.
+        let call = request.call();
+        match self.topology.console(user) {
+            Some(c) if c.role >= call.role() => {}
+            Some(c) => {
+                return Err(format!(
+                    "{user} is {:?}, `{call}` needs {:?}",
+                    c.role,
+                    call.role()
+                ))
+            }
+            None => return Err(format!("{user} is not a console user of this cell")),
+        }
         let db = |e: StoreError| e.to_string();
         match request {
             ApiRequest::Status => Ok(ApiReply::Status(self.status().map_err(db)?)),
@@ -540,6 +554,45 @@ impl Operator {
                     .respond(Ok(Response::Answer(text.clone())))
                     .await;
                 Ok(ApiReply::Done(format!("answered {text}")))
+            }
+            ApiRequest::RecipeList => Ok(ApiReply::Recipes(pps::list(
+                &self.recipes_dir,
+                &self.topology,
+                &self.cell,
+            )?)),
+            ApiRequest::RecipeGet { file } => {
+                Ok(ApiReply::Recipe(pps::get(&self.recipes_dir, &file)?))
+            }
+            ApiRequest::RecipePut { file, text, base } => {
+                let saved = pps::put(
+                    &self.recipes_dir,
+                    &self.topology,
+                    &self.cell,
+                    &file,
+                    &text,
+                    base,
+                );
+                match saved {
+                    Ok(()) => {
+                        let what = if base.is_none() { "created" } else { "changed" };
+                        self.journal(
+                            EntryKind::Action,
+                            None,
+                            who,
+                            &format!("recipe {file} {what} (checked; the cell gets it at the next start)"),
+                        );
+                        Ok(ApiReply::Done(format!(
+                            "recipe {file} saved: it checks clean; the cell gets it at the next start"
+                        )))
+                    }
+                    Err(pps::PutError::Findings(f)) => Err(format!(
+                        "recipe {file} NOT saved: the recipe set does not check clean with it:\n{}",
+                        f.join("\n")
+                    )),
+                    Err(pps::PutError::Refused(why)) => {
+                        Err(format!("recipe {file} NOT saved: {why}"))
+                    }
+                }
             }
             ApiRequest::Shutdown => {
                 self.journal(EntryKind::Action, None, who, "shut down requested");

@@ -4,9 +4,16 @@
 //! recipe as domain `NAME` (its file name), each workstation recipe as
 //! `STATION$NAME` (its `#NAME`), which the cell passes on. A set with any
 //! problem is refused whole, with every problem as `file:line: reason`.
+//!
+//! It also lists, shows and saves single recipe files for the consoles
+//! (`falc store`, the TUI's recipe editor): a file is saved only if the
+//! whole set checks clean with it, and only if nobody changed it since the
+//! editor fetched it; the cell gets it at the next start.
 
+use falc_common::api::{RecipeFile, RecipeInfo, RecipeText};
 use falc_common::ids::{ObjectName, StationName};
-use falc_common::recipe::check::check_set;
+use falc_common::mms::domain::content_hash;
+use falc_common::recipe::check::{check_set, Entry};
 use falc_common::recipe::commands::RecipeKind;
 use falc_common::recipe::files;
 use falc_common::topology::Topology;
@@ -47,7 +54,16 @@ impl RecipeSet {
 /// workstations. Returns the set, or every problem (`file:line: reason`).
 pub fn load(dir: &Path, topology: &Topology, cell: &StationName) -> Result<RecipeSet, Vec<String>> {
     let entries = files::load(&[PathBuf::from(dir)], None)?;
-    let (programs, problems) = check_set(&entries);
+    check_entries(&entries, topology, cell)
+}
+
+/// Checks a whole set of read recipes (see [`load`]).
+fn check_entries(
+    entries: &[Entry],
+    topology: &Topology,
+    cell: &StationName,
+) -> Result<RecipeSet, Vec<String>> {
+    let (programs, problems) = check_set(entries);
     let mut errors: Vec<String> = problems.iter().map(ToString::to_string).collect();
     let workstations = topology.subordinates_of(cell);
     let mut cells = Vec::new();
@@ -97,6 +113,130 @@ pub fn load(dir: &Path, topology: &Topology, cell: &StationName) -> Result<Recip
     })
 }
 
+/// The stations whose directory may hold recipes: the cell and its
+/// workstations.
+fn stations(topology: &Topology, cell: &StationName) -> Vec<StationName> {
+    let mut v = vec![cell.clone()];
+    v.extend(topology.subordinates_of(cell).into_iter().cloned());
+    v
+}
+
+fn path_of(dir: &Path, file: &RecipeFile) -> PathBuf {
+    dir.join(file.station().as_str()).join(file.file())
+}
+
+/// Every recipe file under `dir`, with its name where the text gives one.
+pub fn list(
+    dir: &Path,
+    topology: &Topology,
+    cell: &StationName,
+) -> Result<Vec<RecipeInfo>, String> {
+    let mut out = Vec::new();
+    for station in stations(topology, cell) {
+        let sub = dir.join(station.as_str());
+        let Ok(read) = std::fs::read_dir(&sub) else {
+            continue;
+        };
+        let mut names: Vec<String> = read
+            .filter_map(Result::ok)
+            .filter_map(|e| e.file_name().into_string().ok())
+            .filter(|n| n.ends_with(".rcp"))
+            .collect();
+        names.sort();
+        for n in names {
+            let Ok(file) = RecipeFile::new(station.clone(), &n) else {
+                continue;
+            };
+            let name = std::fs::read_to_string(path_of(dir, &file))
+                .ok()
+                .and_then(|text| files::entry(&path_of(dir, &file), None, text).ok())
+                .and_then(|e| e.name().ok())
+                .map(|n| n.to_string());
+            out.push(RecipeInfo { file, name });
+        }
+    }
+    Ok(out)
+}
+
+/// One recipe file's text and content hash.
+pub fn get(dir: &Path, file: &RecipeFile) -> Result<RecipeText, String> {
+    let path = path_of(dir, file);
+    match std::fs::read_to_string(&path) {
+        Ok(text) => Ok(RecipeText {
+            file: file.clone(),
+            hash: content_hash(text.as_bytes()),
+            text,
+        }),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            Err(format!("there is no recipe {file} in the recipe store"))
+        }
+        Err(e) => Err(format!("cannot read recipe {file}: {e}")),
+    }
+}
+
+/// Why a recipe was not saved.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PutError {
+    /// The set does not check clean with it: every finding.
+    Findings(Vec<String>),
+    /// Anything else (a changed file, an unknown station, the disk).
+    Refused(String),
+}
+
+/// Saves `text` as `file` if the whole set under `dir` checks clean with
+/// it and the file is still what the editor started from (`base`: its
+/// content hash; None for a new file). Written to a temporary file, synced
+/// and renamed: the store never holds half a recipe.
+pub fn put(
+    dir: &Path,
+    topology: &Topology,
+    cell: &StationName,
+    file: &RecipeFile,
+    text: &str,
+    base: Option<u64>,
+) -> Result<(), PutError> {
+    if !stations(topology, cell).contains(file.station()) {
+        return Err(PutError::Refused(format!(
+            "{} is neither the cell nor one of its workstations in the topology",
+            file.station()
+        )));
+    }
+    let path = path_of(dir, file);
+    let now = match std::fs::read(&path) {
+        Ok(b) => Some(content_hash(&b)),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+        Err(e) => return Err(PutError::Refused(format!("cannot read recipe {file}: {e}"))),
+    };
+    if now != base {
+        return Err(PutError::Refused(match (base, now) {
+            (None, Some(_)) => format!("recipe {file} exists already: edit it instead"),
+            (Some(_), None) => format!("recipe {file} was removed meanwhile"),
+            _ => format!(
+                "recipe {file} was changed by someone else since you opened it: open it again"
+            ),
+        }));
+    }
+    let mut entries = files::load(&[PathBuf::from(dir)], None).map_err(PutError::Findings)?;
+    let origin = path.display().to_string();
+    entries.retain(|e| e.recipe.origin != origin);
+    entries.push(files::entry(&path, None, text.to_string()).map_err(PutError::Refused)?);
+    check_entries(&entries, topology, cell).map_err(PutError::Findings)?;
+    write_atomically(&path, text.as_bytes())
+        .map_err(|e| PutError::Refused(format!("cannot save recipe {file}: {e}")))
+}
+
+fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir)?;
+    let tmp = path.with_extension("rcp.saving");
+    let mut f = std::fs::File::create(&tmp)?;
+    f.write_all(bytes)?;
+    f.sync_all()?;
+    std::fs::rename(&tmp, path)?;
+    std::fs::File::open(dir)?.sync_all()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -122,8 +262,8 @@ mod tests {
         assert_eq!(first_cell, Some(8));
     }
 
-    #[test]
-    fn a_defect_refuses_the_whole_set_with_file_and_line() {
+    /// A copy of the shipped recipe tree.
+    fn shipped_copy() -> tempfile::TempDir {
         let tmp = tempfile::tempdir().expect("tempdir");
         let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes");
         for sub in ["cell", "welding", "transport"] {
@@ -134,6 +274,61 @@ mod tests {
                     .expect("copy");
             }
         }
+        tmp
+    }
+
+    #[test]
+    fn put_saves_only_a_clean_set_and_only_over_what_was_fetched() {
+        let tmp = shipped_copy();
+        let (t, cell) = (topology(), StationName::new("cell").expect("valid"));
+        let ws = |f: &str| RecipeFile::new(StationName::new("transport").expect("v"), f);
+        let store = ws("store.rcp").expect("valid");
+        let listed = list(tmp.path(), &t, &cell).expect("list");
+        assert_eq!(listed.len(), 11);
+        assert!(listed
+            .iter()
+            .any(|r| r.file == store && r.name.as_deref() == Some("STORE")));
+        let got = get(tmp.path(), &store).expect("get");
+        // A defect: refused with the finding, the file unchanged.
+        let bad = got.text.replace("waitplace", "waitplase");
+        match put(tmp.path(), &t, &cell, &store, &bad, Some(got.hash)) {
+            Err(PutError::Findings(f)) => {
+                assert!(
+                    f.iter()
+                        .any(|l| l.contains("store.rcp:") && l.contains("waitplase")),
+                    "{f:?}"
+                )
+            }
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(get(tmp.path(), &store).expect("get").text, got.text);
+        // A clean edit is saved.
+        let edited = format!("{}\nA comment line added.\n", got.text.trim_end());
+        put(tmp.path(), &t, &cell, &store, &edited, Some(got.hash)).expect("saved");
+        assert_eq!(get(tmp.path(), &store).expect("get").text, edited);
+        // A second editor that started from the old text is refused.
+        match put(tmp.path(), &t, &cell, &store, &got.text, Some(got.hash)) {
+            Err(PutError::Refused(why)) => {
+                assert!(why.contains("changed by someone else"), "{why}")
+            }
+            other => panic!("{other:?}"),
+        }
+        // A new file must not exist yet; a station outside the cell is refused.
+        assert!(matches!(
+            put(tmp.path(), &t, &cell, &store, &edited, None),
+            Err(PutError::Refused(_))
+        ));
+        let elsewhere = RecipeFile::new(StationName::new("operator").expect("v"), "x").expect("v");
+        assert!(matches!(
+            put(tmp.path(), &t, &cell, &elsewhere, &edited, None),
+            Err(PutError::Refused(_))
+        ));
+        assert!(get(tmp.path(), &ws("nothing").expect("v")).is_err());
+    }
+
+    #[test]
+    fn a_defect_refuses_the_whole_set_with_file_and_line() {
+        let tmp = shipped_copy();
         let bad = tmp.path().join("transport/store.rcp");
         let text = std::fs::read_to_string(&bad).expect("read");
         std::fs::write(&bad, text.replace("waitplace", "waitplase")).expect("write");

@@ -313,6 +313,7 @@ impl Device for Plc {
         } else {
             PhysicalStatus::Operational
         };
+        status.inputs = self.inputs.map(|i| i.bits().to_vec()).unwrap_or_default();
     }
 }
 

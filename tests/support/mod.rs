@@ -44,6 +44,9 @@ role = "operator"
 [[console]]
 name = "observer"
 role = "observer"
+[[console]]
+name = "engineer"
+role = "engineer"
 "#;
 
 /// A free TCP port on 127.0.0.1.
@@ -180,13 +183,29 @@ pub fn twin(bin: &str, args: &[&str], announces: &str) -> (Proc, String) {
     (p, at)
 }
 
+/// Copies the shipped recipe tree to `dir/recipes` (tests may edit it).
+pub fn copy_recipes(dir: &std::path::Path) -> PathBuf {
+    let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes");
+    let to = dir.join("recipes");
+    for sub in ["cell", "welding", "transport"] {
+        std::fs::create_dir_all(to.join(sub)).expect("mkdir");
+        for f in std::fs::read_dir(src.join(sub)).expect("recipe dir") {
+            let f = f.expect("entry").path();
+            std::fs::copy(&f, to.join(sub).join(f.file_name().expect("name"))).expect("copy");
+        }
+    }
+    to
+}
+
 /// A `falc-launch` command for a whole cell in `dir`: the topology written
 /// there with a free router port (returned), credentials and database
-/// there, the shipped recipes, the twins at `time_scale`.
+/// there, a copy of the shipped recipes in `dir/recipes`, the twins at
+/// `time_scale`.
 pub fn launcher(dir: &std::path::Path, time_scale: &str) -> (Command, String) {
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let topology = dir.join("cell.toml");
     std::fs::write(&topology, TOPOLOGY.replace("ROUTER", &endpoint)).expect("topology");
+    let recipes = copy_recipes(dir);
     let bin_dir = std::path::Path::new(env!("CARGO_BIN_EXE_falc"))
         .parent()
         .expect("bin dir")
@@ -199,11 +218,85 @@ pub fn launcher(dir: &std::path::Path, time_scale: &str) -> (Command, String) {
         .arg("--db")
         .arg(dir.join("falc.db"))
         .arg("--recipes")
-        .arg(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes"))
+        .arg(recipes)
         .arg("--bin-dir")
         .arg(bin_dir)
         .args(["--plc-listen", "127.0.0.1:0", "--time-scale", time_scale]);
     (cmd, endpoint)
+}
+
+/// A whole cell started by `falc-launch` in a temporary directory. Dropped
+/// (also when a test fails): SIGTERM to the launcher, which stops every node
+/// top-down; whatever is left after 10 s is killed.
+pub struct LaunchedCell {
+    /// Where topology, credentials, database and recipes are.
+    pub dir: tempfile::TempDir,
+    /// The launcher (its stdout carries every node's prefixed lines).
+    pub launcher: Proc,
+}
+
+impl LaunchedCell {
+    /// Starts the cell at `time_scale` and waits until it is ready.
+    pub fn start(time_scale: &str) -> Self {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (cmd, _) = launcher(dir.path(), time_scale);
+        let mut launcher = Proc::spawn("falc-launch", cmd);
+        launcher.expect_line("falc-launch: cell ready in", Duration::from_secs(60));
+        Self { dir, launcher }
+    }
+
+    /// `falc` as console user `user` with `args`: exit code, stdout (and
+    /// stderr when it failed).
+    pub fn falc_as(&self, user: &str, args: &[&str]) -> (i32, String) {
+        let out = Command::new(env!("CARGO_BIN_EXE_falc"))
+            .args(self.falc_args(user))
+            .args(args)
+            .output()
+            .expect("run falc");
+        let mut text = String::from_utf8_lossy(&out.stdout).into_owned();
+        if !out.status.success() {
+            text.push_str(&String::from_utf8_lossy(&out.stderr));
+        }
+        (out.status.code().unwrap_or(-1), text)
+    }
+
+    /// The arguments that make `falc` talk to this cell as `user`.
+    pub fn falc_args(&self, user: &str) -> Vec<String> {
+        vec![
+            "--topology".into(),
+            self.dir.path().join("cell.toml").display().to_string(),
+            "--credentials-dir".into(),
+            self.dir.path().join("credentials").display().to_string(),
+            "--user".into(),
+            user.into(),
+        ]
+    }
+}
+
+impl Drop for LaunchedCell {
+    fn drop(&mut self) {
+        let pid = self.launcher.pid();
+        let nodes = children(pid);
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(pid as i32),
+            nix::sys::signal::Signal::SIGTERM,
+        );
+        let end = Instant::now() + Duration::from_secs(10);
+        while Instant::now() < end && std::path::Path::new(&format!("/proc/{pid}/status")).exists()
+        {
+            if let Ok(Some(_)) = self.launcher.child.try_wait() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        for (p, _) in nodes {
+            let _ = nix::sys::signal::kill(
+                nix::unistd::Pid::from_raw(p as i32),
+                nix::sys::signal::Signal::SIGKILL,
+            );
+        }
+        self.launcher.kill();
+    }
 }
 
 /// The child processes of `parent` (pid and command name), from /proc.

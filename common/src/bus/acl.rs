@@ -10,8 +10,10 @@
 //! - a direct subordinate of the operator (the cell) may query the
 //!   operator's `input` and `output` (operator communication).
 //!
-//! - the operator serves the operator API (`api/<call>`); each console user
-//!   may query the calls its role allows ([`Call::role`]) and nothing else.
+//! - the operator serves the operator API (`api/<call>/*`); each console
+//!   user may query the calls its role allows ([`Call::role`]), each only
+//!   under its own name (`api/<call>/<user>`), and nothing else: the router
+//!   has authenticated the user, so the key tells the operator who asks.
 //!
 //! Everything else is denied by the router: a workstation commanding another
 //! or its commander, the operator commanding a workstation, anyone
@@ -92,7 +94,7 @@ pub fn rules_of(topology: &Topology, station: &StationName) -> Vec<Rule> {
     ));
 
     if topology.station(me).map(|s| s.kind) == Some(StationKind::Operator) {
-        let api: Vec<String> = Call::ALL.iter().map(|&c| keys.api(me, c)).collect();
+        let api: Vec<String> = Call::ALL.iter().map(|&c| keys.api_any(me, c)).collect();
         out.push(rule(
             format!("{me}/api-serve-in"),
             "ingress",
@@ -195,7 +197,7 @@ pub fn console_rules(topology: &Topology, console: &Console) -> Vec<Rule> {
     let api: Vec<String> = Call::ALL
         .iter()
         .filter(|c| c.role() <= console.role)
-        .map(|&c| keys.api(operator, c))
+        .map(|&c| keys.api(operator, c, me))
         .collect();
     vec![
         rule(
@@ -384,10 +386,12 @@ commander = "cell"
         };
         assert!(put("welding", "welding"));
         assert!(!put("cell", "welding"));
-        // No wildcard in any query rule.
+        // No wildcard in any rule that lets a station send a query (the
+        // operator's API queryable receives `api/<call>/*`: egress only;
+        // each console sends on its own concrete key).
         for st in t.stations() {
             for r in rules_of(&t, &st.name) {
-                if r.messages.contains(&"query") {
+                if r.messages.contains(&"query") && r.flow == "ingress" {
                     assert!(r.keys.iter().all(|k| !k.contains('*')), "{r:?}");
                 }
             }
@@ -413,41 +417,52 @@ commander = "cell"
     fn consoles_reach_only_the_api_calls_of_their_role() {
         let t = Topology::parse(
             &format!(
-                "{TOPO}\n[[console]]\nname = \"olga\"\nrole = \"observer\"\n[[console]]\nname = \"piet\"\nrole = \"operator\"\n"
+                "{TOPO}\n[[console]]\nname = \"olga\"\nrole = \"observer\"\n[[console]]\nname = \"piet\"\nrole = \"operator\"\n[[console]]\nname = \"eva\"\nrole = \"engineer\"\n"
             ),
             "t",
         )
         .expect("valid");
-        let can = |who: &str, call: Call| {
+        // `who` may query `call` under the name `as_user`.
+        let can_as = |who: &str, call: Call, as_user: &str| {
             let c = t
                 .console(&StationName::new(who).expect("valid"))
                 .expect("console");
             console_rules(&t, c).iter().any(|r| {
                 r.flow == "ingress"
                     && r.messages.contains(&"query")
-                    && r.keys.contains(&format!("falc/falc1/operator/api/{call}"))
+                    && r.keys
+                        .contains(&format!("falc/falc1/operator/api/{call}/{as_user}"))
             })
         };
+        let can = |who: &str, call: Call| can_as(who, call, who);
         assert!(can("olga", Call::Status));
+        assert!(can("olga", Call::RecipeGet));
         assert!(!can("olga", Call::Start));
+        assert!(!can("olga", Call::RecipePut));
         assert!(can("piet", Call::Start));
         assert!(can("piet", Call::Answer));
+        assert!(!can("piet", Call::RecipePut));
+        assert!(can("eva", Call::RecipePut));
+        assert!(can("eva", Call::Start));
+        // Nobody may speak in another user's name.
+        assert!(!can_as("olga", Call::Status, "piet"));
+        assert!(!can_as("eva", Call::Start, "piet"));
         // The operator serves every call; no station may query the API.
         assert!(allowed(
             &t,
             "operator",
             "ingress",
             "declare_queryable",
-            "falc/falc1/operator/api/start"
+            "falc/falc1/operator/api/start/*"
         ));
         assert!(!allowed(
             &t,
             "cell",
             "ingress",
             "query",
-            "falc/falc1/operator/api/start"
+            "falc/falc1/operator/api/start/cell"
         ));
         let v = access_control(&t);
-        assert_eq!(v["subjects"].as_array().map(|a| a.len()), Some(6));
+        assert_eq!(v["subjects"].as_array().map(|a| a.len()), Some(7));
     }
 }

@@ -1,12 +1,15 @@
 //! The operator API on the bus: the operator node serves one queryable per
-//! [`Call`] (`falc/<cell>/<operator>/api/<call>`), a console queries the
-//! one key of its call. The router's ACL decides which console user may
-//! query which key (by role), so a refused call ends like a call nobody
-//! serves: "no reply". Payloads are [`envelope`]s of [`ApiEnvelope`] and
-//! [`ApiResult`]; a malformed request is answered with an error by the bus.
+//! [`Call`] (`falc/<cell>/<operator>/api/<call>/*`), a console queries its
+//! call under its own user name (`…/api/<call>/<user>`). The router's ACL
+//! decides which console user may query which call (by role) and lets each
+//! query only under its own, authenticated, name: so the user the operator
+//! journals is the last key chunk, never a claim in the payload. A refused
+//! call ends like a call nobody serves: "no reply". Payloads are
+//! [`envelope`]s of [`ApiRequest`] and [`ApiResult`]; a malformed request is
+//! answered with an error by the bus.
 
 use super::{envelope, Bus, BusError, Declaration};
-use crate::api::{ApiEnvelope, ApiReply, ApiRequest, ApiResult, Call};
+use crate::api::{ApiReply, ApiRequest, ApiResult, Call};
 use crate::ids::StationName;
 use std::time::Duration;
 use tokio::sync::mpsc::UnboundedSender;
@@ -16,7 +19,8 @@ use zenoh::Wait;
 /// A console's request that arrived at the operator node.
 #[derive(Debug)]
 pub struct ApiIndication {
-    /// The console user who asks (named in the journal).
+    /// The console user who asks (authenticated by the router; named in the
+    /// journal).
     pub user: StationName,
     /// The request.
     pub request: ApiRequest,
@@ -54,26 +58,31 @@ fn answer_now(query: &Query, result: &ApiResult) {
 }
 
 fn on_query(call: Call, query: Query, tx: &UnboundedSender<ApiIndication>) {
-    let decoded = match query.payload() {
-        None => Err(format!(
-            "API request on {} carries no payload",
-            query.key_expr()
-        )),
-        Some(p) => match envelope::decode::<ApiEnvelope>(&p.to_bytes()) {
-            Ok(e) if e.request.call() == call => Ok(e),
-            Ok(e) => Err(format!(
-                "a {} request was sent to the {call} key {}",
-                e.request.call(),
-                query.key_expr()
-            )),
-            Err(e) => Err(format!(
-                "malformed API request on {}: {e}",
-                query.key_expr()
-            )),
-        },
-    };
-    match decoded {
-        Ok(ApiEnvelope { user, request }) => {
+    let key = query.key_expr().as_str();
+    let user = key
+        .rsplit('/')
+        .next()
+        .and_then(|u| StationName::new(u).ok())
+        .ok_or_else(|| format!("API request on {key} names no valid user"));
+    let request = query
+        .payload()
+        .ok_or_else(|| format!("API request on {key} carries no payload"))
+        .and_then(|p| {
+            envelope::decode::<ApiRequest>(&p.to_bytes())
+                .map_err(|e| format!("malformed API request on {key}: {e}"))
+        })
+        .and_then(|r| {
+            if r.call() == call {
+                Ok(r)
+            } else {
+                Err(format!(
+                    "a {} request was sent to the {call} key {key}",
+                    r.call()
+                ))
+            }
+        });
+    match user.and_then(|u| request.map(|r| (u, r))) {
+        Ok((user, request)) => {
             let ind = ApiIndication {
                 user,
                 request,
@@ -102,7 +111,7 @@ impl Bus {
     ) -> Result<Vec<Declaration>, BusError> {
         let mut out = Vec::with_capacity(Call::ALL.len());
         for &call in Call::ALL {
-            let key = self.keys.api(&self.me.station, call);
+            let key = self.keys.api_any(&self.me.station, call);
             let tx = tx.clone();
             let q = self
                 .session
@@ -127,12 +136,23 @@ impl Bus {
         request: ApiRequest,
         deadline: Duration,
     ) -> Result<ApiReply, String> {
+        let me = self.me.station.clone();
+        self.api_as(operator, request, &me, deadline).await
+    }
+
+    /// Makes an operator API call on the key of console user `user`. The
+    /// router answers nothing unless `user` is this session's own user:
+    /// what the ACL tests try.
+    pub async fn api_as(
+        &self,
+        operator: &StationName,
+        request: ApiRequest,
+        user: &StationName,
+        deadline: Duration,
+    ) -> Result<ApiReply, String> {
         let call = request.call();
-        let key = self.keys.api(operator, call);
-        let payload = envelope::encode(&ApiEnvelope {
-            user: self.me.station.clone(),
-            request,
-        });
+        let key = self.keys.api(operator, call, user);
+        let payload = envelope::encode(&request);
         let what = format!("`{call}` of the operator API ({key})");
         match self
             .query::<ApiResult>(&key, payload, deadline, &what)

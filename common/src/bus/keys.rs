@@ -48,9 +48,17 @@ impl KeySpace {
         format!("falc/{}/alive/{station}/{session}", self.cell)
     }
 
-    /// `falc/<cell>/<operator>/api/<call>`: one operator API call.
-    pub fn api(&self, operator: &StationName, call: Call) -> String {
-        format!("falc/{}/{operator}/api/{call}", self.cell)
+    /// `falc/<cell>/<operator>/api/<call>/<user>`: one operator API call by
+    /// one console user. The router lets each user query only keys ending
+    /// in its own name, so the operator knows who asks from the key.
+    pub fn api(&self, operator: &StationName, call: Call, user: &StationName) -> String {
+        format!("falc/{}/{operator}/api/{call}/{user}", self.cell)
+    }
+
+    /// `falc/<cell>/<operator>/api/<call>/*`: a call by any user (the
+    /// operator's queryable and its ACL rules).
+    pub fn api_any(&self, operator: &StationName, call: Call) -> String {
+        format!("falc/{}/{operator}/api/{call}/*", self.cell)
     }
 
     /// `falc/<cell>/alive/<st>/*`: every token of a station (ACL rules).
@@ -74,9 +82,14 @@ mod tests {
         assert_eq!(k.alive(&w, "ab12"), "falc/falc1/alive/welding/ab12");
         assert_eq!(k.alive_any(&w), "falc/falc1/alive/welding/*");
         let op = StationName::new("operator").expect("valid");
+        let olga = StationName::new("olga").expect("valid");
         assert_eq!(
-            k.api(&op, Call::OrderAdd),
-            "falc/falc1/operator/api/order-add"
+            k.api(&op, Call::OrderAdd, &olga),
+            "falc/falc1/operator/api/order-add/olga"
+        );
+        assert_eq!(
+            k.api_any(&op, Call::OrderAdd),
+            "falc/falc1/operator/api/order-add/*"
         );
     }
 }

@@ -139,14 +139,19 @@ pub struct StatusBoard(Arc<Mutex<VmdStatus>>);
 impl StatusBoard {
     /// The status now.
     pub fn get(&self) -> VmdStatus {
-        *self.0.lock().unwrap_or_else(PoisonError::into_inner)
+        self.0
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone()
     }
 
     /// Replaces the status; true if it changed.
-    pub fn set(&self, status: VmdStatus) -> bool {
+    pub fn set(&self, status: &VmdStatus) -> bool {
         let mut s = self.0.lock().unwrap_or_else(PoisonError::into_inner);
-        let changed = *s != status;
-        *s = status;
+        let changed = *s != *status;
+        if changed {
+            *s = status.clone();
+        }
         changed
     }
 }

@@ -93,7 +93,7 @@ impl Station {
     /// Sets this station's status (answered to Status requests) and, if it
     /// changed, publishes it as unsolicited status.
     pub async fn set_status(&self, status: VmdStatus) {
-        if self.board.set(status) {
+        if self.board.set(&status) {
             self.bus
                 .publish(&Unconfirmed::Status {
                     station: self.bus.me().station.clone(),

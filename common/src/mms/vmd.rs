@@ -103,7 +103,7 @@ impl RobotStatusDetail {
 }
 
 /// The VMD status (Status service, unsolicited status).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct VmdStatus {
     /// Logical status.
     pub logical: LogicalStatus,
@@ -113,6 +113,23 @@ pub struct VmdStatus {
     pub local_detail: RecipeState,
     /// Additional detail: the robot's status, for a robot station.
     pub additional: Option<RobotStatusDetail>,
+    /// The running program invocation and the state its recipe is in (not
+    /// in ISO 9506: what the 1992 overview's top line showed, and what a
+    /// recipe view highlights).
+    pub program: Option<ProgramState>,
+    /// The device's inputs in its I/O map's order (the conveyor PLC's
+    /// lamps, `plc::map::Input::at`); empty for other devices. What the
+    /// overview draws the conveyor from.
+    pub inputs: Vec<bool>,
+}
+
+/// A running program invocation and its recipe's current state.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ProgramState {
+    /// The program invocation (`STORE`, `DIKDROOG`).
+    pub name: ObjectName,
+    /// The recipe state it is in.
+    pub state: u16,
 }
 
 impl Default for VmdStatus {
@@ -122,6 +139,8 @@ impl Default for VmdStatus {
             physical: PhysicalStatus::Operational,
             local_detail: RecipeState::Idle,
             additional: None,
+            program: None,
+            inputs: Vec::new(),
         }
     }
 }

@@ -10,6 +10,20 @@ use crate::ids::StationName;
 use std::path::{Path, PathBuf};
 
 fn read_entry(path: &Path, kind: Option<RecipeKind>) -> Result<Entry, String> {
+    let text = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let text = String::from_utf8(text).map_err(|e| {
+        format!(
+            "{}: not UTF-8 text (byte {} is invalid)",
+            path.display(),
+            e.utf8_error().valid_up_to()
+        )
+    })?;
+    entry(path, kind, text)
+}
+
+/// The entry of `text` as if read from `path` (a recipe about to be saved
+/// there): the directory names its station and, unless given, its kind.
+pub fn entry(path: &Path, kind: Option<RecipeKind>, text: String) -> Result<Entry, String> {
     let dir = path
         .parent()
         .and_then(|p| p.file_name())
@@ -27,14 +41,6 @@ fn read_entry(path: &Path, kind: Option<RecipeKind>) -> Result<Entry, String> {
     let station = StationName::new(dir)
         .or_else(|_| StationName::new(&kind.to_string()))
         .map_err(|e| e.to_string())?;
-    let text = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let text = String::from_utf8(text).map_err(|e| {
-        format!(
-            "{}: not UTF-8 text (byte {} is invalid)",
-            path.display(),
-            e.utf8_error().valid_up_to()
-        )
-    })?;
     Ok(Entry {
         station,
         kind,

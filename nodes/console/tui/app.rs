@@ -1,0 +1,797 @@
+//! The TUI's state, sans-I/O: what the operator node last said (status,
+//! orders, messages), which layer and pane are shown, what is being typed
+//! or picked; keys in, [`Intent`]s out. The driver (`tui::run`) does the
+//! calls and feeds the answers back; `tui::view` draws it.
+
+use falc_common::api::{ApiReply, ApiRequest, CellStatus, Entry, Order, OrderState};
+use falc_common::api::{RecipeFile, RecipeInfo, RecipeText};
+use falc_common::ids::StationName;
+use falc_common::topology::{Role, StationKind, Topology};
+use ratatui::crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
+
+/// The layers of the 1992 interface, and the recipe view.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Layer {
+    /// F1: the cell drawn schematically.
+    Overview,
+    /// F2: messages, one pane per station.
+    Messages,
+    /// F3: commands.
+    Commands,
+    /// F4: a recipe's state table, the current state highlighted.
+    Recipe,
+}
+
+/// What the driver must do for the app.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Intent {
+    /// Make this call and hand the answer to [`App::answered`].
+    Call(ApiRequest),
+    /// Edit this recipe in `$EDITOR` (suspend the screen meanwhile).
+    Edit(RecipeFile),
+    /// Edit the refused text again.
+    EditAgain,
+    /// Drop the refused text.
+    Discard,
+    /// Leave the TUI.
+    Quit,
+}
+
+/// A command of the F3 layer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Command {
+    /// Add an order (pick a cell recipe).
+    Order,
+    /// Remove a queued order (pick it).
+    Remove,
+    /// Start the list.
+    Start,
+    /// Stop the list.
+    Stop,
+    /// Acknowledge the alarm.
+    Ack,
+    /// Shut down once the list is done.
+    Shutdown,
+    /// Edit a recipe (pick a station, then a recipe or new).
+    Edit,
+    /// Show a recipe in the recipe view.
+    View,
+}
+
+impl Command {
+    /// Every command, in menu order.
+    pub const ALL: [Command; 8] = [
+        Self::Order,
+        Self::Remove,
+        Self::Start,
+        Self::Stop,
+        Self::Ack,
+        Self::Shutdown,
+        Self::Edit,
+        Self::View,
+    ];
+
+    /// The key that picks it, and its label.
+    pub fn label(self) -> (char, &'static str) {
+        match self {
+            Self::Order => ('o', "order: add an order for a cell recipe"),
+            Self::Remove => ('r', "remove a queued order"),
+            Self::Start => ('s', "start the order list"),
+            Self::Stop => ('t', "stop the running order and the list"),
+            Self::Ack => ('a', "acknowledge the alarm"),
+            Self::Shutdown => ('d', "shut down when the list is done"),
+            Self::Edit => ('e', "recipe: edit one, or make a new one"),
+            Self::View => ('v', "recipe: view one's state table"),
+        }
+    }
+
+    /// The least role that may do it (the router enforces it; shown here).
+    pub fn role(self) -> Role {
+        match self {
+            Self::Edit => Role::Engineer,
+            Self::View => Role::Observer,
+            _ => Role::Operator,
+        }
+    }
+}
+
+/// A choice being made in the F3 layer.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Pick {
+    /// A cell recipe for a new order.
+    OrderRecipe(Vec<String>),
+    /// A queued order to remove.
+    Order(Vec<Order>),
+    /// A station whose recipe to edit or view.
+    Station(Vec<StationName>, Command),
+    /// A recipe of that station (edit: the first item is "new").
+    Recipe(Vec<RecipeFile>, Command),
+    /// The name of a new recipe file, being typed.
+    NewName(StationName, String),
+    /// Shut down? y/n.
+    ConfirmShutdown,
+    /// The checker refused an edit: edit again (e) or discard (Esc).
+    EditAgain,
+}
+
+/// Messages of one station.
+#[derive(Debug, Clone, Default)]
+pub struct Pane {
+    /// The station.
+    pub station: Option<StationName>,
+    /// Its entries, oldest first.
+    pub entries: Vec<Entry>,
+    /// How many came since the pane was last shown.
+    pub unread: usize,
+}
+
+/// The whole TUI state.
+pub struct App {
+    /// Who uses it, and as what.
+    pub user: StationName,
+    /// Its role.
+    pub role: Role,
+    /// The cell's stations (panes, overview boxes).
+    pub topology: Topology,
+    /// The layer shown.
+    pub layer: Layer,
+    /// The last status, if any.
+    pub status: Option<CellStatus>,
+    /// Why the operator node cannot be reached, if it cannot.
+    pub unreachable: Option<String>,
+    /// The order list.
+    pub orders: Vec<Order>,
+    /// One pane per station.
+    pub panes: Vec<Pane>,
+    /// The pane shown in F2.
+    pub pane: usize,
+    /// The answer being typed.
+    pub answer: String,
+    /// The F3 cursor.
+    pub cursor: usize,
+    /// The choice being made, if any.
+    pub pick: Option<Pick>,
+    /// The last outcome of a command, in words (ok, text).
+    pub said: Option<(bool, String)>,
+    /// The recipe list, when fetched.
+    pub recipes: Vec<RecipeInfo>,
+    /// The recipe the F4 view shows when its station runs nothing.
+    pub viewed: Option<RecipeText>,
+    /// The station whose running recipe F4 shows.
+    pub view_station: usize,
+    /// The last message id seen.
+    pub last_entry: i64,
+    /// The F3 pickers' cursor.
+    pub pick_cursor: usize,
+    /// What the last call was (to route its answer).
+    pending: Option<ApiRequest>,
+    /// The station picked for a recipe edit or view.
+    pending_station: Option<StationName>,
+}
+
+impl App {
+    /// A new TUI state for `user` in `topology`.
+    pub fn new(topology: Topology, user: StationName) -> Self {
+        let role = topology
+            .console(&user)
+            .map(|c| c.role)
+            .unwrap_or(Role::Observer);
+        let panes = topology
+            .stations()
+            .iter()
+            .filter(|s| s.kind != StationKind::Operator)
+            .map(|s| Pane {
+                station: Some(s.name.clone()),
+                ..Pane::default()
+            })
+            .collect();
+        Self {
+            user,
+            role,
+            topology,
+            layer: Layer::Overview,
+            status: None,
+            unreachable: None,
+            orders: Vec::new(),
+            panes,
+            pane: 0,
+            answer: String::new(),
+            cursor: 0,
+            pick: None,
+            said: None,
+            recipes: Vec::new(),
+            viewed: None,
+            view_station: 0,
+            last_entry: 0,
+            pick_cursor: 0,
+            pending: None,
+            pending_station: None,
+        }
+    }
+
+    /// Whether any pane has unread messages (F2's label lights).
+    pub fn unread(&self) -> bool {
+        self.panes.iter().any(|p| p.unread > 0)
+    }
+
+    /// The stations below the operator (overview, F4), in topology order.
+    pub fn stations(&self) -> Vec<StationName> {
+        self.panes
+            .iter()
+            .filter_map(|p| p.station.clone())
+            .collect()
+    }
+
+    /// The pane an entry belongs to: its station's, else (an answer by a
+    /// console user, the operator's own alarms) the cell's.
+    fn pane_of(&self, e: &Entry) -> usize {
+        let by_name = self
+            .panes
+            .iter()
+            .position(|p| p.station.as_ref().is_some_and(|s| s.as_str() == e.who));
+        by_name.unwrap_or_else(|| {
+            let cell = self
+                .topology
+                .stations()
+                .iter()
+                .find(|s| s.kind == StationKind::Cell);
+            self.panes
+                .iter()
+                .position(|p| p.station.as_ref() == cell.map(|c| &c.name))
+                .unwrap_or(0)
+        })
+    }
+
+    /// New messages arrived.
+    pub fn entries(&mut self, entries: Vec<Entry>) {
+        for e in entries {
+            self.last_entry = self.last_entry.max(e.id);
+            let i = self.pane_of(&e);
+            let shown = self.layer == Layer::Messages && self.pane == i;
+            if let Some(p) = self.panes.get_mut(i) {
+                if !shown {
+                    p.unread += 1;
+                }
+                p.entries.push(e);
+                let excess = p.entries.len().saturating_sub(500);
+                p.entries.drain(..excess);
+            }
+        }
+    }
+
+    /// A fresh status (or why there is none).
+    pub fn status(&mut self, status: Result<CellStatus, String>) {
+        match status {
+            Ok(s) => {
+                if s.question.is_none() {
+                    self.answer.clear();
+                }
+                self.status = Some(s);
+                self.unreachable = None;
+            }
+            Err(e) => self.unreachable = Some(e),
+        }
+    }
+
+    /// The order list.
+    pub fn orders(&mut self, orders: Vec<Order>) {
+        self.orders = orders;
+    }
+
+    /// The last order that ended, if any.
+    pub fn last_ended(&self) -> Option<&Order> {
+        self.orders
+            .iter()
+            .filter(|o| !matches!(o.state, OrderState::Queued | OrderState::Running))
+            .max_by_key(|o| o.ended_ms.unwrap_or(0))
+    }
+
+    fn call(&mut self, r: ApiRequest) -> Option<Intent> {
+        self.pending = Some(r.clone());
+        Some(Intent::Call(r))
+    }
+
+    /// The answer to the last [`Intent::Call`].
+    pub fn answered(&mut self, result: Result<ApiReply, String>) {
+        let request = self.pending.take();
+        match (request, result) {
+            (Some(ApiRequest::RecipeList), Ok(ApiReply::Recipes(list))) => {
+                self.recipes = list;
+                self.pick = match self.pick.take() {
+                    Some(Pick::OrderRecipe(_)) => Some(Pick::OrderRecipe(
+                        self.recipes
+                            .iter()
+                            .filter(|r| r.file.station().as_str() == "cell")
+                            .filter_map(|r| r.name.as_ref().map(|n| n.to_lowercase()))
+                            .collect(),
+                    )),
+                    Some(Pick::Recipe(_, cmd)) => Some(Pick::Recipe(Vec::new(), cmd)),
+                    other => other,
+                };
+                self.fill_recipe_pick();
+            }
+            (Some(ApiRequest::OrderList), Ok(ApiReply::Orders(v))) => {
+                if let Some(Pick::Order(_)) = self.pick {
+                    self.pick = Some(Pick::Order(
+                        v.iter()
+                            .filter(|o| o.state == OrderState::Queued)
+                            .cloned()
+                            .collect(),
+                    ));
+                }
+                self.orders = v;
+            }
+            (Some(ApiRequest::RecipeGet { .. }), Ok(ApiReply::Recipe(r))) => {
+                self.viewed = Some(r);
+                self.layer = Layer::Recipe;
+            }
+            (_, Ok(ApiReply::Done(text))) => self.said = Some((true, text)),
+            (_, Ok(ApiReply::Order(o))) => {
+                self.said = Some((true, format!("added order {} ({})", o.id, o.recipe)))
+            }
+            (_, Ok(_)) => {}
+            (_, Err(why)) => {
+                self.pick = None;
+                self.said = Some((false, why));
+            }
+        }
+    }
+
+    /// The recipe picker's items once the list is known.
+    fn fill_recipe_pick(&mut self) {
+        let Some(Pick::Recipe(items, cmd)) = &mut self.pick else {
+            return;
+        };
+        let Some(station) = self.pending_station.clone() else {
+            return;
+        };
+        *items = self
+            .recipes
+            .iter()
+            .filter(|r| r.file.station() == &station)
+            .map(|r| r.file.clone())
+            .collect();
+        if *cmd == Command::Edit {
+            if let Ok(new) = RecipeFile::new(station, "new") {
+                items.insert(0, new);
+            }
+        }
+    }
+}
+
+impl App {
+    /// A key: what to do, if anything.
+    pub fn key(&mut self, k: KeyEvent) -> Option<Intent> {
+        if k.modifiers.contains(KeyModifiers::CONTROL) && k.code == KeyCode::Char('c') {
+            return Some(Intent::Quit);
+        }
+        match k.code {
+            KeyCode::F(1) => return self.show(Layer::Overview),
+            KeyCode::F(2) => return self.show(Layer::Messages),
+            KeyCode::F(3) => return self.show(Layer::Commands),
+            KeyCode::F(4) => return self.show(Layer::Recipe),
+            _ => {}
+        }
+        if self.pick.is_some() {
+            return self.pick_key(k);
+        }
+        let typing = self.layer == Layer::Messages && self.question_here();
+        if typing {
+            match k.code {
+                KeyCode::Char(c) => {
+                    self.answer.push(c);
+                    return None;
+                }
+                KeyCode::Backspace => {
+                    self.answer.pop();
+                    return None;
+                }
+                KeyCode::Enter if !self.answer.trim().is_empty() => {
+                    let text = std::mem::take(&mut self.answer).trim().to_string();
+                    return self.call(ApiRequest::Answer { text });
+                }
+                _ => {}
+            }
+        }
+        match (self.layer, k.code) {
+            (_, KeyCode::Char('q')) => Some(Intent::Quit),
+            (_, KeyCode::Char(c @ '1'..='4')) => self.show(match c {
+                '1' => Layer::Overview,
+                '2' => Layer::Messages,
+                '3' => Layer::Commands,
+                _ => Layer::Recipe,
+            }),
+            (Layer::Messages, KeyCode::Left) => {
+                self.pane = (self.pane + self.panes.len().max(1) - 1) % self.panes.len().max(1);
+                self.mark_read();
+                None
+            }
+            (Layer::Messages, KeyCode::Right) => {
+                self.pane = (self.pane + 1) % self.panes.len().max(1);
+                self.mark_read();
+                None
+            }
+            (Layer::Recipe, KeyCode::Left) => {
+                let n = self.panes.len().max(1);
+                self.view_station = (self.view_station + n - 1) % n;
+                None
+            }
+            (Layer::Recipe, KeyCode::Right) => {
+                self.view_station = (self.view_station + 1) % self.panes.len().max(1);
+                None
+            }
+            (Layer::Commands, KeyCode::Up) => {
+                self.cursor = self.cursor.saturating_sub(1);
+                None
+            }
+            (Layer::Commands, KeyCode::Down) => {
+                self.cursor = (self.cursor + 1).min(Command::ALL.len() - 1);
+                None
+            }
+            (Layer::Commands, KeyCode::Enter) => {
+                let c = Command::ALL[self.cursor.min(Command::ALL.len() - 1)];
+                self.command(c)
+            }
+            (Layer::Commands, KeyCode::Char(ch)) => {
+                let c = Command::ALL.into_iter().find(|c| c.label().0 == ch)?;
+                self.cursor = Command::ALL.iter().position(|x| *x == c).unwrap_or(0);
+                self.command(c)
+            }
+            _ => None,
+        }
+    }
+
+    /// The recipe F4 should show and does not have yet: the one the
+    /// chosen station runs.
+    pub fn wanted_recipe(&self) -> Option<ApiRequest> {
+        if self.layer != Layer::Recipe {
+            return None;
+        }
+        let station = self.panes.get(self.view_station)?.station.as_ref()?;
+        let program = self.running_program(station)?;
+        let info = self.recipes.iter().find(|r| {
+            r.file.station() == station
+                && r.name
+                    .as_deref()
+                    .is_some_and(|n| n.eq_ignore_ascii_case(program.0.as_str()))
+        })?;
+        if self.viewed.as_ref().map(|v| &v.file) == Some(&info.file) {
+            return None;
+        }
+        Some(ApiRequest::RecipeGet {
+            file: info.file.clone(),
+        })
+    }
+
+    /// The program a station runs and its recipe state.
+    pub fn running_program(&self, station: &StationName) -> Option<(String, u16)> {
+        let s = self.status.as_ref()?;
+        let v = s.stations.iter().find(|v| &v.name == station)?;
+        let p = v.status.as_ref()?.program.as_ref()?;
+        Some((p.name.to_string(), p.state))
+    }
+
+    /// Makes a call the driver asks for on the app's behalf (its answer
+    /// goes to [`App::answered`]).
+    pub fn request(&mut self, r: ApiRequest) -> Intent {
+        self.pending = Some(r.clone());
+        Intent::Call(r)
+    }
+
+    /// Whether the shown pane holds the waiting question.
+    pub fn question_here(&self) -> bool {
+        let cell = self
+            .topology
+            .stations()
+            .iter()
+            .find(|s| s.kind == StationKind::Cell)
+            .map(|s| &s.name);
+        self.status.as_ref().is_some_and(|s| s.question.is_some())
+            && self.panes.get(self.pane).and_then(|p| p.station.as_ref()) == cell
+    }
+
+    fn show(&mut self, layer: Layer) -> Option<Intent> {
+        self.layer = layer;
+        self.pick = None;
+        if layer == Layer::Messages {
+            // Open on the question if one waits, else where unread is.
+            if self.status.as_ref().is_some_and(|s| s.question.is_some()) {
+                let cell = self
+                    .topology
+                    .stations()
+                    .iter()
+                    .find(|s| s.kind == StationKind::Cell)
+                    .map(|s| s.name.clone());
+                if let Some(i) = self.panes.iter().position(|p| p.station == cell) {
+                    self.pane = i;
+                }
+            } else if self.panes.get(self.pane).is_some_and(|p| p.unread == 0) {
+                if let Some(i) = self.panes.iter().position(|p| p.unread > 0) {
+                    self.pane = i;
+                }
+            }
+            self.mark_read();
+        }
+        None
+    }
+
+    fn mark_read(&mut self) {
+        if let Some(p) = self.panes.get_mut(self.pane) {
+            p.unread = 0;
+        }
+    }
+
+    fn command(&mut self, c: Command) -> Option<Intent> {
+        self.said = None;
+        self.pick_cursor = 0;
+        match c {
+            Command::Order => {
+                self.pick = Some(Pick::OrderRecipe(Vec::new()));
+                self.call(ApiRequest::RecipeList)
+            }
+            Command::Remove => {
+                self.pick = Some(Pick::Order(Vec::new()));
+                self.call(ApiRequest::OrderList)
+            }
+            Command::Start => self.call(ApiRequest::Start),
+            Command::Stop => self.call(ApiRequest::Stop),
+            Command::Ack => self.call(ApiRequest::Ack),
+            Command::Shutdown => {
+                self.pick = Some(Pick::ConfirmShutdown);
+                None
+            }
+            Command::Edit | Command::View => {
+                self.pick = Some(Pick::Station(self.stations(), c));
+                None
+            }
+        }
+    }
+
+    fn pick_key(&mut self, k: KeyEvent) -> Option<Intent> {
+        let pick = self.pick.clone()?;
+        if pick == Pick::EditAgain {
+            return match k.code {
+                KeyCode::Char('e') => {
+                    self.pick = None;
+                    Some(Intent::EditAgain)
+                }
+                KeyCode::Esc => {
+                    self.pick = None;
+                    Some(Intent::Discard)
+                }
+                _ => None,
+            };
+        }
+        if k.code == KeyCode::Esc {
+            self.pick = None;
+            return None;
+        }
+        if let Pick::NewName(station, mut name) = pick {
+            match k.code {
+                KeyCode::Char(c) => name.push(c),
+                KeyCode::Backspace => {
+                    name.pop();
+                }
+                KeyCode::Enter => {
+                    self.pick = None;
+                    return match RecipeFile::new(station, &name) {
+                        Ok(f) => Some(Intent::Edit(f)),
+                        Err(e) => {
+                            self.said = Some((false, e));
+                            None
+                        }
+                    };
+                }
+                _ => {}
+            }
+            self.pick = Some(Pick::NewName(station, name));
+            return None;
+        }
+        if pick == Pick::ConfirmShutdown {
+            self.pick = None;
+            return match k.code {
+                KeyCode::Char('y') | KeyCode::Char('j') => self.call(ApiRequest::Shutdown),
+                _ => {
+                    self.said = Some((true, "not shut down".into()));
+                    None
+                }
+            };
+        }
+        let len = match &pick {
+            Pick::OrderRecipe(v) => v.len(),
+            Pick::Order(v) => v.len(),
+            Pick::Station(v, _) => v.len(),
+            Pick::Recipe(v, _) => v.len(),
+            _ => 0,
+        };
+        match k.code {
+            KeyCode::Up => {
+                self.pick_cursor = self.pick_cursor.saturating_sub(1);
+                None
+            }
+            KeyCode::Down => {
+                self.pick_cursor = (self.pick_cursor + 1).min(len.saturating_sub(1));
+                None
+            }
+            KeyCode::Enter if len > 0 => {
+                let i = self.pick_cursor.min(len - 1);
+                self.pick_cursor = 0;
+                self.pick = None;
+                match pick {
+                    Pick::OrderRecipe(v) => self.call(ApiRequest::OrderAdd {
+                        recipe: v[i].clone(),
+                    }),
+                    Pick::Order(v) => self.call(ApiRequest::OrderRemove { id: v[i].id }),
+                    Pick::Station(v, cmd) => {
+                        self.pending_station = Some(v[i].clone());
+                        self.pick = Some(Pick::Recipe(Vec::new(), cmd));
+                        self.call(ApiRequest::RecipeList)
+                    }
+                    Pick::Recipe(v, Command::Edit) if i == 0 => {
+                        self.pick = Some(Pick::NewName(v[0].station().clone(), String::new()));
+                        None
+                    }
+                    Pick::Recipe(v, Command::Edit) => Some(Intent::Edit(v[i].clone())),
+                    Pick::Recipe(v, _) => self.call(ApiRequest::RecipeGet { file: v[i].clone() }),
+                    _ => None,
+                }
+            }
+            _ => None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use falc_common::api::ListState;
+
+    fn app() -> App {
+        let t = Topology::load(
+            &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("launch/cell.toml"),
+        )
+        .expect("shipped topology");
+        App::new(t, StationName::new("console").expect("valid"))
+    }
+
+    fn key(c: KeyCode) -> KeyEvent {
+        KeyEvent::new(c, KeyModifiers::NONE)
+    }
+
+    fn entry(id: i64, kind: EntryKind, who: &str) -> Entry {
+        Entry {
+            id,
+            at_ms: 0,
+            order: Some(1),
+            kind,
+            who: who.into(),
+            text: format!("entry {id}"),
+        }
+    }
+
+    fn status(question: Option<&str>) -> CellStatus {
+        CellStatus {
+            list: ListState::Running,
+            cell_associated: true,
+            problem: None,
+            alarm: None,
+            running: None,
+            queued: 0,
+            question: question.map(String::from),
+            shutdown_pending: false,
+            stations: Vec::new(),
+        }
+    }
+
+    use falc_common::api::EntryKind;
+
+    #[test]
+    fn messages_go_to_their_station_pane_and_count_as_unread_until_shown() {
+        let mut a = app();
+        let names: Vec<String> = a.stations().iter().map(|s| s.to_string()).collect();
+        assert_eq!(
+            names,
+            ["cell", "welding", "transport"],
+            "one pane per station"
+        );
+        a.entries(vec![
+            entry(1, EntryKind::Message, "cell"),
+            entry(2, EntryKind::Report, "transport"),
+            entry(3, EntryKind::Answer, "console"),
+        ]);
+        assert_eq!(a.last_entry, 3);
+        assert_eq!(
+            a.panes[0].unread, 2,
+            "the answer belongs with the cell's question"
+        );
+        assert_eq!(a.panes[2].unread, 1);
+        assert!(a.unread());
+        a.key(key(KeyCode::F(2)));
+        assert_eq!(a.panes[0].unread, 0);
+        a.key(key(KeyCode::Right));
+        a.key(key(KeyCode::Right));
+        assert!(!a.unread());
+    }
+
+    #[test]
+    fn a_question_is_answered_in_the_cell_pane() {
+        let mut a = app();
+        a.status(Ok(status(Some("staat blok 1 goed?\n(ja/nee)"))));
+        a.key(key(KeyCode::F(2)));
+        assert!(a.question_here());
+        assert_eq!(a.key(key(KeyCode::Char('j'))), None);
+        assert_eq!(a.key(key(KeyCode::Char('a'))), None);
+        assert_eq!(
+            a.key(key(KeyCode::Enter)),
+            Some(Intent::Call(ApiRequest::Answer { text: "ja".into() }))
+        );
+        a.answered(Ok(ApiReply::Done("answered ja".into())));
+        assert_eq!(a.said, Some((true, "answered ja".into())));
+    }
+
+    #[test]
+    fn commands_pick_then_call_and_refusals_are_shown() {
+        let mut a = app();
+        a.key(key(KeyCode::F(3)));
+        assert_eq!(
+            a.key(key(KeyCode::Char('o'))),
+            Some(Intent::Call(ApiRequest::RecipeList))
+        );
+        let w = |s: &str, f: &str, n: &str| RecipeInfo {
+            file: RecipeFile::new(StationName::new(s).expect("v"), f).expect("v"),
+            name: Some(n.into()),
+        };
+        a.answered(Ok(ApiReply::Recipes(vec![
+            w("cell", "dikdroog", "DIKDROOG"),
+            w("cell", "dundroog", "DUNDROOG"),
+            w("welding", "droog_dik", "DROOG_DIK"),
+        ])));
+        assert_eq!(
+            a.pick,
+            Some(Pick::OrderRecipe(vec![
+                "dikdroog".into(),
+                "dundroog".into()
+            ]))
+        );
+        a.key(key(KeyCode::Down));
+        assert_eq!(
+            a.key(key(KeyCode::Enter)),
+            Some(Intent::Call(ApiRequest::OrderAdd {
+                recipe: "dundroog".into()
+            }))
+        );
+        a.answered(Err(
+            "no reply (refused by the router's access control)".into()
+        ));
+        assert_eq!(a.said.as_ref().map(|s| s.0), Some(false));
+        // Shut down asks first.
+        assert_eq!(a.key(key(KeyCode::Char('d'))), None);
+        assert_eq!(
+            a.key(key(KeyCode::Char('y'))),
+            Some(Intent::Call(ApiRequest::Shutdown))
+        );
+        // Editing: station, then recipe or new, then a name.
+        a.key(key(KeyCode::Char('e')));
+        assert_eq!(a.key(key(KeyCode::Down)), None, "the station picker moves");
+        assert_eq!(
+            a.key(key(KeyCode::Enter)),
+            Some(Intent::Call(ApiRequest::RecipeList))
+        );
+        a.answered(Ok(ApiReply::Recipes(vec![w(
+            "welding",
+            "droog_dik",
+            "DROOG_DIK",
+        )])));
+        let Some(Pick::Recipe(items, Command::Edit)) = &a.pick else {
+            panic!("{:?}", a.pick)
+        };
+        assert_eq!(items.len(), 2, "new, and the one recipe of welding");
+        a.key(key(KeyCode::Down));
+        assert_eq!(
+            a.key(key(KeyCode::Enter)),
+            Some(Intent::Edit(
+                RecipeFile::new(StationName::new("welding").expect("v"), "droog_dik").expect("v")
+            ))
+        );
+    }
+}

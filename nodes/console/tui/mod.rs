@@ -1,0 +1,215 @@
+//! `falc tui`: the operator's screens (SEED-NOTES.md §6): F1 overview, F2
+//! messages per station, F3 commands, F4 a recipe's state table. This is
+//! the driver: it owns the terminal and the bus, polls the operator API
+//! (status and new messages every 250 ms, the order list every second),
+//! feeds keys and answers to the sans-I/O [`app::App`] and draws it with
+//! [`view::draw`]. Keyboard only, plain ANSI: works over SSH and in tmux.
+
+mod app;
+mod view;
+
+use crate::edit::Session;
+use app::{App, Intent, Pick};
+use falc_common::api::{ApiReply, ApiRequest};
+use falc_common::bus::Bus;
+use falc_common::ids::StationName;
+use falc_common::topology::Topology;
+use ratatui::crossterm::event::{self, Event, KeyEventKind};
+use ratatui::DefaultTerminal;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+/// How often the status and new messages are asked for.
+const POLL: Duration = Duration::from_millis(250);
+/// How long one call from the TUI may take (it is not drawn meanwhile).
+const CALL_LIMIT: Duration = Duration::from_secs(5);
+
+/// Runs the TUI until `q`, Ctrl-C, SIGINT or SIGTERM.
+pub async fn run(
+    bus: &Bus,
+    operator: &StationName,
+    topology: Topology,
+    user: StationName,
+) -> ExitCode {
+    let mut terminal = match ratatui::try_init() {
+        Ok(t) => t,
+        Err(e) => {
+            eprintln!("falc: the TUI needs a terminal: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let mut tui = Tui {
+        bus,
+        operator,
+        app: App::new(topology, user),
+        session: None,
+    };
+    let outcome = tui.main_loop(&mut terminal).await;
+    ratatui::restore();
+    match outcome {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("falc: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+struct Tui<'a> {
+    bus: &'a Bus,
+    operator: &'a StationName,
+    app: App,
+    /// A recipe edit whose text the checker refused (kept to edit again).
+    session: Option<Session>,
+}
+
+impl Tui<'_> {
+    async fn call(&self, r: ApiRequest) -> Result<ApiReply, String> {
+        self.bus.api(self.operator, r, CALL_LIMIT).await
+    }
+
+    async fn main_loop(&mut self, terminal: &mut DefaultTerminal) -> Result<(), String> {
+        let mut shutdown = falc_common::node::Shutdown::new();
+        let mut next_poll = Instant::now();
+        let mut polls: u64 = 0;
+        let intent = self.app.request(ApiRequest::RecipeList);
+        self.carry_out(intent, terminal).await?;
+        loop {
+            terminal
+                .draw(|f| view::draw(f, &self.app))
+                .map_err(|e| format!("cannot draw: {e}"))?;
+            while event::poll(Duration::ZERO).map_err(|e| format!("terminal: {e}"))? {
+                let ev = event::read().map_err(|e| format!("terminal: {e}"))?;
+                let Event::Key(k) = ev else { continue };
+                if k.kind != KeyEventKind::Press {
+                    continue;
+                }
+                match self.app.key(k) {
+                    Some(Intent::Quit) => return Ok(()),
+                    Some(i) => {
+                        self.carry_out(i, terminal).await?;
+                        terminal
+                            .draw(|f| view::draw(f, &self.app))
+                            .map_err(|e| format!("cannot draw: {e}"))?;
+                    }
+                    None => {}
+                }
+            }
+            if Instant::now() >= next_poll {
+                next_poll = Instant::now() + POLL;
+                self.poll(polls).await;
+                polls += 1;
+                if let Some(r) = self.app.wanted_recipe() {
+                    let intent = self.app.request(r);
+                    self.carry_out(intent, terminal).await?;
+                }
+            }
+            tokio::select! {
+                _ = tokio::time::sleep(Duration::from_millis(25)) => {}
+                _ = shutdown.requested() => return Ok(()),
+            }
+        }
+    }
+
+    /// Status and new messages; the order list every fourth time.
+    async fn poll(&mut self, n: u64) {
+        let status = match self.call(ApiRequest::Status).await {
+            Ok(ApiReply::Status(s)) => Ok(s),
+            Ok(other) => Err(format!("unexpected answer to status: {other:?}")),
+            Err(e) => Err(e),
+        };
+        let reachable = status.is_ok();
+        self.app.status(status);
+        if !reachable {
+            return;
+        }
+        let after = self.app.last_entry;
+        if let Ok(ApiReply::Entries(v)) = self.call(ApiRequest::Messages { after }).await {
+            self.app.entries(v);
+        }
+        if n % 4 == 0 {
+            if let Ok(ApiReply::Orders(v)) = self.call(ApiRequest::OrderList).await {
+                self.app.orders(v);
+            }
+        }
+    }
+
+    async fn carry_out(
+        &mut self,
+        intent: Intent,
+        terminal: &mut DefaultTerminal,
+    ) -> Result<(), String> {
+        match intent {
+            Intent::Quit => {}
+            Intent::Call(r) => {
+                let answer = self.call(r).await;
+                self.app.answered(answer);
+            }
+            Intent::Edit(file) => {
+                self.session = None;
+                match Session::open(self.bus, self.operator, &file).await {
+                    Ok(s) => self.edit(s, terminal).await?,
+                    Err(e) => self.app.said = Some((false, e)),
+                }
+            }
+            Intent::EditAgain => {
+                if let Some(s) = self.session.take() {
+                    self.edit(s, terminal).await?;
+                }
+            }
+            Intent::Discard => {
+                if let Some(s) = self.session.take() {
+                    self.app.said =
+                        Some((true, format!("{}: edit discarded, nothing saved", s.file)));
+                    s.discard();
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Hands the terminal to the editor, then saves what was written.
+    async fn edit(
+        &mut self,
+        session: Session,
+        terminal: &mut DefaultTerminal,
+    ) -> Result<(), String> {
+        ratatui::restore();
+        let edited = session.run_editor();
+        *terminal =
+            ratatui::try_init().map_err(|e| format!("cannot take the terminal back: {e}"))?;
+        terminal.clear().map_err(|e| format!("terminal: {e}"))?;
+        if let Err(e) = edited {
+            self.app.said = Some((
+                false,
+                format!("{e}; your text is in {}", session.copy.display()),
+            ));
+            return Ok(());
+        }
+        match session.edited() {
+            Err(e) => self.app.said = Some((false, e)),
+            Ok(None) => {
+                self.app.said = Some((
+                    true,
+                    format!("{}: nothing changed, nothing saved", session.file),
+                ));
+                session.discard();
+            }
+            Ok(Some(text)) => match session.save(self.bus, self.operator, text).await {
+                Ok(said) => {
+                    self.app.said = Some((true, said));
+                    // The new list (a new recipe appears in the pickers).
+                    let _ = self.app.request(ApiRequest::RecipeList);
+                    let answer = self.call(ApiRequest::RecipeList).await;
+                    self.app.answered(answer);
+                }
+                Err(why) => {
+                    self.app.said = Some((false, format!("{why}\ne: edit again · Esc: discard")));
+                    self.app.pick = Some(Pick::EditAgain);
+                    self.session = Some(session);
+                }
+            },
+        }
+        Ok(())
+    }
+}

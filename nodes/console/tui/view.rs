@@ -1,0 +1,676 @@
+//! Drawing the TUI: the top line (running order and recipe state), the
+//! layer bar, the layer itself, and the bottom line with the last outcome
+//! and the alarm lamp. Colours keep the 1992 meanings: normal black on
+//! white, active white on black, idle light blue, busy dark blue, alarm
+//! bright white on red.
+
+use super::app::{App, Command, Layer, Pick};
+use falc_common::mms::vmd::{PhysicalStatus, RecipeState};
+use falc_common::plc::map::{Input, Inputs, LINES, PLACES, STATIONS};
+use falc_common::recipe::check::Signal;
+use falc_common::recipe::syntax::parse;
+use falc_common::topology::StationKind;
+use ratatui::layout::{Constraint, Layout, Rect};
+use ratatui::style::{Color, Modifier, Style};
+use ratatui::text::{Line, Span};
+use ratatui::widgets::{Block, Borders, Paragraph, Wrap};
+use ratatui::Frame;
+
+const NORMAL: Style = Style::new().fg(Color::Black).bg(Color::White);
+const ACTIVE: Style = Style::new().fg(Color::White).bg(Color::Black);
+const IDLE: Style = Style::new().fg(Color::LightBlue).bg(Color::White);
+const BUSY: Style = Style::new()
+    .fg(Color::Blue)
+    .bg(Color::White)
+    .add_modifier(Modifier::BOLD);
+const ALARM: Style = Style::new()
+    .fg(Color::White)
+    .bg(Color::Red)
+    .add_modifier(Modifier::BOLD);
+const DIM: Style = Style::new().fg(Color::DarkGray).bg(Color::White);
+
+/// How a station looks in the overview.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Look {
+    /// No recipe runs.
+    Idle,
+    /// A recipe runs.
+    Busy,
+    /// In alarm, or its device is inoperable.
+    Alarm,
+    /// No status seen (not associated).
+    Off,
+}
+
+impl Look {
+    fn style(self) -> Style {
+        match self {
+            Self::Idle => IDLE,
+            Self::Busy => BUSY,
+            Self::Alarm => ALARM,
+            Self::Off => DIM,
+        }
+    }
+
+    fn word(self) -> &'static str {
+        match self {
+            Self::Idle => "IDLE",
+            Self::Busy => "BUSY",
+            Self::Alarm => "ALARM",
+            Self::Off => "NO CONNECTION",
+        }
+    }
+}
+
+/// How station `i` (of [`App::stations`]) looks.
+pub fn look(app: &App, name: &falc_common::ids::StationName) -> Look {
+    let Some(s) = &app.status else {
+        return Look::Off;
+    };
+    let is_cell = app
+        .topology
+        .station(name)
+        .is_some_and(|st| st.kind == StationKind::Cell);
+    if is_cell && s.alarm.is_some() {
+        return Look::Alarm;
+    }
+    let Some(v) = s
+        .stations
+        .iter()
+        .find(|v| &v.name == name)
+        .and_then(|v| v.status.as_ref())
+    else {
+        return Look::Off;
+    };
+    if v.physical == PhysicalStatus::Inoperable
+        || matches!(v.local_detail, RecipeState::Error | RecipeState::WaitAck)
+    {
+        Look::Alarm
+    } else if v.local_detail == RecipeState::Executing {
+        Look::Busy
+    } else {
+        Look::Idle
+    }
+}
+
+/// Draws the whole screen.
+pub fn draw(f: &mut Frame, app: &App) {
+    let area = f.area();
+    f.render_widget(Block::new().style(NORMAL), area);
+    let [top, bar, main, bottom] = Layout::vertical([
+        Constraint::Length(1),
+        Constraint::Length(1),
+        Constraint::Min(5),
+        Constraint::Length(1),
+    ])
+    .areas(area);
+    f.render_widget(Paragraph::new(top_line(app)).style(ACTIVE), top);
+    f.render_widget(Paragraph::new(layer_bar(app)), bar);
+    match app.layer {
+        Layer::Overview => overview(f, app, main),
+        Layer::Messages => messages(f, app, main),
+        Layer::Commands => commands(f, app, main),
+        Layer::Recipe => recipe(f, app, main),
+    }
+    bottom_line(f, app, bottom);
+}
+
+fn top_line(app: &App) -> Line<'static> {
+    let cell = app.topology.cell().to_string();
+    let what = match &app.status {
+        None => "waiting for the operator node".to_string(),
+        Some(s) => match &s.running {
+            Some(o) => {
+                let state = app
+                    .stations()
+                    .iter()
+                    .filter(|n| {
+                        app.topology
+                            .station(n)
+                            .is_some_and(|st| st.kind == StationKind::Cell)
+                    })
+                    .find_map(|n| app.running_program(n))
+                    .map(|(p, st)| format!(" · {p} state {st}"))
+                    .unwrap_or_default();
+                format!("order {} {}{state}", o.id, o.recipe)
+            }
+            None => match app.last_ended() {
+                Some(o) => format!(
+                    "no recipe chosen · last: order {} {} {}",
+                    o.id, o.recipe, o.state
+                ),
+                None => "no recipe chosen".to_string(),
+            },
+        },
+    };
+    Line::from(format!(
+        " FALC {cell} │ {what} │ {} ({:?})",
+        app.user, app.role
+    ))
+}
+
+fn layer_bar(app: &App) -> Line<'static> {
+    let item = |layer: Layer, text: String, lit: bool| {
+        let style = if app.layer == layer {
+            ACTIVE
+        } else if lit {
+            ALARM
+        } else {
+            NORMAL
+        };
+        vec![Span::styled(text, style), Span::styled(" ", NORMAL)]
+    };
+    let question = app.status.as_ref().is_some_and(|s| s.question.is_some());
+    let f2 = if app.unread() || question {
+        " F2 messages * ".to_string()
+    } else {
+        " F2 messages ".to_string()
+    };
+    let mut spans = Vec::new();
+    spans.extend(item(Layer::Overview, " F1 overview ".into(), false));
+    spans.extend(item(Layer::Messages, f2, app.unread() || question));
+    spans.extend(item(Layer::Commands, " F3 commands ".into(), false));
+    spans.extend(item(Layer::Recipe, " F4 recipe ".into(), false));
+    spans.push(Span::styled(" q quit", DIM));
+    Line::from(spans)
+}
+
+fn bottom_line(f: &mut Frame, app: &App, area: Rect) {
+    let [text, lamp] = Layout::horizontal([Constraint::Min(10), Constraint::Length(9)]).areas(area);
+    let said = if let Some(e) = &app.unreachable {
+        Span::styled(format!(" {e}"), ALARM)
+    } else {
+        match &app.said {
+            Some((true, t)) => Span::styled(format!(" {}", first_line(t)), NORMAL),
+            Some((false, t)) => Span::styled(format!(" refused: {}", first_line(t)), ALARM),
+            None => Span::styled(String::new(), NORMAL),
+        }
+    };
+    f.render_widget(Paragraph::new(Line::from(said)), text);
+    let alarm = app.status.as_ref().is_some_and(|s| s.alarm.is_some());
+    let (word, style) = if alarm {
+        (" ALARM ", ALARM)
+    } else {
+        ("  ---  ", DIM)
+    };
+    f.render_widget(Paragraph::new(word).style(style), lamp);
+}
+
+/// The last `n` lines of `t`, joined with " / ".
+fn tail(t: &str, n: usize) -> String {
+    let v: Vec<&str> = t.lines().filter(|l| !l.trim().is_empty()).collect();
+    v[v.len().saturating_sub(n)..].join(" / ")
+}
+
+fn first_line(t: &str) -> String {
+    let mut lines = t.lines();
+    let first = lines.next().unwrap_or("").to_string();
+    match lines.count() {
+        0 => first,
+        n => format!("{first} (+{n} lines: F3)"),
+    }
+}
+
+fn station_box(title: String, look: Look) -> Block<'static> {
+    Block::new()
+        .borders(Borders::ALL)
+        .title(Span::styled(
+            format!(" {title} {} ", look.word()),
+            look.style(),
+        ))
+        .border_style(look.style())
+        .style(NORMAL)
+}
+
+fn lamp(on: bool) -> &'static str {
+    if on {
+        "[■]"
+    } else {
+        "[ ]"
+    }
+}
+
+fn overview(f: &mut Frame, app: &App, area: Rect) {
+    let [upper, conveyor, row, hint] = Layout::vertical([
+        Constraint::Length(7),
+        Constraint::Length(7),
+        Constraint::Length(3),
+        Constraint::Min(0),
+    ])
+    .areas(area);
+    let stations = app.stations();
+    let of_kind = |k: StationKind| {
+        stations
+            .iter()
+            .filter(move |n| app.topology.station(n).is_some_and(|s| s.kind == k))
+            .cloned()
+            .collect::<Vec<_>>()
+    };
+    let transport = of_kind(StationKind::Transport).into_iter().next();
+    let inputs = transport
+        .as_ref()
+        .and_then(|t| app.status.as_ref()?.stations.iter().find(|v| &v.name == t))
+        .and_then(|v| v.status.as_ref())
+        .and_then(|s| Inputs::from_bits(&s.inputs).ok());
+
+    // Robot(s) and the manipulator table, side by side.
+    let robots = of_kind(StationKind::Welding);
+    let n = robots.len() + 1;
+    let cols = Layout::horizontal(vec![Constraint::Ratio(1, n as u32); n]).split(upper);
+    for (i, r) in robots.iter().enumerate() {
+        let look = look(app, r);
+        let mut lines = vec![Line::from(format!("robot controller of {r}"))];
+        lines.push(Line::from(match app.running_program(r) {
+            Some((p, s)) => format!("recipe {p}, state {s}"),
+            None => "no recipe running".into(),
+        }));
+        if let Some(d) = app
+            .status
+            .as_ref()
+            .and_then(|s| s.stations.iter().find(|v| &v.name == r))
+            .and_then(|v| v.status.as_ref())
+            .and_then(|s| s.additional)
+        {
+            lines.push(Line::from(format!("robot {:?}", d.state)));
+        }
+        f.render_widget(
+            Paragraph::new(lines).block(station_box(format!("{r} (robot)"), look)),
+            cols[i],
+        );
+    }
+    let table = inputs.map(|i| i.signal(Signal::Station(3)));
+    let table_look = match (table, transport.as_ref().map(|t| look(app, t))) {
+        (_, Some(Look::Off)) | (None, _) => Look::Off,
+        (_, Some(Look::Alarm)) => Look::Alarm,
+        (Some(true), _) => Look::Busy,
+        _ => Look::Idle,
+    };
+    f.render_widget(
+        Paragraph::new(vec![
+            Line::from(format!("station 3 {}", lamp(table.unwrap_or(false)))),
+            Line::from(if table == Some(true) {
+                "a carrier is on the table"
+            } else {
+                "empty"
+            }),
+        ])
+        .block(station_box("manipulator table".into(), table_look)),
+        cols[n - 1],
+    );
+
+    // The conveyor.
+    let t_look = transport.as_ref().map_or(Look::Off, |t| look(app, t));
+    let mut lines = Vec::new();
+    match inputs {
+        Some(i) => {
+            let places: Vec<String> = PLACES
+                .map(|p| format!("W{p} {}", lamp(i.signal(Signal::Place(p)))))
+                .collect();
+            lines.push(Line::from(format!("places    {}", places.join("  "))));
+            let st: Vec<String> = STATIONS
+                .map(|s| format!("S{s} {}", lamp(i.signal(Signal::Station(s)))))
+                .collect();
+            lines.push(Line::from(format!("stations  {}", st.join("  "))));
+            let running: Vec<String> = LINES
+                .iter()
+                .filter(|l| i.signal(Signal::Line(**l)))
+                .map(|l| l.to_string())
+                .collect();
+            lines.push(Line::from(format!(
+                "lines running: {}",
+                if running.is_empty() {
+                    "none".to_string()
+                } else {
+                    running.join(", ")
+                }
+            )));
+            let mut plc = vec![Span::raw(if i.get(Input::Ready) {
+                "PLC ready"
+            } else {
+                "PLC NOT ready"
+            })];
+            if i.get(Input::EStop) {
+                plc.push(Span::styled("  EMERGENCY STOP", ALARM));
+            }
+            lines.push(Line::from(plc));
+        }
+        None => lines.push(Line::from("no reading of the conveyor PLC")),
+    }
+    if let Some((p, s)) = transport.as_ref().and_then(|t| app.running_program(t)) {
+        lines.push(Line::from(format!("recipe {p}, state {s}")));
+    }
+    let name = transport.map_or("conveyor".to_string(), |t| format!("{t} (conveyor)"));
+    f.render_widget(
+        Paragraph::new(lines).block(station_box(name, t_look)),
+        conveyor,
+    );
+
+    // Every station in a row.
+    let mut spans = vec![Span::raw(" ")];
+    for s in &stations {
+        let l = look(app, s);
+        spans.push(Span::styled(format!(" {s} {} ", l.word()), l.style()));
+        spans.push(Span::raw("  "));
+    }
+    f.render_widget(
+        Paragraph::new(Line::from(spans))
+            .block(Block::new().borders(Borders::ALL).title(" stations ")),
+        row,
+    );
+    let mut notes = Vec::new();
+    if let Some(s) = &app.status {
+        if let Some(q) = &s.question {
+            notes.push(Line::styled(
+                format!("QUESTION waiting (F2): {}", tail(q, 2)),
+                BUSY,
+            ));
+        }
+        if let Some(a) = &s.alarm {
+            notes.push(Line::styled(
+                format!("ALARM: {a}  (F3, a: acknowledge)"),
+                ALARM,
+            ));
+        }
+        if !s.cell_associated {
+            notes.push(Line::styled(
+                format!(
+                    "cell not associated: {}",
+                    s.problem.as_deref().unwrap_or("not yet tried")
+                ),
+                ALARM,
+            ));
+        }
+        notes.push(Line::from(format!(
+            "order list {:?}, {} queued{}",
+            s.list,
+            s.queued,
+            if s.shutdown_pending {
+                ", shutting down when done"
+            } else {
+                ""
+            }
+        )));
+    }
+    f.render_widget(Paragraph::new(notes).wrap(Wrap { trim: false }), hint);
+}
+
+fn messages(f: &mut Frame, app: &App, area: Rect) {
+    let question = app.question_here();
+    let [tabs, body, ask] = Layout::vertical([
+        Constraint::Length(1),
+        Constraint::Min(3),
+        Constraint::Length(if question { 4 } else { 0 }),
+    ])
+    .areas(area);
+    let mut spans = vec![Span::raw(" ← ")];
+    for (i, p) in app.panes.iter().enumerate() {
+        let name = p.station.as_ref().map_or("?".into(), |s| s.to_string());
+        let text = if p.unread > 0 {
+            format!(" {name} ({} new) ", p.unread)
+        } else {
+            format!(" {name} ")
+        };
+        let style = if i == app.pane {
+            ACTIVE
+        } else if p.unread > 0 {
+            ALARM
+        } else {
+            NORMAL
+        };
+        spans.push(Span::styled(text, style));
+        spans.push(Span::raw(" "));
+    }
+    spans.push(Span::raw("→"));
+    f.render_widget(Paragraph::new(Line::from(spans)), tabs);
+    let pane = app.panes.get(app.pane);
+    let height = body.height.saturating_sub(2) as usize;
+    let lines: Vec<Line> = pane
+        .map(|p| {
+            let skip = p.entries.len().saturating_sub(height);
+            p.entries[skip..]
+                .iter()
+                .map(|e| {
+                    let style = match e.kind {
+                        falc_common::api::EntryKind::Alarm => ALARM,
+                        falc_common::api::EntryKind::Question => BUSY,
+                        _ => NORMAL,
+                    };
+                    Line::styled(
+                        format!(
+                            "{} {:<8} {}: {}",
+                            clock(e.at_ms),
+                            e.kind.as_str(),
+                            e.who,
+                            e.text
+                        ),
+                        style,
+                    )
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let title = pane
+        .and_then(|p| p.station.as_ref())
+        .map_or(" messages ".into(), |s| format!(" messages of {s} "));
+    f.render_widget(
+        Paragraph::new(lines).block(Block::new().borders(Borders::ALL).title(title)),
+        body,
+    );
+    if question {
+        let q = app
+            .status
+            .as_ref()
+            .and_then(|s| s.question.clone())
+            .unwrap_or_default();
+        f.render_widget(
+            Paragraph::new(vec![
+                Line::styled(format!("QUESTION: {}", tail(&q, 2)), BUSY),
+                Line::from(format!("answer: {}_   (Enter sends)", app.answer)),
+            ])
+            .block(Block::new().borders(Borders::ALL).border_style(BUSY)),
+            ask,
+        );
+    }
+}
+
+/// Time of day (UTC) of a journal time stamp.
+fn clock(ms: i64) -> String {
+    let s = ms.div_euclid(1000).rem_euclid(86_400);
+    format!("{:02}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
+}
+
+fn commands(f: &mut Frame, app: &App, area: Rect) {
+    let [menu, side] =
+        Layout::horizontal([Constraint::Length(60), Constraint::Min(20)]).areas(area);
+    let lines: Vec<Line> = Command::ALL
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let (key, label) = c.label();
+            let allowed = app.role >= c.role();
+            let text = if allowed {
+                format!(" {key}  {label}")
+            } else {
+                format!(" {key}  {label} (needs {:?})", c.role())
+            };
+            let style = if i == app.cursor && app.pick.is_none() {
+                ACTIVE
+            } else if allowed {
+                NORMAL
+            } else {
+                DIM
+            };
+            Line::styled(text, style)
+        })
+        .collect();
+    f.render_widget(
+        Paragraph::new(lines).block(
+            Block::new()
+                .borders(Borders::ALL)
+                .title(" commands (↑↓ Enter, or the key) "),
+        ),
+        menu,
+    );
+    let (title, items): (String, Vec<String>) = match &app.pick {
+        Some(Pick::OrderRecipe(v)) => ("pick a cell recipe (Esc: back)".into(), v.clone()),
+        Some(Pick::Order(v)) => (
+            "pick the order to remove".into(),
+            v.iter().map(|o| format!("{} {}", o.id, o.recipe)).collect(),
+        ),
+        Some(Pick::Station(v, _)) => (
+            "pick a station".into(),
+            v.iter().map(|s| s.to_string()).collect(),
+        ),
+        Some(Pick::Recipe(v, Command::Edit)) => (
+            "pick a recipe, or make a new one".into(),
+            v.iter()
+                .enumerate()
+                .map(|(i, r)| {
+                    if i == 0 {
+                        "(new recipe)".into()
+                    } else {
+                        r.to_string()
+                    }
+                })
+                .collect(),
+        ),
+        Some(Pick::Recipe(v, _)) => (
+            "pick a recipe".into(),
+            v.iter().map(|r| r.to_string()).collect(),
+        ),
+        Some(Pick::NewName(s, name)) => (
+            format!("name of the new recipe of {s} (Enter)"),
+            vec![format!("{name}_")],
+        ),
+        Some(Pick::ConfirmShutdown) => ("shut the cell down? y / n".into(), Vec::new()),
+        Some(Pick::EditAgain) => (
+            "recipe NOT saved".into(),
+            app.said
+                .as_ref()
+                .map(|(_, t)| t.lines().map(str::to_string).collect())
+                .unwrap_or_default(),
+        ),
+        None => {
+            let mut v: Vec<String> = app
+                .orders
+                .iter()
+                .rev()
+                .take(area.height.saturating_sub(2) as usize)
+                .map(|o| {
+                    format!(
+                        "{:>4} {:<10} {:<11}{}",
+                        o.id,
+                        o.recipe,
+                        o.state.as_str(),
+                        o.result
+                            .as_deref()
+                            .map(|r| format!(" {r}"))
+                            .unwrap_or_default()
+                    )
+                })
+                .collect();
+            v.reverse();
+            if let Some((ok, text)) = &app.said {
+                v.push(String::new());
+                v.push(if *ok {
+                    "last command:".into()
+                } else {
+                    "refused:".into()
+                });
+                v.extend(text.lines().map(|l| format!("  {l}")));
+            }
+            ("orders".into(), v)
+        }
+    };
+    let picking = app.pick.is_some() && app.pick != Some(Pick::EditAgain);
+    let lines: Vec<Line> = items
+        .into_iter()
+        .enumerate()
+        .map(|(i, t)| {
+            if picking && i == app.pick_cursor {
+                Line::styled(format!(" {t}"), ACTIVE)
+            } else {
+                Line::styled(format!(" {t}"), NORMAL)
+            }
+        })
+        .collect();
+    f.render_widget(
+        Paragraph::new(lines).wrap(Wrap { trim: false }).block(
+            Block::new()
+                .borders(Borders::ALL)
+                .title(format!(" {title} ")),
+        ),
+        side,
+    );
+}
+
+fn recipe(f: &mut Frame, app: &App, area: Rect) {
+    let station = app
+        .panes
+        .get(app.view_station)
+        .and_then(|p| p.station.clone());
+    let running = station.as_ref().and_then(|s| app.running_program(s));
+    let title = match (&station, &running) {
+        (Some(s), Some((p, st))) => format!(" ← {s} → runs {p}, state {st} "),
+        (Some(s), None) => format!(" ← {s} → runs nothing "),
+        _ => " recipe ".into(),
+    };
+    let mut lines = Vec::new();
+    let mut first_current = None;
+    match &app.viewed {
+        None => lines.push(Line::from(
+            "no recipe to show: a station's running recipe appears here; F3 v views any",
+        )),
+        Some(r) => {
+            let current = running
+                .as_ref()
+                .filter(|(p, _)| {
+                    parse(&r.text, "")
+                        .name
+                        .map(|(n, _)| n.as_str().eq_ignore_ascii_case(p))
+                        .unwrap_or_else(|| {
+                            r.file
+                                .file()
+                                .trim_end_matches(".rcp")
+                                .eq_ignore_ascii_case(p)
+                        })
+                })
+                .map(|(_, s)| *s);
+            let parsed = parse(&r.text, &r.file.to_string());
+            lines.push(Line::styled(
+                format!(
+                    "{}{}",
+                    r.file,
+                    current
+                        .map(|s| format!("  (current state {s} highlighted)"))
+                        .unwrap_or_default()
+                ),
+                BUSY,
+            ));
+            for (no, text) in r.text.lines().enumerate() {
+                let row = parsed.rows.iter().find(|row| row.line == no + 1);
+                let style = match (row, current) {
+                    (Some(row), Some(c)) if row.state.0 == c => ACTIVE,
+                    (Some(_), _) => NORMAL,
+                    (None, _) => DIM,
+                };
+                if style == ACTIVE && first_current.is_none() {
+                    first_current = Some(lines.len());
+                }
+                let marker = if style == ACTIVE { "▶ " } else { "  " };
+                lines.push(Line::styled(format!("{marker}{text}"), style));
+            }
+        }
+    }
+    // Keep the current state in view, a few lines below the top.
+    let height = usize::from(area.height.saturating_sub(2));
+    let scroll = first_current
+        .filter(|&i| i + 3 > height)
+        .map_or(0, |i| i.saturating_sub(3));
+    f.render_widget(
+        Paragraph::new(lines)
+            .scroll((u16::try_from(scroll).unwrap_or(u16::MAX), 0))
+            .block(Block::new().borders(Borders::ALL).title(title)),
+        area,
+    );
+}

@@ -1,0 +1,153 @@
+//! `falc tui` driven in tmux (send-keys / capture-pane) against the
+//! all-in-one cell: queue dikdroog from the command layer, start it, answer
+//! `ja` in the message layer, watch the overview go busy and back to idle,
+//! and the order end done. tmux is required (`.ci/run` installs it).
+
+mod support;
+
+use std::process::Command;
+use std::time::{Duration, Instant};
+use support::LaunchedCell;
+
+/// A tmux server of its own (its own socket), killed on drop.
+struct Tmux {
+    socket: String,
+}
+
+impl Tmux {
+    fn start(command: &str) -> Self {
+        let socket = format!("falc-test-{}", std::process::id());
+        let status = Command::new("tmux")
+            .args([
+                "-L",
+                &socket,
+                "new-session",
+                "-d",
+                "-s",
+                "tui",
+                "-x",
+                "110",
+                "-y",
+                "34",
+            ])
+            .arg(command)
+            .status()
+            .unwrap_or_else(|e| panic!("tmux is needed for this test (apt-get install tmux): {e}"));
+        assert!(status.success(), "tmux new-session failed");
+        Self { socket }
+    }
+
+    fn keys(&self, keys: &[&str]) {
+        for k in keys {
+            let ok = Command::new("tmux")
+                .args(["-L", &self.socket, "send-keys", "-t", "tui", k])
+                .status()
+                .expect("tmux send-keys");
+            assert!(ok.success());
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    fn screen(&self) -> String {
+        let out = Command::new("tmux")
+            .args(["-L", &self.socket, "capture-pane", "-p", "-t", "tui"])
+            .output()
+            .expect("tmux capture-pane");
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    }
+
+    /// Waits until the screen shows every one of `needles`; the screen.
+    fn wait_for(&self, needles: &[&str], within: Duration) -> String {
+        let end = Instant::now() + within;
+        loop {
+            let s = self.screen();
+            if needles.iter().all(|n| s.contains(n)) {
+                return s;
+            }
+            assert!(
+                Instant::now() < end,
+                "the screen never showed {needles:?}; it shows:\n{s}"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+}
+
+impl Drop for Tmux {
+    fn drop(&mut self) {
+        let _ = Command::new("tmux")
+            .args(["-L", &self.socket, "kill-server"])
+            .status();
+    }
+}
+
+#[test]
+fn an_operator_runs_dikdroog_from_the_tui() {
+    let cell = LaunchedCell::start("50");
+    let args = cell.falc_args("console").join(" ");
+    let tmux = Tmux::start(&format!("{} {args} tui", env!("CARGO_BIN_EXE_falc")));
+    let s = tmux.wait_for(
+        &["F1 overview", "cell IDLE", "PLC ready"],
+        Duration::from_secs(20),
+    );
+    assert!(s.contains("no recipe chosen"), "{s}");
+
+    // F3: order → pick dikdroog → start.
+    tmux.keys(&["F3", "o"]);
+    tmux.wait_for(
+        &["pick a cell recipe", "dikdroog", "pipdroog"],
+        Duration::from_secs(10),
+    );
+    tmux.keys(&["Enter"]);
+    tmux.wait_for(&["added order 1 (dikdroog)"], Duration::from_secs(10));
+    tmux.keys(&["s"]);
+    tmux.wait_for(&["order 1 (dikdroog) started"], Duration::from_secs(10));
+
+    // F1: the cell is busy and asks; the F2 label lights.
+    tmux.keys(&["F1"]);
+    let s = tmux.wait_for(
+        &["cell BUSY", "QUESTION waiting", "F2 messages *"],
+        Duration::from_secs(20),
+    );
+    assert!(s.contains("order 1 dikdroog · DIKDROOG state"), "{s}");
+
+    // F2: the question in the cell's pane, answered in place.
+    tmux.keys(&["F2"]);
+    tmux.wait_for(
+        &["messages of cell", "dikke plaat droog", "answer: _"],
+        Duration::from_secs(10),
+    );
+    tmux.keys(&["j", "a", "Enter"]);
+    tmux.wait_for(&["answered ja"], Duration::from_secs(10));
+
+    // F1: the robot and the table busy, then everything idle and done.
+    tmux.keys(&["F1"]);
+    let s = tmux.wait_for(
+        &["welding BUSY", "recipe DROOG_DIK, state"],
+        Duration::from_secs(60),
+    );
+    assert!(
+        s.contains("station 3 [■]"),
+        "a carrier on the table while welding:\n{s}"
+    );
+    let s = tmux.wait_for(
+        &[
+            "last: order 1 dikdroog done",
+            "cell IDLE",
+            "welding IDLE",
+            "transport IDLE",
+        ],
+        Duration::from_secs(60),
+    );
+    assert!(!s.contains("ALARM"), "{s}");
+
+    // The journal has the answer by the TUI's user.
+    let (code, journal) = cell.falc_as("console", &["journal", "--order", "1"]);
+    assert_eq!(code, 0, "{journal}");
+    assert!(journal.contains("answer   #1 console: ja"), "{journal}");
+    assert!(
+        journal.contains("console: added order 1 (dikdroog)"),
+        "{journal}"
+    );
+    tmux.keys(&["q"]);
+}
