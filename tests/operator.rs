@@ -6,7 +6,7 @@
 mod support;
 
 use falc_common::api::{ApiReply, CellStatus, Entry, EntryKind, ListState, Order, OrderState};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 use support::{twin, Proc, TestCell};
 
@@ -24,17 +24,6 @@ struct Rig {
     db: PathBuf,
 }
 
-fn copy_recipes(to: &Path) {
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes");
-    for sub in ["cell", "welding", "transport"] {
-        std::fs::create_dir_all(to.join(sub)).expect("mkdir");
-        for f in std::fs::read_dir(src.join(sub)).expect("recipe dir") {
-            let f = f.expect("entry").path();
-            std::fs::copy(&f, to.join(sub).join(f.file_name().expect("name"))).expect("copy");
-        }
-    }
-}
-
 fn rig(rcm_scale: &str) -> Rig {
     let cell = TestCell::start();
     let (rcm, rcm_path) = twin(
@@ -47,8 +36,7 @@ fn rig(rcm_scale: &str) -> Rig {
         &["--listen", "127.0.0.1:0", "--time-scale", "20"],
         "listening on ",
     );
-    let recipes = cell.dir.path().join("recipes");
-    copy_recipes(&recipes);
+    let recipes = support::copy_recipes(cell.dir.path());
     let db = cell.dir.path().join("var/falc.db");
     let mut rig = Rig {
         rcm,

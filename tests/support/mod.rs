@@ -225,6 +225,21 @@ pub fn launcher(dir: &std::path::Path, time_scale: &str) -> (Command, String) {
     (cmd, endpoint)
 }
 
+/// Runs `falc` with `cell` (how to reach the cell, as whom) and `args`:
+/// exit code, stdout (and stderr when it failed).
+pub fn run_falc(cell: &[String], args: &[&str]) -> (i32, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_falc"))
+        .args(cell)
+        .args(args)
+        .output()
+        .expect("run falc");
+    let mut text = String::from_utf8_lossy(&out.stdout).into_owned();
+    if !out.status.success() {
+        text.push_str(&String::from_utf8_lossy(&out.stderr));
+    }
+    (out.status.code().unwrap_or(-1), text)
+}
+
 /// A whole cell started by `falc-launch` in a temporary directory. Dropped
 /// (also when a test fails): SIGTERM to the launcher, which stops every node
 /// top-down; whatever is left after 10 s is killed.
@@ -248,16 +263,7 @@ impl LaunchedCell {
     /// `falc` as console user `user` with `args`: exit code, stdout (and
     /// stderr when it failed).
     pub fn falc_as(&self, user: &str, args: &[&str]) -> (i32, String) {
-        let out = Command::new(env!("CARGO_BIN_EXE_falc"))
-            .args(self.falc_args(user))
-            .args(args)
-            .output()
-            .expect("run falc");
-        let mut text = String::from_utf8_lossy(&out.stdout).into_owned();
-        if !out.status.success() {
-            text.push_str(&String::from_utf8_lossy(&out.stderr));
-        }
-        (out.status.code().unwrap_or(-1), text)
+        run_falc(&self.falc_args(user), args)
     }
 
     /// The arguments that make `falc` talk to this cell as `user`.
@@ -383,20 +389,15 @@ impl TestCell {
     /// Runs the console `falc` as console user `user` with `args`; its exit
     /// code and stdout (stderr is appended to the text on failure).
     pub fn falc_as(&self, user: &str, args: &[&str]) -> (i32, String) {
-        let out = Command::new(env!("CARGO_BIN_EXE_falc"))
-            .arg("--topology")
-            .arg(&self.topology_path)
-            .arg("--credentials-dir")
-            .arg(self.credentials_dir())
-            .args(["--user", user])
-            .args(args)
-            .output()
-            .expect("run falc");
-        let mut text = String::from_utf8_lossy(&out.stdout).into_owned();
-        if !out.status.success() {
-            text.push_str(&String::from_utf8_lossy(&out.stderr));
-        }
-        (out.status.code().unwrap_or(-1), text)
+        let cell = vec![
+            "--topology".to_string(),
+            self.topology_path.display().to_string(),
+            "--credentials-dir".into(),
+            self.credentials_dir().display().to_string(),
+            "--user".into(),
+            user.into(),
+        ];
+        run_falc(&cell, args)
     }
 
     /// `falc` as the operator console user; must succeed; its stdout.
