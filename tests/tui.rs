@@ -120,6 +120,18 @@ fn an_operator_runs_dikdroog_from_the_tui() {
     tmux.keys(&["j", "a", "Enter"]);
     tmux.wait_for(&["answered ja"], Duration::from_secs(10));
 
+    // F4: the cell's recipe, the state it is in marked.
+    tmux.keys(&["F4"]);
+    let s = tmux.wait_for(
+        &[
+            "← cell → runs DIKDROOG, state",
+            "cell/dikdroog.rcp  (current state",
+            "▶ -",
+        ],
+        Duration::from_secs(20),
+    );
+    assert!(s.contains("highlighted"), "{s}");
+
     // F1: the robot and the table busy, then everything idle and done.
     tmux.keys(&["F1"]);
     let s = tmux.wait_for(

@@ -104,6 +104,20 @@ pub enum StoreCommand {
         #[arg(long)]
         new: bool,
     },
+    /// Draw a store recipe's state diagram with Graphviz `dot`, the state
+    /// it is in highlighted if its station runs it now.
+    View {
+        /// The station's directory.
+        station: StationName,
+        /// The file name in the store.
+        file: String,
+        /// `svg` or `png`.
+        #[arg(long, default_value = "svg", value_parser = ["svg", "png"])]
+        format: String,
+        /// Where to write it (default `<file>.<format>` here).
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+    },
     /// Edit a store recipe in `$VISUAL`/`$EDITOR` (engineer); a new file if
     /// it does not exist. Saved only when it checks clean; on findings you
     /// may edit again.
@@ -252,6 +266,58 @@ async fn connect(args: &ConsoleArgs) -> Result<(Bus, StationName), String> {
     Ok((bus, topology.root().name.clone()))
 }
 
+/// `falc store view`: the store's text drawn, the running state lit.
+async fn view(
+    bus: &Bus,
+    operator: &StationName,
+    file: &RecipeFile,
+    format: &str,
+    out: Option<std::path::PathBuf>,
+) -> ExitCode {
+    let text = match edit::fetch(bus, operator, file).await {
+        Ok(Some(r)) => r.text,
+        Ok(None) => return refuse(&format!("there is no recipe {file} in the store")),
+        Err(e) => return refuse(&e),
+    };
+    let path = std::path::Path::new(file.station().as_str()).join(file.file());
+    let entry = match falc_common::recipe::files::entry(&path, None, text) {
+        Ok(e) => e,
+        Err(e) => return refuse(&e),
+    };
+    // The state its station is in, if it runs this recipe now.
+    let current = match (
+        bus.api(operator, ApiRequest::Status, CALL_LIMIT).await,
+        entry.name(),
+    ) {
+        (Ok(ApiReply::Status(s)), Ok(name)) => s
+            .stations
+            .iter()
+            .find(|v| &v.name == file.station())
+            .and_then(|v| v.status.as_ref()?.program.clone())
+            .filter(|p| p.name.as_str().eq_ignore_ascii_case(name.as_str()))
+            .map(|p| p.state),
+        _ => None,
+    };
+    let dot = match crate::recipe_cmd::dot_of_entry(&entry, current) {
+        Ok(d) => d,
+        Err(problems) => return refuse(&problems.join("\n")),
+    };
+    let out = out.unwrap_or_else(|| std::path::PathBuf::from(file.file()).with_extension(format));
+    match crate::recipe_cmd::graphviz(&dot, format, &out) {
+        Ok(()) => {
+            match current {
+                Some(s) => println!(
+                    "{} (state {s}, where it runs now, highlighted)",
+                    out.display()
+                ),
+                None => println!("{} (not running now)", out.display()),
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => refuse(&e),
+    }
+}
+
 /// Says why and exits 1.
 fn refuse(why: &str) -> ExitCode {
     eprintln!("falc: {why}");
@@ -344,6 +410,18 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
                 }
             };
             ApiRequest::RecipePut { file, text, base }
+        }
+        CellCommand::Store(StoreCommand::View {
+            station,
+            file,
+            format,
+            out,
+        }) => {
+            let file = match RecipeFile::new(station, &file) {
+                Ok(f) => f,
+                Err(e) => return refuse(&e),
+            };
+            return view(&bus, &operator, &file, &format, out).await;
         }
         CellCommand::Store(StoreCommand::Edit { station, file }) => {
             let file = match RecipeFile::new(station, &file) {

@@ -67,15 +67,19 @@ fn dot_of(
     let Some(entry) = entries.first() else {
         return Err(vec![format!("{}: no recipe", file.display())]);
     };
+    dot_of_entry(entry, current)
+}
+
+/// The DOT text of a read recipe, `current` highlighted; or its problems.
+pub fn dot_of_entry(
+    entry: &falc_common::recipe::check::Entry,
+    current: Option<u16>,
+) -> Result<String, Vec<String>> {
     let program = check(&entry.recipe, entry.kind)
         .map_err(|p| p.iter().map(ToString::to_string).collect::<Vec<_>>())?;
-    let title = program.name.as_ref().map_or_else(
-        || {
-            file.file_stem()
-                .map_or("recipe".into(), |s| s.to_string_lossy().into_owned())
-        },
-        |n| n.to_string(),
-    );
+    let title = entry
+        .name()
+        .map_or_else(|_| "recipe".into(), |n| n.to_string());
     Ok(to_dot(
         &program,
         &title,
@@ -84,7 +88,7 @@ fn dot_of(
 }
 
 /// Runs Graphviz `dot -T<format> -o <out>` on `dot`.
-fn graphviz(dot: &str, format: &str, out: &std::path::Path) -> Result<(), String> {
+pub fn graphviz(dot: &str, format: &str, out: &std::path::Path) -> Result<(), String> {
     use std::io::Write;
     let mut child = std::process::Command::new("dot")
         .arg(format!("-T{format}"))

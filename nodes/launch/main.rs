@@ -310,6 +310,8 @@ fn help(bin_dir: &Path) -> String {
     format!(
         "\
 operate it from another terminal (in this directory):
+  {falc} tui                the operator's screens (F1 overview, F2 messages,
+                            F3 commands, F4 recipe; q quits)
   {falc} status             the cell at a glance (--watch to follow)
   {falc} order add dikdroog  (also dundroog, pipdroog)
   {falc} start              work through the order list
@@ -318,6 +320,7 @@ operate it from another terminal (in this directory):
   {falc} ack                acknowledge an alarm
   {falc} journal
   {falc} shutdown           stop when the order list is done
+  {falc} --user engineer store edit transport store   edit a recipe
 type here to disturb the twins: `rcm estop`, `rcm estop-clear`, `plc jam K`,
 `plc unjam K`, `plc show`, `plc layout W2 W2` …; Ctrl-C stops the cell."
     )
