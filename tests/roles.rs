@@ -100,6 +100,20 @@ fn roles_are_enforced_by_the_router_and_every_action_names_its_user() {
     assert!(std::fs::read_to_string(&store)
         .expect("read")
         .contains("Edited by the engineer."));
+    // A new cell recipe can be ordered at once (delivered at the start).
+    let mine = cell.dir.path().join("mine.rcp");
+    std::fs::copy(recipes.join("cell/dundroog.rcp"), &mine).expect("copy");
+    let mine = mine.display().to_string();
+    let (code, out) = cell.falc_as("console", &["order", "add", "mine"]);
+    assert_eq!(code, 1, "not a recipe yet: {out}");
+    let (code, out) = cell.falc_as(
+        "engineer",
+        &["store", "put", "--new", "cell", "mine", &mine],
+    );
+    assert_eq!(code, 0, "{out}");
+    let (code, out) = cell.falc_as("console", &["order", "add", "mine"]);
+    assert_eq!(code, 0, "{out}");
+    assert!(out.contains("mine"), "{out}");
 
     // Nobody speaks in another user's name: the observer's session asking
     // for `start` under the operator's name gets no reply.
@@ -159,6 +173,12 @@ fn roles_are_enforced_by_the_router_and_every_action_names_its_user() {
         actions
             .iter()
             .any(|l| l.contains("engineer: recipe transport/store.rcp changed")),
+        "{actions:#?}"
+    );
+    assert!(
+        actions
+            .iter()
+            .any(|l| l.contains("engineer: recipe cell/mine.rcp created")),
         "{actions:#?}"
     );
     assert!(

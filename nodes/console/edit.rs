@@ -71,13 +71,15 @@ impl Session {
             Some(r) => (r.text, Some(r.hash)),
             None => (template(file), None),
         };
+        static EDITS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        let n = EDITS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let copy = std::env::temp_dir().join(format!(
-            "falc-{}-{}-{}",
+            "falc-{}-{}-{n}-{}",
             file.station(),
             std::process::id(),
             file.file()
         ));
-        std::fs::write(&copy, &text).map_err(|e| format!("{}: {e}", copy.display()))?;
+        write_private(&copy, &text).map_err(|e| format!("{}: {e}", copy.display()))?;
         Ok(Self {
             file: file.clone(),
             base,
@@ -124,6 +126,19 @@ impl Session {
     pub fn discard(self) {
         let _ = std::fs::remove_file(&self.copy);
     }
+}
+
+/// Creates `path` new (never through an existing file or link), readable
+/// by its owner only, holding `text`.
+fn write_private(path: &Path, text: &str) -> std::io::Result<()> {
+    use std::io::Write;
+    use std::os::unix::fs::OpenOptionsExt;
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .mode(0o600)
+        .open(path)?;
+    f.write_all(text.as_bytes())
 }
 
 /// The user's editor: `$VISUAL`, else `$EDITOR`, else `vi`; run through

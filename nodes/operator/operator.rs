@@ -496,14 +496,26 @@ impl Operator {
             )),
             ApiRequest::OrderAdd { recipe } => {
                 let name = ObjectName::new(&recipe).map_err(|e| e.to_string())?;
-                let known = self.recipes.cell_recipes();
-                if !known.contains(&&name) {
-                    let list: Vec<String> =
-                        known.iter().map(|n| n.as_str().to_lowercase()).collect();
-                    return Err(format!(
-                        "there is no cell recipe {recipe}; the cell knows {}",
-                        list.join(", ")
-                    ));
+                if !self.recipes.cell_recipes().contains(&&name) {
+                    // A recipe saved since the last start is known once the
+                    // store checks clean with it (delivered at the start).
+                    let fresh = pps::load(&self.recipes_dir, &self.topology, &self.cell);
+                    let known: Vec<String> = match &fresh {
+                        Ok(set) => set.cell_recipes().iter().map(|n| n.to_string()).collect(),
+                        Err(_) => Vec::new(),
+                    };
+                    if !known.iter().any(|n| n == name.as_str()) {
+                        let list: Vec<String> = self
+                            .recipes
+                            .cell_recipes()
+                            .iter()
+                            .map(|n| n.as_str().to_lowercase())
+                            .collect();
+                        return Err(format!(
+                            "there is no cell recipe {recipe}; the cell knows {}",
+                            list.join(", ")
+                        ));
+                    }
                 }
                 let order = self
                     .store

@@ -146,7 +146,9 @@ impl Tui<'_> {
                 self.app.answered(answer);
             }
             Intent::Edit(file) => {
-                self.session = None;
+                if let Some(old) = self.session.take() {
+                    old.discard();
+                }
                 match Session::open(self.bus, self.operator, &file).await {
                     Ok(s) => self.edit(s, terminal).await?,
                     Err(e) => self.app.said = Some((false, e)),
