@@ -1,7 +1,9 @@
 //! `falc tui` driven in tmux (send-keys / capture-pane) against the
 //! all-in-one cell: queue dikdroog from the command layer, start it, answer
 //! `ja` in the message layer, watch the overview go busy and back to idle,
-//! and the order end done. tmux is required (`.ci/run` installs it).
+//! and the order end done; an engineer edits a recipe, the checker's
+//! findings are shown, edited again and saved. tmux is required (`.ci/run`
+//! installs it).
 
 mod support;
 
@@ -16,7 +18,9 @@ struct Tmux {
 
 impl Tmux {
     fn start(command: &str) -> Self {
-        let socket = format!("falc-test-{}", std::process::id());
+        static N: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let socket = format!("falc-test-{}-{n}", std::process::id());
         let status = Command::new("tmux")
             .args([
                 "-L",
@@ -159,6 +163,64 @@ fn an_operator_runs_dikdroog_from_the_tui() {
     assert!(journal.contains("answer   #1 console: ja"), "{journal}");
     assert!(
         journal.contains("console: added order 1 (dikdroog)"),
+        "{journal}"
+    );
+    tmux.keys(&["q"]);
+}
+
+#[test]
+fn an_engineer_edits_a_recipe_in_the_tui_checked_on_save() {
+    let cell = LaunchedCell::start("50");
+    // The "editor": first a typo, then (edit again) the typo mended and a
+    // comment added.
+    let dir = cell.dir.path();
+    let editor = dir.join("editor.sh");
+    std::fs::write(
+        &editor,
+        format!(
+            "#!/bin/sh\nif [ -f {once} ]; then\n  sed -i s/waitplase/waitplace/ \"$1\"\n  echo 'Edited in the TUI.' >> \"$1\"\nelse\n  touch {once}\n  sed -i s/waitplace/waitplase/ \"$1\"\nfi\n",
+            once = dir.join("once").display()
+        ),
+    )
+    .expect("editor script");
+    let args = cell.falc_args("engineer").join(" ");
+    let tmux = Tmux::start(&format!(
+        "EDITOR='sh {}' {} {args} tui",
+        editor.display(),
+        env!("CARGO_BIN_EXE_falc")
+    ));
+    tmux.wait_for(
+        &["F1 overview", "engineer (Engineer)"],
+        Duration::from_secs(20),
+    );
+    // F3 → e → station transport → store.rcp.
+    tmux.keys(&["F3", "e"]);
+    tmux.wait_for(&["pick a station", "transport"], Duration::from_secs(10));
+    tmux.keys(&["Down", "Down", "Enter"]);
+    tmux.wait_for(
+        &["(new recipe)", "transport/store.rcp"],
+        Duration::from_secs(10),
+    );
+    tmux.keys(&["Down", "Down", "Enter"]);
+    let s = tmux.wait_for(&["recipe NOT saved", "waitplase"], Duration::from_secs(10));
+    assert!(
+        s.contains("store.rcp:"),
+        "the finding names file and line:\n{s}"
+    );
+    let store = dir.join("recipes/transport/store.rcp");
+    assert!(!std::fs::read_to_string(&store)
+        .expect("read")
+        .contains("waitplase"));
+    // Edit again: mended, saved.
+    tmux.keys(&["e"]);
+    tmux.wait_for(&["saved: it checks clean"], Duration::from_secs(10));
+    assert!(std::fs::read_to_string(&store)
+        .expect("read")
+        .contains("Edited in the TUI."));
+    let (code, journal) = cell.falc_as("observer", &["journal"]);
+    assert_eq!(code, 0, "{journal}");
+    assert!(
+        journal.contains("engineer: recipe transport/store.rcp changed"),
         "{journal}"
     );
     tmux.keys(&["q"]);
