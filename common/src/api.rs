@@ -428,6 +428,9 @@ pub struct CellStatus {
     pub shutdown_pending: bool,
     /// Every station below the operator.
     pub stations: Vec<StationView>,
+    /// The newest journal entry's id: every order change and message
+    /// moves it, so a console polls the rest only when it moved.
+    pub journal_head: i64,
 }
 
 /// A positive answer.

@@ -452,6 +452,7 @@ impl Operator {
             alarm: self.alarm.clone(),
             running: self.running.clone(),
             queued: self.store.queued()?,
+            journal_head: self.store.journal_head()?,
             question: self.question.as_ref().map(|q| q.prompt.clone()),
             shutdown_pending: self.shutdown_pending,
             stations: self

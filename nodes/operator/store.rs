@@ -226,6 +226,14 @@ impl Store {
         Ok(self.orders_in(OrderState::Queued)?.into_iter().next())
     }
 
+    /// The id of the newest journal entry (0 for an empty journal): a
+    /// console asks for entries or orders only when it moved.
+    pub fn journal_head(&self) -> Result<i64, StoreError> {
+        self.conn
+            .query_row("SELECT COALESCE(MAX(id), 0) FROM journal", [], |r| r.get(0))
+            .map_err(self.fail("cannot read the journal"))
+    }
+
     /// How many orders are queued.
     pub fn queued(&self) -> Result<usize, StoreError> {
         Ok(self.orders_in(OrderState::Queued)?.len())
@@ -380,6 +388,9 @@ mod tests {
         let m = s
             .journal(EntryKind::Message, Some(2), "cell", "einde")
             .expect("journal");
-        assert_eq!(s.entries(0, None, true, 1).expect("page"), vec![m]);
+        assert_eq!(s.entries(0, None, true, 1).expect("page"), vec![m.clone()]);
+        assert_eq!(s.journal_head().expect("head"), m.id);
+        let empty = Store::open(&dir.path().join("empty.db")).expect("open");
+        assert_eq!(empty.journal_head().expect("head"), 0);
     }
 }

@@ -680,6 +680,7 @@ mod tests {
             question: question.map(String::from),
             shutdown_pending: false,
             stations: Vec::new(),
+            journal_head: 0,
         }
     }
 

@@ -1,7 +1,8 @@
 //! `falc tui`: the operator's screens (SEED-NOTES.md §6): F1 overview, F2
 //! messages per station, F3 commands, F4 a recipe's state table. This is
 //! the driver: it owns the terminal and the bus, polls the operator API
-//! (status and new messages every 250 ms, the order list every second),
+//! (the status every 250 ms; new messages and the order list when the
+//! status says the journal moved),
 //! feeds keys and answers to the sans-I/O [`app::App`] and draws it with
 //! [`view::draw`]. Keyboard only, plain ANSI: works over SSH and in tmux.
 
@@ -43,6 +44,7 @@ pub async fn run(
         operator,
         app: App::new(topology, user),
         session: None,
+        seen_head: None,
     };
     let outcome = tui.main_loop(&mut terminal).await;
     ratatui::restore();
@@ -61,6 +63,8 @@ struct Tui<'a> {
     app: App,
     /// A recipe edit whose text the checker refused (kept to edit again).
     session: Option<Session>,
+    /// The journal head when messages and orders were last fetched.
+    seen_head: Option<i64>,
 }
 
 impl Tui<'_> {
@@ -71,7 +75,6 @@ impl Tui<'_> {
     async fn main_loop(&mut self, terminal: &mut DefaultTerminal) -> Result<(), String> {
         let mut shutdown = falc_common::node::Shutdown::new();
         let mut next_poll = Instant::now();
-        let mut polls: u64 = 0;
         let intent = self.app.request(ApiRequest::RecipeList);
         self.carry_out(intent, terminal).await?;
         loop {
@@ -97,8 +100,7 @@ impl Tui<'_> {
             }
             if Instant::now() >= next_poll {
                 next_poll = Instant::now() + POLL;
-                self.poll(polls).await;
-                polls += 1;
+                self.poll().await;
                 if let Some(r) = self.app.wanted_recipe() {
                     let intent = self.app.request(r);
                     self.carry_out(intent, terminal).await?;
@@ -111,26 +113,32 @@ impl Tui<'_> {
         }
     }
 
-    /// Status and new messages; the order list every fourth time.
-    async fn poll(&mut self, n: u64) {
+    /// The status; new messages and the order list only when the journal
+    /// moved (every order change and message is journalled).
+    async fn poll(&mut self) {
         let status = match self.call(ApiRequest::Status).await {
             Ok(ApiReply::Status(s)) => Ok(s),
             Ok(other) => Err(format!("unexpected answer to status: {other:?}")),
             Err(e) => Err(e),
         };
-        let reachable = status.is_ok();
+        let head = status.as_ref().map(|s| s.journal_head).ok();
         self.app.status(status);
-        if !reachable {
+        if head.is_none() || head == self.seen_head {
             return;
         }
-        let after = self.app.last_entry;
-        if let Ok(ApiReply::Entries(v)) = self.call(ApiRequest::Messages { after }).await {
-            self.app.entries(v);
-        }
-        if n % 4 == 0 {
-            if let Ok(ApiReply::Orders(v)) = self.call(ApiRequest::OrderList).await {
-                self.app.orders(v);
+        // Every page of new messages (the operator answers a page a time).
+        loop {
+            let after = self.app.last_entry;
+            match self.call(ApiRequest::Messages { after }).await {
+                Ok(ApiReply::Entries(v)) if v.is_empty() => break,
+                Ok(ApiReply::Entries(v)) => self.app.entries(v),
+                // Asked again at the next poll.
+                _ => return,
             }
+        }
+        if let Ok(ApiReply::Orders(o)) = self.call(ApiRequest::OrderList).await {
+            self.app.orders(o);
+            self.seen_head = head;
         }
     }
 
