@@ -16,7 +16,9 @@
 //!   union of the intervals in which a carrier moved or the robot welded),
 //!   and what is left: control plus operator answers (the bench answers
 //!   each question as soon as it sees it);
-//! - each node's idle CPU and RSS after the orders.
+//! - each node's idle CPU and RSS after the orders, then the operator's,
+//!   the router's and the TUI's with one `falc tui` open (if tmux is
+//!   installed).
 //!
 //! Run: `cargo bench --bench cell`. Prints figures; asserts nothing about
 //! time.
@@ -296,4 +298,68 @@ async fn main() {
         "  all {} nodes      CPU {cpu_total:5.2} %  RSS {rss_total:6.1} MiB (goals < 2 %, ≤ 150 MB)",
         nodes.len()
     );
+    tui_load(&l, &nodes, window);
+}
+
+/// The same window with one `falc tui` open (in tmux, if installed): what
+/// a console costs the operator and the router, and the TUI itself.
+fn tui_load(l: &Launched, nodes: &[(u32, String)], window: Duration) {
+    let socket = format!("falc-bench-{}", std::process::id());
+    let tmux = |args: &[&str]| {
+        std::process::Command::new("tmux")
+            .args(["-L", &socket])
+            .args(args)
+            .output()
+    };
+    let dir = l.dir.path();
+    let command = format!(
+        "exec {} --topology {} --credentials-dir {} tui",
+        env!("CARGO_BIN_EXE_falc"),
+        dir.join("cell.toml").display(),
+        dir.join("credentials").display()
+    );
+    match tmux(&[
+        "new-session",
+        "-d",
+        "-s",
+        "b",
+        "-x",
+        "110",
+        "-y",
+        "34",
+        &command,
+    ]) {
+        Ok(o) if o.status.success() => {}
+        _ => {
+            println!("with a falc tui open: not measured (tmux not installed)");
+            return;
+        }
+    }
+    std::thread::sleep(Duration::from_secs(2));
+    let pane: Option<u32> = tmux(&["list-panes", "-t", "b", "-F", "#{pane_pid}"])
+        .ok()
+        .and_then(|o| String::from_utf8_lossy(&o.stdout).trim().parse().ok());
+    let mut watched: Vec<(u32, String)> = nodes
+        .iter()
+        .filter(|(_, n)| n.contains("operator") || n.contains("router"))
+        .cloned()
+        .collect();
+    if let Some(p) = pane {
+        watched.push((p, "falc tui".into()));
+    }
+    let t0: Vec<u64> = watched.iter().map(|(p, _)| cpu_ticks(*p)).collect();
+    std::thread::sleep(window);
+    let hz = 100.0;
+    println!(
+        "with one falc tui open (status every 250 ms), over {} s:",
+        window.as_secs()
+    );
+    for ((pid, name), t) in watched.iter().zip(t0) {
+        let cpu = (cpu_ticks(*pid).saturating_sub(t)) as f64 / hz / window.as_secs_f64() * 100.0;
+        println!(
+            "  {name:<16} CPU {cpu:5.2} %  RSS {:6.1} MiB",
+            rss_mib(*pid)
+        );
+    }
+    let _ = tmux(&["kill-server"]);
 }
