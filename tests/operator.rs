@@ -311,9 +311,33 @@ fn sigkill_of_a_workstation_mid_order_then_start_refused_until_it_returns() {
         "{text}"
     );
     assert_eq!(rig.orders()[1].state, OrderState::Queued);
+    // The status shows the transport gone, not with its last status.
+    let connected = |rig: &Rig| -> Vec<(String, bool)> {
+        rig.status()
+            .stations
+            .iter()
+            .map(|v| (v.name.to_string(), v.connected))
+            .collect()
+    };
+    let gone = connected(&rig);
+    assert!(gone.contains(&("transport".into(), false)), "{gone:?}");
+    assert!(gone.contains(&("welding".into(), true)), "{gone:?}");
+    assert!(rig
+        .cell
+        .falc(&["status"])
+        .contains("transport  NO CONNECTION"));
     // The workstation returns (empty); the operator puts the carriers back
     // where an order starts (by hand, as in 1992); ack + start resume.
     rig.start_transport();
+    let end = Instant::now() + Duration::from_secs(5);
+    while !connected(&rig).contains(&("transport".into(), true)) {
+        assert!(
+            Instant::now() < end,
+            "the transport is back: {:?}",
+            connected(&rig)
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
     rig.plc.control("layout W2 W2");
     rig.cell.falc(&["ack"]);
     let out = rig.cell.falc(&["start"]);

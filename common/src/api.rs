@@ -405,6 +405,8 @@ pub struct StationView {
     pub name: StationName,
     /// Its last published status, if any.
     pub status: Option<VmdStatus>,
+    /// Whether it is on the bus now (its status is the last it sent).
+    pub connected: bool,
 }
 
 /// The cell at a glance (`falc status`).

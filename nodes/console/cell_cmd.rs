@@ -210,6 +210,7 @@ fn show_status(s: &CellStatus) -> String {
     }
     for st in &s.stations {
         out.push(match &st.status {
+            _ if !st.connected => format!("  {:<10} NO CONNECTION", st.name.as_str()),
             Some(v) => format!(
                 "  {:<10} {:?}, {:?}, recipe {:?}",
                 st.name.as_str(),

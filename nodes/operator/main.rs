@@ -98,9 +98,11 @@ async fn run(cli: Cli) -> Result<ExitCode> {
     let (api_tx, mut api) = tokio::sync::mpsc::unbounded_channel();
     let _api = bus.serve_api(api_tx).await?;
     let (utx, mut publications) = tokio::sync::mpsc::unbounded_channel();
+    let (ptx, mut presence) = tokio::sync::mpsc::unbounded_channel();
     let mut subscriptions = Vec::new();
     for st in topology.stations().iter().filter(|s| &s.name != me) {
         subscriptions.extend(bus.subscribe(&st.name, utx.clone()).await?);
+        subscriptions.push(bus.presence(&st.name, ptx.clone()).await?);
     }
     bus.sync_with_router().await?;
     let mut op = Operator::new(station, store, topology, cell, cli.recipes.clone(), recipes);
@@ -131,6 +133,7 @@ async fn run(cli: Cli) -> Result<ExitCode> {
                 ind.responder.respond(result).await;
             }
             Some(u) = publications.recv() => op.publication(u).await,
+            Some(p) = presence.recv() => op.presence(p),
             _ = retry.tick() => { let _ = op.connect().await; }
             _ = shutdown.requested() => break,
         }

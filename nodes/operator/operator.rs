@@ -52,6 +52,8 @@ pub struct Operator {
     question: Option<Question>,
     shutdown_pending: bool,
     statuses: BTreeMap<StationName, VmdStatus>,
+    /// The stations on the bus now.
+    present: std::collections::BTreeSet<StationName>,
     /// Lines the cell showed since the last question (shown with it).
     shown: Vec<String>,
 }
@@ -86,6 +88,7 @@ impl Operator {
             question: None,
             shutdown_pending: false,
             statuses: BTreeMap::new(),
+            present: Default::default(),
             shown: Vec::new(),
         }
     }
@@ -400,6 +403,15 @@ impl Operator {
         }
     }
 
+    /// A station came onto or left the bus.
+    pub fn presence(&mut self, p: falc_common::bus::Presence) {
+        if p.present {
+            self.present.insert(p.station);
+        } else {
+            self.present.remove(&p.station);
+        }
+    }
+
     /// A request from the cell: operator communication.
     pub async fn upward(&mut self, request: Request, responder: Responder) {
         let cell = self.cell.to_string();
@@ -463,6 +475,7 @@ impl Operator {
                 .map(|s| StationView {
                     name: s.name.clone(),
                     status: self.statuses.get(&s.name).cloned(),
+                    connected: self.present.contains(&s.name),
                 })
                 .collect(),
         })

@@ -6,7 +6,8 @@
 //! - publish its own `status` and `report` and hold its own liveliness token;
 //! - query its direct subordinates' services and read their `status` and
 //!   `report`; the operator (the root) reads every station's;
-//! - watch the liveliness tokens of its commander and its subordinates;
+//! - watch the liveliness tokens of its commander and its subordinates
+//!   (the operator: of every station);
 //! - a direct subordinate of the operator (the cell) may query the
 //!   operator's `input` and `output` (operator communication).
 //!
@@ -142,11 +143,23 @@ pub fn rules_of(topology: &Topology, station: &StationName) -> Vec<Rule> {
             ));
         }
     }
-    let watched: Vec<&StationName> = topology
-        .commander_of(me)
-        .into_iter()
-        .chain(subordinates.iter().copied())
-        .collect();
+    // The operator (the root) watches every station's presence, as it
+    // reads every station's status: the consoles show a lost station as
+    // such, not with its last status.
+    let watched: Vec<&StationName> = if topology.commander_of(me).is_none() {
+        topology
+            .stations()
+            .iter()
+            .map(|s| &s.name)
+            .filter(|s| *s != me)
+            .collect()
+    } else {
+        topology
+            .commander_of(me)
+            .into_iter()
+            .chain(subordinates.iter().copied())
+            .collect()
+    };
     if !watched.is_empty() {
         let alive: Vec<String> = watched.iter().map(|s| keys.alive_any(s)).collect();
         out.push(rule(
@@ -386,6 +399,20 @@ commander = "cell"
         };
         assert!(put("welding", "welding"));
         assert!(!put("cell", "welding"));
+        // The operator watches every station's presence; a workstation
+        // only its commander's.
+        let watch = |who: &str, st: &str| {
+            allowed(
+                &t,
+                who,
+                "ingress",
+                "declare_liveliness_subscriber",
+                &format!("falc/falc1/alive/{st}/*"),
+            )
+        };
+        assert!(watch("operator", "welding") && watch("operator", "transport"));
+        assert!(watch("welding", "cell"));
+        assert!(!watch("welding", "transport"));
         // No wildcard in any rule that lets a station send a query (the
         // operator's API queryable receives `api/<call>/*`: egress only;
         // each console sends on its own concrete key).

@@ -100,6 +100,15 @@ pub enum BusEvent {
     },
 }
 
+/// Whether a station has a session on the bus (any liveliness token).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Presence {
+    /// The station.
+    pub station: StationName,
+    /// Whether it holds at least one token now.
+    pub present: bool,
+}
+
 /// A request that arrived, with the means to answer it.
 #[derive(Debug)]
 pub struct Indication {
@@ -393,6 +402,44 @@ impl Bus {
             v.push(Declaration(Box::new(sub)));
         }
         Ok(v)
+    }
+
+    /// Watches whether `station` has any session on the bus: every change
+    /// goes to `out` (the tokens present now arrive first, as history). A
+    /// restarted station's new token may come before its old one goes: the
+    /// tokens are counted, so it stays present.
+    pub async fn presence(
+        &self,
+        station: &StationName,
+        out: UnboundedSender<Presence>,
+    ) -> Result<Declaration, BusError> {
+        let key = self.keys.alive_any(station);
+        let st = station.clone();
+        let tokens = Mutex::new(std::collections::BTreeSet::<String>::new());
+        let sub = self
+            .session
+            .liveliness()
+            .declare_subscriber(&key)
+            .history(true)
+            .callback(move |sample| {
+                let mut t = tokens.lock().unwrap_or_else(PoisonError::into_inner);
+                let k = sample.key_expr().to_string();
+                match sample.kind() {
+                    SampleKind::Put => t.insert(k),
+                    SampleKind::Delete => t.remove(&k),
+                };
+                let _ = out.send(Presence {
+                    station: st.clone(),
+                    present: !t.is_empty(),
+                });
+            })
+            .await
+            .map_err(|e| BusError::Declare {
+                what: "liveliness subscriber",
+                key: key.clone(),
+                message: e.to_string(),
+            })?;
+        Ok(Declaration(Box::new(sub)))
     }
 
     /// Watches `peer`'s liveliness token: its loss (or its absence now) is

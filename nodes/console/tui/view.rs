@@ -38,7 +38,7 @@ pub enum Look {
     Busy,
     /// In alarm, or its device is inoperable.
     Alarm,
-    /// No status seen (not associated).
+    /// Not on the bus, or no status seen yet.
     Off,
 }
 
@@ -77,7 +77,7 @@ pub fn look(app: &App, name: &falc_common::ids::StationName) -> Look {
     let Some(v) = s
         .stations
         .iter()
-        .find(|v| &v.name == name)
+        .find(|v| &v.name == name && v.connected)
         .and_then(|v| v.status.as_ref())
     else {
         return Look::Off;
