@@ -77,12 +77,18 @@ impl Tui<'_> {
         let mut next_poll = Instant::now();
         let intent = self.app.request(ApiRequest::RecipeList);
         self.carry_out(intent, terminal).await?;
+        // Drawn when something changed: a key, an answer, a poll, a resize.
+        let mut dirty = true;
         loop {
-            terminal
-                .draw(|f| view::draw(f, &self.app))
-                .map_err(|e| format!("cannot draw: {e}"))?;
+            if dirty {
+                terminal
+                    .draw(|f| view::draw(f, &self.app))
+                    .map_err(|e| format!("cannot draw: {e}"))?;
+                dirty = false;
+            }
             while event::poll(Duration::ZERO).map_err(|e| format!("terminal: {e}"))? {
                 let ev = event::read().map_err(|e| format!("terminal: {e}"))?;
+                dirty = true;
                 let Event::Key(k) = ev else { continue };
                 if k.kind != KeyEventKind::Press {
                     continue;
@@ -99,6 +105,7 @@ impl Tui<'_> {
                 }
             }
             if Instant::now() >= next_poll {
+                dirty = true;
                 next_poll = Instant::now() + POLL;
                 self.poll().await;
                 if let Some(r) = self.app.wanted_recipe() {
