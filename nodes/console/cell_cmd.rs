@@ -267,6 +267,58 @@ async fn connect(args: &ConsoleArgs) -> Result<(Bus, StationName), String> {
     Ok((bus, topology.root().name.clone()))
 }
 
+impl StoreCommand {
+    /// The recipe file it names, if any.
+    fn file(&self) -> Option<Result<RecipeFile, String>> {
+        match self {
+            Self::List => None,
+            Self::Show { station, file }
+            | Self::Put { station, file, .. }
+            | Self::View { station, file, .. }
+            | Self::Edit { station, file } => Some(RecipeFile::new(station.clone(), file)),
+        }
+    }
+}
+
+/// `falc store …`.
+async fn store(bus: &Bus, operator: &StationName, cmd: StoreCommand, json: bool) -> ExitCode {
+    let file = match cmd.file() {
+        None => return once(bus, operator, ApiRequest::RecipeList, json).await,
+        Some(Ok(f)) => f,
+        Some(Err(e)) => return refuse(&e),
+    };
+    match cmd {
+        StoreCommand::List => once(bus, operator, ApiRequest::RecipeList, json).await,
+        StoreCommand::Show { .. } => {
+            once(bus, operator, ApiRequest::RecipeGet { file }, json).await
+        }
+        StoreCommand::Put { path, new, .. } => {
+            let text = match std::fs::read_to_string(&path) {
+                Ok(t) => t,
+                Err(e) => return refuse(&format!("{}: {e}", path.display())),
+            };
+            let base = if new {
+                None
+            } else {
+                match edit::fetch(bus, operator, &file).await {
+                    Ok(Some(r)) => Some(r.hash),
+                    Ok(None) => return refuse(&format!("there is no recipe {file}: use --new")),
+                    Err(e) => return refuse(&e),
+                }
+            };
+            once(
+                bus,
+                operator,
+                ApiRequest::RecipePut { file, text, base },
+                json,
+            )
+            .await
+        }
+        StoreCommand::View { format, out, .. } => view(bus, operator, &file, &format, out).await,
+        StoreCommand::Edit { .. } => edit::interactive(bus, operator, &file).await,
+    }
+}
+
 /// `falc store view`: the store's text drawn, the running state lit.
 async fn view(
     bus: &Bus,
@@ -380,57 +432,7 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
             .await
         }
         CellCommand::Shutdown => ApiRequest::Shutdown,
-        CellCommand::Store(StoreCommand::List) => ApiRequest::RecipeList,
-        CellCommand::Store(StoreCommand::Show { station, file }) => {
-            match RecipeFile::new(station, &file) {
-                Ok(file) => ApiRequest::RecipeGet { file },
-                Err(e) => return refuse(&e),
-            }
-        }
-        CellCommand::Store(StoreCommand::Put {
-            station,
-            file,
-            path,
-            new,
-        }) => {
-            let file = match RecipeFile::new(station, &file) {
-                Ok(f) => f,
-                Err(e) => return refuse(&e),
-            };
-            let text = match std::fs::read_to_string(&path) {
-                Ok(t) => t,
-                Err(e) => return refuse(&format!("{}: {e}", path.display())),
-            };
-            let base = if new {
-                None
-            } else {
-                match edit::fetch(&bus, &operator, &file).await {
-                    Ok(Some(r)) => Some(r.hash),
-                    Ok(None) => return refuse(&format!("there is no recipe {file}: use --new")),
-                    Err(e) => return refuse(&e),
-                }
-            };
-            ApiRequest::RecipePut { file, text, base }
-        }
-        CellCommand::Store(StoreCommand::View {
-            station,
-            file,
-            format,
-            out,
-        }) => {
-            let file = match RecipeFile::new(station, &file) {
-                Ok(f) => f,
-                Err(e) => return refuse(&e),
-            };
-            return view(&bus, &operator, &file, &format, out).await;
-        }
-        CellCommand::Store(StoreCommand::Edit { station, file }) => {
-            let file = match RecipeFile::new(station, &file) {
-                Ok(f) => f,
-                Err(e) => return refuse(&e),
-            };
-            return edit::interactive(&bus, &operator, &file).await;
-        }
+        CellCommand::Store(cmd) => return store(&bus, &operator, cmd, json).await,
     };
     once(&bus, &operator, req, json).await
 }

@@ -143,16 +143,18 @@ pub fn rules_of(topology: &Topology, station: &StationName) -> Vec<Rule> {
             ));
         }
     }
-    // The operator (the root) watches every station's presence, as it
-    // reads every station's status: the consoles show a lost station as
-    // such, not with its last status.
-    let watched: Vec<&StationName> = if topology.commander_of(me).is_none() {
-        topology
-            .stations()
-            .iter()
-            .map(|s| &s.name)
-            .filter(|s| *s != me)
-            .collect()
+    // The operator (the root) reads every station's status and watches
+    // every station's presence: the consoles show a lost station as such,
+    // not with its last status.
+    let everyone_else: Vec<&StationName> = topology
+        .stations()
+        .iter()
+        .map(|s| &s.name)
+        .filter(|s| *s != me)
+        .collect();
+    let is_root = topology.commander_of(me).is_none();
+    let watched: Vec<&StationName> = if is_root {
+        everyone_else.clone()
     } else {
         topology
             .commander_of(me)
@@ -175,16 +177,7 @@ pub fn rules_of(topology: &Topology, station: &StationName) -> Vec<Rule> {
             alive,
         ));
     }
-    let readable: Vec<&StationName> = if topology.commander_of(me).is_none() {
-        topology
-            .stations()
-            .iter()
-            .map(|s| &s.name)
-            .filter(|s| *s != me)
-            .collect()
-    } else {
-        subordinates
-    };
+    let readable: Vec<&StationName> = if is_root { everyone_else } else { subordinates };
     if !readable.is_empty() {
         let read: Vec<String> = readable
             .iter()

@@ -8,7 +8,7 @@
 //! [`envelope`]s of [`ApiRequest`] and [`ApiResult`]; a malformed request is
 //! answered with an error by the bus.
 
-use super::{envelope, Bus, BusError, Declaration};
+use super::{declare_failed, envelope, Bus, BusError, Declaration};
 use crate::api::{ApiReply, ApiRequest, ApiResult, Call};
 use crate::ids::StationName;
 use std::time::Duration;
@@ -118,11 +118,7 @@ impl Bus {
                 .declare_queryable(&key)
                 .callback(move |query| on_query(call, query, &tx))
                 .await
-                .map_err(|e| BusError::Declare {
-                    what: "API queryable",
-                    key: key.clone(),
-                    message: e.to_string(),
-                })?;
+                .map_err(declare_failed("API queryable", &key))?;
             out.push(Declaration(Box::new(q)));
         }
         Ok(out)

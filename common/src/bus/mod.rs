@@ -86,6 +86,18 @@ pub struct BusSettings {
     pub connect_timeout: Duration,
 }
 
+/// What a failed declaration of `what` on `key` becomes.
+pub(crate) fn declare_failed<'a, E: std::fmt::Display>(
+    what: &'static str,
+    key: &'a str,
+) -> impl FnOnce(E) -> BusError + 'a {
+    move |e| BusError::Declare {
+        what,
+        key: key.to_string(),
+        message: e.to_string(),
+    }
+}
+
 /// Something the bus delivers to a node's event loop.
 #[derive(Debug)]
 pub enum BusEvent {
@@ -205,11 +217,7 @@ impl Bus {
             .liveliness()
             .declare_token(&key)
             .await
-            .map_err(|e| BusError::Declare {
-                what: "liveliness token",
-                key: key.clone(),
-                message: e.to_string(),
-            })?;
+            .map_err(declare_failed("liveliness token", &key))?;
         Ok(Self {
             session,
             keys: settings.keys,
@@ -348,11 +356,7 @@ impl Bus {
                 .declare_queryable(&key)
                 .callback(move |query| on_query(service, query, &board, &tx))
                 .await
-                .map_err(|e| BusError::Declare {
-                    what: "queryable",
-                    key: key.clone(),
-                    message: e.to_string(),
-                })?;
+                .map_err(declare_failed("queryable", &key))?;
             out.push(Declaration(Box::new(q)));
         }
         Ok(out)
@@ -394,11 +398,7 @@ impl Bus {
                     }
                 })
                 .await
-                .map_err(|e| BusError::Declare {
-                    what: "subscriber",
-                    key: key.clone(),
-                    message: e.to_string(),
-                })?;
+                .map_err(declare_failed("subscriber", &key))?;
             v.push(Declaration(Box::new(sub)));
         }
         Ok(v)
@@ -434,11 +434,7 @@ impl Bus {
                 });
             })
             .await
-            .map_err(|e| BusError::Declare {
-                what: "liveliness subscriber",
-                key: key.clone(),
-                message: e.to_string(),
-            })?;
+            .map_err(declare_failed("liveliness subscriber", &key))?;
         Ok(Declaration(Box::new(sub)))
     }
 
@@ -481,11 +477,7 @@ impl Bus {
                 }
             })
             .await
-            .map_err(|e| BusError::Declare {
-                what: "liveliness subscriber",
-                key: key.clone(),
-                message: e.to_string(),
-            })?;
+            .map_err(declare_failed("liveliness subscriber", &key))?;
         if !matches!(
             tokio::time::timeout(DEFAULT_DEADLINE, seen_rx).await,
             Ok(Ok(()))
