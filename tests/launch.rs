@@ -55,6 +55,23 @@ fn gone(pid: u32) -> bool {
 }
 
 #[test]
+fn nodes_stop_when_the_launcher_is_killed() {
+    let mut l = launch();
+    let nodes = nodes(l.launcher.pid());
+    assert_eq!(nodes.len(), 7);
+    l.launcher.kill();
+    let end = Instant::now() + Duration::from_secs(10);
+    while nodes.iter().any(|&p| !gone(p)) {
+        assert!(
+            Instant::now() < end,
+            "nodes left running after SIGKILL of falc-launch: {:?}",
+            nodes.iter().filter(|&&p| !gone(p)).collect::<Vec<_>>()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
 fn the_launched_cell_runs_an_order_and_ctrl_c_stops_every_node() {
     let mut l = launch();
     let nodes = nodes(l.launcher.pid());

@@ -77,7 +77,26 @@ struct Cell {
 impl Cell {
     fn spawn(&mut self, name: &str, bin: &str, args: &[String]) -> Result<usize> {
         let path = self.bin_dir.join(bin);
-        let mut child = Command::new(&path)
+        let mut command = Command::new(&path);
+        // If the launcher dies without stopping the cell (SIGKILL, a crash),
+        // each node gets SIGTERM and stops safely instead of running on
+        // without its launcher. The launcher runs on one thread (the one
+        // that forks), so "parent died" means the launcher died.
+        let launcher = nix::unistd::getpid();
+        // SAFETY: the closure runs in the child between fork and exec and
+        // makes only async-signal-safe system calls (prctl, getppid).
+        unsafe {
+            command.pre_exec(move || {
+                nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGTERM)
+                    .map_err(std::io::Error::from)?;
+                // The launcher died before the signal was armed.
+                if nix::unistd::getppid() != launcher {
+                    return Err(std::io::Error::other("falc-launch is gone"));
+                }
+                Ok(())
+            });
+        }
+        let mut child = command
             .args(args)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
@@ -326,7 +345,9 @@ type here to disturb the twins: `rcm estop`, `rcm estop-clear`, `plc jam K`,
     )
 }
 
-#[tokio::main]
+// One thread: the nodes' parent-death signal follows the thread that forked
+// them, which must live as long as the launcher.
+#[tokio::main(flavor = "current_thread")]
 async fn main() -> ExitCode {
     falc_common::node::init_tracing();
     let cli = Cli::parse();
