@@ -11,10 +11,10 @@ use std::time::Duration;
 use support::{twin, Commander, Proc, TestCell};
 
 struct Rig {
-    _cell: TestCell,
+    cell: TestCell,
     rcm: Proc,
     path: String,
-    _welding: Proc,
+    welding: Proc,
     commander: Commander,
 }
 
@@ -32,10 +32,10 @@ async fn rig(time_scale: &str) -> Rig {
     );
     let commander = Commander::associate(&cell, "welding").await;
     Rig {
-        _cell: cell,
+        cell,
         rcm,
         path,
-        _welding: welding,
+        welding,
         commander,
     }
 }
@@ -174,4 +174,75 @@ async fn stop_and_kill_from_the_commander_reach_the_robot() {
     assert_eq!(r, Ok(Response::ProgramInvocationState(PiState::Unrunnable)));
     // A second, new `rx H`: the kill reached the robot too.
     rig.rcm.take_line("rx H", Duration::from_secs(10));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_silent_line_mid_weld_is_an_alarm_within_3_s_and_the_orphan_program_is_stopped() {
+    // Program 65 takes 12 s here: it still runs when the line returns.
+    let mut rig = rig("10").await;
+    rig.load("droog_dik", &droog_dik()).await;
+    rig.start("droog_dik").await;
+    rig.rcm.take_line("rx G", Duration::from_secs(10));
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    rig.rcm.control("unplug");
+    let silent = std::time::Instant::now();
+    let text = match rig.job(Duration::from_secs(10)).await {
+        JobEvent::Alarm(text) => text,
+        other => panic!("{other:?}"),
+    };
+    let took = silent.elapsed();
+    println!("silent DNC line → alarm: {took:?} ({text})");
+    assert!(text.contains(&rig.path), "names the device: {text}");
+    assert!(text.contains("status request unanswered"), "{text}");
+    assert!(took < Duration::from_millis(3500), "{took:?}");
+    // The line is back: the robot still runs program 65, which no job
+    // owns any more; the workstation finds it by its status and stops it.
+    rig.rcm.forget("rx");
+    rig.rcm.control("replug");
+    rig.rcm.take_line("rx Q", Duration::from_secs(10));
+    rig.rcm.take_line("rx H", Duration::from_secs(10));
+    let report = rig
+        .commander
+        .report("no job of this workstation", Duration::from_secs(5))
+        .await;
+    assert!(report.contains("robot program 65"), "{report}");
+    // And the next job runs.
+    rig.start("droog_dik").await;
+    assert_eq!(rig.job(Duration::from_secs(30)).await, JobEvent::Done);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lost_program_end_is_recovered_from_the_robot_status() {
+    let mut rig = rig("100").await;
+    rig.load("droog_dik", &droog_dik()).await;
+    // The status request of the workstation's start-up, then no other.
+    rig.rcm.take_line("rx Q", Duration::from_secs(10));
+    rig.rcm.forget("rx Q");
+    rig.rcm.control("lose-end");
+    rig.start("droog_dik").await;
+    // 1.2 s of program, then at most a status period and its answer: the
+    // end telegram never comes, the status shows the program ended.
+    assert_eq!(rig.job(Duration::from_secs(10)).await, JobEvent::Done);
+    rig.rcm.take_line("rx Q", Duration::ZERO);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restarted_welding_node_stops_a_program_no_job_owns() {
+    let mut rig = rig("1").await; // 120 s programs
+    rig.load("droog_dik", &droog_dik()).await;
+    rig.start("droog_dik").await;
+    rig.rcm.take_line("rx G", Duration::from_secs(10));
+    rig.welding.kill();
+    rig.rcm.forget("rx");
+    rig.welding = rig.cell.start_node(
+        env!("CARGO_BIN_EXE_falc-welding"),
+        "welding",
+        &["--device", &rig.path],
+    );
+    // Initiate DNC, status request, then the stop of the orphan program.
+    rig.rcm.take_line("rx I", Duration::from_secs(10));
+    rig.rcm.take_line("rx Q", Duration::from_secs(10));
+    rig.rcm.take_line("rx H", Duration::from_secs(10));
+    rig.welding
+        .expect_line("no job of this workstation", Duration::from_secs(5));
 }

@@ -90,8 +90,11 @@ pub enum ApiRequest {
     Start,
     /// Stops the running order and the list.
     Stop,
-    /// Acknowledges the alarm.
-    Ack,
+    /// Acknowledges one alarm of the list, or every one (`None`).
+    Ack {
+        /// The alarm's number.
+        id: Option<i64>,
+    },
     /// Answers the waiting operator question.
     Answer {
         /// The answer (`ja`, `nee`, …).
@@ -171,7 +174,8 @@ impl RecipeFile {
             Ok(Self { station, file })
         } else {
             Err(format!(
-                "recipe file name {file:?}: use letters, digits, _ and - (at most 40), ending in .rcp"
+                "recipe file name \"{}\": use letters, digits, _ and - (at most 40), ending in .rcp",
+                crate::ids::excerpt(&file)
             ))
         }
     }
@@ -213,7 +217,54 @@ pub struct RecipeText {
     pub hash: u64,
 }
 
+/// The most bytes one API request may carry on the wire (a recipe text
+/// and its envelope); a larger one is refused before it is decoded.
+pub const MAX_REQUEST_BYTES: usize = MAX_RECIPE_BYTES + 4096;
+/// The longest answer to an operator question, in characters.
+pub const MAX_ANSWER_CHARS: usize = 200;
+/// The longest cell recipe name an order may name, in characters.
+pub const MAX_RECIPE_NAME_CHARS: usize = 32;
+/// The largest recipe file, in bytes (the thesis' recipes are under 2 KiB).
+pub const MAX_RECIPE_BYTES: usize = 64 * 1024;
+
 impl ApiRequest {
+    /// Refuses a text beyond its limit (or an answer with control
+    /// characters), quoting only a short excerpt of it.
+    pub fn check_limits(&self) -> Result<(), String> {
+        use crate::ids::excerpt;
+        match self {
+            Self::Answer { text } => {
+                let n = text.chars().count();
+                if n > MAX_ANSWER_CHARS {
+                    return Err(format!(
+                        "answer \"{}\" is longer than {MAX_ANSWER_CHARS} characters: refused",
+                        excerpt(text)
+                    ));
+                }
+                if text.chars().any(char::is_control) {
+                    return Err(format!(
+                        "answer \"{}\" holds a control character (a line break?): refused",
+                        excerpt(text)
+                    ));
+                }
+            }
+            Self::OrderAdd { recipe } if recipe.chars().count() > MAX_RECIPE_NAME_CHARS => {
+                return Err(format!(
+                    "recipe name \"{}\" is longer than {MAX_RECIPE_NAME_CHARS} characters: refused",
+                    excerpt(recipe)
+                ));
+            }
+            Self::RecipePut { file, text, .. } if text.len() > MAX_RECIPE_BYTES => {
+                return Err(format!(
+                    "recipe {file} is {} bytes, more than the {MAX_RECIPE_BYTES} a recipe may have: refused",
+                    text.len()
+                ));
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
     /// The call (key) this request belongs to.
     pub fn call(&self) -> Call {
         match self {
@@ -225,7 +276,7 @@ impl ApiRequest {
             Self::OrderRemove { .. } => Call::OrderRemove,
             Self::Start => Call::Start,
             Self::Stop => Call::Stop,
-            Self::Ack => Call::Ack,
+            Self::Ack { .. } => Call::Ack,
             Self::Answer { .. } => Call::Answer,
             Self::Shutdown => Call::Shutdown,
             Self::RecipeList => Call::RecipeList,
@@ -418,8 +469,11 @@ pub struct CellStatus {
     pub cell_associated: bool,
     /// Why not, or what else is wrong (the last association refusal).
     pub problem: Option<String>,
-    /// The alarm waiting for `ack`.
+    /// The alarm that holds `start` back (the highest priority of those
+    /// waiting for `ack`), as one line.
     pub alarm: Option<String>,
+    /// Every alarm in the list (not both acknowledged and cleared).
+    pub alarms: Vec<crate::alarm::Alarm>,
     /// The running order.
     pub running: Option<Order>,
     /// Orders waiting.
@@ -460,6 +514,40 @@ pub type ApiResult = Result<ApiReply, String>;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn texts_beyond_their_limits_are_refused_quoting_a_short_excerpt() {
+        let huge = "j".repeat(16 * 1024 * 1024);
+        for r in [
+            ApiRequest::Answer { text: huge.clone() },
+            ApiRequest::OrderAdd {
+                recipe: huge.clone(),
+            },
+            ApiRequest::RecipePut {
+                file: RecipeFile::new(StationName::new("cell").expect("valid"), "big.rcp")
+                    .expect("valid"),
+                text: huge.clone(),
+                base: None,
+            },
+        ] {
+            let e = r.check_limits().expect_err("refused");
+            assert!(e.len() < 200, "{} bytes: {}", e.len(), &e[..200]);
+            assert!(e.contains("refused"), "{e}");
+        }
+        let e = ApiRequest::Answer {
+            text: "ja\nnee".into(),
+        }
+        .check_limits()
+        .expect_err("a line break");
+        assert!(e.contains("control character"), "{e}");
+        assert_eq!(
+            ApiRequest::Answer { text: "ja".into() }.check_limits(),
+            Ok(())
+        );
+        let e =
+            RecipeFile::new(StationName::new("cell").expect("valid"), &huge).expect_err("bad name");
+        assert!(e.len() < 200, "{} bytes", e.len());
+    }
 
     #[test]
     fn keys_are_unique_and_every_request_has_its_call() {

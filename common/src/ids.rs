@@ -8,6 +8,27 @@
 
 use std::fmt;
 
+/// At most this many characters of a refused text are quoted back.
+pub const EXCERPT_CHARS: usize = 40;
+
+/// A refused text as an error quotes it: the whole when short, else its
+/// first [`EXCERPT_CHARS`] characters and how long it was (an error about
+/// a megabyte must not send the megabyte back). Control characters are
+/// escaped.
+pub fn excerpt(text: &str) -> String {
+    let count = text.chars().count();
+    let head: String = text
+        .chars()
+        .take(EXCERPT_CHARS)
+        .flat_map(char::escape_debug)
+        .collect();
+    if count > EXCERPT_CHARS {
+        format!("{head}… ({count} characters)")
+    } else {
+        head
+    }
+}
+
 /// Why a name was refused.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum NameError {
@@ -69,7 +90,7 @@ impl NameRule {
         if raw.chars().count() > self.max {
             return Err(NameError::TooLong {
                 kind,
-                name: raw.to_string(),
+                name: excerpt(raw),
                 max: self.max,
             });
         }
@@ -77,7 +98,7 @@ impl NameRule {
             if !(c.is_ascii_alphanumeric() || self.extra.contains(&c)) {
                 return Err(NameError::BadCharacter {
                     kind,
-                    name: raw.to_string(),
+                    name: excerpt(raw),
                     bad: c,
                     at,
                     allowed: self.allowed,
@@ -87,7 +108,7 @@ impl NameRule {
         if !raw.starts_with(|c: char| c.is_ascii_alphabetic()) {
             return Err(NameError::BadStart {
                 kind,
-                name: raw.to_string(),
+                name: excerpt(raw),
             });
         }
         Ok(if self.upper {
@@ -191,6 +212,17 @@ name_newtype!(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_long_refused_name_is_quoted_by_a_short_excerpt() {
+        let huge = "x".repeat(1_000_000);
+        let e = ObjectName::new(&huge).expect_err("too long");
+        let text = e.to_string();
+        assert!(text.len() < 200, "{} bytes", text.len());
+        assert!(text.contains("(1000000 characters)"), "{text}");
+        assert_eq!(excerpt("ja\nnee"), "ja\\nnee");
+        assert_eq!(excerpt("kort"), "kort");
+    }
 
     #[test]
     fn station_names_are_lower_case_key_chunks() {

@@ -1,5 +1,6 @@
 //! FALC shared library: everything the node binaries have in common.
 //!
+//! - [`alarm`]: alarm classes, causes and the operator's alarm record;
 //! - [`api`]: the operator API consoles use (requests, orders, journal);
 //! - [`ids`]: validated names (stations, cells, MMS objects);
 //! - [`topology`]: `launch/cell.toml`, the cell's stations and hierarchy;
@@ -13,6 +14,7 @@
 //! - [`bus`]: the zenoh binding: keys, envelope, sessions, credentials, ACL,
 //!   service client and server, stations with their associations.
 
+pub mod alarm;
 pub mod api;
 pub mod bus;
 pub mod dnc;

@@ -10,6 +10,7 @@
 //! node's main loop feeds device events in ([`Workstation::feed`],
 //! [`Workstation::fault`]) and calls [`Workstation::settle`] after each.
 
+use crate::alarm::{AlarmClass, Cause};
 use crate::bus::station::{Station, StationEvent};
 use crate::bus::BusEvent;
 use crate::ids::ObjectName;
@@ -163,13 +164,13 @@ impl<D: Device> Workstation<D> {
         }
     }
 
-    /// The device failed: the running recipe ends in alarm with `why`, and
-    /// the alarm goes up (also when no recipe runs).
-    pub async fn fault(&mut self, why: &str) {
+    /// The device failed: the running recipe ends in alarm with `cause`,
+    /// and the alarm goes up (also when no recipe runs).
+    pub async fn fault(&mut self, cause: Cause) {
         if let Some(r) = &mut self.running {
-            r.engine.abort(why);
+            r.engine.abort(cause.clone());
         }
-        self.report(Severity::Alarm, why.to_string()).await;
+        self.report(Severity::Alarm(cause.class), cause.text).await;
     }
 
     /// Publishes a report (operator message) from this station.
@@ -227,12 +228,12 @@ impl<D: Device> Workstation<D> {
                 break;
             };
             match action {
-                Action::Alarm(text) => {
-                    let text = match &r.timed_out {
-                        Some(why) => format!("{text}: {why}"),
-                        None => text,
+                Action::Alarm(cause) => {
+                    let cause = match &r.timed_out {
+                        Some(why) => cause.map(|t| format!("{t}: {why}")),
+                        None => cause,
                     };
-                    self.report(Severity::Alarm, text).await;
+                    self.report(Severity::Alarm(cause.class), cause.text).await;
                 }
                 Action::Entered(s) => tracing::debug!(state = %s, "recipe state"),
                 a => {
@@ -255,13 +256,13 @@ impl<D: Device> Workstation<D> {
                 let event = match outcome {
                     Outcome::Done => JobEvent::Done,
                     Outcome::Alarm(c) => JobEvent::Alarm(match r.timed_out {
-                        Some(why) => format!("{c}: {why}"),
+                        Some(why) => c.map(|t| format!("{t}: {why}")),
                         None => c,
                     }),
                     Outcome::Failed(JobEnd::BadProduct) => JobEvent::BadProduct,
                     Outcome::Failed(JobEnd::FailedSafe) => JobEvent::FailedSafe,
                     Outcome::Failed(JobEnd::FailedDanger) => JobEvent::FailedDanger,
-                    Outcome::Failed(other) => JobEvent::Alarm(format!("{other:?}")),
+                    Outcome::Failed(other) => JobEvent::Alarm(Cause::process(format!("{other:?}"))),
                 };
                 self.job_event(&r.name, event).await;
             }
@@ -278,9 +279,12 @@ impl<D: Device> Workstation<D> {
             }
             Some(StationEvent::Abort(a)) if self.running.is_some() => {
                 say(&format!("EVENT abort-indication peer={}", a.peer.station));
-                let why = format!("no connection with station {}", a.peer.station);
+                let why = Cause::new(
+                    AlarmClass::Communication,
+                    format!("no connection with station {}", a.peer.station),
+                );
                 self.device.lost(&a.peer.station);
-                self.fault(&why).await;
+                self.fault(why).await;
             }
             Some(StationEvent::Abort(a)) => {
                 say(&format!("EVENT abort-indication peer={}", a.peer.station));
@@ -378,13 +382,15 @@ impl<D: Device> Workstation<D> {
                 }
             }
             PiRequest::Stop | PiRequest::Kill => {
-                if let Some(mut r) = self.running.take() {
-                    let why = format!("{:?} by the commander", t.request);
-                    r.engine.abort(&why);
-                    self.device.finished(&Outcome::Alarm(why));
-                }
+                // The device stops first: `finished` forgets what runs (a
+                // cell forgets which workstations its recipe started).
                 let mut out = Vec::new();
                 self.device.halt(&mut out);
+                if let Some(mut r) = self.running.take() {
+                    let why = Cause::process(format!("{:?} by the commander", t.request));
+                    r.engine.abort(why.clone());
+                    self.device.finished(&Outcome::Alarm(why));
+                }
                 if t.request == PiRequest::Kill {
                     self.publish_status().await;
                     return result;

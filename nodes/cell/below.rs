@@ -29,6 +29,8 @@ pub enum Reply {
     Started(StationName, Result<(), String>),
     /// The operator answered an `input`.
     Answer(Result<String, String>),
+    /// The operator confirmed (or refused) an `output`.
+    Shown(Result<(), String>),
     /// Anything else (Output, Stop): only a refusal matters.
     Other(String, Result<(), String>),
 }
@@ -46,6 +48,9 @@ pub struct Below {
     /// (outputs reach the operator in the recipe's order; a Stop never
     /// overtakes its Start).
     lanes: BTreeMap<StationName, UnboundedSender<Outgoing>>,
+    /// Outputs the operator has not confirmed yet: the recipe's end waits
+    /// for them, so its last line is journalled under its own order.
+    showing: usize,
 }
 
 type Outgoing = (
@@ -64,7 +69,13 @@ impl Below {
             started: BTreeMap::new(),
             lost: BTreeSet::new(),
             lanes: BTreeMap::new(),
+            showing: 0,
         }
+    }
+
+    /// The operator confirmed (or refused) one output.
+    pub fn shown(&mut self) {
+        self.showing = self.showing.saturating_sub(1);
     }
 
     fn request(
@@ -165,9 +176,8 @@ impl Device for Below {
             Action::Output(text) => {
                 if let Some(op) = self.operator.clone() {
                     let req = Request::Output { lines: vec![text] };
-                    self.request(op, req, CONFIRM_LIMIT, |r| {
-                        Reply::Other("Output to the operator".into(), r.map(|_| ()))
-                    });
+                    self.showing += 1;
+                    self.request(op, req, CONFIRM_LIMIT, |r| Reply::Shown(r.map(|_| ())));
                 }
             }
             Action::Input(prompt) => match self.operator.clone() {
@@ -198,6 +208,10 @@ impl Device for Below {
         for st in running {
             self.act(Duration::ZERO, Action::Stop(st), out);
         }
+    }
+
+    fn settling(&self) -> bool {
+        self.showing > 0
     }
 
     fn finished(&mut self, _outcome: &falc_common::recipe::engine::Outcome) {

@@ -21,11 +21,12 @@ use anyhow::Result;
 use below::{Below, Reply};
 use clap::Parser;
 use delivery::{workstation_domain, Passer};
+use falc_common::alarm::{AlarmClass, Cause};
 use falc_common::bus::station::{Station, StationEvent};
 use falc_common::bus::Bus;
 use falc_common::ids::StationName;
 use falc_common::mms::error::ServiceError;
-use falc_common::mms::pdu::{Request, Response, Severity, Unconfirmed};
+use falc_common::mms::pdu::{Request, Response, Severity};
 use falc_common::node::{init_tracing, say, NodeArgs};
 use falc_common::recipe::commands::RecipeKind;
 use falc_common::workstation::Workstation;
@@ -68,7 +69,8 @@ async fn on_station(
             }
             if associated {
                 for failure in passer.catch_up(bus, ws.vmd()).await {
-                    ws.report(Severity::Alarm, failure).await;
+                    ws.report(Severity::Alarm(AlarmClass::Communication), failure)
+                        .await;
                 }
             }
             return true;
@@ -152,21 +154,26 @@ async fn main() -> Result<()> {
             r = replies.recv() => match r {
                 Some(Reply::Started(st, Ok(()))) => ws.feed(vec![falc_common::recipe::engine::Event::Started(st)]),
                 Some(Reply::Started(st, Err(e))) => {
-                    ws.report(Severity::Alarm, format!("start on {st} refused: {e}")).await;
+                    // The recipe takes its failure path; an alarm state there names this.
+                    ws.report(Severity::Warning, format!("start on {st} refused: {e}")).await;
                     ws.feed(vec![falc_common::recipe::engine::Event::StartFailed(st, e)]);
                 }
                 Some(Reply::Answer(Ok(a))) => ws.feed(vec![falc_common::recipe::engine::Event::Answer(a)]),
-                Some(Reply::Answer(Err(e))) => ws.fault(&format!("no answer from the operator: {e}")).await,
+                Some(Reply::Answer(Err(e))) => ws.fault(Cause::new(AlarmClass::Communication, format!("no answer from the operator: {e}"))).await,
+                Some(Reply::Shown(r)) => {
+                    ws.device.shown();
+                    if let Err(e) = r {
+                        tracing::warn!("output to the operator refused: {e}");
+                    }
+                }
                 Some(Reply::Other(what, Err(e))) => tracing::warn!("{what} refused: {e}"),
                 Some(Reply::Other(_, Ok(()))) => {}
                 None => break,
             },
             u = publications.recv() => match u {
                 Some(u) => {
-                    if let Unconfirmed::Report { station, severity, text } = &u {
-                        // Passed up, so the operator reads every cause in one place.
-                        ws.report(*severity, format!("{station}: {text}")).await;
-                    }
+                    // A workstation's reports reach the operator directly
+                    // (it reads every station's reports), under its name.
                     let events = ws.device.unconfirmed(&u);
                     ws.feed(events);
                 }

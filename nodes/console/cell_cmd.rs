@@ -1,4 +1,4 @@
-//! `falc status|order|start|stop|ack|answer|messages|journal|shutdown`: the
+//! `falc status|order|start|stop|ack|alarms|answer|messages|journal|shutdown`: the
 //! operator API from the command line. Human-readable output by default,
 //! one JSON document per answer with `--json` (for scripts). Exit status: 0
 //! done, 1 refused by the operator node (the reason on stderr), 2 the
@@ -6,6 +6,7 @@
 
 use crate::edit;
 use clap::{Args, Subcommand};
+use falc_common::alarm::Alarm;
 use falc_common::api::{ApiReply, ApiRequest, CellStatus, Entry, Order, RecipeFile};
 use falc_common::bus::Bus;
 use falc_common::ids::StationName;
@@ -48,8 +49,14 @@ pub enum CellCommand {
     Start,
     /// Stop the running order and the list.
     Stop,
-    /// Acknowledge the alarm.
-    Ack,
+    /// Acknowledge one alarm of the list (its number), or every one.
+    Ack {
+        /// The alarm's number (`falc alarms` lists them); all if left out.
+        id: Option<i64>,
+    },
+    /// The alarm list: every station's alarms with class, state, who
+    /// acknowledged them; an alarm leaves it once acknowledged and cleared.
+    Alarms,
     /// Answer the cell's waiting question.
     Answer {
         /// The answer (`ja`, `nee`, …).
@@ -180,6 +187,47 @@ fn show_entry(e: &Entry) -> String {
     )
 }
 
+/// One alarm as `falc alarms` prints it.
+pub fn show_alarm(a: &Alarm) -> String {
+    let order = a.order.map(|o| format!(" order {o}")).unwrap_or_default();
+    let state = match (&a.acked, a.state()) {
+        (Some((who, at)), s) => format!("{s} by {who} {}", clock(*at)),
+        (None, s) => s.to_string(),
+    };
+    format!(
+        "#{:<3} {} {:<13} {:<10} {}{order}: {}  [{state}]",
+        a.id,
+        clock(a.raised_ms),
+        a.class.as_str(),
+        a.station,
+        if a.blocks_start() { "needs ack" } else { "" },
+        a.text
+    )
+}
+
+/// `falc alarms`: the list, highest priority first.
+async fn alarms(bus: &Bus, operator: &StationName, json: bool) -> ExitCode {
+    match bus.api(operator, ApiRequest::Status, CALL_LIMIT).await {
+        Ok(ApiReply::Status(s)) => {
+            let mut list = s.alarms;
+            list.sort_by_key(|a| (a.class.priority(), a.id));
+            if json {
+                match serde_json::to_string(&list) {
+                    Ok(t) => println!("{t}"),
+                    Err(e) => return refuse(&format!("cannot write JSON: {e}")),
+                }
+            } else if list.is_empty() {
+                println!("no alarms");
+            } else {
+                list.iter().for_each(|a| println!("{}", show_alarm(a)));
+            }
+            ExitCode::SUCCESS
+        }
+        Ok(other) => refuse(&format!("status answered {other:?}")),
+        Err(why) => refuse(&why),
+    }
+}
+
 fn show_status(s: &CellStatus) -> String {
     let mut out = Vec::new();
     let list = format!("{:?}", s.list).to_lowercase();
@@ -198,6 +246,13 @@ fn show_status(s: &CellStatus) -> String {
     });
     if let Some(a) = &s.alarm {
         out.push(format!("ALARM: {a}  (falc ack)"));
+    }
+    let others = s
+        .alarms
+        .len()
+        .saturating_sub(usize::from(s.alarm.is_some()));
+    if others > 0 {
+        out.push(format!("{others} more alarm(s) in the list (falc alarms)"));
     }
     if let Some(q) = &s.question {
         out.push(format!(
@@ -416,7 +471,8 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
         CellCommand::Order(OrderCommand::List) => ApiRequest::OrderList,
         CellCommand::Start => ApiRequest::Start,
         CellCommand::Stop => ApiRequest::Stop,
-        CellCommand::Ack => ApiRequest::Ack,
+        CellCommand::Ack { id } => ApiRequest::Ack { id },
+        CellCommand::Alarms => return alarms(&bus, &operator, json).await,
         CellCommand::Answer { text } => ApiRequest::Answer { text },
         CellCommand::Messages { follow: false } => {
             return all_entries(&bus, &operator, json, |after| ApiRequest::Messages {

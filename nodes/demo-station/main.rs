@@ -117,7 +117,7 @@ async fn main() -> Result<()> {
                     .bus()
                     .publish(&Unconfirmed::Report {
                         station: me.station.clone(),
-                        severity: Severity::Alarm,
+                        severity: Severity::Alarm(falc_common::alarm::AlarmClass::Communication),
                         text: format!(
                             "no connection with station {}: {}",
                             a.peer.station, a.reason

@@ -7,6 +7,7 @@
 //! and operator communication (`input`, `output`) to the cell
 //! (`operator`). A thin driver: this file is start-up and the event loop.
 
+mod alarms;
 mod operator;
 mod pps;
 mod store;
@@ -137,6 +138,8 @@ async fn run(cli: Cli) -> Result<ExitCode> {
             _ = retry.tick() => { let _ = op.connect().await; }
             _ = shutdown.requested() => break,
         }
+        // A failed write halts the running order before anything else.
+        op.enforce().await;
         if op.should_stop() {
             break;
         }

@@ -3,8 +3,10 @@
 //! acknowledgement, recipe delivery, and the answers to the operator API.
 //! Every change is written to the [`Store`] before it is confirmed.
 
+use crate::alarms::{AlarmList, Raised};
 use crate::pps::{self, RecipeSet};
 use crate::store::{Store, StoreError};
+use falc_common::alarm::AlarmClass;
 use falc_common::api::{
     ApiReply, ApiRequest, ApiResult, CellStatus, EntryKind, ListState, Order, OrderState,
     StationView,
@@ -24,6 +26,9 @@ use std::time::Duration;
 
 /// How long a Start or Stop of the cell's program invocation may take.
 const CELL_LIMIT: Duration = Duration::from_secs(10);
+
+/// A station's message this soon after an order ended still belongs to it.
+const TRAIL: Duration = Duration::from_secs(2);
 
 /// At most this many journal entries per API answer.
 const PAGE: usize = 500;
@@ -47,7 +52,10 @@ pub struct Operator {
     associated: bool,
     problem: Option<String>,
     list: ListState,
-    alarm: Option<String>,
+    /// Every station's alarms and the operator's own.
+    alarms: AlarmList,
+    /// The alarm a failed store write raised (cleared by `ack`).
+    store_alarm: Option<i64>,
     running: Option<Order>,
     question: Option<Question>,
     shutdown_pending: bool,
@@ -56,6 +64,18 @@ pub struct Operator {
     present: std::collections::BTreeSet<StationName>,
     /// Lines the cell showed since the last question (shown with it).
     shown: Vec<String>,
+    /// A write to the order list or journal failed (disk full, I/O error):
+    /// the list is stopped until `ack`, and an order that ran is halted.
+    store_fault: Option<String>,
+    /// The running order must be stopped at the cell (a write failed).
+    halt_pending: bool,
+    /// Order ends that could not be written: written before the next start
+    /// (until then the order stays `running` in the file, which a restart
+    /// turns into `interrupted`: never queued again).
+    unwritten_ends: Vec<(i64, OrderState, String)>,
+    /// The order that ended last, and when (messages that trail it
+    /// closely belong to it).
+    last_ended: Option<(i64, std::time::Instant)>,
 }
 
 fn text_of(e: &ServiceError) -> String {
@@ -72,6 +92,18 @@ impl Operator {
         recipes_dir: PathBuf,
         recipes: RecipeSet,
     ) -> Self {
+        let alarms = match AlarmList::load(&store) {
+            Ok(l) => l,
+            Err(e) => {
+                tracing::error!("{e}; the alarm list starts empty");
+                AlarmList::default()
+            }
+        };
+        let list = if alarms.blocking().is_some() {
+            ListState::Alarm
+        } else {
+            ListState::Idle
+        };
         Self {
             station,
             store,
@@ -82,14 +114,19 @@ impl Operator {
             delivered: BTreeMap::new(),
             associated: false,
             problem: None,
-            list: ListState::Idle,
-            alarm: None,
+            list,
+            alarms,
+            store_alarm: None,
             running: None,
             question: None,
             shutdown_pending: false,
             statuses: BTreeMap::new(),
             present: Default::default(),
             shown: Vec::new(),
+            store_fault: None,
+            halt_pending: false,
+            unwritten_ends: Vec::new(),
+            last_ended: None,
         }
     }
 
@@ -102,8 +139,7 @@ impl Operator {
         self.station.bus().me().station.to_string()
     }
 
-    /// Journals; a failure to write is logged and said (the node goes on:
-    /// the order state itself is in the same file and was written first).
+    /// Journals; a failure to write stops the list ([`Self::store_failed`]).
     pub fn journal(&mut self, kind: EntryKind, order: Option<i64>, who: &str, text: &str) {
         match self.store.journal(kind, order, who, text) {
             Ok(e) => say(&format!(
@@ -112,15 +148,164 @@ impl Operator {
                 kind.as_str(),
                 text.replace('\n', " / ")
             )),
-            Err(e) => {
-                tracing::error!("{e}");
-                say(&format!("EVENT store-error {e}"));
-            }
+            Err(e) => self.store_failed(&e),
         }
+    }
+
+    /// A write to the order list or journal failed: the cell must not run
+    /// on with the journal behind. The list stops with an alarm saying why
+    /// and the running order is halted at the cell ([`Self::enforce`]).
+    pub fn store_failed(&mut self, e: &StoreError) {
+        tracing::error!("{e}");
+        say(&format!("EVENT store-error {e}"));
+        if self.store_fault.is_some() {
+            return;
+        }
+        let text = format!(
+            "the order list and journal cannot be written ({e}): the list is stopped{}; \
+             free the disk, then falc ack and falc start",
+            if self.running.is_some() {
+                " and the running order halted"
+            } else {
+                ""
+            }
+        );
+        self.store_fault = Some(text.clone());
+        self.halt_pending = self.running.is_some();
+        self.list = ListState::Alarm;
+        // Not journalled: the journal is what cannot be written.
+        let order = self.running_id();
+        let me = self.me();
+        self.store_alarm = self.raise_alarm(&me, AlarmClass::Device, &text, order);
+    }
+
+    /// Puts an alarm of `station` in the list (the same one again while
+    /// unacknowledged is not repeated); one that needs acknowledgement
+    /// stops the list. Returns its number.
+    fn raise_alarm(
+        &mut self,
+        station: &str,
+        class: AlarmClass,
+        text: &str,
+        order: Option<i64>,
+    ) -> Option<i64> {
+        let (raised, error) = self
+            .alarms
+            .raise(&mut self.store, station, class, text, order);
+        if class.needs_ack() {
+            self.list = ListState::Alarm;
+        }
+        let id = match raised {
+            Raised::New(a) => {
+                say(&format!(
+                    "EVENT alarm id={} class={} station={} {}",
+                    a.id, a.class, a.station, a.text
+                ));
+                a.id
+            }
+            Raised::Repeated(id) => id,
+        };
+        if let Some(e) = error {
+            self.store_failed(&e);
+        }
+        Some(id)
+    }
+
+    /// Clears the alarms of `station` whose condition is gone, from its
+    /// latest status and presence.
+    fn settle_alarms(&mut self, station: &StationName) {
+        let status = self.statuses.get(station);
+        let present = self.present.contains(station);
+        let (cleared, error) =
+            self.alarms
+                .settle(&mut self.store, station.as_str(), status, present);
+        for a in cleared {
+            say(&format!("EVENT alarm-cleared id={}", a.id));
+            self.journal(
+                EntryKind::Report,
+                a.order,
+                station.as_str(),
+                &format!("alarm #{} cleared: {}", a.id, a.text),
+            );
+        }
+        if let Some(e) = error {
+            self.store_failed(&e);
+        }
+    }
+
+    /// Carries out what a failed write asked for: the running order is
+    /// stopped at the cell (its end is written once the store works again).
+    /// Called by the driver after every event.
+    pub async fn enforce(&mut self) {
+        if !std::mem::take(&mut self.halt_pending) {
+            return;
+        }
+        let Some(order) = self.running.take() else {
+            return;
+        };
+        if let Some(q) = self.question.take() {
+            q.responder
+                .respond(Err(ServiceError::state_conflict(
+                    "the order was halted: the journal cannot be written",
+                )))
+                .await;
+        }
+        let stopped = match ObjectName::new(&order.recipe) {
+            Ok(name) => self
+                .station
+                .bus()
+                .request(&self.cell, &Request::Stop { name }, CELL_LIMIT)
+                .await
+                .map(|_| ())
+                .map_err(|e| text_of(&e)),
+            Err(e) => Err(e.to_string()),
+        };
+        match &stopped {
+            Ok(()) => say(&format!("EVENT order-halted id={}", order.id)),
+            Err(why) => say(&format!(
+                "EVENT order-halted id={} (the cell did not confirm: {why})",
+                order.id
+            )),
+        }
+        self.end(
+            order,
+            OrderState::Failed,
+            "halted: the order list and journal could not be written",
+        );
+    }
+
+    /// Writes the order ends a failed store held back; false (with the
+    /// fault raised again) while it still cannot.
+    fn write_held_ends(&mut self) -> Result<(), String> {
+        while let Some((id, state, result)) = self.unwritten_ends.first().cloned() {
+            if let Err(e) = self.store.end_order(id, state, &result) {
+                self.store_failed(&e);
+                return Err(e.to_string());
+            }
+            self.unwritten_ends.remove(0);
+            let me = self.me();
+            self.journal(
+                EntryKind::Order,
+                Some(id),
+                &me,
+                &format!("order {id} {state}: {result} (written late)"),
+            );
+        }
+        Ok(())
     }
 
     fn running_id(&self) -> Option<i64> {
         self.running.as_ref().map(|o| o.id)
+    }
+
+    /// The order a message of the cell or a station belongs to: the running
+    /// one, else the one that ended within [`TRAIL`] (a cause a station
+    /// reports just after its order failed).
+    fn order_of_message(&self) -> Option<i64> {
+        self.running_id().or(self
+            .last_ended
+            .filter(|(_, at)| at.elapsed() < TRAIL)
+            .map(|(id, _)| id))
     }
 
     /// Associates the cell if it is not, and delivers what changed. Quiet
@@ -134,6 +319,19 @@ impl Operator {
                     self.delivered.clear();
                     say(&format!("EVENT associated station={}", self.cell));
                     let me = self.me();
+                    // The cell is back: the lost connection has cleared.
+                    let lost: Vec<i64> = self
+                        .alarms
+                        .listed()
+                        .iter()
+                        .filter(|a| a.station == me && a.class == AlarmClass::Communication)
+                        .map(|a| a.id)
+                        .collect();
+                    for id in lost {
+                        if let Some(e) = self.alarms.clear(&mut self.store, id) {
+                            self.store_failed(&e);
+                        }
+                    }
                     self.journal(
                         EntryKind::System,
                         None,
@@ -237,26 +435,29 @@ impl Operator {
         self.problem = Some(text.clone());
         say(&format!("EVENT cell-lost {reason}"));
         self.question = None;
-        if let Some(order) = self.running.take() {
+        let order = self.running.take();
+        let id = order.as_ref().map(|o| o.id);
+        if let Some(order) = order {
             self.end(order, OrderState::Failed, &format!("alarm: {text}"));
-            self.raise(text);
-        } else {
-            let me = self.me();
-            self.journal(EntryKind::Alarm, None, &me, &text);
         }
+        let me = self.me();
+        self.raise(&me, id, AlarmClass::Communication, text);
     }
 
-    fn raise(&mut self, text: String) {
-        self.list = ListState::Alarm;
-        let me = self.me();
-        let order = self.running_id();
-        self.journal(EntryKind::Alarm, order, &me, &text);
-        self.alarm = Some(text);
+    /// Raises an alarm of `station` that this node journals (a station's
+    /// own reports are journalled as they come), under `order` (the order
+    /// that failed, which no longer runs by now).
+    fn raise(&mut self, station: &str, order: Option<i64>, class: AlarmClass, text: String) {
+        self.raise_alarm(station, class, &text, order);
+        self.journal(EntryKind::Alarm, order, station, &text);
     }
 
     fn end(&mut self, order: Order, state: OrderState, result: &str) {
+        self.last_ended = Some((order.id, std::time::Instant::now()));
         if let Err(e) = self.store.end_order(order.id, state, result) {
-            tracing::error!("{e}");
+            self.unwritten_ends
+                .push((order.id, state, result.to_string()));
+            self.store_failed(&e);
         }
         let me = self.me();
         self.journal(
@@ -269,11 +470,21 @@ impl Operator {
     }
 
     /// Starts the next queued order. `Ok(None)` when the list is empty.
+    /// The order is durably `running` before the cell is asked to start
+    /// it, and goes back to the queue only if the cell refused.
     async fn start_next(&mut self) -> Result<Option<Order>, String> {
+        self.write_held_ends()?;
         let Some(order) = self.store.next_queued().map_err(|e| e.to_string())? else {
             return Ok(None);
         };
         let name = ObjectName::new(&order.recipe).map_err(|e| e.to_string())?;
+        if let Err(e) = self.store.set_running(order.id) {
+            self.store_failed(&e);
+            return Err(format!(
+                "order {} ({}) not started: {e}",
+                order.id, order.recipe
+            ));
+        }
         let bus = self.station.bus().clone();
         let req = Request::Start {
             name,
@@ -281,9 +492,6 @@ impl Operator {
         };
         match bus.request(&self.cell, &req, CELL_LIMIT).await {
             Ok(_) => {
-                self.store
-                    .set_running(order.id)
-                    .map_err(|e| e.to_string())?;
                 let order = Order {
                     state: OrderState::Running,
                     ..order
@@ -300,12 +508,22 @@ impl Operator {
                 self.running = Some(order.clone());
                 Ok(Some(order))
             }
-            Err(e) => Err(format!(
-                "order {} ({}) not started: {}",
-                order.id,
-                order.recipe,
-                text_of(&e)
-            )),
+            Err(e) => {
+                let why = format!(
+                    "order {} ({}) not started: {}",
+                    order.id,
+                    order.recipe,
+                    text_of(&e)
+                );
+                if let Err(e) = self.store.requeue(order.id) {
+                    // Stays `running` in the file: interrupted at a restart,
+                    // never run twice; failed once the store works again.
+                    self.unwritten_ends
+                        .push((order.id, OrderState::Failed, why.clone()));
+                    self.store_failed(&e);
+                }
+                Err(why)
+            }
         }
     }
 
@@ -322,7 +540,10 @@ impl Operator {
                 self.journal(EntryKind::System, None, &me, "the order list is done");
                 say("EVENT list-done");
             }
-            Err(text) => self.raise(text),
+            Err(text) => {
+                let me = self.me();
+                self.raise(&me, None, AlarmClass::Process, text);
+            }
         }
     }
 
@@ -330,22 +551,27 @@ impl Operator {
     pub async fn publication(&mut self, u: Unconfirmed) {
         match u {
             Unconfirmed::Status { station, status } => {
-                self.statuses.insert(station, status);
+                self.statuses.insert(station.clone(), status);
+                self.settle_alarms(&station);
             }
             Unconfirmed::Report {
                 station,
                 severity,
                 text,
-            } if station == self.cell => {
-                let kind = if severity == Severity::Alarm {
-                    EntryKind::Alarm
-                } else {
-                    EntryKind::Report
-                };
-                let order = self.running_id();
-                self.journal(kind, order, station.as_str(), &text);
+            } => {
+                // Every station's reports, each under its own name (its
+                // message pane), with the order they belong to.
+                let order = self.order_of_message();
+                match severity {
+                    Severity::Alarm(class) => {
+                        self.raise_alarm(station.as_str(), class, &text, order);
+                        self.journal(EntryKind::Alarm, order, station.as_str(), &text);
+                    }
+                    Severity::Info | Severity::Warning => {
+                        self.journal(EntryKind::Report, order, station.as_str(), &text);
+                    }
+                }
             }
-            Unconfirmed::Report { .. } => {}
             Unconfirmed::Job {
                 station,
                 program,
@@ -374,28 +600,30 @@ impl Operator {
                         self.continue_list().await;
                     }
                     failure => {
-                        let (result, alarm) = match failure {
-                            JobEvent::Alarm(text) => (
-                                format!("alarm: {text}"),
-                                format!("order {} ({}): {text}", order.id, order.recipe),
-                            ),
-                            other => {
-                                let word = match other {
-                                    JobEvent::BadProduct => "bad_product",
-                                    JobEvent::FailedSafe => "failed_safe",
-                                    _ => "failed_danger",
-                                };
-                                let alarm = format!(
-                                    "order {} ({}) ended with {word}",
-                                    order.id, order.recipe
-                                );
-                                (word.to_string(), alarm)
-                            }
-                        };
                         self.running = None;
                         self.question = None;
-                        self.end(order, OrderState::Failed, &result);
-                        self.raise(alarm);
+                        let id = order.id;
+                        match failure {
+                            JobEvent::Alarm(cause) => {
+                                self.end(order, OrderState::Failed, &format!("alarm: {cause}"));
+                                // The cell reported the same alarm (journalled
+                                // as it came): one alarm, whichever is first.
+                                let cell = self.cell.to_string();
+                                self.raise_alarm(&cell, cause.class, &cause.text, Some(id));
+                            }
+                            other => {
+                                let (word, class) = match other {
+                                    JobEvent::BadProduct => ("bad_product", AlarmClass::Process),
+                                    JobEvent::FailedSafe => ("failed_safe", AlarmClass::Process),
+                                    _ => ("failed_danger", AlarmClass::Safety),
+                                };
+                                let text =
+                                    format!("order {} ({}) ended with {word}", id, order.recipe);
+                                self.end(order, OrderState::Failed, word);
+                                let me = self.me();
+                                self.raise(&me, Some(id), class, text);
+                            }
+                        }
                     }
                 }
             }
@@ -406,16 +634,17 @@ impl Operator {
     /// A station came onto or left the bus.
     pub fn presence(&mut self, p: falc_common::bus::Presence) {
         if p.present {
-            self.present.insert(p.station);
+            self.present.insert(p.station.clone());
         } else {
             self.present.remove(&p.station);
         }
+        self.settle_alarms(&p.station);
     }
 
     /// A request from the cell: operator communication.
     pub async fn upward(&mut self, request: Request, responder: Responder) {
         let cell = self.cell.to_string();
-        let order = self.running_id();
+        let order = self.order_of_message();
         match request {
             Request::Output { lines } => {
                 for l in &lines {
@@ -461,7 +690,8 @@ impl Operator {
             list: self.list,
             cell_associated: self.associated,
             problem: self.problem.clone(),
-            alarm: self.alarm.clone(),
+            alarm: self.alarms.blocking().map(|a| a.line()),
+            alarms: self.alarms.listed().to_vec(),
             running: self.running.clone(),
             queued: self.store.queued()?,
             journal_head: self.store.journal_head()?,
@@ -531,10 +761,13 @@ impl Operator {
                         ));
                     }
                 }
-                let order = self
-                    .store
-                    .add_order(&recipe.to_lowercase(), who)
-                    .map_err(db)?;
+                let order = match self.store.add_order(&recipe.to_lowercase(), who) {
+                    Ok(o) => o,
+                    Err(e) => {
+                        self.store_failed(&e);
+                        return Err(e.to_string());
+                    }
+                };
                 self.journal(
                     EntryKind::Action,
                     Some(order.id),
@@ -557,19 +790,7 @@ impl Operator {
             },
             ApiRequest::Start => self.start(who).await,
             ApiRequest::Stop => self.stop(who).await,
-            ApiRequest::Ack => {
-                let Some(alarm) = self.alarm.take() else {
-                    return Ok(ApiReply::Done("no alarm to acknowledge".into()));
-                };
-                self.list = ListState::Idle;
-                self.journal(
-                    EntryKind::Action,
-                    None,
-                    who,
-                    &format!("acknowledged: {alarm}"),
-                );
-                Ok(ApiReply::Done(format!("acknowledged: {alarm}")))
-            }
+            ApiRequest::Ack { id } => self.ack(who, id),
             ApiRequest::Answer { text } => {
                 let Some(q) = self.question.take() else {
                     return Err("no question is waiting for an answer".into());
@@ -634,10 +855,49 @@ impl Operator {
         }
     }
 
+    /// Acknowledges alarm `id`, or all; journalled with the user.
+    fn ack(&mut self, who: &str, id: Option<i64>) -> ApiResult {
+        let (acked, error) = self.alarms.ack(&mut self.store, id, who)?;
+        if acked.is_empty() {
+            return Ok(ApiReply::Done("no alarm to acknowledge".into()));
+        }
+        if let Some(s) = self
+            .store_alarm
+            .filter(|s| acked.iter().any(|a| a.id == *s))
+        {
+            // Acknowledged: the next write tells whether the store works
+            // again (it raises a new alarm if not).
+            self.store_fault = None;
+            self.store_alarm = None;
+            let _ = self.alarms.clear(&mut self.store, s);
+        }
+        if let Some(e) = error {
+            self.store_failed(&e);
+        }
+        for a in &acked {
+            self.journal(
+                EntryKind::Action,
+                a.order,
+                who,
+                &format!("acknowledged alarm {}", a.line()),
+            );
+        }
+        if self.list == ListState::Alarm && self.alarms.blocking().is_none() {
+            self.list = ListState::Idle;
+        }
+        let lines: Vec<String> = acked.iter().map(|a| a.line()).collect();
+        Ok(ApiReply::Done(format!(
+            "acknowledged: {}",
+            lines.join("; ")
+        )))
+    }
+
     async fn start(&mut self, who: &str) -> ApiResult {
-        if let Some(alarm) = &self.alarm {
+        if let Some(a) = self.alarms.blocking() {
             return Err(format!(
-                "an alarm waits for acknowledgement (falc ack): {alarm}"
+                "alarm {} waits for acknowledgement (falc ack {}, or falc ack for all)",
+                a.line(),
+                a.id
             ));
         }
         if self.shutdown_pending {

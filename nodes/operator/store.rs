@@ -4,6 +4,7 @@
 //! that was running when the node died as interrupted (never re-run by
 //! itself) and journals it.
 
+use falc_common::alarm::{Alarm, AlarmClass};
 use falc_common::api::{Entry, EntryKind, Order, OrderState};
 use rusqlite::{params, Connection, OptionalExtension, Row};
 use std::path::Path;
@@ -52,7 +53,38 @@ CREATE TABLE IF NOT EXISTS journal (
     text TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS journal_order ON journal(order_id);
+CREATE TABLE IF NOT EXISTS alarms (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    station TEXT NOT NULL,
+    class TEXT NOT NULL,
+    text TEXT NOT NULL,
+    order_id INTEGER,
+    raised_ms INTEGER NOT NULL,
+    acked_by TEXT,
+    acked_ms INTEGER,
+    cleared_ms INTEGER
+);
 ";
+
+const ALARM_COLUMNS: &str =
+    "id, station, class, text, order_id, raised_ms, acked_by, acked_ms, cleared_ms";
+
+fn alarm_of(row: &Row<'_>) -> rusqlite::Result<Alarm> {
+    let class: String = row.get(2)?;
+    let acked_by: Option<String> = row.get(6)?;
+    let acked_ms: Option<i64> = row.get(7)?;
+    Ok(Alarm {
+        id: row.get(0)?,
+        station: row.get(1)?,
+        // A class this version does not know is kept as the strictest.
+        class: AlarmClass::parse(&class).unwrap_or(AlarmClass::Safety),
+        text: row.get(3)?,
+        order: row.get(4)?,
+        raised_ms: row.get(5)?,
+        acked: acked_by.zip(acked_ms),
+        cleared_ms: row.get(8)?,
+    })
+}
 
 const ORDER_COLUMNS: &str = "id, recipe, state, added_by, started_ms, ended_ms, result";
 
@@ -267,6 +299,19 @@ impl Store {
             .map(|_| ())
     }
 
+    /// Puts an order the cell refused to start back in the queue (it is
+    /// marked running before the cell is asked, so that an order the cell
+    /// may have started is never queued again; only a refusal undoes it).
+    pub fn requeue(&mut self, id: i64) -> Result<(), StoreError> {
+        self.conn
+            .execute(
+                "UPDATE orders SET state = 'queued', started_ms = NULL WHERE id = ?1 AND state = 'running'",
+                params![id],
+            )
+            .map_err(self.fail("cannot put an order back in the queue"))
+            .map(|_| ())
+    }
+
     /// Ends an order in `state` with `result` in words.
     pub fn end_order(
         &mut self,
@@ -308,6 +353,80 @@ impl Store {
         })
     }
 
+    /// Makes every later write fail (the unit tests' full disk).
+    #[cfg(test)]
+    pub fn set_read_only_for_tests(&mut self) {
+        let _ = self.conn.pragma_update(None, "query_only", true);
+    }
+
+    /// Records a new alarm, active.
+    pub fn raise_alarm(
+        &mut self,
+        station: &str,
+        class: AlarmClass,
+        text: &str,
+        order: Option<i64>,
+    ) -> Result<Alarm, StoreError> {
+        let raised_ms = now_ms();
+        self.conn
+            .execute(
+                "INSERT INTO alarms (station, class, text, order_id, raised_ms) VALUES (?1, ?2, ?3, ?4, ?5)",
+                params![station, class.as_str(), text, order, raised_ms],
+            )
+            .map_err(self.fail("cannot record an alarm"))?;
+        Ok(Alarm {
+            id: self.conn.last_insert_rowid(),
+            station: station.to_string(),
+            class,
+            text: text.to_string(),
+            order,
+            raised_ms,
+            acked: None,
+            cleared_ms: None,
+        })
+    }
+
+    /// Records who acknowledged alarm `id`, at `at_ms`.
+    pub fn ack_alarm(&mut self, id: i64, who: &str, at_ms: i64) -> Result<(), StoreError> {
+        self.conn
+            .execute(
+                "UPDATE alarms SET acked_by = ?1, acked_ms = ?2 WHERE id = ?3 AND acked_by IS NULL",
+                params![who, at_ms, id],
+            )
+            .map_err(self.fail("cannot acknowledge an alarm"))
+            .map(|_| ())
+    }
+
+    /// Records that alarm `id`'s condition cleared at `at_ms`.
+    pub fn clear_alarm(&mut self, id: i64, at_ms: i64) -> Result<(), StoreError> {
+        self.conn
+            .execute(
+                "UPDATE alarms SET cleared_ms = ?1 WHERE id = ?2 AND cleared_ms IS NULL",
+                params![at_ms, id],
+            )
+            .map_err(self.fail("cannot clear an alarm"))
+            .map(|_| ())
+    }
+
+    /// The alarms still in the list (not both acknowledged and cleared),
+    /// oldest first.
+    pub fn listed_alarms(&self) -> Result<Vec<Alarm>, StoreError> {
+        let mut st = self
+            .conn
+            .prepare(&format!(
+                "SELECT {ALARM_COLUMNS} FROM alarms
+                 WHERE acked_ms IS NULL OR cleared_ms IS NULL ORDER BY id"
+            ))
+            .map_err(self.fail("cannot read the alarms"))?;
+        let rows = st
+            .query_map([], alarm_of)
+            .map_err(self.fail("cannot read the alarms"))?;
+        let all = rows
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(self.fail("cannot read the alarms"))?;
+        Ok(all.into_iter().filter(Alarm::listed).collect())
+    }
+
     /// Journal entries after id `after` (at most `limit`), optionally of one
     /// order, optionally only messages.
     pub fn entries(
@@ -347,6 +466,61 @@ impl Store {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn alarms_survive_a_reopen_until_acknowledged_and_cleared() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("falc.db");
+        let (a, b) = {
+            let mut s = Store::open(&path).expect("open");
+            let a = s
+                .raise_alarm("welding", AlarmClass::Safety, "estop", Some(1))
+                .expect("raise");
+            let b = s
+                .raise_alarm("transport", AlarmClass::Device, "not ready", None)
+                .expect("raise");
+            s.ack_alarm(a.id, "ann", 5).expect("ack");
+            s.clear_alarm(b.id, 6).expect("clear");
+            (a, b)
+        };
+        let mut s = Store::open(&path).expect("reopen");
+        let listed = s.listed_alarms().expect("list");
+        assert_eq!(listed.len(), 2);
+        assert_eq!(listed[0].acked, Some(("ann".into(), 5)));
+        assert_eq!(listed[1].cleared_ms, Some(6));
+        s.clear_alarm(a.id, 7).expect("clear");
+        s.ack_alarm(b.id, "bob", 8).expect("ack");
+        assert!(s.listed_alarms().expect("list").is_empty());
+        // A second acknowledgement does not overwrite the first.
+        s.ack_alarm(a.id, "eve", 9).expect("ack");
+        let row = s
+            .conn
+            .query_row("SELECT acked_by FROM alarms WHERE id = ?1", [a.id], |r| {
+                r.get::<_, String>(0)
+            })
+            .expect("row");
+        assert_eq!(row, "ann");
+    }
+
+    #[test]
+    fn only_a_running_order_goes_back_to_the_queue() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut s = Store::open(&dir.path().join("falc.db")).expect("open");
+        let a = s.add_order("dikdroog", "ann").expect("add");
+        s.set_running(a.id).expect("run");
+        s.requeue(a.id).expect("requeue");
+        let o = s.order(a.id).expect("read").expect("there");
+        assert_eq!((o.state, o.started_ms), (OrderState::Queued, None));
+        s.set_running(a.id).expect("run");
+        s.end_order(a.id, OrderState::Done, "done").expect("end");
+        s.requeue(a.id).expect("a no-op");
+        let o = s.order(a.id).expect("read").expect("there");
+        assert_eq!(
+            o.state,
+            OrderState::Done,
+            "an order that ran is never queued again"
+        );
+    }
 
     #[test]
     fn orders_and_journal_survive_a_reopen_and_running_becomes_interrupted() {

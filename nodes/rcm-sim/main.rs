@@ -10,7 +10,8 @@
 //! Control lines on stdin (answered `ok …` or `error …` on stdout):
 //! `estop`, `estop-clear`, `person-in`, `person-out`, `limit-switch`,
 //! `abort-weld`, `alarm <code>`, `mode manual|automatic|aue`, `noise <n>`
-//! (n random bytes on the line), `unplug`, `replug`.
+//! (n random bytes on the line), `unplug`, `replug`, `lose-end` (the next
+//! program end is never sent: the host must learn it from the status).
 
 mod pty;
 mod robot;
@@ -94,6 +95,7 @@ fn parse_control(line: &str) -> Result<Line, String> {
         ["person-out"] => Line::Control(Control::PersonOut),
         ["limit-switch"] => Line::Control(Control::LimitSwitch),
         ["abort-weld"] => Line::Control(Control::AbortWeld),
+        ["lose-end"] => Line::Control(Control::LoseEnd),
         ["alarm", code] => Line::Control(Control::Alarm(
             code.parse()
                 .map_err(|_| format!("bad alarm code `{code}`"))?,

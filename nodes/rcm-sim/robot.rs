@@ -25,6 +25,9 @@ pub enum Control {
     Alarm(u16),
     /// Change mode.
     Mode(Mode),
+    /// The next program end is never sent (as when all its 3964R attempts
+    /// failed on a disturbed line): the host must learn it from the status.
+    LoseEnd,
 }
 
 #[derive(Debug, Clone)]
@@ -42,6 +45,11 @@ pub struct Robot {
     programs: BTreeMap<u16, Duration>,
     selected: Option<Program>,
     run: Option<Run>,
+    /// The selected program was stopped before its end (stop, emergency
+    /// stop, limit switch, aborted weld): reported as `stopped` until the
+    /// next select or start.
+    stopped: bool,
+    lose_end: bool,
 }
 
 /// The program table: number → duration at time scale 1.
@@ -67,13 +75,23 @@ impl Robot {
             programs,
             selected: None,
             run: None,
+            stopped: false,
+            lose_end: false,
         }
+    }
+
+    /// Ends the running program before its end.
+    fn cut(&mut self) -> Option<Run> {
+        let r = self.run.take();
+        self.stopped |= r.is_some();
+        r
     }
 
     fn status(&self) -> Telegram {
         let (program, state) = match (&self.run, self.selected) {
             (Some(r), _) if r.since.is_none() => (Some(r.program), ProgramState::Paused),
             (Some(r), _) => (Some(r.program), ProgramState::Running),
+            (None, Some(p)) if self.stopped => (Some(p), ProgramState::Stopped),
             (None, Some(p)) => (Some(p), ProgramState::Selected),
             (None, None) => (None, ProgramState::Idle),
         };
@@ -113,6 +131,7 @@ impl Robot {
                     vec![ack(Some(AckError::UnknownProgram))]
                 } else {
                     self.selected = Some(p);
+                    self.stopped = false;
                     vec![ack(None)]
                 }
             }
@@ -120,6 +139,7 @@ impl Robot {
                 (_, Some(_)) => vec![ack(Some(AckError::ProgramRunning))],
                 (None, None) => vec![ack(Some(AckError::NoProgramSelected))],
                 (Some(p), None) => {
+                    self.stopped = false;
                     let left = self.programs.get(&p.number()).copied().unwrap_or_default();
                     self.run = Some(Run {
                         program: p,
@@ -129,7 +149,7 @@ impl Robot {
                     vec![ack(None), self.status()]
                 }
             },
-            Telegram::StopProgram => match self.run.take() {
+            Telegram::StopProgram => match self.cut() {
                 Some(_) => vec![
                     ack(None),
                     Telegram::ProgramStatus {
@@ -159,6 +179,9 @@ impl Robot {
     pub fn handle_timeout(&mut self, now: Duration) -> Vec<Telegram> {
         if self.poll_timeout().is_some_and(|t| t <= now) {
             if let Some(r) = self.run.take() {
+                if std::mem::take(&mut self.lose_end) {
+                    return Vec::new();
+                }
                 return vec![Telegram::ProgramEnd {
                     program: r.program,
                     result: EndResult::Complete,
@@ -173,12 +196,13 @@ impl Robot {
         match c {
             Control::EStop => {
                 self.estop = true;
-                self.run = None;
+                self.cut();
                 vec![Telegram::Alarm(24)]
             }
             Control::EStopClear => {
+                // A real RCM reports its status when it leaves the stop.
                 self.estop = false;
-                Vec::new()
+                vec![self.status()]
             }
             Control::PersonIn => {
                 if let Some(r) = &mut self.run {
@@ -195,10 +219,10 @@ impl Robot {
                 vec![Telegram::Alarm(31)]
             }
             Control::LimitSwitch => {
-                self.run = None;
+                self.cut();
                 vec![Telegram::Alarm(40)]
             }
-            Control::AbortWeld => match self.run.take() {
+            Control::AbortWeld => match self.cut() {
                 Some(r) => vec![
                     Telegram::Alarm(50),
                     Telegram::ProgramEnd {
@@ -211,6 +235,10 @@ impl Robot {
             Control::Alarm(code) => vec![Telegram::Alarm(code)],
             Control::Mode(m) => {
                 self.mode = m;
+                Vec::new()
+            }
+            Control::LoseEnd => {
+                self.lose_end = true;
                 Vec::new()
             }
         }
@@ -297,6 +325,37 @@ mod tests {
                 error: Some(AckError::NoProgramSelected)
             }]
         );
+    }
+
+    #[test]
+    fn the_status_tells_a_stopped_program_from_a_complete_one() {
+        let mut r = Robot::new(Mode::AutomaticExternal, 1.0);
+        let status = |r: &mut Robot| r.handle(secs(0), Telegram::StatusRequest);
+        let st = |program, state| {
+            vec![Telegram::ProgramStatus {
+                program: Some(p(program)),
+                state,
+                mode: Mode::AutomaticExternal,
+            }]
+        };
+        r.handle(secs(0), Telegram::SelectProgram(p(64)));
+        r.handle(secs(0), Telegram::StartProgram);
+        r.control(secs(1), Control::EStop);
+        assert_eq!(status(&mut r), st(64, ProgramState::Stopped));
+        assert_eq!(
+            r.control(secs(2), Control::EStopClear),
+            st(64, ProgramState::Stopped),
+            "the status is sent when the stop is cleared"
+        );
+        // Selected again, run to its end, whose telegram is lost.
+        r.handle(secs(2), Telegram::SelectProgram(p(64)));
+        r.handle(secs(2), Telegram::StartProgram);
+        r.control(secs(3), Control::LoseEnd);
+        assert_eq!(r.handle_timeout(secs(62)), vec![]);
+        assert_eq!(status(&mut r), st(64, ProgramState::Selected));
+        // Only the next end: the one after is sent.
+        r.handle(secs(62), Telegram::StartProgram);
+        assert_eq!(r.handle_timeout(secs(122)).len(), 1);
     }
 
     #[test]

@@ -16,6 +16,7 @@ mod plc;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
+use falc_common::alarm::{AlarmClass, Cause};
 use falc_common::bus::station::Station;
 use falc_common::ids::StationName;
 use falc_common::mms::pdu::Severity;
@@ -174,8 +175,8 @@ async fn main() -> Result<()> {
                     let was_down = ws.device.unavailable();
                     let (events, alarm) = ws.device.inputs(inputs, commands_done);
                     ws.feed(events);
-                    if let Some(why) = alarm {
-                        ws.fault(&why).await;
+                    if let Some(cause) = alarm {
+                        ws.fault(cause).await;
                     } else if was_down.is_some() && ws.device.unavailable().is_none() {
                         say("EVENT plc-ready");
                         ws.report(Severity::Info, format!("conveyor PLC at {address} ready")).await;
@@ -183,10 +184,10 @@ async fn main() -> Result<()> {
                 }
                 Some(PlcEvent::Fault(why)) => {
                     ws.device.link_down(&why);
-                    ws.fault(&why).await;
+                    ws.fault(Cause::new(AlarmClass::Communication, why)).await;
                 }
                 None => {
-                    ws.fault("the PLC link task stopped").await;
+                    ws.fault(Cause::new(AlarmClass::Device, "the PLC link task stopped")).await;
                     break;
                 }
             },

@@ -8,9 +8,26 @@
 //! sensor). It knows only the documented I/O map, never the conveyor's
 //! layout, so it works with any PLC that honours the map.
 //!
+//! The buttons' state is defined at every step (the README's wiring guide
+//! states the same rule):
+//! - **on (re)connection** every button is released and external control
+//!   taken, in one write;
+//! - **`activate`** always gives the PLC a rising edge: a button this node
+//!   already holds (a station button kept across an alarm, say) is
+//!   released and pressed again, so the PLC never waits for an edge that
+//!   cannot come;
+//! - **after an alarm, a failed job, or a stop or kill by the commander**
+//!   the line buttons are released (nothing moves) and the station buttons
+//!   stay (a workpiece stays clamped on its station while people look);
+//! - **when the commander is lost** every button is released (the cell's
+//!   whole job is gone, the weld stopped with it);
+//! - **after `ack`** nothing is written: the operator sets the carriers
+//!   back by hand and the next job's `activate` presses afresh.
+//!
 //! Sans-I/O but for the command channel to the link task (an in-memory
 //! channel in the unit tests).
 
+use falc_common::alarm::{AlarmClass, Cause};
 use falc_common::mms::vmd::{PhysicalStatus, VmdStatus};
 use falc_common::plc::driver::{Pace, PlcCommand};
 use falc_common::plc::map::{Coil, Input, Inputs, SignalName};
@@ -85,6 +102,10 @@ impl Plc {
     }
 
     fn write(&mut self, b: Button, value: bool) {
+        if value && self.pressed.contains(&b) {
+            // Held already: released first, so the PLC sees a rising edge.
+            self.send(PlcCommand::Write(Coil::Button(b), false));
+        }
         self.pressed.retain(|p| *p != b);
         if value {
             self.pressed.push(b);
@@ -114,8 +135,9 @@ impl Plc {
     }
 
     /// A new reading. Returns what it means for the running recipe, and an
-    /// alarm if the PLC went into emergency stop or out of ready.
-    pub fn inputs(&mut self, inputs: Inputs, commands_done: u64) -> (Vec<Event>, Option<String>) {
+    /// alarm if the PLC went into emergency stop (safety) or out of ready
+    /// (device).
+    pub fn inputs(&mut self, inputs: Inputs, commands_done: u64) -> (Vec<Event>, Option<Cause>) {
         let before = self.inputs.replace(inputs);
         self.inputs_after = commands_done;
         let mut events = Vec::new();
@@ -125,17 +147,20 @@ impl Plc {
         }
         let was = |i: Input| before.is_some_and(|b| b.get(i));
         let alarm = if inputs.get(Input::EStop) && !was(Input::EStop) {
-            Some(format!(
-                "emergency stop on the conveyor PLC at {}",
-                self.address
+            Some(Cause::new(
+                AlarmClass::Safety,
+                format!("emergency stop on the conveyor PLC at {}", self.address),
             ))
         } else if !inputs.get(Input::Ready)
             && !inputs.get(Input::EStop)
             && (was(Input::Ready) || before.is_none())
         {
-            Some(format!(
-                "the conveyor PLC at {} is not ready (input `PLC ready` off)",
-                self.address
+            Some(Cause::new(
+                AlarmClass::Device,
+                format!(
+                    "the conveyor PLC at {} is not ready (input `PLC ready` off)",
+                    self.address
+                ),
             ))
         } else {
             None
@@ -366,8 +391,11 @@ mod tests {
         stop.set(Input::Ready, false);
         let (_, alarm) = p.inputs(stop, 1);
         assert_eq!(
-            alarm.as_deref(),
-            Some("emergency stop on the conveyor PLC at plc:502")
+            alarm,
+            Some(Cause::new(
+                AlarmClass::Safety,
+                "emergency stop on the conveyor PLC at plc:502"
+            ))
         );
         assert!(p
             .unavailable()
@@ -426,7 +454,7 @@ mod tests {
         act(&mut p, 0, Action::Activate(Button::Station(3)));
         act(&mut p, 0, Action::Activate(Button::Line('E')));
         drain(&mut rx);
-        p.finished(&Outcome::Alarm("x".into()));
+        p.finished(&Outcome::Alarm(Cause::process("x")));
         assert_eq!(
             drain(&mut rx),
             vec![
@@ -457,6 +485,30 @@ mod tests {
             released.contains(&PlcCommand::Write(Coil::Button(Button::Station(3)), false)),
             "{released:?}"
         );
+    }
+
+    #[test]
+    fn activate_of_a_held_button_gives_a_rising_edge() {
+        let (mut p, mut rx) = plc();
+        p.connected();
+        p.inputs(ready(), 1);
+        act(&mut p, 0, Action::Activate(Button::Station(3)));
+        // An alarm keeps the station button; the next job presses it again.
+        p.finished(&Outcome::Alarm(Cause::new(AlarmClass::Safety, "estop")));
+        drain(&mut rx);
+        act(&mut p, 0, Action::Activate(Button::Station(3)));
+        assert_eq!(
+            drain(&mut rx),
+            vec![
+                PlcCommand::Pace(Pace::Busy),
+                PlcCommand::Write(Coil::Button(Button::Station(3)), false),
+                PlcCommand::Write(Coil::Button(Button::Station(3)), true),
+            ]
+        );
+        // A watch after it waits for both writes.
+        assert!(p.settling());
+        p.inputs(ready(), p.issued() - 1);
+        assert!(p.settling(), "the press itself is not carried out yet");
     }
 
     #[test]

@@ -3,11 +3,19 @@
 //! and the RCM's acknowledgements, program ends and alarm messages into
 //! engine events and robot status (through the alarm table).
 
+use falc_common::alarm::{AlarmClass, Cause};
 use falc_common::dnc::alarms::{self, Effect};
-use falc_common::dnc::telegram::{EndResult, Program, Telegram};
+use falc_common::dnc::telegram::{EndResult, Mode, Program, ProgramState, Telegram};
 use falc_common::ids::StationName;
-use falc_common::mms::vmd::RobotStatusDetail;
+use falc_common::mms::vmd::{RobotStatusDetail, RobotVmdState};
 use falc_common::recipe::engine::{Event, JobEnd};
+use std::time::Duration;
+
+/// How often the RCM's status is asked while a program of ours runs.
+pub const STATUS_PERIOD: Duration = Duration::from_secs(1);
+/// How long a status request may go unanswered before the line counts as
+/// silent: with the period, a silent line is an alarm within 3 s.
+pub const SILENT_LIMIT: Duration = Duration::from_secs(2);
 
 /// What the host wants done.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -20,27 +28,110 @@ pub enum Out {
     Detail(RobotStatusDetail),
     /// Tell people (information report).
     Info(String),
+    /// Tell the commander: something no job owns went wrong (a report of
+    /// that class, not a job event).
+    Alarm(Cause),
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Pending {
     Select(Program),
-    Start,
+    Start(Program),
 }
 
 /// The host's state.
 #[derive(Debug)]
 pub struct Host {
     rcm: StationName,
+    /// The serial line, for messages.
+    line: String,
     pending: Option<Pending>,
+    /// The program a job of ours runs on the robot (from the start's
+    /// acknowledgement until its end).
+    running: Option<Program>,
+    /// When the unanswered status request went out.
+    asked: Option<Duration>,
+    /// When the RCM was last heard.
+    heard: Duration,
+    /// The line went silent or was (re)opened: ask until the RCM answers,
+    /// then stop a program nobody owns.
+    probing: bool,
+    /// A status request is still in the link's hands (not yet delivered
+    /// or given up): no second one is queued behind it.
+    asking: bool,
+    mode: Option<Mode>,
+}
+
+/// The robot's status detail from its own program status (ISO 9506-3
+/// RobotStatusDetail; DNC cannot see power-on, units are irrelevant).
+pub fn detail_of(state: ProgramState, mode: Mode) -> RobotStatusDetail {
+    let state = match state {
+        ProgramState::Idle => RobotVmdState::Idle,
+        ProgramState::Selected => RobotVmdState::Loaded,
+        ProgramState::Running => RobotVmdState::Executing,
+        ProgramState::Paused => RobotVmdState::MotionPaused,
+        ProgramState::Stopped => RobotVmdState::Ready,
+    };
+    let local = if mode == Mode::AutomaticExternal {
+        0
+    } else {
+        RobotStatusDetail::LOCAL_CONTROL
+    };
+    RobotStatusDetail {
+        state,
+        specific: RobotStatusDetail::ALL_CALIBRATED | local,
+        mask: alarms::MASK,
+    }
+}
+
+fn word(state: ProgramState) -> &'static str {
+    match state {
+        ProgramState::Idle => "idle, no program selected",
+        ProgramState::Selected => "selected, not running",
+        ProgramState::Running => "running",
+        ProgramState::Paused => "paused",
+        ProgramState::Stopped => "stopped before its end",
+    }
 }
 
 impl Host {
-    /// A host with nothing pending.
-    pub fn new() -> Self {
+    /// A host on serial line `line` (for messages) with nothing pending.
+    pub fn new(line: &str) -> Self {
         Self {
             rcm: StationName::new("rcm").unwrap_or_else(|_| unreachable!("`rcm` is a valid name")),
+            line: line.to_string(),
             pending: None,
+            running: None,
+            asked: None,
+            heard: Duration::ZERO,
+            probing: false,
+            asking: false,
+            mode: None,
+        }
+    }
+
+    /// The robot program a job of ours runs, if any.
+    pub fn running(&self) -> Option<Program> {
+        self.running
+    }
+
+    /// The line was (re)opened (also at start-up): initiate DNC and ask
+    /// the robot's status (thesis §5.2, appendix H), so a program that no
+    /// job of ours owns is found and stopped.
+    pub fn connected(&mut self, now: Duration) -> Vec<Out> {
+        self.probing = true;
+        self.asked = Some(now);
+        self.asking = true;
+        vec![
+            Out::Telegram(Telegram::InitiateDnc),
+            Out::Telegram(Telegram::StatusRequest),
+        ]
+    }
+
+    /// The link delivered a telegram or gave it up (3964R retries spent).
+    pub fn link_done(&mut self, telegram: &[u8]) {
+        if telegram == Telegram::StatusRequest.encode().as_slice() {
+            self.asking = false;
         }
     }
 
@@ -53,20 +144,125 @@ impl Host {
     /// The engine (or the commander) wants the robot stopped.
     pub fn stop(&mut self) -> Vec<Out> {
         self.pending = None;
+        self.running = None;
         vec![Out::Telegram(Telegram::StopProgram)]
     }
 
     /// The link could not deliver a telegram: the job cannot go on.
     pub fn link_failed(&mut self, why: String) -> Vec<Out> {
         self.pending = None;
+        self.running = None;
+        self.probing = true;
         vec![Out::Engine(Event::Ended(
             self.rcm.clone(),
-            JobEnd::Alarm(why),
+            JobEnd::Alarm(Cause::new(AlarmClass::Communication, why)),
         ))]
     }
 
-    /// A telegram from the RCM.
-    pub fn telegram(&mut self, t: Telegram) -> Vec<Out> {
+    /// When the host next needs the clock: the next status request, or
+    /// the end of the wait for its answer.
+    pub fn poll_timeout(&self) -> Option<Duration> {
+        if self.running.is_none() && !self.probing {
+            return None;
+        }
+        Some(match self.asked {
+            Some(at) => at + SILENT_LIMIT,
+            None => self.heard + STATUS_PERIOD,
+        })
+    }
+
+    /// The clock reached [`Self::poll_timeout`].
+    pub fn handle_timeout(&mut self, now: Duration) -> Vec<Out> {
+        if !self.poll_timeout().is_some_and(|t| t <= now) {
+            return Vec::new();
+        }
+        match self.asked {
+            Some(at) => {
+                // Unanswered: the line is silent.
+                self.asked = None;
+                self.heard = now;
+                self.probing = true;
+                let Some(p) = self.running.take() else {
+                    return Vec::new();
+                };
+                self.pending = None;
+                let why = format!(
+                    "no connection with RCM on {}: status request unanswered for {:.1} s while robot program {} runs",
+                    self.line,
+                    now.saturating_sub(at).as_secs_f64(),
+                    p.number()
+                );
+                vec![Out::Engine(Event::Ended(
+                    self.rcm.clone(),
+                    JobEnd::Alarm(Cause::new(AlarmClass::Communication, why)),
+                ))]
+            }
+            None => {
+                self.asked = Some(now);
+                if std::mem::replace(&mut self.asking, true) {
+                    // The last one is still being tried on a silent line.
+                    return Vec::new();
+                }
+                vec![Out::Telegram(Telegram::StatusRequest)]
+            }
+        }
+    }
+
+    /// A program status from the RCM (asked for or not).
+    fn program_status(
+        &mut self,
+        program: Option<Program>,
+        state: ProgramState,
+        mode: Mode,
+    ) -> Vec<Out> {
+        // An answer: the request went out.
+        self.asked = None;
+        self.asking = false;
+        self.mode = Some(mode);
+        let mut out = vec![Out::Detail(detail_of(state, mode))];
+        let active = matches!(state, ProgramState::Running | ProgramState::Paused);
+        match self.running {
+            Some(p) if program == Some(p) && active => {}
+            Some(p) if self.pending.is_none() => {
+                // Its end telegram was lost: the status tells how it ended.
+                self.running = None;
+                let shown = program.map_or("none".to_string(), |q| q.number().to_string());
+                let end = if program == Some(p) && state == ProgramState::Selected {
+                    out.push(Out::Info(format!(
+                        "robot program {} ended but its end telegram was lost; the RCM reports it {}: taken as complete",
+                        p.number(),
+                        word(state)
+                    )));
+                    JobEnd::Done
+                } else {
+                    JobEnd::Alarm(Cause::new(AlarmClass::Device, format!(
+                        "robot program {} is no longer running on the RCM on {} (status: program {shown} {}), and its end telegram was lost",
+                        p.number(),
+                        self.line,
+                        word(state)
+                    )))
+                };
+                out.push(Out::Engine(Event::Ended(self.rcm.clone(), end)));
+            }
+            Some(_) => {}
+            None if active && self.pending.is_none() => {
+                let shown = program.map_or("?".to_string(), |q| q.number().to_string());
+                out.push(Out::Telegram(Telegram::StopProgram));
+                out.push(Out::Alarm(Cause::new(AlarmClass::Warning, format!(
+                    "robot program {shown} was {} on the RCM on {} with no job of this workstation (a restart of the workstation, or a lost line): stopped",
+                    word(state),
+                    self.line
+                ))));
+            }
+            None => {}
+        }
+        self.probing = false;
+        out
+    }
+
+    /// A telegram from the RCM, at `now`.
+    pub fn telegram(&mut self, now: Duration, t: Telegram) -> Vec<Out> {
+        self.heard = now;
         let rcm = self.rcm.clone();
         match (t, self.pending) {
             (
@@ -74,9 +270,9 @@ impl Host {
                     of: b'S',
                     error: None,
                 },
-                Some(Pending::Select(_)),
+                Some(Pending::Select(p)),
             ) => {
-                self.pending = Some(Pending::Start);
+                self.pending = Some(Pending::Start(p));
                 vec![Out::Telegram(Telegram::StartProgram)]
             }
             (
@@ -84,9 +280,11 @@ impl Host {
                     of: b'G',
                     error: None,
                 },
-                Some(Pending::Start),
+                Some(Pending::Start(p)),
             ) => {
                 self.pending = None;
+                self.running = Some(p);
+                self.asked = None;
                 vec![Out::Engine(Event::Started(rcm))]
             }
             (Telegram::Ack { error: Some(e), .. }, Some(_)) => {
@@ -97,30 +295,28 @@ impl Host {
                 ))]
             }
             (Telegram::Ack { .. }, _) => Vec::new(),
-            (
-                Telegram::ProgramEnd {
-                    result: EndResult::Complete,
-                    ..
-                },
-                _,
-            ) => {
-                vec![Out::Engine(Event::Ended(rcm, JobEnd::Done))]
-            }
-            (
-                Telegram::ProgramEnd {
-                    result: EndResult::WeldAborted,
-                    ..
-                },
-                _,
-            ) => {
-                vec![Out::Engine(Event::Ended(rcm, JobEnd::BadProduct))]
+            (Telegram::ProgramEnd { result, .. }, _) => {
+                self.running = None;
+                let end = match result {
+                    EndResult::Complete => JobEnd::Done,
+                    EndResult::WeldAborted => JobEnd::BadProduct,
+                };
+                let mut out = Vec::new();
+                if let Some(mode) = self.mode {
+                    out.push(Out::Detail(detail_of(ProgramState::Selected, mode)));
+                }
+                out.push(Out::Engine(Event::Ended(rcm, end)));
+                out
             }
             (Telegram::Alarm(code), _) => {
                 let entry = alarms::lookup(code);
                 let mut out: Vec<Out> = entry.detail().map(Out::Detail).into_iter().collect();
                 let text = format!("RCM message {code}: {}", entry.meaning);
                 out.push(match entry.effect {
-                    Effect::Alarm => Out::Engine(Event::Ended(rcm, JobEnd::Alarm(text))),
+                    Effect::Alarm => Out::Engine(Event::Ended(
+                        rcm,
+                        JobEnd::Alarm(Cause::new(entry.class(), text)),
+                    )),
                     Effect::Confirm => Out::Telegram(Telegram::ConfirmAlarm(code)),
                     Effect::Paused => Out::Engine(Event::Paused(rcm)),
                     Effect::Resumed => Out::Engine(Event::Resumed(rcm)),
@@ -129,12 +325,47 @@ impl Host {
                     // The program-end telegram that follows carries it.
                     Effect::BadProduct | Effect::Info => Out::Info(text),
                 });
+                if matches!(
+                    entry.effect,
+                    Effect::Alarm | Effect::FailedDanger | Effect::FailedSafe
+                ) {
+                    // The program stopped with the alarm.
+                    self.running = None;
+                    self.pending = None;
+                }
                 out
             }
-            (Telegram::ProgramStatus { .. }, _) => Vec::new(),
+            (
+                Telegram::ProgramStatus {
+                    program,
+                    state,
+                    mode,
+                },
+                _,
+            ) => self.program_status(program, state, mode),
             (other, _) => vec![Out::Info(format!(
                 "unexpected telegram from the RCM: {other:?}"
             ))],
+        }
+    }
+
+    /// What the host waited for when a recipe's limit ran out.
+    pub fn explain_timeout(&self, now: Duration) -> Option<String> {
+        let heard = now.saturating_sub(self.heard).as_secs_f64();
+        match (self.pending, self.running) {
+            (Some(Pending::Select(p)), _) => Some(format!(
+                "no acknowledgement of the selection of robot program {} (RCM last heard {heard:.1} s ago)",
+                p.number()
+            )),
+            (Some(Pending::Start(p)), _) => Some(format!(
+                "no acknowledgement of the start of robot program {} (RCM last heard {heard:.1} s ago)",
+                p.number()
+            )),
+            (None, Some(p)) => Some(format!(
+                "robot program {} did not end in time (the RCM reported it running {heard:.1} s ago)",
+                p.number()
+            )),
+            (None, None) => None,
         }
     }
 }
@@ -148,43 +379,80 @@ mod tests {
         StationName::new("rcm").expect("valid")
     }
 
+    fn s(n: u64) -> Duration {
+        Duration::from_millis(n)
+    }
+
+    fn p65() -> Program {
+        Program::new(65).expect("valid")
+    }
+
+    fn ack(of: u8) -> Telegram {
+        Telegram::Ack { of, error: None }
+    }
+
+    fn status(program: Option<Program>, state: ProgramState) -> Telegram {
+        Telegram::ProgramStatus {
+            program,
+            state,
+            mode: Mode::AutomaticExternal,
+        }
+    }
+
+    /// A host whose job runs program 65 since `t` ms.
+    fn running(t: u64) -> Host {
+        let mut h = Host::new("/dev/ttyS0");
+        h.start(p65());
+        h.telegram(s(t), ack(b'S'));
+        h.telegram(s(t), ack(b'G'));
+        h
+    }
+
+    fn ended(out: &[Out]) -> Option<&JobEnd> {
+        out.iter().find_map(|o| match o {
+            Out::Engine(Event::Ended(_, e)) => Some(e),
+            _ => None,
+        })
+    }
+
     #[test]
     fn select_then_start_then_started() {
-        let mut h = Host::new();
-        let p = Program::new(65).expect("valid");
+        let mut h = Host::new("/dev/ttyS0");
+        let p = p65();
         assert_eq!(h.start(p), vec![Out::Telegram(Telegram::SelectProgram(p))]);
         assert_eq!(
-            h.telegram(Telegram::Ack {
-                of: b'S',
-                error: None
-            }),
+            h.telegram(s(0), ack(b'S')),
             vec![Out::Telegram(Telegram::StartProgram)]
         );
         assert_eq!(
-            h.telegram(Telegram::Ack {
-                of: b'G',
-                error: None
-            }),
+            h.telegram(s(0), ack(b'G')),
             vec![Out::Engine(Event::Started(rcm()))]
         );
-        assert_eq!(
-            h.telegram(Telegram::ProgramEnd {
+        assert_eq!(h.running(), Some(p));
+        let out = h.telegram(
+            s(10),
+            Telegram::ProgramEnd {
                 program: p,
-                result: EndResult::Complete
-            }),
-            vec![Out::Engine(Event::Ended(rcm(), JobEnd::Done))]
+                result: EndResult::Complete,
+            },
         );
+        assert_eq!(ended(&out), Some(&JobEnd::Done));
+        assert_eq!(h.running(), None);
+        assert_eq!(h.poll_timeout(), None, "nothing to supervise");
     }
 
     #[test]
     fn refusals_and_alarms_become_engine_events() {
-        let mut h = Host::new();
-        h.start(Program::new(65).expect("valid"));
+        let mut h = Host::new("/dev/ttyS0");
+        h.start(p65());
         match h
-            .telegram(Telegram::Ack {
-                of: b'S',
-                error: Some(AckError::NotInDncMode),
-            })
+            .telegram(
+                s(0),
+                Telegram::Ack {
+                    of: b'S',
+                    error: Some(AckError::NotInDncMode),
+                },
+            )
             .as_slice()
         {
             [Out::Engine(Event::StartFailed(_, why))] => {
@@ -192,24 +460,151 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
-        let estop = h.telegram(Telegram::Alarm(24));
+        let estop = h.telegram(s(0), Telegram::Alarm(24));
         assert!(
             matches!(&estop[0], Out::Detail(d) if d.specific & RobotStatusDetail::SAFETY_INTERLOCKS_VIOLATED != 0)
         );
         assert!(
-            matches!(&estop[1], Out::Engine(Event::Ended(_, JobEnd::Alarm(t))) if t.contains("emergency stop"))
+            matches!(&estop[1], Out::Engine(Event::Ended(_, JobEnd::Alarm(t))) if t.contains("emergency stop") && t.class == AlarmClass::Safety)
         );
         assert!(matches!(
-            h.telegram(Telegram::Alarm(30)).last(),
+            h.telegram(s(0), Telegram::Alarm(30)).last(),
             Some(Out::Engine(Event::Paused(_)))
         ));
         assert!(matches!(
-            h.telegram(Telegram::Alarm(40)).last(),
+            h.telegram(s(0), Telegram::Alarm(40)).last(),
             Some(Out::Engine(Event::Ended(_, JobEnd::FailedDanger)))
         ));
         assert_eq!(
-            h.telegram(Telegram::Alarm(3)).last(),
+            h.telegram(s(0), Telegram::Alarm(3)).last(),
             Some(&Out::Telegram(Telegram::ConfirmAlarm(3)))
+        );
+    }
+
+    #[test]
+    fn the_status_detail_follows_the_program_status_after_an_alarm() {
+        let mut h = running(0);
+        let estop = h.telegram(s(5), Telegram::Alarm(24));
+        assert!(
+            matches!(&estop[0], Out::Detail(d) if d.state == RobotVmdState::ManualInterventionRequired)
+        );
+        // Cleared, then the next program runs: the robot's own status rules.
+        let out = h.telegram(s(9), status(Some(p65()), ProgramState::Stopped));
+        assert_eq!(
+            out,
+            vec![Out::Detail(RobotStatusDetail {
+                state: RobotVmdState::Ready,
+                specific: RobotStatusDetail::ALL_CALIBRATED,
+                mask: alarms::MASK,
+            })]
+        );
+        let out = h.telegram(s(9), status(None, ProgramState::Idle));
+        assert!(
+            matches!(&out[0], Out::Detail(d) if d.specific & RobotStatusDetail::SAFETY_INTERLOCKS_VIOLATED == 0)
+        );
+        let manual = detail_of(ProgramState::Idle, Mode::Manual);
+        assert_ne!(manual.specific & RobotStatusDetail::LOCAL_CONTROL, 0);
+    }
+
+    #[test]
+    fn a_running_program_is_supervised_and_a_silent_line_is_an_alarm_within_3_s() {
+        let mut h = running(1000);
+        // A status request a period after the RCM was last heard.
+        assert_eq!(h.poll_timeout(), Some(s(2000)));
+        assert!(h.handle_timeout(s(1999)).is_empty(), "not due yet");
+        assert_eq!(
+            h.handle_timeout(s(2000)),
+            vec![Out::Telegram(Telegram::StatusRequest)]
+        );
+        // Answered: running; the next request a period later.
+        let out = h.telegram(s(2050), status(Some(p65()), ProgramState::Running));
+        assert!(ended(&out).is_none(), "{out:?}");
+        assert_eq!(h.poll_timeout(), Some(s(3050)));
+        h.handle_timeout(s(3050));
+        // The line goes silent: the request goes unanswered.
+        assert_eq!(h.poll_timeout(), Some(s(5050)));
+        let out = h.handle_timeout(s(5050));
+        match ended(&out) {
+            Some(JobEnd::Alarm(why)) => {
+                assert_eq!(why.class, AlarmClass::Communication);
+                assert!(why.contains("/dev/ttyS0"), "names the device: {why}");
+                assert!(why.contains("status request unanswered"), "{why}");
+                assert!(why.contains("program 65"), "{why}");
+            }
+            other => panic!("{other:?}"),
+        }
+        // Silent since 2050 at the latest: the alarm came 3.0 s later.
+        // It keeps asking, and when the line is back stops the program it
+        // no longer owns; never a second request behind one the link
+        // still tries (3964R: up to 6 × 2 s).
+        assert!(h.handle_timeout(s(6050)).is_empty());
+        h.link_done(&Telegram::StatusRequest.encode());
+        assert_eq!(h.poll_timeout(), Some(s(8050)));
+        h.handle_timeout(s(8050));
+        h.link_done(&Telegram::StatusRequest.encode());
+        assert_eq!(
+            h.handle_timeout(s(10050)),
+            vec![Out::Telegram(Telegram::StatusRequest)]
+        );
+        let out = h.telegram(s(10100), status(Some(p65()), ProgramState::Running));
+        assert!(
+            out.contains(&Out::Telegram(Telegram::StopProgram)),
+            "{out:?}"
+        );
+        assert!(
+            out.iter().any(|o| matches!(o, Out::Alarm(t) if t.contains("robot program 65") && t.contains("no job") && t.class == AlarmClass::Warning)),
+            "{out:?}"
+        );
+        assert_eq!(h.poll_timeout(), None);
+    }
+
+    #[test]
+    fn a_lost_program_end_is_recovered_from_the_status() {
+        let mut h = running(0);
+        h.handle_timeout(s(1000));
+        let out = h.telegram(s(1020), status(Some(p65()), ProgramState::Selected));
+        assert_eq!(ended(&out), Some(&JobEnd::Done), "{out:?}");
+        // Stopped before its end (an emergency stop whose alarm was lost):
+        // an alarm that says so.
+        let mut h = running(0);
+        h.handle_timeout(s(1000));
+        let out = h.telegram(s(1020), status(Some(p65()), ProgramState::Stopped));
+        match ended(&out) {
+            Some(JobEnd::Alarm(why)) => assert!(why.contains("stopped before its end"), "{why}"),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn on_connection_a_program_no_job_owns_is_stopped_and_reported() {
+        let mut h = Host::new("/dev/ttyS0");
+        assert_eq!(
+            h.connected(s(0)),
+            vec![
+                Out::Telegram(Telegram::InitiateDnc),
+                Out::Telegram(Telegram::StatusRequest)
+            ]
+        );
+        let out = h.telegram(s(30), status(Some(p65()), ProgramState::Paused));
+        assert!(
+            out.contains(&Out::Telegram(Telegram::StopProgram)),
+            "{out:?}"
+        );
+        // An idle robot: nothing to do, nothing more to ask.
+        let mut h = Host::new("/dev/ttyS0");
+        h.connected(s(0));
+        let out = h.telegram(s(30), status(None, ProgramState::Idle));
+        assert_eq!(out.len(), 1, "{out:?}");
+        assert_eq!(h.poll_timeout(), None);
+        // Unanswered at start-up (the line is silent): no alarm; asked
+        // again once the link gave the first request up.
+        let mut h = Host::new("/dev/ttyS0");
+        h.connected(s(0));
+        assert!(h.handle_timeout(s(2000)).is_empty());
+        h.link_done(&Telegram::StatusRequest.encode());
+        assert_eq!(
+            h.handle_timeout(s(3000)),
+            vec![Out::Telegram(Telegram::StatusRequest)]
         );
     }
 }

@@ -11,11 +11,13 @@ mod host;
 
 use anyhow::{Context, Result};
 use clap::Parser;
+use falc_common::alarm::{AlarmClass, Cause};
 use falc_common::bus::station::Station;
 use falc_common::dnc::driver::{self, LineSettings};
 use falc_common::dnc::procedure::{LinkEvent, Priority, Timing};
 use falc_common::dnc::telegram::{Program, Telegram};
 use falc_common::ids::StationName;
+use falc_common::mms::pdu::Severity;
 use falc_common::mms::vmd::{RobotStatusDetail, VmdStatus};
 use falc_common::node::{init_tracing, say, NodeArgs};
 use falc_common::recipe::check::Job;
@@ -51,6 +53,9 @@ struct Robot {
     detail: Option<RobotStatusDetail>,
     /// A link failure not yet reported.
     link_alarm: Option<String>,
+    /// Alarms no job owns (a program found running nobody's), not yet
+    /// reported.
+    alarms: Vec<Cause>,
 }
 
 impl Robot {
@@ -78,28 +83,53 @@ impl Robot {
                 Out::Engine(ev) => out.push(ev),
                 Out::Detail(d) => self.detail = Some(d),
                 Out::Info(text) => tracing::info!("{text}"),
+                Out::Alarm(text) => {
+                    tracing::warn!("{text}");
+                    self.alarms.push(text);
+                }
             }
         }
     }
 
-    fn dnc_event(&mut self, ev: LinkEvent) -> Vec<Event> {
+    fn dnc_event(&mut self, now: Duration, ev: LinkEvent) -> Vec<Event> {
         let mut out = Vec::new();
         match ev {
             LinkEvent::Received(bytes) => match Telegram::decode(&bytes) {
                 Ok(t) => {
                     tracing::debug!(?t, "from the RCM");
-                    let outs = self.host.telegram(t);
+                    let outs = self.host.telegram(now, t);
                     self.apply(outs, &mut out);
                 }
                 Err(e) => tracing::warn!("undecodable telegram from the RCM: {e}"),
             },
-            LinkEvent::Failed { error, .. } => {
-                let why = format!("no connection with RCM on {}: {error}", self.line.path);
-                self.lost(why, &mut out);
+            LinkEvent::Failed { telegram, error } => {
+                self.host.link_done(&telegram);
+                if telegram == Telegram::StatusRequest.encode() {
+                    // The supervision already raised the silent line.
+                    tracing::warn!("status request to the RCM given up: {error}");
+                } else {
+                    let why = format!("no connection with RCM on {}: {error}", self.line.path);
+                    self.lost(why, &mut out);
+                }
             }
             LinkEvent::Refused(why) => tracing::debug!("block refused: {why}"),
-            LinkEvent::Sent(_) => {}
+            LinkEvent::Sent(telegram) => self.host.link_done(&telegram),
         }
+        out
+    }
+
+    /// The line was (re)opened: initiate DNC and ask the robot's status.
+    fn connected(&mut self, now: Duration) {
+        let mut out = Vec::new();
+        let outs = self.host.connected(now);
+        self.apply(outs, &mut out);
+    }
+
+    /// The supervision's clock.
+    fn on_timeout(&mut self, now: Duration) -> Vec<Event> {
+        let mut out = Vec::new();
+        let outs = self.host.handle_timeout(now);
+        self.apply(outs, &mut out);
         out
     }
 
@@ -138,6 +168,19 @@ impl Device for Robot {
         self.apply(outs, out);
     }
 
+    fn finished(&mut self, outcome: &falc_common::recipe::engine::Outcome) {
+        // A recipe that ended badly (its own time limit, say) while the
+        // robot still runs its program: the robot is stopped.
+        if *outcome != falc_common::recipe::engine::Outcome::Done && self.host.running().is_some() {
+            let mut out = Vec::new();
+            self.halt(&mut out);
+        }
+    }
+
+    fn explain_timeout(&self, now: Duration) -> Option<String> {
+        self.host.explain_timeout(now)
+    }
+
     fn status(&self, status: &mut VmdStatus) {
         status.additional = self.detail;
     }
@@ -169,15 +212,20 @@ async fn main() -> Result<()> {
         }
     };
     let robot = Robot {
-        host: Host::new(),
+        host: Host::new(&line.path),
         dnc,
         line,
         detail: None,
         link_alarm: None,
+        alarms: Vec::new(),
     };
     // select + start: 2 telegrams, each up to 6 × 2 s on a dead line, so
     // the link's own, clearer failure arrives before the confirm limit.
     let mut ws = Workstation::new(station, RecipeKind::Welding, Duration::from_secs(30), robot);
+    if ws.device.dnc.is_some() {
+        let now = ws.now();
+        ws.device.connected(now);
+    }
     ws.publish_status().await;
     say(&format!(
         "EVENT ready station={} device={}",
@@ -187,11 +235,14 @@ async fn main() -> Result<()> {
     let mut shutdown = falc_common::node::Shutdown::new();
     loop {
         let deadline = ws.deadline();
+        let supervision = ws.device.host.poll_timeout().map_or(deadline, |t| {
+            tokio::time::Instant::now() + t.saturating_sub(ws.now())
+        });
         tokio::select! {
             ev = ws.station_recv() => if !ws.station_step(ev).await { break },
             ev = async { match &mut dnc_events { Some(e) => e.recv().await, None => std::future::pending().await } } => {
                 let events = match ev {
-                    Some(ev) => ws.device.dnc_event(ev),
+                    Some(ev) => { let now = ws.now(); ws.device.dnc_event(now, ev) }
                     None => {
                         ws.device.dnc = None;
                         dnc_events = None;
@@ -209,14 +260,25 @@ async fn main() -> Result<()> {
                     let h = driver::spawn(port, Priority::Low, Timing::default());
                     ws.device.dnc = Some(h.send);
                     dnc_events = Some(h.events);
+                    let now = ws.now();
+                    ws.device.connected(now);
                 }
             }
             _ = tokio::time::sleep_until(deadline) => ws.on_timeout(),
+            _ = tokio::time::sleep_until(supervision) => {
+                let now = ws.now();
+                let events = ws.device.on_timeout(now);
+                ws.feed(events);
+            }
             _ = shutdown.requested() => break,
         }
         ws.settle().await;
         if let Some(why) = ws.device.link_alarm.take() {
-            ws.report(falc_common::mms::pdu::Severity::Alarm, why).await;
+            ws.report(Severity::Alarm(AlarmClass::Communication), why)
+                .await;
+        }
+        for cause in std::mem::take(&mut ws.device.alarms) {
+            ws.report(Severity::Alarm(cause.class), cause.text).await;
         }
     }
     if ws.is_running() {

@@ -4,6 +4,8 @@
 
 #![allow(dead_code)]
 
+pub mod rig;
+
 use falc_common::bus::credentials;
 use falc_common::bus::keys::KeySpace;
 use falc_common::bus::{Bus, BusError, BusSettings, DEFAULT_DEADLINE};
@@ -558,7 +560,7 @@ impl Commander {
     /// The next job event, which must be an alarm: its text.
     pub async fn alarm(&mut self, within: Duration) -> String {
         match self.job(within).await {
-            JobEvent::Alarm(text) => text,
+            JobEvent::Alarm(cause) => cause.text,
             other => panic!("expected an alarm, got {other:?}"),
         }
     }

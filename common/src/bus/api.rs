@@ -9,7 +9,7 @@
 //! answered with an error by the bus.
 
 use super::{declare_failed, envelope, Bus, BusError, Declaration};
-use crate::api::{ApiReply, ApiRequest, ApiResult, Call};
+use crate::api::{ApiReply, ApiRequest, ApiResult, Call, MAX_REQUEST_BYTES};
 use crate::ids::StationName;
 use std::time::Duration;
 use tokio::sync::mpsc::UnboundedSender;
@@ -68,9 +68,16 @@ fn on_query(call: Call, query: Query, tx: &UnboundedSender<ApiIndication>) {
         .payload()
         .ok_or_else(|| format!("API request on {key} carries no payload"))
         .and_then(|p| {
+            if p.len() > MAX_REQUEST_BYTES {
+                return Err(format!(
+                    "API request on {key} is {} bytes, more than the {MAX_REQUEST_BYTES} the operator takes: refused",
+                    p.len()
+                ));
+            }
             envelope::decode::<ApiRequest>(&p.to_bytes())
                 .map_err(|e| format!("malformed API request on {key}: {e}"))
         })
+        .and_then(|r| r.check_limits().map(|()| r))
         .and_then(|r| {
             if r.call() == call {
                 Ok(r)

@@ -8,6 +8,10 @@
 //! localControl). Its printed part (0–25) is kept exactly; the scan cut the
 //! rest, so 26–999 are defined here, with the events the twin can raise.
 //!
+//! The alarm class follows from the row ([`AlarmEntry::class`]): safety
+//! where the safety interlocks are violated (24, 40), process for an
+//! aborted weld, a warning for 3, 30, 31 and 60–99, device for the rest.
+//!
 //! | codes | detail | effect | meaning |
 //! |---|---|---|---|
 //! | 0, 2, 4–7, 9–23, 25 | 0x0504 | alarm | manual intervention required (printed) |
@@ -22,6 +26,7 @@
 //! | 60–99 | 0x0704 | info | informational messages: logged, nothing else |
 //! | all other codes (26–29, 32–39, 42–49, 51–59, 100–999) | 0x0504 | alarm | unknown to FALC: treated as an alarm needing a person |
 
+use crate::alarm::AlarmClass;
 use crate::mms::vmd::{RobotStatusDetail, RobotVmdState};
 
 /// What the workstation does with an RCM message.
@@ -127,6 +132,24 @@ pub fn lookup(code: u16) -> AlarmEntry {
 }
 
 impl AlarmEntry {
+    /// The alarm class: safety when the safety interlocks are violated
+    /// (emergency stop, hardware limit switch), a warning for a person in
+    /// the work area or a message, process for an aborted weld, device for
+    /// everything else the robot reports.
+    pub fn class(self) -> AlarmClass {
+        if self.low & RobotStatusDetail::SAFETY_INTERLOCKS_VIOLATED != 0 {
+            AlarmClass::Safety
+        } else {
+            match self.effect {
+                Effect::Paused | Effect::Resumed | Effect::Info | Effect::Confirm => {
+                    AlarmClass::Warning
+                }
+                Effect::BadProduct => AlarmClass::Process,
+                Effect::Alarm | Effect::FailedSafe | Effect::FailedDanger => AlarmClass::Device,
+            }
+        }
+    }
+
     /// The two bytes of the thesis' table.
     pub fn word(self) -> u16 {
         u16::from(self.high) << 8 | u16::from(self.low)
@@ -155,6 +178,16 @@ impl AlarmEntry {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn classes_follow_from_the_table() {
+        assert_eq!(lookup(24).class(), AlarmClass::Safety);
+        assert_eq!(lookup(40).class(), AlarmClass::Safety);
+        assert_eq!(lookup(1).class(), AlarmClass::Device);
+        assert_eq!(lookup(30).class(), AlarmClass::Warning);
+        assert_eq!(lookup(50).class(), AlarmClass::Process);
+        assert_eq!(lookup(999).class(), AlarmClass::Device);
+    }
 
     #[test]
     fn the_printed_part_of_the_thesis_table() {

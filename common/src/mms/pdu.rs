@@ -344,8 +344,9 @@ pub enum Severity {
     Info,
     /// Something a person should look at.
     Warning,
-    /// The station stopped; the cell stops.
-    Alarm,
+    /// An alarm of its class: it goes into the operator's alarm list
+    /// (and a running job ends in alarm: the cell stops).
+    Alarm(crate::alarm::AlarmClass),
 }
 
 /// What happened to a running job (a started program invocation), as its
@@ -364,8 +365,8 @@ pub enum JobEvent {
     FailedSafe,
     /// Failed with danger (outside its own work area).
     FailedDanger,
-    /// Ended in alarm, with the cause.
-    Alarm(String),
+    /// Ended in alarm, with the cause (its class set where it was raised).
+    Alarm(crate::alarm::Cause),
 }
 
 /// An unconfirmed service, published upward (`…/<st>/status`, `…/<st>/report`).

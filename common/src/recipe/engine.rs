@@ -15,6 +15,7 @@
 
 use super::check::{Button, Command, Job, Program, Signal};
 use super::syntax::{Criterion, Report, StateNo};
+use crate::alarm::Cause;
 use crate::ids::StationName;
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
@@ -37,7 +38,7 @@ pub enum JobEnd {
     /// Failed with danger (limit switch).
     FailedDanger,
     /// Alarm: the recipe ends in alarm at once.
-    Alarm(String),
+    Alarm(Cause),
 }
 
 /// What happens, fed to the engine.
@@ -91,7 +92,7 @@ pub enum Action {
     /// Stop watching.
     Unwatch,
     /// Report an alarm upward.
-    Alarm(String),
+    Alarm(Cause),
 }
 
 /// How a run ended.
@@ -100,7 +101,7 @@ pub enum Outcome {
     /// State 0 reached without alarm.
     Done,
     /// Ended in alarm, with the cause.
-    Alarm(String),
+    Alarm(Cause),
     /// A job below failed in a way no state handled (`bad_product`,
     /// `failed_safe`, `failed_danger`): passed up as the same failure, so
     /// the level above can handle it.
@@ -147,7 +148,11 @@ pub struct Engine {
     phase: Phase,
     jobs: BTreeMap<StationName, JobInfo>,
     actions: VecDeque<Action>,
-    alarm: Option<String>,
+    alarm: Option<Cause>,
+    /// Why the last `timeout` branch was taken (what was waited for, or
+    /// the refusal with its ISO 9506 class and code): an alarm state the
+    /// branch leads to names it.
+    failure: Option<String>,
     steps: u64,
     confirm_limit: Duration,
 }
@@ -162,6 +167,7 @@ impl Engine {
             jobs: BTreeMap::new(),
             actions: VecDeque::new(),
             alarm: None,
+            failure: None,
             steps: 0,
             confirm_limit: START_CONFIRM_LIMIT,
         }
@@ -237,16 +243,28 @@ impl Engine {
             if matches!(self.phase, Phase::AwaitInput { .. }) {
                 self.actions.push_back(Action::Unwatch);
             }
+            self.failure = match &self.phase {
+                Phase::AwaitStart { target, .. } => {
+                    Some(format!("the start of {target} was not confirmed in time"))
+                }
+                Phase::AwaitJob { target, .. } => {
+                    Some(format!("{target} did not finish within its time limit"))
+                }
+                Phase::AwaitInput { .. } => {
+                    Some("the awaited input was not reached within its time limit".into())
+                }
+                _ => None,
+            };
             self.branch(now, &Criterion::Timeout);
         }
     }
 
     /// Ends the run in alarm from outside (the commander stopped it, the
     /// link to a device was lost): stops the jobs below.
-    pub fn abort(&mut self, reason: &str) {
+    pub fn abort(&mut self, cause: Cause) {
         if !matches!(self.phase, Phase::Ended(_)) {
             self.stop_jobs(None);
-            self.end(Outcome::Alarm(reason.to_string()));
+            self.end(Outcome::Alarm(cause));
         }
     }
 
@@ -272,6 +290,7 @@ impl Engine {
                 }
                 if matches!(&self.phase, Phase::AwaitStart { target, .. } if *target == t) {
                     tracing::info!(station = %t, "start failed: {why}");
+                    self.failure = Some(format!("the start of {t} was refused: {why}"));
                     self.branch(now, &Criterion::Timeout);
                 }
             }
@@ -279,7 +298,7 @@ impl Engine {
                 if let Some(j) = self.jobs.get_mut(&t) {
                     j.state = JobState::Ended(JobEnd::Alarm(text.clone()));
                 }
-                let cause = format!("alarm from {t}: {text}");
+                let cause = text.map(|text| format!("alarm from {t}: {text}"));
                 self.stop_jobs(Some(&t));
                 self.actions.push_back(Action::Alarm(cause.clone()));
                 self.end(Outcome::Alarm(cause));
@@ -378,6 +397,9 @@ impl Engine {
     }
 
     fn branch(&mut self, now: Duration, c: &Criterion) {
+        if *c != Criterion::Timeout {
+            self.failure = None;
+        }
         let next = self
             .current_branches()
             .iter()
@@ -386,7 +408,14 @@ impl Engine {
         match next {
             Some(n) => self.enter(now, n),
             None => {
-                let cause = format!("state {} has no `{c}` branch", self.state);
+                let cause = Cause::process(format!(
+                    "state {} has no `{c}` branch{}",
+                    self.state,
+                    self.failure
+                        .take()
+                        .map(|w| format!(" ({w})"))
+                        .unwrap_or_default()
+                ));
                 self.stop_jobs(None);
                 self.actions.push_back(Action::Alarm(cause.clone()));
                 self.end(Outcome::Alarm(cause));
@@ -416,7 +445,7 @@ impl Engine {
                 return;
             }
             let Some(st) = self.program.states.get(&next).cloned() else {
-                let cause = format!("state {next} does not exist");
+                let cause = Cause::process(format!("state {next} does not exist"));
                 self.actions.push_back(Action::Alarm(cause.clone()));
                 self.end(Outcome::Alarm(cause));
                 return;
@@ -425,14 +454,18 @@ impl Engine {
             self.steps += 1;
             self.actions.push_back(Action::Entered(next));
             if st.report == Some(Report::Alarm) {
-                let cause = format!(
-                    "alarm in state {next}{}",
+                let cause = Cause::process(format!(
+                    "alarm in state {next}{}{}",
                     if st.text.is_empty() {
                         String::new()
                     } else {
                         format!(": {}", st.text)
-                    }
-                );
+                    },
+                    self.failure
+                        .take()
+                        .map(|w| format!(" ({w})"))
+                        .unwrap_or_default()
+                ));
                 self.stop_jobs(None);
                 self.actions.push_back(Action::Alarm(cause.clone()));
                 self.alarm = Some(cause);
@@ -481,9 +514,9 @@ impl Engine {
                 }
                 Command::Wait { target, limit } => {
                     let Some(job) = self.jobs.get(&target).cloned() else {
-                        let cause = format!(
+                        let cause = Cause::process(format!(
                             "state {next} waits for {target}, which this recipe has not started"
-                        );
+                        ));
                         self.stop_jobs(None);
                         self.actions.push_back(Action::Alarm(cause.clone()));
                         self.end(Outcome::Alarm(cause));
@@ -502,8 +535,9 @@ impl Engine {
             }
             next = unconditional;
         }
-        let cause =
-            format!("more than {MAX_IMMEDIATE_STEPS} states without waiting near state {next}");
+        let cause = Cause::process(format!(
+            "more than {MAX_IMMEDIATE_STEPS} states without waiting near state {next}"
+        ));
         self.actions.push_back(Action::Alarm(cause.clone()));
         self.end(Outcome::Alarm(cause));
     }
@@ -512,6 +546,7 @@ impl Engine {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::alarm::AlarmClass;
     use crate::recipe::check::check;
     use crate::recipe::commands::RecipeKind;
     use crate::recipe::syntax::parse;
@@ -577,9 +612,9 @@ mod tests {
         e.handle_timeout(secs(100));
         assert_eq!(
             e.outcome(),
-            Some(&Outcome::Alarm(
-                "alarm in state 9: output er is wat mis".into()
-            ))
+            Some(&Outcome::Alarm(Cause::process(
+                "alarm in state 9: output er is wat mis (welding did not finish within its time limit)"
+            )))
         );
         assert!(
             drain(&mut e).contains(&Action::Stop(st("welding"))),
@@ -610,19 +645,29 @@ mod tests {
         // While the recipe waits for transport, welding reports an alarm.
         e.handle(
             secs(5),
-            Event::Ended(st("welding"), JobEnd::Alarm("emergency stop".into())),
+            Event::Ended(
+                st("welding"),
+                JobEnd::Alarm(Cause::new(AlarmClass::Safety, "emergency stop")),
+            ),
         );
         let actions = drain(&mut e);
         assert_eq!(
             actions,
             vec![
                 Action::Stop(st("transport")),
-                Action::Alarm("alarm from welding: emergency stop".into())
+                Action::Alarm(Cause::new(
+                    AlarmClass::Safety,
+                    "alarm from welding: emergency stop"
+                ))
             ]
         );
         assert_eq!(
             e.outcome(),
-            Some(&Outcome::Alarm("alarm from welding: emergency stop".into()))
+            Some(&Outcome::Alarm(Cause::new(
+                AlarmClass::Safety,
+                "alarm from welding: emergency stop"
+            ))),
+            "the class set where it was raised travels up"
         );
     }
 

@@ -535,7 +535,7 @@ impl App {
             }
             Command::Start => self.call(ApiRequest::Start),
             Command::Stop => self.call(ApiRequest::Stop),
-            Command::Ack => self.call(ApiRequest::Ack),
+            Command::Ack => self.call(ApiRequest::Ack { id: None }),
             Command::Shutdown => {
                 self.pick = Some(Pick::ConfirmShutdown);
                 None
@@ -675,6 +675,7 @@ mod tests {
             cell_associated: true,
             problem: None,
             alarm: None,
+            alarms: Vec::new(),
             running: None,
             queued: 0,
             question: question.map(String::from),

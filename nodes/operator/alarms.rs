@@ -1,0 +1,348 @@
+//! The operator's alarm list: every alarm of every station (and the
+//! operator's own), with its class, state and who acknowledged it. Rules:
+//! - the same text from the same station while unacknowledged is one alarm;
+//! - a process alarm (a recipe's alarm state, a failed order) has no
+//!   lasting condition: it is raised cleared and waits only for its
+//!   acknowledgement;
+//! - safety, device and communication alarms clear when the station that
+//!   raised them shows its condition gone ([`condition_holds`]: present,
+//!   operational, the robot's status without an intervention);
+//! - an alarm leaves the list once acknowledged and cleared;
+//! - every class but a warning holds `start` back until acknowledged.
+//!
+//! The list is kept in the [`Store`]; a write that fails keeps the change
+//! in memory (an alarm not stored gets a negative number) and returns the
+//! error for the caller to stop the cell.
+
+use crate::store::{now_ms, Store, StoreError};
+use falc_common::alarm::{Alarm, AlarmClass};
+use falc_common::mms::vmd::{PhysicalStatus, RobotStatusDetail, RobotVmdState, VmdStatus};
+
+/// What raising an alarm did.
+#[derive(Debug)]
+pub enum Raised {
+    /// A new alarm.
+    New(Alarm),
+    /// The same alarm is already waiting for its acknowledgement.
+    Repeated(i64),
+}
+
+/// The alarms in the list, oldest first.
+#[derive(Debug, Default)]
+pub struct AlarmList {
+    listed: Vec<Alarm>,
+    /// The next number of an alarm the store could not keep (-1, -2, …).
+    unstored: i64,
+}
+
+/// Whether the condition behind `alarm` still holds, from the raising
+/// station's latest status and presence.
+pub fn condition_holds(alarm: &Alarm, status: Option<&VmdStatus>, present: bool) -> bool {
+    match alarm.class {
+        AlarmClass::Process => false,
+        AlarmClass::Safety
+        | AlarmClass::Device
+        | AlarmClass::Communication
+        | AlarmClass::Warning => {
+            let Some(s) = status else { return true };
+            let robot_needs_a_person = s.additional.is_some_and(|d| {
+                d.state == RobotVmdState::ManualInterventionRequired
+                    || d.specific & RobotStatusDetail::SAFETY_INTERLOCKS_VIOLATED != 0
+            });
+            !present || s.physical != PhysicalStatus::Operational || robot_needs_a_person
+        }
+    }
+}
+
+impl AlarmList {
+    /// The list as the store holds it.
+    pub fn load(store: &Store) -> Result<Self, StoreError> {
+        Ok(Self {
+            listed: store.listed_alarms()?,
+            unstored: 0,
+        })
+    }
+
+    /// Every alarm in the list, oldest first.
+    pub fn listed(&self) -> &[Alarm] {
+        &self.listed
+    }
+
+    /// The alarm that holds `start` back: the highest priority, then the
+    /// oldest, of those waiting for an acknowledgement.
+    pub fn blocking(&self) -> Option<&Alarm> {
+        self.listed
+            .iter()
+            .filter(|a| a.blocks_start())
+            .min_by_key(|a| (a.class.priority(), a.id.abs()))
+    }
+
+    /// Raises an alarm of `station`. On a store failure the alarm is kept
+    /// in memory and the error returned with it.
+    pub fn raise(
+        &mut self,
+        store: &mut Store,
+        station: &str,
+        class: AlarmClass,
+        text: &str,
+        order: Option<i64>,
+    ) -> (Raised, Option<StoreError>) {
+        if let Some(a) = self
+            .listed
+            .iter()
+            .find(|a| a.acked.is_none() && a.station == station && a.text == text)
+        {
+            return (Raised::Repeated(a.id), None);
+        }
+        let (mut alarm, error) = match store.raise_alarm(station, class, text, order) {
+            Ok(a) => (a, None),
+            Err(e) => {
+                self.unstored -= 1;
+                let a = Alarm {
+                    id: self.unstored,
+                    station: station.to_string(),
+                    class,
+                    text: text.to_string(),
+                    order,
+                    raised_ms: now_ms(),
+                    acked: None,
+                    cleared_ms: None,
+                };
+                (a, Some(e))
+            }
+        };
+        let mut error = error;
+        if class == AlarmClass::Process {
+            alarm.cleared_ms = Some(alarm.raised_ms);
+            if alarm.id > 0 {
+                if let Err(e) = store.clear_alarm(alarm.id, alarm.raised_ms) {
+                    error.get_or_insert(e);
+                }
+            }
+        }
+        self.listed.push(alarm.clone());
+        (Raised::New(alarm), error)
+    }
+
+    /// Acknowledges alarm `id`, or every unacknowledged one (`None`), for
+    /// `who`. Returns the alarms acknowledged now (none is not an error),
+    /// or why not: no such alarm.
+    pub fn ack(
+        &mut self,
+        store: &mut Store,
+        id: Option<i64>,
+        who: &str,
+    ) -> Result<(Vec<Alarm>, Option<StoreError>), String> {
+        if let Some(id) = id {
+            if !self.listed.iter().any(|a| a.id == id) {
+                let known: Vec<String> = self.listed.iter().map(|a| format!("#{}", a.id)).collect();
+                return Err(format!(
+                    "there is no alarm #{id} in the list{}",
+                    if known.is_empty() {
+                        " (it is empty)".to_string()
+                    } else {
+                        format!(" ({})", known.join(", "))
+                    }
+                ));
+            }
+        }
+        let at = now_ms();
+        let mut error = None;
+        let mut acked = Vec::new();
+        for a in self
+            .listed
+            .iter_mut()
+            .filter(|a| a.acked.is_none() && id.is_none_or_eq(a.id))
+        {
+            a.acked = Some((who.to_string(), at));
+            if a.id > 0 {
+                if let Err(e) = store.ack_alarm(a.id, who, at) {
+                    error.get_or_insert(e);
+                }
+            }
+            acked.push(a.clone());
+        }
+        self.listed.retain(Alarm::listed);
+        Ok((acked, error))
+    }
+
+    /// Clears the alarms of `station` whose condition no longer holds.
+    /// Returns those cleared now.
+    pub fn settle(
+        &mut self,
+        store: &mut Store,
+        station: &str,
+        status: Option<&VmdStatus>,
+        present: bool,
+    ) -> (Vec<Alarm>, Option<StoreError>) {
+        let at = now_ms();
+        let mut error = None;
+        let mut cleared = Vec::new();
+        for a in self
+            .listed
+            .iter_mut()
+            .filter(|a| a.station == station && a.cleared_ms.is_none())
+        {
+            if !condition_holds(a, status, present) {
+                a.cleared_ms = Some(at);
+                if a.id > 0 {
+                    if let Err(e) = store.clear_alarm(a.id, at) {
+                        error.get_or_insert(e);
+                    }
+                }
+                cleared.push(a.clone());
+            }
+        }
+        self.listed.retain(Alarm::listed);
+        (cleared, error)
+    }
+
+    /// Clears alarm `id` (its condition is known to be gone: the store can
+    /// be written again, the cell is back).
+    pub fn clear(&mut self, store: &mut Store, id: i64) -> Option<StoreError> {
+        let at = now_ms();
+        let mut error = None;
+        if let Some(a) = self
+            .listed
+            .iter_mut()
+            .find(|a| a.id == id && a.cleared_ms.is_none())
+        {
+            a.cleared_ms = Some(at);
+            if a.id > 0 {
+                error = store.clear_alarm(a.id, at).err();
+            }
+        }
+        self.listed.retain(Alarm::listed);
+        error
+    }
+}
+
+/// `None` matches every id.
+trait MatchesId {
+    fn is_none_or_eq(&self, id: i64) -> bool;
+}
+
+impl MatchesId for Option<i64> {
+    fn is_none_or_eq(&self, id: i64) -> bool {
+        self.is_none() || *self == Some(id)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn store() -> (tempfile::TempDir, Store) {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let s = Store::open(&dir.path().join("falc.db")).expect("open");
+        (dir, s)
+    }
+
+    fn status(physical: PhysicalStatus) -> VmdStatus {
+        VmdStatus {
+            physical,
+            ..VmdStatus::default()
+        }
+    }
+
+    #[test]
+    fn raise_repeat_ack_and_clear() {
+        let (_d, mut s) = store();
+        let mut l = AlarmList::load(&s).expect("load");
+        let (r, e) = l.raise(&mut s, "transport", AlarmClass::Safety, "estop", Some(1));
+        assert!(e.is_none());
+        let Raised::New(a) = r else { panic!("{r:?}") };
+        // The same again while unacknowledged: one alarm.
+        assert!(matches!(
+            l.raise(&mut s, "transport", AlarmClass::Safety, "estop", Some(1)).0,
+            Raised::Repeated(id) if id == a.id
+        ));
+        let (p, _) = l.raise(
+            &mut s,
+            "cell",
+            AlarmClass::Process,
+            "alarm in state 19",
+            Some(1),
+        );
+        let Raised::New(p) = p else { panic!() };
+        assert!(
+            p.cleared_ms.is_some(),
+            "a process alarm has no lasting condition"
+        );
+        // Safety first, whatever came later.
+        assert_eq!(l.blocking().map(|b| b.id), Some(a.id));
+        // Still in emergency stop: not cleared.
+        let (c, _) = l.settle(
+            &mut s,
+            "transport",
+            Some(&status(PhysicalStatus::Inoperable)),
+            true,
+        );
+        assert!(c.is_empty());
+        let (acked, _) = l.ack(&mut s, Some(a.id), "ann").expect("ack");
+        assert_eq!(acked.len(), 1);
+        assert_eq!(l.blocking().map(|b| b.id), Some(p.id));
+        assert_eq!(l.listed().len(), 2, "acknowledged, the stop still pressed");
+        let (c, _) = l.settle(
+            &mut s,
+            "transport",
+            Some(&status(PhysicalStatus::Operational)),
+            true,
+        );
+        assert_eq!(c.len(), 1);
+        assert_eq!(l.listed().len(), 1, "acknowledged and cleared: gone");
+        assert!(l.ack(&mut s, Some(99), "ann").is_err());
+        let (acked, _) = l.ack(&mut s, None, "bob").expect("ack all");
+        assert_eq!(acked.len(), 1);
+        assert!(l.listed().is_empty() && l.blocking().is_none());
+        // The store agrees.
+        assert!(AlarmList::load(&s).expect("load").listed().is_empty());
+    }
+
+    #[test]
+    fn conditions_by_class() {
+        let mk = |class| Alarm {
+            id: 1,
+            station: "welding".into(),
+            class,
+            text: "x".into(),
+            order: None,
+            raised_ms: 0,
+            acked: None,
+            cleared_ms: None,
+        };
+        let ok = status(PhysicalStatus::Operational);
+        let mut robot = ok.clone();
+        robot.additional = Some(RobotStatusDetail {
+            state: RobotVmdState::ManualInterventionRequired,
+            specific: RobotStatusDetail::SAFETY_INTERLOCKS_VIOLATED,
+            mask: 0,
+        });
+        let safety = mk(AlarmClass::Safety);
+        assert!(condition_holds(&safety, Some(&robot), true));
+        assert!(!condition_holds(&safety, Some(&ok), true));
+        assert!(
+            condition_holds(&safety, Some(&ok), false),
+            "gone from the bus"
+        );
+        assert!(condition_holds(&safety, None, true), "no status yet");
+        assert!(!condition_holds(&mk(AlarmClass::Process), None, false));
+    }
+
+    #[test]
+    fn a_store_that_fails_keeps_the_alarm_in_memory() {
+        let (dir, mut s) = store();
+        let mut l = AlarmList::load(&s).expect("load");
+        // Read-only from now on: every write fails.
+        s.set_read_only_for_tests();
+        let (r, e) = l.raise(&mut s, "operator", AlarmClass::Device, "disk full", None);
+        assert!(e.is_some());
+        let Raised::New(a) = r else { panic!() };
+        assert!(a.id < 0, "not stored: {a:?}");
+        assert_eq!(l.blocking().map(|b| b.id), Some(a.id));
+        let (acked, e) = l.ack(&mut s, None, "ann").expect("ack");
+        assert_eq!(acked.len(), 1);
+        assert!(e.is_none(), "nothing to write for an unstored alarm");
+        drop(dir);
+    }
+}

@@ -1,0 +1,176 @@
+//! The whole cell for tests that drive it through the `falc` CLI: a real
+//! router, both twins (time-scaled), both workstations, `falc-cell` and
+//! `falc-operator` (recipes from a copy of `recipes/`, order list and
+//! journal in a SQLite file in the test's temp dir). Nodes can be killed
+//! and started again one by one.
+
+use super::{twin, Proc, TestCell};
+use falc_common::api::{ApiReply, CellStatus, Entry, ListState, Order};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+pub struct Rig {
+    pub cell: TestCell,
+    pub rcm: Proc,
+    pub plc: Proc,
+    pub rcm_path: String,
+    pub plc_address: String,
+    pub welding: Option<Proc>,
+    pub transport: Option<Proc>,
+    pub cell_node: Proc,
+    pub operator: Option<Proc>,
+    pub recipes: PathBuf,
+    pub db: PathBuf,
+}
+
+pub fn rig(rcm_scale: &str) -> Rig {
+    rig_with_db(rcm_scale, None)
+}
+
+/// The cell with the operator's database at `db` (default: in the temp dir).
+pub fn rig_with_db(rcm_scale: &str, db: Option<PathBuf>) -> Rig {
+    let cell = TestCell::start();
+    let (rcm, rcm_path) = twin(
+        env!("CARGO_BIN_EXE_falc-rcm-sim"),
+        &["--time-scale", rcm_scale],
+        "serial port: ",
+    );
+    let (plc, plc_address) = twin(
+        env!("CARGO_BIN_EXE_falc-plc-sim"),
+        &["--listen", "127.0.0.1:0", "--time-scale", "20"],
+        "listening on ",
+    );
+    let recipes = super::copy_recipes(cell.dir.path());
+    let db = db.unwrap_or_else(|| cell.dir.path().join("var/falc.db"));
+    let mut rig = Rig {
+        rcm,
+        plc,
+        rcm_path,
+        plc_address,
+        welding: None,
+        transport: None,
+        cell_node: cell.start_node(env!("CARGO_BIN_EXE_falc-cell"), "cell", &[]),
+        operator: None,
+        recipes,
+        db,
+        cell,
+    };
+    rig.start_welding();
+    rig.start_transport();
+    rig.start_operator();
+    rig
+}
+
+impl Rig {
+    pub fn start_welding(&mut self) {
+        self.welding = Some(self.cell.start_node(
+            env!("CARGO_BIN_EXE_falc-welding"),
+            "welding",
+            &["--device", &self.rcm_path],
+        ));
+    }
+
+    pub fn start_transport(&mut self) {
+        let mut t = self.cell.start_node(
+            env!("CARGO_BIN_EXE_falc-transport"),
+            "transport",
+            &["--plc", &self.plc_address],
+        );
+        t.expect_line("EVENT plc-ready", Duration::from_secs(10));
+        self.transport = Some(t);
+    }
+
+    pub fn operator_command(&self) -> std::process::Command {
+        let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_falc-operator"));
+        cmd.arg("--recipes")
+            .arg(&self.recipes)
+            .arg("--db")
+            .arg(&self.db)
+            .arg("--topology")
+            .arg(&self.cell.topology_path)
+            .arg("--credentials-dir")
+            .arg(self.cell.credentials_dir());
+        cmd
+    }
+
+    /// Starts the operator node; returns once it delivered the recipes.
+    pub fn start_operator(&mut self) {
+        let mut p = Proc::spawn("operator", self.operator_command());
+        p.expect_line("EVENT ready", Duration::from_secs(20));
+        p.expect_line("EVENT delivered recipe=PIPDROOG", Duration::from_secs(20));
+        self.operator = Some(p);
+    }
+
+    pub fn operator(&mut self) -> &mut Proc {
+        self.operator.as_mut().expect("operator running")
+    }
+
+    /// Answers questions with `ja` until the robot starts its program (the
+    /// twin receives `G`): the order is mid-weld.
+    pub fn until_welding(&mut self) {
+        let end = Instant::now() + Duration::from_secs(30);
+        while self.rcm.wait_line("rx G", Duration::ZERO).is_none() {
+            assert!(Instant::now() < end, "the weld never started");
+            if self.status().question.is_some() {
+                self.cell.falc(&["answer", "ja"]);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    pub fn reply(&self, args: &[&str]) -> ApiReply {
+        let mut all = vec!["--json"];
+        all.extend_from_slice(args);
+        let text = self.cell.falc(&all);
+        serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"))
+    }
+
+    pub fn status(&self) -> CellStatus {
+        match self.reply(&["status"]) {
+            ApiReply::Status(s) => s,
+            other => panic!("status answered {other:?}"),
+        }
+    }
+
+    pub fn orders(&self) -> Vec<Order> {
+        match self.reply(&["order", "list"]) {
+            ApiReply::Orders(v) => v,
+            other => panic!("order list answered {other:?}"),
+        }
+    }
+
+    pub fn journal(&self, order: Option<i64>) -> Vec<Entry> {
+        let id = order.map(|o| o.to_string());
+        let mut args = vec!["journal"];
+        if let Some(id) = &id {
+            args.extend(["--order", id]);
+        }
+        match self.reply(&args) {
+            ApiReply::Entries(v) => v,
+            other => panic!("journal answered {other:?}"),
+        }
+    }
+
+    /// Plays the operator through the CLI until the list stops running:
+    /// answers every question with `answer`. Returns the questions seen.
+    pub fn work_list(&self, answer: &str, within: Duration) -> Vec<String> {
+        let end = Instant::now() + within;
+        let mut questions = Vec::new();
+        loop {
+            let s = self.status();
+            if let Some(q) = &s.question {
+                questions.push(q.clone());
+                self.cell.falc(&["answer", answer]);
+                continue;
+            }
+            if s.list != ListState::Running && s.running.is_none() {
+                return questions;
+            }
+            assert!(
+                Instant::now() < end,
+                "the list did not end within {within:?}: {s:?}"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
