@@ -293,3 +293,99 @@ fn messages_stay_with_their_order_and_oversized_inputs_are_refused_briefly() {
         "nothing oversized journalled"
     );
 }
+
+/// Waits until `pred` holds for the status, or fails with the last one.
+fn until_status(
+    rig: &Rig,
+    within: Duration,
+    what: &str,
+    pred: impl Fn(&falc_common::api::CellStatus) -> bool,
+) -> falc_common::api::CellStatus {
+    let end = std::time::Instant::now() + within;
+    loop {
+        let s = rig.status();
+        if pred(&s) {
+            return s;
+        }
+        assert!(std::time::Instant::now() < end, "{what}: {s:#?}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Alarm management: an alarm raised while no order runs (the conveyor's
+/// emergency stop) is listed with its class, holds start back until it is
+/// acknowledged, and clears when the PLC is ready again.
+#[test]
+fn an_alarm_while_no_order_runs_is_listed_and_must_be_acknowledged() {
+    use falc_common::alarm::{AlarmClass, AlarmState};
+    let mut rig = rig("100");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.plc.control("estop");
+    let s = until_status(&rig, Duration::from_secs(5), "the PLC's alarm", |s| {
+        s.alarms.iter().any(|a| a.station == "transport")
+    });
+    assert_eq!(s.list, ListState::Alarm, "{s:#?}");
+    let a = s.alarms[0].clone();
+    assert_eq!((a.class, a.order), (AlarmClass::Safety, None), "{a:#?}");
+    assert!(a.text.contains("emergency stop"), "{a:#?}");
+    let listed = rig.cell.falc(&["alarms"]);
+    assert!(
+        listed.contains("safety") && listed.contains("transport") && listed.contains("needs ack"),
+        "{listed}"
+    );
+    let (code, text) = rig.cell.falc_as("console", &["start"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains(&format!("falc ack {}", a.id)), "{text}");
+    // Released: the condition clears, the alarm waits for its
+    // acknowledgement; acknowledged, it leaves the list.
+    rig.plc.control("estop-clear");
+    until_status(&rig, Duration::from_secs(5), "cleared", |s| {
+        s.alarms
+            .iter()
+            .any(|x| x.id == a.id && x.state() == AlarmState::Cleared)
+    });
+    let (code, text) = rig.cell.falc_as("console", &["ack", "999"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("no alarm #999"), "{text}");
+    rig.cell.falc(&["ack"]);
+    let s = rig.status();
+    assert!(s.alarms.is_empty() && s.alarm.is_none(), "{s:#?}");
+    let out = rig.cell.falc(&["start"]);
+    assert!(out.contains("order 1 (dikdroog) started"), "{out}");
+    rig.work_list("ja", Duration::from_secs(60));
+    assert_eq!(rig.orders()[0].state, OrderState::Done);
+    let j = rig.journal(None);
+    assert!(
+        j.iter().any(
+            |e| e.who == "console" && e.text.contains(&format!("acknowledged alarm #{}", a.id))
+        ),
+        "{j:#?}"
+    );
+}
+
+/// The ISO 9506 class and code of a refusal travel to the operator: a
+/// robot in manual mode used to reach it as "alarm in state 3" only.
+#[test]
+fn a_robot_in_manual_mode_reaches_the_operator_with_its_iso_9506_error() {
+    let mut rig = rig("100");
+    rig.rcm.control("mode manual");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(60));
+    let s = rig.status();
+    let alarm = s.alarm.clone().unwrap_or_default();
+    assert!(
+        alarm.contains("vmd-state/vmd-state-conflict") && alarm.contains("automatic-external"),
+        "{alarm}"
+    );
+    assert_eq!(rig.orders()[0].state, OrderState::Failed);
+    // Back in automatic-external mode: ack, carriers back, start.
+    rig.rcm.control("mode aue");
+    rig.cell.falc(&["ack"]);
+    rig.plc.control("layout W2 W2");
+    let out = rig.cell.falc(&["start"]);
+    assert!(out.contains("order 2 (dikdroog) started"), "{out}");
+    rig.work_list("ja", Duration::from_secs(60));
+    assert_eq!(rig.orders()[1].state, OrderState::Done);
+}

@@ -187,20 +187,21 @@ fn show_entry(e: &Entry) -> String {
     )
 }
 
-/// One alarm as `falc alarms` prints it.
+/// One alarm as `falc alarms` prints it: number, time, class, station,
+/// order, text, and its state (`active, needs ack`, `acknowledged by …`).
 pub fn show_alarm(a: &Alarm) -> String {
-    let order = a.order.map(|o| format!(" order {o}")).unwrap_or_default();
-    let state = match (&a.acked, a.state()) {
-        (Some((who, at)), s) => format!("{s} by {who} {}", clock(*at)),
-        (None, s) => s.to_string(),
+    let order = a.order.map(|o| format!(" (order {o})")).unwrap_or_default();
+    let state = match &a.acked {
+        Some((who, at)) => format!("{} by {who} {}", a.state(), clock(*at)),
+        None if a.blocks_start() => format!("{}, needs ack", a.state()),
+        None => a.state().to_string(),
     };
     format!(
-        "#{:<3} {} {:<13} {:<10} {}{order}: {}  [{state}]",
+        "#{:<3} {} {:<13} {:<10} {}{order}  [{state}]",
         a.id,
         clock(a.raised_ms),
         a.class.as_str(),
         a.station,
-        if a.blocks_start() { "needs ack" } else { "" },
         a.text
     )
 }

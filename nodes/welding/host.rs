@@ -110,6 +110,12 @@ impl Host {
         }
     }
 
+    /// Whether the RCM answered since the line was (re)opened or last went
+    /// silent.
+    pub fn answered(&self) -> bool {
+        !self.probing
+    }
+
     /// The robot program a job of ours runs, if any.
     pub fn running(&self) -> Option<Program> {
         self.running
@@ -312,6 +318,7 @@ impl Host {
                 let entry = alarms::lookup(code);
                 let mut out: Vec<Out> = entry.detail().map(Out::Detail).into_iter().collect();
                 let text = format!("RCM message {code}: {}", entry.meaning);
+                let text_of_alarm = text.clone();
                 out.push(match entry.effect {
                     Effect::Alarm => Out::Engine(Event::Ended(
                         rcm,
@@ -329,6 +336,12 @@ impl Host {
                     entry.effect,
                     Effect::Alarm | Effect::FailedDanger | Effect::FailedSafe
                 ) {
+                    if self.running.is_none() && self.pending.is_none() {
+                        // No job to end: the alarm is reported as it is
+                        // (an emergency stop while idle must be seen and
+                        // acknowledged too).
+                        out.push(Out::Alarm(Cause::new(entry.class(), text_of_alarm)));
+                    }
                     // The program stopped with the alarm.
                     self.running = None;
                     self.pending = None;
@@ -479,6 +492,20 @@ mod tests {
             h.telegram(s(0), Telegram::Alarm(3)).last(),
             Some(&Out::Telegram(Telegram::ConfirmAlarm(3)))
         );
+    }
+
+    #[test]
+    fn an_alarm_while_no_job_runs_is_reported_as_it_is() {
+        let mut h = Host::new("/dev/ttyS0");
+        let out = h.telegram(s(0), Telegram::Alarm(24));
+        assert!(
+            out.iter().any(|o| matches!(o, Out::Alarm(c) if c.class == AlarmClass::Safety && c.contains("emergency stop"))),
+            "{out:?}"
+        );
+        // While a job runs, the job's end carries it instead.
+        let mut h = running(0);
+        let out = h.telegram(s(1), Telegram::Alarm(24));
+        assert!(!out.iter().any(|o| matches!(o, Out::Alarm(_))), "{out:?}");
     }
 
     #[test]

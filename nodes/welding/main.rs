@@ -183,6 +183,12 @@ impl Device for Robot {
 
     fn status(&self, status: &mut VmdStatus) {
         status.additional = self.detail;
+        // Inoperable while the line is closed or the RCM has not answered
+        // since it was (re)opened or went silent: an alarm about the link
+        // clears only once the robot answers again.
+        if self.dnc.is_none() || !self.host.answered() {
+            status.physical = falc_common::mms::vmd::PhysicalStatus::Inoperable;
+        }
     }
 }
 

@@ -4,6 +4,7 @@
 
 #![allow(dead_code)]
 
+pub mod chaos;
 pub mod rig;
 
 use falc_common::bus::credentials;
@@ -124,6 +125,33 @@ impl Proc {
                 Err(RecvTimeoutError::Timeout | RecvTimeoutError::Disconnected) => return None,
             }
         }
+    }
+
+    /// Waits for a stdout line containing any of `needles`; None at the
+    /// timeout.
+    pub fn wait_any(&mut self, needles: &[&str], timeout: Duration) -> Option<String> {
+        let end = Instant::now() + timeout;
+        loop {
+            for n in needles {
+                if let Some(l) = self.wait_line(n, Duration::ZERO) {
+                    return Some(l);
+                }
+            }
+            let left = end.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return None;
+            }
+            match self.lines.recv_timeout(left.min(Duration::from_millis(5))) {
+                Ok(l) => self.seen.push(l),
+                Err(RecvTimeoutError::Timeout) => {}
+                Err(RecvTimeoutError::Disconnected) => return None,
+            }
+        }
+    }
+
+    /// Whether the process still runs.
+    pub fn alive(&mut self) -> bool {
+        matches!(self.child.try_wait(), Ok(None))
     }
 
     /// Like `expect_line`, but removes the line it found, so that the next

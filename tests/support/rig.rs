@@ -62,6 +62,13 @@ pub fn rig_with_db(rcm_scale: &str, db: Option<PathBuf>) -> Rig {
 }
 
 impl Rig {
+    /// Starts the cell node again (after it was killed).
+    pub fn start_cell(&mut self) {
+        self.cell_node = self
+            .cell
+            .start_node(env!("CARGO_BIN_EXE_falc-cell"), "cell", &[]);
+    }
+
     pub fn start_welding(&mut self) {
         self.welding = Some(self.cell.start_node(
             env!("CARGO_BIN_EXE_falc-welding"),

@@ -74,6 +74,12 @@ pub fn look(app: &App, name: &falc_common::ids::StationName) -> Look {
     if is_cell && s.alarm.is_some() {
         return Look::Alarm;
     }
+    if s.alarms
+        .iter()
+        .any(|a| a.station == name.as_str() && a.blocks_start())
+    {
+        return Look::Alarm;
+    }
     let Some(v) = s
         .stations
         .iter()
@@ -365,11 +371,29 @@ fn overview(f: &mut Frame, app: &App, area: Rect) {
                 BUSY,
             ));
         }
-        if let Some(a) = &s.alarm {
+        if !s.alarms.is_empty() {
+            // The alarm list, highest priority first; those that hold the
+            // cell back in the alarm colours.
+            let mut list: Vec<_> = s.alarms.iter().collect();
+            list.sort_by_key(|a| (a.class.priority(), a.id));
             notes.push(Line::styled(
-                format!("ALARM: {a}  (F3, a: acknowledge)"),
+                format!(
+                    "ALARMS: {} in the list  (F3, a: acknowledge all; falc ack N for one)",
+                    list.len()
+                ),
                 ALARM,
             ));
+            for a in list {
+                let style = if a.blocks_start() {
+                    ALARM
+                } else {
+                    Style::new()
+                };
+                notes.push(Line::styled(
+                    format!("  {}", crate::cell_cmd::show_alarm(a)),
+                    style,
+                ));
+            }
         }
         if !s.cell_associated {
             notes.push(Line::styled(
