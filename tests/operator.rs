@@ -69,42 +69,6 @@ fn answering_nee_ends_the_order_cleanly() {
 }
 
 #[test]
-fn robot_emergency_stop_mid_weld_raises_a_cell_alarm_with_the_cause() {
-    let mut rig = rig("10");
-    rig.cell.falc(&["order", "add", "dikdroog"]);
-    rig.cell.falc(&["order", "add", "dundroog"]);
-    rig.cell.falc(&["start"]);
-    rig.until_welding();
-    rig.rcm.control("estop");
-    rig.operator().expect_line(
-        "EVENT order-ended id=1 state=failed",
-        Duration::from_secs(10),
-    );
-    let s = rig.status();
-    assert_eq!(s.list, ListState::Alarm, "{s:?}");
-    let alarm = s.alarm.unwrap_or_default();
-    assert!(alarm.contains("emergency stop"), "{alarm}");
-    // The list stopped: the second order did not start; nothing moves.
-    assert_eq!(rig.orders()[1].state, OrderState::Queued);
-    let transport = s
-        .stations
-        .iter()
-        .find(|v| v.name.as_str() == "transport")
-        .and_then(|v| v.status.clone())
-        .expect("transport status seen");
-    assert_ne!(
-        transport.local_detail,
-        falc_common::mms::vmd::RecipeState::Executing
-    );
-    let messages = rig.cell.falc(&["messages"]);
-    assert!(messages.contains("emergency stop"), "{messages}");
-    // Start is refused until the alarm is acknowledged.
-    let (code, text) = rig.cell.falc_as("console", &["start"]);
-    assert_eq!(code, 1, "{text}");
-    assert!(text.contains("falc ack"), "{text}");
-}
-
-#[test]
 fn sigkill_of_a_workstation_mid_order_then_start_refused_until_it_returns() {
     let mut rig = rig("10");
     rig.cell.falc(&["order", "add", "dikdroog"]);

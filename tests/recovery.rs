@@ -48,7 +48,29 @@ fn robot_emergency_stop_mid_weld_then_ack_and_start_runs_the_next_order() {
         "EVENT order-ended id=1 state=failed",
         Duration::from_secs(10),
     );
-    assert_eq!(rig.status().list, ListState::Alarm);
+    let s = rig.status();
+    assert_eq!(s.list, ListState::Alarm, "{s:?}");
+    assert!(
+        s.alarm
+            .as_deref()
+            .unwrap_or_default()
+            .contains("emergency stop"),
+        "{s:?}"
+    );
+    // The list stopped: the second order did not start; nothing moves.
+    assert_eq!(rig.orders()[1].state, OrderState::Queued);
+    let transport = s
+        .stations
+        .iter()
+        .find(|v| v.name.as_str() == "transport")
+        .and_then(|v| v.status.clone())
+        .expect("transport status seen");
+    assert_ne!(
+        transport.local_detail,
+        falc_common::mms::vmd::RecipeState::Executing
+    );
+    let messages = rig.cell.falc(&["messages"]);
+    assert!(messages.contains("emergency stop"), "{messages}");
     let detail = robot_detail(&rig).expect("the robot's detail");
     assert_eq!(detail.state, RobotVmdState::ManualInterventionRequired);
     // Fault 6: the robot's report is journalled under the welding station
@@ -103,11 +125,8 @@ fn robot_emergency_stop_mid_weld_then_ack_and_start_runs_the_next_order() {
         "acknowledged, still listed while the stop is pressed: {listed:#?}"
     );
     rig.rcm.control("estop-clear");
-    rig.plc.control("layout W2 W2");
-    rig.cell.falc(&["ack"]);
-    let out = rig.cell.falc(&["start"]);
+    let out = rig.way_back();
     assert!(out.contains("order 2 (dundroog) started"), "{out}");
-    rig.work_list("ja", Duration::from_secs(120));
     let orders = rig.orders();
     assert_eq!(
         (orders[0].state, orders[1].state),
@@ -218,14 +237,11 @@ fn a_full_disk_mid_order_stops_the_list_and_no_order_runs_twice() {
     assert_eq!(code, 1, "{text}");
     assert!(text.contains("cannot"), "{text}");
     assert_eq!(rig.status().list, ListState::Alarm);
-    // Room again: ack, carriers back, start. The halted order's end is
+    // Room again: carriers back, ack, start. The halted order's end is
     // written first; the next order runs to done.
     disk.free();
-    rig.plc.control("layout W2 W2");
-    rig.cell.falc(&["ack"]);
-    let out = rig.cell.falc(&["start"]);
+    let out = rig.way_back();
     assert!(out.contains("order 2 (dundroog) started"), "{out}");
-    rig.work_list("ja", Duration::from_secs(120));
     let orders = rig.orders();
     assert_eq!(orders.len(), 2, "the refused add left nothing: {orders:?}");
     assert_eq!(orders[0].state, OrderState::Failed, "{orders:?}");
@@ -328,7 +344,9 @@ fn an_alarm_while_no_order_runs_is_listed_and_must_be_acknowledged() {
     let a = s.alarms[0].clone();
     assert_eq!((a.class, a.order), (AlarmClass::Safety, None), "{a:#?}");
     assert!(a.text.contains("emergency stop"), "{a:#?}");
-    let listed = rig.cell.falc(&["alarms"]);
+    let none = rig.cell.falc(&["alarms", "--station", "welding"]);
+    assert_eq!(none.trim(), "no alarms");
+    let listed = rig.cell.falc(&["alarms", "--station", "transport"]);
     assert!(
         listed.contains("safety") && listed.contains("transport") && listed.contains("needs ack"),
         "{listed}"
@@ -380,12 +398,9 @@ fn a_robot_in_manual_mode_reaches_the_operator_with_its_iso_9506_error() {
         "{alarm}"
     );
     assert_eq!(rig.orders()[0].state, OrderState::Failed);
-    // Back in automatic-external mode: ack, carriers back, start.
+    // Back in automatic-external mode: carriers back, ack, start.
     rig.rcm.control("mode aue");
-    rig.cell.falc(&["ack"]);
-    rig.plc.control("layout W2 W2");
-    let out = rig.cell.falc(&["start"]);
+    let out = rig.way_back();
     assert!(out.contains("order 2 (dikdroog) started"), "{out}");
-    rig.work_list("ja", Duration::from_secs(60));
     assert_eq!(rig.orders()[1].state, OrderState::Done);
 }

@@ -56,7 +56,11 @@ pub enum CellCommand {
     },
     /// The alarm list: every station's alarms with class, state, who
     /// acknowledged them; an alarm leaves it once acknowledged and cleared.
-    Alarms,
+    Alarms {
+        /// Only this station's alarms.
+        #[arg(long)]
+        station: Option<StationName>,
+    },
     /// Answer the cell's waiting question.
     Answer {
         /// The answer (`ja`, `nee`, …).
@@ -206,11 +210,17 @@ pub fn show_alarm(a: &Alarm) -> String {
     )
 }
 
-/// `falc alarms`: the list, highest priority first.
-async fn alarms(bus: &Bus, operator: &StationName, json: bool) -> ExitCode {
+/// `falc alarms [--station S]`: the list, highest priority first.
+async fn alarms(
+    bus: &Bus,
+    operator: &StationName,
+    station: Option<&StationName>,
+    json: bool,
+) -> ExitCode {
     match bus.api(operator, ApiRequest::Status, CALL_LIMIT).await {
         Ok(ApiReply::Status(s)) => {
             let mut list = s.alarms;
+            list.retain(|a| station.map_or(true, |st| a.station == st.as_str()));
             list.sort_by_key(|a| (a.class.priority(), a.id));
             if json {
                 match serde_json::to_string(&list) {
@@ -473,7 +483,9 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
         CellCommand::Start => ApiRequest::Start,
         CellCommand::Stop => ApiRequest::Stop,
         CellCommand::Ack { id } => ApiRequest::Ack { id },
-        CellCommand::Alarms => return alarms(&bus, &operator, json).await,
+        CellCommand::Alarms { station } => {
+            return alarms(&bus, &operator, station.as_ref(), json).await
+        }
         CellCommand::Answer { text } => ApiRequest::Answer { text },
         CellCommand::Messages { follow: false } => {
             return all_entries(&bus, &operator, json, |after| ApiRequest::Messages {

@@ -158,6 +158,17 @@ impl Rig {
         }
     }
 
+    /// The documented way back after a fault, once its cause is cleared:
+    /// the carriers set back where an order starts, `falc ack`, `falc
+    /// start`, then the list worked with `ja`. Returns what start said.
+    pub fn way_back(&mut self) -> String {
+        self.plc.control("layout W2 W2");
+        self.cell.falc(&["ack"]);
+        let out = self.cell.falc(&["start"]);
+        self.work_list("ja", Duration::from_secs(120));
+        out
+    }
+
     /// Plays the operator through the CLI until the list stops running:
     /// answers every question with `answer`. Returns the questions seen.
     pub fn work_list(&self, answer: &str, within: Duration) -> Vec<String> {
