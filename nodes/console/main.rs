@@ -35,6 +35,16 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    // `falc status | head` ends quietly when the reader goes, as Unix tools
+    // do, instead of panicking on the broken pipe.
+    // SAFETY: first thing in main, before any other thread exists; the
+    // default disposition installs no handler.
+    unsafe {
+        let _ = nix::sys::signal::signal(
+            nix::sys::signal::Signal::SIGPIPE,
+            nix::sys::signal::SigHandler::SigDfl,
+        );
+    }
     falc_common::node::init_tracing();
     let cli = Cli::parse();
     match cli.command {
