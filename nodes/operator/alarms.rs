@@ -175,45 +175,42 @@ impl AlarmList {
         status: Option<&VmdStatus>,
         present: bool,
     ) -> (Vec<Alarm>, Option<StoreError>) {
+        self.clear_where(store, |a| {
+            a.station == station && !condition_holds(a, status, present)
+        })
+    }
+
+    /// Clears alarm `id` (its condition is known to be gone: the store can
+    /// be written again, the cell is back).
+    pub fn clear(&mut self, store: &mut Store, id: i64) -> Option<StoreError> {
+        self.clear_where(store, |a| a.id == id).1
+    }
+
+    /// Clears every uncleared alarm `which` selects; those leave the list
+    /// that are acknowledged too. Returns those cleared now.
+    fn clear_where(
+        &mut self,
+        store: &mut Store,
+        which: impl Fn(&Alarm) -> bool,
+    ) -> (Vec<Alarm>, Option<StoreError>) {
         let at = now_ms();
         let mut error = None;
         let mut cleared = Vec::new();
         for a in self
             .listed
             .iter_mut()
-            .filter(|a| a.station == station && a.cleared_ms.is_none())
-        {
-            if !condition_holds(a, status, present) {
-                a.cleared_ms = Some(at);
-                if a.id > 0 {
-                    if let Err(e) = store.clear_alarm(a.id, at) {
-                        error.get_or_insert(e);
-                    }
-                }
-                cleared.push(a.clone());
-            }
-        }
-        self.listed.retain(Alarm::listed);
-        (cleared, error)
-    }
-
-    /// Clears alarm `id` (its condition is known to be gone: the store can
-    /// be written again, the cell is back).
-    pub fn clear(&mut self, store: &mut Store, id: i64) -> Option<StoreError> {
-        let at = now_ms();
-        let mut error = None;
-        if let Some(a) = self
-            .listed
-            .iter_mut()
-            .find(|a| a.id == id && a.cleared_ms.is_none())
+            .filter(|a| a.cleared_ms.is_none() && which(a))
         {
             a.cleared_ms = Some(at);
             if a.id > 0 {
-                error = store.clear_alarm(a.id, at).err();
+                if let Err(e) = store.clear_alarm(a.id, at) {
+                    error.get_or_insert(e);
+                }
             }
+            cleared.push(a.clone());
         }
         self.listed.retain(Alarm::listed);
-        error
+        (cleared, error)
     }
 }
 
