@@ -101,6 +101,8 @@ fn robot_emergency_stop_mid_weld_then_ack_and_start_runs_the_next_order() {
         .expect("the robot's alarm is listed");
     assert_eq!(robot.class, falc_common::alarm::AlarmClass::Safety);
     assert_eq!(robot.order, Some(1));
+    // One fault, one alarm: the cell's "alarm from welding: …" is the same.
+    assert_eq!(s.alarms.len(), 1, "{:#?}", s.alarms);
     let (code, text) = rig.cell.falc_as("console", &["start"]);
     assert_eq!(code, 1, "{text}");
     assert!(

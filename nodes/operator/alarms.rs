@@ -1,6 +1,9 @@
 //! The operator's alarm list: every alarm of every station (and the
 //! operator's own), with its class, state and who acknowledged it. Rules:
-//! - the same text from the same station while unacknowledged is one alarm;
+//! - the same text from the same station while unacknowledged is one alarm,
+//!   and so is a commander's alarm that only passes a subordinate's on
+//!   ("alarm from welding: T" while welding's "T" waits): one fault, one
+//!   alarm to acknowledge, under the station where it happened;
 //! - a process alarm (a recipe's alarm state, a failed order) has no
 //!   lasting condition: it is raised cleared and waits only for its
 //!   acknowledgement;
@@ -87,11 +90,20 @@ impl AlarmList {
         text: &str,
         order: Option<i64>,
     ) -> (Raised, Option<StoreError>) {
-        if let Some(a) = self
-            .listed
-            .iter()
-            .find(|a| a.acked.is_none() && a.station == station && a.text == text)
-        {
+        // `upper` is `lower`'s alarm passed on by its commander.
+        let passes_on = |upper: &str, from: &str, lower: &str| {
+            upper
+                .strip_prefix("alarm from ")
+                .and_then(|t| t.strip_prefix(from))
+                .and_then(|t| t.strip_prefix(": "))
+                == Some(lower)
+        };
+        if let Some(a) = self.listed.iter().find(|a| {
+            a.acked.is_none()
+                && ((a.station == station && a.text == text)
+                    || passes_on(text, &a.station, &a.text)
+                    || passes_on(&a.text, station, text))
+        }) {
             return (Raised::Repeated(a.id), None);
         }
         let (mut alarm, error) = match store.raise_alarm(station, class, text, order) {
@@ -294,6 +306,46 @@ mod tests {
         assert!(l.listed().is_empty() && l.blocking().is_none());
         // The store agrees.
         assert!(AlarmList::load(&s).expect("load").listed().is_empty());
+    }
+
+    #[test]
+    fn an_alarm_passed_up_is_the_same_alarm() {
+        let (_d, mut s) = store();
+        let mut l = AlarmList::load(&s).expect("load");
+        let (r, _) = l.raise(
+            &mut s,
+            "welding",
+            AlarmClass::Safety,
+            "RCM message 24",
+            Some(1),
+        );
+        let Raised::New(w) = r else { panic!() };
+        let text = "alarm from welding: RCM message 24";
+        assert!(matches!(
+            l.raise(&mut s, "cell", AlarmClass::Safety, text, Some(1)).0,
+            Raised::Repeated(id) if id == w.id
+        ));
+        assert_eq!(l.listed().len(), 1);
+        // Whichever arrives first.
+        let (_, _) = l.raise(
+            &mut s,
+            "cell",
+            AlarmClass::Device,
+            "alarm from transport: jam",
+            None,
+        );
+        assert!(matches!(
+            l.raise(&mut s, "transport", AlarmClass::Device, "jam", None)
+                .0,
+            Raised::Repeated(_)
+        ));
+        assert_eq!(l.listed().len(), 2);
+        // Once acknowledged, a new fault is a new alarm.
+        l.ack(&mut s, None, "ann").expect("ack");
+        assert!(matches!(
+            l.raise(&mut s, "cell", AlarmClass::Safety, text, Some(2)).0,
+            Raised::New(_)
+        ));
     }
 
     #[test]
