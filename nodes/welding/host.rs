@@ -59,6 +59,9 @@ pub struct Host {
     /// A status request is still in the link's hands (not yet delivered
     /// or given up): no second one is queued behind it.
     asking: bool,
+    /// A status that would make the host act, waiting for a second answer
+    /// to confirm it.
+    suspect: Option<(Option<Program>, ProgramState)>,
     mode: Option<Mode>,
 }
 
@@ -106,6 +109,7 @@ impl Host {
             heard: Duration::ZERO,
             probing: false,
             asking: false,
+            suspect: None,
             mode: None,
         }
     }
@@ -217,6 +221,7 @@ impl Host {
     /// A program status from the RCM (asked for or not).
     fn program_status(
         &mut self,
+        now: Duration,
         program: Option<Program>,
         state: ProgramState,
         mode: Mode,
@@ -225,14 +230,32 @@ impl Host {
         self.asked = None;
         self.asking = false;
         self.mode = Some(mode);
+        self.probing = false;
         let mut out = vec![Out::Detail(detail_of(state, mode))];
         let active = matches!(state, ProgramState::Running | ProgramState::Paused);
-        match self.running {
-            Some(p) if program == Some(p) && active => {}
-            Some(p) if self.pending.is_none() => {
+        let acts = match self.running {
+            Some(p) => self.pending.is_none() && !(program == Some(p) && active),
+            None => active && self.pending.is_none(),
+        };
+        if !acts {
+            self.suspect = None;
+            return out;
+        }
+        // A status that makes the host act (stop a program, end a job) is
+        // acted on only when a second answer confirms it: one stray or
+        // stale telegram never stops the robot or ends a job.
+        if self.suspect != Some((program, state)) {
+            self.suspect = Some((program, state));
+            self.asked = Some(now);
+            self.asking = true;
+            out.push(Out::Telegram(Telegram::StatusRequest));
+            return out;
+        }
+        self.suspect = None;
+        let shown = program.map_or("none".to_string(), |q| q.number().to_string());
+        match self.running.take() {
+            Some(p) => {
                 // Its end telegram was lost: the status tells how it ended.
-                self.running = None;
-                let shown = program.map_or("none".to_string(), |q| q.number().to_string());
                 let end = if program == Some(p) && state == ProgramState::Selected {
                     out.push(Out::Info(format!(
                         "robot program {} ended but its end telegram was lost; the RCM reports it {}: taken as complete",
@@ -250,9 +273,7 @@ impl Host {
                 };
                 out.push(Out::Engine(Event::Ended(self.rcm.clone(), end)));
             }
-            Some(_) => {}
-            None if active && self.pending.is_none() => {
-                let shown = program.map_or("?".to_string(), |q| q.number().to_string());
+            None => {
                 out.push(Out::Telegram(Telegram::StopProgram));
                 out.push(Out::Alarm(Cause::new(AlarmClass::Warning, format!(
                     "robot program {shown} was {} on the RCM on {} with no job of this workstation (a restart of the workstation, or a lost line): stopped",
@@ -260,9 +281,7 @@ impl Host {
                     self.line
                 ))));
             }
-            None => {}
         }
-        self.probing = false;
         out
     }
 
@@ -293,7 +312,13 @@ impl Host {
                 self.asked = None;
                 vec![Out::Engine(Event::Started(rcm))]
             }
-            (Telegram::Ack { error: Some(e), .. }, Some(_)) => {
+            (Telegram::Ack { of, error: Some(e) }, Some(step))
+                if of
+                    == match step {
+                        Pending::Select(_) => b'S',
+                        Pending::Start(_) => b'G',
+                    } =>
+            {
                 self.pending = None;
                 vec![Out::Engine(Event::StartFailed(
                     rcm,
@@ -355,7 +380,7 @@ impl Host {
                     mode,
                 },
                 _,
-            ) => self.program_status(program, state, mode),
+            ) => self.program_status(now, program, state, mode),
             (other, _) => vec![Out::Info(format!(
                 "unexpected telegram from the RCM: {other:?}"
             ))],
@@ -582,7 +607,17 @@ mod tests {
             h.handle_timeout(s(10050)),
             vec![Out::Telegram(Telegram::StatusRequest)]
         );
+        // Seen once: asked again to be sure; confirmed: stopped.
         let out = h.telegram(s(10100), status(Some(p65()), ProgramState::Running));
+        assert!(
+            out.contains(&Out::Telegram(Telegram::StatusRequest)),
+            "{out:?}"
+        );
+        assert!(
+            !out.contains(&Out::Telegram(Telegram::StopProgram)),
+            "{out:?}"
+        );
+        let out = h.telegram(s(10150), status(Some(p65()), ProgramState::Running));
         assert!(
             out.contains(&Out::Telegram(Telegram::StopProgram)),
             "{out:?}"
@@ -599,12 +634,23 @@ mod tests {
         let mut h = running(0);
         h.handle_timeout(s(1000));
         let out = h.telegram(s(1020), status(Some(p65()), ProgramState::Selected));
+        assert_eq!(ended(&out), None, "confirmed first: {out:?}");
+        assert!(out.contains(&Out::Telegram(Telegram::StatusRequest)));
+        let out = h.telegram(s(1040), status(Some(p65()), ProgramState::Selected));
         assert_eq!(ended(&out), Some(&JobEnd::Done), "{out:?}");
+        // A stray answer that the next one contradicts changes nothing.
+        let mut h = running(0);
+        h.handle_timeout(s(1000));
+        h.telegram(s(1020), status(None, ProgramState::Idle));
+        let out = h.telegram(s(1040), status(Some(p65()), ProgramState::Running));
+        assert_eq!(ended(&out), None, "{out:?}");
+        assert_eq!(h.running(), Some(p65()));
         // Stopped before its end (an emergency stop whose alarm was lost):
         // an alarm that says so.
         let mut h = running(0);
         h.handle_timeout(s(1000));
-        let out = h.telegram(s(1020), status(Some(p65()), ProgramState::Stopped));
+        h.telegram(s(1020), status(Some(p65()), ProgramState::Stopped));
+        let out = h.telegram(s(1040), status(Some(p65()), ProgramState::Stopped));
         match ended(&out) {
             Some(JobEnd::Alarm(why)) => assert!(why.contains("stopped before its end"), "{why}"),
             other => panic!("{other:?}"),
@@ -621,7 +667,8 @@ mod tests {
                 Out::Telegram(Telegram::StatusRequest)
             ]
         );
-        let out = h.telegram(s(30), status(Some(p65()), ProgramState::Paused));
+        h.telegram(s(30), status(Some(p65()), ProgramState::Paused));
+        let out = h.telegram(s(60), status(Some(p65()), ProgramState::Paused));
         assert!(
             out.contains(&Out::Telegram(Telegram::StopProgram)),
             "{out:?}"
