@@ -112,6 +112,20 @@ impl Cause {
     pub fn contains(&self, needle: &str) -> bool {
         self.text.contains(needle)
     }
+
+    /// The same alarm as a commander passes it on: "alarm from `from`:
+    /// text" (read back by [`passed_on_from`]).
+    pub fn passed_on(&self, from: &str) -> Self {
+        self.map(|t| format!("alarm from {from}: {t}"))
+    }
+}
+
+/// The text of the alarm `text` passes on from station `from`, if it is
+/// one ([`Cause::passed_on`]).
+pub fn passed_on_from<'a>(text: &'a str, from: &str) -> Option<&'a str> {
+    text.strip_prefix("alarm from ")?
+        .strip_prefix(from)?
+        .strip_prefix(": ")
 }
 
 impl fmt::Display for Cause {
@@ -255,9 +269,11 @@ mod tests {
         for c in AlarmClass::ALL {
             assert_eq!(AlarmClass::parse(c.as_str()), Some(c));
         }
-        let c = Cause::new(AlarmClass::Safety, "emergency stop")
-            .map(|t| format!("alarm from welding: {t}"));
+        let c = Cause::new(AlarmClass::Safety, "emergency stop").passed_on("welding");
         assert_eq!(c.class, AlarmClass::Safety);
         assert_eq!(c.to_string(), "alarm from welding: emergency stop");
+        assert_eq!(passed_on_from(&c.text, "welding"), Some("emergency stop"));
+        assert_eq!(passed_on_from(&c.text, "weld"), None);
+        assert_eq!(passed_on_from("emergency stop", "welding"), None);
     }
 }

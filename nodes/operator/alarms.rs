@@ -18,7 +18,7 @@
 //! error for the caller to stop the cell.
 
 use crate::store::{now_ms, Store, StoreError};
-use falc_common::alarm::{Alarm, AlarmClass};
+use falc_common::alarm::{passed_on_from, Alarm, AlarmClass};
 use falc_common::mms::vmd::{PhysicalStatus, RobotStatusDetail, RobotVmdState, VmdStatus};
 
 /// What raising an alarm did.
@@ -91,13 +91,8 @@ impl AlarmList {
         order: Option<i64>,
     ) -> (Raised, Option<StoreError>) {
         // `upper` is `lower`'s alarm passed on by its commander.
-        let passes_on = |upper: &str, from: &str, lower: &str| {
-            upper
-                .strip_prefix("alarm from ")
-                .and_then(|t| t.strip_prefix(from))
-                .and_then(|t| t.strip_prefix(": "))
-                == Some(lower)
-        };
+        let passes_on =
+            |upper: &str, from: &str, lower: &str| passed_on_from(upper, from) == Some(lower);
         if let Some(a) = self.listed.iter().find(|a| {
             a.acked.is_none()
                 && ((a.station == station && a.text == text)
@@ -106,7 +101,7 @@ impl AlarmList {
         }) {
             return (Raised::Repeated(a.id), None);
         }
-        let (mut alarm, error) = match store.raise_alarm(station, class, text, order) {
+        let (alarm, error) = match store.raise_alarm(station, class, text, order) {
             Ok(a) => (a, None),
             Err(e) => {
                 self.unstored -= 1;
@@ -123,16 +118,18 @@ impl AlarmList {
                 (a, Some(e))
             }
         };
+        let id = alarm.id;
+        self.listed.push(alarm);
         let mut error = error;
         if class == AlarmClass::Process {
-            alarm.cleared_ms = Some(alarm.raised_ms);
-            if alarm.id > 0 {
-                if let Err(e) = store.clear_alarm(alarm.id, alarm.raised_ms) {
-                    error.get_or_insert(e);
-                }
-            }
+            error = error.or(self.clear_where(store, |a| a.id == id).1);
         }
-        self.listed.push(alarm.clone());
+        let alarm = self
+            .listed
+            .iter()
+            .find(|a| a.id == id)
+            .cloned()
+            .unwrap_or_else(|| unreachable!("alarm #{id} was just listed"));
         (Raised::New(alarm), error)
     }
 
@@ -158,24 +155,12 @@ impl AlarmList {
                 ));
             }
         }
-        let at = now_ms();
-        let mut error = None;
-        let mut acked = Vec::new();
-        for a in self
-            .listed
-            .iter_mut()
-            .filter(|a| a.acked.is_none() && id.is_none_or_eq(a.id))
-        {
-            a.acked = Some((who.to_string(), at));
-            if a.id > 0 {
-                if let Err(e) = store.ack_alarm(a.id, who, at) {
-                    error.get_or_insert(e);
-                }
-            }
-            acked.push(a.clone());
-        }
-        self.listed.retain(Alarm::listed);
-        Ok((acked, error))
+        Ok(self.mark(
+            store,
+            |a| a.acked.is_none() && id.map_or(true, |i| i == a.id),
+            |a, at| a.acked = Some((who.to_string(), at)),
+            |store, id, at| store.ack_alarm(id, who, at),
+        ))
     }
 
     /// Clears the alarms of `station` whose condition no longer holds.
@@ -192,48 +177,47 @@ impl AlarmList {
         })
     }
 
-    /// Clears alarm `id` (its condition is known to be gone: the store can
-    /// be written again, the cell is back).
-    pub fn clear(&mut self, store: &mut Store, id: i64) -> Option<StoreError> {
-        self.clear_where(store, |a| a.id == id).1
-    }
-
-    /// Clears every uncleared alarm `which` selects; those leave the list
-    /// that are acknowledged too. Returns those cleared now.
-    fn clear_where(
+    /// Clears every uncleared alarm `which` selects (its condition is
+    /// known to be gone: the cell is back, the store can be written);
+    /// those leave the list that are acknowledged too. Returns those
+    /// cleared now.
+    pub fn clear_where(
         &mut self,
         store: &mut Store,
         which: impl Fn(&Alarm) -> bool,
     ) -> (Vec<Alarm>, Option<StoreError>) {
+        self.mark(
+            store,
+            |a| a.cleared_ms.is_none() && which(a),
+            |a, at| a.cleared_ms = Some(at),
+            Store::clear_alarm,
+        )
+    }
+
+    /// Sets what `set` sets on every alarm `which` selects, and writes it
+    /// with `write` (not for an alarm the store never kept); drops what
+    /// is acknowledged and cleared from the list. Returns those changed.
+    fn mark(
+        &mut self,
+        store: &mut Store,
+        which: impl Fn(&Alarm) -> bool,
+        set: impl Fn(&mut Alarm, i64),
+        write: impl Fn(&mut Store, i64, i64) -> Result<(), StoreError>,
+    ) -> (Vec<Alarm>, Option<StoreError>) {
         let at = now_ms();
         let mut error = None;
-        let mut cleared = Vec::new();
-        for a in self
-            .listed
-            .iter_mut()
-            .filter(|a| a.cleared_ms.is_none() && which(a))
-        {
-            a.cleared_ms = Some(at);
+        let mut changed = Vec::new();
+        for a in self.listed.iter_mut().filter(|a| which(a)) {
+            set(a, at);
             if a.id > 0 {
-                if let Err(e) = store.clear_alarm(a.id, at) {
+                if let Err(e) = write(store, a.id, at) {
                     error.get_or_insert(e);
                 }
             }
-            cleared.push(a.clone());
+            changed.push(a.clone());
         }
         self.listed.retain(Alarm::listed);
-        (cleared, error)
-    }
-}
-
-/// `None` matches every id.
-trait MatchesId {
-    fn is_none_or_eq(&self, id: i64) -> bool;
-}
-
-impl MatchesId for Option<i64> {
-    fn is_none_or_eq(&self, id: i64) -> bool {
-        self.is_none() || *self == Some(id)
+        (changed, error)
     }
 }
 

@@ -51,10 +51,13 @@ pub struct Operator {
     delivered: BTreeMap<ObjectName, u64>,
     associated: bool,
     problem: Option<String>,
+    /// Whether the list goes on (`Running`) or waits (`Idle`); shown as
+    /// `Alarm` while an alarm holds it back ([`Self::list_state`]).
     list: ListState,
     /// Every station's alarms and the operator's own.
     alarms: AlarmList,
-    /// The alarm a failed store write raised (cleared by `ack`).
+    /// The alarm a failed store write raised: the store is taken as
+    /// failing until it is acknowledged (the next write then tells).
     store_alarm: Option<i64>,
     running: Option<Order>,
     question: Option<Question>,
@@ -64,9 +67,6 @@ pub struct Operator {
     present: std::collections::BTreeSet<StationName>,
     /// Lines the cell showed since the last question (shown with it).
     shown: Vec<String>,
-    /// A write to the order list or journal failed (disk full, I/O error):
-    /// the list is stopped until `ack`, and an order that ran is halted.
-    store_fault: Option<String>,
     /// The running order must be stopped at the cell (a write failed).
     halt_pending: bool,
     /// Order ends that could not be written: written before the next start
@@ -99,11 +99,6 @@ impl Operator {
                 AlarmList::default()
             }
         };
-        let list = if alarms.blocking().is_some() {
-            ListState::Alarm
-        } else {
-            ListState::Idle
-        };
         Self {
             station,
             store,
@@ -114,7 +109,7 @@ impl Operator {
             delivered: BTreeMap::new(),
             associated: false,
             problem: None,
-            list,
+            list: ListState::Idle,
             alarms,
             store_alarm: None,
             running: None,
@@ -123,7 +118,6 @@ impl Operator {
             statuses: BTreeMap::new(),
             present: Default::default(),
             shown: Vec::new(),
-            store_fault: None,
             halt_pending: false,
             unwritten_ends: Vec::new(),
             last_ended: None,
@@ -158,7 +152,7 @@ impl Operator {
     pub fn store_failed(&mut self, e: &StoreError) {
         tracing::error!("{e}");
         say(&format!("EVENT store-error {e}"));
-        if self.store_fault.is_some() {
+        if self.store_alarm.is_some() {
             return;
         }
         let text = format!(
@@ -170,32 +164,25 @@ impl Operator {
                 ""
             }
         );
-        self.store_fault = Some(text.clone());
         self.halt_pending = self.running.is_some();
-        self.list = ListState::Alarm;
-        // Not journalled: the journal is what cannot be written.
+        // Neither journalled nor, most likely, stored: the store is what
+        // cannot be written (the list keeps it in memory meanwhile).
         let order = self.running_id();
         let me = self.me();
-        self.store_alarm = self.raise_alarm(&me, AlarmClass::Device, &text, order);
+        let (raised, _) = self
+            .alarms
+            .raise(&mut self.store, &me, AlarmClass::Device, &text, order);
+        self.store_alarm = Some(self.raised(raised, AlarmClass::Device));
     }
 
-    /// Puts an alarm of `station` in the list (the same one again while
-    /// unacknowledged is not repeated); one that needs acknowledgement
-    /// stops the list. Returns its number.
-    fn raise_alarm(
-        &mut self,
-        station: &str,
-        class: AlarmClass,
-        text: &str,
-        order: Option<i64>,
-    ) -> Option<i64> {
-        let (raised, error) = self
-            .alarms
-            .raise(&mut self.store, station, class, text, order);
+    /// Says a new alarm, and stops the list if its class needs an
+    /// acknowledgement (a running order ends, the next one waits); its
+    /// number.
+    fn raised(&mut self, raised: Raised, class: AlarmClass) -> i64 {
         if class.needs_ack() {
-            self.list = ListState::Alarm;
+            self.list = ListState::Idle;
         }
-        let id = match raised {
+        match raised {
             Raised::New(a) => {
                 say(&format!(
                     "EVENT alarm id={} class={} station={} {}",
@@ -204,11 +191,30 @@ impl Operator {
                 a.id
             }
             Raised::Repeated(id) => id,
-        };
+        }
+    }
+
+    /// The list as consoles see it: `Alarm` while an alarm holds it back.
+    fn list_state(&self) -> ListState {
+        if self.alarms.blocking().is_some() {
+            ListState::Alarm
+        } else {
+            self.list
+        }
+    }
+
+    /// Puts an alarm of `station` in the list (the same one again while
+    /// unacknowledged is not repeated); one that needs acknowledgement
+    /// stops the list ([`Self::raised`]) and is shown as its state
+    /// ([`Self::list_state`]).
+    fn raise_alarm(&mut self, station: &str, class: AlarmClass, text: &str, order: Option<i64>) {
+        let (raised, error) = self
+            .alarms
+            .raise(&mut self.store, station, class, text, order);
+        self.raised(raised, class);
         if let Some(e) = error {
             self.store_failed(&e);
         }
-        Some(id)
     }
 
     /// Clears the alarms of `station` whose condition is gone, from its
@@ -274,7 +280,7 @@ impl Operator {
         );
     }
 
-    /// Writes the order ends a failed store held back; false (with the
+    /// Writes the order ends a failed store held back; the error (the
     /// fault raised again) while it still cannot.
     fn write_held_ends(&mut self) -> Result<(), String> {
         while let Some((id, state, result)) = self.unwritten_ends.first().cloned() {
@@ -320,17 +326,11 @@ impl Operator {
                     say(&format!("EVENT associated station={}", self.cell));
                     let me = self.me();
                     // The cell is back: the lost connection has cleared.
-                    let lost: Vec<i64> = self
-                        .alarms
-                        .listed()
-                        .iter()
-                        .filter(|a| a.station == me && a.class == AlarmClass::Communication)
-                        .map(|a| a.id)
-                        .collect();
-                    for id in lost {
-                        if let Some(e) = self.alarms.clear(&mut self.store, id) {
-                            self.store_failed(&e);
-                        }
+                    let (_, error) = self.alarms.clear_where(&mut self.store, |a| {
+                        a.station == me && a.class == AlarmClass::Communication
+                    });
+                    if let Some(e) = error {
+                        self.store_failed(&e);
                     }
                     self.journal(
                         EntryKind::System,
@@ -687,7 +687,7 @@ impl Operator {
 
     fn status(&self) -> Result<CellStatus, StoreError> {
         Ok(CellStatus {
-            list: self.list,
+            list: self.list_state(),
             cell_associated: self.associated,
             problem: self.problem.clone(),
             alarm: self.alarms.blocking().map(|a| a.line()),
@@ -867,9 +867,8 @@ impl Operator {
         {
             // Acknowledged: the next write tells whether the store works
             // again (it raises a new alarm if not).
-            self.store_fault = None;
             self.store_alarm = None;
-            let _ = self.alarms.clear(&mut self.store, s);
+            let _ = self.alarms.clear_where(&mut self.store, |a| a.id == s);
         }
         if let Some(e) = error {
             self.store_failed(&e);
@@ -881,9 +880,6 @@ impl Operator {
                 who,
                 &format!("acknowledged alarm {}", a.line()),
             );
-        }
-        if self.list == ListState::Alarm && self.alarms.blocking().is_none() {
-            self.list = ListState::Idle;
         }
         let lines: Vec<String> = acked.iter().map(|a| a.line()).collect();
         Ok(ApiReply::Done(format!(

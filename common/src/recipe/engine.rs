@@ -298,7 +298,7 @@ impl Engine {
                 if let Some(j) = self.jobs.get_mut(&t) {
                     j.state = JobState::Ended(JobEnd::Alarm(text.clone()));
                 }
-                let cause = text.map(|text| format!("alarm from {t}: {text}"));
+                let cause = text.passed_on(t.as_str());
                 self.stop_jobs(Some(&t));
                 self.actions.push_back(Action::Alarm(cause.clone()));
                 self.end(Outcome::Alarm(cause));
@@ -396,6 +396,15 @@ impl Engine {
         }
     }
 
+    /// ` (why the last timeout branch was taken)`, once, for the alarm it
+    /// leads to; empty if none was.
+    fn why_here(&mut self) -> String {
+        self.failure
+            .take()
+            .map(|w| format!(" ({w})"))
+            .unwrap_or_default()
+    }
+
     fn branch(&mut self, now: Duration, c: &Criterion) {
         if *c != Criterion::Timeout {
             self.failure = None;
@@ -408,14 +417,9 @@ impl Engine {
         match next {
             Some(n) => self.enter(now, n),
             None => {
-                let cause = Cause::process(format!(
-                    "state {} has no `{c}` branch{}",
-                    self.state,
-                    self.failure
-                        .take()
-                        .map(|w| format!(" ({w})"))
-                        .unwrap_or_default()
-                ));
+                let why = self.why_here();
+                let cause =
+                    Cause::process(format!("state {} has no `{c}` branch{why}", self.state));
                 self.stop_jobs(None);
                 self.actions.push_back(Action::Alarm(cause.clone()));
                 self.end(Outcome::Alarm(cause));
@@ -461,10 +465,7 @@ impl Engine {
                     } else {
                         format!(": {}", st.text)
                     },
-                    self.failure
-                        .take()
-                        .map(|w| format!(" ({w})"))
-                        .unwrap_or_default()
+                    self.why_here()
                 ));
                 self.stop_jobs(None);
                 self.actions.push_back(Action::Alarm(cause.clone()));
