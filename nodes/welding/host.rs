@@ -7,7 +7,7 @@ use falc_common::alarm::{AlarmClass, Cause};
 use falc_common::dnc::alarms::{self, Effect};
 use falc_common::dnc::telegram::{EndResult, Mode, Program, ProgramState, Telegram};
 use falc_common::ids::StationName;
-use falc_common::mms::vmd::{RobotStatusDetail, RobotVmdState};
+use falc_common::mms::vmd::RobotStatusDetail;
 use falc_common::recipe::engine::{Event, JobEnd};
 use std::time::Duration;
 
@@ -59,32 +59,12 @@ pub struct Host {
     /// A status request is still in the link's hands (not yet delivered
     /// or given up): no second one is queued behind it.
     asking: bool,
+    /// The serial line is open (nothing is asked while it is closed).
+    open: bool,
     /// A status that would make the host act, waiting for a second answer
     /// to confirm it.
     suspect: Option<(Option<Program>, ProgramState)>,
     mode: Option<Mode>,
-}
-
-/// The robot's status detail from its own program status (ISO 9506-3
-/// RobotStatusDetail; DNC cannot see power-on, units are irrelevant).
-pub fn detail_of(state: ProgramState, mode: Mode) -> RobotStatusDetail {
-    let state = match state {
-        ProgramState::Idle => RobotVmdState::Idle,
-        ProgramState::Selected => RobotVmdState::Loaded,
-        ProgramState::Running => RobotVmdState::Executing,
-        ProgramState::Paused => RobotVmdState::MotionPaused,
-        ProgramState::Stopped => RobotVmdState::Ready,
-    };
-    let local = if mode == Mode::AutomaticExternal {
-        0
-    } else {
-        RobotStatusDetail::LOCAL_CONTROL
-    };
-    RobotStatusDetail {
-        state,
-        specific: RobotStatusDetail::ALL_CALIBRATED | local,
-        mask: alarms::MASK,
-    }
 }
 
 fn word(state: ProgramState) -> &'static str {
@@ -109,15 +89,16 @@ impl Host {
             heard: Duration::ZERO,
             probing: false,
             asking: false,
+            open: false,
             suspect: None,
             mode: None,
         }
     }
 
-    /// Whether the RCM answered since the line was (re)opened or last went
-    /// silent.
+    /// Whether the line is open and the RCM answered since it was
+    /// (re)opened or last went silent.
     pub fn answered(&self) -> bool {
-        !self.probing
+        self.open && !self.probing
     }
 
     /// The robot program a job of ours runs, if any.
@@ -129,19 +110,50 @@ impl Host {
     /// the robot's status (thesis §5.2, appendix H), so a program that no
     /// job of ours owns is found and stopped.
     pub fn connected(&mut self, now: Duration) -> Vec<Out> {
+        self.open = true;
         self.probing = true;
-        self.asked = Some(now);
-        self.asking = true;
-        vec![
-            Out::Telegram(Telegram::InitiateDnc),
-            Out::Telegram(Telegram::StatusRequest),
-        ]
+        // A new link: nothing of the old one is in flight.
+        self.asking = false;
+        let mut out = vec![Out::Telegram(Telegram::InitiateDnc)];
+        out.extend(self.ask(now));
+        out
     }
 
-    /// The link delivered a telegram or gave it up (3964R retries spent).
-    pub fn link_done(&mut self, telegram: &[u8]) {
+    /// The line closed: the job, if any, ends in alarm (else the alarm is
+    /// reported as it is); nothing is asked until it is open again.
+    pub fn closed(&mut self, why: String) -> Vec<Out> {
+        self.open = false;
+        self.asked = None;
+        self.link_failed(why)
+    }
+
+    /// The link delivered `telegram`.
+    pub fn sent(&mut self, telegram: &[u8]) {
         if telegram == Telegram::StatusRequest.encode().as_slice() {
             self.asking = false;
+        }
+    }
+
+    /// The link gave `telegram` up (3964R attempts spent): a status
+    /// request's silence is the supervision's to report; any other
+    /// telegram's loss is a link failure.
+    pub fn gave_up(&mut self, telegram: &[u8], why: String) -> Vec<Out> {
+        if telegram == Telegram::StatusRequest.encode().as_slice() {
+            self.asking = false;
+            Vec::new()
+        } else {
+            self.link_failed(why)
+        }
+    }
+
+    /// Asks the robot's status at `now`, unless a request is still in the
+    /// link's hands (then its answer, or its silence, is awaited).
+    fn ask(&mut self, now: Duration) -> Option<Out> {
+        self.asked = Some(now);
+        if std::mem::replace(&mut self.asking, true) {
+            None
+        } else {
+            Some(Out::Telegram(Telegram::StatusRequest))
         }
     }
 
@@ -158,21 +170,23 @@ impl Host {
         vec![Out::Telegram(Telegram::StopProgram)]
     }
 
-    /// The link could not deliver a telegram: the job cannot go on.
+    /// The link could not deliver a telegram: a job cannot go on (it ends
+    /// in alarm); with none, the alarm is reported as it is.
     pub fn link_failed(&mut self, why: String) -> Vec<Out> {
-        self.pending = None;
-        self.running = None;
+        let job = self.pending.take().is_some() | self.running.take().is_some();
         self.probing = true;
-        vec![Out::Engine(Event::Ended(
-            self.rcm.clone(),
-            JobEnd::Alarm(Cause::new(AlarmClass::Communication, why)),
-        ))]
+        let cause = Cause::new(AlarmClass::Communication, why);
+        vec![if job {
+            Out::Engine(Event::Ended(self.rcm.clone(), JobEnd::Alarm(cause)))
+        } else {
+            Out::Alarm(cause)
+        }]
     }
 
     /// When the host next needs the clock: the next status request, or
     /// the end of the wait for its answer.
     pub fn poll_timeout(&self) -> Option<Duration> {
-        if self.running.is_none() && !self.probing {
+        if !self.open || (self.running.is_none() && !self.probing) {
             return None;
         }
         Some(match self.asked {
@@ -207,14 +221,7 @@ impl Host {
                     JobEnd::Alarm(Cause::new(AlarmClass::Communication, why)),
                 ))]
             }
-            None => {
-                self.asked = Some(now);
-                if std::mem::replace(&mut self.asking, true) {
-                    // The last one is still being tried on a silent line.
-                    return Vec::new();
-                }
-                vec![Out::Telegram(Telegram::StatusRequest)]
-            }
+            None => self.ask(now).into_iter().collect(),
         }
     }
 
@@ -231,7 +238,7 @@ impl Host {
         self.asking = false;
         self.mode = Some(mode);
         self.probing = false;
-        let mut out = vec![Out::Detail(detail_of(state, mode))];
+        let mut out = vec![Out::Detail(alarms::status_detail(state, mode))];
         let active = matches!(state, ProgramState::Running | ProgramState::Paused);
         let acts = match self.running {
             Some(p) => self.pending.is_none() && !(program == Some(p) && active),
@@ -246,9 +253,7 @@ impl Host {
         // stale telegram never stops the robot or ends a job.
         if self.suspect != Some((program, state)) {
             self.suspect = Some((program, state));
-            self.asked = Some(now);
-            self.asking = true;
-            out.push(Out::Telegram(Telegram::StatusRequest));
+            out.extend(self.ask(now));
             return out;
         }
         self.suspect = None;
@@ -334,7 +339,10 @@ impl Host {
                 };
                 let mut out = Vec::new();
                 if let Some(mode) = self.mode {
-                    out.push(Out::Detail(detail_of(ProgramState::Selected, mode)));
+                    out.push(Out::Detail(alarms::status_detail(
+                        ProgramState::Selected,
+                        mode,
+                    )));
                 }
                 out.push(Out::Engine(Event::Ended(rcm, end)));
                 out
@@ -412,6 +420,7 @@ impl Host {
 mod tests {
     use super::*;
     use falc_common::dnc::telegram::AckError;
+    use falc_common::mms::vmd::RobotVmdState;
 
     fn rcm() -> StationName {
         StationName::new("rcm").expect("valid")
@@ -437,9 +446,11 @@ mod tests {
         }
     }
 
-    /// A host whose job runs program 65 since `t` ms.
+    /// A host on an open line whose job runs program 65 since `t` ms.
     fn running(t: u64) -> Host {
         let mut h = Host::new("/dev/ttyS0");
+        h.connected(s(t));
+        h.telegram(s(t), status(None, ProgramState::Idle));
         h.start(p65());
         h.telegram(s(t), ack(b'S'));
         h.telegram(s(t), ack(b'G'));
@@ -451,6 +462,33 @@ mod tests {
             Out::Engine(Event::Ended(_, e)) => Some(e),
             _ => None,
         })
+    }
+
+    #[test]
+    fn a_lost_line_ends_the_job_or_is_reported_and_nothing_is_asked_while_closed() {
+        let mut h = running(0);
+        let out = h.closed("no connection with RCM on /dev/ttyS0: the line closed".into());
+        assert!(
+            matches!(ended(&out), Some(JobEnd::Alarm(c)) if c.class == AlarmClass::Communication),
+            "{out:?}"
+        );
+        assert_eq!(h.poll_timeout(), None, "nothing asked on a closed line");
+        assert!(!h.answered());
+        // Idle: reported as it is.
+        let out = h.link_failed("gone".into());
+        assert!(
+            matches!(&out[..], [Out::Alarm(c)] if c.text == "gone"),
+            "{out:?}"
+        );
+        // Reopened: asked again; a status request given up is the
+        // supervision's to report, a start's is the job's alarm.
+        h.connected(s(10));
+        assert!(h
+            .gave_up(&Telegram::StatusRequest.encode(), "x".into())
+            .is_empty());
+        h.start(p65());
+        let out = h.gave_up(&Telegram::SelectProgram(p65()).encode(), "x".into());
+        assert!(matches!(ended(&out), Some(JobEnd::Alarm(_))), "{out:?}");
     }
 
     #[test]
@@ -563,7 +601,7 @@ mod tests {
         assert!(
             matches!(&out[0], Out::Detail(d) if d.specific & RobotStatusDetail::SAFETY_INTERLOCKS_VIOLATED == 0)
         );
-        let manual = detail_of(ProgramState::Idle, Mode::Manual);
+        let manual = alarms::status_detail(ProgramState::Idle, Mode::Manual);
         assert_ne!(manual.specific & RobotStatusDetail::LOCAL_CONTROL, 0);
     }
 
@@ -599,10 +637,10 @@ mod tests {
         // no longer owns; never a second request behind one the link
         // still tries (3964R: up to 6 × 2 s).
         assert!(h.handle_timeout(s(6050)).is_empty());
-        h.link_done(&Telegram::StatusRequest.encode());
+        h.sent(&Telegram::StatusRequest.encode());
         assert_eq!(h.poll_timeout(), Some(s(8050)));
         h.handle_timeout(s(8050));
-        h.link_done(&Telegram::StatusRequest.encode());
+        h.sent(&Telegram::StatusRequest.encode());
         assert_eq!(
             h.handle_timeout(s(10050)),
             vec![Out::Telegram(Telegram::StatusRequest)]
@@ -684,7 +722,7 @@ mod tests {
         let mut h = Host::new("/dev/ttyS0");
         h.connected(s(0));
         assert!(h.handle_timeout(s(2000)).is_empty());
-        h.link_done(&Telegram::StatusRequest.encode());
+        h.sent(&Telegram::StatusRequest.encode());
         assert_eq!(
             h.handle_timeout(s(3000)),
             vec![Out::Telegram(Telegram::StatusRequest)]

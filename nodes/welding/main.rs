@@ -11,7 +11,7 @@ mod host;
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use falc_common::alarm::{AlarmClass, Cause};
+use falc_common::alarm::Cause;
 use falc_common::bus::station::Station;
 use falc_common::dnc::driver::{self, LineSettings};
 use falc_common::dnc::procedure::{LinkEvent, Priority, Timing};
@@ -51,10 +51,8 @@ struct Robot {
     dnc: Option<tokio::sync::mpsc::UnboundedSender<Vec<u8>>>,
     line: LineSettings,
     detail: Option<RobotStatusDetail>,
-    /// A link failure not yet reported.
-    link_alarm: Option<String>,
-    /// Alarms no job owns (a program found running nobody's), not yet
-    /// reported.
+    /// Alarms no job owns (a lost line while idle, a program found
+    /// running nobody's), not yet reported.
     alarms: Vec<Cause>,
 }
 
@@ -103,17 +101,16 @@ impl Robot {
                 Err(e) => tracing::warn!("undecodable telegram from the RCM: {e}"),
             },
             LinkEvent::Failed { telegram, error } => {
-                self.host.link_done(&telegram);
-                if telegram == Telegram::StatusRequest.encode() {
-                    // The supervision already raised the silent line.
-                    tracing::warn!("status request to the RCM given up: {error}");
-                } else {
-                    let why = format!("no connection with RCM on {}: {error}", self.line.path);
-                    self.lost(why, &mut out);
-                }
+                tracing::warn!(
+                    "telegram {} to the RCM given up: {error}",
+                    telegram.escape_ascii()
+                );
+                let why = format!("no connection with RCM on {}: {error}", self.line.path);
+                let outs = self.host.gave_up(&telegram, why);
+                self.apply(outs, &mut out);
             }
             LinkEvent::Refused(why) => tracing::debug!("block refused: {why}"),
-            LinkEvent::Sent(telegram) => self.host.link_done(&telegram),
+            LinkEvent::Sent(telegram) => self.host.sent(&telegram),
         }
         out
     }
@@ -133,11 +130,18 @@ impl Robot {
         out
     }
 
-    fn lost(&mut self, why: String, out: &mut Vec<Event>) {
+    /// The line closed.
+    fn closed(&mut self) -> Vec<Event> {
+        self.dnc = None;
+        let why = format!(
+            "no connection with RCM on {}: the line closed",
+            self.line.path
+        );
         tracing::warn!("{why}");
-        self.link_alarm = Some(why.clone());
-        let outs = self.host.link_failed(why);
-        self.apply(outs, out);
+        let mut out = Vec::new();
+        let outs = self.host.closed(why);
+        self.apply(outs, &mut out);
+        out
     }
 }
 
@@ -186,7 +190,7 @@ impl Device for Robot {
         // Inoperable while the line is closed or the RCM has not answered
         // since it was (re)opened or went silent: an alarm about the link
         // clears only once the robot answers again.
-        if self.dnc.is_none() || !self.host.answered() {
+        if !self.host.answered() {
             status.physical = falc_common::mms::vmd::PhysicalStatus::Inoperable;
         }
     }
@@ -222,7 +226,6 @@ async fn main() -> Result<()> {
         dnc,
         line,
         detail: None,
-        link_alarm: None,
         alarms: Vec::new(),
     };
     // select + start: 2 telegrams, each up to 6 × 2 s on a dead line, so
@@ -250,12 +253,8 @@ async fn main() -> Result<()> {
                 let events = match ev {
                     Some(ev) => { let now = ws.now(); ws.device.dnc_event(now, ev) }
                     None => {
-                        ws.device.dnc = None;
                         dnc_events = None;
-                        let why = format!("no connection with RCM on {}: the line closed", ws.device.line.path);
-                        let mut out = Vec::new();
-                        ws.device.lost(why, &mut out);
-                        out
+                        ws.device.closed()
                     }
                 };
                 ws.feed(events);
@@ -279,10 +278,6 @@ async fn main() -> Result<()> {
             _ = shutdown.requested() => break,
         }
         ws.settle().await;
-        if let Some(why) = ws.device.link_alarm.take() {
-            ws.report(Severity::Alarm(AlarmClass::Communication), why)
-                .await;
-        }
         for cause in std::mem::take(&mut ws.device.alarms) {
             ws.report(Severity::Alarm(cause.class), cause.text).await;
         }

@@ -1,5 +1,6 @@
 //! RCM message numbers → `RobotStatusDetail` and what the workstation does
-//! with them, as data (SEED-NOTES.md §5).
+//! with them, as data (SEED-NOTES.md §5); and the detail of the robot's
+//! own program status ([`status_detail`]).
 //!
 //! The thesis' table maps a message number to two bytes: the high byte is
 //! the robotVMDState (0–5), extended with 6 = "send a confirmation to the
@@ -27,6 +28,7 @@
 //! | all other codes (26–29, 32–39, 42–49, 51–59, 100–999) | 0x0504 | alarm | unknown to FALC: treated as an alarm needing a person |
 
 use crate::alarm::AlarmClass;
+use crate::dnc::telegram::{Mode, ProgramState};
 use crate::mms::vmd::{RobotStatusDetail, RobotVmdState};
 
 /// What the workstation does with an RCM message.
@@ -172,6 +174,31 @@ impl AlarmEntry {
             specific: self.low & MASK,
             mask: MASK,
         })
+    }
+}
+
+/// The robot's status detail from its own program status telegram (`P`):
+/// idle, loaded, executing, motion-paused, ready; all calibrated; local
+/// control unless in automatic-external mode. The alarm table gives the
+/// detail of an alarm message, this one the detail the robot reports once
+/// it works again.
+pub fn status_detail(state: ProgramState, mode: Mode) -> RobotStatusDetail {
+    let state = match state {
+        ProgramState::Idle => RobotVmdState::Idle,
+        ProgramState::Selected => RobotVmdState::Loaded,
+        ProgramState::Running => RobotVmdState::Executing,
+        ProgramState::Paused => RobotVmdState::MotionPaused,
+        ProgramState::Stopped => RobotVmdState::Ready,
+    };
+    let local = if mode == Mode::AutomaticExternal {
+        0
+    } else {
+        RobotStatusDetail::LOCAL_CONTROL
+    };
+    RobotStatusDetail {
+        state,
+        specific: RobotStatusDetail::ALL_CALIBRATED | local,
+        mask: MASK,
     }
 }
 
