@@ -406,3 +406,63 @@ fn a_robot_in_manual_mode_reaches_the_operator_with_its_iso_9506_error() {
     assert!(out.contains("order 2 (dikdroog) started"), "{out}");
     assert_eq!(rig.orders()[1].state, OrderState::Done);
 }
+
+/// Fault 2 through the operator: the robot's line goes silent mid-weld →
+/// a communication alarm naming the device, listed under welding with the
+/// order, start refused; the line back → the program no job owns any more
+/// is stopped, the alarm clears; carriers back, ack, start → the next
+/// order done.
+#[test]
+fn a_silent_robot_line_mid_weld_is_an_alarm_and_ack_start_run_the_next_order() {
+    use falc_common::alarm::{AlarmClass, AlarmState};
+    let mut rig = rig("10");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    rig.until_welding();
+    rig.rcm.control("unplug");
+    rig.operator().expect_line(
+        "EVENT order-ended id=1 state=failed",
+        Duration::from_secs(10),
+    );
+    let s = rig.status();
+    let a = s
+        .alarms
+        .iter()
+        .find(|a| a.station == "welding")
+        .cloned()
+        .unwrap_or_else(|| panic!("the line's alarm is listed: {:#?}", s.alarms));
+    assert_eq!((a.class, a.order), (AlarmClass::Communication, Some(1)));
+    assert!(
+        a.text.contains(&rig.rcm_path) && a.text.contains("status request unanswered"),
+        "{a:#?}"
+    );
+    let (code, text) = rig.cell.falc_as("console", &["start"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("communication"), "{text}");
+    // The line back: the robot, still welding for nobody, is stopped; the
+    // station answers again and the alarm clears.
+    rig.rcm.forget("rx H");
+    rig.rcm.control("replug");
+    rig.rcm.expect_line("rx H", Duration::from_secs(15));
+    until_status(
+        &rig,
+        Duration::from_secs(15),
+        "the line's alarm cleared",
+        |s| {
+            s.alarms
+                .iter()
+                .any(|x| x.id == a.id && x.state() == AlarmState::Cleared)
+        },
+    );
+    let out = rig.way_back();
+    assert!(out.contains("order 2 (dikdroog) started"), "{out}");
+    let orders = rig.orders();
+    assert_eq!(
+        (orders[0].state, orders[1].state),
+        (OrderState::Failed, OrderState::Done),
+        "{:#?}",
+        rig.journal(Some(2))
+    );
+    assert_eq!((starts(&rig, 1), starts(&rig, 2)), (1, 1));
+}
