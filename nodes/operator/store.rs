@@ -424,6 +424,8 @@ impl Store {
         let all = rows
             .collect::<Result<Vec<_>, _>>()
             .map_err(self.fail("cannot read the alarms"))?;
+        // The SQL above is a prefilter (history stays on disk); the rule
+        // itself is `Alarm::listed`.
         Ok(all.into_iter().filter(Alarm::listed).collect())
     }
 
