@@ -26,11 +26,11 @@
 #[path = "../tests/support/mod.rs"]
 mod support;
 
-use falc_common::api::ApiRequest;
-use falc_common::bus::credentials;
-use falc_common::bus::keys::KeySpace;
-use falc_common::bus::{Bus, BusSettings};
-use falc_common::ids::{CellId, StationName};
+use falc_bus::credentials;
+use falc_bus::{Bus, BusSettings};
+use falc_model::console::ApiRequest;
+use falc_model::ids::{CellId, StationName};
+use falc_model::keys::KeySpace;
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Stdio};
 use std::sync::mpsc::{channel, Receiver};

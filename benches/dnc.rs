@@ -11,9 +11,9 @@
 #[path = "../tests/support/mod.rs"]
 mod support;
 
-use falc_common::dnc::driver::{self, DncHandle, LineSettings};
-use falc_common::dnc::procedure::{frame, LinkEvent, Priority, Timing};
-use falc_common::dnc::telegram::{Program, Telegram};
+use falc_dnc::procedure::{frame, LinkEvent, Priority, Timing};
+use falc_dnc::telegram::{Program, Telegram};
+use falc_node::dnc_link::{self, DncHandle, LineSettings};
 use std::time::{Duration, Instant};
 
 const BAUD: u32 = 9600;
@@ -60,13 +60,13 @@ async fn main() {
         ],
         "serial port: ",
     );
-    let port = driver::open_serial(&LineSettings {
+    let port = dnc_link::open_serial(&LineSettings {
         path,
         baud: BAUD,
         parity: "none".into(),
     })
     .expect("pty");
-    let mut h = driver::spawn(port, Priority::Low, Timing::default());
+    let mut h = dnc_link::spawn(port, Priority::Low, Timing::default());
     let p64 = Program::new(64).expect("valid");
     let duration = Duration::from_secs(60).div_f64(TIME_SCALE);
     let ack = |of| Telegram::Ack { of, error: None };
@@ -78,7 +78,7 @@ async fn main() {
     );
     let end = Telegram::ProgramEnd {
         program: p64,
-        result: falc_common::dnc::telegram::EndResult::Complete,
+        result: falc_dnc::telegram::EndResult::Complete,
     };
     let end_wire = wire_time(wire_bytes(&end));
     let (mut rtt, mut end_lat) = (Vec::new(), Vec::new());

@@ -12,9 +12,9 @@
 #[path = "../tests/support/mod.rs"]
 mod support;
 
-use falc_common::bus::{envelope, BusEvent, DEFAULT_DEADLINE};
-use falc_common::mms::pdu::{Request, Response};
-use falc_common::mms::vmd::VmdStatus;
+use falc_bus::{envelope, BusEvent, DEFAULT_DEADLINE};
+use falc_model::mms::pdu::{Request, Response};
+use falc_model::mms::vmd::VmdStatus;
 use std::process::Command;
 use std::time::{Duration, Instant};
 use support::{st, Proc, TestCell};
@@ -45,9 +45,8 @@ fn main() {
 fn bare_server() {
     let endpoint = std::env::var("FALC_BENCH_ENDPOINT").expect("endpoint");
     let creds_path = std::env::var("FALC_BENCH_CREDENTIALS").expect("credentials");
-    let creds =
-        falc_common::bus::credentials::load(std::path::Path::new(&creds_path)).expect("creds");
-    let cfg = falc_common::bus::config::client(
+    let creds = falc_bus::credentials::load(std::path::Path::new(&creds_path)).expect("creds");
+    let cfg = falc_bus::config::client(
         &endpoint,
         Duration::from_secs(1),
         Some(&creds),

@@ -5,11 +5,11 @@
 //! Run: `cargo bench --bench recipe`. Prints medians; asserts nothing
 //! about time.
 
-use falc_common::ids::StationName;
-use falc_common::recipe::check::{check_set, Entry, Program};
-use falc_common::recipe::commands::RecipeKind;
-use falc_common::recipe::engine::{Engine, Event, JobEnd};
-use falc_common::recipe::syntax::parse;
+use falc_model::ids::StationName;
+use falc_recipe::check::{check_set, Entry, Program};
+use falc_recipe::commands::RecipeKind;
+use falc_recipe::engine::{Engine, Event, JobEnd};
+use falc_recipe::syntax::parse;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::{Duration, Instant};

@@ -12,7 +12,7 @@
 #[path = "../tests/support/mod.rs"]
 mod support;
 
-use falc_common::mms::pdu::JobEvent;
+use falc_model::mms::pdu::JobEvent;
 use std::time::{Duration, Instant};
 use support::{twin, Commander, Proc, TestCell};
 use tokio_modbus::client::Reader;
@@ -86,7 +86,7 @@ async fn main() {
     for _ in 0..500 {
         let t = Instant::now();
         let _ = ctx
-            .read_discrete_inputs(0, falc_common::plc::map::INPUTS)
+            .read_discrete_inputs(0, falc_plc::map::INPUTS)
             .await
             .expect("read");
         rtt.push(t.elapsed().as_secs_f64() * 1000.0);

@@ -7,8 +7,8 @@
 
 mod support;
 
-use falc_common::bus::{BusEvent, StatusBoard};
-use falc_common::mms::pdu::{JobEvent, Request, Response, ServiceName};
+use falc_bus::{BusEvent, StatusBoard};
+use falc_model::mms::pdu::{JobEvent, Request, Response, ServiceName};
 use std::time::Duration;
 use support::{twin, Commander, Proc, TestCell};
 use tokio::sync::mpsc::UnboundedReceiver;
@@ -22,7 +22,7 @@ struct Rig {
     _cell_node: Proc,
     operator: Commander,
     indications: UnboundedReceiver<BusEvent>,
-    _served: Vec<falc_common::bus::Declaration>,
+    _served: Vec<falc_bus::Declaration>,
     /// What the cell showed the operator.
     outputs: Vec<String>,
 }

@@ -4,9 +4,9 @@
 
 mod support;
 
-use falc_common::dnc::driver::{self, DncHandle, LineSettings};
-use falc_common::dnc::procedure::{LinkEvent, Priority, SendError, Timing};
-use falc_common::dnc::telegram::{AckError, EndResult, Program, Telegram};
+use falc_dnc::procedure::{LinkEvent, Priority, SendError, Timing};
+use falc_dnc::telegram::{AckError, EndResult, Program, Telegram};
+use falc_node::dnc_link::{self, DncHandle, LineSettings};
 use std::time::Duration;
 use support::Proc;
 
@@ -17,13 +17,13 @@ fn twin(args: &[&str]) -> (Proc, String) {
 }
 
 fn connect(path: &str, timing: Timing) -> DncHandle {
-    let port = driver::open_serial(&LineSettings {
+    let port = dnc_link::open_serial(&LineSettings {
         path: path.to_string(),
         baud: 9600,
         parity: "none".into(),
     })
     .expect("the pty opens as a serial port");
-    driver::spawn(port, Priority::Low, timing)
+    dnc_link::spawn(port, Priority::Low, timing)
 }
 
 /// The next received telegram, skipping our own Sent events and blocks
@@ -150,7 +150,7 @@ async fn faults_reach_the_workstation() {
     assert!(matches!(
         next(&mut h).await,
         Telegram::ProgramStatus {
-            mode: falc_common::dnc::telegram::Mode::Manual,
+            mode: falc_dnc::telegram::Mode::Manual,
             ..
         }
     ));

@@ -4,10 +4,10 @@
 
 mod support;
 
-use falc_common::bus::{envelope, DEFAULT_DEADLINE};
-use falc_common::mms::error::ServiceError;
-use falc_common::mms::pdu::{Request, Response, Unconfirmed};
-use falc_common::mms::vmd::VmdStatus;
+use falc_bus::{envelope, DEFAULT_DEADLINE};
+use falc_model::mms::error::ServiceError;
+use falc_model::mms::pdu::{Request, Response, Unconfirmed};
+use falc_model::mms::vmd::VmdStatus;
 use std::collections::HashMap;
 use std::time::Duration;
 use support::{st, TestCell};
@@ -75,7 +75,7 @@ async fn commander_is_confirmed_and_every_forbidden_pair_refused() {
     // A commander may not use its subordinates' keys for a service it does
     // not serve downward either: the cell's `input` key does not exist.
     let keys = buses["operator"].keys().clone();
-    let input_key = keys.service(&st("cell"), falc_common::mms::pdu::ServiceName::Input);
+    let input_key = keys.service(&st("cell"), falc_model::mms::pdu::ServiceName::Input);
     let r = buses["operator"]
         .request_bytes(
             &input_key,
@@ -95,7 +95,7 @@ async fn wildcard_queries_are_refused() {
     let bus = cell.bus("cell").await.expect("session");
     let concrete = bus
         .keys()
-        .service(&st("welding"), falc_common::mms::pdu::ServiceName::Status);
+        .service(&st("welding"), falc_model::mms::pdu::ServiceName::Status);
     let ok = bus
         .request_bytes(
             &concrete,
@@ -193,25 +193,19 @@ async fn nodes_without_valid_credentials_cannot_connect() {
     );
     s.credentials = None;
     assert!(
-        falc_common::bus::Bus::open(s.clone()).await.is_err(),
+        falc_bus::Bus::open(s.clone()).await.is_err(),
         "no credentials"
     );
     let mut wrong = cell.settings("welding");
     if let Some(c) = wrong.credentials.as_mut() {
         c.password.push('x');
     }
-    assert!(
-        falc_common::bus::Bus::open(wrong).await.is_err(),
-        "wrong password"
-    );
+    assert!(falc_bus::Bus::open(wrong).await.is_err(), "wrong password");
     let mut stranger = cell.settings("welding");
     if let Some(c) = stranger.credentials.as_mut() {
         c.user = "painting".into();
     }
-    assert!(
-        falc_common::bus::Bus::open(stranger).await.is_err(),
-        "unknown user"
-    );
+    assert!(falc_bus::Bus::open(stranger).await.is_err(), "unknown user");
 }
 
 /// A subordinate accepts one commander: a second session of the cell is
@@ -258,7 +252,7 @@ async fn a_second_commanders_initiate_is_refused() {
     // State-changing services need the association: the second session's
     // Start is refused, the first one's gets a definition error (no such PI).
     let start = Request::Start {
-        name: falc_common::ids::ObjectName::new("X").expect("valid"),
+        name: falc_model::ids::ObjectName::new("X").expect("valid"),
         argument: String::new(),
     };
     let r = first
@@ -275,8 +269,8 @@ async fn a_second_commanders_initiate_is_refused() {
 /// indication, and both workstations (its subordinates) get one too.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sigkill_gives_abort_indications_both_ways() {
-    use falc_common::bus::station::{Station, StationEvent};
-    use falc_common::mms::association::Role;
+    use falc_bus::station::{Station, StationEvent};
+    use falc_model::mms::association::Role;
     let cell = TestCell::start();
     let mut cell_node = cell.demo_station("cell");
     let mut welding = cell.demo_station("welding");
@@ -314,7 +308,7 @@ async fn sigkill_gives_abort_indications_both_ways() {
 /// the workstation it had already associated is concluded again.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn initiate_is_refused_when_a_workstation_is_down() {
-    use falc_common::bus::station::Station;
+    use falc_bus::station::Station;
     let cell = TestCell::start();
     let _cell_node = cell.demo_station("cell");
     let mut welding = cell.demo_station("welding");
@@ -343,7 +337,7 @@ async fn garbage_payload_gets_an_error_reply_and_the_server_keeps_serving() {
     let bus = cell.bus("cell").await.expect("session");
     let key = bus
         .keys()
-        .service(&st("welding"), falc_common::mms::pdu::ServiceName::Status);
+        .service(&st("welding"), falc_model::mms::pdu::ServiceName::Status);
     let cases: [(&[u8], &str); 4] = [
         (b"\x00\xffgarbage", "envelope magic"),
         (b"FL\x09\x00", "version 9 is not supported"),
@@ -385,7 +379,7 @@ async fn garbage_payload_gets_an_error_reply_and_the_server_keeps_serving() {
 /// indication, later than after a SIGKILL but within a few leases.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_frozen_subordinate_is_noticed_after_the_lease() {
-    use falc_common::bus::BusEvent;
+    use falc_bus::BusEvent;
     use nix::sys::signal::{kill, Signal};
     use nix::unistd::Pid;
     let cell = TestCell::start();

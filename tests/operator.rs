@@ -5,7 +5,7 @@
 
 mod support;
 
-use falc_common::api::{EntryKind, ListState, OrderState};
+use falc_model::console::{EntryKind, ListState, OrderState};
 use std::time::{Duration, Instant};
 use support::rig::{rig, Rig};
 

@@ -2,12 +2,12 @@
 //! criterion path of every shipped recipe on a fake clock, and the `falc
 //! recipe` commands.
 
-use falc_common::ids::StationName;
-use falc_common::recipe::check::{check_set, Command, Program};
-use falc_common::recipe::engine::{Action, Engine, Event, JobEnd, Outcome};
-use falc_common::recipe::files;
-use falc_common::recipe::problem::ProblemKind;
-use falc_common::recipe::syntax::{Criterion, StateNo};
+use falc_model::ids::StationName;
+use falc_recipe::check::{check_set, Command, Program};
+use falc_recipe::engine::{Action, Engine, Event, JobEnd, Outcome};
+use falc_recipe::files;
+use falc_recipe::problem::ProblemKind;
+use falc_recipe::syntax::{Criterion, StateNo};
 use std::collections::BTreeSet;
 use std::path::PathBuf;
 use std::process::Command as Process;

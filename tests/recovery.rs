@@ -7,8 +7,8 @@
 
 mod support;
 
-use falc_common::api::{EntryKind, ListState, OrderState};
-use falc_common::mms::vmd::{RobotStatusDetail, RobotVmdState};
+use falc_model::console::{EntryKind, ListState, OrderState};
+use falc_model::mms::vmd::{RobotStatusDetail, RobotVmdState};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 use support::rig::{rig, rig_with_db, Rig};
@@ -67,7 +67,7 @@ fn robot_emergency_stop_mid_weld_then_ack_and_start_runs_the_next_order() {
         .expect("transport status seen");
     assert_ne!(
         transport.local_detail,
-        falc_common::mms::vmd::RecipeState::Executing
+        falc_model::mms::vmd::RecipeState::Executing
     );
     let messages = rig.cell.falc(&["messages"]);
     assert!(messages.contains("emergency stop"), "{messages}");
@@ -99,7 +99,7 @@ fn robot_emergency_stop_mid_weld_then_ack_and_start_runs_the_next_order() {
         .iter()
         .find(|a| a.station == "welding")
         .expect("the robot's alarm is listed");
-    assert_eq!(robot.class, falc_common::alarm::AlarmClass::Safety);
+    assert_eq!(robot.class, falc_model::alarm::AlarmClass::Safety);
     assert_eq!(robot.order, Some(1));
     // One fault, one alarm: the cell's "alarm from welding: …" is the same.
     assert_eq!(s.alarms.len(), 1, "{:#?}", s.alarms);
@@ -123,7 +123,7 @@ fn robot_emergency_stop_mid_weld_then_ack_and_start_runs_the_next_order() {
     assert!(
         listed
             .iter()
-            .any(|a| a.id == robot.id && a.state() == falc_common::alarm::AlarmState::Acknowledged),
+            .any(|a| a.id == robot.id && a.state() == falc_model::alarm::AlarmState::Acknowledged),
         "acknowledged, still listed while the stop is pressed: {listed:#?}"
     );
     rig.rcm.control("estop-clear");
@@ -317,8 +317,8 @@ fn until_status(
     rig: &Rig,
     within: Duration,
     what: &str,
-    pred: impl Fn(&falc_common::api::CellStatus) -> bool,
-) -> falc_common::api::CellStatus {
+    pred: impl Fn(&falc_model::console::CellStatus) -> bool,
+) -> falc_model::console::CellStatus {
     let end = std::time::Instant::now() + within;
     loop {
         let s = rig.status();
@@ -335,7 +335,7 @@ fn until_status(
 /// acknowledged, and clears when the PLC is ready again.
 #[test]
 fn an_alarm_while_no_order_runs_is_listed_and_must_be_acknowledged() {
-    use falc_common::alarm::{AlarmClass, AlarmState};
+    use falc_model::alarm::{AlarmClass, AlarmState};
     let mut rig = rig("100");
     rig.cell.falc(&["order", "add", "dikdroog"]);
     rig.plc.control("estop");
@@ -414,7 +414,7 @@ fn a_robot_in_manual_mode_reaches_the_operator_with_its_iso_9506_error() {
 /// order done.
 #[test]
 fn a_silent_robot_line_mid_weld_is_an_alarm_and_ack_start_run_the_next_order() {
-    use falc_common::alarm::{AlarmClass, AlarmState};
+    use falc_model::alarm::{AlarmClass, AlarmState};
     let mut rig = rig("10");
     rig.cell.falc(&["order", "add", "dikdroog"]);
     rig.cell.falc(&["order", "add", "dikdroog"]);

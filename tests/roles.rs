@@ -7,11 +7,11 @@
 
 mod support;
 
-use falc_common::api::ApiRequest;
-use falc_common::bus::keys::KeySpace;
-use falc_common::bus::{credentials, Bus, BusSettings};
-use falc_common::ids::StationName;
-use falc_common::topology::Topology;
+use falc_bus::{credentials, Bus, BusSettings};
+use falc_model::console::ApiRequest;
+use falc_model::ids::StationName;
+use falc_model::keys::KeySpace;
+use falc_model::topology::Topology;
 use std::time::Duration;
 use support::LaunchedCell;
 

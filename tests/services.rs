@@ -5,13 +5,13 @@
 
 mod support;
 
-use falc_common::bus::DEFAULT_DEADLINE;
-use falc_common::ids::ObjectName;
-use falc_common::mms::domain::DomainState;
-use falc_common::mms::error::ServiceSpecific;
-use falc_common::mms::pdu::{Request, Response};
-use falc_common::mms::program::PiState;
-use falc_common::mms::vmd::RecipeState;
+use falc_bus::DEFAULT_DEADLINE;
+use falc_model::ids::ObjectName;
+use falc_model::mms::domain::DomainState;
+use falc_model::mms::error::ServiceSpecific;
+use falc_model::mms::pdu::{Request, Response};
+use falc_model::mms::program::PiState;
+use falc_model::mms::vmd::RecipeState;
 use support::{st, TestCell};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -77,7 +77,7 @@ async fn download_create_start_and_status() {
             assert_eq!(a.size, text.len() as u64);
             assert_eq!(
                 a.content_hash,
-                falc_common::mms::domain::content_hash(text.as_bytes())
+                falc_model::mms::domain::content_hash(text.as_bytes())
             );
         }
         other => panic!("{other:?}"),

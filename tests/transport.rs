@@ -6,7 +6,7 @@
 
 mod support;
 
-use falc_common::mms::pdu::JobEvent;
+use falc_model::mms::pdu::JobEvent;
 use std::time::Duration;
 use support::{twin, Commander, Proc, TestCell};
 
@@ -321,7 +321,7 @@ async fn the_map_sits_at_configurable_bases_and_a_wrong_one_is_a_clear_alarm() {
 /// A plain Modbus TCP server with the map's coils and inputs and no
 /// conveyor at all: the test plays the PLC by setting inputs itself.
 mod plain_plc {
-    use falc_common::plc::map::{COILS, INPUTS};
+    use falc_plc::map::{COILS, INPUTS};
     use std::future::Future;
     use std::pin::Pin;
     use std::sync::{Arc, Mutex};
@@ -390,8 +390,8 @@ mod plain_plc {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_node_needs_nothing_but_the_documented_map() {
-    use falc_common::plc::map::{Coil, Input};
-    use falc_common::recipe::check::{Button, Signal};
+    use falc_plc::map::{Coil, Input};
+    use falc_recipe::check::{Button, Signal};
     use std::sync::{Arc, Mutex};
     let image = Arc::new(Mutex::new(plain_plc::Image::default()));
     let offset = |i: Input| usize::from(i.offset().expect("in map"));

@@ -5,8 +5,8 @@
 
 mod support;
 
-use falc_common::ids::ObjectName;
-use falc_common::mms::pdu::{JobEvent, Request, Response};
+use falc_model::ids::ObjectName;
+use falc_model::mms::pdu::{JobEvent, Request, Response};
 use std::time::Duration;
 use support::{twin, Commander, Proc, TestCell};
 
@@ -41,7 +41,7 @@ async fn rig(time_scale: &str) -> Rig {
 }
 
 impl Rig {
-    async fn call(&self, r: Request) -> Result<Response, falc_common::mms::error::ServiceError> {
+    async fn call(&self, r: Request) -> Result<Response, falc_model::mms::error::ServiceError> {
         self.commander.call(r).await
     }
 
@@ -154,7 +154,7 @@ async fn an_unplugged_line_ends_in_alarm_and_the_station_recovers() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn stop_and_kill_from_the_commander_reach_the_robot() {
-    use falc_common::mms::program::PiState;
+    use falc_model::mms::program::PiState;
     let mut rig = rig("1").await; // 120 s programs: they are still running when stopped
     rig.load("droog_dik", &droog_dik()).await;
     rig.start("droog_dik").await;

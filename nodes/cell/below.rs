@@ -6,13 +6,13 @@
 //! events and reports published by the workstations come in as
 //! [`Unconfirmed`] and become engine events.
 
-use falc_common::bus::Bus;
-use falc_common::ids::{ObjectName, StationName};
-use falc_common::mms::pdu::{JobEvent, Request, Response, Unconfirmed};
-use falc_common::mms::vmd::{PhysicalStatus, VmdStatus};
-use falc_common::recipe::check::Job;
-use falc_common::recipe::engine::{Action, Event, JobEnd};
-use falc_common::workstation::Device;
+use falc_bus::Bus;
+use falc_control::controller::Device;
+use falc_model::ids::{ObjectName, StationName};
+use falc_model::mms::pdu::{JobEvent, Request, Response, Unconfirmed};
+use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
+use falc_recipe::check::Job;
+use falc_recipe::engine::{Action, Event, JobEnd};
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
 use tokio::sync::mpsc::UnboundedSender;
@@ -214,7 +214,7 @@ impl Device for Below {
         self.showing > 0
     }
 
-    fn finished(&mut self, _outcome: &falc_common::recipe::engine::Outcome) {
+    fn finished(&mut self, _outcome: &falc_recipe::engine::Outcome) {
         self.started.clear();
     }
 

@@ -5,12 +5,12 @@
 //! content is not sent again. A workstation that was lost comes back empty:
 //! when it is associated again, everything it should hold is sent again.
 
-use falc_common::bus::Bus;
-use falc_common::ids::{ObjectName, StationName};
-use falc_common::mms::domain::content_hash;
-use falc_common::mms::error::ServiceError;
-use falc_common::mms::vmd::Vmd;
-use falc_common::node::say;
+use falc_bus::Bus;
+use falc_model::ids::{ObjectName, StationName};
+use falc_model::mms::domain::content_hash;
+use falc_model::mms::error::ServiceError;
+use falc_model::mms::vmd::Vmd;
+use falc_node::say;
 use std::collections::BTreeMap;
 
 /// `STATION$NAME` → the workstation and the recipe's name there.

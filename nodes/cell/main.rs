@@ -11,7 +11,7 @@
 //! only when the workstation has it (else the cell drops its copy too: a
 //! recipe is never half-applied). Unchanged content is not sent again.
 //!
-//! A thin driver: the recipe runtime is `falc_common::workstation`, the
+//! A thin driver: the recipe runtime is `falc_control::controller`, driven by `falc_node::controller_node`, the
 //! requests and job events of the level below live in `below`.
 
 mod below;
@@ -21,15 +21,15 @@ use anyhow::Result;
 use below::{Below, Reply};
 use clap::Parser;
 use delivery::{workstation_domain, Passer};
-use falc_common::alarm::{AlarmClass, Cause};
-use falc_common::bus::station::{Station, StationEvent};
-use falc_common::bus::Bus;
-use falc_common::ids::StationName;
-use falc_common::mms::error::ServiceError;
-use falc_common::mms::pdu::{Request, Response, Severity};
-use falc_common::node::{init_tracing, say, NodeArgs};
-use falc_common::recipe::commands::RecipeKind;
-use falc_common::workstation::Workstation;
+use falc_bus::station::{Station, StationEvent};
+use falc_bus::Bus;
+use falc_model::alarm::{AlarmClass, Cause};
+use falc_model::ids::StationName;
+use falc_model::mms::error::ServiceError;
+use falc_model::mms::pdu::{Request, Response, Severity};
+use falc_node::controller_node::ControllerNode;
+use falc_node::{init_tracing, say, NodeArgs};
+use falc_recipe::commands::RecipeKind;
 use std::time::Duration;
 
 #[derive(Parser, Debug)]
@@ -51,7 +51,7 @@ struct Cli {
 /// associations (a returned workstation gets its recipes again). False
 /// when the bus is gone.
 async fn on_station(
-    ws: &mut Workstation<Below>,
+    ws: &mut ControllerNode<Below>,
     passer: &mut Passer,
     bus: &Bus,
     subordinates: &[StationName],
@@ -135,11 +135,11 @@ async fn main() -> Result<()> {
         topology.commander_of(&cli.station).cloned(),
         rtx,
     );
-    let mut ws = Workstation::new(station, RecipeKind::Cell, Duration::from_secs(10), below);
+    let mut ws = ControllerNode::new(station, RecipeKind::Cell, Duration::from_secs(10), below);
     let mut passer = Passer::default();
     ws.publish_status().await;
     say(&format!("EVENT ready station={}", cli.station));
-    let mut shutdown = falc_common::node::Shutdown::new();
+    let mut shutdown = falc_node::Shutdown::new();
     loop {
         let deadline = ws.deadline();
         tokio::select! {
@@ -152,16 +152,16 @@ async fn main() -> Result<()> {
                 }
             }
             r = replies.recv() => match r {
-                Some(Reply::Started(st, Ok(()))) => ws.feed(vec![falc_common::recipe::engine::Event::Started(st)]),
+                Some(Reply::Started(st, Ok(()))) => ws.feed(vec![falc_recipe::engine::Event::Started(st)]),
                 Some(Reply::Started(st, Err(e))) => {
                     // The recipe takes its failure path; an alarm state there names this.
                     ws.report(Severity::Warning, format!("start on {st} refused: {e}")).await;
-                    ws.feed(vec![falc_common::recipe::engine::Event::StartFailed(st, e)]);
+                    ws.feed(vec![falc_recipe::engine::Event::StartFailed(st, e)]);
                 }
-                Some(Reply::Answer(Ok(a))) => ws.feed(vec![falc_common::recipe::engine::Event::Answer(a)]),
+                Some(Reply::Answer(Ok(a))) => ws.feed(vec![falc_recipe::engine::Event::Answer(a)]),
                 Some(Reply::Answer(Err(e))) => ws.fault(Cause::new(AlarmClass::Communication, format!("no answer from the operator: {e}"))).await,
                 Some(Reply::Shown(r)) => {
-                    ws.device.shown();
+                    ws.core.device.shown();
                     if let Err(e) = r {
                         tracing::warn!("output to the operator refused: {e}");
                     }
@@ -174,7 +174,7 @@ async fn main() -> Result<()> {
                 Some(u) => {
                     // A workstation's reports reach the operator directly
                     // (it reads every station's reports), under its name.
-                    let events = ws.device.unconfirmed(&u);
+                    let events = ws.core.device.unconfirmed(&u);
                     ws.feed(events);
                 }
                 None => break,

@@ -6,11 +6,11 @@
 
 use crate::edit;
 use clap::{Args, Subcommand};
-use falc_common::alarm::Alarm;
-use falc_common::api::{ApiReply, ApiRequest, CellStatus, Entry, Order, RecipeFile};
-use falc_common::bus::Bus;
-use falc_common::ids::StationName;
-use falc_common::node::NodeArgs;
+use falc_bus::Bus;
+use falc_model::alarm::Alarm;
+use falc_model::console::{ApiReply, ApiRequest, CellStatus, Entry, Order, RecipeFile};
+use falc_model::ids::StationName;
+use falc_node::NodeArgs;
 use std::process::ExitCode;
 use std::time::Duration;
 
@@ -399,7 +399,7 @@ async fn view(
         Err(e) => return refuse(&e),
     };
     let path = std::path::Path::new(file.station().as_str()).join(file.file());
-    let entry = match falc_common::recipe::files::entry(&path, None, text) {
+    let entry = match falc_recipe::files::entry(&path, None, text) {
         Ok(e) => e,
         Err(e) => return refuse(&e),
     };
@@ -515,7 +515,7 @@ async fn all_entries(
 ) -> ExitCode {
     let mut all = Vec::new();
     loop {
-        let after = all.last().map_or(0, |e: &falc_common::api::Entry| e.id);
+        let after = all.last().map_or(0, |e: &falc_model::console::Entry| e.id);
         match bus.api(operator, request(after), CALL_LIMIT).await {
             Ok(ApiReply::Entries(page)) if page.is_empty() => break,
             Ok(ApiReply::Entries(page)) => all.extend(page),
@@ -542,7 +542,7 @@ async fn poll<S>(
     request: impl Fn(&S) -> ApiRequest,
     mut show: impl FnMut(&mut S, ApiReply),
 ) -> ExitCode {
-    let mut stop = falc_common::node::Shutdown::new();
+    let mut stop = falc_node::Shutdown::new();
     loop {
         tokio::select! {
             r = bus.api(operator, request(&state), CALL_LIMIT) => match r {

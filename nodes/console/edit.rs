@@ -6,9 +6,9 @@
 //! is saved, so nothing typed is lost when the checker has findings.
 
 use crate::cell_cmd::CALL_LIMIT;
-use falc_common::api::{ApiReply, ApiRequest, RecipeFile, RecipeText};
-use falc_common::bus::Bus;
-use falc_common::ids::StationName;
+use falc_bus::Bus;
+use falc_model::console::{ApiReply, ApiRequest, RecipeFile, RecipeText};
+use falc_model::ids::StationName;
 use std::io::BufRead;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;

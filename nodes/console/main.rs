@@ -45,7 +45,7 @@ fn main() -> ExitCode {
             nix::sys::signal::SigHandler::SigDfl,
         );
     }
-    falc_common::node::init_tracing();
+    falc_node::init_tracing();
     let cli = Cli::parse();
     match cli.command {
         Command::Recipe(r) => recipe_cmd::run(r),

@@ -2,10 +2,10 @@
 //! list them, and draw one as Graphviz DOT.
 
 use clap::Subcommand;
-use falc_common::recipe::check::{check, check_set};
-use falc_common::recipe::commands::RecipeKind;
-use falc_common::recipe::dot::to_dot;
-use falc_common::recipe::files;
+use falc_recipe::check::{check, check_set};
+use falc_recipe::commands::RecipeKind;
+use falc_recipe::dot::to_dot;
+use falc_recipe::files;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -72,7 +72,7 @@ fn dot_of(
 
 /// The DOT text of a read recipe, `current` highlighted; or its problems.
 pub fn dot_of_entry(
-    entry: &falc_common::recipe::check::Entry,
+    entry: &falc_recipe::check::Entry,
     current: Option<u16>,
 ) -> Result<String, Vec<String>> {
     let program = check(&entry.recipe, entry.kind)
@@ -83,7 +83,7 @@ pub fn dot_of_entry(
     Ok(to_dot(
         &program,
         &title,
-        current.map(falc_common::recipe::syntax::StateNo),
+        current.map(falc_recipe::syntax::StateNo),
     ))
 }
 
@@ -119,7 +119,7 @@ fn load_or_say(
     paths: Vec<PathBuf>,
     kind: Option<RecipeKind>,
     say: impl Fn(&str),
-) -> Option<Vec<falc_common::recipe::check::Entry>> {
+) -> Option<Vec<falc_recipe::check::Entry>> {
     let paths = if paths.is_empty() {
         vec![PathBuf::from("recipes")]
     } else {

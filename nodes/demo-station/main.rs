@@ -7,13 +7,13 @@
 
 use anyhow::Result;
 use clap::Parser;
-use falc_common::bus::station::{Station, StationEvent};
-use falc_common::ids::StationName;
-use falc_common::mms::error::{ErrorClass, ResourceError, ServiceError};
-use falc_common::mms::pdu::{Request, Response, Severity, Unconfirmed};
-use falc_common::mms::program::{PiCompletion, PiRequest};
-use falc_common::mms::vmd::{Identity, RecipeState, Vmd, VmdStatus};
-use falc_common::node::{init_tracing, NodeArgs};
+use falc_bus::station::{Station, StationEvent};
+use falc_model::ids::StationName;
+use falc_model::mms::error::{ErrorClass, ResourceError, ServiceError};
+use falc_model::mms::pdu::{Request, Response, Severity, Unconfirmed};
+use falc_model::mms::program::{PiCompletion, PiRequest};
+use falc_model::mms::vmd::{Identity, RecipeState, Vmd, VmdStatus};
+use falc_node::{init_tracing, NodeArgs};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -29,7 +29,7 @@ struct Cli {
 }
 
 fn event(line: std::fmt::Arguments<'_>) {
-    falc_common::node::say(&format!("EVENT {line}"));
+    falc_node::say(&format!("EVENT {line}"));
 }
 
 #[tokio::main]
@@ -48,7 +48,7 @@ async fn main() -> Result<()> {
     let status = |vmd: &Vmd| VmdStatus {
         local_detail: if vmd
             .programs()
-            .any(|p| p.state() == falc_common::mms::program::PiState::Running)
+            .any(|p| p.state() == falc_model::mms::program::PiState::Running)
         {
             RecipeState::Executing
         } else {
@@ -117,7 +117,7 @@ async fn main() -> Result<()> {
                     .bus()
                     .publish(&Unconfirmed::Report {
                         station: me.station.clone(),
-                        severity: Severity::Alarm(falc_common::alarm::AlarmClass::Communication),
+                        severity: Severity::Alarm(falc_model::alarm::AlarmClass::Communication),
                         text: format!(
                             "no connection with station {}: {}",
                             a.peer.station, a.reason

@@ -12,8 +12,8 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
-use falc_common::node::say;
-use falc_common::topology::{StationKind, Topology};
+use falc_model::topology::{StationKind, Topology};
+use falc_node::say;
 use std::path::{Path, PathBuf};
 use std::process::{ExitCode, Stdio};
 use std::time::{Duration, Instant};
@@ -349,7 +349,7 @@ type here to disturb the twins: `rcm estop`, `rcm estop-clear`, `plc jam K`,
 // them, which must live as long as the launcher.
 #[tokio::main(flavor = "current_thread")]
 async fn main() -> ExitCode {
-    falc_common::node::init_tracing();
+    falc_node::init_tracing();
     let cli = Cli::parse();
     let bin_dir = match cli.bin_dir.clone().or_else(|| {
         std::env::current_exe()
@@ -376,7 +376,7 @@ async fn main() -> ExitCode {
 }
 
 async fn run(cli: &Cli, cell: &mut Cell) -> ExitCode {
-    let mut shutdown = falc_common::node::Shutdown::new();
+    let mut shutdown = falc_node::Shutdown::new();
     let started = tokio::select! {
         r = start(cli, cell) => r,
         _ = shutdown.requested() => return ExitCode::SUCCESS,

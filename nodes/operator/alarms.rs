@@ -18,8 +18,8 @@
 //! error for the caller to stop the cell.
 
 use crate::store::{now_ms, Store, StoreError};
-use falc_common::alarm::{passed_on_from, Alarm, AlarmClass};
-use falc_common::mms::vmd::{PhysicalStatus, RobotStatusDetail, RobotVmdState, VmdStatus};
+use falc_model::alarm::{passed_on_from, Alarm, AlarmClass};
+use falc_model::mms::vmd::{PhysicalStatus, RobotStatusDetail, RobotVmdState, VmdStatus};
 
 /// What raising an alarm did.
 #[derive(Debug)]

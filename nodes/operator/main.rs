@@ -14,9 +14,9 @@ mod store;
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use falc_common::bus::station::{Station, StationEvent};
-use falc_common::ids::StationName;
-use falc_common::node::{init_tracing, say, NodeArgs};
+use falc_bus::station::{Station, StationEvent};
+use falc_model::ids::StationName;
+use falc_node::{init_tracing, say, NodeArgs};
 use operator::Operator;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -109,7 +109,7 @@ async fn run(cli: Cli) -> Result<ExitCode> {
     let mut op = Operator::new(station, store, topology, cell, cli.recipes.clone(), recipes);
     let who = me.to_string();
     op.journal(
-        falc_common::api::EntryKind::System,
+        falc_model::console::EntryKind::System,
         None,
         &who,
         "operator node started",
@@ -118,7 +118,7 @@ async fn run(cli: Cli) -> Result<ExitCode> {
     let _ = op.connect().await;
     let mut retry = tokio::time::interval(RETRY);
     retry.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut shutdown = falc_common::node::Shutdown::new();
+    let mut shutdown = falc_node::Shutdown::new();
     loop {
         tokio::select! {
             ev = op.station.recv() => {
@@ -145,7 +145,7 @@ async fn run(cli: Cli) -> Result<ExitCode> {
         }
     }
     op.journal(
-        falc_common::api::EntryKind::System,
+        falc_model::console::EntryKind::System,
         None,
         &who,
         "operator node stopped",

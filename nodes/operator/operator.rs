@@ -6,20 +6,20 @@
 use crate::alarms::{AlarmList, Raised};
 use crate::pps::{self, RecipeSet};
 use crate::store::{Store, StoreError};
-use falc_common::alarm::AlarmClass;
-use falc_common::api::{
+use falc_bus::station::Station;
+use falc_bus::Responder;
+use falc_model::alarm::AlarmClass;
+use falc_model::console::{
     ApiReply, ApiRequest, ApiResult, CellStatus, EntryKind, ListState, Order, OrderState,
     StationView,
 };
-use falc_common::bus::station::Station;
-use falc_common::bus::Responder;
-use falc_common::ids::{ObjectName, StationName};
-use falc_common::mms::domain::content_hash;
-use falc_common::mms::error::ServiceError;
-use falc_common::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
-use falc_common::mms::vmd::VmdStatus;
-use falc_common::node::say;
-use falc_common::topology::Topology;
+use falc_model::ids::{ObjectName, StationName};
+use falc_model::mms::domain::content_hash;
+use falc_model::mms::error::ServiceError;
+use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
+use falc_model::mms::vmd::VmdStatus;
+use falc_model::topology::Topology;
+use falc_node::say;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -632,7 +632,7 @@ impl Operator {
     }
 
     /// A station came onto or left the bus.
-    pub fn presence(&mut self, p: falc_common::bus::Presence) {
+    pub fn presence(&mut self, p: falc_bus::Presence) {
         if p.present {
             self.present.insert(p.station.clone());
         } else {

@@ -10,13 +10,13 @@
 //! whole set checks clean with it, and only if nobody changed it since the
 //! editor fetched it; the cell gets it at the next start.
 
-use falc_common::api::{RecipeFile, RecipeInfo, RecipeText};
-use falc_common::ids::{ObjectName, StationName};
-use falc_common::mms::domain::content_hash;
-use falc_common::recipe::check::{check_set, Entry};
-use falc_common::recipe::commands::RecipeKind;
-use falc_common::recipe::files;
-use falc_common::topology::Topology;
+use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
+use falc_model::ids::{ObjectName, StationName};
+use falc_model::mms::domain::content_hash;
+use falc_model::topology::Topology;
+use falc_recipe::check::{check_set, Entry};
+use falc_recipe::commands::RecipeKind;
+use falc_recipe::files;
 use std::path::{Path, PathBuf};
 
 /// One recipe as delivered to the cell.

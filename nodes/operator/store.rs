@@ -4,8 +4,8 @@
 //! that was running when the node died as interrupted (never re-run by
 //! itself) and journals it.
 
-use falc_common::alarm::{Alarm, AlarmClass};
-use falc_common::api::{Entry, EntryKind, Order, OrderState};
+use falc_model::alarm::{Alarm, AlarmClass};
+use falc_model::console::{Entry, EntryKind, Order, OrderState};
 use rusqlite::{params, Connection, OptionalExtension, Row};
 use std::path::Path;
 use std::time::{SystemTime, UNIX_EPOCH};

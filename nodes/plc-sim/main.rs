@@ -1,5 +1,5 @@
 //! `falc-plc-sim`: the digital twin of the conveyor PLC, a Modbus TCP
-//! server (tokio-modbus) that honours FALC's I/O map (`falc_common::plc::map`)
+//! server (tokio-modbus) that honours FALC's I/O map (`falc_plc::map`)
 //! and moves two carriers over the conveyor map of `conveyor`, travel times
 //! divided by `--time-scale`.
 //!
@@ -18,9 +18,9 @@ mod conveyor;
 use anyhow::{Context as _, Result};
 use clap::Parser;
 use conveyor::{Control, Conveyor, Spot};
-use falc_common::node::say;
-use falc_common::plc::driver::MapArgs;
-use falc_common::plc::map::{IoMap, COILS, INPUTS, LINES};
+use falc_node::plc_link::MapArgs;
+use falc_node::say;
+use falc_plc::map::{IoMap, COILS, INPUTS, LINES};
 use std::future::Future;
 use std::net::SocketAddr;
 use std::pin::Pin;
@@ -258,7 +258,7 @@ enum Ctl {
 
 #[tokio::main]
 async fn main() -> Result<()> {
-    falc_common::node::init_tracing();
+    falc_node::init_tracing();
     let cli = Cli::parse();
     let layout = parse_layout(&cli.layout).map_err(anyhow::Error::msg)?;
     let conveyor = Conveyor::new(&layout, cli.time_scale).map_err(anyhow::Error::msg)?;
@@ -278,7 +278,7 @@ async fn main() -> Result<()> {
     say(&format!("falc-plc-sim listening on {addr}"));
     let mut stdin = BufReader::new(tokio::io::stdin()).lines();
     let mut stdin_open = true;
-    let mut shutdown = falc_common::node::Shutdown::new();
+    let mut shutdown = falc_node::Shutdown::new();
     loop {
         let deadline = {
             let t = lock(&twin)?;

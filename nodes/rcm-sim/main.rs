@@ -18,9 +18,9 @@ mod robot;
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use falc_common::dnc::procedure::{Link, LinkEvent, Priority, Timing};
-use falc_common::dnc::telegram::{Mode, Telegram};
-use falc_common::node::say;
+use falc_dnc::procedure::{Link, LinkEvent, Priority, Timing};
+use falc_dnc::telegram::{Mode, Telegram};
+use falc_node::say;
 use robot::{Control, Robot};
 use std::time::Duration;
 use tokio::io::{AsyncBufReadExt, BufReader};
@@ -43,7 +43,7 @@ struct Cli {
     mode: String,
     /// A serial device to use instead of a new pty pair, and its settings.
     #[command(flatten)]
-    line: falc_common::dnc::driver::LineArgs,
+    line: falc_node::dnc_link::LineArgs,
 }
 
 /// The twin's end of the line: a pty it made, or a serial device.
@@ -112,14 +112,13 @@ fn parse_control(line: &str) -> Result<Line, String> {
 
 #[tokio::main(flavor = "current_thread")]
 async fn main() -> Result<()> {
-    falc_common::node::init_tracing();
+    falc_node::init_tracing();
     let cli = Cli::parse();
     let mode = parse_mode(&cli.mode)
         .with_context(|| format!("unknown mode `{}` (manual, automatic, aue)", cli.mode))?;
     let (mut port, path) = match cli.line.settings(None) {
         Some(line) => {
-            let serial =
-                falc_common::dnc::driver::open_serial(&line).map_err(anyhow::Error::msg)?;
+            let serial = falc_node::dnc_link::open_serial(&line).map_err(anyhow::Error::msg)?;
             (Port::Serial(serial), line.path)
         }
         None => {
@@ -159,7 +158,7 @@ async fn main() -> Result<()> {
                             now(),
                             Telegram::Ack {
                                 of: t.first().copied().unwrap_or(b'?'),
-                                error: Some(falc_common::dnc::telegram::AckError::Malformed),
+                                error: Some(falc_dnc::telegram::AckError::Malformed),
                             }
                             .encode(),
                         );

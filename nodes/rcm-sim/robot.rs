@@ -2,7 +2,7 @@
 //! the running program on an injected clock, and the faults a test or a
 //! person injects. Telegrams in, telegrams out.
 
-use falc_common::dnc::telegram::{AckError, EndResult, Mode, Program, ProgramState, Telegram};
+use falc_dnc::telegram::{AckError, EndResult, Mode, Program, ProgramState, Telegram};
 use std::collections::BTreeMap;
 use std::time::Duration;
 

@@ -9,8 +9,8 @@ mod denials;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
-use falc_common::bus::{acl, config, credentials};
-use falc_common::topology::Topology;
+use falc_bus::{acl, config, credentials};
+use falc_model::topology::Topology;
 use std::path::{Path, PathBuf};
 
 #[derive(Parser, Debug)]
@@ -122,7 +122,7 @@ async fn run(
     // The one line on stdout: tests and the launcher wait for it.
     println!("falc-router ready on {listen}");
     let reporter = denials.map(|d| tokio::spawn(denials::report(d)));
-    falc_common::node::Shutdown::new().requested().await;
+    falc_node::Shutdown::new().requested().await;
     tracing::info!("router stopping");
     if let Some(r) = reporter {
         r.abort();

@@ -9,22 +9,23 @@
 //! `falc-transport io [--watch] [--map]` is the commissioning check: it
 //! shows the live inputs (and never writes a coil).
 //!
-//! A thin driver: the recipe runtime is `falc_common::workstation`, the
-//! Modbus link `falc_common::plc::driver`, the recipe ↔ I/O rules `plc`.
+//! A thin driver: the recipe runtime is `falc_control::controller`, driven by `falc_node::controller_node`, the
+//! Modbus link `falc_node::plc_link`, the recipe ↔ I/O rules `plc`.
 
 mod plc;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
-use falc_common::alarm::{AlarmClass, Cause};
-use falc_common::bus::station::Station;
-use falc_common::ids::StationName;
-use falc_common::mms::pdu::Severity;
-use falc_common::node::{init_tracing, say, NodeArgs};
-use falc_common::plc::driver::{self, PlcArgs, PlcEvent, PlcSettings};
-use falc_common::recipe::commands::RecipeKind;
-use falc_common::topology::Topology;
-use falc_common::workstation::{Device, Workstation};
+use falc_bus::station::Station;
+use falc_control::controller::Device;
+use falc_model::alarm::{AlarmClass, Cause};
+use falc_model::ids::StationName;
+use falc_model::mms::pdu::Severity;
+use falc_model::topology::Topology;
+use falc_node::controller_node::ControllerNode;
+use falc_node::plc_link::{self, PlcArgs, PlcEvent, PlcSettings};
+use falc_node::{init_tracing, say, NodeArgs};
+use falc_recipe::commands::RecipeKind;
 use plc::Plc;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -83,7 +84,7 @@ async fn io(mut settings: PlcSettings, watch: bool) -> Result<()> {
     // Commissioning watches at the busy period throughout.
     settings.idle_poll = settings.poll;
     let address = settings.address.clone();
-    let mut link = driver::spawn(settings);
+    let mut link = plc_link::spawn(settings);
     let start = tokio::time::Instant::now();
     let mut last = None;
     loop {
@@ -95,10 +96,9 @@ async fn io(mut settings: PlcSettings, watch: bool) -> Result<()> {
             Some(PlcEvent::Connected) => say(&format!("connected to {address}")),
             Some(PlcEvent::Inputs { inputs, .. }) => {
                 if let (Some(before), true) = (last, watch) {
-                    let changes: Vec<String> =
-                        falc_common::plc::map::Inputs::changes(&before, &inputs)
-                            .map(|(i, v)| format!("{i} {}", u8::from(v)))
-                            .collect();
+                    let changes: Vec<String> = falc_plc::map::Inputs::changes(&before, &inputs)
+                        .map(|(i, v)| format!("{i} {}", u8::from(v)))
+                        .collect();
                     say(&format!(
                         "{:>9.3} s  {inputs}   ({})",
                         start.elapsed().as_secs_f64(),
@@ -152,16 +152,16 @@ async fn main() -> Result<()> {
     let address = plc_settings.address.clone();
     let poll = plc_settings.poll;
     let station = Station::open(settings, &topology).await?;
-    let mut link = driver::spawn(plc_settings);
+    let mut link = plc_link::spawn(plc_settings);
     let plc = Plc::new(address.clone(), link.commands.clone());
-    let mut ws = Workstation::new(station, RecipeKind::Transport, Duration::from_secs(10), plc);
+    let mut ws = ControllerNode::new(station, RecipeKind::Transport, Duration::from_secs(10), plc);
     ws.publish_status().await;
     say(&format!(
         "EVENT ready station={} plc={address} poll_ms={}",
         cli.station,
         poll.as_millis()
     ));
-    let mut shutdown = falc_common::node::Shutdown::new();
+    let mut shutdown = falc_node::Shutdown::new();
     loop {
         let deadline = ws.deadline();
         tokio::select! {
@@ -169,21 +169,21 @@ async fn main() -> Result<()> {
             ev = link.events.recv() => match ev {
                 Some(PlcEvent::Connected) => {
                     say(&format!("EVENT plc-connected address={address}"));
-                    ws.device.connected();
+                    ws.core.device.connected();
                 }
                 Some(PlcEvent::Inputs { inputs, commands_done }) => {
-                    let was_down = ws.device.unavailable();
-                    let (events, alarm) = ws.device.inputs(inputs, commands_done);
+                    let was_down = ws.core.device.unavailable();
+                    let (events, alarm) = ws.core.device.inputs(inputs, commands_done);
                     ws.feed(events);
                     if let Some(cause) = alarm {
                         ws.fault(cause).await;
-                    } else if was_down.is_some() && ws.device.unavailable().is_none() {
+                    } else if was_down.is_some() && ws.core.device.unavailable().is_none() {
                         say("EVENT plc-ready");
                         ws.report(Severity::Info, format!("conveyor PLC at {address} ready")).await;
                     }
                 }
                 Some(PlcEvent::Fault(why)) => {
-                    ws.device.link_down(&why);
+                    ws.core.device.link_down(&why);
                     ws.fault(Cause::new(AlarmClass::Communication, why)).await;
                 }
                 None => {
@@ -197,8 +197,8 @@ async fn main() -> Result<()> {
         ws.settle().await;
     }
     // Leave the conveyor as a person expects: no button held by FALC.
-    ws.device.shutdown();
-    let issued = ws.device.issued();
+    ws.core.device.shutdown();
+    let issued = ws.core.device.issued();
     let _ = tokio::time::timeout(Duration::from_millis(500), async {
         while let Some(ev) = link.events.recv().await {
             if matches!(ev, PlcEvent::Inputs { commands_done, .. } if commands_done >= issued)

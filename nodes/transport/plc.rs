@@ -27,13 +27,13 @@
 //! Sans-I/O but for the command channel to the link task (an in-memory
 //! channel in the unit tests).
 
-use falc_common::alarm::{AlarmClass, Cause};
-use falc_common::mms::vmd::{PhysicalStatus, VmdStatus};
-use falc_common::plc::driver::{Pace, PlcCommand};
-use falc_common::plc::map::{Coil, Input, Inputs, SignalName};
-use falc_common::recipe::check::{Button, Signal};
-use falc_common::recipe::engine::{Action, Event, Outcome};
-use falc_common::workstation::Device;
+use falc_control::controller::Device;
+use falc_model::alarm::{AlarmClass, Cause};
+use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
+use falc_node::plc_link::{Pace, PlcCommand};
+use falc_plc::map::{Coil, Input, Inputs, SignalName};
+use falc_recipe::check::{Button, Signal};
+use falc_recipe::engine::{Action, Event, Outcome};
 use std::time::Duration;
 use tokio::sync::mpsc::UnboundedSender;
 
@@ -121,7 +121,7 @@ impl Plc {
     pub fn connected(&mut self) {
         self.down = None;
         self.pressed.clear();
-        let mut all = [false; falc_common::plc::map::COILS as usize];
+        let mut all = [false; falc_plc::map::COILS as usize];
         if let Some(o) = Coil::ExternalControl.offset() {
             all[usize::from(o)] = true;
         }
@@ -192,9 +192,7 @@ impl Plc {
     /// Releases every button and external control (the node stops).
     pub fn shutdown(&mut self) {
         if self.down.is_none() {
-            self.send(PlcCommand::WriteAll(
-                [false; falc_common::plc::map::COILS as usize],
-            ));
+            self.send(PlcCommand::WriteAll([false; falc_plc::map::COILS as usize]));
         }
     }
 
@@ -268,7 +266,7 @@ impl Device for Plc {
         self.down.is_none() && self.inputs_after < self.issued
     }
 
-    fn lost(&mut self, _commander: &falc_common::ids::StationName) {
+    fn lost(&mut self, _commander: &falc_model::ids::StationName) {
         // The commander is gone and with it the cell's whole job (the weld
         // is stopped too): nothing holds a workpiece any more, every button
         // is released, so the next commander starts from a known state.
@@ -479,7 +477,7 @@ mod tests {
         p.finished(&Outcome::Done);
         assert_eq!(drain(&mut rx), vec![PlcCommand::Pace(Pace::Idle)]);
         // The commander lost: the station button goes too.
-        p.lost(&falc_common::ids::StationName::new("cell").expect("valid"));
+        p.lost(&falc_model::ids::StationName::new("cell").expect("valid"));
         let released = drain(&mut rx);
         assert!(
             released.contains(&PlcCommand::Write(Coil::Button(Button::Station(3)), false)),

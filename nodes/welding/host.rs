@@ -3,12 +3,12 @@
 //! and the RCM's acknowledgements, program ends and alarm messages into
 //! engine events and robot status (through the alarm table).
 
-use falc_common::alarm::{AlarmClass, Cause};
-use falc_common::dnc::alarms::{self, Effect};
-use falc_common::dnc::telegram::{EndResult, Mode, Program, ProgramState, Telegram};
-use falc_common::ids::StationName;
-use falc_common::mms::vmd::RobotStatusDetail;
-use falc_common::recipe::engine::{Event, JobEnd};
+use falc_dnc::alarms::{self, Effect};
+use falc_dnc::telegram::{EndResult, Mode, Program, ProgramState, Telegram};
+use falc_model::alarm::{AlarmClass, Cause};
+use falc_model::ids::StationName;
+use falc_model::mms::vmd::RobotStatusDetail;
+use falc_recipe::engine::{Event, JobEnd};
 use std::time::Duration;
 
 /// How often the RCM's status is asked while a program of ours runs.
@@ -419,8 +419,8 @@ impl Host {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use falc_common::dnc::telegram::AckError;
-    use falc_common::mms::vmd::RobotVmdState;
+    use falc_dnc::telegram::AckError;
+    use falc_model::mms::vmd::RobotVmdState;
 
     fn rcm() -> StationName {
         StationName::new("rcm").expect("valid")

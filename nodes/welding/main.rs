@@ -4,26 +4,27 @@
 //! to the robot controller over the DNC serial link. Job events (done,
 //! alarm, paused, bad product, failed) go up as unsolicited status.
 //!
-//! A thin driver: the recipe runtime is `falc_common::workstation`, the
+//! A thin driver: the recipe runtime is `falc_control::controller`, driven by `falc_node::controller_node`, the
 //! rules of the link live in `host` (DNC ↔ engine) and the 3964R procedure.
 
 mod host;
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use falc_common::alarm::Cause;
-use falc_common::bus::station::Station;
-use falc_common::dnc::driver::{self, LineSettings};
-use falc_common::dnc::procedure::{LinkEvent, Priority, Timing};
-use falc_common::dnc::telegram::{Program, Telegram};
-use falc_common::ids::StationName;
-use falc_common::mms::pdu::Severity;
-use falc_common::mms::vmd::{RobotStatusDetail, VmdStatus};
-use falc_common::node::{init_tracing, say, NodeArgs};
-use falc_common::recipe::check::Job;
-use falc_common::recipe::commands::RecipeKind;
-use falc_common::recipe::engine::{Action, Event};
-use falc_common::workstation::{Device, Workstation};
+use falc_bus::station::Station;
+use falc_control::controller::Device;
+use falc_dnc::procedure::{LinkEvent, Priority, Timing};
+use falc_dnc::telegram::{Program, Telegram};
+use falc_model::alarm::Cause;
+use falc_model::ids::StationName;
+use falc_model::mms::pdu::Severity;
+use falc_model::mms::vmd::{RobotStatusDetail, VmdStatus};
+use falc_node::controller_node::ControllerNode;
+use falc_node::dnc_link::{self, LineSettings};
+use falc_node::{init_tracing, say, NodeArgs};
+use falc_recipe::check::Job;
+use falc_recipe::commands::RecipeKind;
+use falc_recipe::engine::{Action, Event};
 use host::{Host, Out};
 use std::time::Duration;
 
@@ -39,7 +40,7 @@ struct Cli {
     /// The robot controller's serial line; the device defaults to the
     /// topology's `device` of this station.
     #[command(flatten)]
-    line: falc_common::dnc::driver::LineArgs,
+    line: falc_node::dnc_link::LineArgs,
     #[command(flatten)]
     node: NodeArgs,
 }
@@ -172,10 +173,10 @@ impl Device for Robot {
         self.apply(outs, out);
     }
 
-    fn finished(&mut self, outcome: &falc_common::recipe::engine::Outcome) {
+    fn finished(&mut self, outcome: &falc_recipe::engine::Outcome) {
         // A recipe that ended badly (its own time limit, say) while the
         // robot still runs its program: the robot is stopped.
-        if *outcome != falc_common::recipe::engine::Outcome::Done && self.host.running().is_some() {
+        if *outcome != falc_recipe::engine::Outcome::Done && self.host.running().is_some() {
             let mut out = Vec::new();
             self.halt(&mut out);
         }
@@ -191,7 +192,7 @@ impl Device for Robot {
         // since it was (re)opened or went silent: an alarm about the link
         // clears only once the robot answers again.
         if !self.host.answered() {
-            status.physical = falc_common::mms::vmd::PhysicalStatus::Inoperable;
+            status.physical = falc_model::mms::vmd::PhysicalStatus::Inoperable;
         }
     }
 }
@@ -211,9 +212,9 @@ async fn main() -> Result<()> {
         )
         .context("no serial port: give --device or a `device` in the topology")?;
     let station = Station::open(settings, &topology).await?;
-    let (dnc, mut dnc_events) = match driver::open_serial(&line) {
+    let (dnc, mut dnc_events) = match dnc_link::open_serial(&line) {
         Ok(port) => {
-            let h = driver::spawn(port, Priority::Low, Timing::default());
+            let h = dnc_link::spawn(port, Priority::Low, Timing::default());
             (Some(h.send), Some(h.events))
         }
         Err(e) => {
@@ -230,61 +231,61 @@ async fn main() -> Result<()> {
     };
     // select + start: 2 telegrams, each up to 6 × 2 s on a dead line, so
     // the link's own, clearer failure arrives before the confirm limit.
-    let mut ws = Workstation::new(station, RecipeKind::Welding, Duration::from_secs(30), robot);
-    if ws.device.dnc.is_some() {
+    let mut ws = ControllerNode::new(station, RecipeKind::Welding, Duration::from_secs(30), robot);
+    if ws.core.device.dnc.is_some() {
         let now = ws.now();
-        ws.device.connected(now);
+        ws.core.device.connected(now);
     }
     ws.publish_status().await;
     say(&format!(
         "EVENT ready station={} device={}",
-        cli.station, ws.device.line.path
+        cli.station, ws.core.device.line.path
     ));
     let mut reopen = tokio::time::interval(Duration::from_secs(1));
-    let mut shutdown = falc_common::node::Shutdown::new();
+    let mut shutdown = falc_node::Shutdown::new();
     loop {
         let deadline = ws.deadline();
-        let supervision = ws.device.host.poll_timeout().map_or(deadline, |t| {
+        let supervision = ws.core.device.host.poll_timeout().map_or(deadline, |t| {
             tokio::time::Instant::now() + t.saturating_sub(ws.now())
         });
         tokio::select! {
             ev = ws.station_recv() => if !ws.station_step(ev).await { break },
             ev = async { match &mut dnc_events { Some(e) => e.recv().await, None => std::future::pending().await } } => {
                 let events = match ev {
-                    Some(ev) => { let now = ws.now(); ws.device.dnc_event(now, ev) }
+                    Some(ev) => { let now = ws.now(); ws.core.device.dnc_event(now, ev) }
                     None => {
                         dnc_events = None;
-                        ws.device.closed()
+                        ws.core.device.closed()
                     }
                 };
                 ws.feed(events);
             },
-            _ = reopen.tick(), if ws.device.dnc.is_none() => {
-                if let Ok(port) = driver::open_serial(&ws.device.line) {
-                    tracing::info!(path = %ws.device.line.path, "line to the RCM open again");
-                    let h = driver::spawn(port, Priority::Low, Timing::default());
-                    ws.device.dnc = Some(h.send);
+            _ = reopen.tick(), if ws.core.device.dnc.is_none() => {
+                if let Ok(port) = dnc_link::open_serial(&ws.core.device.line) {
+                    tracing::info!(path = %ws.core.device.line.path, "line to the RCM open again");
+                    let h = dnc_link::spawn(port, Priority::Low, Timing::default());
+                    ws.core.device.dnc = Some(h.send);
                     dnc_events = Some(h.events);
                     let now = ws.now();
-                    ws.device.connected(now);
+                    ws.core.device.connected(now);
                 }
             }
             _ = tokio::time::sleep_until(deadline) => ws.on_timeout(),
             _ = tokio::time::sleep_until(supervision) => {
                 let now = ws.now();
-                let events = ws.device.on_timeout(now);
+                let events = ws.core.device.on_timeout(now);
                 ws.feed(events);
             }
             _ = shutdown.requested() => break,
         }
         ws.settle().await;
-        for cause in std::mem::take(&mut ws.device.alarms) {
+        for cause in std::mem::take(&mut ws.core.device.alarms) {
             ws.report(Severity::Alarm(cause.class), cause.text).await;
         }
     }
     if ws.is_running() {
         let mut out = Vec::new();
-        ws.device.halt(&mut out);
+        ws.core.device.halt(&mut out);
     }
     say("EVENT stopped");
     Ok(())

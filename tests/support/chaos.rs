@@ -7,7 +7,7 @@
 //! few rounds) and `benches/chaos.rs` (as many as asked, with figures).
 
 use super::rig::Rig;
-use falc_common::api::{EntryKind, OrderState};
+use falc_model::console::{EntryKind, OrderState};
 use rand::Rng;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::time::{Duration, Instant};

@@ -7,13 +7,13 @@
 pub mod chaos;
 pub mod rig;
 
-use falc_common::bus::credentials;
-use falc_common::bus::keys::KeySpace;
-use falc_common::bus::{Bus, BusError, BusSettings, DEFAULT_DEADLINE};
-use falc_common::ids::{ObjectName, StationName};
-use falc_common::mms::error::ServiceError;
-use falc_common::mms::pdu::{JobEvent, Request, Response, Unconfirmed};
-use falc_common::topology::Topology;
+use falc_bus::credentials;
+use falc_bus::{Bus, BusError, BusSettings, DEFAULT_DEADLINE};
+use falc_model::ids::{ObjectName, StationName};
+use falc_model::keys::KeySpace;
+use falc_model::mms::error::ServiceError;
+use falc_model::mms::pdu::{JobEvent, Request, Response, Unconfirmed};
+use falc_model::topology::Topology;
 use std::io::Write;
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
@@ -473,7 +473,7 @@ pub struct Commander {
     pub bus: Bus,
     station: StationName,
     events: tokio::sync::mpsc::UnboundedReceiver<Unconfirmed>,
-    _subs: Vec<falc_common::bus::Declaration>,
+    _subs: Vec<falc_bus::Declaration>,
 }
 
 impl Commander {

@@ -5,7 +5,7 @@
 //! and started again one by one.
 
 use super::{twin, Proc, TestCell};
-use falc_common::api::{ApiReply, CellStatus, Entry, ListState, Order};
+use falc_model::console::{ApiReply, CellStatus, Entry, ListState, Order};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 

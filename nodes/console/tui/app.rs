@@ -3,10 +3,10 @@
 //! or picked; keys in, [`Intent`]s out. The driver (`tui::run`) does the
 //! calls and feeds the answers back; `tui::view` draws it.
 
-use falc_common::api::{ApiReply, ApiRequest, CellStatus, Entry, Order, OrderState};
-use falc_common::api::{RecipeFile, RecipeInfo, RecipeText};
-use falc_common::ids::StationName;
-use falc_common::topology::{Role, StationKind, Topology};
+use falc_model::console::{ApiReply, ApiRequest, CellStatus, Entry, Order, OrderState};
+use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
+use falc_model::ids::StationName;
+use falc_model::topology::{Role, StationKind, Topology};
 use ratatui::crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
 
 /// The layers of the 1992 interface, and the recipe view.
@@ -644,7 +644,7 @@ impl App {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use falc_common::api::ListState;
+    use falc_model::console::ListState;
 
     fn app() -> App {
         let t = Topology::load(
@@ -685,7 +685,7 @@ mod tests {
         }
     }
 
-    use falc_common::api::EntryKind;
+    use falc_model::console::EntryKind;
 
     #[test]
     fn messages_go_to_their_station_pane_and_count_as_unread_until_shown() {

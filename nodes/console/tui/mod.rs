@@ -11,10 +11,10 @@ mod view;
 
 use crate::edit::Session;
 use app::{App, Intent, Pick};
-use falc_common::api::{ApiReply, ApiRequest};
-use falc_common::bus::Bus;
-use falc_common::ids::StationName;
-use falc_common::topology::Topology;
+use falc_bus::Bus;
+use falc_model::console::{ApiReply, ApiRequest};
+use falc_model::ids::StationName;
+use falc_model::topology::Topology;
 use ratatui::crossterm::event::{self, Event, KeyEventKind};
 use ratatui::DefaultTerminal;
 use std::process::ExitCode;
@@ -73,7 +73,7 @@ impl Tui<'_> {
     }
 
     async fn main_loop(&mut self, terminal: &mut DefaultTerminal) -> Result<(), String> {
-        let mut shutdown = falc_common::node::Shutdown::new();
+        let mut shutdown = falc_node::Shutdown::new();
         let mut next_poll = Instant::now();
         let intent = self.app.request(ApiRequest::RecipeList);
         self.carry_out(intent, terminal).await?;

@@ -5,11 +5,11 @@
 //! bright white on red.
 
 use super::app::{App, Command, Layer, Pick};
-use falc_common::mms::vmd::{PhysicalStatus, RecipeState};
-use falc_common::plc::map::{Input, Inputs, LINES, PLACES, STATIONS};
-use falc_common::recipe::check::Signal;
-use falc_common::recipe::syntax::parse;
-use falc_common::topology::StationKind;
+use falc_model::mms::vmd::{PhysicalStatus, RecipeState};
+use falc_model::topology::StationKind;
+use falc_plc::map::{Input, Inputs, LINES, PLACES, STATIONS};
+use falc_recipe::check::Signal;
+use falc_recipe::syntax::parse;
 use ratatui::layout::{Constraint, Layout, Rect};
 use ratatui::style::{Color, Modifier, Style};
 use ratatui::text::{Line, Span};
@@ -63,7 +63,7 @@ impl Look {
 }
 
 /// How station `i` (of [`App::stations`]) looks.
-pub fn look(app: &App, name: &falc_common::ids::StationName) -> Look {
+pub fn look(app: &App, name: &falc_model::ids::StationName) -> Look {
     let Some(s) = &app.status else {
         return Look::Off;
     };
@@ -455,8 +455,8 @@ fn messages(f: &mut Frame, app: &App, area: Rect) {
                 .iter()
                 .map(|e| {
                     let style = match e.kind {
-                        falc_common::api::EntryKind::Alarm => ALARM,
-                        falc_common::api::EntryKind::Question => BUSY,
+                        falc_model::console::EntryKind::Alarm => ALARM,
+                        falc_model::console::EntryKind::Question => BUSY,
                         _ => NORMAL,
                     };
                     Line::styled(

@@ -1,0 +1,488 @@
+//! The router's access control, generated from the topology (DESIGN.md §4).
+//!
+//! Default deny. Each station may:
+//! - serve its own confirmed services (`svc/<service>`, every key listed
+//!   concretely, so that a wildcard query is never allowed);
+//! - publish its own `status` and `report` and hold its own liveliness token;
+//! - query its direct subordinates' services and read their `status` and
+//!   `report`; the operator (the root) reads every station's;
+//! - watch the liveliness tokens of its commander and its subordinates
+//!   (the operator: of every station);
+//! - a direct subordinate of the operator (the cell) may query the
+//!   operator's `input` and `output` (operator communication).
+//!
+//! - the operator serves the operator API (`api/<call>/*`); each console
+//!   user may query the calls its role allows ([`Call::role`]), each only
+//!   under its own name (`api/<call>/<user>`), and nothing else: the router
+//!   has authenticated the user, so the key tells the operator who asks.
+//!
+//! Everything else is denied by the router: a workstation commanding another
+//! or its commander, the operator commanding a workstation, anyone
+//! publishing on another station's keys.
+
+use falc_model::console::Call;
+use falc_model::ids::StationName;
+use falc_model::keys::KeySpace;
+use falc_model::mms::pdu::ServiceName;
+use falc_model::topology::{Console, StationKind, Topology};
+use serde_json::{json, Value};
+
+/// One allow rule for one subject.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Rule {
+    /// Unique id (`<station>/<purpose>`).
+    pub id: String,
+    /// Zenoh ACL message kinds.
+    pub messages: Vec<&'static str>,
+    /// `ingress` (from the node to the router) or `egress` (to the node).
+    pub flow: &'static str,
+    /// Key expressions.
+    pub keys: Vec<String>,
+}
+
+fn rule(id: String, flow: &'static str, messages: &[&'static str], keys: Vec<String>) -> Rule {
+    Rule {
+        id,
+        messages: messages.to_vec(),
+        flow,
+        keys,
+    }
+}
+
+/// The services a station serves: downward services for its commander, and
+/// for the operator also the upward ones.
+pub fn served_services(topology: &Topology, station: &StationName) -> Vec<ServiceName> {
+    let mut v: Vec<ServiceName> = ServiceName::downward().collect();
+    if topology.station(station).map(|s| s.kind) == Some(StationKind::Operator) {
+        v.extend(ServiceName::upward());
+    }
+    v
+}
+
+/// Every allow rule of `station`.
+pub fn rules_of(topology: &Topology, station: &StationName) -> Vec<Rule> {
+    let keys = KeySpace::new(topology.cell().clone());
+    let svc = |st: &StationName, services: &mut dyn Iterator<Item = ServiceName>| -> Vec<String> {
+        services.map(|s| keys.service(st, s)).collect()
+    };
+    let me = station;
+    let mut out = Vec::new();
+    let own_svc = svc(me, &mut served_services(topology, me).into_iter());
+    out.push(rule(
+        format!("{me}/serve-in"),
+        "ingress",
+        &["declare_queryable", "reply"],
+        own_svc.clone(),
+    ));
+    out.push(rule(
+        format!("{me}/serve-out"),
+        "egress",
+        &["query"],
+        own_svc,
+    ));
+    let own_pub = vec![keys.status(me), keys.report(me)];
+    out.push(rule(
+        format!("{me}/publish-in"),
+        "ingress",
+        &["put", "liveliness_token"],
+        [own_pub.clone(), vec![keys.alive_any(me)]].concat(),
+    ));
+    out.push(rule(
+        format!("{me}/publish-out"),
+        "egress",
+        &["declare_subscriber"],
+        own_pub,
+    ));
+
+    if topology.station(me).map(|s| s.kind) == Some(StationKind::Operator) {
+        let api: Vec<String> = Call::ALL.iter().map(|&c| keys.api_any(me, c)).collect();
+        out.push(rule(
+            format!("{me}/api-serve-in"),
+            "ingress",
+            &["declare_queryable", "reply"],
+            api.clone(),
+        ));
+        out.push(rule(
+            format!("{me}/api-serve-out"),
+            "egress",
+            &["query"],
+            api,
+        ));
+    }
+
+    let subordinates = topology.subordinates_of(me);
+    for sub in &subordinates {
+        let keys_sub = svc(sub, &mut ServiceName::downward());
+        out.push(rule(
+            format!("{me}/command-{sub}-in"),
+            "ingress",
+            &["query"],
+            keys_sub.clone(),
+        ));
+        out.push(rule(
+            format!("{me}/command-{sub}-out"),
+            "egress",
+            &["reply", "declare_queryable"],
+            keys_sub,
+        ));
+    }
+    if let Some(cmd) = topology.commander_of(me) {
+        if topology.station(cmd).map(|s| s.kind) == Some(StationKind::Operator) {
+            let up = svc(cmd, &mut ServiceName::upward());
+            out.push(rule(
+                format!("{me}/ask-{cmd}-in"),
+                "ingress",
+                &["query"],
+                up.clone(),
+            ));
+            out.push(rule(
+                format!("{me}/ask-{cmd}-out"),
+                "egress",
+                &["reply", "declare_queryable"],
+                up,
+            ));
+        }
+    }
+    // The operator (the root) reads every station's status and watches
+    // every station's presence: the consoles show a lost station as such,
+    // not with its last status.
+    let everyone_else: Vec<&StationName> = topology
+        .stations()
+        .iter()
+        .map(|s| &s.name)
+        .filter(|s| *s != me)
+        .collect();
+    let is_root = topology.commander_of(me).is_none();
+    let watched: Vec<&StationName> = if is_root {
+        everyone_else.clone()
+    } else {
+        topology
+            .commander_of(me)
+            .into_iter()
+            .chain(subordinates.iter().copied())
+            .collect()
+    };
+    if !watched.is_empty() {
+        let alive: Vec<String> = watched.iter().map(|s| keys.alive_any(s)).collect();
+        out.push(rule(
+            format!("{me}/watch-in"),
+            "ingress",
+            &["declare_liveliness_subscriber", "liveliness_query"],
+            alive.clone(),
+        ));
+        out.push(rule(
+            format!("{me}/watch-out"),
+            "egress",
+            &["liveliness_token", "reply"],
+            alive,
+        ));
+    }
+    let readable: Vec<&StationName> = if is_root { everyone_else } else { subordinates };
+    if !readable.is_empty() {
+        let read: Vec<String> = readable
+            .iter()
+            .flat_map(|s| [keys.status(s), keys.report(s)])
+            .collect();
+        out.push(rule(
+            format!("{me}/read-in"),
+            "ingress",
+            &["declare_subscriber"],
+            read.clone(),
+        ));
+        out.push(rule(format!("{me}/read-out"), "egress", &["put"], read));
+    }
+    out
+}
+
+/// Every allow rule of a console user: its liveliness token, and queries
+/// on the operator API calls its role allows.
+pub fn console_rules(topology: &Topology, console: &Console) -> Vec<Rule> {
+    let keys = KeySpace::new(topology.cell().clone());
+    let me = &console.name;
+    let operator = &topology.root().name;
+    let api: Vec<String> = Call::ALL
+        .iter()
+        .filter(|c| c.role() <= console.role)
+        .map(|&c| keys.api(operator, c, me))
+        .collect();
+    vec![
+        rule(
+            format!("{me}/alive-in"),
+            "ingress",
+            &["liveliness_token"],
+            vec![keys.alive_any(me)],
+        ),
+        rule(format!("{me}/api-in"), "ingress", &["query"], api.clone()),
+        rule(
+            format!("{me}/api-out"),
+            "egress",
+            &["reply", "declare_queryable"],
+            api,
+        ),
+    ]
+}
+
+/// The hierarchy matrix as a Markdown table: what each station (row) may do
+/// towards each other station (column), read off the generated rules.
+pub fn matrix(topology: &Topology) -> String {
+    let keys = KeySpace::new(topology.cell().clone());
+    let names: Vec<&StationName> = topology.stations().iter().map(|s| &s.name).collect();
+    let mut out = format!(
+        "| may … → | {} |\n|---|",
+        names
+            .iter()
+            .map(|n| n.as_str())
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+    out.push_str(&"---|".repeat(names.len()));
+    out.push('\n');
+    for a in &names {
+        let rules = rules_of(topology, a);
+        let has = |msg: &str, key: &str| {
+            rules.iter().any(|r| {
+                r.flow == "ingress" && r.messages.contains(&msg) && r.keys.iter().any(|k| k == key)
+            })
+        };
+        let cells: Vec<String> = names
+            .iter()
+            .map(|b| {
+                if a == b {
+                    return "serve own svc, publish own status/report".to_string();
+                }
+                let mut v = Vec::new();
+                if has("query", &keys.service(b, ServiceName::Start)) {
+                    v.push("command (svc)");
+                }
+                if has("query", &keys.service(b, ServiceName::Input)) {
+                    v.push("input/output");
+                }
+                if has("declare_subscriber", &keys.status(b)) {
+                    v.push("read status/report");
+                }
+                if has("declare_liveliness_subscriber", &keys.alive_any(b)) {
+                    v.push("watch alive");
+                }
+                if v.is_empty() {
+                    "—".to_string()
+                } else {
+                    v.join(", ")
+                }
+            })
+            .collect();
+        out.push_str(&format!("| **{a}** | {} |\n", cells.join(" | ")));
+    }
+    out
+}
+
+/// The `access_control` section of the router's zenoh configuration.
+pub fn access_control(topology: &Topology) -> Value {
+    let mut rules = Vec::new();
+    let mut subjects = Vec::new();
+    let mut policies = Vec::new();
+    let users = topology
+        .stations()
+        .iter()
+        .map(|st| (&st.name, rules_of(topology, &st.name)))
+        .chain(
+            topology
+                .consoles()
+                .iter()
+                .map(|c| (&c.name, console_rules(topology, c))),
+        );
+    for (name, mine) in users {
+        policies.push(json!({
+            "id": format!("{name}/policy"),
+            "rules": mine.iter().map(|r| r.id.clone()).collect::<Vec<_>>(),
+            "subjects": [format!("{name}/subject")],
+        }));
+        subjects.push(json!({ "id": format!("{name}/subject"), "usernames": [name.as_str()] }));
+        rules.extend(mine.into_iter().map(|r| {
+            json!({
+                "id": r.id,
+                "messages": r.messages,
+                "flows": [r.flow],
+                "permission": "allow",
+                "key_exprs": r.keys,
+            })
+        }));
+    }
+    json!({
+        "enabled": true,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TOPO: &str = r#"
+cell = "falc1"
+router = "tcp/127.0.0.1:7447"
+[[station]]
+name = "operator"
+kind = "operator"
+[[station]]
+name = "cell"
+kind = "cell"
+commander = "operator"
+[[station]]
+name = "welding"
+kind = "welding"
+commander = "cell"
+[[station]]
+name = "transport"
+kind = "transport"
+commander = "cell"
+"#;
+
+    fn topo() -> Topology {
+        Topology::parse(TOPO, "t").expect("valid")
+    }
+
+    fn allowed(t: &Topology, who: &str, flow: &str, msg: &str, key: &str) -> bool {
+        let who = StationName::new(who).expect("valid");
+        rules_of(t, &who)
+            .iter()
+            .any(|r| r.flow == flow && r.messages.contains(&msg) && r.keys.iter().any(|k| k == key))
+    }
+
+    #[test]
+    fn the_hierarchy_matrix() {
+        let t = topo();
+        let q = |who: &str, target: &str, svc: &str| {
+            allowed(
+                &t,
+                who,
+                "ingress",
+                "query",
+                &format!("falc/falc1/{target}/svc/{svc}"),
+            )
+        };
+        assert!(q("operator", "cell", "start"));
+        assert!(q("cell", "welding", "start"));
+        assert!(q("cell", "transport", "status"));
+        assert!(q("cell", "operator", "input"));
+        assert!(
+            !q("cell", "operator", "status"),
+            "the cell does not command the operator"
+        );
+        assert!(!q("operator", "welding", "start"), "no skipping a level");
+        assert!(
+            !q("welding", "transport", "start"),
+            "workstations do not talk"
+        );
+        assert!(
+            !q("welding", "cell", "start"),
+            "no commanding the commander"
+        );
+        assert!(!q("welding", "operator", "input"));
+        let put = |who: &str, st: &str| {
+            allowed(
+                &t,
+                who,
+                "ingress",
+                "put",
+                &format!("falc/falc1/{st}/status"),
+            )
+        };
+        assert!(put("welding", "welding"));
+        assert!(!put("cell", "welding"));
+        // The operator watches every station's presence; a workstation
+        // only its commander's.
+        let watch = |who: &str, st: &str| {
+            allowed(
+                &t,
+                who,
+                "ingress",
+                "declare_liveliness_subscriber",
+                &format!("falc/falc1/alive/{st}/*"),
+            )
+        };
+        assert!(watch("operator", "welding") && watch("operator", "transport"));
+        assert!(watch("welding", "cell"));
+        assert!(!watch("welding", "transport"));
+        // No wildcard in any rule that lets a station send a query (the
+        // operator's API queryable receives `api/<call>/*`: egress only;
+        // each console sends on its own concrete key).
+        for st in t.stations() {
+            for r in rules_of(&t, &st.name) {
+                if r.messages.contains(&"query") && r.flow == "ingress" {
+                    assert!(r.keys.iter().all(|k| !k.contains('*')), "{r:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn generates_a_zenoh_section_with_unique_ids() {
+        let v = access_control(&topo());
+        let ids: Vec<&str> = v["rules"]
+            .as_array()
+            .expect("rules")
+            .iter()
+            .filter_map(|r| r["id"].as_str())
+            .collect();
+        let unique: std::collections::BTreeSet<_> = ids.iter().collect();
+        assert_eq!(ids.len(), unique.len());
+        assert_eq!(v["default_permission"], "deny");
+        assert_eq!(v["subjects"].as_array().map(|a| a.len()), Some(4));
+    }
+
+    #[test]
+    fn consoles_reach_only_the_api_calls_of_their_role() {
+        let t = Topology::parse(
+            &format!(
+                "{TOPO}\n[[console]]\nname = \"olga\"\nrole = \"observer\"\n[[console]]\nname = \"piet\"\nrole = \"operator\"\n[[console]]\nname = \"eva\"\nrole = \"engineer\"\n"
+            ),
+            "t",
+        )
+        .expect("valid");
+        // `who` may query `call` under the name `as_user`.
+        let can_as = |who: &str, call: Call, as_user: &str| {
+            let c = t
+                .console(&StationName::new(who).expect("valid"))
+                .expect("console");
+            console_rules(&t, c).iter().any(|r| {
+                r.flow == "ingress"
+                    && r.messages.contains(&"query")
+                    && r.keys
+                        .contains(&format!("falc/falc1/operator/api/{call}/{as_user}"))
+            })
+        };
+        let can = |who: &str, call: Call| can_as(who, call, who);
+        assert!(can("olga", Call::Status));
+        assert!(can("olga", Call::RecipeGet));
+        assert!(!can("olga", Call::Start));
+        assert!(!can("olga", Call::RecipePut));
+        assert!(can("piet", Call::Start));
+        assert!(can("piet", Call::Answer));
+        assert!(!can("piet", Call::RecipePut));
+        assert!(can("eva", Call::RecipePut));
+        assert!(can("eva", Call::Start));
+        // Nobody may speak in another user's name.
+        assert!(!can_as("olga", Call::Status, "piet"));
+        assert!(!can_as("eva", Call::Start, "piet"));
+        // The operator serves every call; no station may query the API.
+        assert!(allowed(
+            &t,
+            "operator",
+            "ingress",
+            "declare_queryable",
+            "falc/falc1/operator/api/start/*"
+        ));
+        assert!(!allowed(
+            &t,
+            "cell",
+            "ingress",
+            "query",
+            "falc/falc1/operator/api/start/cell"
+        ));
+        let v = access_control(&t);
+        assert_eq!(v["subjects"].as_array().map(|a| a.len()), Some(7));
+    }
+}

@@ -1,0 +1,169 @@
+//! The operator API on the bus: the operator node serves one queryable per
+//! [`Call`] (`falc/<cell>/<operator>/api/<call>/*`), a console queries its
+//! call under its own user name (`…/api/<call>/<user>`). The router's ACL
+//! decides which console user may query which call (by role) and lets each
+//! query only under its own, authenticated, name: so the user the operator
+//! journals is the last key chunk, never a claim in the payload. A refused
+//! call ends like a call nobody serves: "no reply". Payloads are
+//! [`envelope`]s of [`ApiRequest`] and [`ApiResult`]; a malformed request is
+//! answered with an error by the bus.
+
+use super::{declare_failed, Bus, BusError, Declaration};
+use falc_model::console::{ApiReply, ApiRequest, ApiResult, Call, MAX_REQUEST_BYTES};
+use falc_model::envelope;
+use falc_model::ids::StationName;
+use std::time::Duration;
+use tokio::sync::mpsc::UnboundedSender;
+use zenoh::query::Query;
+use zenoh::Wait;
+
+/// A console's request that arrived at the operator node.
+#[derive(Debug)]
+pub struct ApiIndication {
+    /// The console user who asks (authenticated by the router; named in the
+    /// journal).
+    pub user: StationName,
+    /// The request.
+    pub request: ApiRequest,
+    /// Answers it.
+    pub responder: ApiResponder,
+}
+
+/// Sends the answer to one API request.
+#[derive(Debug)]
+pub struct ApiResponder {
+    query: Query,
+}
+
+impl ApiResponder {
+    /// Sends the answer; a failure to send (the console left) is logged.
+    pub async fn respond(self, result: ApiResult) {
+        let key = self.query.key_expr().clone();
+        if let Err(e) = self
+            .query
+            .reply(key.clone(), envelope::encode(&result))
+            .await
+        {
+            tracing::warn!(%key, "API answer not sent: {e}");
+        }
+    }
+}
+
+fn answer_now(query: &Query, result: &ApiResult) {
+    if let Err(e) = query
+        .reply(query.key_expr().clone(), envelope::encode(result))
+        .wait()
+    {
+        tracing::warn!("API answer not sent: {e}");
+    }
+}
+
+fn on_query(call: Call, query: Query, tx: &UnboundedSender<ApiIndication>) {
+    let key = query.key_expr().as_str();
+    let user = key
+        .rsplit('/')
+        .next()
+        .and_then(|u| StationName::new(u).ok())
+        .ok_or_else(|| format!("API request on {key} names no valid user"));
+    let request = query
+        .payload()
+        .ok_or_else(|| format!("API request on {key} carries no payload"))
+        .and_then(|p| {
+            if p.len() > MAX_REQUEST_BYTES {
+                return Err(format!(
+                    "API request on {key} is {} bytes, more than the {MAX_REQUEST_BYTES} the operator takes: refused",
+                    p.len()
+                ));
+            }
+            envelope::decode::<ApiRequest>(&p.to_bytes())
+                .map_err(|e| format!("malformed API request on {key}: {e}"))
+        })
+        .and_then(|r| r.check_limits().map(|()| r))
+        .and_then(|r| {
+            if r.call() == call {
+                Ok(r)
+            } else {
+                Err(format!(
+                    "a {} request was sent to the {call} key {key}",
+                    r.call()
+                ))
+            }
+        });
+    match user.and_then(|u| request.map(|r| (u, r))) {
+        Ok((user, request)) => {
+            let ind = ApiIndication {
+                user,
+                request,
+                responder: ApiResponder { query },
+            };
+            if let Err(e) = tx.send(ind) {
+                answer_now(
+                    &e.0.responder.query,
+                    &Err("the operator node is shutting down".into()),
+                );
+            }
+        }
+        Err(text) => {
+            tracing::warn!("{text}");
+            answer_now(&query, &Err(text));
+        }
+    }
+}
+
+impl Bus {
+    /// Serves every operator API call of this (operator) node; requests go
+    /// to `tx`.
+    pub async fn serve_api(
+        &self,
+        tx: UnboundedSender<ApiIndication>,
+    ) -> Result<Vec<Declaration>, BusError> {
+        let mut out = Vec::with_capacity(Call::ALL.len());
+        for &call in Call::ALL {
+            let key = self.keys.api_any(&self.me.station, call);
+            let tx = tx.clone();
+            let q = self
+                .session
+                .declare_queryable(&key)
+                .callback(move |query| on_query(call, query, &tx))
+                .await
+                .map_err(declare_failed("API queryable", &key))?;
+            out.push(Declaration(Box::new(q)));
+        }
+        Ok(out)
+    }
+
+    /// Makes an operator API call as this session's user; the reply, or why
+    /// the call failed or was refused, in words.
+    pub async fn api(
+        &self,
+        operator: &StationName,
+        request: ApiRequest,
+        deadline: Duration,
+    ) -> Result<ApiReply, String> {
+        let me = self.me.station.clone();
+        self.api_as(operator, request, &me, deadline).await
+    }
+
+    /// Makes an operator API call on the key of console user `user`. The
+    /// router answers nothing unless `user` is this session's own user:
+    /// what the ACL tests try.
+    pub async fn api_as(
+        &self,
+        operator: &StationName,
+        request: ApiRequest,
+        user: &StationName,
+        deadline: Duration,
+    ) -> Result<ApiReply, String> {
+        let call = request.call();
+        let key = self.keys.api(operator, call, user);
+        let payload = envelope::encode(&request);
+        let what = format!("`{call}` of the operator API ({key})");
+        match self
+            .query::<ApiResult>(&key, payload, deadline, &what)
+            .await
+        {
+            Ok(result) => result,
+            Err(e) => Err(e.description),
+        }
+    }
+}

@@ -1,0 +1,348 @@
+//! A station's runtime on the bus: its session, the services it serves, and
+//! its associations (the I/O half of [`falc_model::mms::association`]).
+//!
+//! [`Station::next`] handles Initiate, Conclude, Abort and lost tokens
+//! itself (initiating subordinates before confirming, watching tokens,
+//! aborting subordinates when the commander is lost) and hands the node only
+//! what it must act on: the other indications, association changes and
+//! abort indications.
+
+use super::{
+    acl, Bus, BusError, BusEvent, BusSettings, Declaration, Indication, Responder, StatusBoard,
+};
+use falc_model::ids::StationName;
+use falc_model::mms::association::{AbortIndication, Associations, InitiateOutcome, InitiateStep};
+use falc_model::mms::error::{ApplicationReferenceError, ErrorClass, ServiceError};
+use falc_model::mms::pdu::{Peer, Request, Response, Unconfirmed};
+use falc_model::mms::vmd::VmdStatus;
+use falc_model::topology::Topology;
+use std::collections::HashMap;
+use std::time::Duration;
+use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
+
+/// What a node must act on.
+#[derive(Debug)]
+pub enum StationEvent {
+    /// A service request for the node to answer.
+    Indication(Indication),
+    /// The commander associated (its Initiate was confirmed).
+    Associated(Peer),
+    /// The commander concluded the association.
+    Concluded(Peer),
+    /// An association was lost: stop, and report.
+    Abort(AbortIndication),
+}
+
+/// A node's station runtime.
+pub struct Station {
+    bus: Bus,
+    assoc: Associations,
+    tx: UnboundedSender<BusEvent>,
+    rx: UnboundedReceiver<BusEvent>,
+    watches: HashMap<Peer, Declaration>,
+    board: StatusBoard,
+    _served: Vec<Declaration>,
+    deadline: Duration,
+    /// How long an Initiate of each subordinate may take: one deadline per
+    /// level of its subtree (it initiates its own subordinates first).
+    initiate_limits: HashMap<StationName, Duration>,
+}
+
+impl Station {
+    /// Connects, serves this station's services and waits for a commander.
+    pub async fn open(settings: BusSettings, topology: &Topology) -> Result<Self, BusError> {
+        let bus = Bus::open(settings).await?;
+        let me = bus.me().station.clone();
+        let assoc = Associations::new(
+            me.clone(),
+            topology.commander_of(&me).cloned(),
+            topology.subordinates_of(&me).into_iter().cloned(),
+        );
+        let (tx, rx) = unbounded_channel();
+        let board = StatusBoard::default();
+        let served = bus
+            .serve(&acl::served_services(topology, &me), &board, tx.clone())
+            .await?;
+        bus.sync_with_router().await?;
+        let initiate_limits = topology
+            .subordinates_of(&me)
+            .into_iter()
+            .map(|sub| {
+                let levels = 1 + topology.height(sub);
+                (sub.clone(), super::DEFAULT_DEADLINE * levels)
+            })
+            .collect();
+        Ok(Self {
+            bus,
+            assoc,
+            tx,
+            rx,
+            watches: HashMap::new(),
+            board,
+            _served: served,
+            deadline: super::DEFAULT_DEADLINE,
+            initiate_limits,
+        })
+    }
+
+    /// The bus (to request services of subordinates, publish, subscribe).
+    pub fn bus(&self) -> &Bus {
+        &self.bus
+    }
+
+    /// Sets this station's status (answered to Status requests) and, if it
+    /// changed, publishes it as unsolicited status.
+    pub async fn set_status(&self, status: VmdStatus) {
+        if self.board.set(&status) {
+            self.bus
+                .publish(&Unconfirmed::Status {
+                    station: self.bus.me().station.clone(),
+                    status,
+                })
+                .await;
+        }
+    }
+
+    /// Publishes the current status again, changed or not (a new commander
+    /// and the operator see it at once, not at the next change).
+    pub async fn republish_status(&self) {
+        self.bus
+            .publish(&Unconfirmed::Status {
+                station: self.bus.me().station.clone(),
+                status: self.board.get(),
+            })
+            .await;
+    }
+
+    /// The association state.
+    pub fn associations(&self) -> &Associations {
+        &self.assoc
+    }
+
+    /// The next event the node must act on; None when the bus is gone.
+    /// Not cancel-safe (an Initiate in progress would be dropped half
+    /// done): in a `select!` use [`Station::recv`] and [`Station::handle`].
+    pub async fn next(&mut self) -> Option<StationEvent> {
+        loop {
+            let ev = self.recv().await?;
+            if let Some(event) = self.handle(ev).await {
+                return Some(event);
+            }
+        }
+    }
+
+    /// The next raw bus event; None when the bus is gone. Cancel-safe: the
+    /// branch of a node's `select!`.
+    pub async fn recv(&mut self) -> Option<BusEvent> {
+        self.rx.recv().await
+    }
+
+    /// Handles a raw bus event (association services, lost tokens) and
+    /// returns what the node must act on, if anything. Await it to the end
+    /// (in the body of a `select!` branch, never as a branch): an Initiate
+    /// waits for the subordinates' confirms, and dropping it half done
+    /// would leave the association pending and the commander unanswered.
+    pub async fn handle(&mut self, ev: BusEvent) -> Option<StationEvent> {
+        match ev {
+            BusEvent::Indication(ind) => self.on_indication(ind).await,
+            BusEvent::PeerLost { peer, reason } => self.on_lost(&peer, &reason).await,
+        }
+    }
+
+    async fn on_indication(&mut self, ind: Indication) -> Option<StationEvent> {
+        match ind.request {
+            Request::Initiate { calling } => self.on_initiate(calling, ind.responder).await,
+            Request::Conclude { calling } => match self.assoc.conclude(&calling) {
+                Ok(subs) => {
+                    self.unwatch(&calling);
+                    for sub in subs {
+                        self.conclude_one(&sub).await;
+                    }
+                    ind.responder.respond(Ok(Response::Done)).await;
+                    Some(StationEvent::Concluded(calling))
+                }
+                Err(e) => {
+                    ind.responder.respond(Err(e)).await;
+                    None
+                }
+            },
+            Request::Abort { calling, reason } => {
+                ind.responder.respond(Ok(Response::Done)).await;
+                self.on_lost(&calling, &format!("Abort from {calling}: {reason}"))
+                    .await
+            }
+            ref r if changes_state(r) && self.assoc.commander().is_none() => {
+                let e = ServiceError::new(
+                    ErrorClass::ApplicationReference(ApplicationReferenceError::Other),
+                    format!(
+                        "{} refused: {} has no associated commander (Initiate first)",
+                        r.service(),
+                        self.bus.me().station
+                    ),
+                );
+                ind.responder.respond(Err(e)).await;
+                None
+            }
+            _ => Some(StationEvent::Indication(ind)),
+        }
+    }
+
+    async fn on_initiate(&mut self, calling: Peer, responder: Responder) -> Option<StationEvent> {
+        let commander = match self.assoc.initiate(calling) {
+            InitiateStep::Refuse(e) => {
+                responder.respond(Err(e)).await;
+                return None;
+            }
+            InitiateStep::Confirm(p) => p,
+            InitiateStep::InitiateSubordinates(subs) => {
+                let results = self.initiate_all(subs).await;
+                match self.assoc.subordinates_initiated(results) {
+                    InitiateOutcome::Confirm {
+                        commander,
+                        associated,
+                    } => {
+                        for p in associated {
+                            self.watch(&p).await;
+                        }
+                        commander
+                    }
+                    InitiateOutcome::Refuse { error, conclude } => {
+                        for p in conclude {
+                            self.conclude_one(&p).await;
+                        }
+                        let me = self.bus.me().clone();
+                        self.watches.retain(|p, _| *p == me);
+                        responder.respond(Err(error)).await;
+                        return None;
+                    }
+                }
+            }
+        };
+        self.watch(&commander).await;
+        responder
+            .respond(Ok(Response::Initiate {
+                responding: self.bus.me().clone(),
+            }))
+            .await;
+        Some(StationEvent::Associated(commander))
+    }
+
+    async fn on_lost(&mut self, peer: &Peer, reason: &str) -> Option<StationEvent> {
+        self.unwatch(peer);
+        let (indication, abort) = self.assoc.lost(peer, reason)?;
+        for sub in abort {
+            self.unwatch(&sub);
+            let req = Request::Abort {
+                calling: self.bus.me().clone(),
+                reason: format!("{} lost its commander: {reason}", self.bus.me().station),
+            };
+            if let Err(e) = self.bus.request(&sub.station, &req, self.deadline).await {
+                tracing::warn!("Abort to {sub} not confirmed: {e}");
+            }
+        }
+        Some(StationEvent::Abort(indication))
+    }
+
+    /// The root (which has no commander) associates every missing subordinate.
+    pub async fn associate_subordinates(&mut self) -> Result<Vec<Peer>, ServiceError> {
+        let missing = self.assoc.missing_subordinates();
+        let results = self.initiate_all(missing).await;
+        match self.assoc.record_subordinates(results) {
+            Ok(made) => {
+                for p in &made {
+                    self.watch(p).await;
+                }
+                Ok(made)
+            }
+            Err((e, made)) => {
+                for p in made {
+                    self.conclude_one(&p).await;
+                }
+                Err(e)
+            }
+        }
+    }
+
+    /// The root concludes every subordinate.
+    pub async fn conclude_subordinates(&mut self) {
+        for p in self.assoc.release_subordinates() {
+            self.unwatch(&p);
+            self.conclude_one(&p).await;
+        }
+    }
+
+    async fn initiate_all(
+        &self,
+        subs: Vec<StationName>,
+    ) -> Vec<(StationName, Result<Peer, ServiceError>)> {
+        let calls = subs.into_iter().map(|s| async move {
+            let r = self.initiate_one(&s).await;
+            (s, r)
+        });
+        futures::future::join_all(calls).await
+    }
+
+    async fn initiate_one(&self, sub: &StationName) -> Result<Peer, ServiceError> {
+        let req = Request::Initiate {
+            calling: self.bus.me().clone(),
+        };
+        let limit = self
+            .initiate_limits
+            .get(sub)
+            .copied()
+            .unwrap_or(self.deadline);
+        match self.bus.request(sub, &req, limit).await? {
+            Response::Initiate { responding } if &responding.station == sub => Ok(responding),
+            other => Err(ServiceError::malformed(format!(
+                "station {sub} answered Initiate with {other:?}"
+            ))),
+        }
+    }
+
+    async fn conclude_one(&mut self, sub: &Peer) {
+        self.unwatch(sub);
+        let req = Request::Conclude {
+            calling: self.bus.me().clone(),
+        };
+        if let Err(e) = self.bus.request(&sub.station, &req, self.deadline).await {
+            tracing::warn!("Conclude of {sub} not confirmed: {e}");
+        }
+    }
+
+    async fn watch(&mut self, peer: &Peer) {
+        match self.bus.watch(peer, self.tx.clone()).await {
+            Ok(d) => {
+                self.watches.insert(peer.clone(), d);
+            }
+            Err(e) => {
+                // Without a watch a loss would go unnoticed: treat as lost.
+                let _ = self.tx.send(BusEvent::PeerLost {
+                    peer: peer.clone(),
+                    reason: format!("cannot watch {peer}: {e}"),
+                });
+            }
+        }
+    }
+
+    fn unwatch(&mut self, peer: &Peer) {
+        self.watches.remove(peer);
+    }
+}
+
+/// Services that change a VMD's objects: only an associated commander may.
+fn changes_state(r: &Request) -> bool {
+    matches!(
+        r,
+        Request::InitiateDownloadSequence { .. }
+            | Request::DownloadSegment { .. }
+            | Request::TerminateDownloadSequence { .. }
+            | Request::DeleteDomain { .. }
+            | Request::CreateProgramInvocation { .. }
+            | Request::DeleteProgramInvocation { .. }
+            | Request::Start { .. }
+            | Request::Stop { .. }
+            | Request::Resume { .. }
+            | Request::Reset { .. }
+            | Request::Kill { .. }
+    )
+}

@@ -1,0 +1,10 @@
+//! FALC's controller cores, sans-I/O: events in with the time they happen,
+//! commands and publications out, [`controller::Controller::poll_timeout`]
+//! for the next deadline. Node binaries drive them through
+//! `falc_node::controller_node`.
+//!
+//! - [`controller`]: the recipe runtime every level runs (a workstation
+//!   around its device, the cell around its workstations): the VMD served
+//!   to the commander, one running recipe, its job events and reports.
+
+pub mod controller;

@@ -1,0 +1,594 @@
+//! The operator API (DESIGN.md §3, §8): what a console (`falc`) asks the
+//! operator node, and what it answers. One zenoh key per call and user,
+//! `falc/<cell>/operator/api/<call>/<user>`, so the router's ACL grants
+//! calls per role ([`Call::role`]) and each user speaks only in its own
+//! name. The transport is in `bus::api`; the operator node owns the
+//! behaviour.
+
+use crate::ids::StationName;
+use crate::mms::vmd::VmdStatus;
+use crate::topology::Role;
+use serde::{Deserialize, Serialize};
+use std::fmt;
+
+macro_rules! calls {
+    ($($variant:ident = $key:literal, $role:ident;)+) => {
+        /// One operator API call: a key chunk, and the least role allowed it.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+        pub enum Call { $(#[doc = concat!("The call `", $key, "`, for role ", stringify!($role), " and up.")] $variant),+ }
+
+        impl Call {
+            /// Every call.
+            pub const ALL: &'static [Call] = &[$(Call::$variant),+];
+
+            /// The key chunk (`order-add`).
+            pub fn as_str(self) -> &'static str {
+                match self { $(Call::$variant => $key),+ }
+            }
+
+            /// The least role that may make this call.
+            pub fn role(self) -> Role {
+                match self { $(Call::$variant => Role::$role),+ }
+            }
+        }
+    };
+}
+
+calls! {
+    Status = "status", Observer;
+    OrderList = "order-list", Observer;
+    Messages = "messages", Observer;
+    Journal = "journal", Observer;
+    OrderAdd = "order-add", Operator;
+    OrderRemove = "order-rm", Operator;
+    Start = "start", Operator;
+    Stop = "stop", Operator;
+    Ack = "ack", Operator;
+    Answer = "answer", Operator;
+    Shutdown = "shutdown", Operator;
+    RecipeList = "recipe-list", Observer;
+    RecipeGet = "recipe-get", Observer;
+    RecipePut = "recipe-put", Engineer;
+}
+
+impl fmt::Display for Call {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// A console's request.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ApiRequest {
+    /// The cell at a glance.
+    Status,
+    /// The order list (queued, running and the ended ones).
+    OrderList,
+    /// Messages (operator outputs, questions, reports, alarms) after an id.
+    Messages {
+        /// Only entries with a larger id.
+        after: i64,
+    },
+    /// The journal after an id, optionally of one order.
+    Journal {
+        /// Only this order's entries.
+        order: Option<i64>,
+        /// Only entries with a larger id.
+        after: i64,
+    },
+    /// Adds an order for a cell recipe at the end of the list.
+    OrderAdd {
+        /// The cell recipe's name.
+        recipe: String,
+    },
+    /// Removes a queued order.
+    OrderRemove {
+        /// The order id.
+        id: i64,
+    },
+    /// Starts (or resumes) working through the list.
+    Start,
+    /// Stops the running order and the list.
+    Stop,
+    /// Acknowledges one alarm of the list, or every one (`None`).
+    Ack {
+        /// The alarm's number.
+        id: Option<i64>,
+    },
+    /// Answers the waiting operator question.
+    Answer {
+        /// The answer (`ja`, `nee`, …).
+        text: String,
+    },
+    /// Shuts the cell down once the list is done.
+    Shutdown,
+    /// Every recipe file in the recipe store.
+    RecipeList,
+    /// One recipe file's text.
+    RecipeGet {
+        /// Which file.
+        file: RecipeFile,
+    },
+    /// Replaces (or creates) one recipe file: checked with the whole set
+    /// first, saved only when clean; the cell gets it at the next start.
+    RecipePut {
+        /// Which file.
+        file: RecipeFile,
+        /// The new text.
+        text: String,
+        /// The content hash of the text the edit started from (None for a
+        /// new file): refused if the file changed meanwhile.
+        base: Option<u64>,
+    },
+}
+
+/// A recipe file of the store: a station's directory and a file name
+/// (`welding`, `droog_dik.rcp`); validated so it never leaves its
+/// directory.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(try_from = "RecipeFileWire", into = "RecipeFileWire")]
+pub struct RecipeFile {
+    station: StationName,
+    file: String,
+}
+
+#[derive(Serialize, Deserialize)]
+struct RecipeFileWire {
+    station: StationName,
+    file: String,
+}
+
+impl TryFrom<RecipeFileWire> for RecipeFile {
+    type Error = String;
+    fn try_from(w: RecipeFileWire) -> Result<Self, String> {
+        RecipeFile::new(w.station, &w.file)
+    }
+}
+
+impl From<RecipeFile> for RecipeFileWire {
+    fn from(r: RecipeFile) -> Self {
+        Self {
+            station: r.station,
+            file: r.file,
+        }
+    }
+}
+
+impl RecipeFile {
+    /// `file` must be `name.rcp` with a name of lowercase letters, digits,
+    /// `_` and `-` (at most 40); a name without `.rcp` gets it.
+    pub fn new(station: StationName, file: &str) -> Result<Self, String> {
+        let file = file.trim().to_lowercase();
+        let file = if file.ends_with(".rcp") {
+            file
+        } else {
+            format!("{file}.rcp")
+        };
+        let stem = &file[..file.len() - 4];
+        let ok = !stem.is_empty()
+            && stem.len() <= 40
+            && stem
+                .chars()
+                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_' || c == '-');
+        if ok {
+            Ok(Self { station, file })
+        } else {
+            Err(format!(
+                "recipe file name \"{}\": use letters, digits, _ and - (at most 40), ending in .rcp",
+                crate::ids::excerpt(&file)
+            ))
+        }
+    }
+
+    /// The station whose directory holds it.
+    pub fn station(&self) -> &StationName {
+        &self.station
+    }
+
+    /// The file name (`droog_dik.rcp`).
+    pub fn file(&self) -> &str {
+        &self.file
+    }
+}
+
+impl fmt::Display for RecipeFile {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}/{}", self.station, self.file)
+    }
+}
+
+/// One recipe of the store, as listed.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RecipeInfo {
+    /// Its file.
+    pub file: RecipeFile,
+    /// Its name (`#NAME`, else the file name), if the text says.
+    pub name: Option<String>,
+}
+
+/// One recipe's text.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RecipeText {
+    /// Its file.
+    pub file: RecipeFile,
+    /// The text.
+    pub text: String,
+    /// Its content hash (the `base` of a later `RecipePut`).
+    pub hash: u64,
+}
+
+/// The most bytes one API request may carry on the wire (a recipe text
+/// and its envelope); a larger one is refused before it is decoded.
+pub const MAX_REQUEST_BYTES: usize = MAX_RECIPE_BYTES + 4096;
+/// The longest answer to an operator question, in characters.
+pub const MAX_ANSWER_CHARS: usize = 200;
+/// The longest cell recipe name an order may name, in characters.
+pub const MAX_RECIPE_NAME_CHARS: usize = 32;
+/// The largest recipe file, in bytes (the thesis' recipes are under 2 KiB).
+pub const MAX_RECIPE_BYTES: usize = 64 * 1024;
+
+impl ApiRequest {
+    /// Refuses a text beyond its limit (or an answer with control
+    /// characters), quoting only a short excerpt of it.
+    pub fn check_limits(&self) -> Result<(), String> {
+        use crate::ids::excerpt;
+        match self {
+            Self::Answer { text } => {
+                let n = text.chars().count();
+                if n > MAX_ANSWER_CHARS {
+                    return Err(format!(
+                        "answer \"{}\" is longer than {MAX_ANSWER_CHARS} characters: refused",
+                        excerpt(text)
+                    ));
+                }
+                if text.chars().any(char::is_control) {
+                    return Err(format!(
+                        "answer \"{}\" holds a control character (a line break?): refused",
+                        excerpt(text)
+                    ));
+                }
+            }
+            Self::OrderAdd { recipe } if recipe.chars().count() > MAX_RECIPE_NAME_CHARS => {
+                return Err(format!(
+                    "recipe name \"{}\" is longer than {MAX_RECIPE_NAME_CHARS} characters: refused",
+                    excerpt(recipe)
+                ));
+            }
+            Self::RecipePut { file, text, .. } if text.len() > MAX_RECIPE_BYTES => {
+                return Err(format!(
+                    "recipe {file} is {} bytes, more than the {MAX_RECIPE_BYTES} a recipe may have: refused",
+                    text.len()
+                ));
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    /// The call (key) this request belongs to.
+    pub fn call(&self) -> Call {
+        match self {
+            Self::Status => Call::Status,
+            Self::OrderList => Call::OrderList,
+            Self::Messages { .. } => Call::Messages,
+            Self::Journal { .. } => Call::Journal,
+            Self::OrderAdd { .. } => Call::OrderAdd,
+            Self::OrderRemove { .. } => Call::OrderRemove,
+            Self::Start => Call::Start,
+            Self::Stop => Call::Stop,
+            Self::Ack { .. } => Call::Ack,
+            Self::Answer { .. } => Call::Answer,
+            Self::Shutdown => Call::Shutdown,
+            Self::RecipeList => Call::RecipeList,
+            Self::RecipeGet { .. } => Call::RecipeGet,
+            Self::RecipePut { .. } => Call::RecipePut,
+        }
+    }
+}
+
+/// Where an order is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OrderState {
+    /// Waiting in the list.
+    Queued,
+    /// Its recipe runs in the cell.
+    Running,
+    /// Ended normally.
+    Done,
+    /// Ended in alarm or with a failure criterion.
+    Failed,
+    /// Stopped by an operator.
+    Stopped,
+    /// Was running when the operator node died; never re-run by itself.
+    Interrupted,
+}
+
+impl OrderState {
+    /// The word stored and shown.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Queued => "queued",
+            Self::Running => "running",
+            Self::Done => "done",
+            Self::Failed => "failed",
+            Self::Stopped => "stopped",
+            Self::Interrupted => "interrupted",
+        }
+    }
+
+    /// Parses the stored word.
+    pub fn parse(word: &str) -> Option<Self> {
+        [
+            Self::Queued,
+            Self::Running,
+            Self::Done,
+            Self::Failed,
+            Self::Stopped,
+            Self::Interrupted,
+        ]
+        .into_iter()
+        .find(|s| s.as_str() == word)
+    }
+}
+
+impl fmt::Display for OrderState {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// One order.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Order {
+    /// Its id (also its position: lower runs first).
+    pub id: i64,
+    /// The cell recipe.
+    pub recipe: String,
+    /// Where it is.
+    pub state: OrderState,
+    /// Who added it.
+    pub added_by: String,
+    /// When it started (ms since the Unix epoch).
+    pub started_ms: Option<i64>,
+    /// When it ended (ms since the Unix epoch).
+    pub ended_ms: Option<i64>,
+    /// How it ended, in words.
+    pub result: Option<String>,
+}
+
+/// What a journal entry records.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum EntryKind {
+    /// An order started or ended.
+    Order,
+    /// An alarm.
+    Alarm,
+    /// A line the cell showed the operator (`output`).
+    Message,
+    /// A question the cell asked (`input`).
+    Question,
+    /// The answer given.
+    Answer,
+    /// A report from a station.
+    Report,
+    /// An operator's action.
+    Action,
+    /// The operator node itself (start, recovery, recipes).
+    System,
+}
+
+impl EntryKind {
+    /// Every kind.
+    pub const ALL: [EntryKind; 8] = [
+        Self::Order,
+        Self::Alarm,
+        Self::Message,
+        Self::Question,
+        Self::Answer,
+        Self::Report,
+        Self::Action,
+        Self::System,
+    ];
+
+    /// The word stored and shown.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Order => "order",
+            Self::Alarm => "alarm",
+            Self::Message => "message",
+            Self::Question => "question",
+            Self::Answer => "answer",
+            Self::Report => "report",
+            Self::Action => "action",
+            Self::System => "system",
+        }
+    }
+
+    /// Parses the stored word.
+    pub fn parse(word: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|k| k.as_str() == word)
+    }
+
+    /// Whether `falc messages` shows it (what the 1992 message screen showed).
+    pub fn is_message(self) -> bool {
+        matches!(
+            self,
+            Self::Alarm | Self::Message | Self::Question | Self::Answer | Self::Report
+        )
+    }
+}
+
+/// One journal entry.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Entry {
+    /// Its id (increasing).
+    pub id: i64,
+    /// When (ms since the Unix epoch).
+    pub at_ms: i64,
+    /// The order it belongs to.
+    pub order: Option<i64>,
+    /// What it records.
+    pub kind: EntryKind,
+    /// Who: a console user, or the station that reported.
+    pub who: String,
+    /// What, for a person.
+    pub text: String,
+}
+
+/// What the order list does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ListState {
+    /// Not working through the list.
+    Idle,
+    /// Working through the list.
+    Running,
+    /// Stopped by an alarm: `ack`, then `start`.
+    Alarm,
+}
+
+/// A station as the operator sees it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StationView {
+    /// The station.
+    pub name: StationName,
+    /// Its last published status, if any.
+    pub status: Option<VmdStatus>,
+    /// Whether it is on the bus now (its status is the last it sent).
+    pub connected: bool,
+}
+
+/// The cell at a glance (`falc status`).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CellStatus {
+    /// The order list.
+    pub list: ListState,
+    /// Whether the cell is associated.
+    pub cell_associated: bool,
+    /// Why not, or what else is wrong (the last association refusal).
+    pub problem: Option<String>,
+    /// The alarm that holds `start` back (the highest priority of those
+    /// waiting for `ack`), as one line.
+    pub alarm: Option<String>,
+    /// Every alarm in the list (not both acknowledged and cleared).
+    pub alarms: Vec<crate::alarm::Alarm>,
+    /// The running order.
+    pub running: Option<Order>,
+    /// Orders waiting.
+    pub queued: usize,
+    /// The question waiting for `answer`.
+    pub question: Option<String>,
+    /// Set when `shutdown` waits for the list to end.
+    pub shutdown_pending: bool,
+    /// Every station below the operator.
+    pub stations: Vec<StationView>,
+    /// The newest journal entry's id: every order change and message
+    /// moves it, so a console polls the rest only when it moved.
+    pub journal_head: i64,
+}
+
+/// A positive answer.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ApiReply {
+    /// `status`.
+    Status(CellStatus),
+    /// `order list`.
+    Orders(Vec<Order>),
+    /// `order add`.
+    Order(Order),
+    /// `messages`, `journal`.
+    Entries(Vec<Entry>),
+    /// Done, with what happened in words.
+    Done(String),
+    /// `recipe list`.
+    Recipes(Vec<RecipeInfo>),
+    /// `recipe get`.
+    Recipe(RecipeText),
+}
+
+/// The answer to a request: the reply, or why it was refused.
+pub type ApiResult = Result<ApiReply, String>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn texts_beyond_their_limits_are_refused_quoting_a_short_excerpt() {
+        let huge = "j".repeat(16 * 1024 * 1024);
+        for r in [
+            ApiRequest::Answer { text: huge.clone() },
+            ApiRequest::OrderAdd {
+                recipe: huge.clone(),
+            },
+            ApiRequest::RecipePut {
+                file: RecipeFile::new(StationName::new("cell").expect("valid"), "big.rcp")
+                    .expect("valid"),
+                text: huge.clone(),
+                base: None,
+            },
+        ] {
+            let e = r.check_limits().expect_err("refused");
+            assert!(e.len() < 200, "{} bytes: {}", e.len(), &e[..200]);
+            assert!(e.contains("refused"), "{e}");
+        }
+        let e = ApiRequest::Answer {
+            text: "ja\nnee".into(),
+        }
+        .check_limits()
+        .expect_err("a line break");
+        assert!(e.contains("control character"), "{e}");
+        assert_eq!(
+            ApiRequest::Answer { text: "ja".into() }.check_limits(),
+            Ok(())
+        );
+        let e =
+            RecipeFile::new(StationName::new("cell").expect("valid"), &huge).expect_err("bad name");
+        assert!(e.len() < 200, "{} bytes", e.len());
+    }
+
+    #[test]
+    fn keys_are_unique_and_every_request_has_its_call() {
+        let mut seen = std::collections::BTreeSet::new();
+        for c in Call::ALL {
+            assert!(seen.insert(c.as_str()), "{c}");
+            assert!(!c.as_str().contains(['*', '/', '$', '?', '#']));
+        }
+        assert_eq!(ApiRequest::Start.call(), Call::Start);
+        assert_eq!(Call::Status.role(), Role::Observer);
+        assert_eq!(Call::Answer.role(), Role::Operator);
+        for k in EntryKind::ALL {
+            assert_eq!(EntryKind::parse(k.as_str()), Some(k));
+        }
+        assert_eq!(
+            OrderState::parse("interrupted"),
+            Some(OrderState::Interrupted)
+        );
+        assert_eq!(OrderState::parse("lost"), None);
+    }
+
+    #[test]
+    fn recipe_files_stay_in_their_directory() {
+        let w = StationName::new("welding").expect("valid");
+        let f = RecipeFile::new(w.clone(), "Droog_Dik").expect("valid");
+        assert_eq!(f.to_string(), "welding/droog_dik.rcp");
+        for bad in [
+            "../x.rcp",
+            "a/b.rcp",
+            ".rcp",
+            "",
+            "x y.rcp",
+            "x.rcp.rcp.",
+            "ü.rcp",
+        ] {
+            assert!(RecipeFile::new(w.clone(), bad).is_err(), "{bad}");
+        }
+        // The same rule holds for what arrives on the wire.
+        let wire = r#"{"station":"welding","file":"../../etc/passwd"}"#;
+        assert!(serde_json::from_str::<RecipeFile>(wire).is_err());
+        let ok = r#"{"station":"welding","file":"store.rcp"}"#;
+        assert!(serde_json::from_str::<RecipeFile>(ok).is_ok());
+    }
+}

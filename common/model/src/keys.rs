@@ -1,0 +1,95 @@
+//! Every zenoh key FALC uses, built in one place (DESIGN.md §3).
+//!
+//! | key | primitive |
+//! |---|---|
+//! | `falc/<cell>/<st>/svc/<service>` | queryable: confirmed service |
+//! | `falc/<cell>/<st>/status` | put: unsolicited status |
+//! | `falc/<cell>/<st>/report` | put: information reports |
+//! | `falc/<cell>/alive/<st>/<session>` | liveliness token |
+//! | `falc/<cell>/<operator>/api/<call>` | queryable: operator API |
+//!
+//! The liveliness key carries the session id as a last chunk so that an
+//! abort indication always refers to the one session that was associated,
+//! even while a restarted node already holds a new token.
+
+use crate::console::Call;
+use crate::ids::{CellId, StationName};
+use crate::mms::pdu::ServiceName;
+
+/// The key space of one cell.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct KeySpace {
+    cell: CellId,
+}
+
+impl KeySpace {
+    /// The key space of cell `cell`.
+    pub fn new(cell: CellId) -> Self {
+        Self { cell }
+    }
+
+    /// `falc/<cell>/<st>/svc/<service>`.
+    pub fn service(&self, station: &StationName, service: ServiceName) -> String {
+        format!("falc/{}/{station}/svc/{service}", self.cell)
+    }
+
+    /// `falc/<cell>/<st>/status`.
+    pub fn status(&self, station: &StationName) -> String {
+        format!("falc/{}/{station}/status", self.cell)
+    }
+
+    /// `falc/<cell>/<st>/report`.
+    pub fn report(&self, station: &StationName) -> String {
+        format!("falc/{}/{station}/report", self.cell)
+    }
+
+    /// `falc/<cell>/alive/<st>/<session>`: one session's token.
+    pub fn alive(&self, station: &StationName, session: &str) -> String {
+        format!("falc/{}/alive/{station}/{session}", self.cell)
+    }
+
+    /// `falc/<cell>/<operator>/api/<call>/<user>`: one operator API call by
+    /// one console user. The router lets each user query only keys ending
+    /// in its own name, so the operator knows who asks from the key.
+    pub fn api(&self, operator: &StationName, call: Call, user: &StationName) -> String {
+        format!("falc/{}/{operator}/api/{call}/{user}", self.cell)
+    }
+
+    /// `falc/<cell>/<operator>/api/<call>/*`: a call by any user (the
+    /// operator's queryable and its ACL rules).
+    pub fn api_any(&self, operator: &StationName, call: Call) -> String {
+        format!("falc/{}/{operator}/api/{call}/*", self.cell)
+    }
+
+    /// `falc/<cell>/alive/<st>/*`: every token of a station (ACL rules).
+    pub fn alive_any(&self, station: &StationName) -> String {
+        format!("falc/{}/alive/{station}/*", self.cell)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn service_keys() {
+        let k = KeySpace::new(CellId::new("falc1").expect("valid"));
+        let w = StationName::new("welding").expect("valid");
+        assert_eq!(
+            k.service(&w, ServiceName::InitiateDownloadSequence),
+            "falc/falc1/welding/svc/initiate-download-sequence"
+        );
+        assert_eq!(k.alive(&w, "ab12"), "falc/falc1/alive/welding/ab12");
+        assert_eq!(k.alive_any(&w), "falc/falc1/alive/welding/*");
+        let op = StationName::new("operator").expect("valid");
+        let olga = StationName::new("olga").expect("valid");
+        assert_eq!(
+            k.api(&op, Call::OrderAdd, &olga),
+            "falc/falc1/operator/api/order-add/olga"
+        );
+        assert_eq!(
+            k.api_any(&op, Call::OrderAdd),
+            "falc/falc1/operator/api/order-add/*"
+        );
+    }
+}

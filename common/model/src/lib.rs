@@ -1,0 +1,17 @@
+//! FALC's model, with no I/O: what every level and every console agrees on.
+//!
+//! - [`ids`]: validated names (stations, cells, MMS objects);
+//! - [`topology`]: `launch/cell.toml`, the cell's stations and hierarchy;
+//! - [`alarm`]: alarm classes, causes and the operator's alarm record;
+//! - [`mms`]: the MMS-equivalent service model, sans-I/O;
+//! - [`console`]: what a console asks the operator node and what it answers;
+//! - [`keys`]: every zenoh key of a cell, as data;
+//! - [`envelope`]: the payload format on the wire.
+
+pub mod alarm;
+pub mod console;
+pub mod envelope;
+pub mod ids;
+pub mod keys;
+pub mod mms;
+pub mod topology;

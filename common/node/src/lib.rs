@@ -1,0 +1,158 @@
+//! What every node binary does at start: the common command-line arguments
+//! (topology, router, credentials), logging setup, and turning them into
+//! [`BusSettings`]; and what node binaries share beyond that:
+//!
+//! - [`controller_node`]: drives a `falc_control` controller core on the bus;
+//! - [`dnc_link`]: the serial port under the DNC procedure (tokio-serial);
+//! - [`plc_link`]: the Modbus TCP link to the conveyor PLC (tokio-modbus).
+
+pub mod controller_node;
+pub mod dnc_link;
+pub mod plc_link;
+
+use falc_bus::credentials::{self, CredentialsError};
+use falc_bus::BusSettings;
+use falc_model::ids::StationName;
+use falc_model::keys::KeySpace;
+use falc_model::topology::{Topology, TopologyError};
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Arguments every node takes.
+#[derive(Debug, Clone, clap::Args)]
+pub struct NodeArgs {
+    /// The cell topology file.
+    #[arg(long, default_value = "launch/cell.toml")]
+    pub topology: PathBuf,
+    /// The router endpoint; overrides the topology's `router`.
+    #[arg(long)]
+    pub router: Option<String>,
+    /// Directory of credential files (`<user>.toml`, mode 0600).
+    #[arg(long, default_value = "launch/credentials")]
+    pub credentials_dir: PathBuf,
+    /// This node's credentials file; default `<credentials-dir>/<station>.toml`.
+    #[arg(long)]
+    pub credentials: Option<PathBuf>,
+    /// How long to keep trying to reach the router at start, in ms.
+    #[arg(long, default_value_t = 10_000)]
+    pub connect_timeout_ms: u64,
+}
+
+/// Why a node could not be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum SetupError {
+    /// The topology is missing or invalid.
+    #[error(transparent)]
+    Topology(#[from] TopologyError),
+    /// The credentials are missing, unreadable or too open.
+    #[error(transparent)]
+    Credentials(#[from] CredentialsError),
+    /// The station (or console user) is not in the topology.
+    #[error("station or console `{station}` is not defined in {topology}")]
+    UnknownStation {
+        /// The station.
+        station: StationName,
+        /// The topology file.
+        topology: String,
+    },
+}
+
+impl NodeArgs {
+    /// Loads the topology (with the router override applied).
+    pub fn topology(&self) -> Result<Topology, SetupError> {
+        let mut t = Topology::load(&self.topology)?;
+        if let Some(r) = &self.router {
+            t.set_router(r.clone());
+        }
+        Ok(t)
+    }
+
+    /// The bus settings of `station` (or of a console user).
+    pub fn settings(
+        &self,
+        topology: &Topology,
+        station: &StationName,
+    ) -> Result<BusSettings, SetupError> {
+        if topology.station(station).is_none() && topology.console(station).is_none() {
+            return Err(SetupError::UnknownStation {
+                station: station.clone(),
+                topology: self.topology.display().to_string(),
+            });
+        }
+        let path = self
+            .credentials
+            .clone()
+            .unwrap_or_else(|| self.credentials_dir.join(format!("{station}.toml")));
+        Ok(BusSettings {
+            keys: KeySpace::new(topology.cell().clone()),
+            me: station.clone(),
+            endpoint: topology.router().to_string(),
+            lease: topology.lease(),
+            credentials: Some(credentials::load(&path)?),
+            connect_timeout: Duration::from_millis(self.connect_timeout_ms),
+        })
+    }
+}
+
+/// Logs to stderr, filtered by `RUST_LOG` (default `info`; zenoh's own
+/// chatter at `warn`); colours only on a terminal.
+pub fn init_tracing() {
+    use tracing_subscriber::EnvFilter;
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+        EnvFilter::new("info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn")
+    });
+    use std::io::IsTerminal;
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_ansi(std::io::stderr().is_terminal())
+        .with_writer(std::io::stderr)
+        .try_init();
+}
+
+/// Prints one line on stdout and flushes it: the events a node announces
+/// for tests, launchers and people (`EVENT ready …`, a twin's port).
+pub fn say(line: &str) {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    let _ = writeln!(out, "{line}");
+    let _ = out.flush();
+}
+
+/// Ctrl-C (SIGINT) or SIGTERM (systemd, the launcher): a node's request to
+/// stop, after which it concludes its associations and releases its device.
+/// Both are listened for from creation on, so a signal that arrives while
+/// the node's loop is busy elsewhere is not lost (a fresh
+/// `tokio::signal::ctrl_c()` per loop turn would miss it).
+pub struct Shutdown {
+    signals: Vec<tokio::signal::unix::Signal>,
+}
+
+impl Default for Shutdown {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Shutdown {
+    /// Listens for SIGINT and SIGTERM from now on.
+    pub fn new() -> Self {
+        use tokio::signal::unix::{signal, SignalKind};
+        let mut signals = Vec::new();
+        for kind in [SignalKind::interrupt(), SignalKind::terminate()] {
+            match signal(kind) {
+                Ok(s) => signals.push(s),
+                Err(e) => tracing::warn!("cannot listen for signal {kind:?}: {e}"),
+            }
+        }
+        Self { signals }
+    }
+
+    /// Returns when a stop was asked for.
+    pub async fn requested(&mut self) {
+        if self.signals.is_empty() {
+            return std::future::pending().await;
+        }
+        let waits = self.signals.iter_mut().map(|s| Box::pin(s.recv()));
+        futures::future::select_all(waits).await;
+    }
+}

@@ -1,0 +1,420 @@
+//! The Modbus TCP link to the conveyor PLC: a task that owns the connection,
+//! polls the discrete inputs of the [`IoMap`] every poll period, writes
+//! coils on command, and reconnects by itself. Everything that goes wrong
+//! (refused or lost connection, timeout, Modbus exception, a reply that does
+//! not fit the map) comes out as one [`PlcEvent::Fault`] naming the PLC, the
+//! request and the cause; the task then retries every second.
+//!
+//! Each [`PlcEvent::Inputs`] says how many commands were carried out before
+//! its read began, so a reader can tell a reading taken before its own last
+//! coil write from one taken after.
+
+use falc_plc::map::{Coil, Inputs, IoMap, MapError, COILS, INPUTS};
+use std::net::SocketAddr;
+use std::time::Duration;
+use tokio::sync::mpsc;
+use tokio_modbus::client::{Client, Context, Reader, Writer};
+use tokio_modbus::Slave;
+
+/// How long to wait before retrying after a fault.
+pub const RETRY: Duration = Duration::from_secs(1);
+
+/// Where the map sits in the PLC (shared by the transport node and the twin).
+#[derive(Debug, Clone, clap::Args)]
+pub struct MapArgs {
+    /// Modbus address of the first coil of the map (button of line A).
+    #[arg(long, default_value_t = 0)]
+    pub coil_base: u16,
+    /// Modbus address of the first discrete input of the map (line A running).
+    #[arg(long, default_value_t = 0)]
+    pub input_base: u16,
+}
+
+impl MapArgs {
+    /// The map.
+    pub fn map(&self) -> Result<IoMap, MapError> {
+        IoMap::new(self.coil_base, self.input_base)
+    }
+}
+
+/// How to reach the PLC.
+#[derive(Debug, Clone, clap::Args)]
+pub struct PlcArgs {
+    /// The PLC's Modbus TCP address (host:port); default: the topology's
+    /// `device` of this station.
+    #[arg(long)]
+    pub plc: Option<String>,
+    /// Modbus unit (slave) id.
+    #[arg(long, default_value_t = 1)]
+    pub unit: u8,
+    /// Poll period of the discrete inputs while a recipe runs, in ms.
+    #[arg(long, default_value_t = 10)]
+    pub poll_ms: u64,
+    /// Poll period while no recipe runs, in ms (an idle cell costs little;
+    /// an emergency stop or a lost PLC is still seen within this).
+    #[arg(long, default_value_t = 100)]
+    pub idle_poll_ms: u64,
+    /// How long one Modbus request may take, in ms.
+    #[arg(long, default_value_t = 500)]
+    pub modbus_timeout_ms: u64,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub map: MapArgs,
+}
+
+/// Settings of the link.
+#[derive(Debug, Clone)]
+pub struct PlcSettings {
+    /// host:port.
+    pub address: String,
+    /// Modbus unit id.
+    pub unit: u8,
+    /// The I/O map.
+    pub map: IoMap,
+    /// Poll period while busy (a recipe runs).
+    pub poll: Duration,
+    /// Poll period while idle.
+    pub idle_poll: Duration,
+    /// Per-request limit.
+    pub timeout: Duration,
+}
+
+impl PlcArgs {
+    /// The settings, with `device` (the topology's) as the default address.
+    pub fn settings(&self, device: Option<String>) -> Result<PlcSettings, String> {
+        let address = self
+            .plc
+            .clone()
+            .or(device)
+            .ok_or("no PLC address: give --plc HOST:PORT or a `device` in the topology")?;
+        if self.poll_ms == 0 {
+            return Err("--poll-ms must be at least 1".into());
+        }
+        Ok(PlcSettings {
+            address,
+            unit: self.unit,
+            map: self.map.map().map_err(|e| e.to_string())?,
+            poll: Duration::from_millis(self.poll_ms),
+            idle_poll: Duration::from_millis(self.idle_poll_ms.max(self.poll_ms)),
+            timeout: Duration::from_millis(self.modbus_timeout_ms.max(1)),
+        })
+    }
+}
+
+/// What the link is asked to do.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PlcCommand {
+    /// Write one coil.
+    Write(Coil, bool),
+    /// Write every coil of the map at once (offset order).
+    WriteAll([bool; COILS as usize]),
+    /// Poll at the busy or the idle period from now on (no Modbus request).
+    Pace(Pace),
+}
+
+/// How fast the link polls.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Pace {
+    /// A recipe runs: every `poll`.
+    Busy,
+    /// Nothing runs: every `idle_poll`.
+    Idle,
+}
+
+/// What the link reports.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PlcEvent {
+    /// Connected (again): the coils' state in the PLC is unknown.
+    Connected,
+    /// A reading of the inputs (sent when it differs from the last one, and
+    /// after every coil write).
+    Inputs {
+        /// The inputs.
+        inputs: Inputs,
+        /// Commands carried out (or dropped) before this read began.
+        commands_done: u64,
+    },
+    /// The link failed or the PLC refused a request; the link retries.
+    Fault(String),
+}
+
+/// The link task's two ends.
+#[derive(Debug)]
+pub struct PlcHandle {
+    /// Commands in.
+    pub commands: mpsc::UnboundedSender<PlcCommand>,
+    /// Events out.
+    pub events: mpsc::UnboundedReceiver<PlcEvent>,
+}
+
+/// Starts the link task.
+pub fn spawn(settings: PlcSettings) -> PlcHandle {
+    let (commands, rx) = mpsc::unbounded_channel();
+    let (tx, events) = mpsc::unbounded_channel();
+    tokio::spawn(Link::new(settings, tx).run(rx));
+    PlcHandle { commands, events }
+}
+
+/// A Modbus client error in words (a closed socket reads as "Success").
+fn describe(e: &tokio_modbus::Error) -> String {
+    use std::io::ErrorKind;
+    match e {
+        tokio_modbus::Error::Transport(io)
+            if io.raw_os_error() == Some(0)
+                || matches!(
+                    io.kind(),
+                    ErrorKind::UnexpectedEof | ErrorKind::ConnectionReset | ErrorKind::BrokenPipe
+                ) =>
+        {
+            "the PLC closed the connection".into()
+        }
+        other => other.to_string(),
+    }
+}
+
+struct Link {
+    s: PlcSettings,
+    events: mpsc::UnboundedSender<PlcEvent>,
+    done: u64,
+    last: Option<Inputs>,
+    fault: Option<String>,
+    pace: Pace,
+}
+
+/// Why one request failed, and whether the connection is still usable.
+struct Failure {
+    why: String,
+    connection_lost: bool,
+}
+
+impl Link {
+    fn new(s: PlcSettings, events: mpsc::UnboundedSender<PlcEvent>) -> Self {
+        Self {
+            s,
+            events,
+            done: 0,
+            last: None,
+            fault: None,
+            pace: Pace::Idle,
+        }
+    }
+
+    fn emit(&self, e: PlcEvent) -> bool {
+        self.events.send(e).is_ok()
+    }
+
+    /// Reports a fault once (the same fault again stays quiet).
+    fn fault(&mut self, why: String) -> bool {
+        if self.fault.as_ref() != Some(&why) {
+            tracing::warn!("{why}");
+            self.fault = Some(why.clone());
+            self.last = None;
+            return self.emit(PlcEvent::Fault(why));
+        }
+        true
+    }
+
+    async fn connect(&self) -> Result<Context, String> {
+        let who = format!("no connection with the conveyor PLC at {}", self.s.address);
+        let addr: SocketAddr = tokio::net::lookup_host(&self.s.address)
+            .await
+            .map_err(|e| format!("{who}: {e}"))?
+            .next()
+            .ok_or_else(|| format!("{who}: the name resolves to no address"))?;
+        match tokio::time::timeout(
+            self.s.timeout,
+            tokio_modbus::client::tcp::connect_slave(addr, Slave(self.s.unit)),
+        )
+        .await
+        {
+            Ok(Ok(ctx)) => Ok(ctx),
+            Ok(Err(e)) => Err(format!("{who}: {e}")),
+            Err(_) => Err(format!(
+                "{who}: connect timed out after {:?}",
+                self.s.timeout
+            )),
+        }
+    }
+
+    /// Carries out one request against the PLC, bounded by the timeout.
+    async fn call<T, F>(&self, what: String, f: F) -> Result<T, Failure>
+    where
+        F: std::future::Future<Output = tokio_modbus::Result<T>>,
+    {
+        let at = &self.s.address;
+        match tokio::time::timeout(self.s.timeout, f).await {
+            Ok(Ok(Ok(v))) => Ok(v),
+            Ok(Ok(Err(exception))) => Err(Failure {
+                why: format!(
+                    "the conveyor PLC at {at} answered {what} with Modbus exception {exception}"
+                ),
+                connection_lost: false,
+            }),
+            Ok(Err(e)) => Err(Failure {
+                why: format!(
+                    "connection with the conveyor PLC at {at} lost during {what}: {}",
+                    describe(&e)
+                ),
+                connection_lost: true,
+            }),
+            Err(_) => Err(Failure {
+                why: format!(
+                    "the conveyor PLC at {at} did not answer {what} within {:?}",
+                    self.s.timeout
+                ),
+                connection_lost: true,
+            }),
+        }
+    }
+
+    async fn write(&self, ctx: &mut Context, c: &PlcCommand) -> Result<(), Failure> {
+        let map = self.s.map;
+        match c {
+            PlcCommand::Write(coil, value) => {
+                let Some(addr) = map.coil(*coil) else {
+                    return Err(Failure {
+                        why: format!("{coil} is not in the I/O map"),
+                        connection_lost: false,
+                    });
+                };
+                let what = format!("the write of {coil} := {} (coil {addr})", u8::from(*value));
+                self.call(what, ctx.write_single_coil(addr, *value)).await
+            }
+            PlcCommand::Pace(_) => Ok(()),
+            PlcCommand::WriteAll(values) => {
+                let what = format!(
+                    "the write of all coils {}..{}",
+                    map.coil_base,
+                    map.coil_base + COILS - 1
+                );
+                self.call(what, ctx.write_multiple_coils(map.coil_base, values))
+                    .await
+            }
+        }
+    }
+
+    async fn read(&self, ctx: &mut Context) -> Result<Inputs, Failure> {
+        let base = self.s.map.input_base;
+        let what = format!("the read of discrete inputs {base}..{}", base + INPUTS - 1);
+        let bits = self
+            .call(what, ctx.read_discrete_inputs(base, INPUTS))
+            .await?;
+        Inputs::from_bits(&bits).map_err(|e| Failure {
+            why: format!("{} at {}: {e}", "the conveyor PLC", self.s.address),
+            connection_lost: false,
+        })
+    }
+
+    /// Waits out a retry period, dropping commands that cannot be carried out.
+    async fn pause(&mut self, rx: &mut mpsc::UnboundedReceiver<PlcCommand>) -> bool {
+        let until = tokio::time::Instant::now() + RETRY;
+        loop {
+            tokio::select! {
+                c = rx.recv() => match c {
+                    Some(PlcCommand::Pace(p)) => self.pace = p,
+                    Some(c) => {
+                        tracing::warn!(?c, "PLC link down: command dropped");
+                        self.done += 1;
+                    }
+                    None => return false,
+                },
+                _ = tokio::time::sleep_until(until) => return true,
+            }
+        }
+    }
+
+    async fn run(mut self, mut rx: mpsc::UnboundedReceiver<PlcCommand>) {
+        loop {
+            let mut ctx = match self.connect().await {
+                Ok(ctx) => ctx,
+                Err(why) => {
+                    if !self.fault(why) || !self.pause(&mut rx).await {
+                        return;
+                    }
+                    continue;
+                }
+            };
+            tracing::info!(address = %self.s.address, "connected to the conveyor PLC");
+            if !self.emit(PlcEvent::Connected) {
+                return;
+            }
+            self.last = None;
+            let period = |pace: Pace| match pace {
+                Pace::Busy => self.s.poll,
+                Pace::Idle => self.s.idle_poll,
+            };
+            let mut tick = tokio::time::interval(period(self.pace));
+            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            let failure = loop {
+                let mut wrote = false;
+                tokio::select! {
+                    biased;
+                    c = rx.recv() => {
+                        let Some(c) = c else { return };
+                        let mut next = Some(c);
+                        let mut failed = None;
+                        while let Some(c) = next.take() {
+                            if let PlcCommand::Pace(p) = c {
+                                // Not a write: not counted in `done`.
+                                if p != self.pace {
+                                    self.pace = p;
+                                    tick = tokio::time::interval(period(p));
+                                    tick.set_missed_tick_behavior(
+                                        tokio::time::MissedTickBehavior::Delay,
+                                    );
+                                }
+                                next = rx.try_recv().ok();
+                                continue;
+                            }
+                            let r = self.write(&mut ctx, &c).await;
+                            self.done += 1;
+                            if let Err(f) = r {
+                                failed = Some(f);
+                                break;
+                            }
+                            next = rx.try_recv().ok();
+                        }
+                        if let Some(f) = failed {
+                            break f;
+                        }
+                        wrote = true;
+                    }
+                    _ = tick.tick() => {}
+                }
+                let done = self.done;
+                match self.read(&mut ctx).await {
+                    Ok(inputs) => {
+                        self.fault = None;
+                        if wrote || self.last != Some(inputs) {
+                            self.last = Some(inputs);
+                            if !self.emit(PlcEvent::Inputs {
+                                inputs,
+                                commands_done: done,
+                            }) {
+                                return;
+                            }
+                        }
+                    }
+                    Err(f) => break f,
+                }
+            };
+            if !self.fault(failure.why) {
+                return;
+            }
+            if failure.connection_lost {
+                drop(ctx);
+                if !self.pause(&mut rx).await {
+                    return;
+                }
+                continue;
+            }
+            // The PLC refused a request but the connection stands: retry
+            // after the pause on a fresh connection all the same (a clean
+            // start for both ends).
+            let _ = ctx.disconnect().await;
+            if !self.pause(&mut rx).await {
+                return;
+            }
+        }
+    }
+}

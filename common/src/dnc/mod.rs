@@ -1,9 +1,0 @@
-//! The DNC link between the welding workstation and the robot controller
-//! (RCM 815), sans-I/O: the 3964R procedure ([`procedure`]), the DNC
-//! telegrams on top ([`telegram`]) and the table that turns RCM message
-//! numbers into `RobotStatusDetail` and recipe criteria ([`alarms`]).
-
-pub mod alarms;
-pub mod driver;
-pub mod procedure;
-pub mod telegram;
