@@ -9,6 +9,9 @@
 //! Run: `cargo bench --bench chaos -- --rounds 20 [--seed S]`. Prints
 //! figures; asserts nothing about time.
 
+// A benchmark is a test program: it may stop on what it cannot measure.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 #[path = "../tests/support/mod.rs"]
 mod support;
 

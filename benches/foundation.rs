@@ -9,10 +9,14 @@
 //! Run: `cargo bench --bench foundation`. Prints figures; asserts nothing
 //! about time.
 
+// A benchmark is a test program: it may stop on what it cannot measure.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 #[path = "../tests/support/mod.rs"]
 mod support;
 
-use falc_bus::{envelope, BusEvent, DEFAULT_DEADLINE};
+use falc_bus::{BusEvent, DEFAULT_DEADLINE};
+use falc_model::envelope;
 use falc_model::mms::pdu::{Request, Response};
 use falc_model::mms::vmd::VmdStatus;
 use std::process::Command;

@@ -5,6 +5,9 @@
 //! Run: `cargo bench --bench recipe`. Prints medians; asserts nothing
 //! about time.
 
+// A benchmark is a test program: it may stop on what it cannot measure.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use falc_model::ids::StationName;
 use falc_recipe::check::{check_set, Entry, Program};
 use falc_recipe::commands::RecipeKind;

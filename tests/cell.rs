@@ -5,12 +5,10 @@
 //! by the cell), starts the order, and answers the operator-communication
 //! requests (`output`, `input`) the cell sends up.
 
-mod support;
-
+use crate::support::{twin, Commander, Proc, TestCell};
 use falc_bus::{BusEvent, StatusBoard};
 use falc_model::mms::pdu::{JobEvent, Request, Response, ServiceName};
 use std::time::Duration;
-use support::{twin, Commander, Proc, TestCell};
 use tokio::sync::mpsc::UnboundedReceiver;
 
 struct Rig {

@@ -6,13 +6,11 @@
 //! running. The seed is printed; `CHAOS_SEED=N` repeats a run.
 //! `cargo bench --bench chaos -- --rounds N` runs many rounds with figures.
 
-mod support;
-
+use crate::support::chaos::{moment, round, Victim};
+use crate::support::rig::rig;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use std::time::Duration;
-use support::chaos::{moment, round, Victim};
-use support::rig::rig;
 
 #[test]
 fn a_random_node_killed_mid_order_every_round_recovers_by_ack_and_start() {

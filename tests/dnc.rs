@@ -2,18 +2,16 @@
 //! (tokio-serial on the pty's slave, the 3964R driver) and `falc-rcm-sim`
 //! the robot controller, with faults injected through its control lines.
 
-mod support;
-
+use crate::support::Proc;
 use falc_dnc::procedure::{LinkEvent, Priority, SendError, Timing};
 use falc_dnc::telegram::{AckError, EndResult, Program, Telegram};
 use falc_node::dnc_link::{self, DncHandle, LineSettings};
 use std::time::Duration;
-use support::Proc;
 
 const WAIT: Duration = Duration::from_secs(10);
 
 fn twin(args: &[&str]) -> (Proc, String) {
-    support::twin(env!("CARGO_BIN_EXE_falc-rcm-sim"), args, "serial port: ")
+    crate::support::twin(env!("CARGO_BIN_EXE_falc-rcm-sim"), args, "serial port: ")
 }
 
 fn connect(path: &str, timing: Timing) -> DncHandle {

@@ -2,15 +2,14 @@
 //! generated ACL and usrpwd authentication, real demo-station processes, and
 //! sessions of this test process authenticated as each station in turn.
 
-mod support;
-
-use falc_bus::{envelope, DEFAULT_DEADLINE};
+use crate::support::{st, TestCell};
+use falc_bus::DEFAULT_DEADLINE;
+use falc_model::envelope;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Request, Response, Unconfirmed};
 use falc_model::mms::vmd::VmdStatus;
 use std::collections::HashMap;
 use std::time::Duration;
-use support::{st, TestCell};
 
 const STATIONS: [&str; 4] = ["operator", "cell", "welding", "transport"];
 const WAIT: Duration = Duration::from_secs(10);

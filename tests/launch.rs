@@ -3,14 +3,12 @@
 //! the `falc` CLI, and the launcher stops every node on SIGINT, or on its
 //! own as soon as one node dies.
 
-mod support;
-
+use crate::support::{children, launcher, Proc};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
-use support::{children, launcher, Proc};
 
 struct Launched {
     dir: tempfile::TempDir,

@@ -3,11 +3,9 @@
 //! (recipes from a copy of `recipes/`, order list and journal in a SQLite
 //! file in the test's temp dir). Time-scaled twins.
 
-mod support;
-
+use crate::support::rig::{rig, Rig};
 use falc_model::console::{EntryKind, ListState, OrderState};
 use std::time::{Duration, Instant};
-use support::rig::{rig, Rig};
 
 #[test]
 fn three_orders_run_in_sequence_to_done_with_questions_answered_via_the_cli() {

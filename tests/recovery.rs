@@ -5,13 +5,11 @@
 //! recovery → `start`) and asserts the next order is done and no order
 //! ran twice.
 
-mod support;
-
+use crate::support::rig::{rig, rig_with_db, Rig};
 use falc_model::console::{EntryKind, ListState, OrderState};
 use falc_model::mms::vmd::{RobotStatusDetail, RobotVmdState};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
-use support::rig::{rig, rig_with_db, Rig};
 
 /// How often the journal says order `id` started.
 fn starts(rig: &Rig, id: i64) -> usize {

@@ -5,15 +5,13 @@
 //! the user who did it. Against the all-in-one cell started by
 //! `falc-launch`, through the `falc` CLI.
 
-mod support;
-
+use crate::support::LaunchedCell;
 use falc_bus::{credentials, Bus, BusSettings};
 use falc_model::console::ApiRequest;
 use falc_model::ids::StationName;
 use falc_model::keys::KeySpace;
 use falc_model::topology::Topology;
 use std::time::Duration;
-use support::LaunchedCell;
 
 /// What the router's refusal looks like to `falc`: no reply at all (the
 /// operator's own refusals have words of their own).

@@ -3,8 +3,7 @@
 //! invocation, starts it, and sees the status change; refusals carry the
 //! current state.
 
-mod support;
-
+use crate::support::{st, TestCell};
 use falc_bus::DEFAULT_DEADLINE;
 use falc_model::ids::ObjectName;
 use falc_model::mms::domain::DomainState;
@@ -12,7 +11,6 @@ use falc_model::mms::error::ServiceSpecific;
 use falc_model::mms::pdu::{Request, Response};
 use falc_model::mms::program::PiState;
 use falc_model::mms::vmd::RecipeState;
-use support::{st, TestCell};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn download_create_start_and_status() {

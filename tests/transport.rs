@@ -4,11 +4,9 @@
 //! them, and reads the job events; the twin's `show` tells where the
 //! carriers went.
 
-mod support;
-
+use crate::support::{twin, Commander, Proc, TestCell};
 use falc_model::mms::pdu::JobEvent;
 use std::time::Duration;
-use support::{twin, Commander, Proc, TestCell};
 
 const SCALE: &str = "20";
 const RUN: Duration = Duration::from_secs(30);

@@ -5,11 +5,9 @@
 //! findings are shown, edited again and saved. tmux is required (`.ci/run`
 //! installs it).
 
-mod support;
-
+use crate::support::LaunchedCell;
 use std::process::Command;
 use std::time::{Duration, Instant};
-use support::LaunchedCell;
 
 /// A tmux server of its own (its own socket), killed on drop.
 struct Tmux {

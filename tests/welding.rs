@@ -3,12 +3,10 @@
 //! it associates, downloads a welding recipe as a domain, creates the
 //! program invocation, starts it and reads the job events.
 
-mod support;
-
+use crate::support::{twin, Commander, Proc, TestCell};
 use falc_model::ids::ObjectName;
 use falc_model::mms::pdu::{JobEvent, Request, Response};
 use std::time::Duration;
-use support::{twin, Commander, Proc, TestCell};
 
 struct Rig {
     cell: TestCell,

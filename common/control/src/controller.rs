@@ -190,8 +190,7 @@ impl<D: Device> Controller<D> {
     /// Runs the engine's actions and finishes the job if it ended: call
     /// after every event.
     pub fn settle(&mut self, now: Duration) {
-        loop {
-            let Some(r) = &mut self.running else { break };
+        while let Some(r) = &mut self.running {
             let Some(action) = r.engine.poll_action() else {
                 break;
             };

@@ -1,0 +1,23 @@
+//! The integration tests, as one test binary (one link against zenoh for
+//! all of them): real `falc-router`, real node processes and twins on free
+//! localhost ports, started by [`support`] and killed on drop. One module
+//! per area; the README's test table says what each covers.
+
+// A test stops on what it did not expect.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod support;
+
+mod cell;
+mod chaos;
+mod dnc;
+mod hierarchy;
+mod launch;
+mod operator;
+mod recipes;
+mod recovery;
+mod roles;
+mod services;
+mod transport;
+mod tui;
+mod welding;
