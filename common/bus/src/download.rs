@@ -2,44 +2,18 @@
 //! Terminate) and its reusable program invocation, replacing what was
 //! there, all or nothing. The operator delivers to the cell, the cell to
 //! its workstations; both skip content they delivered before
-//! (`mms::domain::content_hash`).
+//! (`mms::domain::content_hash`). The requests themselves are
+//! `falc_model::mms::domain::download_steps`.
 
 use super::Bus;
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::error::{DefinitionError, ErrorClass, ServiceError};
+use falc_model::mms::domain::download_steps;
 use falc_model::mms::pdu::Request;
 use std::time::Duration;
 
-/// Download segments are at most this long.
-pub const SEGMENT: usize = 8 * 1024;
-
 /// How long each step of a delivery may take.
 const STEP_LIMIT: Duration = Duration::from_secs(10);
-
-/// The requests that download `content` as domain `name`, in order.
-pub fn download_steps(name: &ObjectName, content: &[u8]) -> Vec<Request> {
-    let mut steps = vec![Request::InitiateDownloadSequence {
-        domain: name.clone(),
-    }];
-    let chunks: Vec<&[u8]> = if content.is_empty() {
-        vec![content]
-    } else {
-        content.chunks(SEGMENT).collect()
-    };
-    let n = chunks.len();
-    for (i, c) in chunks.into_iter().enumerate() {
-        steps.push(Request::DownloadSegment {
-            domain: name.clone(),
-            data: c.to_vec(),
-            more_follows: i + 1 < n,
-        });
-    }
-    steps.push(Request::TerminateDownloadSequence {
-        domain: name.clone(),
-        discard: None,
-    });
-    steps
-}
 
 impl Bus {
     /// Delivers `content` to `station` as domain `name` with a reusable
@@ -112,25 +86,5 @@ impl Bus {
             }
         }
         Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn steps_cut_content_into_segments() {
-        let name = ObjectName::new("store").expect("valid");
-        let steps = download_steps(&name, &vec![b'x'; SEGMENT * 2 + 1]);
-        assert_eq!(steps.len(), 5);
-        assert!(matches!(
-            steps[3],
-            Request::DownloadSegment {
-                more_follows: false,
-                ..
-            }
-        ));
-        assert_eq!(download_steps(&name, b"").len(), 3);
     }
 }

@@ -363,3 +363,297 @@ impl<D: Device> Controller<D> {
         Ok(Response::ProgramInvocationState(state))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    //! The runtime on a virtual clock, with a fake device that records what
+    //! the recipe made it do: the paths the multi-process tests cover
+    //! (done, time limit, lost association, refusal, stop, settling).
+
+    use super::*;
+    use falc_model::mms::domain::download_steps;
+    use falc_model::mms::program::PiState;
+    use falc_recipe::check::Job;
+
+    const DROOG_DIK: &str = "#DROOG_DIK\n\
+        -1 | start rcm 65 |       | gestart    | 2\n\
+        -1 | start rcm 65 |       | tijdlimiet | 3\n\
+        -2 | wait rcm 170  |       | klaar      | 0\n\
+        -2 | wait rcm 170  |       | tijdlimiet | 3\n\
+        -3 |              | alarm |            | 0\n";
+
+    #[derive(Default)]
+    struct Fake {
+        acts: Vec<Action>,
+        halted: usize,
+        finished: Vec<Outcome>,
+        down: Option<String>,
+        settling: bool,
+        lost: Vec<StationName>,
+    }
+
+    impl Device for Fake {
+        fn unavailable(&self) -> Option<String> {
+            self.down.clone()
+        }
+        fn act(&mut self, _now: Duration, action: Action, _out: &mut Vec<Event>) {
+            self.acts.push(action);
+        }
+        fn halt(&mut self, _out: &mut Vec<Event>) {
+            self.halted += 1;
+        }
+        fn finished(&mut self, outcome: &Outcome) {
+            self.finished.push(outcome.clone());
+        }
+        fn settling(&self) -> bool {
+            self.settling
+        }
+        fn explain_timeout(&self, _now: Duration) -> Option<String> {
+            Some("robot program 65 still runs".into())
+        }
+        fn status(&self, _status: &mut VmdStatus) {}
+        fn lost(&mut self, station: &StationName) {
+            self.lost.push(station.clone());
+        }
+    }
+
+    fn name(s: &str) -> ObjectName {
+        ObjectName::new(s).unwrap()
+    }
+
+    fn rcm() -> StationName {
+        StationName::new("rcm").unwrap()
+    }
+
+    fn secs(s: u64) -> Duration {
+        Duration::from_secs(s)
+    }
+
+    /// A welding controller holding `droog_dik` as a program invocation.
+    fn loaded() -> Controller<Fake> {
+        let mut c = Controller::new(RecipeKind::Welding, secs(30), Fake::default());
+        let n = name("droog_dik");
+        let mut steps = download_steps(&n, DROOG_DIK.as_bytes());
+        steps.push(Request::CreateProgramInvocation {
+            name: n.clone(),
+            domains: vec![n.clone()],
+            reusable: true,
+        });
+        for req in steps {
+            c.handle_request(Duration::ZERO, &req).unwrap();
+        }
+        c
+    }
+
+    fn start(c: &mut Controller<Fake>, now: Duration) -> Result<Response, ServiceError> {
+        c.handle_request(
+            now,
+            &Request::Start {
+                name: name("droog_dik"),
+                argument: String::new(),
+            },
+        )
+    }
+
+    fn outputs(c: &mut Controller<Fake>) -> Vec<Output> {
+        std::iter::from_fn(|| c.poll_output()).collect()
+    }
+
+    fn job_events(outs: &[Output]) -> Vec<JobEvent> {
+        outs.iter()
+            .filter_map(|o| match o {
+                Output::Job { event, .. } => Some(event.clone()),
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_recipe_runs_to_done_and_its_job_event_goes_up() {
+        let mut c = loaded();
+        let r = start(&mut c, secs(1)).unwrap();
+        assert_eq!(r, Response::ProgramInvocationState(PiState::Running));
+        assert!(c.is_running());
+        assert_eq!(
+            c.device.acts,
+            vec![Action::Start {
+                target: rcm(),
+                job: Job::Program(65)
+            }]
+        );
+        assert_eq!(c.status().program.map(|p| p.state), Some(1));
+        c.feed(secs(2), vec![Event::Started(rcm())]);
+        c.settle(secs(2));
+        assert_eq!(c.status().program.map(|p| p.state), Some(2));
+        // The wait's limit: 170 s from entering state 2.
+        assert_eq!(c.poll_timeout(), Some(secs(172)));
+        c.feed(secs(60), vec![Event::Ended(rcm(), JobEnd::Done)]);
+        c.settle(secs(60));
+        assert!(!c.is_running());
+        assert_eq!(job_events(&outputs(&mut c)), vec![JobEvent::Done]);
+        assert_eq!(c.device.finished, vec![Outcome::Done]);
+        assert_eq!(c.poll_timeout(), None);
+        assert_eq!(c.status().local_detail, RecipeState::Idle);
+    }
+
+    #[test]
+    fn a_limit_that_runs_out_is_an_alarm_naming_what_the_device_saw() {
+        let mut c = loaded();
+        start(&mut c, Duration::ZERO).unwrap();
+        c.feed(secs(1), vec![Event::Started(rcm())]);
+        c.settle(secs(1));
+        let deadline = c.poll_timeout().unwrap();
+        // Not yet: an early wake-up changes nothing.
+        c.handle_timeout(deadline - secs(1));
+        c.settle(deadline - secs(1));
+        assert!(c.is_running());
+        c.handle_timeout(deadline);
+        c.settle(deadline);
+        assert!(!c.is_running());
+        let outs = outputs(&mut c);
+        let alarm = outs.iter().find_map(|o| match o {
+            Output::Report {
+                severity: Severity::Alarm(class),
+                text,
+            } => Some((*class, text.clone())),
+            _ => None,
+        });
+        let (class, text) = alarm.unwrap();
+        assert_eq!(class, AlarmClass::Process);
+        assert!(text.contains("robot program 65 still runs"), "{text}");
+        match job_events(&outs).as_slice() {
+            [JobEvent::Alarm(cause)] => {
+                assert!(cause.text.contains("robot program 65 still runs"), "{cause:?}")
+            }
+            other => panic!("expected one alarm job event, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_lost_commander_ends_the_running_recipe_in_a_communication_alarm() {
+        let mut c = loaded();
+        start(&mut c, Duration::ZERO).unwrap();
+        let cell = StationName::new("cell").unwrap();
+        c.handle_abort(&cell);
+        c.settle(secs(1));
+        assert!(!c.is_running());
+        assert_eq!(c.device.lost, vec![cell.clone()]);
+        let outs = outputs(&mut c);
+        let expected = Cause::new(
+            AlarmClass::Communication,
+            "no connection with station cell".to_string(),
+        );
+        assert!(outs.contains(&Output::Report {
+            severity: Severity::Alarm(AlarmClass::Communication),
+            text: expected.text.clone(),
+        }));
+        assert_eq!(job_events(&outs), vec![JobEvent::Alarm(expected)]);
+        // Lost while idle: the device hears of it, nothing is reported.
+        c.handle_abort(&cell);
+        assert_eq!(outputs(&mut c), vec![]);
+        assert_eq!(c.device.lost.len(), 2);
+    }
+
+    #[test]
+    fn a_device_that_cannot_start_refuses_and_a_second_start_is_refused_while_one_runs() {
+        let mut c = loaded();
+        c.device.down = Some("emergency stop pressed".into());
+        let e = start(&mut c, Duration::ZERO).unwrap_err();
+        assert!(e.description.contains("emergency stop pressed"), "{e:?}");
+        assert!(!c.is_running());
+        assert!(c.device.acts.is_empty());
+        c.device.down = None;
+        start(&mut c, secs(1)).unwrap();
+        let e = start(&mut c, secs(2)).unwrap_err();
+        assert!(e.description.contains("is running"), "{e:?}");
+        assert_eq!(c.device.acts.len(), 1, "the running recipe is not started twice");
+    }
+
+    #[test]
+    fn a_stop_halts_the_device_and_forgets_the_job() {
+        let mut c = loaded();
+        start(&mut c, Duration::ZERO).unwrap();
+        let r = c
+            .handle_request(
+                secs(3),
+                &Request::Stop {
+                    name: name("droog_dik"),
+                },
+            )
+            .unwrap();
+        assert_eq!(r, Response::ProgramInvocationState(PiState::Stopped));
+        assert_eq!(c.device.halted, 1);
+        assert!(!c.is_running());
+        assert!(matches!(c.device.finished.as_slice(), [Outcome::Alarm(_)]));
+        // A late end of the robot's program changes nothing.
+        c.feed(secs(4), vec![Event::Ended(rcm(), JobEnd::Done)]);
+        c.settle(secs(4));
+        assert_eq!(job_events(&outputs(&mut c)), vec![]);
+    }
+
+    #[test]
+    fn done_waits_until_the_device_has_carried_out_its_outputs() {
+        let mut c = loaded();
+        start(&mut c, Duration::ZERO).unwrap();
+        c.feed(secs(1), vec![Event::Started(rcm())]);
+        c.device.settling = true;
+        c.feed(secs(5), vec![Event::Ended(rcm(), JobEnd::Done)]);
+        c.settle(secs(5));
+        assert!(c.is_running(), "done is held back while outputs settle");
+        assert_eq!(job_events(&outputs(&mut c)), vec![]);
+        c.device.settling = false;
+        c.settle(secs(6));
+        assert_eq!(job_events(&outputs(&mut c)), vec![JobEvent::Done]);
+    }
+
+    #[test]
+    fn a_recipe_with_an_error_is_refused_with_its_line_and_the_invocation_stays_usable() {
+        let mut c = Controller::new(RecipeKind::Welding, secs(30), Fake::default());
+        let n = name("bad");
+        let mut steps = download_steps(&n, b"#BAD\n-1 | frobnicate |  |  | 0\n");
+        steps.push(Request::CreateProgramInvocation {
+            name: n.clone(),
+            domains: vec![n.clone()],
+            reusable: true,
+        });
+        for req in steps {
+            c.handle_request(Duration::ZERO, &req).unwrap();
+        }
+        let e = c
+            .handle_request(
+                secs(1),
+                &Request::Start {
+                    name: n.clone(),
+                    argument: String::new(),
+                },
+            )
+            .unwrap_err();
+        assert!(e.description.starts_with("error in recipe BAD:"), "{e:?}");
+        assert!(e.description.contains("BAD:2: state 1"), "{e:?}");
+        assert!(!c.is_running());
+        // Refused, not stuck: the next Start meets the same check again.
+        let again = c
+            .handle_request(
+                secs(2),
+                &Request::Start {
+                    name: n,
+                    argument: String::new(),
+                },
+            )
+            .unwrap_err();
+        assert_eq!(again.description, e.description);
+    }
+
+    #[test]
+    fn a_fault_without_a_recipe_is_still_reported() {
+        let mut c = loaded();
+        c.fault(Cause::new(AlarmClass::Safety, "emergency stop".to_string()));
+        assert_eq!(
+            outputs(&mut c),
+            vec![Output::Report {
+                severity: Severity::Alarm(AlarmClass::Safety),
+                text: "emergency stop".into()
+            }]
+        );
+    }
+}

@@ -6,6 +6,7 @@
 //! Deviation from MMS: segments are pushed by the client (the commander), so
 //! requests keep flowing down the hierarchy.
 
+use super::pdu::Request;
 use super::error::{
     DefinitionError, ErrorClass, ResourceError, ServiceError, ServiceErrorCode, ServiceSpecific,
 };
@@ -242,6 +243,34 @@ impl Domain {
     }
 }
 
+/// Download segments are at most this long.
+pub const SEGMENT: usize = 8 * 1024;
+
+/// The requests that download `content` as domain `name`, in order.
+pub fn download_steps(name: &ObjectName, content: &[u8]) -> Vec<Request> {
+    let mut steps = vec![Request::InitiateDownloadSequence {
+        domain: name.clone(),
+    }];
+    let chunks: Vec<&[u8]> = if content.is_empty() {
+        vec![content]
+    } else {
+        content.chunks(SEGMENT).collect()
+    };
+    let n = chunks.len();
+    for (i, c) in chunks.into_iter().enumerate() {
+        steps.push(Request::DownloadSegment {
+            domain: name.clone(),
+            data: c.to_vec(),
+            more_follows: i + 1 < n,
+        });
+    }
+    steps.push(Request::TerminateDownloadSequence {
+        domain: name.clone(),
+        discard: None,
+    });
+    steps
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -352,5 +381,20 @@ mod tests {
             Err("resource/memory-unavailable".to_string())
         );
         assert_eq!(d.state(), DomainState::Incomplete);
+    }
+
+    #[test]
+    fn steps_cut_content_into_segments() {
+        let name = ObjectName::new("store").expect("valid");
+        let steps = download_steps(&name, &vec![b'x'; SEGMENT * 2 + 1]);
+        assert_eq!(steps.len(), 5);
+        assert!(matches!(
+            steps[3],
+            Request::DownloadSegment {
+                more_follows: false,
+                ..
+            }
+        ));
+        assert_eq!(download_steps(&name, b"").len(), 3);
     }
 }
