@@ -11,26 +11,30 @@
 //! only when the workstation has it (else the cell drops its copy too: a
 //! recipe is never half-applied). Unchanged content is not sent again.
 //!
-//! A thin driver: the recipe runtime is `falc_control::controller`, driven by `falc_node::controller_node`, the
-//! requests and job events of the level below live in `below`.
+//! A thin driver: the recipe runtime is `falc_control::controller`, the
+//! coordination of the stations below `falc_control::coordination` (both
+//! sans-I/O), driven by `falc_node::controller_node`; here are the request
+//! lanes (one task per station) and the delivery task (`delivery`). Nothing
+//! in the loop waits on another station.
 
-mod below;
 mod delivery;
 
 use anyhow::Result;
-use below::{Below, Reply};
 use clap::Parser;
-use delivery::{workstation_domain, Passer};
+use delivery::{workstation_domain, Delivered, Deliveries};
 use falc_bus::station::{Station, StationEvent};
-use falc_bus::Bus;
-use falc_model::alarm::{AlarmClass, Cause};
+use falc_bus::{Bus, Indication};
+use falc_control::coordination::{self, Command, Reply, Stations};
+use falc_model::alarm::AlarmClass;
 use falc_model::ids::StationName;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Request, Response, Severity};
 use falc_node::controller_node::ControllerNode;
 use falc_node::{init_tracing, say, NodeArgs};
 use falc_recipe::commands::RecipeKind;
+use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
+use tokio::sync::mpsc::{unbounded_channel, UnboundedSender};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -45,70 +49,158 @@ struct Cli {
     node: NodeArgs,
 }
 
-/// Acts on what the station hands the cell: indications (a finished
-/// download of `STATION$NAME` is passed on to that workstation before it is
-/// confirmed), aborts (a lost workstation comes back empty) and
-/// associations (a returned workstation gets its recipes again). False
-/// when the bus is gone.
-async fn on_station(
-    ws: &mut ControllerNode<Below>,
-    passer: &mut Passer,
-    bus: &Bus,
-    subordinates: &[StationName],
-    ev: StationEvent,
-) -> bool {
-    let ind = match ev {
-        StationEvent::Indication(ind) => ind,
-        other => {
-            let associated = matches!(other, StationEvent::Associated(_));
-            if let StationEvent::Abort(a) = &other {
-                passer.forget(&a.peer.station);
+/// One lane per station: its requests go out in order, one at a time, and
+/// each confirm comes back as a [`Reply`].
+struct Lanes {
+    bus: Bus,
+    replies: UnboundedSender<Reply>,
+    lanes: BTreeMap<StationName, UnboundedSender<Command>>,
+}
+
+impl Lanes {
+    fn send(&mut self, cmd: Command) {
+        let lane = self.lanes.entry(cmd.to.clone()).or_insert_with(|| {
+            let (tx, mut rx) = unbounded_channel::<Command>();
+            let bus = self.bus.clone();
+            let replies = self.replies.clone();
+            tokio::spawn(async move {
+                while let Some(cmd) = rx.recv().await {
+                    let result = bus
+                        .request(&cmd.to, &cmd.request, cmd.limit)
+                        .await
+                        .map_err(|e| e.to_string());
+                    let reply = Reply {
+                        awaiting: cmd.awaiting,
+                        result,
+                    };
+                    if replies.send(reply).is_err() {
+                        break;
+                    }
+                }
+            });
+            tx
+        });
+        if lane.send(cmd).is_err() {
+            tracing::error!("a request lane stopped");
+        }
+    }
+}
+
+/// The cell: its controller, the lanes and the deliveries.
+struct Cell {
+    ctl: ControllerNode<Stations>,
+    lanes: Lanes,
+    deliveries: Deliveries,
+    subordinates: Vec<StationName>,
+    /// The commander's indications that came while a delivery was under
+    /// way: answered in order once it ended, as if the loop had waited.
+    held: VecDeque<Indication>,
+}
+
+impl Cell {
+    /// Settles the controller and sends what its stations must be asked.
+    async fn settle(&mut self) {
+        loop {
+            self.ctl.settle().await;
+            while let Some(cmd) = self.ctl.core.device.poll_command() {
+                self.lanes.send(cmd);
             }
-            if !ws.station_event(Some(other)).await {
-                return false;
-            }
-            if associated {
-                for failure in passer.catch_up(bus, ws.vmd()).await {
-                    ws.report(Severity::Alarm(AlarmClass::Communication), failure)
-                        .await;
+            let Some(local) = self.ctl.core.device.poll_local_reply() else {
+                break;
+            };
+            let now = self.ctl.now();
+            coordination::handle_reply(&mut self.ctl.core, now, local);
+        }
+    }
+
+    /// Acts on what the station hands the cell: indications (a finished
+    /// download of `STATION$NAME` is passed on to that workstation before
+    /// it is confirmed), aborts (a lost workstation comes back empty) and
+    /// associations (a returned workstation gets its recipes again). False
+    /// when the bus is gone.
+    async fn on_station(&mut self, ev: StationEvent) -> bool {
+        match ev {
+            StationEvent::Indication(ind) if self.deliveries.busy() => self.held.push_back(ind),
+            StationEvent::Indication(ind) => self.indication(ind).await,
+            other => {
+                let associated = matches!(other, StationEvent::Associated(_));
+                if let StationEvent::Abort(a) = &other {
+                    self.deliveries.forget(&a.peer.station);
+                }
+                if !self.ctl.station_event(Some(other)).await {
+                    return false;
+                }
+                if associated {
+                    self.deliveries.catch_up(self.ctl.vmd());
                 }
             }
-            return true;
         }
-    };
-    let mut result = ws.indication(&ind.request).await;
-    if let (
-        Ok(_),
-        Request::TerminateDownloadSequence {
-            domain,
-            discard: None,
-        },
-    ) = (&result, &ind.request)
-    {
-        if let Some((st, name)) = workstation_domain(domain) {
-            result = if !subordinates.contains(&st) {
-                ws.discard_domain(domain);
-                Err(ServiceError::undefined(format!(
-                    "recipe {domain}: {st} is not a workstation of this cell"
-                )))
-            } else {
-                let content = ws
+        true
+    }
+
+    async fn indication(&mut self, ind: Indication) {
+        let result = self.ctl.indication(&ind.request).await;
+        if let (
+            Ok(_),
+            Request::TerminateDownloadSequence {
+                domain,
+                discard: None,
+            },
+        ) = (&result, &ind.request)
+        {
+            if let Some((st, name)) = workstation_domain(domain) {
+                if !self.subordinates.contains(&st) {
+                    self.ctl.discard_domain(domain);
+                    let e = ServiceError::undefined(format!(
+                        "recipe {domain}: {st} is not a workstation of this cell"
+                    ));
+                    ind.responder.respond(Err(e)).await;
+                    return;
+                }
+                let content = self
+                    .ctl
                     .vmd()
                     .domain(domain)
                     .map(|d| d.content().to_vec())
                     .unwrap_or_default();
-                match passer.pass_on(bus, &st, &name, &content).await {
-                    Ok(()) => Ok(Response::Done),
-                    Err(e) => {
-                        ws.discard_domain(domain);
-                        Err(e)
-                    }
+                // Answered when the workstation has it (`delivered`).
+                self.deliveries
+                    .pass_on(domain.clone(), st, name, content, ind.responder);
+                return;
+            }
+        }
+        ind.responder.respond(result).await;
+    }
+
+    /// A delivery ended: answer its download, then what was held back.
+    async fn delivered(&mut self, d: Delivered) {
+        self.deliveries.ended();
+        match d {
+            Delivered::PassedOn {
+                domain,
+                result,
+                responder,
+            } => {
+                if result.is_err() {
+                    self.ctl.discard_domain(&domain);
                 }
+                responder.respond(result.map(|()| Response::Done)).await;
+            }
+            Delivered::CaughtUp(failures) => {
+                for failure in failures {
+                    self.ctl
+                        .report(Severity::Alarm(AlarmClass::Communication), failure)
+                        .await;
+                }
+            }
+        }
+        while !self.deliveries.busy() {
+            let Some(ind) = self.held.pop_front() else {
+                break;
             };
+            self.indication(ind).await;
         }
     }
-    ind.responder.respond(result).await;
-    true
 }
 
 #[tokio::main]
@@ -124,65 +216,63 @@ async fn main() -> Result<()> {
         .into_iter()
         .cloned()
         .collect();
-    let (utx, mut publications) = tokio::sync::mpsc::unbounded_channel();
+    let (utx, mut publications) = unbounded_channel();
     let mut subscriptions = Vec::new();
     for st in &subordinates {
         subscriptions.extend(bus.subscribe(st, utx.clone()).await?);
     }
-    let (rtx, mut replies) = tokio::sync::mpsc::unbounded_channel();
-    let below = Below::new(
-        bus.clone(),
-        topology.commander_of(&cli.station).cloned(),
-        rtx,
-    );
-    let mut ws = ControllerNode::new(station, RecipeKind::Cell, Duration::from_secs(10), below);
-    let mut passer = Passer::default();
-    ws.publish_status().await;
+    let (rtx, mut replies) = unbounded_channel();
+    let stations = Stations::new(topology.commander_of(&cli.station).cloned());
+    let (deliveries, mut delivered) = Deliveries::spawn(bus.clone());
+    let mut cell = Cell {
+        ctl: ControllerNode::new(station, RecipeKind::Cell, Duration::from_secs(10), stations),
+        lanes: Lanes {
+            bus,
+            replies: rtx,
+            lanes: BTreeMap::new(),
+        },
+        deliveries,
+        subordinates,
+        held: VecDeque::new(),
+    };
+    cell.ctl.publish_status().await;
     say(&format!("EVENT ready station={}", cli.station));
     let mut shutdown = falc_node::Shutdown::new();
     loop {
-        let deadline = ws.deadline();
+        let deadline = cell.ctl.deadline();
         tokio::select! {
-            ev = ws.station_recv() => {
+            ev = cell.ctl.station_recv() => {
                 let Some(ev) = ev else { break };
-                if let Some(ev) = ws.station_handle(ev).await {
-                    if !on_station(&mut ws, &mut passer, &bus, &subordinates, ev).await {
+                if let Some(ev) = cell.ctl.station_handle(ev).await {
+                    if !cell.on_station(ev).await {
                         break;
                     }
                 }
             }
             r = replies.recv() => match r {
-                Some(Reply::Started(st, Ok(()))) => ws.feed(vec![falc_recipe::engine::Event::Started(st)]),
-                Some(Reply::Started(st, Err(e))) => {
-                    // The recipe takes its failure path; an alarm state there names this.
-                    ws.report(Severity::Warning, format!("start on {st} refused: {e}")).await;
-                    ws.feed(vec![falc_recipe::engine::Event::StartFailed(st, e)]);
+                Some(r) => {
+                    let now = cell.ctl.now();
+                    coordination::handle_reply(&mut cell.ctl.core, now, r);
                 }
-                Some(Reply::Answer(Ok(a))) => ws.feed(vec![falc_recipe::engine::Event::Answer(a)]),
-                Some(Reply::Answer(Err(e))) => ws.fault(Cause::new(AlarmClass::Communication, format!("no answer from the operator: {e}"))).await,
-                Some(Reply::Shown(r)) => {
-                    ws.core.device.shown();
-                    if let Err(e) = r {
-                        tracing::warn!("output to the operator refused: {e}");
-                    }
-                }
-                Some(Reply::Other(what, Err(e))) => tracing::warn!("{what} refused: {e}"),
-                Some(Reply::Other(_, Ok(()))) => {}
+                None => break,
+            },
+            d = delivered.recv() => match d {
+                Some(d) => cell.delivered(d).await,
                 None => break,
             },
             u = publications.recv() => match u {
                 Some(u) => {
                     // A workstation's reports reach the operator directly
                     // (it reads every station's reports), under its name.
-                    let events = ws.core.device.unconfirmed(&u);
-                    ws.feed(events);
+                    let events = cell.ctl.core.device.unconfirmed(&u);
+                    cell.ctl.feed(events);
                 }
                 None => break,
             },
-            _ = tokio::time::sleep_until(deadline) => ws.on_timeout(),
+            _ = tokio::time::sleep_until(deadline) => cell.ctl.on_timeout(),
             _ = shutdown.requested() => break,
         }
-        ws.settle().await;
+        cell.settle().await;
     }
     drop(subscriptions);
     say("EVENT stopped");

@@ -13,11 +13,11 @@
 //! - an alarm leaves the list once acknowledged and cleared;
 //! - every class but a warning holds `start` back until acknowledged.
 //!
-//! The list is kept in the [`Store`]; a write that fails keeps the change
+//! The list is kept in the [`Database`]; a write that fails keeps the change
 //! in memory (an alarm not stored gets a negative number) and returns the
 //! error for the caller to stop the cell.
 
-use crate::store::{now_ms, Store, StoreError};
+use crate::database::{now_ms, Database, DatabaseError};
 use falc_model::alarm::{passed_on_from, Alarm, AlarmClass};
 use falc_model::mms::vmd::{PhysicalStatus, RobotStatusDetail, RobotVmdState, VmdStatus};
 
@@ -59,7 +59,7 @@ pub fn condition_holds(alarm: &Alarm, status: Option<&VmdStatus>, present: bool)
 
 impl AlarmList {
     /// The list as the store holds it.
-    pub fn load(store: &Store) -> Result<Self, StoreError> {
+    pub fn load(store: &Database) -> Result<Self, DatabaseError> {
         Ok(Self {
             listed: store.listed_alarms()?,
             unstored: 0,
@@ -84,12 +84,12 @@ impl AlarmList {
     /// in memory and the error returned with it.
     pub fn raise(
         &mut self,
-        store: &mut Store,
+        store: &mut Database,
         station: &str,
         class: AlarmClass,
         text: &str,
         order: Option<i64>,
-    ) -> (Raised, Option<StoreError>) {
+    ) -> (Raised, Option<DatabaseError>) {
         // `upper` is `lower`'s alarm passed on by its commander.
         let passes_on =
             |upper: &str, from: &str, lower: &str| passed_on_from(upper, from) == Some(lower);
@@ -138,10 +138,10 @@ impl AlarmList {
     /// or why not: no such alarm.
     pub fn ack(
         &mut self,
-        store: &mut Store,
+        store: &mut Database,
         id: Option<i64>,
         who: &str,
-    ) -> Result<(Vec<Alarm>, Option<StoreError>), String> {
+    ) -> Result<(Vec<Alarm>, Option<DatabaseError>), String> {
         if let Some(id) = id {
             if !self.listed.iter().any(|a| a.id == id) {
                 let known: Vec<String> = self.listed.iter().map(|a| format!("#{}", a.id)).collect();
@@ -167,11 +167,11 @@ impl AlarmList {
     /// Returns those cleared now.
     pub fn settle(
         &mut self,
-        store: &mut Store,
+        store: &mut Database,
         station: &str,
         status: Option<&VmdStatus>,
         present: bool,
-    ) -> (Vec<Alarm>, Option<StoreError>) {
+    ) -> (Vec<Alarm>, Option<DatabaseError>) {
         self.clear_where(store, |a| {
             a.station == station && !condition_holds(a, status, present)
         })
@@ -183,14 +183,14 @@ impl AlarmList {
     /// cleared now.
     pub fn clear_where(
         &mut self,
-        store: &mut Store,
+        store: &mut Database,
         which: impl Fn(&Alarm) -> bool,
-    ) -> (Vec<Alarm>, Option<StoreError>) {
+    ) -> (Vec<Alarm>, Option<DatabaseError>) {
         self.mark(
             store,
             |a| a.cleared_ms.is_none() && which(a),
             |a, at| a.cleared_ms = Some(at),
-            Store::clear_alarm,
+            Database::clear_alarm,
         )
     }
 
@@ -199,11 +199,11 @@ impl AlarmList {
     /// is acknowledged and cleared from the list. Returns those changed.
     fn mark(
         &mut self,
-        store: &mut Store,
+        store: &mut Database,
         which: impl Fn(&Alarm) -> bool,
         set: impl Fn(&mut Alarm, i64),
-        write: impl Fn(&mut Store, i64, i64) -> Result<(), StoreError>,
-    ) -> (Vec<Alarm>, Option<StoreError>) {
+        write: impl Fn(&mut Database, i64, i64) -> Result<(), DatabaseError>,
+    ) -> (Vec<Alarm>, Option<DatabaseError>) {
         let at = now_ms();
         let mut error = None;
         let mut changed = Vec::new();
@@ -225,9 +225,9 @@ impl AlarmList {
 mod tests {
     use super::*;
 
-    fn store() -> (tempfile::TempDir, Store) {
+    fn store() -> (tempfile::TempDir, Database) {
         let dir = tempfile::tempdir().expect("tempdir");
-        let s = Store::open(&dir.path().join("falc.db")).expect("open");
+        let s = Database::open(&dir.path().join("falc.db")).expect("open");
         (dir, s)
     }
 

@@ -1,5 +1,5 @@
 //! `falc-operator`: the factory controller at the root of the cell. At start
-//! it checks every recipe of the recipe directory (the PPS, `pps`) and
+//! it checks every recipe of the recipe directory (the PPS, `recipe_store`) and
 //! refuses to start with every problem as `file:line: reason`; it opens the
 //! order list and journal (`store`, SQLite WAL), marks an order a crash
 //! interrupted, associates the cell (retrying every second while it cannot)
@@ -8,9 +8,9 @@
 //! (`operator`). A thin driver: this file is start-up and the event loop.
 
 mod alarms;
+mod database;
 mod operator;
-mod pps;
-mod store;
+mod recipe_store;
 
 use anyhow::{Context, Result};
 use clap::Parser;
@@ -70,7 +70,7 @@ async fn run(cli: Cli) -> Result<ExitCode> {
         ),
     };
     // The PPS first: a defective recipe set never reaches the cell.
-    let recipes = match pps::load(&cli.recipes, &topology, &cell) {
+    let recipes = match recipe_store::load(&cli.recipes, &topology, &cell) {
         Ok(set) => set,
         Err(problems) => {
             for p in &problems {
@@ -84,7 +84,7 @@ async fn run(cli: Cli) -> Result<ExitCode> {
             return Ok(ExitCode::from(2));
         }
     };
-    let mut store = store::Store::open(&cli.db)?;
+    let mut store = database::Database::open(&cli.db)?;
     for o in store.recover()? {
         say(&format!(
             "EVENT interrupted order={} recipe={}",

@@ -1,11 +1,11 @@
 //! The operator node's behaviour: the order list worked through the cell,
 //! operator communication (the cell's `output` and `input`), alarms and
 //! acknowledgement, recipe delivery, and the answers to the operator API.
-//! Every change is written to the [`Store`] before it is confirmed.
+//! Every change is written to the [`Database`] before it is confirmed.
 
 use crate::alarms::{AlarmList, Raised};
-use crate::pps::{self, RecipeSet};
-use crate::store::{Store, StoreError};
+use crate::database::{Database, DatabaseError};
+use crate::recipe_store::{self, RecipeSet};
 use falc_bus::station::Station;
 use falc_bus::Responder;
 use falc_model::alarm::AlarmClass;
@@ -42,7 +42,7 @@ struct Question {
 /// What the operator node knows and does.
 pub struct Operator {
     pub station: Station,
-    store: Store,
+    store: Database,
     topology: Topology,
     cell: StationName,
     recipes_dir: PathBuf,
@@ -86,7 +86,7 @@ impl Operator {
     /// The node around its station runtime, store and checked recipes.
     pub fn new(
         station: Station,
-        store: Store,
+        store: Database,
         topology: Topology,
         cell: StationName,
         recipes_dir: PathBuf,
@@ -149,7 +149,7 @@ impl Operator {
     /// A write to the order list or journal failed: the cell must not run
     /// on with the journal behind. The list stops with an alarm saying why
     /// and the running order is halted at the cell ([`Self::enforce`]).
-    pub fn store_failed(&mut self, e: &StoreError) {
+    pub fn store_failed(&mut self, e: &DatabaseError) {
         tracing::error!("{e}");
         say(&format!("EVENT store-error {e}"));
         if self.store_alarm.is_some() {
@@ -415,7 +415,7 @@ impl Operator {
     /// Reads and checks the recipe directory again; the new set replaces
     /// the old only when it is clean.
     fn reload(&mut self) -> Result<(), String> {
-        match pps::load(&self.recipes_dir, &self.topology, &self.cell) {
+        match recipe_store::load(&self.recipes_dir, &self.topology, &self.cell) {
             Ok(set) => {
                 self.recipes = set;
                 Ok(())
@@ -685,7 +685,7 @@ impl Operator {
         }
     }
 
-    fn status(&self) -> Result<CellStatus, StoreError> {
+    fn status(&self) -> Result<CellStatus, DatabaseError> {
         Ok(CellStatus {
             list: self.list_state(),
             cell_associated: self.associated,
@@ -728,7 +728,7 @@ impl Operator {
             }
             None => return Err(format!("{user} is not a console user of this cell")),
         }
-        let db = |e: StoreError| e.to_string();
+        let db = |e: DatabaseError| e.to_string();
         match request {
             ApiRequest::Status => Ok(ApiReply::Status(self.status().map_err(db)?)),
             ApiRequest::OrderList => Ok(ApiReply::Orders(self.store.orders().map_err(db)?)),
@@ -743,7 +743,7 @@ impl Operator {
                 if !self.recipes.cell_recipes().contains(&&name) {
                     // A recipe saved since the last start is known once the
                     // store checks clean with it (delivered at the start).
-                    let fresh = pps::load(&self.recipes_dir, &self.topology, &self.cell);
+                    let fresh = recipe_store::load(&self.recipes_dir, &self.topology, &self.cell);
                     let known: Vec<String> = match &fresh {
                         Ok(set) => set.cell_recipes().iter().map(|n| n.to_string()).collect(),
                         Err(_) => Vec::new(),
@@ -802,16 +802,17 @@ impl Operator {
                     .await;
                 Ok(ApiReply::Done(format!("answered {text}")))
             }
-            ApiRequest::RecipeList => Ok(ApiReply::Recipes(pps::list(
+            ApiRequest::RecipeList => Ok(ApiReply::Recipes(recipe_store::list(
                 &self.recipes_dir,
                 &self.topology,
                 &self.cell,
             )?)),
-            ApiRequest::RecipeGet { file } => {
-                Ok(ApiReply::Recipe(pps::get(&self.recipes_dir, &file)?))
-            }
+            ApiRequest::RecipeGet { file } => Ok(ApiReply::Recipe(recipe_store::get(
+                &self.recipes_dir,
+                &file,
+            )?)),
             ApiRequest::RecipePut { file, text, base } => {
-                let saved = pps::put(
+                let saved = recipe_store::put(
                     &self.recipes_dir,
                     &self.topology,
                     &self.cell,
@@ -832,11 +833,11 @@ impl Operator {
                             "recipe {file} saved: it checks clean; the cell gets it at the next start"
                         )))
                     }
-                    Err(pps::PutError::Findings(f)) => Err(format!(
+                    Err(recipe_store::PutError::Findings(f)) => Err(format!(
                         "recipe {file} NOT saved: the recipe set does not check clean with it:\n{}",
                         f.join("\n")
                     )),
-                    Err(pps::PutError::Refused(why)) => {
+                    Err(recipe_store::PutError::Refused(why)) => {
                         Err(format!("recipe {file} NOT saved: {why}"))
                     }
                 }

@@ -7,8 +7,8 @@
 
 use super::Bus;
 use falc_model::ids::{ObjectName, StationName};
-use falc_model::mms::error::{DefinitionError, ErrorClass, ServiceError};
 use falc_model::mms::domain::download_steps;
+use falc_model::mms::error::{DefinitionError, ErrorClass, ServiceError};
 use falc_model::mms::pdu::Request;
 use std::time::Duration;
 

@@ -523,7 +523,10 @@ mod tests {
         assert!(text.contains("robot program 65 still runs"), "{text}");
         match job_events(&outs).as_slice() {
             [JobEvent::Alarm(cause)] => {
-                assert!(cause.text.contains("robot program 65 still runs"), "{cause:?}")
+                assert!(
+                    cause.text.contains("robot program 65 still runs"),
+                    "{cause:?}"
+                )
             }
             other => panic!("expected one alarm job event, got {other:?}"),
         }
@@ -566,7 +569,11 @@ mod tests {
         start(&mut c, secs(1)).unwrap();
         let e = start(&mut c, secs(2)).unwrap_err();
         assert!(e.description.contains("is running"), "{e:?}");
-        assert_eq!(c.device.acts.len(), 1, "the running recipe is not started twice");
+        assert_eq!(
+            c.device.acts.len(),
+            1,
+            "the running recipe is not started twice"
+        );
     }
 
     #[test]

@@ -5,6 +5,9 @@
 //!
 //! - [`controller`]: the recipe runtime every level runs (a workstation
 //!   around its device, the cell around its workstations): the VMD served
-//!   to the commander, one running recipe, its job events and reports.
+//!   to the commander, one running recipe, its job events and reports;
+//! - [`coordination`]: the cell's device: its workstations below and the
+//!   operator above, requests out as commands, confirms and job events in.
 
 pub mod controller;
+pub mod coordination;

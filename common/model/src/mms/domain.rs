@@ -6,10 +6,10 @@
 //! Deviation from MMS: segments are pushed by the client (the commander), so
 //! requests keep flowing down the hierarchy.
 
-use super::pdu::Request;
 use super::error::{
     DefinitionError, ErrorClass, ResourceError, ServiceError, ServiceErrorCode, ServiceSpecific,
 };
+use super::pdu::Request;
 use crate::ids::ObjectName;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeSet;

@@ -1,6 +1,6 @@
 //! The operator's durable state in one SQLite file (WAL, synchronous FULL):
 //! the order list and the journal. Every change is one transaction, so a
-//! crash loses nothing that was confirmed; [`Store::recover`] marks an order
+//! crash loses nothing that was confirmed; [`Database::recover`] marks an order
 //! that was running when the node died as interrupted (never re-run by
 //! itself) and journals it.
 
@@ -13,7 +13,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 /// A database failure, with the file and what was being done.
 #[derive(Debug, thiserror::Error)]
 #[error("order list and journal {path}: {what}: {source}")]
-pub struct StoreError {
+pub struct DatabaseError {
     path: String,
     what: &'static str,
     source: rusqlite::Error,
@@ -28,7 +28,7 @@ pub fn now_ms() -> i64 {
 }
 
 /// The order list and the journal.
-pub struct Store {
+pub struct Database {
     conn: Connection,
     path: String,
 }
@@ -114,13 +114,13 @@ fn entry_of(row: &Row<'_>) -> rusqlite::Result<Entry> {
     })
 }
 
-impl Store {
+impl Database {
     /// Opens (creating if needed) the database at `path`.
-    pub fn open(path: &Path) -> Result<Self, StoreError> {
+    pub fn open(path: &Path) -> Result<Self, DatabaseError> {
         let name = path.display().to_string();
         let fail = |what: &'static str| {
             let name = name.clone();
-            move |source| StoreError {
+            move |source| DatabaseError {
                 path: name,
                 what,
                 source,
@@ -142,8 +142,8 @@ impl Store {
         Ok(Self { conn, path: name })
     }
 
-    fn fail(&self, what: &'static str) -> impl FnOnce(rusqlite::Error) -> StoreError + '_ {
-        move |source| StoreError {
+    fn fail(&self, what: &'static str) -> impl FnOnce(rusqlite::Error) -> DatabaseError + '_ {
+        move |source| DatabaseError {
             path: self.path.clone(),
             what,
             source,
@@ -152,10 +152,10 @@ impl Store {
 
     /// After a crash: every order still marked running becomes interrupted,
     /// with a journal entry. Returns those orders.
-    pub fn recover(&mut self) -> Result<Vec<Order>, StoreError> {
+    pub fn recover(&mut self) -> Result<Vec<Order>, DatabaseError> {
         let running = self.orders_in(OrderState::Running)?;
         let now = now_ms();
-        let tx = self.conn.transaction().map_err(|source| StoreError {
+        let tx = self.conn.transaction().map_err(|source| DatabaseError {
             path: self.path.clone(),
             what: "cannot begin recovery",
             source,
@@ -178,13 +178,13 @@ impl Store {
                     ],
                 )
             })
-            .map_err(|source| StoreError {
+            .map_err(|source| DatabaseError {
                 path: self.path.clone(),
                 what: "cannot mark an order interrupted",
                 source,
             })?;
         }
-        tx.commit().map_err(|source| StoreError {
+        tx.commit().map_err(|source| DatabaseError {
             path: self.path.clone(),
             what: "cannot commit recovery",
             source,
@@ -199,7 +199,7 @@ impl Store {
     }
 
     /// Adds a queued order at the end of the list.
-    pub fn add_order(&mut self, recipe: &str, who: &str) -> Result<Order, StoreError> {
+    pub fn add_order(&mut self, recipe: &str, who: &str) -> Result<Order, DatabaseError> {
         self.conn
             .execute(
                 "INSERT INTO orders (recipe, state, added_by, added_ms) VALUES (?1, 'queued', ?2, ?3)",
@@ -207,7 +207,7 @@ impl Store {
             )
             .map_err(self.fail("cannot add an order"))?;
         let id = self.conn.last_insert_rowid();
-        self.order(id)?.ok_or_else(|| StoreError {
+        self.order(id)?.ok_or_else(|| DatabaseError {
             path: self.path.clone(),
             what: "the order just added is gone",
             source: rusqlite::Error::QueryReturnedNoRows,
@@ -215,7 +215,7 @@ impl Store {
     }
 
     /// One order.
-    pub fn order(&self, id: i64) -> Result<Option<Order>, StoreError> {
+    pub fn order(&self, id: i64) -> Result<Option<Order>, DatabaseError> {
         self.conn
             .query_row(
                 &format!("SELECT {ORDER_COLUMNS} FROM orders WHERE id = ?1"),
@@ -227,7 +227,7 @@ impl Store {
     }
 
     /// Every order, in list order.
-    pub fn orders(&self) -> Result<Vec<Order>, StoreError> {
+    pub fn orders(&self) -> Result<Vec<Order>, DatabaseError> {
         let mut st = self
             .conn
             .prepare(&format!("SELECT {ORDER_COLUMNS} FROM orders ORDER BY id"))
@@ -239,7 +239,7 @@ impl Store {
             .map_err(self.fail("cannot list orders"))
     }
 
-    fn orders_in(&self, state: OrderState) -> Result<Vec<Order>, StoreError> {
+    fn orders_in(&self, state: OrderState) -> Result<Vec<Order>, DatabaseError> {
         let mut st = self
             .conn
             .prepare(&format!(
@@ -254,25 +254,25 @@ impl Store {
     }
 
     /// The first queued order.
-    pub fn next_queued(&self) -> Result<Option<Order>, StoreError> {
+    pub fn next_queued(&self) -> Result<Option<Order>, DatabaseError> {
         Ok(self.orders_in(OrderState::Queued)?.into_iter().next())
     }
 
     /// The id of the newest journal entry (0 for an empty journal): a
     /// console asks for entries or orders only when it moved.
-    pub fn journal_head(&self) -> Result<i64, StoreError> {
+    pub fn journal_head(&self) -> Result<i64, DatabaseError> {
         self.conn
             .query_row("SELECT COALESCE(MAX(id), 0) FROM journal", [], |r| r.get(0))
             .map_err(self.fail("cannot read the journal"))
     }
 
     /// How many orders are queued.
-    pub fn queued(&self) -> Result<usize, StoreError> {
+    pub fn queued(&self) -> Result<usize, DatabaseError> {
         Ok(self.orders_in(OrderState::Queued)?.len())
     }
 
     /// Removes a queued order; refuses any other.
-    pub fn remove_order(&mut self, id: i64) -> Result<Result<Order, String>, StoreError> {
+    pub fn remove_order(&mut self, id: i64) -> Result<Result<Order, String>, DatabaseError> {
         let Some(order) = self.order(id)? else {
             return Ok(Err(format!("there is no order {id}")));
         };
@@ -289,7 +289,7 @@ impl Store {
     }
 
     /// Marks an order running.
-    pub fn set_running(&mut self, id: i64) -> Result<(), StoreError> {
+    pub fn set_running(&mut self, id: i64) -> Result<(), DatabaseError> {
         self.conn
             .execute(
                 "UPDATE orders SET state = 'running', started_ms = ?1 WHERE id = ?2",
@@ -302,7 +302,7 @@ impl Store {
     /// Puts an order the cell refused to start back in the queue (it is
     /// marked running before the cell is asked, so that an order the cell
     /// may have started is never queued again; only a refusal undoes it).
-    pub fn requeue(&mut self, id: i64) -> Result<(), StoreError> {
+    pub fn requeue(&mut self, id: i64) -> Result<(), DatabaseError> {
         self.conn
             .execute(
                 "UPDATE orders SET state = 'queued', started_ms = NULL WHERE id = ?1 AND state = 'running'",
@@ -318,7 +318,7 @@ impl Store {
         id: i64,
         state: OrderState,
         result: &str,
-    ) -> Result<(), StoreError> {
+    ) -> Result<(), DatabaseError> {
         self.conn
             .execute(
                 "UPDATE orders SET state = ?1, ended_ms = ?2, result = ?3 WHERE id = ?4",
@@ -335,7 +335,7 @@ impl Store {
         order: Option<i64>,
         who: &str,
         text: &str,
-    ) -> Result<Entry, StoreError> {
+    ) -> Result<Entry, DatabaseError> {
         let at_ms = now_ms();
         self.conn
             .execute(
@@ -366,7 +366,7 @@ impl Store {
         class: AlarmClass,
         text: &str,
         order: Option<i64>,
-    ) -> Result<Alarm, StoreError> {
+    ) -> Result<Alarm, DatabaseError> {
         let raised_ms = now_ms();
         self.conn
             .execute(
@@ -387,7 +387,7 @@ impl Store {
     }
 
     /// Records who acknowledged alarm `id`, at `at_ms`.
-    pub fn ack_alarm(&mut self, id: i64, who: &str, at_ms: i64) -> Result<(), StoreError> {
+    pub fn ack_alarm(&mut self, id: i64, who: &str, at_ms: i64) -> Result<(), DatabaseError> {
         self.conn
             .execute(
                 "UPDATE alarms SET acked_by = ?1, acked_ms = ?2 WHERE id = ?3 AND acked_by IS NULL",
@@ -398,7 +398,7 @@ impl Store {
     }
 
     /// Records that alarm `id`'s condition cleared at `at_ms`.
-    pub fn clear_alarm(&mut self, id: i64, at_ms: i64) -> Result<(), StoreError> {
+    pub fn clear_alarm(&mut self, id: i64, at_ms: i64) -> Result<(), DatabaseError> {
         self.conn
             .execute(
                 "UPDATE alarms SET cleared_ms = ?1 WHERE id = ?2 AND cleared_ms IS NULL",
@@ -410,7 +410,7 @@ impl Store {
 
     /// The alarms still in the list (not both acknowledged and cleared),
     /// oldest first.
-    pub fn listed_alarms(&self) -> Result<Vec<Alarm>, StoreError> {
+    pub fn listed_alarms(&self) -> Result<Vec<Alarm>, DatabaseError> {
         let mut st = self
             .conn
             .prepare(&format!(
@@ -437,7 +437,7 @@ impl Store {
         order: Option<i64>,
         messages_only: bool,
         limit: usize,
-    ) -> Result<Vec<Entry>, StoreError> {
+    ) -> Result<Vec<Entry>, DatabaseError> {
         // The kinds asked for, in SQL: a page is `limit` matching entries,
         // however many others the journal holds between them.
         let kinds: Vec<&str> = EntryKind::ALL
@@ -474,7 +474,7 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("falc.db");
         let (a, b) = {
-            let mut s = Store::open(&path).expect("open");
+            let mut s = Database::open(&path).expect("open");
             let a = s
                 .raise_alarm("welding", AlarmClass::Safety, "estop", Some(1))
                 .expect("raise");
@@ -485,7 +485,7 @@ mod tests {
             s.clear_alarm(b.id, 6).expect("clear");
             (a, b)
         };
-        let mut s = Store::open(&path).expect("reopen");
+        let mut s = Database::open(&path).expect("reopen");
         let listed = s.listed_alarms().expect("list");
         assert_eq!(listed.len(), 2);
         assert_eq!(listed[0].acked, Some(("ann".into(), 5)));
@@ -507,7 +507,7 @@ mod tests {
     #[test]
     fn only_a_running_order_goes_back_to_the_queue() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let mut s = Store::open(&dir.path().join("falc.db")).expect("open");
+        let mut s = Database::open(&dir.path().join("falc.db")).expect("open");
         let a = s.add_order("dikdroog", "ann").expect("add");
         s.set_running(a.id).expect("run");
         s.requeue(a.id).expect("requeue");
@@ -529,7 +529,7 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("falc.db");
         {
-            let mut s = Store::open(&path).expect("open");
+            let mut s = Database::open(&path).expect("open");
             let a = s.add_order("dikdroog", "ann").expect("add");
             let b = s.add_order("dundroog", "ann").expect("add");
             s.set_running(a.id).expect("run");
@@ -539,7 +539,7 @@ mod tests {
             assert!(s.remove_order(a.id).expect("db").is_err(), "running");
             // Dropped without ending the order: a crash.
         }
-        let mut s = Store::open(&path).expect("reopen");
+        let mut s = Database::open(&path).expect("reopen");
         let interrupted = s.recover().expect("recover");
         assert_eq!(interrupted.len(), 1);
         let orders = s.orders().expect("orders");
@@ -566,7 +566,7 @@ mod tests {
             .expect("journal");
         assert_eq!(s.entries(0, None, true, 1).expect("page"), vec![m.clone()]);
         assert_eq!(s.journal_head().expect("head"), m.id);
-        let empty = Store::open(&dir.path().join("empty.db")).expect("open");
+        let empty = Database::open(&dir.path().join("empty.db")).expect("open");
         assert_eq!(empty.journal_head().expect("head"), 0);
     }
 }

@@ -1,0 +1,570 @@
+//! The cell's coordination of its stations, sans-I/O: the cell
+//! controller's [`Device`]. A cell recipe's `start` / `stop` become Start /
+//! Stop (then Reset) requests to a workstation's program invocation,
+//! `output` / `input` become operator-communication requests to the
+//! commander. They leave as [`Command`]s ([`Stations::poll_command`]); the
+//! driver sends each on its station's lane (one request at a time per
+//! station, in order: outputs reach the operator in the recipe's order, a
+//! Stop never overtakes its Start) and hands the confirm back with
+//! [`handle_reply`]. Job events the workstations publish come in through
+//! [`Stations::unconfirmed`]; only the job this recipe started counts.
+
+use crate::controller::{Controller, Device};
+use falc_model::alarm::{AlarmClass, Cause};
+use falc_model::ids::{ObjectName, StationName};
+use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
+use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
+use falc_recipe::check::Job;
+use falc_recipe::engine::{Action, Event, JobEnd, Outcome};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::time::Duration;
+
+/// How long the operator may take to answer an `input`.
+pub const ANSWER_LIMIT: Duration = Duration::from_secs(24 * 3600);
+/// How long a workstation may take to confirm a request.
+pub const CONFIRM_LIMIT: Duration = Duration::from_secs(10);
+
+/// What a confirm means to the cell: which request it answers.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Awaiting {
+    /// The Start of the recipe's job on this station.
+    Started(StationName),
+    /// The operator's answer to an `input`.
+    Answer,
+    /// The operator showing an `output`.
+    Shown,
+    /// Anything else (Stop, Reset): only a refusal matters; what it was.
+    Other(String),
+}
+
+/// A request the cell makes of a station below or of its operator.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Command {
+    /// The station (or the operator).
+    pub to: StationName,
+    /// The request.
+    pub request: Request,
+    /// How long its confirm may take.
+    pub limit: Duration,
+    /// What its confirm means.
+    pub awaiting: Awaiting,
+}
+
+/// The confirm of a [`Command`]: the response, or why there is none.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Reply {
+    /// What it answers.
+    pub awaiting: Awaiting,
+    /// The response, or the error as text.
+    pub result: Result<Response, String>,
+}
+
+/// The workstations below and the operator above.
+#[derive(Debug, Default)]
+pub struct Stations {
+    operator: Option<StationName>,
+    /// The program invocation the running recipe started on each station.
+    started: BTreeMap<StationName, ObjectName>,
+    /// Stations whose association was lost since the commander associated.
+    lost: BTreeSet<StationName>,
+    /// Outputs the operator has not confirmed yet: the recipe's end waits
+    /// for them, so its last line is journalled under its own order.
+    showing: usize,
+    commands: VecDeque<Command>,
+    /// Confirms known without asking anybody (no operator to ask).
+    local: VecDeque<Reply>,
+}
+
+impl Stations {
+    /// A cell's stations, answering to `operator`.
+    pub fn new(operator: Option<StationName>) -> Self {
+        Self {
+            operator,
+            ..Self::default()
+        }
+    }
+
+    /// The next request to send, in order.
+    pub fn poll_command(&mut self) -> Option<Command> {
+        self.commands.pop_front()
+    }
+
+    /// A confirm that needs no request (the driver hands it to
+    /// [`handle_reply`] like any other).
+    pub fn poll_local_reply(&mut self) -> Option<Reply> {
+        self.local.pop_front()
+    }
+
+    fn request(&mut self, to: StationName, request: Request, limit: Duration, awaiting: Awaiting) {
+        self.commands.push_back(Command {
+            to,
+            request,
+            limit,
+            awaiting,
+        });
+    }
+
+    /// A publication of a workstation: the engine events it means for the
+    /// running recipe (only the job this recipe started there counts).
+    pub fn unconfirmed(&self, u: &Unconfirmed) -> Vec<Event> {
+        let Unconfirmed::Job {
+            station,
+            program,
+            event,
+        } = u
+        else {
+            return Vec::new();
+        };
+        if self.started.get(station) != Some(program) {
+            return Vec::new();
+        }
+        let st = station.clone();
+        vec![match event {
+            JobEvent::Done => Event::Ended(st, JobEnd::Done),
+            JobEvent::BadProduct => Event::Ended(st, JobEnd::BadProduct),
+            JobEvent::FailedSafe => Event::Ended(st, JobEnd::FailedSafe),
+            JobEvent::FailedDanger => Event::Ended(st, JobEnd::FailedDanger),
+            JobEvent::Alarm(text) => Event::Ended(st, JobEnd::Alarm(text.clone())),
+            JobEvent::Paused => Event::Paused(st),
+            JobEvent::Resumed => Event::Resumed(st),
+        }]
+    }
+}
+
+/// A confirm came back: what it means for the running cell recipe. A
+/// refused Start takes the recipe's failure path (reported as a warning);
+/// no answer from the operator is a communication alarm.
+pub fn handle_reply(cell: &mut Controller<Stations>, now: Duration, reply: Reply) {
+    match (reply.awaiting, reply.result) {
+        (Awaiting::Started(st), Ok(_)) => cell.feed(now, vec![Event::Started(st)]),
+        (Awaiting::Started(st), Err(e)) => {
+            // The recipe takes its failure path; an alarm state there names this.
+            cell.report(Severity::Warning, format!("start on {st} refused: {e}"));
+            cell.feed(now, vec![Event::StartFailed(st, e)]);
+        }
+        (Awaiting::Answer, Ok(Response::Answer(a))) => cell.feed(now, vec![Event::Answer(a)]),
+        (Awaiting::Answer, Ok(other)) => cell.fault(Cause::new(
+            AlarmClass::Communication,
+            format!("no answer from the operator: the operator answered {other:?}"),
+        )),
+        (Awaiting::Answer, Err(e)) => cell.fault(Cause::new(
+            AlarmClass::Communication,
+            format!("no answer from the operator: {e}"),
+        )),
+        (Awaiting::Shown, r) => {
+            cell.device.showing = cell.device.showing.saturating_sub(1);
+            if let Err(e) = r {
+                tracing::warn!("output to the operator refused: {e}");
+            }
+        }
+        (Awaiting::Other(what), Err(e)) => tracing::warn!("{what} refused: {e}"),
+        (Awaiting::Other(_), Ok(_)) => {}
+    }
+}
+
+impl Device for Stations {
+    fn unavailable(&self) -> Option<String> {
+        self.lost
+            .iter()
+            .next()
+            .map(|s| format!("no connection with station {}", s.as_str().to_uppercase()))
+    }
+
+    fn act(&mut self, _now: Duration, action: Action, _out: &mut Vec<Event>) {
+        match action {
+            Action::Start {
+                target,
+                job: Job::Recipe(name),
+            } => {
+                self.started.insert(target.clone(), name.clone());
+                let req = Request::Start {
+                    name,
+                    argument: String::new(),
+                };
+                let awaiting = Awaiting::Started(target.clone());
+                self.request(target, req, CONFIRM_LIMIT, awaiting);
+            }
+            Action::Stop(target) => {
+                // Stop, then Reset on the same lane: the program invocation
+                // is idle again for the next order (a stopped one refuses
+                // Start). A Reset refused because the job had already ended
+                // is harmless.
+                if let Some(name) = self.started.get(&target).cloned() {
+                    let what = Awaiting::Other(format!("Stop of {name} on {target}"));
+                    let stop = Request::Stop { name: name.clone() };
+                    self.request(target.clone(), stop, CONFIRM_LIMIT, what);
+                    let what = Awaiting::Other(format!("Reset of {name} on {target}"));
+                    self.request(target, Request::Reset { name }, CONFIRM_LIMIT, what);
+                }
+            }
+            Action::Output(text) => {
+                if let Some(op) = self.operator.clone() {
+                    let req = Request::Output { lines: vec![text] };
+                    self.showing += 1;
+                    self.request(op, req, CONFIRM_LIMIT, Awaiting::Shown);
+                }
+            }
+            Action::Input(prompt) => match self.operator.clone() {
+                Some(op) => {
+                    let req = Request::Input {
+                        prompt,
+                        timeout_s: None,
+                    };
+                    self.request(op, req, ANSWER_LIMIT, Awaiting::Answer);
+                }
+                None => self.local.push_back(Reply {
+                    awaiting: Awaiting::Answer,
+                    result: Err("this cell has no operator".into()),
+                }),
+            },
+            other => tracing::warn!("a cell recipe cannot {other:?}"),
+        }
+    }
+
+    fn halt(&mut self, out: &mut Vec<Event>) {
+        let running: Vec<StationName> = self.started.keys().cloned().collect();
+        for st in running {
+            self.act(Duration::ZERO, Action::Stop(st), out);
+        }
+    }
+
+    fn settling(&self) -> bool {
+        self.showing > 0
+    }
+
+    fn finished(&mut self, _outcome: &Outcome) {
+        self.started.clear();
+    }
+
+    fn status(&self, status: &mut VmdStatus) {
+        if !self.lost.is_empty() {
+            status.physical = PhysicalStatus::PartiallyOperational;
+        }
+    }
+
+    fn lost(&mut self, station: &StationName) {
+        if Some(station) != self.operator.as_ref() {
+            self.lost.insert(station.clone());
+        }
+    }
+
+    fn associated(&mut self) {
+        self.lost.clear();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! The cell on a virtual clock: the controller with [`Stations`], the
+    //! test playing the operator and the workstations by answering the
+    //! commands it sends.
+
+    use super::*;
+    use crate::controller::Output;
+    use falc_model::mms::domain::download_steps;
+    use falc_model::mms::program::PiState;
+    use falc_recipe::commands::RecipeKind;
+
+    const CELL: &str = "A test cell recipe.\n\
+        -1 | output hallo          |       |            | 2\n\
+        -2 | input (ja/nee)        |       | answer=ja  | 3\n\
+        -2 | input (ja/nee)        |       | answer=*   | 0\n\
+        -3 | start transport store |       | gestart    | 4\n\
+        -3 | start transport store |       | tijdlimiet | 6\n\
+        -4 | wait transport 60     |       | klaar      | 5\n\
+        -4 | wait transport 60     |       | tijdlimiet | 6\n\
+        -5 | output einde          |       |            | 0\n\
+        -6 |                       | alarm |            | 0\n";
+
+    fn st(s: &str) -> StationName {
+        StationName::new(s).unwrap()
+    }
+
+    fn name(s: &str) -> ObjectName {
+        ObjectName::new(s).unwrap()
+    }
+
+    fn secs(s: u64) -> Duration {
+        Duration::from_secs(s)
+    }
+
+    fn cell_with(operator: Option<StationName>) -> Controller<Stations> {
+        let mut c = Controller::new(RecipeKind::Cell, CONFIRM_LIMIT, Stations::new(operator));
+        let n = name("test");
+        let mut steps = download_steps(&n, CELL.as_bytes());
+        steps.push(Request::CreateProgramInvocation {
+            name: n.clone(),
+            domains: vec![n],
+            reusable: true,
+        });
+        for req in steps {
+            c.handle_request(Duration::ZERO, &req).unwrap();
+        }
+        c
+    }
+
+    fn cell() -> Controller<Stations> {
+        cell_with(Some(st("operator")))
+    }
+
+    fn start(
+        c: &mut Controller<Stations>,
+    ) -> Result<Response, falc_model::mms::error::ServiceError> {
+        c.handle_request(
+            Duration::ZERO,
+            &Request::Start {
+                name: name("test"),
+                argument: String::new(),
+            },
+        )
+    }
+
+    /// Settles as the driver does (local confirms included) and returns
+    /// the commands to send.
+    fn settle(c: &mut Controller<Stations>, now: Duration) -> Vec<Command> {
+        loop {
+            c.settle(now);
+            match c.device.poll_local_reply() {
+                Some(r) => handle_reply(c, now, r),
+                None => break,
+            }
+        }
+        std::iter::from_fn(|| c.device.poll_command()).collect()
+    }
+
+    fn reply(c: &mut Controller<Stations>, now: Duration, cmd: &Command, r: Response) {
+        handle_reply(
+            c,
+            now,
+            Reply {
+                awaiting: cmd.awaiting.clone(),
+                result: Ok(r),
+            },
+        );
+    }
+
+    fn outputs(c: &mut Controller<Stations>) -> Vec<Output> {
+        std::iter::from_fn(|| c.poll_output()).collect()
+    }
+
+    fn job_done(station: &str, program: &str) -> Unconfirmed {
+        Unconfirmed::Job {
+            station: st(station),
+            program: name(program),
+            event: JobEvent::Done,
+        }
+    }
+
+    /// Runs the recipe to its `start transport store`, returning that
+    /// command.
+    fn up_to_the_transport_job(c: &mut Controller<Stations>) -> Command {
+        start(c).unwrap();
+        // An output does not wait for its confirm: the question follows
+        // on the same lane.
+        let cmds = settle(c, Duration::ZERO);
+        assert_eq!(cmds.len(), 2);
+        assert!(cmds.iter().all(|c| c.to == st("operator")));
+        assert_eq!(
+            cmds[0].request,
+            Request::Output {
+                lines: vec!["hallo".into()]
+            }
+        );
+        assert_eq!(cmds[1].awaiting, Awaiting::Answer);
+        assert_eq!(cmds[1].limit, ANSWER_LIMIT);
+        reply(c, secs(1), &cmds[0], Response::Done);
+        assert!(settle(c, secs(1)).is_empty());
+        reply(c, secs(5), &cmds[1], Response::Answer("ja".into()));
+        let cmds = settle(c, secs(5));
+        assert_eq!(cmds.len(), 1);
+        assert_eq!(cmds[0].to, st("transport"));
+        assert_eq!(
+            cmds[0].request,
+            Request::Start {
+                name: name("STORE"),
+                argument: String::new()
+            }
+        );
+        cmds[0].clone()
+    }
+
+    #[test]
+    fn a_cell_recipe_runs_through_operator_and_workstation_to_done() {
+        let mut c = cell();
+        let store = up_to_the_transport_job(&mut c);
+        reply(
+            &mut c,
+            secs(6),
+            &store,
+            Response::ProgramInvocationState(PiState::Running),
+        );
+        assert!(settle(&mut c, secs(6)).is_empty());
+        assert_eq!(c.status().program.map(|p| p.state), Some(4));
+        // Another program's end on the same station is not this job's.
+        let other = c.device.unconfirmed(&job_done("transport", "MOVE_TO_MAN"));
+        assert!(other.is_empty());
+        let events = c.device.unconfirmed(&job_done("transport", "STORE"));
+        c.feed(secs(30), events);
+        let cmds = settle(&mut c, secs(30));
+        assert_eq!(
+            cmds[0].request,
+            Request::Output {
+                lines: vec!["einde".into()]
+            }
+        );
+        // The end waits until the operator has shown the last output.
+        assert!(c.is_running());
+        assert!(!outputs(&mut c)
+            .iter()
+            .any(|o| matches!(o, Output::Job { .. })));
+        reply(&mut c, secs(31), &cmds[0], Response::Done);
+        settle(&mut c, secs(31));
+        assert!(!c.is_running());
+        assert_eq!(
+            outputs(&mut c),
+            vec![Output::Job {
+                program: name("test"),
+                event: JobEvent::Done
+            }]
+        );
+    }
+
+    #[test]
+    fn a_refused_start_below_is_a_warning_and_takes_the_failure_path() {
+        let mut c = cell();
+        let store = up_to_the_transport_job(&mut c);
+        handle_reply(
+            &mut c,
+            secs(6),
+            Reply {
+                awaiting: store.awaiting.clone(),
+                result: Err("vmd-state/vmd-state-conflict: emergency stop".into()),
+            },
+        );
+        settle(&mut c, secs(6));
+        assert!(!c.is_running());
+        let outs = outputs(&mut c);
+        assert!(
+            outs.iter().any(|o| matches!(o,
+            Output::Report { severity: Severity::Warning, text }
+                if text.contains("start on transport refused") && text.contains("emergency stop")))
+        );
+        assert!(outs.iter().any(|o| matches!(
+            o,
+            Output::Job {
+                event: JobEvent::Alarm(_),
+                ..
+            }
+        )));
+    }
+
+    #[test]
+    fn a_lost_workstation_ends_the_recipe_and_refuses_starts_until_the_commander_associates() {
+        let mut c = cell();
+        let store = up_to_the_transport_job(&mut c);
+        reply(
+            &mut c,
+            secs(6),
+            &store,
+            Response::ProgramInvocationState(PiState::Running),
+        );
+        settle(&mut c, secs(6));
+        c.handle_abort(&st("transport"));
+        settle(&mut c, secs(7));
+        assert!(!c.is_running());
+        let outs = outputs(&mut c);
+        assert!(outs.contains(&Output::Report {
+            severity: Severity::Alarm(AlarmClass::Communication),
+            text: "no connection with station transport".into()
+        }));
+        assert_eq!(c.status().physical, PhysicalStatus::PartiallyOperational);
+        // A late end of the lost station's job changes nothing.
+        assert!(c
+            .device
+            .unconfirmed(&job_done("transport", "STORE"))
+            .is_empty());
+        let refused = start(&mut c).unwrap_err();
+        assert!(
+            refused
+                .description
+                .contains("no connection with station TRANSPORT"),
+            "{refused:?}"
+        );
+        c.handle_associated();
+        start(&mut c).unwrap();
+        assert_eq!(
+            settle(&mut c, secs(8)).len(),
+            2,
+            "output and question again"
+        );
+    }
+
+    #[test]
+    fn a_stop_from_the_commander_stops_then_resets_the_job_below_in_that_order() {
+        let mut c = cell();
+        let store = up_to_the_transport_job(&mut c);
+        reply(
+            &mut c,
+            secs(6),
+            &store,
+            Response::ProgramInvocationState(PiState::Running),
+        );
+        settle(&mut c, secs(6));
+        c.handle_request(secs(7), &Request::Stop { name: name("test") })
+            .unwrap();
+        let cmds = settle(&mut c, secs(7));
+        let sent: Vec<(StationName, Request)> =
+            cmds.into_iter().map(|c| (c.to, c.request)).collect();
+        assert_eq!(
+            sent,
+            vec![
+                (
+                    st("transport"),
+                    Request::Stop {
+                        name: name("STORE")
+                    }
+                ),
+                (
+                    st("transport"),
+                    Request::Reset {
+                        name: name("STORE")
+                    }
+                ),
+            ]
+        );
+        assert!(!c.is_running());
+    }
+
+    #[test]
+    fn no_answer_from_the_operator_is_a_communication_alarm() {
+        let mut c = cell();
+        start(&mut c).unwrap();
+        let cmds = settle(&mut c, Duration::ZERO);
+        reply(&mut c, secs(1), &cmds[0], Response::Done);
+        handle_reply(
+            &mut c,
+            secs(2),
+            Reply {
+                awaiting: cmds[1].awaiting.clone(),
+                result: Err("application-reference/application-unreachable".into()),
+            },
+        );
+        settle(&mut c, secs(2));
+        assert!(!c.is_running());
+        assert!(outputs(&mut c).iter().any(|o| matches!(o,
+            Output::Report { severity: Severity::Alarm(AlarmClass::Communication), text }
+                if text.starts_with("no answer from the operator"))));
+    }
+
+    #[test]
+    fn a_cell_without_an_operator_cannot_ask_and_says_so() {
+        let mut c = cell_with(None);
+        start(&mut c).unwrap();
+        // No operator: the output goes nowhere, the input fails at once.
+        let cmds = settle(&mut c, Duration::ZERO);
+        assert!(cmds.is_empty());
+        assert!(!c.is_running());
+        assert!(outputs(&mut c).iter().any(|o| matches!(o,
+            Output::Report { text, .. } if text.contains("this cell has no operator"))));
+    }
+}
