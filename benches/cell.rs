@@ -38,6 +38,7 @@ use std::io::{BufRead, BufReader};
 use std::process::{Child, Stdio};
 use std::sync::mpsc::{channel, Receiver};
 use std::time::{Duration, Instant};
+use support::stats::{median, percentile, tail};
 use support::{children, launcher};
 
 const SCALE: &str = "100";
@@ -118,12 +119,6 @@ impl Launched {
     }
 }
 
-fn percentile(v: &mut [f64], p: f64) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let i = ((v.len() as f64 - 1.0) * p).round() as usize;
-    v[i.min(v.len() - 1)]
-}
-
 fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1000.0
 }
@@ -177,11 +172,10 @@ async fn main() {
         let t = l.until("falc-launch: cell ready in");
         starts.push(ms(t - l.spawned));
     }
-    let mut s = starts.clone();
     println!(
         "start-up of the all-in-one cell to ready (router, 2 twins, 2 workstations, cell, operator; recipes delivered): median {:.0} ms, max {:.0} ms (n={STARTS}; goal ≤ 3000 ms)",
-        percentile(&mut s, 0.5),
-        percentile(&mut s, 1.0)
+        median(&starts),
+        percentile(&starts, 1.0)
     );
 
     // 2. Orders.
@@ -255,21 +249,19 @@ async fn main() {
         walls.push(ms(end - begin));
         busy.push(ms(union(intervals)));
     }
-    let (mut st, mut ho) = (steps.clone(), handovers.clone());
+    let (st_name, st_tail) = tail(&steps);
     println!(
-        "control overhead per recipe step (cell output step: engine → Output → operator journal → confirm): p50 {:.2} ms, p99 {:.2} ms (n={}; goal p50 ≤ 2 ms)",
-        percentile(&mut st, 0.5),
-        percentile(&mut st, 0.99),
+        "control overhead per recipe step (cell output step: engine → Output → operator journal → confirm): p50 {:.2} ms, {st_name} {st_tail:.2} ms (n={}; goal p50 ≤ 2 ms)",
+        median(&steps),
         steps.len()
     );
+    let (ho_name, ho_tail) = tail(&handovers);
     println!(
-        "hand-over between workstation jobs (STORE done → MOVE_TO_MAN's first coil write at the PLC): p50 {:.2} ms, p99 {:.2} ms (n={})",
-        percentile(&mut ho, 0.5),
-        percentile(&mut ho, 0.99),
+        "hand-over between workstation jobs (STORE done → MOVE_TO_MAN's first coil write at the PLC): p50 {:.2} ms, {ho_name} {ho_tail:.2} ms (n={})",
+        median(&handovers),
         handovers.len()
     );
-    let (mut w, mut b) = (walls.clone(), busy.clone());
-    let (w50, b50) = (percentile(&mut w, 0.5), percentile(&mut b, 0.5));
+    let (w50, b50) = (median(&walls), median(&busy));
     println!(
         "dikdroog order at time scale {SCALE}: wall time median {w50:.0} ms; twins' simulated time (carriers moving or robot welding) median {b50:.0} ms; ratio {:.2}; the rest ({:.0} ms) is recipe steps, PLC polling and the bench's answers (n={ORDERS})",
         w50 / b50,

@@ -1,6 +1,7 @@
 //! DNC benchmark over a real pty with the twin emulating a 9600 baud line
 //! (each byte takes 10 bit times, both ways). Prints, side by side with the
-//! bare wire time of the same bytes:
+//! twin's modelled wire time of the same bytes (the time the twin's own
+//! model of a 9600 baud line gives them, not a measurement of a wire):
 //! - the select + start round trip (S064 → ack, G → ack);
 //! - the program-end notification latency (end telegram on the wire, from
 //!   the moment the program's time is up to the driver's event).
@@ -18,6 +19,7 @@ use falc_dnc::procedure::{frame, LinkEvent, Priority, Timing};
 use falc_dnc::telegram::{Program, Telegram};
 use falc_node::dnc_link::{self, DncHandle, LineSettings};
 use std::time::{Duration, Instant};
+use support::stats::median;
 
 const BAUD: u32 = 9600;
 const ROUNDS: usize = 20;
@@ -40,11 +42,6 @@ async fn next(h: &mut DncHandle) -> Telegram {
             other => panic!("no telegram: {other:?}"),
         }
     }
-}
-
-fn median(mut v: Vec<Duration>) -> Duration {
-    v.sort();
-    v[v.len() / 2]
 }
 
 fn ms(d: Duration) -> f64 {
@@ -109,16 +106,16 @@ async fn main() {
         let due = started - wire_time(wire_bytes(&ack(b'G'))) + duration;
         end_lat.push(Instant::now().saturating_duration_since(due));
     }
-    let (r, e) = (median(rtt), median(end_lat));
+    let (r, e) = (median(&rtt), median(&end_lat));
     println!("DNC over a pty, twin at {BAUD} baud wire timing, n={ROUNDS}:");
     println!(
-        "  select + start round trip : median {:7.2} ms; bare wire time {:7.2} ms; ratio {:.3} (goal ≤ 1.2)",
+        "  select + start round trip : median {:7.2} ms; the twin's modelled wire time {:7.2} ms; ratio {:.3} (goal ≤ 1.2)",
         ms(r),
         ms(select_start_wire),
         ms(r) / ms(select_start_wire)
     );
     println!(
-        "  program-end notification  : median {:7.2} ms; bare wire time {:7.2} ms; ratio {:.3} (goal ≤ 1.2)",
+        "  program-end notification  : median {:7.2} ms; the twin's modelled wire time {:7.2} ms; ratio {:.3} (goal ≤ 1.2)",
         ms(e),
         ms(end_wire),
         ms(e) / ms(end_wire)

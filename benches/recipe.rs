@@ -17,10 +17,10 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-fn median(mut v: Vec<Duration>) -> Duration {
-    v.sort();
-    v[v.len() / 2]
-}
+#[path = "../tests/support/stats.rs"]
+#[allow(dead_code)]
+mod stats;
+use stats::median;
 
 fn main() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes");
@@ -67,7 +67,7 @@ fn main() {
     println!(
         "parse + check of recipes/ ({} recipes, {lines} lines), n=200: median {:.1} µs",
         texts.len(),
-        median(samples).as_secs_f64() * 1e6
+        median(&samples).as_secs_f64() * 1e6
     );
 
     // The interpreter: dikdroog's main path, 'ja' answered, every job done.
@@ -112,6 +112,6 @@ fn main() {
     println!(
         "interpreter, dikdroog main path ({steps} states entered, {} events), n=2000: median {:.0} ns per state",
         script.len(),
-        median(per_step).as_secs_f64() * 1e9
+        median(&per_step).as_secs_f64() * 1e9
     );
 }

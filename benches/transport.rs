@@ -17,16 +17,11 @@ mod support;
 
 use falc_model::mms::pdu::JobEvent;
 use std::time::{Duration, Instant};
+use support::stats::{median, tail};
 use support::{twin, Commander, Proc, TestCell};
 use tokio_modbus::client::Reader;
 
 const ROUNDS: usize = 40;
-
-fn percentile(v: &mut [f64], p: f64) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let i = ((v.len() as f64 - 1.0) * p).round() as usize;
-    v[i.min(v.len() - 1)]
-}
 
 fn store() -> String {
     std::fs::read_to_string(concat!(
@@ -101,13 +96,13 @@ async fn main() {
         "(STORE: carrier reaches place 3 → `reset k`; measured by the twin), n={ROUNDS} each:"
     );
     for poll in [10u64, 1] {
-        let mut r = reactions(&cell, &mut plc, &address, poll).await;
-        let (p50, p99) = (percentile(&mut r, 0.5), percentile(&mut r, 0.99));
+        let r = reactions(&cell, &mut plc, &address, poll).await;
+        let (p50, (tail_name, tail_value)) = (median(&r), tail(&r));
         println!(
-            "  poll period {poll:>2} ms : reaction p50 {p50:6.2} ms, p99 {p99:6.2} ms; p50 / poll period {:.2} (half a period expected from polling alone)",
+            "  poll period {poll:>2} ms : reaction p50 {p50:6.2} ms, {tail_name} {tail_value:6.2} ms; p50 / poll period {:.2} (half a period expected from polling alone)",
             p50 / poll as f64
         );
     }
-    let (p50, p99) = (percentile(&mut rtt, 0.5), percentile(&mut rtt, 0.99));
+    let (p50, p99) = (median(&rtt), tail(&rtt).1);
     println!("  bare Modbus read round trip (n=500): p50 {p50:6.3} ms, p99 {p99:6.3} ms");
 }

@@ -147,7 +147,9 @@ async fn publishing_on_another_stations_status_is_refused() {
     }
     for publisher in STATIONS {
         let bus = cell.bus(publisher).await.expect("session");
-        tokio::time::sleep(Duration::from_millis(200)).await; // declarations settle
+        // The subscriptions and this session's declarations are at the router.
+        operator.sync_with_router().await.expect("sync");
+        bus.sync_with_router().await.expect("sync");
         for victim in STATIONS.iter().filter(|v| **v != publisher) {
             let forged = Unconfirmed::Status {
                 station: st(victim),
@@ -177,6 +179,7 @@ async fn publishing_on_another_stations_status_is_refused() {
             other => panic!("unexpected {other:?}"),
         }
     }
+    // Absence needs a while to show: anything forged would be here by now.
     tokio::time::sleep(Duration::from_millis(300)).await;
     assert!(rx.try_recv().is_err(), "nothing else arrived");
 }

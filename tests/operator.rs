@@ -96,10 +96,8 @@ fn sigkill_of_a_workstation_mid_order_then_start_refused_until_it_returns() {
         line.contains("no connection with station transport"),
         "{line}"
     );
-    assert!(
-        took < Duration::from_millis(500),
-        "noticed by the lost connection, not by the 1 s lease: {took:?}"
-    );
+    // How fast: a figure of `cargo bench --bench chaos` (detection, kill
+    // → alarm at the operator, per victim), not an assertion here.
     // The welding workstation was stopped: the robot got its stop.
     rig.rcm.expect_line("rx H", Duration::from_secs(5));
     assert_eq!(rig.orders()[0].state, OrderState::Failed);

@@ -77,7 +77,7 @@ async fn droog_dik_runs_to_done_despite_line_noise() {
         rig.rcm.control("noise 16");
     }
     // … and more while the program runs, the line idle between telegrams.
-    tokio::time::sleep(Duration::from_millis(300)).await;
+    rig.rcm.take_line("rx G", Duration::from_secs(10)); // the program runs
     for _ in 0..3 {
         rig.rcm.control("noise 16");
     }
@@ -93,7 +93,7 @@ async fn a_person_in_the_area_pauses_and_the_limit_freezes() {
     let mut rig = rig("100").await;
     rig.load("short", SHORT).await;
     rig.start("short").await;
-    tokio::time::sleep(Duration::from_millis(300)).await;
+    rig.rcm.take_line("rx G", Duration::from_secs(10)); // the program runs
     rig.rcm.control("person-in");
     tokio::time::sleep(Duration::from_secs(4)).await;
     rig.rcm.control("person-out");
@@ -109,7 +109,7 @@ async fn emergency_stop_limit_switch_and_aborted_weld() {
     let mut rig = rig("10").await;
     rig.load("droog_dik", &droog_dik()).await;
     rig.start("droog_dik").await;
-    tokio::time::sleep(Duration::from_millis(300)).await;
+    rig.rcm.take_line("rx G", Duration::from_secs(10)); // the program runs
     rig.rcm.control("estop");
     match rig.job(Duration::from_secs(10)).await {
         JobEvent::Alarm(text) => assert!(text.contains("emergency stop"), "{text}"),
@@ -117,14 +117,14 @@ async fn emergency_stop_limit_switch_and_aborted_weld() {
     }
     rig.rcm.control("estop-clear");
     rig.start("droog_dik").await;
-    tokio::time::sleep(Duration::from_millis(300)).await;
+    rig.rcm.take_line("rx G", Duration::from_secs(10)); // the program runs
     rig.rcm.control("limit-switch");
     assert_eq!(
         rig.job(Duration::from_secs(10)).await,
         JobEvent::FailedDanger
     );
     rig.start("droog_dik").await;
-    tokio::time::sleep(Duration::from_millis(300)).await;
+    rig.rcm.take_line("rx G", Duration::from_secs(10)); // the program runs
     rig.rcm.control("abort-weld");
     assert_eq!(rig.job(Duration::from_secs(10)).await, JobEvent::BadProduct);
 }

@@ -290,9 +290,24 @@ fn show_status(s: &CellStatus) -> String {
     out.join("\n")
 }
 
+/// A reply as one JSON document for scripts: the value itself, without the
+/// reply's variant around it (`falc status --json` is the status object;
+/// `Done` is `{"done": "…"}`).
+fn to_json(reply: &ApiReply) -> serde_json::Result<String> {
+    match reply {
+        ApiReply::Status(s) => serde_json::to_string(s),
+        ApiReply::Orders(o) => serde_json::to_string(o),
+        ApiReply::Order(o) => serde_json::to_string(o),
+        ApiReply::Entries(e) => serde_json::to_string(e),
+        ApiReply::Done(text) => serde_json::to_string(&serde_json::json!({ "done": text })),
+        ApiReply::Recipes(r) => serde_json::to_string(r),
+        ApiReply::Recipe(r) => serde_json::to_string(r),
+    }
+}
+
 fn print(reply: &ApiReply, json: bool) {
     if json {
-        match serde_json::to_string(reply) {
+        match to_json(reply) {
             Ok(s) => println!("{s}"),
             Err(e) => eprintln!("falc: cannot write JSON: {e}"),
         }

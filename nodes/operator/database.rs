@@ -288,15 +288,16 @@ impl Database {
         Ok(Ok(order))
     }
 
-    /// Marks an order running.
-    pub fn set_running(&mut self, id: i64) -> Result<(), DatabaseError> {
+    /// Marks an order running; returns the start time it wrote (ms).
+    pub fn set_running(&mut self, id: i64) -> Result<i64, DatabaseError> {
+        let started = now_ms();
         self.conn
             .execute(
                 "UPDATE orders SET state = 'running', started_ms = ?1 WHERE id = ?2",
-                params![now_ms(), id],
+                params![started, id],
             )
             .map_err(self.fail("cannot mark an order running"))
-            .map(|_| ())
+            .map(|_| started)
     }
 
     /// Puts an order the cell refused to start back in the queue (it is

@@ -478,13 +478,16 @@ impl Operator {
             return Ok(None);
         };
         let name = ObjectName::new(&order.recipe).map_err(|e| e.to_string())?;
-        if let Err(e) = self.store.set_running(order.id) {
-            self.store_failed(&e);
-            return Err(format!(
-                "order {} ({}) not started: {e}",
-                order.id, order.recipe
-            ));
-        }
+        let started_ms = match self.store.set_running(order.id) {
+            Ok(ms) => ms,
+            Err(e) => {
+                self.store_failed(&e);
+                return Err(format!(
+                    "order {} ({}) not started: {e}",
+                    order.id, order.recipe
+                ));
+            }
+        };
         let bus = self.station.bus().clone();
         let req = Request::Start {
             name,
@@ -494,6 +497,7 @@ impl Operator {
             Ok(_) => {
                 let order = Order {
                     state: OrderState::Running,
+                    started_ms: Some(started_ms),
                     ..order
                 };
                 let me = self.me();

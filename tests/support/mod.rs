@@ -6,6 +6,7 @@
 
 pub mod chaos;
 pub mod rig;
+pub mod stats;
 
 use falc_bus::credentials;
 use falc_bus::{Bus, BusError, BusSettings, DEFAULT_DEADLINE};

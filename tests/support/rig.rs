@@ -5,7 +5,7 @@
 //! and started again one by one.
 
 use super::{twin, Proc, TestCell};
-use falc_model::console::{ApiReply, CellStatus, Entry, ListState, Order};
+use falc_model::console::{CellStatus, Entry, ListState, Order};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -123,9 +123,17 @@ impl Rig {
             }
             std::thread::sleep(Duration::from_millis(20));
         }
+        // The running order says since when (`falc status --json`).
+        let running = self.status().running;
+        assert!(
+            running.as_ref().is_some_and(|o| o.started_ms.is_some()),
+            "the running order has no start time: {running:?}"
+        );
     }
 
-    pub fn reply(&self, args: &[&str]) -> ApiReply {
+    /// What `falc --json ARGS` prints: the value itself (no reply variant
+    /// around it).
+    pub fn reply<T: serde::de::DeserializeOwned>(&self, args: &[&str]) -> T {
         let mut all = vec!["--json"];
         all.extend_from_slice(args);
         let text = self.cell.falc(&all);
@@ -133,17 +141,11 @@ impl Rig {
     }
 
     pub fn status(&self) -> CellStatus {
-        match self.reply(&["status"]) {
-            ApiReply::Status(s) => s,
-            other => panic!("status answered {other:?}"),
-        }
+        self.reply(&["status"])
     }
 
     pub fn orders(&self) -> Vec<Order> {
-        match self.reply(&["order", "list"]) {
-            ApiReply::Orders(v) => v,
-            other => panic!("order list answered {other:?}"),
-        }
+        self.reply(&["order", "list"])
     }
 
     pub fn journal(&self, order: Option<i64>) -> Vec<Entry> {
@@ -152,10 +154,7 @@ impl Rig {
         if let Some(id) = &id {
             args.extend(["--order", id]);
         }
-        match self.reply(&args) {
-            ApiReply::Entries(v) => v,
-            other => panic!("journal answered {other:?}"),
-        }
+        self.reply(&args)
     }
 
     /// The documented way back after a fault, once its cause is cleared:

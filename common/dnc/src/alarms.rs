@@ -203,6 +203,7 @@ pub fn status_detail(state: ProgramState, mode: Mode) -> RobotStatusDetail {
 }
 
 #[cfg(test)]
+#[allow(clippy::indexing_slicing)]
 mod tests {
     use super::*;
 

@@ -4,6 +4,9 @@
 //! numbers into `RobotStatusDetail` and recipe criteria ([`alarms`]). The
 //! serial port driver is `falc_node::dnc_link`.
 
+// A codec reads bytes from outside: no index may panic.
+#![warn(clippy::indexing_slicing)]
+
 pub mod alarms;
 pub mod procedure;
 pub mod telegram;

@@ -344,36 +344,43 @@ impl Telegram {
             }
             b'A' => {
                 len(4)?;
-                if !rest[0].is_ascii_uppercase() {
-                    return Err(field("acknowledged code", &rest[..1]));
+                let &[of, ref error @ ..] = rest else {
+                    return Err(field("acknowledgement", rest));
+                };
+                if !of.is_ascii_uppercase() {
+                    return Err(field("acknowledged code", &[of]));
                 }
-                let n = digits(c, "error", &rest[1..])?;
+                let n = digits(c, "error", error)?;
                 Self::Ack {
-                    of: rest[0],
+                    of,
                     error: AckError::from_code(n as u8),
                 }
             }
             b'P' => {
                 len(6)?;
-                let n = digits(c, "program", &rest[..3])?;
+                let &[p0, p1, p2, state, mode] = rest else {
+                    return Err(field("program status", rest));
+                };
+                let number = [p0, p1, p2];
+                let n = digits(c, "program", &number)?;
                 let program = if n == 0 {
                     None
                 } else {
-                    Some(program(&rest[..3])?)
+                    Some(program(&number)?)
                 };
-                let state = match rest[3] {
+                let state = match state {
                     b'I' => ProgramState::Idle,
                     b'L' => ProgramState::Selected,
                     b'R' => ProgramState::Running,
                     b'P' => ProgramState::Paused,
                     b'S' => ProgramState::Stopped,
-                    _ => return Err(field("program state", &rest[3..4])),
+                    _ => return Err(field("program state", &[state])),
                 };
-                let mode = match rest[4] {
+                let mode = match mode {
                     b'M' => Mode::Manual,
                     b'A' => Mode::Automatic,
                     b'E' => Mode::AutomaticExternal,
-                    _ => return Err(field("mode", &rest[4..5])),
+                    _ => return Err(field("mode", &[mode])),
                 };
                 Self::ProgramStatus {
                     program,
@@ -383,13 +390,16 @@ impl Telegram {
             }
             b'E' => {
                 len(5)?;
-                let result = match rest[3] {
+                let &[p0, p1, p2, result] = rest else {
+                    return Err(field("program end", rest));
+                };
+                let result = match result {
                     b'O' => EndResult::Complete,
                     b'B' => EndResult::WeldAborted,
-                    _ => return Err(field("result", &rest[3..4])),
+                    _ => return Err(field("result", &[result])),
                 };
                 Self::ProgramEnd {
-                    program: program(&rest[..3])?,
+                    program: program(&[p0, p1, p2])?,
                     result,
                 }
             }
@@ -399,6 +409,7 @@ impl Telegram {
 }
 
 #[cfg(test)]
+#[allow(clippy::indexing_slicing)]
 mod tests {
     use super::*;
     use proptest::prelude::*;

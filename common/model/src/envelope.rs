@@ -3,6 +3,9 @@
 //! never panics: bad magic, another version, a truncated or malformed body
 //! and trailing bytes are each a distinct [`EnvelopeError`].
 
+// A codec reads bytes from outside: no index may panic.
+#![warn(clippy::indexing_slicing)]
+
 use crate::mms::pdu::PROTOCOL_VERSION;
 use serde::{de::DeserializeOwned, Serialize};
 
@@ -67,6 +70,7 @@ pub fn decode<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, EnvelopeError> {
 }
 
 #[cfg(test)]
+#[allow(clippy::indexing_slicing)]
 mod tests {
     use super::*;
     use crate::ids::ObjectName;
