@@ -6,6 +6,7 @@
 //! `falc-launch`, through the `falc` CLI.
 
 use crate::support::LaunchedCell;
+use falc_bus::operator_service::CallError;
 use falc_bus::{credentials, Bus, BusSettings};
 use falc_model::console::ApiRequest;
 use falc_model::ids::StationName;
@@ -71,13 +72,14 @@ fn roles_are_enforced_by_the_router_and_every_action_names_its_user() {
         &["store", "put", "--new", "transport", "mine", &edited],
     ] {
         let (code, out) = cell.falc_as("observer", change);
-        assert_eq!(code, 1, "observer {change:?} must be refused: {out}");
+        // No reply (the router refused the call): exit status 2.
+        assert_eq!(code, 2, "observer {change:?} must be refused: {out}");
         assert!(out.contains(ROUTER_REFUSED), "observer {change:?}: {out}");
     }
 
     // The operator runs orders but cannot change a recipe.
     let (code, out) = cell.falc_as("console", &["store", "put", "transport", "store", &edited]);
-    assert_eq!(code, 1, "{out}");
+    assert_eq!(code, 2, "{out}");
     assert!(out.contains(ROUTER_REFUSED), "{out}");
     assert_eq!(std::fs::read_to_string(&store).expect("read"), original);
     let (code, out) = cell.falc_as("console", &["order", "rm", "1"]);
@@ -145,7 +147,7 @@ fn roles_are_enforced_by_the_router_and_every_action_names_its_user() {
             )
             .await;
         assert!(
-            matches!(&forged, Err(e) if e.contains(ROUTER_REFUSED)),
+            matches!(&forged, Err(CallError::NoReply(e)) if e.contains(ROUTER_REFUSED)),
             "{forged:?}"
         );
     });

@@ -1,11 +1,14 @@
 //! `falc status|order|start|stop|ack|alarms|answer|messages|journal|shutdown`: the
 //! operator API from the command line. Human-readable output by default,
 //! one JSON document per answer with `--json` (for scripts). Exit status: 0
-//! done, 1 refused by the operator node (the reason on stderr), 2 the
-//! operator node could not be reached.
+//! done, 1 refused by the operator node or by the console itself (the
+//! reason on stderr), 2 no reply: the operator node could not be reached,
+//! or the router's access control refused the call (zenoh cannot tell
+//! which; the text on stderr says both).
 
 use crate::edit;
 use clap::{Args, Subcommand};
+use falc_bus::operator_service::CallError;
 use falc_bus::Bus;
 use falc_model::alarm::Alarm;
 use falc_model::console::{ApiReply, ApiRequest, CellStatus, Entry, Order, RecipeFile};
@@ -235,7 +238,7 @@ async fn alarms(
             ExitCode::SUCCESS
         }
         Ok(other) => refuse(&format!("status answered {other:?}")),
-        Err(why) => refuse(&why),
+        Err(why) => fail(&why),
     }
 }
 
@@ -384,7 +387,7 @@ async fn store(bus: &Bus, operator: &StationName, cmd: StoreCommand, json: bool)
                 match edit::fetch(bus, operator, &file).await {
                     Ok(Some(r)) => Some(r.hash),
                     Ok(None) => return refuse(&format!("there is no recipe {file}: use --new")),
-                    Err(e) => return refuse(&e),
+                    Err(e) => return fail(&e),
                 }
             };
             once(
@@ -411,7 +414,7 @@ async fn view(
     let text = match edit::fetch(bus, operator, file).await {
         Ok(Some(r)) => r.text,
         Ok(None) => return refuse(&format!("there is no recipe {file} in the store")),
-        Err(e) => return refuse(&e),
+        Err(e) => return fail(&e),
     };
     let path = std::path::Path::new(file.station().as_str()).join(file.file());
     let entry = match falc_recipe::files::entry(&path, None, text) {
@@ -458,6 +461,17 @@ fn refuse(why: &str) -> ExitCode {
     ExitCode::FAILURE
 }
 
+/// Says why a call brought no reply and exits 1 if the operator refused
+/// it, 2 if the operator node could not be reached (or the router refused
+/// the call: zenoh cannot tell them apart).
+fn fail(why: &CallError) -> ExitCode {
+    eprintln!("falc: {why}");
+    match why {
+        CallError::Refused(_) => ExitCode::FAILURE,
+        CallError::NoReply(_) => ExitCode::from(2),
+    }
+}
+
 /// One call: printed, or the refusal on stderr.
 async fn once(bus: &Bus, operator: &StationName, req: ApiRequest, json: bool) -> ExitCode {
     match bus.api(operator, req, CALL_LIMIT).await {
@@ -465,10 +479,7 @@ async fn once(bus: &Bus, operator: &StationName, req: ApiRequest, json: bool) ->
             print(&reply, json);
             ExitCode::SUCCESS
         }
-        Err(why) => {
-            eprintln!("falc: {why}");
-            ExitCode::FAILURE
-        }
+        Err(why) => fail(&why),
     }
 }
 

@@ -6,6 +6,7 @@
 //! is saved, so nothing typed is lost when the checker has findings.
 
 use crate::cell_cmd::CALL_LIMIT;
+use falc_bus::operator_service::CallError;
 use falc_bus::Bus;
 use falc_model::console::{ApiReply, ApiRequest, RecipeFile, RecipeText};
 use falc_model::ids::StationName;
@@ -18,19 +19,25 @@ pub async fn fetch(
     bus: &Bus,
     operator: &StationName,
     file: &RecipeFile,
-) -> Result<Option<RecipeText>, String> {
+) -> Result<Option<RecipeText>, CallError> {
     match bus
         .api(operator, ApiRequest::RecipeList, CALL_LIMIT)
         .await?
     {
         ApiReply::Recipes(v) if v.iter().any(|r| &r.file == file) => {}
         ApiReply::Recipes(_) => return Ok(None),
-        other => return Err(format!("unexpected answer to recipe-list: {other:?}")),
+        other => {
+            return Err(CallError::Refused(format!(
+                "unexpected answer to recipe-list: {other:?}"
+            )))
+        }
     }
     let request = ApiRequest::RecipeGet { file: file.clone() };
     match bus.api(operator, request, CALL_LIMIT).await? {
         ApiReply::Recipe(r) => Ok(Some(r)),
-        other => Err(format!("unexpected answer to recipe-get: {other:?}")),
+        other => Err(CallError::Refused(format!(
+            "unexpected answer to recipe-get: {other:?}"
+        ))),
     }
 }
 
@@ -67,7 +74,10 @@ impl Session {
         operator: &StationName,
         file: &RecipeFile,
     ) -> Result<Self, String> {
-        let (text, base) = match fetch(bus, operator, file).await? {
+        let (text, base) = match fetch(bus, operator, file)
+            .await
+            .map_err(|e| e.to_string())?
+        {
             Some(r) => (r.text, Some(r.hash)),
             None => (template(file), None),
         };
@@ -113,7 +123,11 @@ impl Session {
             text,
             base: self.base,
         };
-        match bus.api(operator, request, CALL_LIMIT).await? {
+        match bus
+            .api(operator, request, CALL_LIMIT)
+            .await
+            .map_err(|e| e.to_string())?
+        {
             ApiReply::Done(said) => {
                 let _ = std::fs::remove_file(&self.copy);
                 Ok(said)

@@ -110,6 +110,19 @@ fn on_query(call: Call, query: Query, tx: &UnboundedSender<ApiIndication>) {
     }
 }
 
+/// Why an operator API call brought no reply. Its text says which call and
+/// why, ready for a console to show.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum CallError {
+    /// No reply: the operator node is not there, or the router's ACL
+    /// refused the call (zenoh cannot tell which).
+    #[error("{0}")]
+    NoReply(String),
+    /// The operator node answered: refused, and why.
+    #[error("{0}")]
+    Refused(String),
+}
+
 impl Bus {
     /// Serves every operator API call of this (operator) node; requests go
     /// to `tx`.
@@ -133,13 +146,13 @@ impl Bus {
     }
 
     /// Makes an operator API call as this session's user; the reply, or why
-    /// the call failed or was refused, in words.
+    /// there is none: no reply, or the operator's refusal.
     pub async fn api(
         &self,
         operator: &StationName,
         request: ApiRequest,
         deadline: Duration,
-    ) -> Result<ApiReply, String> {
+    ) -> Result<ApiReply, CallError> {
         let me = self.me.station.clone();
         self.api_as(operator, request, &me, deadline).await
     }
@@ -153,7 +166,7 @@ impl Bus {
         request: ApiRequest,
         user: &StationName,
         deadline: Duration,
-    ) -> Result<ApiReply, String> {
+    ) -> Result<ApiReply, CallError> {
         let call = request.call();
         let key = self.keys.api(operator, call, user);
         let payload = envelope::encode(&request);
@@ -162,8 +175,8 @@ impl Bus {
             .query::<ApiResult>(&key, payload, deadline, &what)
             .await
         {
-            Ok(result) => result,
-            Err(e) => Err(e.description),
+            Ok(result) => result.map_err(CallError::Refused),
+            Err(e) => Err(CallError::NoReply(e.description)),
         }
     }
 }

@@ -69,7 +69,10 @@ struct Tui<'a> {
 
 impl Tui<'_> {
     async fn call(&self, r: ApiRequest) -> Result<ApiReply, String> {
-        self.bus.api(self.operator, r, CALL_LIMIT).await
+        self.bus
+            .api(self.operator, r, CALL_LIMIT)
+            .await
+            .map_err(|e| e.to_string())
     }
 
     async fn main_loop(&mut self, terminal: &mut DefaultTerminal) -> Result<(), String> {
