@@ -234,8 +234,10 @@ fn an_observer_reads_but_cannot_command() {
     let (code, text) = rig.cell.falc_as("observer", &["order", "list"]);
     assert_eq!(code, 0, "{text}");
     assert!(text.contains("dikdroog"), "{text}");
+    // The router refuses: no reply (exit 2), unlike the operator's own
+    // refusals (exit 1) below.
     let (code, text) = rig.cell.falc_as("observer", &["start"]);
-    assert_eq!(code, 1, "{text}");
+    assert_eq!(code, 2, "{text}");
     assert!(text.contains("no reply"), "refused by the router: {text}");
     assert_eq!(rig.orders()[0].state, OrderState::Queued);
     let (code, text) = rig.cell.falc_as("console", &["order", "add", "nosuch"]);
