@@ -98,10 +98,12 @@ struct Cell {
 }
 
 impl Cell {
-    /// Settles the controller and sends what its stations must be asked.
+    /// Settles the controller, sends what its stations must be asked, then
+    /// publishes (requests first: they are on the critical path of the
+    /// recipe, the status put is not).
     async fn settle(&mut self) {
         loop {
-            self.ctl.settle().await;
+            self.ctl.settle_core();
             while let Some(cmd) = self.ctl.core.device.poll_command() {
                 self.lanes.send(cmd);
             }
@@ -111,6 +113,7 @@ impl Cell {
             let now = self.ctl.now();
             coordination::handle_reply(&mut self.ctl.core, now, local);
         }
+        self.ctl.publish().await;
     }
 
     /// Acts on what the station hands the cell: indications (a finished

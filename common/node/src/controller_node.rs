@@ -141,8 +141,21 @@ impl<D: Device> ControllerNode<D> {
     /// Runs the engine's actions, finishes the job if it ended, publishes
     /// what came of it and the status: call after every event.
     pub async fn settle(&mut self) {
+        self.settle_core();
+        self.publish().await;
+    }
+
+    /// The first half of [`Self::settle`]: runs the engine's actions in the
+    /// core, publishes nothing yet (a driver with commands to send sends
+    /// them first: the next station should not wait for a status put).
+    pub fn settle_core(&mut self) {
         let now = self.now();
         self.core.settle(now);
+    }
+
+    /// The second half of [`Self::settle`]: publishes what the core put out
+    /// and the status.
+    pub async fn publish(&mut self) {
         self.flush().await;
         self.publish_status().await;
     }
