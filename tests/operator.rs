@@ -69,10 +69,7 @@ fn answering_nee_ends_the_order_cleanly() {
 #[test]
 fn sigkill_of_a_workstation_mid_order_then_start_refused_until_it_returns() {
     let mut rig = rig("10");
-    rig.cell.falc(&["order", "add", "dikdroog"]);
-    rig.cell.falc(&["order", "add", "dikdroog"]);
-    rig.cell.falc(&["start"]);
-    rig.until_welding();
+    rig.start_list_until_welding(&["dikdroog", "dikdroog"]);
     // Killed only once UNSTORE (started with the weld) is done: the cell
     // then waits for the welder only (earlier, its Start of UNSTORE may
     // fail first and take the recipe's own failure path).
@@ -152,10 +149,7 @@ fn sigkill_of_a_workstation_mid_order_then_start_refused_until_it_returns() {
 #[test]
 fn sigkill_of_the_operator_mid_order_keeps_list_and_journal_and_marks_it_interrupted() {
     let mut rig = rig("10");
-    rig.cell.falc(&["order", "add", "dikdroog"]);
-    rig.cell.falc(&["order", "add", "dundroog"]);
-    rig.cell.falc(&["start"]);
-    rig.until_welding();
+    rig.start_list_until_welding(&["dikdroog", "dundroog"]);
     let before = rig.journal(None);
     rig.operator().kill();
     rig.operator = None;

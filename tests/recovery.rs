@@ -37,10 +37,7 @@ fn robot_detail(rig: &Rig) -> Option<RobotStatusDetail> {
 #[test]
 fn robot_emergency_stop_mid_weld_then_ack_and_start_runs_the_next_order() {
     let mut rig = rig("10");
-    rig.cell.falc(&["order", "add", "dikdroog"]);
-    rig.cell.falc(&["order", "add", "dundroog"]);
-    rig.cell.falc(&["start"]);
-    rig.until_welding();
+    rig.start_list_until_welding(&["dikdroog", "dundroog"]);
     rig.rcm.control("estop");
     rig.operator().expect_line(
         "EVENT order-ended id=1 state=failed",
@@ -208,10 +205,7 @@ fn a_full_disk_mid_order_stops_the_list_and_no_order_runs_twice() {
     let var = base.path().join("var");
     let disk = SmallDisk::mount(&var, "8m");
     let mut rig = rig_with_db("10", Some(var.join("falc.db")));
-    rig.cell.falc(&["order", "add", "dikdroog"]);
-    rig.cell.falc(&["order", "add", "dundroog"]);
-    rig.cell.falc(&["start"]);
-    rig.until_welding();
+    rig.start_list_until_welding(&["dikdroog", "dundroog"]);
     disk.fill();
     // The next write (an operator adding an order) fails: refused, the
     // list stopped, the running order halted at the cell (the robot stops).
@@ -414,10 +408,7 @@ fn a_robot_in_manual_mode_reaches_the_operator_with_its_iso_9506_error() {
 fn a_silent_robot_line_mid_weld_is_an_alarm_and_ack_start_run_the_next_order() {
     use falc_model::alarm::{AlarmClass, AlarmState};
     let mut rig = rig("10");
-    rig.cell.falc(&["order", "add", "dikdroog"]);
-    rig.cell.falc(&["order", "add", "dikdroog"]);
-    rig.cell.falc(&["start"]);
-    rig.until_welding();
+    rig.start_list_until_welding(&["dikdroog", "dikdroog"]);
     rig.rcm.control("unplug");
     rig.operator().expect_line(
         "EVENT order-ended id=1 state=failed",

@@ -114,17 +114,20 @@ impl Deliveries {
         self.in_flight = self.in_flight.saturating_sub(1);
     }
 
-    fn ask(&mut self, job: Job) -> bool {
+    /// Hands the task a job; `counts` if its end will come back as a
+    /// [`Delivered`]. A task that is gone drops the job (a download's
+    /// responder with it: the commander sees no reply) and the cell's loop
+    /// stops on the closed channel.
+    fn ask(&mut self, job: Job, counts: bool) {
         if self.jobs.send(job).is_err() {
             tracing::error!("the delivery task stopped");
-            return false;
+        } else if counts {
+            self.in_flight += 1;
         }
-        true
     }
 
     /// Delivers `content` of `domain` as `station`'s recipe `name`; the
-    /// download is answered when it ends. False if the task is gone (the
-    /// responder is dropped: the commander sees no reply).
+    /// download is answered when it ends.
     pub fn pass_on(
         &mut self,
         domain: ObjectName,
@@ -132,21 +135,20 @@ impl Deliveries {
         name: ObjectName,
         content: Vec<u8>,
         responder: Responder,
-    ) -> bool {
-        let asked = self.ask(Job::PassOn(Box::new(PassOn {
+    ) {
+        let job = Job::PassOn(Box::new(PassOn {
             domain,
             station,
             name,
             content,
             responder,
-        })));
-        self.in_flight += usize::from(asked);
-        asked
+        }));
+        self.ask(job, true);
     }
 
     /// A workstation was lost: it will come back empty.
     pub fn forget(&mut self, station: &StationName) {
-        self.ask(Job::Forget(station.clone()));
+        self.ask(Job::Forget(station.clone()), false);
     }
 
     /// Sends every `STATION$NAME` domain of `vmd` that its workstation
@@ -160,8 +162,7 @@ impl Deliveries {
             })
             .collect();
         if !todo.is_empty() {
-            let asked = self.ask(Job::CatchUp(todo));
-            self.in_flight += usize::from(asked);
+            self.ask(Job::CatchUp(todo), true);
         }
     }
 }

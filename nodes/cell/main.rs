@@ -119,9 +119,8 @@ impl Cell {
     /// Acts on what the station hands the cell: indications (a finished
     /// download of `STATION$NAME` is passed on to that workstation before
     /// it is confirmed), aborts (a lost workstation comes back empty) and
-    /// associations (a returned workstation gets its recipes again). False
-    /// when the bus is gone.
-    async fn on_station(&mut self, ev: StationEvent) -> bool {
+    /// associations (a returned workstation gets its recipes again).
+    async fn on_station(&mut self, ev: StationEvent) {
         match ev {
             StationEvent::Indication(ind) if self.deliveries.busy() => self.held.push_back(ind),
             StationEvent::Indication(ind) => self.indication(ind).await,
@@ -130,15 +129,12 @@ impl Cell {
                 if let StationEvent::Abort(a) = &other {
                     self.deliveries.forget(&a.peer.station);
                 }
-                if !self.ctl.station_event(Some(other)).await {
-                    return false;
-                }
+                self.ctl.station_event(other).await;
                 if associated {
-                    self.deliveries.catch_up(self.ctl.vmd());
+                    self.deliveries.catch_up(self.ctl.core.vmd());
                 }
             }
         }
-        true
     }
 
     async fn indication(&mut self, ind: Indication) {
@@ -153,7 +149,7 @@ impl Cell {
         {
             if let Some((st, name)) = workstation_domain(domain) {
                 if !self.subordinates.contains(&st) {
-                    self.ctl.discard_domain(domain);
+                    self.ctl.core.discard_domain(domain);
                     let e = ServiceError::undefined(format!(
                         "recipe {domain}: {st} is not a workstation of this cell"
                     ));
@@ -162,6 +158,7 @@ impl Cell {
                 }
                 let content = self
                     .ctl
+                    .core
                     .vmd()
                     .domain(domain)
                     .map(|d| d.content().to_vec())
@@ -185,7 +182,7 @@ impl Cell {
                 responder,
             } => {
                 if result.is_err() {
-                    self.ctl.discard_domain(&domain);
+                    self.ctl.core.discard_domain(&domain);
                 }
                 responder.respond(result.map(|()| Response::Done)).await;
             }
@@ -247,9 +244,7 @@ async fn main() -> Result<()> {
             ev = cell.ctl.station_recv() => {
                 let Some(ev) = ev else { break };
                 if let Some(ev) = cell.ctl.station_handle(ev).await {
-                    if !cell.on_station(ev).await {
-                        break;
-                    }
+                    cell.on_station(ev).await;
                 }
             }
             r = replies.recv() => match r {

@@ -464,7 +464,7 @@ fn refuse(why: &str) -> ExitCode {
 /// Says why a call brought no reply and exits 1 if the operator refused
 /// it, 2 if the operator node could not be reached (or the router refused
 /// the call: zenoh cannot tell them apart).
-fn fail(why: &CallError) -> ExitCode {
+pub fn fail(why: &CallError) -> ExitCode {
     eprintln!("falc: {why}");
     match why {
         CallError::Refused(_) => ExitCode::FAILURE,

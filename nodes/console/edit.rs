@@ -67,17 +67,25 @@ pub struct Session {
     original: String,
 }
 
+/// Why an edit cannot start: the operator API, or this machine.
+#[derive(Debug, thiserror::Error)]
+pub enum OpenError {
+    /// Fetching the recipe: no reply, or refused.
+    #[error(transparent)]
+    Call(#[from] CallError),
+    /// The private copy could not be written.
+    #[error("{0}")]
+    Copy(String),
+}
+
 impl Session {
     /// Starts editing `file`: fetches it (or the template) into a copy.
     pub async fn open(
         bus: &Bus,
         operator: &StationName,
         file: &RecipeFile,
-    ) -> Result<Self, String> {
-        let (text, base) = match fetch(bus, operator, file)
-            .await
-            .map_err(|e| e.to_string())?
-        {
+    ) -> Result<Self, OpenError> {
+        let (text, base) = match fetch(bus, operator, file).await? {
             Some(r) => (r.text, Some(r.hash)),
             None => (template(file), None),
         };
@@ -89,7 +97,8 @@ impl Session {
             std::process::id(),
             file.file()
         ));
-        write_private(&copy, &text).map_err(|e| format!("{}: {e}", copy.display()))?;
+        write_private(&copy, &text)
+            .map_err(|e| OpenError::Copy(format!("{}: {e}", copy.display())))?;
         Ok(Self {
             file: file.clone(),
             base,
@@ -179,6 +188,7 @@ pub fn run_editor(path: &Path) -> Result<(), String> {
 pub async fn interactive(bus: &Bus, operator: &StationName, file: &RecipeFile) -> ExitCode {
     let session = match Session::open(bus, operator, file).await {
         Ok(s) => s,
+        Err(OpenError::Call(e)) => return crate::cell_cmd::fail(&e),
         Err(e) => {
             eprintln!("falc: {e}");
             return ExitCode::FAILURE;

@@ -9,8 +9,9 @@
 //! `falc-transport io [--watch] [--map]` is the commissioning check: it
 //! shows the live inputs (and never writes a coil).
 //!
-//! A thin driver: the recipe runtime is `falc_control::controller`, driven by `falc_node::controller_node`, the
-//! Modbus link `falc_node::plc_link`, the recipe ↔ I/O rules `plc`.
+//! A thin driver: the recipe runtime is `falc_control::controller`
+//! (driven by `falc_node::controller_node`), the Modbus link
+//! `falc_node::plc_link`, the recipe ↔ I/O rules `plc`.
 
 mod plc;
 

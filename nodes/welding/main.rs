@@ -4,8 +4,10 @@
 //! to the robot controller over the DNC serial link. Job events (done,
 //! alarm, paused, bad product, failed) go up as unsolicited status.
 //!
-//! A thin driver: the recipe runtime is `falc_control::controller`, driven by `falc_node::controller_node`, the
-//! rules of the link live in `host` (DNC ↔ engine) and the 3964R procedure.
+//! A thin driver: the recipe runtime is `falc_control::controller`
+//! (driven by `falc_node::controller_node`), the rules of the link live in
+//! `host` (DNC ↔ engine, and its supervision, which the runtime's clock
+//! drives through `Device::poll_timeout`) and the 3964R procedure.
 
 mod host;
 
@@ -17,7 +19,6 @@ use falc_dnc::procedure::{LinkEvent, Priority, Timing};
 use falc_dnc::telegram::{Program, Telegram};
 use falc_model::alarm::Cause;
 use falc_model::ids::StationName;
-use falc_model::mms::pdu::Severity;
 use falc_model::mms::vmd::{RobotStatusDetail, VmdStatus};
 use falc_node::controller_node::ControllerNode;
 use falc_node::dnc_link::{self, LineSettings};
@@ -26,6 +27,7 @@ use falc_recipe::check::Job;
 use falc_recipe::commands::RecipeKind;
 use falc_recipe::engine::{Action, Event};
 use host::{Host, Out};
+use std::collections::VecDeque;
 use std::time::Duration;
 
 #[derive(Parser, Debug)]
@@ -54,7 +56,7 @@ struct Robot {
     detail: Option<RobotStatusDetail>,
     /// Alarms no job owns (a lost line while idle, a program found
     /// running nobody's), not yet reported.
-    alarms: Vec<Cause>,
+    alarms: VecDeque<Cause>,
 }
 
 impl Robot {
@@ -84,7 +86,7 @@ impl Robot {
                 Out::Info(text) => tracing::info!("{text}"),
                 Out::Alarm(text) => {
                     tracing::warn!("{text}");
-                    self.alarms.push(text);
+                    self.alarms.push_back(text);
                 }
             }
         }
@@ -121,14 +123,6 @@ impl Robot {
         let mut out = Vec::new();
         let outs = self.host.connected(now);
         self.apply(outs, &mut out);
-    }
-
-    /// The supervision's clock.
-    fn on_timeout(&mut self, now: Duration) -> Vec<Event> {
-        let mut out = Vec::new();
-        let outs = self.host.handle_timeout(now);
-        self.apply(outs, &mut out);
-        out
     }
 
     /// The line closed.
@@ -186,6 +180,20 @@ impl Device for Robot {
         self.host.explain_timeout(now)
     }
 
+    /// The supervision's clock (status requests, the silence limit).
+    fn poll_timeout(&self) -> Option<Duration> {
+        self.host.poll_timeout()
+    }
+
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Event>) {
+        let outs = self.host.handle_timeout(now);
+        self.apply(outs, out);
+    }
+
+    fn poll_alarm(&mut self) -> Option<Cause> {
+        self.alarms.pop_front()
+    }
+
     fn status(&self, status: &mut VmdStatus) {
         status.additional = self.detail;
         // Inoperable while the line is closed or the RCM has not answered
@@ -227,7 +235,7 @@ async fn main() -> Result<()> {
         dnc,
         line,
         detail: None,
-        alarms: Vec::new(),
+        alarms: VecDeque::new(),
     };
     // select + start: 2 telegrams, each up to 6 × 2 s on a dead line, so
     // the link's own, clearer failure arrives before the confirm limit.
@@ -245,9 +253,6 @@ async fn main() -> Result<()> {
     let mut shutdown = falc_node::Shutdown::new();
     loop {
         let deadline = ws.deadline();
-        let supervision = ws.core.device.host.poll_timeout().map_or(deadline, |t| {
-            tokio::time::Instant::now() + t.saturating_sub(ws.now())
-        });
         tokio::select! {
             ev = ws.station_recv() => if !ws.station_step(ev).await { break },
             ev = async { match &mut dnc_events { Some(e) => e.recv().await, None => std::future::pending().await } } => {
@@ -271,19 +276,11 @@ async fn main() -> Result<()> {
                 }
             }
             _ = tokio::time::sleep_until(deadline) => ws.on_timeout(),
-            _ = tokio::time::sleep_until(supervision) => {
-                let now = ws.now();
-                let events = ws.core.device.on_timeout(now);
-                ws.feed(events);
-            }
             _ = shutdown.requested() => break,
         }
         ws.settle().await;
-        for cause in std::mem::take(&mut ws.core.device.alarms) {
-            ws.report(Severity::Alarm(cause.class), cause.text).await;
-        }
     }
-    if ws.is_running() {
+    if ws.core.is_running() {
         let mut out = Vec::new();
         ws.core.device.halt(&mut out);
     }

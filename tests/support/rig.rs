@@ -112,6 +112,16 @@ impl Rig {
         self.operator.as_mut().expect("operator running")
     }
 
+    /// Queues `recipes` as orders, starts the list and answers `ja` until
+    /// the first order is mid-weld.
+    pub fn start_list_until_welding(&mut self, recipes: &[&str]) {
+        for recipe in recipes {
+            self.cell.falc(&["order", "add", recipe]);
+        }
+        self.cell.falc(&["start"]);
+        self.until_welding();
+    }
+
     /// Answers questions with `ja` until the robot starts its program (the
     /// twin receives `G`): the order is mid-weld.
     pub fn until_welding(&mut self) {

@@ -60,6 +60,21 @@ pub trait Device {
     fn lost(&mut self, _station: &StationName) {}
     /// The commander associated (and with it every subordinate).
     fn associated(&mut self) {}
+    /// When the device's own supervision next needs the clock (a status
+    /// request due, a silence limit), if ever. The controller sleeps until
+    /// the earlier of this and the recipe's limit.
+    fn poll_timeout(&self) -> Option<Duration> {
+        None
+    }
+    /// The clock reached [`Device::poll_timeout`]; events for the running
+    /// recipe go into `out`.
+    fn handle_timeout(&mut self, _now: Duration, _out: &mut Vec<Event>) {}
+    /// An alarm the device raised that no recipe step owns (a lost line
+    /// while idle, a program found running that nobody started): reported
+    /// once, when the controller settles.
+    fn poll_alarm(&mut self) -> Option<Cause> {
+        None
+    }
 }
 
 /// What the controller publishes, in order.
@@ -122,22 +137,39 @@ impl<D: Device> Controller<D> {
         self.running.is_some()
     }
 
-    /// When the running recipe's next limit runs out, if one runs.
+    /// When the clock is next needed: the running recipe's next limit or
+    /// the device's supervision, whichever comes first.
     pub fn poll_timeout(&self) -> Option<Duration> {
-        self.running.as_ref().and_then(|r| r.engine.poll_timeout())
+        let recipe = self.running.as_ref().and_then(|r| r.engine.poll_timeout());
+        match (recipe, self.device.poll_timeout()) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
     }
 
-    /// The clock reached [`Self::poll_timeout`].
+    /// The clock reached [`Self::poll_timeout`]: the device's supervision
+    /// and the recipe's limit, each if due.
     pub fn handle_timeout(&mut self, now: Duration) {
+        if self.device.poll_timeout().is_some_and(|d| d <= now) {
+            let mut out = Vec::new();
+            self.device.handle_timeout(now, &mut out);
+            self.feed(now, out);
+        }
+        let due = self
+            .running
+            .as_ref()
+            .and_then(|r| r.engine.poll_timeout())
+            .is_some_and(|d| d <= now);
+        if !due {
+            return;
+        }
         let explained = self.device.explain_timeout(now);
         if let Some(r) = &mut self.running {
-            if r.engine.poll_timeout().is_some_and(|d| d <= now) {
-                if let Some(e) = &explained {
-                    tracing::info!(state = %r.engine.state(), "limit ran out: {e}");
-                }
-                r.timed_out = explained;
-                r.engine.handle_timeout(now);
+            if let Some(e) = &explained {
+                tracing::info!(state = %r.engine.state(), "limit ran out: {e}");
             }
+            r.timed_out = explained;
+            r.engine.handle_timeout(now);
         }
     }
 
@@ -236,6 +268,9 @@ impl<D: Device> Controller<D> {
                     event,
                 });
             }
+        }
+        while let Some(cause) = self.device.poll_alarm() {
+            self.report(Severity::Alarm(cause.class), cause.text);
         }
     }
 
@@ -364,14 +399,42 @@ impl<D: Device> Controller<D> {
     }
 }
 
+/// What the unit tests of the controller cores share: loading a recipe as
+/// the commander's delivery does, and draining the outputs.
+#[cfg(test)]
+pub(crate) mod testing {
+    use super::*;
+    use falc_model::mms::domain::download_steps;
+
+    /// Delivers `text` as domain and reusable program invocation `name`,
+    /// as `falc_bus::download` does.
+    pub fn load<D: Device>(c: &mut Controller<D>, name: &str, text: &str) {
+        let n = ObjectName::new(name).unwrap();
+        let mut steps = download_steps(&n, text.as_bytes());
+        steps.push(Request::CreateProgramInvocation {
+            name: n.clone(),
+            domains: vec![n],
+            reusable: true,
+        });
+        for req in steps {
+            c.handle_request(Duration::ZERO, &req).unwrap();
+        }
+    }
+
+    /// Everything put out so far, in order.
+    pub fn outputs<D: Device>(c: &mut Controller<D>) -> Vec<Output> {
+        std::iter::from_fn(|| c.poll_output()).collect()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     //! The runtime on a virtual clock, with a fake device that records what
     //! the recipe made it do: the paths the multi-process tests cover
     //! (done, time limit, lost association, refusal, stop, settling).
 
+    use super::testing::{load, outputs};
     use super::*;
-    use falc_model::mms::domain::download_steps;
     use falc_model::mms::program::PiState;
     use falc_recipe::check::Job;
 
@@ -390,6 +453,11 @@ mod tests {
         down: Option<String>,
         settling: bool,
         lost: Vec<StationName>,
+        /// Its supervision's next deadline, and when it ran.
+        supervise_at: Option<Duration>,
+        supervised: Vec<Duration>,
+        /// Raised by the supervision: a line gone silent.
+        alarms: std::collections::VecDeque<Cause>,
     }
 
     impl Device for Fake {
@@ -415,6 +483,20 @@ mod tests {
         fn lost(&mut self, station: &StationName) {
             self.lost.push(station.clone());
         }
+        fn poll_timeout(&self) -> Option<Duration> {
+            self.supervise_at
+        }
+        fn handle_timeout(&mut self, now: Duration, _out: &mut Vec<Event>) {
+            self.supervised.push(now);
+            self.supervise_at = None;
+            self.alarms.push_back(Cause::new(
+                AlarmClass::Communication,
+                "status request unanswered".to_string(),
+            ));
+        }
+        fn poll_alarm(&mut self) -> Option<Cause> {
+            self.alarms.pop_front()
+        }
     }
 
     fn name(s: &str) -> ObjectName {
@@ -432,16 +514,7 @@ mod tests {
     /// A welding controller holding `droog_dik` as a program invocation.
     fn loaded() -> Controller<Fake> {
         let mut c = Controller::new(RecipeKind::Welding, secs(30), Fake::default());
-        let n = name("droog_dik");
-        let mut steps = download_steps(&n, DROOG_DIK.as_bytes());
-        steps.push(Request::CreateProgramInvocation {
-            name: n.clone(),
-            domains: vec![n.clone()],
-            reusable: true,
-        });
-        for req in steps {
-            c.handle_request(Duration::ZERO, &req).unwrap();
-        }
+        load(&mut c, "droog_dik", DROOG_DIK);
         c
     }
 
@@ -453,10 +526,6 @@ mod tests {
                 argument: String::new(),
             },
         )
-    }
-
-    fn outputs(c: &mut Controller<Fake>) -> Vec<Output> {
-        std::iter::from_fn(|| c.poll_output()).collect()
     }
 
     fn job_events(outs: &[Output]) -> Vec<JobEvent> {
@@ -616,16 +685,8 @@ mod tests {
     #[test]
     fn a_recipe_with_an_error_is_refused_with_its_line_and_the_invocation_stays_usable() {
         let mut c = Controller::new(RecipeKind::Welding, secs(30), Fake::default());
+        load(&mut c, "bad", "#BAD\n-1 | frobnicate |  |  | 0\n");
         let n = name("bad");
-        let mut steps = download_steps(&n, b"#BAD\n-1 | frobnicate |  |  | 0\n");
-        steps.push(Request::CreateProgramInvocation {
-            name: n.clone(),
-            domains: vec![n.clone()],
-            reusable: true,
-        });
-        for req in steps {
-            c.handle_request(Duration::ZERO, &req).unwrap();
-        }
         let e = c
             .handle_request(
                 secs(1),
@@ -662,5 +723,35 @@ mod tests {
                 text: "emergency stop".into()
             }]
         );
+    }
+
+    #[test]
+    fn the_device_supervision_shares_the_clock_and_its_alarms_are_reported() {
+        let mut c = loaded();
+        // Idle: only the device wants the clock.
+        c.device.supervise_at = Some(secs(1));
+        assert_eq!(c.poll_timeout(), Some(secs(1)));
+        c.handle_timeout(secs(1));
+        c.settle(secs(1));
+        assert_eq!(c.device.supervised, vec![secs(1)]);
+        assert_eq!(
+            outputs(&mut c),
+            vec![Output::Report {
+                severity: Severity::Alarm(AlarmClass::Communication),
+                text: "status request unanswered".into()
+            }]
+        );
+        // Running: the earlier of the recipe's limit and the device's.
+        start(&mut c, secs(2)).unwrap();
+        c.feed(secs(2), vec![Event::Started(rcm())]);
+        c.settle(secs(2));
+        assert_eq!(c.poll_timeout(), Some(secs(172)));
+        c.device.supervise_at = Some(secs(3));
+        assert_eq!(c.poll_timeout(), Some(secs(3)));
+        c.handle_timeout(secs(3));
+        c.settle(secs(3));
+        assert_eq!(c.device.supervised, vec![secs(1), secs(3)]);
+        assert!(c.is_running(), "the recipe's own limit is not due yet");
+        assert_eq!(c.poll_timeout(), Some(secs(172)));
     }
 }

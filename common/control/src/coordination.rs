@@ -260,8 +260,8 @@ mod tests {
     //! commands it sends.
 
     use super::*;
+    use crate::controller::testing::{load, outputs};
     use crate::controller::Output;
-    use falc_model::mms::domain::download_steps;
     use falc_model::mms::program::PiState;
     use falc_recipe::commands::RecipeKind;
 
@@ -290,16 +290,7 @@ mod tests {
 
     fn cell_with(operator: Option<StationName>) -> Controller<Stations> {
         let mut c = Controller::new(RecipeKind::Cell, CONFIRM_LIMIT, Stations::new(operator));
-        let n = name("test");
-        let mut steps = download_steps(&n, CELL.as_bytes());
-        steps.push(Request::CreateProgramInvocation {
-            name: n.clone(),
-            domains: vec![n],
-            reusable: true,
-        });
-        for req in steps {
-            c.handle_request(Duration::ZERO, &req).unwrap();
-        }
+        load(&mut c, "test", CELL);
         c
     }
 
@@ -332,19 +323,24 @@ mod tests {
         std::iter::from_fn(|| c.device.poll_command()).collect()
     }
 
+    /// The station (or operator) `cmd` went to confirms it with `r`.
     fn reply(c: &mut Controller<Stations>, now: Duration, cmd: &Command, r: Response) {
-        handle_reply(
-            c,
-            now,
-            Reply {
-                awaiting: cmd.awaiting.clone(),
-                result: Ok(r),
-            },
-        );
+        answer(c, now, cmd, Ok(r));
     }
 
-    fn outputs(c: &mut Controller<Stations>) -> Vec<Output> {
-        std::iter::from_fn(|| c.poll_output()).collect()
+    /// … or the confirm does not come: refused, or no reply, with `why`.
+    fn refused(c: &mut Controller<Stations>, now: Duration, cmd: &Command, why: &str) {
+        answer(c, now, cmd, Err(why.to_string()));
+    }
+
+    fn answer(
+        c: &mut Controller<Stations>,
+        now: Duration,
+        cmd: &Command,
+        result: Result<Response, String>,
+    ) {
+        let awaiting = cmd.awaiting.clone();
+        handle_reply(c, now, Reply { awaiting, result });
     }
 
     fn job_done(station: &str, program: &str) -> Unconfirmed {
@@ -433,13 +429,11 @@ mod tests {
     fn a_refused_start_below_is_a_warning_and_takes_the_failure_path() {
         let mut c = cell();
         let store = up_to_the_transport_job(&mut c);
-        handle_reply(
+        refused(
             &mut c,
             secs(6),
-            Reply {
-                awaiting: store.awaiting.clone(),
-                result: Err("vmd-state/vmd-state-conflict: emergency stop".into()),
-            },
+            &store,
+            "vmd-state/vmd-state-conflict: emergency stop",
         );
         settle(&mut c, secs(6));
         assert!(!c.is_running());
@@ -541,13 +535,11 @@ mod tests {
         start(&mut c).unwrap();
         let cmds = settle(&mut c, Duration::ZERO);
         reply(&mut c, secs(1), &cmds[0], Response::Done);
-        handle_reply(
+        refused(
             &mut c,
             secs(2),
-            Reply {
-                awaiting: cmds[1].awaiting.clone(),
-                result: Err("application-reference/application-unreachable".into()),
-            },
+            &cmds[1],
+            "application-reference/application-unreachable",
         );
         settle(&mut c, secs(2));
         assert!(!c.is_running());

@@ -13,7 +13,6 @@ use falc_bus::station::{Station, StationEvent};
 use falc_bus::BusEvent;
 use falc_control::controller::{Controller, Device, Output};
 use falc_model::alarm::Cause;
-use falc_model::ids::ObjectName;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Request, Response, Severity, Unconfirmed};
 use falc_recipe::commands::RecipeKind;
@@ -45,11 +44,6 @@ impl<D: Device> ControllerNode<D> {
         Instant::now().duration_since(self.origin)
     }
 
-    /// Whether a recipe runs.
-    pub fn is_running(&self) -> bool {
-        self.core.is_running()
-    }
-
     /// The next raw bus event of the station (cancel-safe: a `select!`
     /// branch); None when the bus is gone.
     pub async fn station_recv(&mut self) -> Option<BusEvent> {
@@ -67,10 +61,10 @@ impl<D: Device> ControllerNode<D> {
     /// when the bus is gone.
     pub async fn station_step(&mut self, ev: Option<BusEvent>) -> bool {
         let Some(ev) = ev else { return false };
-        match self.station_handle(ev).await {
-            Some(e) => self.station_event(Some(e)).await,
-            None => true,
+        if let Some(e) = self.station_handle(ev).await {
+            self.station_event(e).await;
         }
+        true
     }
 
     /// When the running recipe's next limit runs out (far away if none).
@@ -160,38 +154,26 @@ impl<D: Device> ControllerNode<D> {
         self.publish_status().await;
     }
 
-    /// Handles what the station hands the node; false when the bus is gone.
-    pub async fn station_event(&mut self, ev: Option<StationEvent>) -> bool {
+    /// Handles what the station hands the node.
+    pub async fn station_event(&mut self, ev: StationEvent) {
         match ev {
-            Some(StationEvent::Indication(ind)) => {
+            StationEvent::Indication(ind) => {
                 let result = self.indication(&ind.request).await;
                 ind.responder.respond(result).await;
             }
-            Some(StationEvent::Abort(a)) => {
+            StationEvent::Abort(a) => {
                 say(&format!("EVENT abort-indication peer={}", a.peer.station));
                 self.core.handle_abort(&a.peer.station);
                 self.flush().await;
             }
-            Some(StationEvent::Associated(p)) => {
+            StationEvent::Associated(p) => {
                 say(&format!("EVENT associated commander={}", p.station));
                 self.core.handle_associated();
                 self.publish_status().await;
                 self.station.republish_status().await;
             }
-            Some(StationEvent::Concluded(_)) => {}
-            None => return false,
+            StationEvent::Concluded(_) => {}
         }
-        true
-    }
-
-    /// The object store (domains, program invocations).
-    pub fn vmd(&self) -> &falc_model::mms::vmd::Vmd {
-        self.core.vmd()
-    }
-
-    /// Takes a domain back out (a delivery that failed).
-    pub fn discard_domain(&mut self, name: &ObjectName) {
-        self.core.discard_domain(name);
     }
 
     /// Answers one indication (the node answers it to the commander).

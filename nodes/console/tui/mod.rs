@@ -169,7 +169,7 @@ impl Tui<'_> {
                 }
                 match Session::open(self.bus, self.operator, &file).await {
                     Ok(s) => self.edit(s, terminal).await?,
-                    Err(e) => self.app.said = Some((false, e)),
+                    Err(e) => self.app.said = Some((false, e.to_string())),
                 }
             }
             Intent::EditAgain => {
