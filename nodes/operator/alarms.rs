@@ -34,7 +34,7 @@ pub enum Raised {
 #[derive(Debug, Default)]
 pub struct AlarmList {
     listed: Vec<Alarm>,
-    /// The next number of an alarm the store could not keep (-1, -2, …).
+    /// The next number of an alarm the database could not keep (-1, -2, …).
     unstored: i64,
 }
 
@@ -58,10 +58,10 @@ pub fn condition_holds(alarm: &Alarm, status: Option<&VmdStatus>, present: bool)
 }
 
 impl AlarmList {
-    /// The list as the store holds it.
-    pub fn load(store: &Database) -> Result<Self, DatabaseError> {
+    /// The list as the database holds it.
+    pub fn load(db: &Database) -> Result<Self, DatabaseError> {
         Ok(Self {
-            listed: store.listed_alarms()?,
+            listed: db.listed_alarms()?,
             unstored: 0,
         })
     }
@@ -80,11 +80,11 @@ impl AlarmList {
             .min_by_key(|a| (a.class.priority(), a.id.abs()))
     }
 
-    /// Raises an alarm of `station`. On a store failure the alarm is kept
+    /// Raises an alarm of `station`. On a database failure the alarm is kept
     /// in memory and the error returned with it.
     pub fn raise(
         &mut self,
-        store: &mut Database,
+        db: &mut Database,
         station: &str,
         class: AlarmClass,
         text: &str,
@@ -101,7 +101,7 @@ impl AlarmList {
         }) {
             return (Raised::Repeated(a.id), None);
         }
-        let (alarm, error) = match store.raise_alarm(station, class, text, order) {
+        let (alarm, error) = match db.raise_alarm(station, class, text, order) {
             Ok(a) => (a, None),
             Err(e) => {
                 self.unstored -= 1;
@@ -122,7 +122,7 @@ impl AlarmList {
         self.listed.push(alarm);
         let mut error = error;
         if class == AlarmClass::Process {
-            error = error.or(self.clear_where(store, |a| a.id == id).1);
+            error = error.or(self.clear_where(db, |a| a.id == id).1);
         }
         let alarm = self
             .listed
@@ -138,7 +138,7 @@ impl AlarmList {
     /// or why not: no such alarm.
     pub fn ack(
         &mut self,
-        store: &mut Database,
+        db: &mut Database,
         id: Option<i64>,
         who: &str,
     ) -> Result<(Vec<Alarm>, Option<DatabaseError>), String> {
@@ -156,10 +156,10 @@ impl AlarmList {
             }
         }
         Ok(self.mark(
-            store,
+            db,
             |a| a.acked.is_none() && id.map_or(true, |i| i == a.id),
             |a, at| a.acked = Some((who.to_string(), at)),
-            |store, id, at| store.ack_alarm(id, who, at),
+            |db, id, at| db.ack_alarm(id, who, at),
         ))
     }
 
@@ -167,27 +167,27 @@ impl AlarmList {
     /// Returns those cleared now.
     pub fn settle(
         &mut self,
-        store: &mut Database,
+        db: &mut Database,
         station: &str,
         status: Option<&VmdStatus>,
         present: bool,
     ) -> (Vec<Alarm>, Option<DatabaseError>) {
-        self.clear_where(store, |a| {
+        self.clear_where(db, |a| {
             a.station == station && !condition_holds(a, status, present)
         })
     }
 
     /// Clears every uncleared alarm `which` selects (its condition is
-    /// known to be gone: the cell is back, the store can be written);
+    /// known to be gone: the cell is back, the database can be written);
     /// those leave the list that are acknowledged too. Returns those
     /// cleared now.
     pub fn clear_where(
         &mut self,
-        store: &mut Database,
+        db: &mut Database,
         which: impl Fn(&Alarm) -> bool,
     ) -> (Vec<Alarm>, Option<DatabaseError>) {
         self.mark(
-            store,
+            db,
             |a| a.cleared_ms.is_none() && which(a),
             |a, at| a.cleared_ms = Some(at),
             Database::clear_alarm,
@@ -195,11 +195,11 @@ impl AlarmList {
     }
 
     /// Sets what `set` sets on every alarm `which` selects, and writes it
-    /// with `write` (not for an alarm the store never kept); drops what
+    /// with `write` (not for an alarm the database never kept); drops what
     /// is acknowledged and cleared from the list. Returns those changed.
     fn mark(
         &mut self,
-        store: &mut Database,
+        db: &mut Database,
         which: impl Fn(&Alarm) -> bool,
         set: impl Fn(&mut Alarm, i64),
         write: impl Fn(&mut Database, i64, i64) -> Result<(), DatabaseError>,
@@ -210,7 +210,7 @@ impl AlarmList {
         for a in self.listed.iter_mut().filter(|a| which(a)) {
             set(a, at);
             if a.id > 0 {
-                if let Err(e) = write(store, a.id, at) {
+                if let Err(e) = write(db, a.id, at) {
                     error.get_or_insert(e);
                 }
             }
@@ -225,7 +225,7 @@ impl AlarmList {
 mod tests {
     use super::*;
 
-    fn store() -> (tempfile::TempDir, Database) {
+    fn db() -> (tempfile::TempDir, Database) {
         let dir = tempfile::tempdir().expect("tempdir");
         let s = Database::open(&dir.path().join("falc.db")).expect("open");
         (dir, s)
@@ -240,7 +240,7 @@ mod tests {
 
     #[test]
     fn raise_repeat_ack_and_clear() {
-        let (_d, mut s) = store();
+        let (_d, mut s) = db();
         let mut l = AlarmList::load(&s).expect("load");
         let (r, e) = l.raise(&mut s, "transport", AlarmClass::Safety, "estop", Some(1));
         assert!(e.is_none());
@@ -288,13 +288,13 @@ mod tests {
         let (acked, _) = l.ack(&mut s, None, "bob").expect("ack all");
         assert_eq!(acked.len(), 1);
         assert!(l.listed().is_empty() && l.blocking().is_none());
-        // The store agrees.
+        // The database agrees.
         assert!(AlarmList::load(&s).expect("load").listed().is_empty());
     }
 
     #[test]
     fn an_alarm_passed_up_is_the_same_alarm() {
-        let (_d, mut s) = store();
+        let (_d, mut s) = db();
         let mut l = AlarmList::load(&s).expect("load");
         let (r, _) = l.raise(
             &mut s,
@@ -364,7 +364,7 @@ mod tests {
 
     #[test]
     fn a_store_that_fails_keeps_the_alarm_in_memory() {
-        let (dir, mut s) = store();
+        let (dir, mut s) = db();
         let mut l = AlarmList::load(&s).expect("load");
         // Read-only from now on: every write fails.
         s.set_read_only_for_tests();

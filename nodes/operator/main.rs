@@ -1,7 +1,7 @@
 //! `falc-operator`: the factory controller at the root of the cell. At start
 //! it checks every recipe of the recipe directory (the PPS, `recipe_store`) and
 //! refuses to start with every problem as `file:line: reason`; it opens the
-//! order list and journal (`store`, SQLite WAL), marks an order a crash
+//! order list and journal (`database`, SQLite WAL), marks an order a crash
 //! interrupted, associates the cell (retrying every second while it cannot)
 //! and delivers the recipes; then it serves the operator API to consoles
 //! and operator communication (`input`, `output`) to the cell
@@ -84,8 +84,8 @@ async fn run(cli: Cli) -> Result<ExitCode> {
             return Ok(ExitCode::from(2));
         }
     };
-    let mut store = database::Database::open(&cli.db)?;
-    for o in store.recover()? {
+    let mut db = database::Database::open(&cli.db)?;
+    for o in db.recover()? {
         say(&format!(
             "EVENT interrupted order={} recipe={}",
             o.id, o.recipe
@@ -106,7 +106,7 @@ async fn run(cli: Cli) -> Result<ExitCode> {
         subscriptions.push(bus.presence(&st.name, ptx.clone()).await?);
     }
     bus.sync_with_router().await?;
-    let mut op = Operator::new(station, store, topology, cell, cli.recipes.clone(), recipes);
+    let mut op = Operator::new(station, db, topology, cell, cli.recipes.clone(), recipes);
     let who = me.to_string();
     op.journal(
         falc_model::console::EntryKind::System,

@@ -42,7 +42,7 @@ struct Question {
 /// What the operator node knows and does.
 pub struct Operator {
     pub station: Station,
-    store: Database,
+    db: Database,
     topology: Topology,
     cell: StationName,
     recipes_dir: PathBuf,
@@ -56,9 +56,9 @@ pub struct Operator {
     list: ListState,
     /// Every station's alarms and the operator's own.
     alarms: AlarmList,
-    /// The alarm a failed store write raised: the store is taken as
+    /// The alarm a failed database write raised: the database is taken as
     /// failing until it is acknowledged (the next write then tells).
-    store_alarm: Option<i64>,
+    db_alarm: Option<i64>,
     running: Option<Order>,
     question: Option<Question>,
     shutdown_pending: bool,
@@ -83,16 +83,16 @@ fn text_of(e: &ServiceError) -> String {
 }
 
 impl Operator {
-    /// The node around its station runtime, store and checked recipes.
+    /// The node around its station runtime, database and checked recipes.
     pub fn new(
         station: Station,
-        store: Database,
+        db: Database,
         topology: Topology,
         cell: StationName,
         recipes_dir: PathBuf,
         recipes: RecipeSet,
     ) -> Self {
-        let alarms = match AlarmList::load(&store) {
+        let alarms = match AlarmList::load(&db) {
             Ok(l) => l,
             Err(e) => {
                 tracing::error!("{e}; the alarm list starts empty");
@@ -101,7 +101,7 @@ impl Operator {
         };
         Self {
             station,
-            store,
+            db,
             topology,
             cell,
             recipes_dir,
@@ -111,7 +111,7 @@ impl Operator {
             problem: None,
             list: ListState::Idle,
             alarms,
-            store_alarm: None,
+            db_alarm: None,
             running: None,
             question: None,
             shutdown_pending: false,
@@ -133,26 +133,26 @@ impl Operator {
         self.station.bus().me().station.to_string()
     }
 
-    /// Journals; a failure to write stops the list ([`Self::store_failed`]).
+    /// Journals; a failure to write stops the list ([`Self::db_failed`]).
     pub fn journal(&mut self, kind: EntryKind, order: Option<i64>, who: &str, text: &str) {
-        match self.store.journal(kind, order, who, text) {
+        match self.db.journal(kind, order, who, text) {
             Ok(e) => say(&format!(
                 "JOURNAL {} {} {who}: {}",
                 e.id,
                 kind.as_str(),
                 text.replace('\n', " / ")
             )),
-            Err(e) => self.store_failed(&e),
+            Err(e) => self.db_failed(&e),
         }
     }
 
     /// A write to the order list or journal failed: the cell must not run
     /// on with the journal behind. The list stops with an alarm saying why
     /// and the running order is halted at the cell ([`Self::enforce`]).
-    pub fn store_failed(&mut self, e: &DatabaseError) {
+    pub fn db_failed(&mut self, e: &DatabaseError) {
         tracing::error!("{e}");
         say(&format!("EVENT store-error {e}"));
-        if self.store_alarm.is_some() {
+        if self.db_alarm.is_some() {
             return;
         }
         let text = format!(
@@ -165,14 +165,14 @@ impl Operator {
             }
         );
         self.halt_pending = self.running.is_some();
-        // Neither journalled nor, most likely, stored: the store is what
+        // Neither journalled nor, most likely, stored: the database is what
         // cannot be written (the list keeps it in memory meanwhile).
         let order = self.running_id();
         let me = self.me();
         let (raised, _) = self
             .alarms
-            .raise(&mut self.store, &me, AlarmClass::Device, &text, order);
-        self.store_alarm = Some(self.raised(raised, AlarmClass::Device));
+            .raise(&mut self.db, &me, AlarmClass::Device, &text, order);
+        self.db_alarm = Some(self.raised(raised, AlarmClass::Device));
     }
 
     /// Says a new alarm, and stops the list if its class needs an
@@ -208,12 +208,10 @@ impl Operator {
     /// stops the list ([`Self::raised`]) and is shown as its state
     /// ([`Self::list_state`]).
     fn raise_alarm(&mut self, station: &str, class: AlarmClass, text: &str, order: Option<i64>) {
-        let (raised, error) = self
-            .alarms
-            .raise(&mut self.store, station, class, text, order);
+        let (raised, error) = self.alarms.raise(&mut self.db, station, class, text, order);
         self.raised(raised, class);
         if let Some(e) = error {
-            self.store_failed(&e);
+            self.db_failed(&e);
         }
     }
 
@@ -222,9 +220,9 @@ impl Operator {
     fn settle_alarms(&mut self, station: &StationName) {
         let status = self.statuses.get(station);
         let present = self.present.contains(station);
-        let (cleared, error) =
-            self.alarms
-                .settle(&mut self.store, station.as_str(), status, present);
+        let (cleared, error) = self
+            .alarms
+            .settle(&mut self.db, station.as_str(), status, present);
         for a in cleared {
             say(&format!("EVENT alarm-cleared id={}", a.id));
             self.journal(
@@ -235,12 +233,12 @@ impl Operator {
             );
         }
         if let Some(e) = error {
-            self.store_failed(&e);
+            self.db_failed(&e);
         }
     }
 
     /// Carries out what a failed write asked for: the running order is
-    /// stopped at the cell (its end is written once the store works again).
+    /// stopped at the cell (its end is written once the database works again).
     /// Called by the driver after every event.
     pub async fn enforce(&mut self) {
         if !std::mem::take(&mut self.halt_pending) {
@@ -280,12 +278,12 @@ impl Operator {
         );
     }
 
-    /// Writes the order ends a failed store held back; the error (the
+    /// Writes the order ends a failed database write held back; the error (the
     /// fault raised again) while it still cannot.
     fn write_held_ends(&mut self) -> Result<(), String> {
         while let Some((id, state, result)) = self.unwritten_ends.first().cloned() {
-            if let Err(e) = self.store.end_order(id, state, &result) {
-                self.store_failed(&e);
+            if let Err(e) = self.db.end_order(id, state, &result) {
+                self.db_failed(&e);
                 return Err(e.to_string());
             }
             self.unwritten_ends.remove(0);
@@ -326,11 +324,11 @@ impl Operator {
                     say(&format!("EVENT associated station={}", self.cell));
                     let me = self.me();
                     // The cell is back: the lost connection has cleared.
-                    let (_, error) = self.alarms.clear_where(&mut self.store, |a| {
+                    let (_, error) = self.alarms.clear_where(&mut self.db, |a| {
                         a.station == me && a.class == AlarmClass::Communication
                     });
                     if let Some(e) = error {
-                        self.store_failed(&e);
+                        self.db_failed(&e);
                     }
                     self.journal(
                         EntryKind::System,
@@ -454,10 +452,10 @@ impl Operator {
 
     fn end(&mut self, order: Order, state: OrderState, result: &str) {
         self.last_ended = Some((order.id, std::time::Instant::now()));
-        if let Err(e) = self.store.end_order(order.id, state, result) {
+        if let Err(e) = self.db.end_order(order.id, state, result) {
             self.unwritten_ends
                 .push((order.id, state, result.to_string()));
-            self.store_failed(&e);
+            self.db_failed(&e);
         }
         let me = self.me();
         self.journal(
@@ -474,14 +472,14 @@ impl Operator {
     /// it, and goes back to the queue only if the cell refused.
     async fn start_next(&mut self) -> Result<Option<Order>, String> {
         self.write_held_ends()?;
-        let Some(order) = self.store.next_queued().map_err(|e| e.to_string())? else {
+        let Some(order) = self.db.next_queued().map_err(|e| e.to_string())? else {
             return Ok(None);
         };
         let name = ObjectName::new(&order.recipe).map_err(|e| e.to_string())?;
-        let started_ms = match self.store.set_running(order.id) {
+        let started_ms = match self.db.set_running(order.id) {
             Ok(ms) => ms,
             Err(e) => {
-                self.store_failed(&e);
+                self.db_failed(&e);
                 return Err(format!(
                     "order {} ({}) not started: {e}",
                     order.id, order.recipe
@@ -519,12 +517,12 @@ impl Operator {
                     order.recipe,
                     text_of(&e)
                 );
-                if let Err(e) = self.store.requeue(order.id) {
+                if let Err(e) = self.db.requeue(order.id) {
                     // Stays `running` in the file: interrupted at a restart,
-                    // never run twice; failed once the store works again.
+                    // never run twice; failed once the database works again.
                     self.unwritten_ends
                         .push((order.id, OrderState::Failed, why.clone()));
-                    self.store_failed(&e);
+                    self.db_failed(&e);
                 }
                 Err(why)
             }
@@ -697,8 +695,8 @@ impl Operator {
             alarm: self.alarms.blocking().map(|a| a.line()),
             alarms: self.alarms.listed().to_vec(),
             running: self.running.clone(),
-            queued: self.store.queued()?,
-            journal_head: self.store.journal_head()?,
+            queued: self.db.queued()?,
+            journal_head: self.db.journal_head()?,
             question: self.question.as_ref().map(|q| q.prompt.clone()),
             shutdown_pending: self.shutdown_pending,
             stations: self
@@ -735,18 +733,18 @@ impl Operator {
         let db = |e: DatabaseError| e.to_string();
         match request {
             ApiRequest::Status => Ok(ApiReply::Status(self.status().map_err(db)?)),
-            ApiRequest::OrderList => Ok(ApiReply::Orders(self.store.orders().map_err(db)?)),
+            ApiRequest::OrderList => Ok(ApiReply::Orders(self.db.orders().map_err(db)?)),
             ApiRequest::Messages { after } => Ok(ApiReply::Entries(
-                self.store.entries(after, None, true, PAGE).map_err(db)?,
+                self.db.entries(after, None, true, PAGE).map_err(db)?,
             )),
             ApiRequest::Journal { order, after } => Ok(ApiReply::Entries(
-                self.store.entries(after, order, false, PAGE).map_err(db)?,
+                self.db.entries(after, order, false, PAGE).map_err(db)?,
             )),
             ApiRequest::OrderAdd { recipe } => {
                 let name = ObjectName::new(&recipe).map_err(|e| e.to_string())?;
                 if !self.recipes.cell_recipes().contains(&&name) {
                     // A recipe saved since the last start is known once the
-                    // store checks clean with it (delivered at the start).
+                    // recipe store checks clean with it (delivered at the start).
                     let fresh = recipe_store::load(&self.recipes_dir, &self.topology, &self.cell);
                     let known: Vec<String> = match &fresh {
                         Ok(set) => set.cell_recipes().iter().map(|n| n.to_string()).collect(),
@@ -765,10 +763,10 @@ impl Operator {
                         ));
                     }
                 }
-                let order = match self.store.add_order(&recipe.to_lowercase(), who) {
+                let order = match self.db.add_order(&recipe.to_lowercase(), who) {
                     Ok(o) => o,
                     Err(e) => {
-                        self.store_failed(&e);
+                        self.db_failed(&e);
                         return Err(e.to_string());
                     }
                 };
@@ -780,7 +778,7 @@ impl Operator {
                 );
                 Ok(ApiReply::Order(order))
             }
-            ApiRequest::OrderRemove { id } => match self.store.remove_order(id).map_err(db)? {
+            ApiRequest::OrderRemove { id } => match self.db.remove_order(id).map_err(db)? {
                 Ok(order) => {
                     self.journal(
                         EntryKind::Action,
@@ -862,21 +860,18 @@ impl Operator {
 
     /// Acknowledges alarm `id`, or all; journalled with the user.
     fn ack(&mut self, who: &str, id: Option<i64>) -> ApiResult {
-        let (acked, error) = self.alarms.ack(&mut self.store, id, who)?;
+        let (acked, error) = self.alarms.ack(&mut self.db, id, who)?;
         if acked.is_empty() {
             return Ok(ApiReply::Done("no alarm to acknowledge".into()));
         }
-        if let Some(s) = self
-            .store_alarm
-            .filter(|s| acked.iter().any(|a| a.id == *s))
-        {
-            // Acknowledged: the next write tells whether the store works
+        if let Some(s) = self.db_alarm.filter(|s| acked.iter().any(|a| a.id == *s)) {
+            // Acknowledged: the next write tells whether the database works
             // again (it raises a new alarm if not).
-            self.store_alarm = None;
-            let _ = self.alarms.clear_where(&mut self.store, |a| a.id == s);
+            self.db_alarm = None;
+            let _ = self.alarms.clear_where(&mut self.db, |a| a.id == s);
         }
         if let Some(e) = error {
-            self.store_failed(&e);
+            self.db_failed(&e);
         }
         for a in &acked {
             self.journal(
