@@ -4,6 +4,7 @@
 //! that was running when the node died as interrupted (never re-run by
 //! itself) and journals it.
 
+use falc_control::records::Records;
 use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::console::{Entry, EntryKind, Order, OrderState};
 use rusqlite::{params, Connection, OptionalExtension, Row};
@@ -198,8 +199,43 @@ impl Database {
             .collect())
     }
 
+    /// One order.
+    pub fn order(&self, id: i64) -> Result<Option<Order>, DatabaseError> {
+        self.conn
+            .query_row(
+                &format!("SELECT {ORDER_COLUMNS} FROM orders WHERE id = ?1"),
+                params![id],
+                order_of,
+            )
+            .optional()
+            .map_err(self.fail("cannot read an order"))
+    }
+
+    /// The orders in `state`, in list order.
+    fn orders_in(&self, state: OrderState) -> Result<Vec<Order>, DatabaseError> {
+        let mut st = self
+            .conn
+            .prepare(&format!(
+                "SELECT {ORDER_COLUMNS} FROM orders WHERE state = ?1 ORDER BY id"
+            ))
+            .map_err(self.fail("cannot list orders"))?;
+        let rows = st
+            .query_map(params![state.as_str()], order_of)
+            .map_err(self.fail("cannot list orders"))?;
+        rows.collect::<Result<_, _>>()
+            .map_err(self.fail("cannot list orders"))
+    }
+}
+
+impl Records for Database {
+    type Error = DatabaseError;
+
+    fn now_ms(&self) -> i64 {
+        now_ms()
+    }
+
     /// Adds a queued order at the end of the list.
-    pub fn add_order(&mut self, recipe: &str, who: &str) -> Result<Order, DatabaseError> {
+    fn add_order(&mut self, recipe: &str, who: &str) -> Result<Order, Self::Error> {
         self.conn
             .execute(
                 "INSERT INTO orders (recipe, state, added_by, added_ms) VALUES (?1, 'queued', ?2, ?3)",
@@ -214,20 +250,8 @@ impl Database {
         })
     }
 
-    /// One order.
-    pub fn order(&self, id: i64) -> Result<Option<Order>, DatabaseError> {
-        self.conn
-            .query_row(
-                &format!("SELECT {ORDER_COLUMNS} FROM orders WHERE id = ?1"),
-                params![id],
-                order_of,
-            )
-            .optional()
-            .map_err(self.fail("cannot read an order"))
-    }
-
     /// Every order, in list order.
-    pub fn orders(&self) -> Result<Vec<Order>, DatabaseError> {
+    fn orders(&self) -> Result<Vec<Order>, Self::Error> {
         let mut st = self
             .conn
             .prepare(&format!("SELECT {ORDER_COLUMNS} FROM orders ORDER BY id"))
@@ -239,40 +263,26 @@ impl Database {
             .map_err(self.fail("cannot list orders"))
     }
 
-    fn orders_in(&self, state: OrderState) -> Result<Vec<Order>, DatabaseError> {
-        let mut st = self
-            .conn
-            .prepare(&format!(
-                "SELECT {ORDER_COLUMNS} FROM orders WHERE state = ?1 ORDER BY id"
-            ))
-            .map_err(self.fail("cannot list orders"))?;
-        let rows = st
-            .query_map(params![state.as_str()], order_of)
-            .map_err(self.fail("cannot list orders"))?;
-        rows.collect::<Result<_, _>>()
-            .map_err(self.fail("cannot list orders"))
-    }
-
     /// The first queued order.
-    pub fn next_queued(&self) -> Result<Option<Order>, DatabaseError> {
+    fn next_queued(&self) -> Result<Option<Order>, Self::Error> {
         Ok(self.orders_in(OrderState::Queued)?.into_iter().next())
     }
 
     /// The id of the newest journal entry (0 for an empty journal): a
     /// console asks for entries or orders only when it moved.
-    pub fn journal_head(&self) -> Result<i64, DatabaseError> {
+    fn journal_head(&self) -> Result<i64, Self::Error> {
         self.conn
             .query_row("SELECT COALESCE(MAX(id), 0) FROM journal", [], |r| r.get(0))
             .map_err(self.fail("cannot read the journal"))
     }
 
     /// How many orders are queued.
-    pub fn queued(&self) -> Result<usize, DatabaseError> {
+    fn queued(&self) -> Result<usize, Self::Error> {
         Ok(self.orders_in(OrderState::Queued)?.len())
     }
 
     /// Removes a queued order; refuses any other.
-    pub fn remove_order(&mut self, id: i64) -> Result<Result<Order, String>, DatabaseError> {
+    fn remove_order(&mut self, id: i64) -> Result<Result<Order, String>, Self::Error> {
         let Some(order) = self.order(id)? else {
             return Ok(Err(format!("there is no order {id}")));
         };
@@ -289,7 +299,7 @@ impl Database {
     }
 
     /// Marks an order running; returns the start time it wrote (ms).
-    pub fn set_running(&mut self, id: i64) -> Result<i64, DatabaseError> {
+    fn set_running(&mut self, id: i64) -> Result<i64, Self::Error> {
         let started = now_ms();
         self.conn
             .execute(
@@ -303,7 +313,7 @@ impl Database {
     /// Puts an order the cell refused to start back in the queue (it is
     /// marked running before the cell is asked, so that an order the cell
     /// may have started is never queued again; only a refusal undoes it).
-    pub fn requeue(&mut self, id: i64) -> Result<(), DatabaseError> {
+    fn requeue(&mut self, id: i64) -> Result<(), Self::Error> {
         self.conn
             .execute(
                 "UPDATE orders SET state = 'queued', started_ms = NULL WHERE id = ?1 AND state = 'running'",
@@ -314,12 +324,7 @@ impl Database {
     }
 
     /// Ends an order in `state` with `result` in words.
-    pub fn end_order(
-        &mut self,
-        id: i64,
-        state: OrderState,
-        result: &str,
-    ) -> Result<(), DatabaseError> {
+    fn end_order(&mut self, id: i64, state: OrderState, result: &str) -> Result<(), Self::Error> {
         self.conn
             .execute(
                 "UPDATE orders SET state = ?1, ended_ms = ?2, result = ?3 WHERE id = ?4",
@@ -330,13 +335,13 @@ impl Database {
     }
 
     /// Appends a journal entry.
-    pub fn journal(
+    fn journal(
         &mut self,
         kind: EntryKind,
         order: Option<i64>,
         who: &str,
         text: &str,
-    ) -> Result<Entry, DatabaseError> {
+    ) -> Result<Entry, Self::Error> {
         let at_ms = now_ms();
         self.conn
             .execute(
@@ -354,20 +359,14 @@ impl Database {
         })
     }
 
-    /// Makes every later write fail (the unit tests' full disk).
-    #[cfg(test)]
-    pub fn set_read_only_for_tests(&mut self) {
-        let _ = self.conn.pragma_update(None, "query_only", true);
-    }
-
     /// Records a new alarm, active.
-    pub fn raise_alarm(
+    fn raise_alarm(
         &mut self,
         station: &str,
         class: AlarmClass,
         text: &str,
         order: Option<i64>,
-    ) -> Result<Alarm, DatabaseError> {
+    ) -> Result<Alarm, Self::Error> {
         let raised_ms = now_ms();
         self.conn
             .execute(
@@ -388,7 +387,7 @@ impl Database {
     }
 
     /// Records who acknowledged alarm `id`, at `at_ms`.
-    pub fn ack_alarm(&mut self, id: i64, who: &str, at_ms: i64) -> Result<(), DatabaseError> {
+    fn ack_alarm(&mut self, id: i64, who: &str, at_ms: i64) -> Result<(), Self::Error> {
         self.conn
             .execute(
                 "UPDATE alarms SET acked_by = ?1, acked_ms = ?2 WHERE id = ?3 AND acked_by IS NULL",
@@ -399,7 +398,7 @@ impl Database {
     }
 
     /// Records that alarm `id`'s condition cleared at `at_ms`.
-    pub fn clear_alarm(&mut self, id: i64, at_ms: i64) -> Result<(), DatabaseError> {
+    fn clear_alarm(&mut self, id: i64, at_ms: i64) -> Result<(), Self::Error> {
         self.conn
             .execute(
                 "UPDATE alarms SET cleared_ms = ?1 WHERE id = ?2 AND cleared_ms IS NULL",
@@ -411,7 +410,7 @@ impl Database {
 
     /// The alarms still in the list (not both acknowledged and cleared),
     /// oldest first.
-    pub fn listed_alarms(&self) -> Result<Vec<Alarm>, DatabaseError> {
+    fn listed_alarms(&self) -> Result<Vec<Alarm>, Self::Error> {
         let mut st = self
             .conn
             .prepare(&format!(
@@ -432,13 +431,13 @@ impl Database {
 
     /// Journal entries after id `after` (at most `limit`), optionally of one
     /// order, optionally only messages.
-    pub fn entries(
+    fn entries(
         &self,
         after: i64,
         order: Option<i64>,
         messages_only: bool,
         limit: usize,
-    ) -> Result<Vec<Entry>, DatabaseError> {
+    ) -> Result<Vec<Entry>, Self::Error> {
         // The kinds asked for, in SQL: a page is `limit` matching entries,
         // however many others the journal holds between them.
         let kinds: Vec<&str> = EntryKind::ALL

@@ -10,6 +10,7 @@
 //! whole set checks clean with it, and only if nobody changed it since the
 //! editor fetched it; the cell gets it at the next start.
 
+use falc_control::recipe_source::{Delivery, PutError, RecipeSet, RecipeSource};
 use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::domain::content_hash;
@@ -19,33 +20,29 @@ use falc_recipe::commands::RecipeKind;
 use falc_recipe::files;
 use std::path::{Path, PathBuf};
 
-/// One recipe as delivered to the cell.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Delivery {
-    /// The domain name at the cell (`DIKDROOG`, `WELDING$DROOG_DIK`).
-    pub domain: ObjectName,
-    /// Whether it is a cell recipe (startable as an order).
-    pub is_cell: bool,
-    /// The recipe text.
-    pub content: Vec<u8>,
+/// The recipe directory of one cell, as the order list reads it.
+#[derive(Debug, Clone)]
+pub struct RecipeDir {
+    /// The recipe tree (`cell/`, `welding/`, `transport/`).
+    pub dir: PathBuf,
+    /// The cell's topology.
+    pub topology: Topology,
+    /// The cell the set is for.
+    pub cell: StationName,
 }
 
-/// A checked recipe set, workstation recipes first (the cell needs them
-/// before a cell recipe that starts them).
-#[derive(Debug, Clone, Default)]
-pub struct RecipeSet {
-    /// Every recipe, in delivery order.
-    pub deliveries: Vec<Delivery>,
-}
-
-impl RecipeSet {
-    /// The cell recipes' names (what an order may name).
-    pub fn cell_recipes(&self) -> Vec<&ObjectName> {
-        self.deliveries
-            .iter()
-            .filter(|d| d.is_cell)
-            .map(|d| &d.domain)
-            .collect()
+impl RecipeSource for RecipeDir {
+    fn load(&self) -> Result<RecipeSet, Vec<String>> {
+        load(&self.dir, &self.topology, &self.cell)
+    }
+    fn list(&self) -> Result<Vec<RecipeInfo>, String> {
+        list(&self.dir, &self.topology, &self.cell)
+    }
+    fn get(&self, file: &RecipeFile) -> Result<RecipeText, String> {
+        get(&self.dir, file)
+    }
+    fn put(&self, file: &RecipeFile, text: &str, base: Option<u64>) -> Result<(), PutError> {
+        put(&self.dir, &self.topology, &self.cell, file, text, base)
     }
 }
 
@@ -172,15 +169,6 @@ pub fn get(dir: &Path, file: &RecipeFile) -> Result<RecipeText, String> {
         }
         Err(e) => Err(format!("cannot read recipe {file}: {e}")),
     }
-}
-
-/// Why a recipe was not saved.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum PutError {
-    /// The set does not check clean with it: every finding.
-    Findings(Vec<String>),
-    /// Anything else (a changed file, an unknown station, the disk).
-    Refused(String),
 }
 
 /// Saves `text` as `file` if the whole set under `dir` checks clean with

@@ -195,7 +195,7 @@ impl Station {
             }
             InitiateStep::Confirm(p) => p,
             InitiateStep::InitiateSubordinates(subs) => {
-                let results = self.initiate_all(subs).await;
+                let results = initiate_all(&self.bus, self.with_limits(subs)).await;
                 match self.assoc.subordinates_initiated(results) {
                     InitiateOutcome::Confirm {
                         commander,
@@ -245,8 +245,25 @@ impl Station {
 
     /// The root (which has no commander) associates every missing subordinate.
     pub async fn associate_subordinates(&mut self) -> Result<Vec<Peer>, ServiceError> {
-        let missing = self.assoc.missing_subordinates();
-        let results = self.initiate_all(missing).await;
+        let initiates = self.initiates_due();
+        let results = initiate_all(&self.bus, initiates).await;
+        self.record_initiates(results).await
+    }
+
+    /// What [`Self::associate_subordinates`] sends, for a driver that sends
+    /// it outside its event loop ([`initiate_all`]): every missing
+    /// subordinate, with how long its Initiate may take.
+    pub fn initiates_due(&self) -> Vec<(StationName, Duration)> {
+        self.with_limits(self.assoc.missing_subordinates())
+    }
+
+    /// Records the outcomes of the root's Initiates: watches the
+    /// associations made, or, if any failed, concludes them again and
+    /// returns the failure.
+    pub async fn record_initiates(
+        &mut self,
+        results: Vec<(StationName, Result<Peer, ServiceError>)>,
+    ) -> Result<Vec<Peer>, ServiceError> {
         match self.assoc.record_subordinates(results) {
             Ok(made) => {
                 for p in &made {
@@ -263,39 +280,22 @@ impl Station {
         }
     }
 
+    /// Each of `subs` with how long its Initiate may take: one deadline
+    /// per level of its subtree.
+    fn with_limits(&self, subs: Vec<StationName>) -> Vec<(StationName, Duration)> {
+        subs.into_iter()
+            .map(|s| {
+                let limit = self.initiate_limits.get(&s).copied();
+                (s, limit.unwrap_or(self.deadline))
+            })
+            .collect()
+    }
+
     /// The root concludes every subordinate.
     pub async fn conclude_subordinates(&mut self) {
         for p in self.assoc.release_subordinates() {
             self.unwatch(&p);
             self.conclude_one(&p).await;
-        }
-    }
-
-    async fn initiate_all(
-        &self,
-        subs: Vec<StationName>,
-    ) -> Vec<(StationName, Result<Peer, ServiceError>)> {
-        let calls = subs.into_iter().map(|s| async move {
-            let r = self.initiate_one(&s).await;
-            (s, r)
-        });
-        futures::future::join_all(calls).await
-    }
-
-    async fn initiate_one(&self, sub: &StationName) -> Result<Peer, ServiceError> {
-        let req = Request::Initiate {
-            calling: self.bus.me().clone(),
-        };
-        let limit = self
-            .initiate_limits
-            .get(sub)
-            .copied()
-            .unwrap_or(self.deadline);
-        match self.bus.request(sub, &req, limit).await? {
-            Response::Initiate { responding } if &responding.station == sub => Ok(responding),
-            other => Err(ServiceError::malformed(format!(
-                "station {sub} answered Initiate with {other:?}"
-            ))),
         }
     }
 
@@ -345,4 +345,30 @@ fn changes_state(r: &Request) -> bool {
             | Request::Reset { .. }
             | Request::Kill { .. }
     )
+}
+
+/// Sends Initiate to each station of `initiates` at once, each with its
+/// time limit; the outcomes, in the same order. Needs only the bus, so a
+/// driver can run it outside its event loop.
+pub async fn initiate_all(
+    bus: &Bus,
+    initiates: Vec<(StationName, Duration)>,
+) -> Vec<(StationName, Result<Peer, ServiceError>)> {
+    let calls = initiates.into_iter().map(|(s, limit)| async move {
+        let r = initiate_one(bus, &s, limit).await;
+        (s, r)
+    });
+    futures::future::join_all(calls).await
+}
+
+async fn initiate_one(bus: &Bus, sub: &StationName, limit: Duration) -> Result<Peer, ServiceError> {
+    let req = Request::Initiate {
+        calling: bus.me().clone(),
+    };
+    match bus.request(sub, &req, limit).await? {
+        Response::Initiate { responding } if &responding.station == sub => Ok(responding),
+        other => Err(ServiceError::malformed(format!(
+            "station {sub} answered Initiate with {other:?}"
+        ))),
+    }
 }

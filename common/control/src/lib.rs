@@ -7,7 +7,14 @@
 //!   around its device, the cell around its workstations): the VMD served
 //!   to the commander, one running recipe, its job events and reports;
 //! - [`coordination`]: the cell's device: its workstations below and the
-//!   operator above, requests out as commands, confirms and job events in.
+//!   operator above, requests out as commands, confirms and job events in;
+//! - [`order_list`]: the operator's order list worked through the cell,
+//!   with its [`alarm_list`], over its durable [`records`] and the
+//!   [`recipe_source`].
 
+pub mod alarm_list;
 pub mod controller;
 pub mod coordination;
+pub mod order_list;
+pub mod recipe_source;
+pub mod records;

@@ -13,11 +13,11 @@
 //! - an alarm leaves the list once acknowledged and cleared;
 //! - every class but a warning holds `start` back until acknowledged.
 //!
-//! The list is kept in the [`Database`]; a write that fails keeps the change
+//! The list is kept in the [`Records`]; a write that fails keeps the change
 //! in memory (an alarm not stored gets a negative number) and returns the
 //! error for the caller to stop the cell.
 
-use crate::database::{now_ms, Database, DatabaseError};
+use crate::records::Records;
 use falc_model::alarm::{passed_on_from, Alarm, AlarmClass};
 use falc_model::mms::vmd::{PhysicalStatus, RobotStatusDetail, RobotVmdState, VmdStatus};
 
@@ -59,7 +59,7 @@ pub fn condition_holds(alarm: &Alarm, status: Option<&VmdStatus>, present: bool)
 
 impl AlarmList {
     /// The list as the database holds it.
-    pub fn load(db: &Database) -> Result<Self, DatabaseError> {
+    pub fn load<R: Records>(db: &R) -> Result<Self, R::Error> {
         Ok(Self {
             listed: db.listed_alarms()?,
             unstored: 0,
@@ -82,14 +82,14 @@ impl AlarmList {
 
     /// Raises an alarm of `station`. On a database failure the alarm is kept
     /// in memory and the error returned with it.
-    pub fn raise(
+    pub fn raise<R: Records>(
         &mut self,
-        db: &mut Database,
+        db: &mut R,
         station: &str,
         class: AlarmClass,
         text: &str,
         order: Option<i64>,
-    ) -> (Raised, Option<DatabaseError>) {
+    ) -> (Raised, Option<R::Error>) {
         // `upper` is `lower`'s alarm passed on by its commander.
         let passes_on =
             |upper: &str, from: &str, lower: &str| passed_on_from(upper, from) == Some(lower);
@@ -111,7 +111,7 @@ impl AlarmList {
                     class,
                     text: text.to_string(),
                     order,
-                    raised_ms: now_ms(),
+                    raised_ms: db.now_ms(),
                     acked: None,
                     cleared_ms: None,
                 };
@@ -136,12 +136,12 @@ impl AlarmList {
     /// Acknowledges alarm `id`, or every unacknowledged one (`None`), for
     /// `who`. Returns the alarms acknowledged now (none is not an error),
     /// or why not: no such alarm.
-    pub fn ack(
+    pub fn ack<R: Records>(
         &mut self,
-        db: &mut Database,
+        db: &mut R,
         id: Option<i64>,
         who: &str,
-    ) -> Result<(Vec<Alarm>, Option<DatabaseError>), String> {
+    ) -> Result<(Vec<Alarm>, Option<R::Error>), String> {
         if let Some(id) = id {
             if !self.listed.iter().any(|a| a.id == id) {
                 let known: Vec<String> = self.listed.iter().map(|a| format!("#{}", a.id)).collect();
@@ -165,13 +165,13 @@ impl AlarmList {
 
     /// Clears the alarms of `station` whose condition no longer holds.
     /// Returns those cleared now.
-    pub fn settle(
+    pub fn settle<R: Records>(
         &mut self,
-        db: &mut Database,
+        db: &mut R,
         station: &str,
         status: Option<&VmdStatus>,
         present: bool,
-    ) -> (Vec<Alarm>, Option<DatabaseError>) {
+    ) -> (Vec<Alarm>, Option<R::Error>) {
         self.clear_where(db, |a| {
             a.station == station && !condition_holds(a, status, present)
         })
@@ -181,30 +181,30 @@ impl AlarmList {
     /// known to be gone: the cell is back, the database can be written);
     /// those leave the list that are acknowledged too. Returns those
     /// cleared now.
-    pub fn clear_where(
+    pub fn clear_where<R: Records>(
         &mut self,
-        db: &mut Database,
+        db: &mut R,
         which: impl Fn(&Alarm) -> bool,
-    ) -> (Vec<Alarm>, Option<DatabaseError>) {
+    ) -> (Vec<Alarm>, Option<R::Error>) {
         self.mark(
             db,
             |a| a.cleared_ms.is_none() && which(a),
             |a, at| a.cleared_ms = Some(at),
-            Database::clear_alarm,
+            |db: &mut R, id, at| db.clear_alarm(id, at),
         )
     }
 
     /// Sets what `set` sets on every alarm `which` selects, and writes it
     /// with `write` (not for an alarm the database never kept); drops what
     /// is acknowledged and cleared from the list. Returns those changed.
-    fn mark(
+    fn mark<R: Records>(
         &mut self,
-        db: &mut Database,
+        db: &mut R,
         which: impl Fn(&Alarm) -> bool,
         set: impl Fn(&mut Alarm, i64),
-        write: impl Fn(&mut Database, i64, i64) -> Result<(), DatabaseError>,
-    ) -> (Vec<Alarm>, Option<DatabaseError>) {
-        let at = now_ms();
+        write: impl Fn(&mut R, i64, i64) -> Result<(), R::Error>,
+    ) -> (Vec<Alarm>, Option<R::Error>) {
+        let at = db.now_ms();
         let mut error = None;
         let mut changed = Vec::new();
         for a in self.listed.iter_mut().filter(|a| which(a)) {
@@ -225,11 +225,7 @@ impl AlarmList {
 mod tests {
     use super::*;
 
-    fn db() -> (tempfile::TempDir, Database) {
-        let dir = tempfile::tempdir().expect("tempdir");
-        let s = Database::open(&dir.path().join("falc.db")).expect("open");
-        (dir, s)
-    }
+    use crate::records::memory::Memory;
 
     fn status(physical: PhysicalStatus) -> VmdStatus {
         VmdStatus {
@@ -240,7 +236,7 @@ mod tests {
 
     #[test]
     fn raise_repeat_ack_and_clear() {
-        let (_d, mut s) = db();
+        let mut s = Memory::default();
         let mut l = AlarmList::load(&s).expect("load");
         let (r, e) = l.raise(&mut s, "transport", AlarmClass::Safety, "estop", Some(1));
         assert!(e.is_none());
@@ -294,7 +290,7 @@ mod tests {
 
     #[test]
     fn an_alarm_passed_up_is_the_same_alarm() {
-        let (_d, mut s) = db();
+        let mut s = Memory::default();
         let mut l = AlarmList::load(&s).expect("load");
         let (r, _) = l.raise(
             &mut s,
@@ -364,10 +360,10 @@ mod tests {
 
     #[test]
     fn a_store_that_fails_keeps_the_alarm_in_memory() {
-        let (dir, mut s) = db();
+        let mut s = Memory::default();
         let mut l = AlarmList::load(&s).expect("load");
-        // Read-only from now on: every write fails.
-        s.set_read_only_for_tests();
+        // Every write fails from now on.
+        s.failing = true;
         let (r, e) = l.raise(&mut s, "operator", AlarmClass::Device, "disk full", None);
         assert!(e.is_some());
         let Raised::New(a) = r else { panic!() };
@@ -376,6 +372,5 @@ mod tests {
         let (acked, e) = l.ack(&mut s, None, "ann").expect("ack");
         assert_eq!(acked.len(), 1);
         assert!(e.is_none(), "nothing to write for an unstored alarm");
-        drop(dir);
     }
 }

@@ -1,0 +1,1745 @@
+//! The operator's order list, sans-I/O (the quinn-proto style): the order
+//! list worked through the cell, operator communication (the cell's
+//! `output` and `input`), alarms and their acknowledgement, recipe delivery
+//! and the answers to the operator API.
+//!
+//! Events come in with the time they happen (`handle_*`); what the node
+//! must do comes out of [`OrderList::poll_output`]: one request to the cell
+//! at a time ([`CellCall`], answered with [`OrderList::handle_cell_reply`]),
+//! answers to consoles and to the cell's indications, and lines to say.
+//! [`OrderList::poll_timeout`] is when to try the cell again. Nothing here
+//! waits: a console's `status` is answered while a start is under way;
+//! `start`, `stop`, the next order and a halt are jobs done one after the
+//! other.
+//!
+//! Every change is written to the [`Records`] before it is confirmed. A
+//! write that fails stops the list with a device alarm and halts the
+//! running order at the cell; order ends that could not be written are
+//! written before the next start.
+
+use crate::alarm_list::{AlarmList, Raised};
+use crate::recipe_source::{Delivery, PutError, RecipeSet, RecipeSource};
+use crate::records::Records;
+use falc_model::alarm::AlarmClass;
+use falc_model::console::{
+    ApiReply, ApiRequest, ApiResult, CellStatus, EntryKind, ListState, Order, OrderState,
+    StationView,
+};
+use falc_model::ids::{ObjectName, StationName};
+use falc_model::mms::domain::content_hash;
+use falc_model::mms::error::ServiceError;
+use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
+use falc_model::mms::vmd::VmdStatus;
+use falc_model::topology::Topology;
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::time::Duration;
+
+/// A station's message this soon after an order ended still belongs to it.
+const TRAIL: Duration = Duration::from_secs(2);
+
+/// At most this many journal entries per API answer.
+const PAGE: usize = 500;
+
+/// How often to try the cell again while it is not associated, or a
+/// recipe could not be delivered.
+pub const RETRY: Duration = Duration::from_secs(1);
+
+/// A console request or an indication of the cell waiting for its answer
+/// (the node keeps what answers it under this number).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Ticket(pub u64);
+
+/// A request to the cell. One is out at a time; its outcome comes back
+/// through [`OrderList::handle_cell_reply`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CellCall {
+    /// Associate the cell (the root's Initiate).
+    Associate,
+    /// Initiate the associated cell again: a cell that lost a workstation
+    /// associates it again (the 1992 recursive scheme), or refuses with the
+    /// cause.
+    Initiate,
+    /// Deliver one recipe (a domain download, with a program invocation
+    /// for a cell recipe).
+    Deliver(Delivery),
+    /// Start the program invocation `name` for an order.
+    Start {
+        /// The cell recipe.
+        name: ObjectName,
+        /// `order N`.
+        argument: String,
+    },
+    /// Stop the program invocation `name`.
+    Stop {
+        /// The cell recipe.
+        name: ObjectName,
+    },
+}
+
+/// What the node must do.
+#[derive(Debug)]
+pub enum Output {
+    /// Send this request to the cell.
+    Cell(CellCall),
+    /// Answer a console's request.
+    Reply {
+        /// Which.
+        ticket: Ticket,
+        /// The answer.
+        result: ApiResult,
+    },
+    /// Answer an indication of the cell.
+    Respond {
+        /// Which.
+        ticket: Ticket,
+        /// The answer.
+        result: Result<Response, ServiceError>,
+    },
+    /// Drop an indication of the cell unanswered (its order ended).
+    Forget(Ticket),
+    /// A line for the node's standard output (`EVENT …`, `JOURNAL …`).
+    Say(String),
+}
+
+/// A question the cell asked, waiting for `answer`.
+#[derive(Debug)]
+struct Question {
+    prompt: String,
+    ticket: Ticket,
+}
+
+/// Work that needs the cell, done one after the other.
+#[derive(Debug)]
+enum Job {
+    /// Associate if not, and deliver what changed (the retry).
+    Connect,
+    /// An operator's `start`.
+    Start { ticket: Ticket, who: String },
+    /// The next order after one ended.
+    Next,
+    /// An operator's `stop`.
+    Stop { ticket: Ticket, who: String },
+    /// Stop the running order at the cell: a write failed.
+    Halt,
+}
+
+/// What a connection is made for.
+#[derive(Debug)]
+enum After {
+    /// Nothing more (the retry).
+    Nothing,
+    /// An operator's start goes on.
+    Start { ticket: Ticket, who: String },
+}
+
+/// Who an order start is for.
+#[derive(Debug)]
+enum StartFor {
+    /// An operator's start: answered.
+    Operator { ticket: Ticket, who: String },
+    /// The list going on.
+    List,
+}
+
+/// The cell call out, and what its outcome goes on with.
+#[derive(Debug)]
+enum Busy {
+    Associating {
+        after: After,
+    },
+    Delivering {
+        after: After,
+        domain: ObjectName,
+        hash: u64,
+    },
+    Initiating {
+        ticket: Ticket,
+        who: String,
+    },
+    Starting {
+        order: Order,
+        started_ms: i64,
+        purpose: StartFor,
+    },
+    Stopping {
+        order: Order,
+        ticket: Ticket,
+        who: String,
+    },
+    Halting {
+        order: Order,
+    },
+}
+
+/// The operator's order list.
+pub struct OrderList<R: Records, S: RecipeSource> {
+    me: StationName,
+    cell: StationName,
+    topology: Topology,
+    db: R,
+    source: S,
+    recipes: RecipeSet,
+    /// Content hash of each domain delivered to the cell in this association.
+    delivered: BTreeMap<ObjectName, u64>,
+    associated: bool,
+    problem: Option<String>,
+    /// Whether the list goes on (`Running`) or waits (`Idle`); shown as
+    /// `Alarm` while an alarm holds it back ([`Self::list_state`]).
+    list: ListState,
+    /// Every station's alarms and the operator's own.
+    alarms: AlarmList,
+    /// The alarm a failed write raised: the records are taken as failing
+    /// until it is acknowledged (the next write then tells).
+    db_alarm: Option<i64>,
+    running: Option<Order>,
+    question: Option<Question>,
+    shutdown_pending: bool,
+    statuses: BTreeMap<StationName, VmdStatus>,
+    /// The stations on the bus now.
+    present: BTreeSet<StationName>,
+    /// Lines the cell showed since the last question (shown with it).
+    shown: Vec<String>,
+    /// Order ends that could not be written: written before the next start
+    /// (until then the order stays `running` in the records, which a
+    /// restart turns into `interrupted`: never queued again).
+    unwritten_ends: Vec<(i64, OrderState, String)>,
+    /// The order that ended last, and when (messages that trail it
+    /// closely belong to it).
+    last_ended: Option<(i64, Duration)>,
+    /// The cell call out.
+    busy: Option<Busy>,
+    /// Jobs waiting for the cell call out to end.
+    jobs: VecDeque<Job>,
+    /// The cell's job events that came while the Start of their order was
+    /// still unconfirmed: handled once it is.
+    early: Vec<Unconfirmed>,
+    /// When to try the cell again.
+    next_try: Duration,
+    out: VecDeque<Output>,
+}
+
+impl<R: Records, S: RecipeSource> OrderList<R, S> {
+    /// The order list of operator `me` over `cell`, with its records and
+    /// checked recipes. Its first connection attempt is due at once.
+    pub fn new(
+        me: StationName,
+        cell: StationName,
+        topology: Topology,
+        db: R,
+        source: S,
+        recipes: RecipeSet,
+    ) -> Self {
+        let alarms = match AlarmList::load(&db) {
+            Ok(l) => l,
+            Err(e) => {
+                tracing::error!("{e}; the alarm list starts empty");
+                AlarmList::default()
+            }
+        };
+        Self {
+            me,
+            cell,
+            topology,
+            db,
+            source,
+            recipes,
+            delivered: BTreeMap::new(),
+            associated: false,
+            problem: None,
+            list: ListState::Idle,
+            alarms,
+            db_alarm: None,
+            running: None,
+            question: None,
+            shutdown_pending: false,
+            statuses: BTreeMap::new(),
+            present: BTreeSet::new(),
+            shown: Vec::new(),
+            unwritten_ends: Vec::new(),
+            last_ended: None,
+            busy: None,
+            jobs: VecDeque::new(),
+            early: Vec::new(),
+            next_try: Duration::ZERO,
+            out: VecDeque::new(),
+        }
+    }
+
+    /// The next thing the node must do.
+    pub fn poll_output(&mut self) -> Option<Output> {
+        self.out.pop_front()
+    }
+
+    /// When to call [`Self::handle_timeout`]: the next attempt to
+    /// associate the cell or deliver to it, while it is needed.
+    pub fn poll_timeout(&self) -> Option<Duration> {
+        let idle = self.busy.is_none() && self.jobs.is_empty();
+        (idle && (!self.associated || self.undelivered().next().is_some())).then_some(self.next_try)
+    }
+
+    /// The time of [`Self::poll_timeout`] has come: try the cell again.
+    pub fn handle_timeout(&mut self, now: Duration) {
+        if self.poll_timeout().is_some_and(|t| t <= now) {
+            self.next_try = now + RETRY;
+            self.jobs.push_back(Job::Connect);
+            self.pump(now);
+        }
+    }
+
+    /// Whether the node should stop (shut down requested, no order runs,
+    /// no call to the cell is out).
+    pub fn should_stop(&self) -> bool {
+        self.shutdown_pending && self.running.is_none() && self.busy.is_none()
+    }
+
+    /// The records (the node journals its own start and stop).
+    pub fn records(&mut self) -> &mut R {
+        &mut self.db
+    }
+
+    fn say(&mut self, line: String) {
+        self.out.push_back(Output::Say(line));
+    }
+
+    fn reply(&mut self, ticket: Ticket, result: ApiResult) {
+        self.out.push_back(Output::Reply { ticket, result });
+    }
+
+    fn call(&mut self, call: CellCall, busy: Busy) {
+        self.out.push_back(Output::Cell(call));
+        self.busy = Some(busy);
+    }
+
+    /// Journals; a failure to write stops the list ([`Self::db_failed`]).
+    pub fn journal(&mut self, kind: EntryKind, order: Option<i64>, who: &str, text: &str) {
+        match self.db.journal(kind, order, who, text) {
+            Ok(e) => self.say(format!(
+                "JOURNAL {} {} {who}: {}",
+                e.id,
+                kind.as_str(),
+                text.replace('\n', " / ")
+            )),
+            Err(e) => self.db_failed(&e),
+        }
+    }
+
+    fn journal_mine(&mut self, kind: EntryKind, order: Option<i64>, text: &str) {
+        let me = self.me.to_string();
+        self.journal(kind, order, &me, text);
+    }
+
+    /// A write to the order list or journal failed: the cell must not run
+    /// on with the journal behind. The list stops with an alarm saying why
+    /// and the running order is halted at the cell ([`Job::Halt`]).
+    fn db_failed(&mut self, e: &R::Error) {
+        tracing::error!("{e}");
+        self.say(format!("EVENT store-error {e}"));
+        if self.db_alarm.is_some() {
+            return;
+        }
+        let text = format!(
+            "the order list and journal cannot be written ({e}): the list is stopped{}; \
+             free the disk, then falc ack and falc start",
+            if self.running.is_some() {
+                " and the running order halted"
+            } else {
+                ""
+            }
+        );
+        if self.running.is_some() {
+            // Before anything else.
+            self.jobs.push_front(Job::Halt);
+        }
+        // Neither journalled nor, most likely, stored: the records are what
+        // cannot be written (the list keeps it in memory meanwhile).
+        let order = self.running_id();
+        let me = self.me.to_string();
+        let (raised, _) = self
+            .alarms
+            .raise(&mut self.db, &me, AlarmClass::Device, &text, order);
+        self.db_alarm = Some(self.raised(raised, AlarmClass::Device));
+    }
+
+    /// Says a new alarm, and stops the list if its class needs an
+    /// acknowledgement (a running order ends, the next one waits); its
+    /// number.
+    fn raised(&mut self, raised: Raised, class: AlarmClass) -> i64 {
+        if class.needs_ack() {
+            self.list = ListState::Idle;
+        }
+        match raised {
+            Raised::New(a) => {
+                self.say(format!(
+                    "EVENT alarm id={} class={} station={} {}",
+                    a.id, a.class, a.station, a.text
+                ));
+                a.id
+            }
+            Raised::Repeated(id) => id,
+        }
+    }
+
+    /// The list as consoles see it: `Alarm` while an alarm holds it back.
+    fn list_state(&self) -> ListState {
+        if self.alarms.blocking().is_some() {
+            ListState::Alarm
+        } else {
+            self.list
+        }
+    }
+
+    /// Puts an alarm of `station` in the list (the same one again while
+    /// unacknowledged is not repeated); one that needs acknowledgement
+    /// stops the list ([`Self::raised`]) and is shown as its state
+    /// ([`Self::list_state`]).
+    fn raise_alarm(&mut self, station: &str, class: AlarmClass, text: &str, order: Option<i64>) {
+        let (raised, error) = self.alarms.raise(&mut self.db, station, class, text, order);
+        self.raised(raised, class);
+        if let Some(e) = error {
+            self.db_failed(&e);
+        }
+    }
+
+    /// Raises an alarm of `station` that this node journals (a station's
+    /// own reports are journalled as they come), under `order` (the order
+    /// that failed, which no longer runs by now).
+    fn raise(&mut self, station: &str, order: Option<i64>, class: AlarmClass, text: String) {
+        self.raise_alarm(station, class, &text, order);
+        self.journal(EntryKind::Alarm, order, station, &text);
+    }
+
+    /// Clears the alarms of `station` whose condition is gone, from its
+    /// latest status and presence.
+    fn settle_alarms(&mut self, station: &StationName) {
+        let status = self.statuses.get(station);
+        let present = self.present.contains(station);
+        let (cleared, error) = self
+            .alarms
+            .settle(&mut self.db, station.as_str(), status, present);
+        for a in cleared {
+            self.say(format!("EVENT alarm-cleared id={}", a.id));
+            self.journal(
+                EntryKind::Report,
+                a.order,
+                station.as_str(),
+                &format!("alarm #{} cleared: {}", a.id, a.text),
+            );
+        }
+        if let Some(e) = error {
+            self.db_failed(&e);
+        }
+    }
+
+    fn running_id(&self) -> Option<i64> {
+        self.running.as_ref().map(|o| o.id)
+    }
+
+    /// The order a message of the cell or a station belongs to: the running
+    /// one, else the one that ended within [`TRAIL`] (a cause a station
+    /// reports just after its order failed).
+    fn order_of_message(&self, now: Duration) -> Option<i64> {
+        self.running_id().or(self
+            .last_ended
+            .filter(|(_, at)| now.saturating_sub(*at) < TRAIL)
+            .map(|(id, _)| id))
+    }
+
+    fn end(&mut self, now: Duration, order: Order, state: OrderState, result: &str) {
+        self.last_ended = Some((order.id, now));
+        if let Err(e) = self.db.end_order(order.id, state, result) {
+            self.unwritten_ends
+                .push((order.id, state, result.to_string()));
+            self.db_failed(&e);
+        }
+        self.journal_mine(
+            EntryKind::Order,
+            Some(order.id),
+            &format!("order {} ({}) {state}: {result}", order.id, order.recipe),
+        );
+        self.say(format!("EVENT order-ended id={} state={state}", order.id));
+    }
+
+    /// Answers the waiting question with `why` (its order no longer runs).
+    fn refuse_question(&mut self, why: &str) {
+        if let Some(q) = self.question.take() {
+            self.out.push_back(Output::Respond {
+                ticket: q.ticket,
+                result: Err(ServiceError::state_conflict(why)),
+            });
+        }
+    }
+
+    /// Drops the waiting question unanswered.
+    fn forget_question(&mut self) {
+        if let Some(q) = self.question.take() {
+            self.out.push_back(Output::Forget(q.ticket));
+        }
+    }
+
+    // ---- jobs: one call to the cell at a time ----
+
+    /// Begins the waiting jobs while no call to the cell is out.
+    fn pump(&mut self, now: Duration) {
+        while self.busy.is_none() {
+            let Some(job) = self.jobs.pop_front() else {
+                return;
+            };
+            self.begin(now, job);
+        }
+    }
+
+    fn begin(&mut self, now: Duration, job: Job) {
+        match job {
+            Job::Connect => self.connect(After::Nothing, false),
+            Job::Start { ticket, who } => self.begin_start(ticket, who),
+            Job::Next => {
+                if self.list == ListState::Running {
+                    self.start_next(StartFor::List);
+                }
+            }
+            Job::Stop { ticket, who } => self.begin_stop(now, ticket, who),
+            Job::Halt => {
+                let Some(order) = self.running.take() else {
+                    return;
+                };
+                self.refuse_question("the order was halted: the journal cannot be written");
+                match ObjectName::new(&order.recipe) {
+                    Ok(name) => self.call(CellCall::Stop { name }, Busy::Halting { order }),
+                    Err(e) => self.halted(now, order, Err(e.to_string())),
+                }
+            }
+        }
+    }
+
+    /// The recipes whose content the cell does not have yet.
+    fn undelivered(&self) -> impl Iterator<Item = &Delivery> {
+        self.recipes
+            .deliveries
+            .iter()
+            .filter(|d| self.delivered.get(&d.domain) != Some(&content_hash(&d.content)))
+    }
+
+    /// Associates the cell if it is not, and delivers what changed, one
+    /// call at a time; then goes on with `after`. Quiet when nothing
+    /// changed; says `EVENT cell-ready` when the cell holds every recipe
+    /// after a change (`sent`).
+    fn connect(&mut self, after: After, sent: bool) {
+        if !self.associated {
+            self.call(CellCall::Associate, Busy::Associating { after });
+            return;
+        }
+        let next = self.undelivered().next().cloned();
+        if let Some(d) = next {
+            let busy = Busy::Delivering {
+                after,
+                domain: d.domain.clone(),
+                hash: content_hash(&d.content),
+            };
+            self.call(CellCall::Deliver(d), busy);
+            return;
+        }
+        if sent {
+            let n = self.recipes.deliveries.len();
+            self.say(format!("EVENT cell-ready recipes={n}"));
+        }
+        if let After::Start { ticket, who } = after {
+            self.call(CellCall::Initiate, Busy::Initiating { ticket, who });
+        }
+    }
+
+    /// A connection failed: the last refusal is kept as `problem`.
+    fn connect_failed(&mut self, after: After, text: String) {
+        if let After::Start { ticket, .. } = after {
+            self.reply(ticket, Err(text));
+        }
+    }
+
+    fn associated_now(&mut self) {
+        self.associated = true;
+        self.problem = None;
+        self.delivered.clear();
+        self.say(format!("EVENT associated station={}", self.cell));
+        let me = self.me.to_string();
+        // The cell is back: the lost connection has cleared.
+        let (_, error) = self.alarms.clear_where(&mut self.db, |a| {
+            a.station == me && a.class == AlarmClass::Communication
+        });
+        if let Some(e) = error {
+            self.db_failed(&e);
+        }
+        let text = format!("associated with {}", self.cell);
+        self.journal_mine(EntryKind::System, None, &text);
+    }
+
+    fn begin_start(&mut self, ticket: Ticket, who: String) {
+        if let Some(a) = self.alarms.blocking() {
+            let text = format!(
+                "alarm {} waits for acknowledgement (falc ack {}, or falc ack for all)",
+                a.line(),
+                a.id
+            );
+            return self.reply(ticket, Err(text));
+        }
+        if self.shutdown_pending {
+            return self.reply(ticket, Err("the cell is shutting down".into()));
+        }
+        if self.running.is_some() {
+            self.list = ListState::Running;
+            return self.reply(ticket, Ok(ApiReply::Done("the list is running".into())));
+        }
+        // The recipe store again: what was saved since is delivered now.
+        match self.source.load() {
+            Ok(set) => self.recipes = set,
+            Err(problems) => {
+                let text = format!(
+                    "recipes refused, nothing delivered:\n{}",
+                    problems.join("\n")
+                );
+                self.journal_mine(EntryKind::System, None, &text);
+                return self.reply(ticket, Err(text));
+            }
+        }
+        self.connect(After::Start { ticket, who }, false);
+    }
+
+    /// Writes the order ends a failed write held back; the error (the
+    /// fault raised again) while it still cannot.
+    fn write_held_ends(&mut self) -> Result<(), String> {
+        while let Some((id, state, result)) = self.unwritten_ends.first().cloned() {
+            if let Err(e) = self.db.end_order(id, state, &result) {
+                let text = e.to_string();
+                self.db_failed(&e);
+                return Err(text);
+            }
+            self.unwritten_ends.remove(0);
+            self.journal_mine(
+                EntryKind::Order,
+                Some(id),
+                &format!("order {id} {state}: {result} (written late)"),
+            );
+        }
+        Ok(())
+    }
+
+    /// Starts the next queued order: durably `running` before the cell is
+    /// asked to start it; back in the queue only if the cell refused.
+    fn start_next(&mut self, purpose: StartFor) {
+        let prepared = self.write_held_ends().and_then(|()| {
+            let Some(order) = self.db.next_queued().map_err(|e| e.to_string())? else {
+                return Ok(None);
+            };
+            let name = ObjectName::new(&order.recipe).map_err(|e| e.to_string())?;
+            match self.db.set_running(order.id) {
+                Ok(ms) => Ok(Some((order, name, ms))),
+                Err(e) => {
+                    let why = format!("order {} ({}) not started: {e}", order.id, order.recipe);
+                    self.db_failed(&e);
+                    Err(why)
+                }
+            }
+        });
+        match prepared {
+            Ok(Some((order, name, started_ms))) => {
+                let argument = format!("order {}", order.id);
+                let busy = Busy::Starting {
+                    order,
+                    started_ms,
+                    purpose,
+                };
+                self.call(CellCall::Start { name, argument }, busy);
+            }
+            Ok(None) => self.start_ended(purpose, Ok(None)),
+            Err(text) => self.start_ended(purpose, Err(text)),
+        }
+    }
+
+    /// The outcome of a start, for whom it was.
+    fn start_ended(&mut self, purpose: StartFor, outcome: Result<Option<Order>, String>) {
+        match (purpose, outcome) {
+            (StartFor::Operator { ticket, who }, Ok(Some(order))) => {
+                self.list = ListState::Running;
+                self.journal(EntryKind::Action, None, &who, "started the list");
+                let text = format!("order {} ({}) started", order.id, order.recipe);
+                self.reply(ticket, Ok(ApiReply::Done(text)));
+            }
+            (StartFor::Operator { ticket, .. }, Ok(None)) => {
+                self.reply(ticket, Err("the order list holds no queued order".into()));
+            }
+            (StartFor::Operator { ticket, who }, Err(text)) => {
+                self.journal(
+                    EntryKind::Action,
+                    None,
+                    &who,
+                    &format!("start refused: {text}"),
+                );
+                self.reply(ticket, Err(text));
+            }
+            (StartFor::List, Ok(Some(_))) => {}
+            (StartFor::List, Ok(None)) => {
+                self.list = ListState::Idle;
+                self.journal_mine(EntryKind::System, None, "the order list is done");
+                self.say("EVENT list-done".into());
+            }
+            (StartFor::List, Err(text)) => {
+                let me = self.me.to_string();
+                self.raise(&me, None, AlarmClass::Process, text);
+            }
+        }
+    }
+
+    fn begin_stop(&mut self, now: Duration, ticket: Ticket, who: String) {
+        self.list = ListState::Idle;
+        let Some(order) = self.running.take() else {
+            self.journal(EntryKind::Action, None, &who, "stopped the list");
+            return self.reply(ticket, Ok(ApiReply::Done("the list is stopped".into())));
+        };
+        match ObjectName::new(&order.recipe) {
+            Ok(name) => self.call(
+                CellCall::Stop { name },
+                Busy::Stopping { order, ticket, who },
+            ),
+            Err(e) => self.stopped(now, order, ticket, &who, Err(e.to_string())),
+        }
+    }
+
+    fn stopped(
+        &mut self,
+        now: Duration,
+        order: Order,
+        ticket: Ticket,
+        who: &str,
+        result: Result<(), String>,
+    ) {
+        self.refuse_question("the order was stopped");
+        self.journal(
+            EntryKind::Action,
+            Some(order.id),
+            who,
+            &format!("stopped order {}", order.id),
+        );
+        let id = order.id;
+        self.end(
+            now,
+            order,
+            OrderState::Stopped,
+            &format!("stopped by {who}"),
+        );
+        let text = match result {
+            Ok(()) => format!("order {id} stopped"),
+            Err(text) => {
+                format!("order {id} marked stopped; the cell did not confirm the stop: {text}")
+            }
+        };
+        self.reply(ticket, Ok(ApiReply::Done(text)));
+    }
+
+    fn halted(&mut self, now: Duration, order: Order, result: Result<(), String>) {
+        match &result {
+            Ok(()) => self.say(format!("EVENT order-halted id={}", order.id)),
+            Err(why) => self.say(format!(
+                "EVENT order-halted id={} (the cell did not confirm: {why})",
+                order.id
+            )),
+        }
+        self.end(
+            now,
+            order,
+            OrderState::Failed,
+            "halted: the order list and journal could not be written",
+        );
+    }
+
+    /// The outcome of the call to the cell that is out.
+    pub fn handle_cell_reply(&mut self, now: Duration, result: Result<(), ServiceError>) {
+        let result = result.map_err(|e| e.description);
+        let Some(busy) = self.busy.take() else {
+            tracing::warn!("a reply from the cell that nothing waits for: {result:?}");
+            return;
+        };
+        match busy {
+            Busy::Associating { after } => match result {
+                Ok(()) => {
+                    self.associated_now();
+                    self.connect(after, false);
+                }
+                Err(text) => {
+                    if self.problem.as_deref() != Some(text.as_str()) {
+                        self.say(format!("EVENT not-associated {text}"));
+                    }
+                    self.problem = Some(text.clone());
+                    self.connect_failed(after, text);
+                }
+            },
+            Busy::Delivering {
+                after,
+                domain,
+                hash,
+            } => match result {
+                Ok(()) => {
+                    self.say(format!("EVENT delivered recipe={domain}"));
+                    self.delivered.insert(domain, hash);
+                    self.connect(after, true);
+                }
+                Err(text) => {
+                    self.delivered.remove(&domain);
+                    self.journal_mine(EntryKind::System, None, &text);
+                    self.connect_failed(after, text);
+                }
+            },
+            Busy::Initiating { ticket, who } => match result {
+                Ok(()) => {
+                    self.problem = None;
+                    self.start_next(StartFor::Operator { ticket, who });
+                }
+                Err(text) => {
+                    self.problem = Some(text.clone());
+                    self.reply(ticket, Err(text));
+                }
+            },
+            Busy::Starting {
+                order,
+                started_ms,
+                purpose,
+            } => {
+                let outcome = match result {
+                    Ok(()) => {
+                        let order = Order {
+                            state: OrderState::Running,
+                            started_ms: Some(started_ms),
+                            ..order
+                        };
+                        // Running before anything is written: a failed
+                        // write halts it.
+                        self.running = Some(order.clone());
+                        self.shown.clear();
+                        self.journal_mine(
+                            EntryKind::Order,
+                            Some(order.id),
+                            &format!("order {} ({}) started", order.id, order.recipe),
+                        );
+                        self.say(format!("EVENT order-started id={}", order.id));
+                        Ok(Some(order))
+                    }
+                    Err(text) => {
+                        let why =
+                            format!("order {} ({}) not started: {text}", order.id, order.recipe);
+                        if let Err(e) = self.db.requeue(order.id) {
+                            // Stays `running` in the records: interrupted at
+                            // a restart, never run twice; failed once the
+                            // records can be written again.
+                            self.unwritten_ends
+                                .push((order.id, OrderState::Failed, why.clone()));
+                            self.db_failed(&e);
+                        }
+                        Err(why)
+                    }
+                };
+                self.start_ended(purpose, outcome);
+                for u in std::mem::take(&mut self.early) {
+                    self.handle_publication(now, u);
+                }
+            }
+            Busy::Stopping { order, ticket, who } => self.stopped(now, order, ticket, &who, result),
+            Busy::Halting { order } => self.halted(now, order, result),
+        }
+        self.pump(now);
+    }
+
+    // ---- the cell and the stations ----
+
+    /// The cell was lost (abort indication).
+    pub fn handle_abort(&mut self, now: Duration, reason: &str) {
+        self.associated = false;
+        self.delivered.clear();
+        let text = format!("no connection with station {}", self.cell);
+        self.problem = Some(text.clone());
+        self.say(format!("EVENT cell-lost {reason}"));
+        self.forget_question();
+        let order = self.running.take();
+        let id = order.as_ref().map(|o| o.id);
+        if let Some(order) = order {
+            self.end(now, order, OrderState::Failed, &format!("alarm: {text}"));
+        }
+        let me = self.me.to_string();
+        self.raise(&me, id, AlarmClass::Communication, text);
+        self.pump(now);
+    }
+
+    /// A station came onto (`present`) or left the bus.
+    pub fn handle_presence(&mut self, now: Duration, station: StationName, present: bool) {
+        if present {
+            self.present.insert(station.clone());
+        } else {
+            self.present.remove(&station);
+        }
+        self.settle_alarms(&station);
+        self.pump(now);
+    }
+
+    /// A publication of a station.
+    pub fn handle_publication(&mut self, now: Duration, u: Unconfirmed) {
+        match u {
+            Unconfirmed::Status { station, status } => {
+                self.statuses.insert(station.clone(), status);
+                self.settle_alarms(&station);
+            }
+            Unconfirmed::Report {
+                station,
+                severity,
+                text,
+            } => {
+                // Every station's reports, each under its own name (its
+                // message pane), with the order they belong to.
+                let order = self.order_of_message(now);
+                match severity {
+                    Severity::Alarm(class) => {
+                        self.raise_alarm(station.as_str(), class, &text, order);
+                        self.journal(EntryKind::Alarm, order, station.as_str(), &text);
+                    }
+                    Severity::Info | Severity::Warning => {
+                        self.journal(EntryKind::Report, order, station.as_str(), &text);
+                    }
+                }
+            }
+            Unconfirmed::Job {
+                station,
+                program,
+                event,
+            } if station == self.cell => {
+                if let Some(Busy::Starting { order, .. }) = &self.busy {
+                    if ObjectName::new(&order.recipe).ok().as_ref() == Some(&program) {
+                        self.early.push(Unconfirmed::Job {
+                            station,
+                            program,
+                            event,
+                        });
+                        return;
+                    }
+                }
+                let Some(order) = self.running.clone() else {
+                    return;
+                };
+                if ObjectName::new(&order.recipe).ok().as_ref() != Some(&program) {
+                    return;
+                }
+                self.job_event(now, order, &station, &program, event);
+            }
+            Unconfirmed::Job { .. } => {}
+        }
+        self.pump(now);
+    }
+
+    /// A job event of the running order's program invocation.
+    fn job_event(
+        &mut self,
+        now: Duration,
+        order: Order,
+        station: &StationName,
+        program: &ObjectName,
+        event: JobEvent,
+    ) {
+        match event {
+            JobEvent::Paused | JobEvent::Resumed => {
+                self.journal(
+                    EntryKind::Report,
+                    Some(order.id),
+                    station.as_str(),
+                    &format!("{program} {event:?}").to_lowercase(),
+                );
+            }
+            JobEvent::Done => {
+                self.running = None;
+                self.forget_question();
+                self.end(now, order, OrderState::Done, "done");
+                self.jobs.push_back(Job::Next);
+            }
+            failure => {
+                self.running = None;
+                self.forget_question();
+                let id = order.id;
+                match failure {
+                    JobEvent::Alarm(cause) => {
+                        self.end(now, order, OrderState::Failed, &format!("alarm: {cause}"));
+                        // The cell reported the same alarm (journalled as it
+                        // came): one alarm, whichever is first.
+                        let cell = self.cell.to_string();
+                        self.raise_alarm(&cell, cause.class, &cause.text, Some(id));
+                    }
+                    other => {
+                        let (word, class) = match other {
+                            JobEvent::BadProduct => ("bad_product", AlarmClass::Process),
+                            JobEvent::FailedSafe => ("failed_safe", AlarmClass::Process),
+                            _ => ("failed_danger", AlarmClass::Safety),
+                        };
+                        let text = format!("order {} ({}) ended with {word}", id, order.recipe);
+                        self.end(now, order, OrderState::Failed, word);
+                        let me = self.me.to_string();
+                        self.raise(&me, Some(id), class, text);
+                    }
+                }
+            }
+        }
+    }
+
+    /// A request of the cell: operator communication. Answered through
+    /// [`Output::Respond`] under `ticket` (an `input` once answered).
+    pub fn handle_cell_request(&mut self, now: Duration, ticket: Ticket, request: Request) {
+        let cell = self.cell.to_string();
+        let order = self.order_of_message(now);
+        match request {
+            Request::Output { lines } => {
+                for l in &lines {
+                    self.journal(EntryKind::Message, order, &cell, l);
+                }
+                self.shown.extend(lines);
+                self.out.push_back(Output::Respond {
+                    ticket,
+                    result: Ok(Response::Done),
+                });
+            }
+            Request::Input { prompt, .. } => {
+                let mut text = self.shown.join("\n");
+                if !text.is_empty() {
+                    text.push('\n');
+                }
+                text.push_str(&prompt);
+                self.shown.clear();
+                self.journal(EntryKind::Question, order, &cell, &prompt);
+                self.say(format!("EVENT question {prompt}"));
+                self.refuse_question("a newer question replaced this one");
+                self.question = Some(Question {
+                    prompt: text,
+                    ticket,
+                });
+            }
+            other => {
+                let e = ServiceError::undefined(format!(
+                    "the operator serves only input and output to its cell, not {}",
+                    other.service()
+                ));
+                self.out.push_back(Output::Respond {
+                    ticket,
+                    result: Err(e),
+                });
+            }
+        }
+        self.pump(now);
+    }
+
+    // ---- the operator API ----
+
+    fn status(&self) -> Result<CellStatus, R::Error> {
+        Ok(CellStatus {
+            list: self.list_state(),
+            cell_associated: self.associated,
+            problem: self.problem.clone(),
+            alarm: self.alarms.blocking().map(|a| a.line()),
+            alarms: self.alarms.listed().to_vec(),
+            running: self.running.clone(),
+            queued: self.db.queued()?,
+            journal_head: self.db.journal_head()?,
+            question: self.question.as_ref().map(|q| q.prompt.clone()),
+            shutdown_pending: self.shutdown_pending,
+            stations: self
+                .topology
+                .stations()
+                .iter()
+                .filter(|s| s.commander.is_some())
+                .map(|s| StationView {
+                    name: s.name.clone(),
+                    status: self.statuses.get(&s.name).cloned(),
+                    connected: self.present.contains(&s.name),
+                })
+                .collect(),
+        })
+    }
+
+    /// One operator API request from console user `user`, answered through
+    /// [`Output::Reply`] under `ticket`: at once, or (`start`, `stop`) when
+    /// the cell confirmed.
+    pub fn handle_api(
+        &mut self,
+        now: Duration,
+        ticket: Ticket,
+        user: &StationName,
+        request: ApiRequest,
+    ) {
+        if let Some(result) = self.api(ticket, user, request) {
+            self.reply(ticket, result);
+        }
+        self.pump(now);
+    }
+
+    /// The answer now, or None when a job answers it later.
+    fn api(
+        &mut self,
+        ticket: Ticket,
+        user: &StationName,
+        request: ApiRequest,
+    ) -> Option<ApiResult> {
+        let who = user.as_str();
+        // The router already refused what the user's role does not allow;
+        // checked again here so a mis-generated ACL cannot widen a role.
+        let call = request.call();
+        match self.topology.console(user) {
+            Some(c) if c.role >= call.role() => {}
+            Some(c) => {
+                return Some(Err(format!(
+                    "{user} is {:?}, `{call}` needs {:?}",
+                    c.role,
+                    call.role()
+                )))
+            }
+            None => return Some(Err(format!("{user} is not a console user of this cell"))),
+        }
+        let db = |e: R::Error| e.to_string();
+        Some(match request {
+            ApiRequest::Status => self.status().map(ApiReply::Status).map_err(db),
+            ApiRequest::OrderList => self.db.orders().map(ApiReply::Orders).map_err(db),
+            ApiRequest::Messages { after } => self
+                .db
+                .entries(after, None, true, PAGE)
+                .map(ApiReply::Entries)
+                .map_err(db),
+            ApiRequest::Journal { order, after } => self
+                .db
+                .entries(after, order, false, PAGE)
+                .map(ApiReply::Entries)
+                .map_err(db),
+            ApiRequest::OrderAdd { recipe } => self.add_order(who, &recipe),
+            ApiRequest::OrderRemove { id } => match self.db.remove_order(id) {
+                Err(e) => Err(e.to_string()),
+                Ok(Ok(order)) => {
+                    self.journal(
+                        EntryKind::Action,
+                        Some(id),
+                        who,
+                        &format!("removed order {id} ({})", order.recipe),
+                    );
+                    Ok(ApiReply::Done(format!("order {id} removed")))
+                }
+                Ok(Err(why)) => Err(why),
+            },
+            ApiRequest::Start => {
+                let who = who.to_string();
+                self.jobs.push_back(Job::Start { ticket, who });
+                return None;
+            }
+            ApiRequest::Stop => {
+                let who = who.to_string();
+                self.jobs.push_back(Job::Stop { ticket, who });
+                return None;
+            }
+            ApiRequest::Ack { id } => self.ack(who, id),
+            ApiRequest::Answer { text } => {
+                let Some(q) = self.question.take() else {
+                    return Some(Err("no question is waiting for an answer".into()));
+                };
+                let order = self.running_id();
+                self.journal(EntryKind::Answer, order, who, &text);
+                self.out.push_back(Output::Respond {
+                    ticket: q.ticket,
+                    result: Ok(Response::Answer(text.clone())),
+                });
+                Ok(ApiReply::Done(format!("answered {text}")))
+            }
+            ApiRequest::RecipeList => self.source.list().map(ApiReply::Recipes),
+            ApiRequest::RecipeGet { file } => self.source.get(&file).map(ApiReply::Recipe),
+            ApiRequest::RecipePut { file, text, base } => {
+                match self.source.put(&file, &text, base) {
+                    Ok(()) => {
+                        let what = if base.is_none() { "created" } else { "changed" };
+                        self.journal(
+                        EntryKind::Action,
+                        None,
+                        who,
+                        &format!("recipe {file} {what} (checked; the cell gets it at the next start)"),
+                    );
+                        Ok(ApiReply::Done(format!(
+                        "recipe {file} saved: it checks clean; the cell gets it at the next start"
+                    )))
+                    }
+                    Err(PutError::Findings(f)) => Err(format!(
+                        "recipe {file} NOT saved: the recipe set does not check clean with it:\n{}",
+                        f.join("\n")
+                    )),
+                    Err(PutError::Refused(why)) => Err(format!("recipe {file} NOT saved: {why}")),
+                }
+            }
+            ApiRequest::Shutdown => {
+                self.journal(EntryKind::Action, None, who, "shut down requested");
+                self.shutdown_pending = true;
+                if self.running.is_some() {
+                    Ok(ApiReply::Done(
+                        "the cell shuts down when the order list is done".into(),
+                    ))
+                } else {
+                    Ok(ApiReply::Done("shutting down".into()))
+                }
+            }
+        })
+    }
+
+    fn add_order(&mut self, who: &str, recipe: &str) -> ApiResult {
+        let name = ObjectName::new(recipe).map_err(|e| e.to_string())?;
+        if !self.recipes.cell_recipes().contains(&&name) {
+            // A recipe saved since the last start is known once the recipe
+            // store checks clean with it (delivered at the start).
+            let known = match self.source.load() {
+                Ok(set) => set.cell_recipes().contains(&&name),
+                Err(_) => false,
+            };
+            if !known {
+                let list: Vec<String> = self
+                    .recipes
+                    .cell_recipes()
+                    .iter()
+                    .map(|n| n.as_str().to_lowercase())
+                    .collect();
+                return Err(format!(
+                    "there is no cell recipe {recipe}; the cell knows {}",
+                    list.join(", ")
+                ));
+            }
+        }
+        let order = match self.db.add_order(&recipe.to_lowercase(), who) {
+            Ok(o) => o,
+            Err(e) => {
+                let text = e.to_string();
+                self.db_failed(&e);
+                return Err(text);
+            }
+        };
+        self.journal(
+            EntryKind::Action,
+            Some(order.id),
+            who,
+            &format!("added order {} ({})", order.id, order.recipe),
+        );
+        Ok(ApiReply::Order(order))
+    }
+
+    /// Acknowledges alarm `id`, or all; journalled with the user.
+    fn ack(&mut self, who: &str, id: Option<i64>) -> ApiResult {
+        let (acked, error) = self.alarms.ack(&mut self.db, id, who)?;
+        if acked.is_empty() {
+            return Ok(ApiReply::Done("no alarm to acknowledge".into()));
+        }
+        if let Some(s) = self.db_alarm.filter(|s| acked.iter().any(|a| a.id == *s)) {
+            // Acknowledged: the next write tells whether the records work
+            // again (it raises a new alarm if not).
+            self.db_alarm = None;
+            let _ = self.alarms.clear_where(&mut self.db, |a| a.id == s);
+        }
+        if let Some(e) = error {
+            self.db_failed(&e);
+        }
+        for a in &acked {
+            self.journal(
+                EntryKind::Action,
+                a.order,
+                who,
+                &format!("acknowledged alarm {}", a.line()),
+            );
+        }
+        let lines: Vec<String> = acked.iter().map(|a| a.line()).collect();
+        Ok(ApiReply::Done(format!(
+            "acknowledged: {}",
+            lines.join("; ")
+        )))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! The order list on a virtual clock, with records in memory and a
+    //! recipe source in memory; the test plays the cell (answering each
+    //! [`CellCall`]) and the consoles.
+
+    use super::*;
+    use crate::records::memory::Memory;
+    use falc_model::alarm::Cause;
+    use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
+
+    const TOPOLOGY: &str = r#"
+cell = "t1"
+router = "tcp/127.0.0.1:7447"
+[[station]]
+name = "operator"
+kind = "operator"
+[[station]]
+name = "cell"
+kind = "cell"
+commander = "operator"
+[[station]]
+name = "welding"
+kind = "welding"
+commander = "cell"
+[[console]]
+name = "ann"
+role = "operator"
+[[console]]
+name = "obs"
+role = "observer"
+"#;
+
+    /// Recipes in memory; `broken` makes the set fail its check.
+    #[derive(Default)]
+    struct Source {
+        broken: bool,
+    }
+
+    fn set() -> RecipeSet {
+        let d = |domain: &str, is_cell| Delivery {
+            domain: name(domain),
+            is_cell,
+            content: domain.as_bytes().to_vec(),
+        };
+        RecipeSet {
+            deliveries: vec![d("WELDING$DROOG_DIK", false), d("DIKDROOG", true)],
+        }
+    }
+
+    impl RecipeSource for Source {
+        fn load(&self) -> Result<RecipeSet, Vec<String>> {
+            if self.broken {
+                Err(vec!["cell/dikdroog.rcp:3: unknown state 9".into()])
+            } else {
+                Ok(set())
+            }
+        }
+        fn list(&self) -> Result<Vec<RecipeInfo>, String> {
+            Ok(Vec::new())
+        }
+        fn get(&self, file: &RecipeFile) -> Result<RecipeText, String> {
+            Err(format!("no {file}"))
+        }
+        fn put(&self, _: &RecipeFile, _: &str, _: Option<u64>) -> Result<(), PutError> {
+            Err(PutError::Refused("read-only".into()))
+        }
+    }
+
+    fn name(s: &str) -> ObjectName {
+        ObjectName::new(s).expect("a valid name")
+    }
+
+    fn st(s: &str) -> StationName {
+        StationName::new(s).expect("a valid station")
+    }
+
+    struct Rig {
+        list: OrderList<Memory, Source>,
+        now: Duration,
+        tickets: u64,
+    }
+
+    impl Rig {
+        fn new() -> Self {
+            let topology = Topology::parse(TOPOLOGY, "test").expect("topology");
+            let list = OrderList::new(
+                st("operator"),
+                st("cell"),
+                topology,
+                Memory::default(),
+                Source::default(),
+                set(),
+            );
+            Self {
+                list,
+                now: Duration::ZERO,
+                tickets: 0,
+            }
+        }
+
+        fn outputs(&mut self) -> Vec<Output> {
+            std::iter::from_fn(|| self.list.poll_output()).collect()
+        }
+
+        fn ticket(&mut self) -> Ticket {
+            self.tickets += 1;
+            Ticket(self.tickets)
+        }
+
+        /// Sends a console request; its ticket and what came out.
+        fn api(&mut self, user: &str, req: ApiRequest) -> (Ticket, Vec<Output>) {
+            let t = self.ticket();
+            self.list.handle_api(self.now, t, &st(user), req);
+            (t, self.outputs())
+        }
+
+        /// A console request answered at once.
+        fn ask(&mut self, user: &str, req: ApiRequest) -> ApiResult {
+            let (t, out) = self.api(user, req);
+            reply(&out, t).unwrap_or_else(|| panic!("no answer at once: {out:?}"))
+        }
+
+        fn status(&mut self) -> CellStatus {
+            match self.ask("ann", ApiRequest::Status) {
+                Ok(ApiReply::Status(s)) => s,
+                other => panic!("{other:?}"),
+            }
+        }
+
+        /// The cell answers the call that is out.
+        fn answer(&mut self, result: Result<(), &str>) -> Vec<Output> {
+            let result = result.map_err(ServiceError::unreachable);
+            self.list.handle_cell_reply(self.now, result);
+            self.outputs()
+        }
+
+        fn publish(&mut self, u: Unconfirmed) -> Vec<Output> {
+            self.list.handle_publication(self.now, u);
+            self.outputs()
+        }
+
+        fn job(&mut self, event: JobEvent) -> Vec<Output> {
+            self.publish(Unconfirmed::Job {
+                station: st("cell"),
+                program: name("dikdroog"),
+                event,
+            })
+        }
+
+        fn add(&mut self, n: usize) {
+            for _ in 0..n {
+                let r = self.ask(
+                    "ann",
+                    ApiRequest::OrderAdd {
+                        recipe: "dikdroog".into(),
+                    },
+                );
+                assert!(matches!(r, Ok(ApiReply::Order(_))), "{r:?}");
+            }
+        }
+
+        /// `start` through association, delivery, Initiate and the
+        /// cell's Start; the start's answer.
+        fn start(&mut self) -> ApiResult {
+            let (t, mut out) = self.api("ann", ApiRequest::Start);
+            loop {
+                if let Some(r) = reply(&out, t) {
+                    return r;
+                }
+                assert!(
+                    call(&out).is_some(),
+                    "neither an answer nor a call: {out:?}"
+                );
+                out = self.answer(Ok(()));
+            }
+        }
+
+        fn order(&mut self, id: i64) -> Order {
+            let orders = self.list.records().orders.clone();
+            orders
+                .into_iter()
+                .find(|o| o.id == id)
+                .unwrap_or_else(|| panic!("no order {id}"))
+        }
+    }
+
+    fn reply(out: &[Output], ticket: Ticket) -> Option<ApiResult> {
+        out.iter().find_map(|o| match o {
+            Output::Reply { ticket: t, result } if *t == ticket => Some(result.clone()),
+            _ => None,
+        })
+    }
+
+    fn call(out: &[Output]) -> Option<CellCall> {
+        out.iter().find_map(|o| match o {
+            Output::Cell(c) => Some(c.clone()),
+            _ => None,
+        })
+    }
+
+    fn said(out: &[Output], what: &str) -> bool {
+        out.iter()
+            .any(|o| matches!(o, Output::Say(l) if l.contains(what)))
+    }
+
+    #[test]
+    fn a_start_associates_delivers_and_starts_and_status_is_answered_meanwhile() {
+        let mut r = Rig::new();
+        r.add(1);
+        let (start, out) = r.api("ann", ApiRequest::Start);
+        assert_eq!(call(&out), Some(CellCall::Associate));
+        // The loop does not wait for the cell: status is answered now.
+        assert!(!r.status().cell_associated);
+        let out = r.answer(Ok(()));
+        assert!(said(&out, "EVENT associated station=cell"));
+        let Some(CellCall::Deliver(d)) = call(&out) else {
+            panic!("{out:?}")
+        };
+        assert_eq!(
+            d.domain,
+            name("WELDING$DROOG_DIK"),
+            "workstation recipes first"
+        );
+        let out = r.answer(Ok(()));
+        assert!(matches!(call(&out), Some(CellCall::Deliver(d)) if d.is_cell));
+        let out = r.answer(Ok(()));
+        assert!(said(&out, "EVENT cell-ready recipes=2"));
+        assert_eq!(call(&out), Some(CellCall::Initiate));
+        let out = r.answer(Ok(()));
+        assert_eq!(
+            call(&out),
+            Some(CellCall::Start {
+                name: name("dikdroog"),
+                argument: "order 1".into()
+            })
+        );
+        assert_eq!(
+            r.order(1).state,
+            OrderState::Running,
+            "durably running before the cell is asked"
+        );
+        assert!(
+            reply(&out, start).is_none(),
+            "answered only when the cell confirmed"
+        );
+        let out = r.answer(Ok(()));
+        assert_eq!(
+            reply(&out, start),
+            Some(Ok(ApiReply::Done("order 1 (dikdroog) started".into())))
+        );
+        assert_eq!(r.status().list, ListState::Running);
+        let out = r.job(JobEvent::Done);
+        assert!(said(&out, "EVENT order-ended id=1 state=done"));
+        assert!(said(&out, "EVENT list-done"));
+        assert_eq!(r.order(1).state, OrderState::Done);
+        assert_eq!(r.status().list, ListState::Idle);
+        // A second start: nothing to deliver again.
+        r.add(1);
+        let (_, out) = r.api("ann", ApiRequest::Start);
+        assert_eq!(call(&out), Some(CellCall::Initiate));
+    }
+
+    #[test]
+    fn the_list_goes_on_and_a_start_the_cell_refuses_puts_the_order_back() {
+        let mut r = Rig::new();
+        r.add(2);
+        assert!(r.start().is_ok());
+        let out = r.job(JobEvent::Done);
+        assert!(
+            matches!(call(&out), Some(CellCall::Start { argument, .. }) if argument == "order 2")
+        );
+        let out = r.answer(Err("vmd-state/program invocation busy"));
+        assert!(said(&out, "EVENT alarm"), "{out:?}");
+        assert_eq!(
+            r.order(2).state,
+            OrderState::Queued,
+            "never lost, never run"
+        );
+        let s = r.status();
+        assert_eq!(s.list, ListState::Alarm);
+        assert!(s
+            .alarm
+            .is_some_and(|a| a.contains("order 2 (dikdroog) not started")));
+        // The way back: ack, start, done.
+        assert!(r.ask("ann", ApiRequest::Ack { id: None }).is_ok());
+        assert!(r.start().is_ok());
+        r.job(JobEvent::Done);
+        assert_eq!(r.order(2).state, OrderState::Done);
+    }
+
+    #[test]
+    fn while_the_cell_is_away_it_is_tried_again_every_second() {
+        let mut r = Rig::new();
+        assert_eq!(r.list.poll_timeout(), Some(Duration::ZERO));
+        r.list.handle_timeout(r.now);
+        assert_eq!(call(&r.outputs()), Some(CellCall::Associate));
+        assert_eq!(r.list.poll_timeout(), None, "nothing while a call is out");
+        let out = r.answer(Err("no reply from cell"));
+        assert!(said(&out, "EVENT not-associated no reply from cell"));
+        assert_eq!(r.status().problem.as_deref(), Some("no reply from cell"));
+        assert_eq!(r.list.poll_timeout(), Some(RETRY));
+        r.now = Duration::from_millis(500);
+        r.list.handle_timeout(r.now);
+        assert!(call(&r.outputs()).is_none(), "not yet");
+        r.now = RETRY;
+        r.list.handle_timeout(r.now);
+        assert_eq!(call(&r.outputs()), Some(CellCall::Associate));
+        let out = r.answer(Err("no reply from cell"));
+        assert!(
+            !said(&out, "not-associated"),
+            "the same refusal is said once"
+        );
+        r.now = RETRY * 2;
+        r.list.handle_timeout(r.now);
+        r.outputs();
+        // Associated; a delivery the cell refuses is tried again too.
+        let out = r.answer(Ok(()));
+        assert!(matches!(call(&out), Some(CellCall::Deliver(_))));
+        r.answer(Err("disk full at the cell"));
+        assert!(r
+            .list
+            .records()
+            .texts()
+            .iter()
+            .any(|t| t == "disk full at the cell"));
+        assert_eq!(r.list.poll_timeout(), Some(RETRY * 3));
+        r.now = RETRY * 3;
+        r.list.handle_timeout(r.now);
+        assert!(matches!(call(&r.outputs()), Some(CellCall::Deliver(_))));
+        r.answer(Ok(()));
+        let out = r.answer(Ok(()));
+        assert!(said(&out, "EVENT cell-ready"));
+        assert_eq!(r.list.poll_timeout(), None, "all delivered");
+    }
+
+    #[test]
+    fn a_failed_write_halts_the_running_order_and_no_order_runs_twice() {
+        let mut r = Rig::new();
+        r.add(2);
+        assert!(r.start().is_ok());
+        let q = r.ticket();
+        r.list.handle_cell_request(
+            r.now,
+            q,
+            Request::Input {
+                prompt: "weld (ja/nee)?".into(),
+                timeout_s: None,
+            },
+        );
+        r.outputs();
+        r.list.records().failing = true;
+        let out = r.publish(Unconfirmed::Report {
+            station: st("welding"),
+            severity: Severity::Info,
+            text: "seam 1 done".into(),
+        });
+        assert!(said(&out, "EVENT store-error disk full"));
+        assert!(
+            matches!(&out[..], [.., Output::Respond { ticket, result: Err(_) }, Output::Cell(CellCall::Stop { .. })] if *ticket == q),
+            "the question refused, the order stopped at the cell: {out:?}"
+        );
+        let out = r.answer(Ok(()));
+        assert!(said(&out, "EVENT order-halted id=1"));
+        assert_eq!(
+            r.order(1).state,
+            OrderState::Running,
+            "its end could not be written"
+        );
+        let s = r.status();
+        assert_eq!((s.list, s.running), (ListState::Alarm, None));
+        let refused = r.ask("ann", ApiRequest::Start);
+        assert!(refused.is_err_and(|e| e.contains("cannot be written")));
+        // The disk is freed: ack, start; the held end is written first.
+        r.list.records().failing = false;
+        assert!(r.ask("ann", ApiRequest::Ack { id: None }).is_ok());
+        assert_eq!(
+            r.start(),
+            Ok(ApiReply::Done("order 2 (dikdroog) started".into()))
+        );
+        assert_eq!(r.order(1).state, OrderState::Failed);
+        assert!(r
+            .list
+            .records()
+            .texts()
+            .iter()
+            .any(|t| t.contains("(written late)")));
+        let texts = r.list.records().texts();
+        for id in [1, 2] {
+            let line = format!("order {id} (dikdroog) started");
+            let n = texts.iter().filter(|t| **t == line).count();
+            assert_eq!(n, 1, "order {id} started once");
+        }
+    }
+
+    #[test]
+    fn a_lost_cell_fails_the_order_and_its_return_clears_the_alarm() {
+        let mut r = Rig::new();
+        r.add(2);
+        assert!(r.start().is_ok());
+        let q = r.ticket();
+        r.list.handle_cell_request(
+            r.now,
+            q,
+            Request::Input {
+                prompt: "ok?".into(),
+                timeout_s: None,
+            },
+        );
+        r.outputs();
+        r.list.handle_abort(r.now, "lease expired");
+        let out = r.outputs();
+        assert!(out
+            .iter()
+            .any(|o| matches!(o, Output::Forget(t) if *t == q)));
+        assert!(said(&out, "EVENT order-ended id=1 state=failed"));
+        let s = r.status();
+        assert_eq!(s.list, ListState::Alarm);
+        assert_eq!(
+            s.problem.as_deref(),
+            Some("no connection with station cell")
+        );
+        assert!(r.ask("ann", ApiRequest::Ack { id: None }).is_ok());
+        assert_eq!(r.status().alarms.len(), 1, "acknowledged, not cleared");
+        r.list.handle_timeout(r.now);
+        assert_eq!(call(&r.outputs()), Some(CellCall::Associate));
+        r.answer(Ok(()));
+        assert!(r.status().alarms.is_empty(), "the cell is back");
+        r.answer(Ok(()));
+        r.answer(Ok(()));
+        assert!(r.start().is_ok());
+        r.job(JobEvent::Done);
+        assert_eq!(r.order(2).state, OrderState::Done);
+    }
+
+    #[test]
+    fn a_job_event_before_the_start_is_confirmed_is_kept_for_it() {
+        let mut r = Rig::new();
+        r.add(1);
+        let (t, mut out) = r.api("ann", ApiRequest::Start);
+        while !matches!(call(&out), Some(CellCall::Start { .. })) {
+            out = r.answer(Ok(()));
+        }
+        let early = r.job(JobEvent::Alarm(Cause::new(
+            AlarmClass::Process,
+            "alarm in state 2",
+        )));
+        assert!(early.is_empty(), "{early:?}");
+        let out = r.answer(Ok(()));
+        assert!(reply(&out, t).is_some_and(|r| r.is_ok()));
+        assert!(said(&out, "EVENT order-ended id=1 state=failed"));
+        assert_eq!(r.order(1).state, OrderState::Failed);
+    }
+
+    #[test]
+    fn stop_ends_the_order_and_roles_are_checked_again() {
+        let mut r = Rig::new();
+        r.add(1);
+        let refused = r.ask("obs", ApiRequest::Start);
+        assert!(refused.is_err_and(|e| e.contains("needs")));
+        assert!(r.ask("mallory", ApiRequest::Status).is_err());
+        assert!(r.start().is_ok());
+        let (t, out) = r.api("ann", ApiRequest::Stop);
+        assert_eq!(
+            call(&out),
+            Some(CellCall::Stop {
+                name: name("dikdroog")
+            })
+        );
+        assert_eq!(r.status().running, None);
+        let out = r.answer(Err("no reply from cell"));
+        let Some(Ok(ApiReply::Done(text))) = reply(&out, t) else {
+            panic!("{out:?}")
+        };
+        assert!(text.contains("the cell did not confirm the stop"), "{text}");
+        assert_eq!(r.order(1).state, OrderState::Stopped);
+        // A late end of the stopped job changes nothing.
+        assert!(r.job(JobEvent::Done).is_empty());
+        assert_eq!(r.order(1).state, OrderState::Stopped);
+    }
+
+    #[test]
+    fn a_defective_recipe_set_refuses_the_start_and_delivers_nothing() {
+        let mut r = Rig::new();
+        r.add(1);
+        r.list.source.broken = true;
+        let (t, out) = r.api("ann", ApiRequest::Start);
+        assert!(call(&out).is_none(), "nothing delivered");
+        let e = reply(&out, t).and_then(|r| r.err()).unwrap_or_default();
+        assert!(e.contains("cell/dikdroog.rcp:3: unknown state 9"), "{e}");
+        assert_eq!(r.order(1).state, OrderState::Queued);
+    }
+}

@@ -1,0 +1,60 @@
+//! The recipe store as the [`order_list`](crate::order_list) core sees it: a
+//! checked recipe set to deliver to the cell, and single recipe files for
+//! the consoles. The operator node's recipe directory implements
+//! [`RecipeSource`] (`nodes/operator/recipe_store.rs`).
+
+use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
+use falc_model::ids::ObjectName;
+
+/// One recipe as delivered to the cell.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Delivery {
+    /// The domain name at the cell (`DIKDROOG`, `WELDING$DROOG_DIK`).
+    pub domain: ObjectName,
+    /// Whether it is a cell recipe (startable as an order).
+    pub is_cell: bool,
+    /// The recipe text.
+    pub content: Vec<u8>,
+}
+
+/// A checked recipe set, workstation recipes first (the cell needs them
+/// before a cell recipe that starts them).
+#[derive(Debug, Clone, Default)]
+pub struct RecipeSet {
+    /// Every recipe, in delivery order.
+    pub deliveries: Vec<Delivery>,
+}
+
+impl RecipeSet {
+    /// The cell recipes' names (what an order may name).
+    pub fn cell_recipes(&self) -> Vec<&ObjectName> {
+        self.deliveries
+            .iter()
+            .filter(|d| d.is_cell)
+            .map(|d| &d.domain)
+            .collect()
+    }
+}
+
+/// Why a recipe was not saved.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PutError {
+    /// The set does not check clean with it: every finding.
+    Findings(Vec<String>),
+    /// Anything else (a changed file, an unknown station, the disk).
+    Refused(String),
+}
+
+/// Where recipes come from.
+pub trait RecipeSource {
+    /// Reads and checks the whole set; every problem (`file:line: reason`)
+    /// if it is not clean.
+    fn load(&self) -> Result<RecipeSet, Vec<String>>;
+    /// Every recipe file, with its name where the text gives one.
+    fn list(&self) -> Result<Vec<RecipeInfo>, String>;
+    /// One recipe file's text and content hash.
+    fn get(&self, file: &RecipeFile) -> Result<RecipeText, String>;
+    /// Saves `text` as `file` if the set checks clean with it and the file
+    /// is still what the editor started from (`base`, its content hash).
+    fn put(&self, file: &RecipeFile, text: &str, base: Option<u64>) -> Result<(), PutError>;
+}

@@ -1,0 +1,260 @@
+//! What the order list keeps durably, as the [`order_list`](crate::order_list)
+//! core sees it: the orders, the journal and the alarms. The operator node's
+//! SQLite file implements [`Records`]; unit tests use [`memory::Memory`].
+//! Each call is one write or read of local storage, with its own time stamp
+//! (ms since the Unix epoch) taken by the records; a failed write returns
+//! the error and changes nothing.
+
+use falc_model::alarm::{Alarm, AlarmClass};
+use falc_model::console::{Entry, EntryKind, Order, OrderState};
+use std::fmt::Display;
+
+/// The order list's durable records.
+pub trait Records {
+    /// A failed read or write, saying of what.
+    type Error: Display;
+
+    /// Milliseconds since the Unix epoch, now (the records' clock).
+    fn now_ms(&self) -> i64;
+    /// Adds a queued order of cell recipe `recipe`.
+    fn add_order(&mut self, recipe: &str, who: &str) -> Result<Order, Self::Error>;
+    /// Every order, lowest id first.
+    fn orders(&self) -> Result<Vec<Order>, Self::Error>;
+    /// The queued order that runs next.
+    fn next_queued(&self) -> Result<Option<Order>, Self::Error>;
+    /// The id of the newest journal entry (0 for an empty journal).
+    fn journal_head(&self) -> Result<i64, Self::Error>;
+    /// How many orders are queued.
+    fn queued(&self) -> Result<usize, Self::Error>;
+    /// Removes a queued order; why not for any other.
+    fn remove_order(&mut self, id: i64) -> Result<Result<Order, String>, Self::Error>;
+    /// Marks an order running; when it started.
+    fn set_running(&mut self, id: i64) -> Result<i64, Self::Error>;
+    /// Puts a running order back in the queue (the cell refused it).
+    fn requeue(&mut self, id: i64) -> Result<(), Self::Error>;
+    /// Ends an order with `state` and `result`.
+    fn end_order(&mut self, id: i64, state: OrderState, result: &str) -> Result<(), Self::Error>;
+    /// Appends a journal entry.
+    fn journal(
+        &mut self,
+        kind: EntryKind,
+        order: Option<i64>,
+        who: &str,
+        text: &str,
+    ) -> Result<Entry, Self::Error>;
+    /// Journal entries after `after` (of `order`, or messages only), at
+    /// most `limit`.
+    fn entries(
+        &self,
+        after: i64,
+        order: Option<i64>,
+        messages_only: bool,
+        limit: usize,
+    ) -> Result<Vec<Entry>, Self::Error>;
+    /// Records a new alarm, active.
+    fn raise_alarm(
+        &mut self,
+        station: &str,
+        class: AlarmClass,
+        text: &str,
+        order: Option<i64>,
+    ) -> Result<Alarm, Self::Error>;
+    /// Records who acknowledged alarm `id`, and when.
+    fn ack_alarm(&mut self, id: i64, who: &str, at_ms: i64) -> Result<(), Self::Error>;
+    /// Records that alarm `id`'s condition is gone.
+    fn clear_alarm(&mut self, id: i64, at_ms: i64) -> Result<(), Self::Error>;
+    /// The alarms still listed (not both acknowledged and cleared).
+    fn listed_alarms(&self) -> Result<Vec<Alarm>, Self::Error>;
+}
+
+/// In-memory records for unit tests of the cores.
+#[cfg(test)]
+pub mod memory {
+    use super::*;
+
+    /// Records in memory; `failing` makes every write fail (a full disk).
+    #[derive(Debug, Default)]
+    pub struct Memory {
+        /// Every write fails while set.
+        pub failing: bool,
+        /// The orders.
+        pub orders: Vec<Order>,
+        /// The journal.
+        pub journal: Vec<Entry>,
+        /// Every alarm ever raised.
+        pub alarms: Vec<Alarm>,
+        clock: std::cell::Cell<i64>,
+    }
+
+    impl Memory {
+        fn write(&self) -> Result<(), String> {
+            if self.failing {
+                Err("disk full".into())
+            } else {
+                Ok(())
+            }
+        }
+        fn order_mut(&mut self, id: i64) -> Option<&mut Order> {
+            self.orders.iter_mut().find(|o| o.id == id)
+        }
+        /// The journal's texts, in order.
+        pub fn texts(&self) -> Vec<String> {
+            self.journal.iter().map(|e| e.text.clone()).collect()
+        }
+    }
+
+    impl Records for Memory {
+        type Error = String;
+        fn now_ms(&self) -> i64 {
+            self.clock.set(self.clock.get() + 1);
+            self.clock.get()
+        }
+        fn add_order(&mut self, recipe: &str, who: &str) -> Result<Order, String> {
+            self.write()?;
+            let o = Order {
+                id: self.orders.len() as i64 + 1,
+                recipe: recipe.into(),
+                state: OrderState::Queued,
+                added_by: who.into(),
+                started_ms: None,
+                ended_ms: None,
+                result: None,
+            };
+            self.orders.push(o.clone());
+            Ok(o)
+        }
+        fn orders(&self) -> Result<Vec<Order>, String> {
+            Ok(self.orders.clone())
+        }
+        fn next_queued(&self) -> Result<Option<Order>, String> {
+            Ok(self
+                .orders
+                .iter()
+                .find(|o| o.state == OrderState::Queued)
+                .cloned())
+        }
+        fn journal_head(&self) -> Result<i64, String> {
+            Ok(self.journal.len() as i64)
+        }
+        fn queued(&self) -> Result<usize, String> {
+            Ok(self
+                .orders
+                .iter()
+                .filter(|o| o.state == OrderState::Queued)
+                .count())
+        }
+        fn remove_order(&mut self, id: i64) -> Result<Result<Order, String>, String> {
+            self.write()?;
+            match self.orders.iter().position(|o| o.id == id) {
+                Some(i) if self.orders[i].state == OrderState::Queued => {
+                    Ok(Ok(self.orders.remove(i)))
+                }
+                Some(_) => Ok(Err(format!("order {id} is not queued"))),
+                None => Ok(Err(format!("there is no order {id}"))),
+            }
+        }
+        fn set_running(&mut self, id: i64) -> Result<i64, String> {
+            self.write()?;
+            let at = self.now_ms();
+            if let Some(o) = self.order_mut(id) {
+                o.state = OrderState::Running;
+                o.started_ms = Some(at);
+            }
+            Ok(at)
+        }
+        fn requeue(&mut self, id: i64) -> Result<(), String> {
+            self.write()?;
+            if let Some(o) = self
+                .order_mut(id)
+                .filter(|o| o.state == OrderState::Running)
+            {
+                o.state = OrderState::Queued;
+                o.started_ms = None;
+            }
+            Ok(())
+        }
+        fn end_order(&mut self, id: i64, state: OrderState, result: &str) -> Result<(), String> {
+            self.write()?;
+            let at = self.now_ms();
+            if let Some(o) = self.order_mut(id) {
+                o.state = state;
+                o.ended_ms = Some(at);
+                o.result = Some(result.into());
+            }
+            Ok(())
+        }
+        fn journal(
+            &mut self,
+            kind: EntryKind,
+            order: Option<i64>,
+            who: &str,
+            text: &str,
+        ) -> Result<Entry, String> {
+            self.write()?;
+            let e = Entry {
+                id: self.journal.len() as i64 + 1,
+                at_ms: self.now_ms(),
+                order,
+                kind,
+                who: who.into(),
+                text: text.into(),
+            };
+            self.journal.push(e.clone());
+            Ok(e)
+        }
+        fn entries(
+            &self,
+            after: i64,
+            order: Option<i64>,
+            messages_only: bool,
+            limit: usize,
+        ) -> Result<Vec<Entry>, String> {
+            Ok(self
+                .journal
+                .iter()
+                .filter(|e| e.id > after && order.map_or(true, |o| e.order == Some(o)))
+                .filter(|e| !messages_only || e.kind.is_message())
+                .take(limit)
+                .cloned()
+                .collect())
+        }
+        fn raise_alarm(
+            &mut self,
+            station: &str,
+            class: AlarmClass,
+            text: &str,
+            order: Option<i64>,
+        ) -> Result<Alarm, String> {
+            self.write()?;
+            let a = Alarm {
+                id: self.alarms.len() as i64 + 1,
+                station: station.into(),
+                class,
+                text: text.into(),
+                order,
+                raised_ms: self.now_ms(),
+                acked: None,
+                cleared_ms: None,
+            };
+            self.alarms.push(a.clone());
+            Ok(a)
+        }
+        fn ack_alarm(&mut self, id: i64, who: &str, at_ms: i64) -> Result<(), String> {
+            self.write()?;
+            if let Some(a) = self.alarms.iter_mut().find(|a| a.id == id) {
+                a.acked = Some((who.into(), at_ms));
+            }
+            Ok(())
+        }
+        fn clear_alarm(&mut self, id: i64, at_ms: i64) -> Result<(), String> {
+            self.write()?;
+            if let Some(a) = self.alarms.iter_mut().find(|a| a.id == id) {
+                a.cleared_ms = Some(at_ms);
+            }
+            Ok(())
+        }
+        fn listed_alarms(&self) -> Result<Vec<Alarm>, String> {
+            Ok(self.alarms.iter().filter(|a| a.listed()).cloned().collect())
+        }
+    }
+}
