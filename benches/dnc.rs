@@ -16,7 +16,8 @@
 mod support;
 
 use falc_dnc::procedure::{frame, LinkEvent, Priority, Timing};
-use falc_dnc::telegram::{Program, Telegram};
+use falc_dnc::telegram::Telegram;
+use falc_model::ids::RobotProgram;
 use falc_node::dnc_link::{self, DncHandle, LineSettings};
 use std::time::{Duration, Instant};
 use support::stats::median;
@@ -67,7 +68,7 @@ async fn main() {
     })
     .expect("pty");
     let mut h = dnc_link::spawn(port, Priority::Low, Timing::default());
-    let p64 = Program::new(64).expect("valid");
+    let p64 = RobotProgram::of(64);
     let duration = Duration::from_secs(60).div_f64(TIME_SCALE);
     let ack = |of| Telegram::Ack { of, error: None };
     let select_start_wire = wire_time(

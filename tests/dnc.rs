@@ -4,7 +4,8 @@
 
 use crate::support::Proc;
 use falc_dnc::procedure::{LinkEvent, Priority, SendError, Timing};
-use falc_dnc::telegram::{AckError, EndResult, Program, Telegram};
+use falc_dnc::telegram::{AckError, EndResult, Telegram};
+use falc_model::ids::RobotProgram;
 use falc_node::dnc_link::{self, DncHandle, LineSettings};
 use std::time::Duration;
 
@@ -48,8 +49,8 @@ async fn until(h: &mut DncHandle, want: impl Fn(&Telegram) -> bool) -> Telegram 
     panic!("telegram not seen")
 }
 
-fn p(n: u16) -> Program {
-    Program::new(n).expect("valid")
+fn p(n: u16) -> RobotProgram {
+    RobotProgram::of(n)
 }
 
 fn send(h: &DncHandle, t: Telegram) {

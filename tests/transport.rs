@@ -417,7 +417,8 @@ async fn the_node_needs_nothing_but_the_documented_map() {
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
     // … and when place 3 reports occupied, releases it and is done.
-    image.lock().expect("image").inputs[offset(Input::Signal(Signal::Place(3)))] = true;
+    image.lock().expect("image").inputs
+        [offset(Input::Signal(Signal::Place(falc_model::ids::Place::of(3))))] = true;
     assert_eq!(commander.job(Duration::from_secs(5)).await, JobEvent::Done);
     assert!(!image.lock().expect("image").coils[k], "K released");
 }

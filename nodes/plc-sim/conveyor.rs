@@ -32,6 +32,7 @@
 //! pressed again after the stop is cleared); a jammed line keeps running
 //! but its carrier does not move; a stuck sensor shows a fixed value.
 
+use falc_model::ids::{Place, PlcStation};
 use falc_plc::map::{Coil, Input, Inputs, COILS};
 use falc_recipe::check::{Button, Signal};
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
@@ -42,14 +43,14 @@ use std::time::Duration;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Spot {
     /// Place W2–W6.
-    Place(u8),
+    Place(Place),
     /// Station 1–3.
-    Station(u8),
+    Station(PlcStation),
 }
 
 impl Spot {
     fn capacity(self) -> usize {
-        if self == Spot::Place(2) {
+        if self == W(2) {
             2
         } else {
             1
@@ -61,8 +62,8 @@ impl Spot {
         let s = s.to_ascii_uppercase();
         let n: u8 = s.get(1..)?.parse().ok()?;
         match s.chars().next()? {
-            'W' if (2..=6).contains(&n) => Some(Spot::Place(n)),
-            'S' if (1..=3).contains(&n) => Some(Spot::Station(n)),
+            'W' => Place::new(n).map(Spot::Place),
+            'S' => PlcStation::new(n).map(Spot::Station),
             _ => None,
         }
     }
@@ -93,7 +94,17 @@ const fn seg(line: char, from: Spot, to: Spot, seconds: f64) -> Segment {
     }
 }
 
-use Spot::{Place as W, Station as S};
+/// Place `Wn` (a constant of the layout).
+#[allow(non_snake_case)]
+const fn W(n: u8) -> Spot {
+    Spot::Place(Place::of(n))
+}
+
+/// Station `Sn` (a constant of the layout).
+#[allow(non_snake_case)]
+const fn S(n: u8) -> Spot {
+    Spot::Station(PlcStation::of(n))
+}
 
 const SEGMENTS: [Segment; 11] = [
     seg('A', W(6), W(2), 8.0),
@@ -110,8 +121,8 @@ const SEGMENTS: [Segment; 11] = [
 ];
 
 /// Station n's feed place.
-fn feed(station: u8) -> Option<Spot> {
-    match station {
+fn feed(station: PlcStation) -> Option<Spot> {
+    match station.number() {
         1 => Some(W(6)),
         2 => Some(W(3)),
         3 => Some(W(5)),
@@ -130,7 +141,7 @@ fn segment(line: char) -> Option<&'static Segment> {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Via {
     Line(char),
-    Station(u8),
+    Station(PlcStation),
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -172,9 +183,9 @@ pub enum Control {
     /// … moves again.
     Unjam(char),
     /// This place's sensor shows this value whatever is there.
-    Stuck(u8, bool),
+    Stuck(Place, bool),
     /// … shows the truth again.
-    Unstuck(u8),
+    Unstuck(Place),
 }
 
 /// The conveyor.
@@ -185,7 +196,7 @@ pub struct Conveyor {
     coils: [bool; COILS as usize],
     estop: bool,
     jammed: BTreeSet<char>,
-    stuck: BTreeMap<u8, bool>,
+    stuck: BTreeMap<Place, bool>,
     seq: u64,
     last_change: Option<Duration>,
     notes: VecDeque<String>,
@@ -276,13 +287,16 @@ impl Conveyor {
         for (c, l) in &self.lines {
             i.set(Input::Signal(Signal::Line(*c)), l.running);
         }
-        for n in 2..=6u8 {
-            let real = self.count_at(W(n)) > 0;
+        for n in Place::all() {
+            let real = self.count_at(Spot::Place(n)) > 0;
             let shown = self.stuck.get(&n).copied().unwrap_or(real);
             i.set(Input::Signal(Signal::Place(n)), shown);
         }
-        for n in 1..=3u8 {
-            i.set(Input::Signal(Signal::Station(n)), self.count_at(S(n)) > 0);
+        for n in PlcStation::all() {
+            i.set(
+                Input::Signal(Signal::Station(n)),
+                self.count_at(Spot::Station(n)) > 0,
+            );
         }
         i.set(Input::Ready, !self.estop);
         i.set(Input::EStop, self.estop);
@@ -404,7 +418,7 @@ impl Conveyor {
         }
     }
 
-    fn press_station(&mut self, now: Duration, n: u8) {
+    fn press_station(&mut self, now: Duration, n: PlcStation) {
         if let Some(i) = self.on(Via::Station(n)) {
             if let Pos::Moving {
                 due: None, left, ..
@@ -417,25 +431,25 @@ impl Conveyor {
             return;
         }
         let Some(from) = feed(n) else { return };
-        if self.count_at(S(n)) > 0 {
+        if self.count_at(Spot::Station(n)) > 0 {
             return;
         }
         match self.front_at(from) {
-            Some(i) => self.depart(now, i, Via::Station(n), S(n), TRANSFER_S),
+            Some(i) => self.depart(now, i, Via::Station(n), Spot::Station(n), TRANSFER_S),
             None => self.note(format!("station {n}: no carrier at {from}")),
         }
     }
 
-    fn release_station(&mut self, now: Duration, n: u8) {
+    fn release_station(&mut self, now: Duration, n: PlcStation) {
         // A line waiting empty at this station takes its carrier now.
         let waiting = SEGMENTS.iter().find(|s| {
-            s.from == S(n)
+            s.from == Spot::Station(n)
                 && self
                     .lines
                     .get(&s.line)
                     .is_some_and(|l| l.empty_until.is_some())
         });
-        if let (Some(seg), Some(i)) = (waiting, self.front_at(S(n))) {
+        if let (Some(seg), Some(i)) = (waiting, self.front_at(Spot::Station(n))) {
             if let Some(l) = self.lines.get_mut(&seg.line) {
                 l.empty_until = None;
             }
@@ -633,7 +647,7 @@ mod tests {
     }
 
     fn place(c: &Conveyor, n: u8) -> bool {
-        c.inputs().signal(Signal::Place(n))
+        c.inputs().signal(Signal::Place(Place::of(n)))
     }
 
     fn line(c: &Conveyor, l: char) -> bool {
@@ -669,21 +683,21 @@ mod tests {
         c.handle_timeout(ms(10_000));
         assert!(place(&c, 5));
         press(&mut c, ms(10_000), Button::Line('E'), false);
-        press(&mut c, ms(10_000), Button::Station(3), true);
+        press(&mut c, ms(10_000), Button::Station(PlcStation::of(3)), true);
         assert!(!place(&c, 5), "the table takes it at once");
         c.handle_timeout(ms(13_000));
-        assert!(c.inputs().signal(Signal::Station(3)));
+        assert!(c.inputs().signal(Signal::Station(PlcStation::of(3))));
         assert_eq!(c.describe(), "carriers: 1@S3 2@W2");
     }
 
     #[test]
     fn a_carrier_leaves_a_station_only_once_its_button_is_released() {
         let mut c = conveyor(&[S(3), W(2)]);
-        press(&mut c, ms(0), Button::Station(3), true);
+        press(&mut c, ms(0), Button::Station(PlcStation::of(3)), true);
         press(&mut c, ms(0), Button::Line('F'), true);
-        assert!(line(&c, 'F') && c.inputs().signal(Signal::Station(3)));
-        press(&mut c, ms(100), Button::Station(3), false);
-        assert!(!c.inputs().signal(Signal::Station(3)));
+        assert!(line(&c, 'F') && c.inputs().signal(Signal::Station(PlcStation::of(3))));
+        press(&mut c, ms(100), Button::Station(PlcStation::of(3)), false);
+        assert!(!c.inputs().signal(Signal::Station(PlcStation::of(3))));
         c.handle_timeout(ms(5100));
         assert!(place(&c, 4) && !line(&c, 'F'));
     }
@@ -757,12 +771,12 @@ mod tests {
     #[test]
     fn a_stuck_sensor_shows_its_value() {
         let mut c = conveyor(&[W(2), W(2)]);
-        c.control(ms(0), Control::Stuck(3, false));
+        c.control(ms(0), Control::Stuck(Place::of(3), false));
         press(&mut c, ms(0), Button::Line('K'), true);
         c.handle_timeout(ms(9000));
         assert!(!line(&c, 'K'), "the line stopped: the carrier is there");
         assert!(!place(&c, 3), "but the sensor says empty");
-        c.control(ms(9000), Control::Unstuck(3));
+        c.control(ms(9000), Control::Unstuck(Place::of(3)));
         assert!(place(&c, 3));
     }
 

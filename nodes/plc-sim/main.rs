@@ -18,6 +18,7 @@ mod conveyor;
 use anyhow::{Context as _, Result};
 use clap::Parser;
 use conveyor::{Control, Conveyor, Spot};
+use falc_model::ids::Place;
 use falc_node::plc_link::MapArgs;
 use falc_node::say;
 use falc_plc::map::{IoMap, COILS, INPUTS, LINES};
@@ -219,10 +220,7 @@ fn parse_control(line: &str) -> Result<Ctl, String> {
             _ => Err(format!("`{s}` is not a line (A–H, J–L)")),
         }
     };
-    let place = |s: &str| match s.parse::<u8>() {
-        Ok(n @ 2..=6) => Ok(n),
-        _ => Err(format!("`{s}` is not a place (2–6)")),
-    };
+    let place = Place::parse;
     Ok(match words.as_slice() {
         ["estop"] => Ctl::Conveyor(Control::EStop),
         ["estop-clear"] => Ctl::Conveyor(Control::EStopClear),

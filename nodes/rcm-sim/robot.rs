@@ -2,7 +2,8 @@
 //! the running program on an injected clock, and the faults a test or a
 //! person injects. Telegrams in, telegrams out.
 
-use falc_dnc::telegram::{AckError, EndResult, Mode, Program, ProgramState, Telegram};
+use falc_dnc::telegram::{AckError, EndResult, Mode, ProgramState, Telegram};
+use falc_model::ids::RobotProgram;
 use std::collections::BTreeMap;
 use std::time::Duration;
 
@@ -32,7 +33,7 @@ pub enum Control {
 
 #[derive(Debug, Clone)]
 struct Run {
-    program: Program,
+    program: RobotProgram,
     left: Duration,
     since: Option<Duration>,
 }
@@ -43,7 +44,7 @@ pub struct Robot {
     mode: Mode,
     estop: bool,
     programs: BTreeMap<u16, Duration>,
-    selected: Option<Program>,
+    selected: Option<RobotProgram>,
     run: Option<Run>,
     /// The selected program was stopped before its end (stop, emergency
     /// stop, limit switch, aborted weld): reported as `stopped` until the
@@ -253,8 +254,8 @@ mod tests {
         Duration::from_secs(n)
     }
 
-    fn p(n: u16) -> Program {
-        Program::new(n).expect("valid")
+    fn p(n: u16) -> RobotProgram {
+        RobotProgram::of(n)
     }
 
     #[test]

@@ -343,6 +343,7 @@ impl Device for Plc {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use falc_model::ids::{Place, PlcStation};
     use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver};
 
     fn plc() -> (Plc, UnboundedReceiver<PlcCommand>) {
@@ -435,10 +436,10 @@ mod tests {
         let (mut p, _rx) = plc();
         p.connected();
         let mut i = ready();
-        i.set(Input::Signal(Signal::Place(3)), true);
+        i.set(Input::Signal(Signal::Place(Place::of(3))), true);
         p.inputs(i, 1);
         let watch = Action::Watch {
-            signal: Signal::Place(3),
+            signal: Signal::Place(Place::of(3)),
             level: true,
         };
         assert_eq!(act(&mut p, 0, watch), vec![Event::InputReached]);
@@ -449,7 +450,11 @@ mod tests {
         let (mut p, mut rx) = plc();
         p.connected();
         p.inputs(ready(), 1);
-        act(&mut p, 0, Action::Activate(Button::Station(3)));
+        act(
+            &mut p,
+            0,
+            Action::Activate(Button::Station(PlcStation::of(3))),
+        );
         act(&mut p, 0, Action::Activate(Button::Line('E')));
         drain(&mut rx);
         p.finished(&Outcome::Alarm(Cause::process("x")));
@@ -480,7 +485,10 @@ mod tests {
         p.lost(&falc_model::ids::StationName::new("cell").expect("valid"));
         let released = drain(&mut rx);
         assert!(
-            released.contains(&PlcCommand::Write(Coil::Button(Button::Station(3)), false)),
+            released.contains(&PlcCommand::Write(
+                Coil::Button(Button::Station(PlcStation::of(3))),
+                false
+            )),
             "{released:?}"
         );
     }
@@ -490,17 +498,25 @@ mod tests {
         let (mut p, mut rx) = plc();
         p.connected();
         p.inputs(ready(), 1);
-        act(&mut p, 0, Action::Activate(Button::Station(3)));
+        act(
+            &mut p,
+            0,
+            Action::Activate(Button::Station(PlcStation::of(3))),
+        );
         // An alarm keeps the station button; the next job presses it again.
         p.finished(&Outcome::Alarm(Cause::new(AlarmClass::Safety, "estop")));
         drain(&mut rx);
-        act(&mut p, 0, Action::Activate(Button::Station(3)));
+        act(
+            &mut p,
+            0,
+            Action::Activate(Button::Station(PlcStation::of(3))),
+        );
         assert_eq!(
             drain(&mut rx),
             vec![
                 PlcCommand::Pace(Pace::Busy),
-                PlcCommand::Write(Coil::Button(Button::Station(3)), false),
-                PlcCommand::Write(Coil::Button(Button::Station(3)), true),
+                PlcCommand::Write(Coil::Button(Button::Station(PlcStation::of(3))), false),
+                PlcCommand::Write(Coil::Button(Button::Station(PlcStation::of(3))), true),
             ]
         );
         // A watch after it waits for both writes.
@@ -516,7 +532,7 @@ mod tests {
         p.inputs(ready(), 1);
         act(&mut p, 10, Action::Activate(Button::Line('E')));
         let watch = Action::Watch {
-            signal: Signal::Place(5),
+            signal: Signal::Place(Place::of(5)),
             level: true,
         };
         act(&mut p, 10, watch);

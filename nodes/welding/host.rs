@@ -4,8 +4,9 @@
 //! engine events and robot status (through the alarm table).
 
 use falc_dnc::alarms::{self, Effect};
-use falc_dnc::telegram::{EndResult, Mode, Program, ProgramState, Telegram};
+use falc_dnc::telegram::{EndResult, Mode, ProgramState, Telegram};
 use falc_model::alarm::{AlarmClass, Cause};
+use falc_model::ids::RobotProgram;
 use falc_model::ids::StationName;
 use falc_model::mms::vmd::RobotStatusDetail;
 use falc_recipe::engine::{Event, JobEnd};
@@ -35,8 +36,8 @@ pub enum Out {
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Pending {
-    Select(Program),
-    Start(Program),
+    Select(RobotProgram),
+    Start(RobotProgram),
 }
 
 /// The host's state.
@@ -48,7 +49,7 @@ pub struct Host {
     pending: Option<Pending>,
     /// The program a job of ours runs on the robot (from the start's
     /// acknowledgement until its end).
-    running: Option<Program>,
+    running: Option<RobotProgram>,
     /// When the unanswered status request went out.
     asked: Option<Duration>,
     /// When the RCM was last heard.
@@ -63,7 +64,7 @@ pub struct Host {
     open: bool,
     /// A status that would make the host act, waiting for a second answer
     /// to confirm it.
-    suspect: Option<(Option<Program>, ProgramState)>,
+    suspect: Option<(Option<RobotProgram>, ProgramState)>,
     mode: Option<Mode>,
 }
 
@@ -102,7 +103,7 @@ impl Host {
     }
 
     /// The robot program a job of ours runs, if any.
-    pub fn running(&self) -> Option<Program> {
+    pub fn running(&self) -> Option<RobotProgram> {
         self.running
     }
 
@@ -158,7 +159,7 @@ impl Host {
     }
 
     /// The engine wants robot program `program` started.
-    pub fn start(&mut self, program: Program) -> Vec<Out> {
+    pub fn start(&mut self, program: RobotProgram) -> Vec<Out> {
         self.pending = Some(Pending::Select(program));
         vec![Out::Telegram(Telegram::SelectProgram(program))]
     }
@@ -229,7 +230,7 @@ impl Host {
     fn program_status(
         &mut self,
         now: Duration,
-        program: Option<Program>,
+        program: Option<RobotProgram>,
         state: ProgramState,
         mode: Mode,
     ) -> Vec<Out> {
@@ -430,15 +431,15 @@ mod tests {
         Duration::from_millis(n)
     }
 
-    fn p65() -> Program {
-        Program::new(65).expect("valid")
+    fn p65() -> RobotProgram {
+        RobotProgram::of(65)
     }
 
     fn ack(of: u8) -> Telegram {
         Telegram::Ack { of, error: None }
     }
 
-    fn status(program: Option<Program>, state: ProgramState) -> Telegram {
+    fn status(program: Option<RobotProgram>, state: ProgramState) -> Telegram {
         Telegram::ProgramStatus {
             program,
             state,

@@ -16,7 +16,7 @@ use clap::Parser;
 use falc_bus::station::Station;
 use falc_control::controller::Device;
 use falc_dnc::procedure::{LinkEvent, Priority, Timing};
-use falc_dnc::telegram::{Program, Telegram};
+use falc_dnc::telegram::Telegram;
 use falc_model::alarm::Cause;
 use falc_model::ids::StationName;
 use falc_model::mms::vmd::{RobotStatusDetail, VmdStatus};
@@ -148,15 +148,12 @@ impl Device for Robot {
     fn act(&mut self, _now: Duration, action: Action, out: &mut Vec<Event>) {
         match action {
             Action::Start {
-                job: Job::Program(n),
+                job: Job::Program(p),
                 ..
-            } => match Program::new(n) {
-                Some(p) => {
-                    let outs = self.host.start(p);
-                    self.apply(outs, out);
-                }
-                None => tracing::warn!("program {n} out of range"),
-            },
+            } => {
+                let outs = self.host.start(p);
+                self.apply(outs, out);
+            }
             Action::Stop(_) => self.halt(out),
             other => tracing::warn!("a welding recipe cannot {other:?}"),
         }

@@ -435,6 +435,7 @@ mod tests {
 
     use super::testing::{load, outputs};
     use super::*;
+    use falc_model::ids::RobotProgram;
     use falc_model::mms::program::PiState;
     use falc_recipe::check::Job;
 
@@ -547,7 +548,7 @@ mod tests {
             c.device.acts,
             vec![Action::Start {
                 target: rcm(),
-                job: Job::Program(65)
+                job: Job::Program(RobotProgram::of(65))
             }]
         );
         assert_eq!(c.status().program.map(|p| p.state), Some(1));

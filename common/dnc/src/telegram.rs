@@ -18,25 +18,10 @@
 //! Acknowledgement errors: see [`AckError`]; each maps to an ISO 9506
 //! error in [`AckError::to_service_error`].
 
+use falc_model::ids::RobotProgram;
 use falc_model::mms::error::{
     DefinitionError, ErrorClass, ServiceError, ServiceErrorCode, VmdStateError,
 };
-
-/// A robot program number, 1–999.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub struct Program(u16);
-
-impl Program {
-    /// A program number, if in 1–999.
-    pub fn new(n: u16) -> Option<Self> {
-        (1..=999).contains(&n).then_some(Self(n))
-    }
-
-    /// The number.
-    pub fn number(self) -> u16 {
-        self.0
-    }
-}
 
 /// The RCM's operating mode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -170,7 +155,7 @@ pub enum Telegram {
     /// `C`.
     CloseDnc,
     /// `S`.
-    SelectProgram(Program),
+    SelectProgram(RobotProgram),
     /// `G`.
     StartProgram,
     /// `H`.
@@ -189,7 +174,7 @@ pub enum Telegram {
     /// `P`.
     ProgramStatus {
         /// The program (None when idle: `000`).
-        program: Option<Program>,
+        program: Option<RobotProgram>,
         /// Its state.
         state: ProgramState,
         /// The RCM's mode.
@@ -198,7 +183,7 @@ pub enum Telegram {
     /// `E`.
     ProgramEnd {
         /// The program.
-        program: Program,
+        program: RobotProgram,
         /// How it ended.
         result: EndResult,
     },
@@ -258,7 +243,7 @@ impl Telegram {
         let s = match self {
             Self::InitiateDnc => "I".to_string(),
             Self::CloseDnc => "C".to_string(),
-            Self::SelectProgram(p) => format!("S{:03}", p.0),
+            Self::SelectProgram(p) => format!("S{:03}", p.number()),
             Self::StartProgram => "G".to_string(),
             Self::StopProgram => "H".to_string(),
             Self::StatusRequest => "Q".to_string(),
@@ -274,7 +259,7 @@ impl Telegram {
                 mode,
             } => format!(
                 "P{:03}{}{}",
-                program.map_or(0, |p| p.0),
+                program.map_or(0, |p| p.number()),
                 match state {
                     ProgramState::Idle => 'I',
                     ProgramState::Selected => 'L',
@@ -290,7 +275,7 @@ impl Telegram {
             ),
             Self::ProgramEnd { program, result } => format!(
                 "E{:03}{}",
-                program.0,
+                program.number(),
                 match result {
                     EndResult::Complete => 'O',
                     EndResult::WeldAborted => 'B',
@@ -321,8 +306,8 @@ impl Telegram {
             field,
             value: v.escape_ascii().to_string(),
         };
-        let program = |v: &[u8]| -> Result<Program, TelegramError> {
-            Program::new(digits(c, "program", v)?).ok_or_else(|| field("program", v))
+        let program = |v: &[u8]| -> Result<RobotProgram, TelegramError> {
+            RobotProgram::new(digits(c, "program", v)?).ok_or_else(|| field("program", v))
         };
         Ok(match code {
             b'I' => len(1).map(|()| Self::InitiateDnc)?,
@@ -414,8 +399,8 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    fn p(n: u16) -> Program {
-        Program::new(n).expect("valid")
+    fn p(n: u16) -> RobotProgram {
+        RobotProgram::of(n)
     }
 
     #[test]

@@ -1,4 +1,6 @@
-//! Validated identifiers: cell ids, station names, MMS object names.
+//! Validated identifiers: cell ids, station names, MMS object names, and the
+//! numbers recipes name devices by (robot programs, conveyor places and
+//! stations), each range written once.
 //!
 //! Every name that crosses a process boundary or becomes part of a zenoh key
 //! is parsed into one of these newtypes once ("parse, don't validate"). Names
@@ -268,5 +270,102 @@ mod tests {
         assert_eq!(ok.map(|s| s.0).ok(), Some("cell".to_string()));
         let bad: Result<StationName, _> = serde_json::from_str("\"a b\"");
         assert!(bad.is_err());
+    }
+}
+
+macro_rules! number_newtype {
+    ($(#[$doc:meta])* $name:ident($ty:ty), $lo:literal..=$hi:literal, $what:literal) => {
+        $(#[$doc])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+        pub struct $name($ty);
+
+        impl $name {
+            /// The smallest.
+            pub const MIN: Self = Self($lo);
+            /// The largest.
+            pub const MAX: Self = Self($hi);
+
+            /// The number, if in range.
+            pub const fn new(n: $ty) -> Option<Self> {
+                if n >= $lo && n <= $hi {
+                    Some(Self(n))
+                } else {
+                    None
+                }
+            }
+
+            /// A number known to be in range (a constant in code or a
+            /// test); panics, naming it, if it is not.
+            pub const fn of(n: $ty) -> Self {
+                match Self::new(n) {
+                    Some(s) => s,
+                    None => panic!(concat!("not ", $what, " (", $lo, "–", $hi, ")")),
+                }
+            }
+
+            /// Parses a decimal number; the error says what it is not.
+            pub fn parse(s: &str) -> Result<Self, String> {
+                s.parse::<$ty>()
+                    .ok()
+                    .and_then(Self::new)
+                    .ok_or_else(|| format!(concat!("`{}` is not ", $what, " ({}–{})"), s, $lo, $hi))
+            }
+
+            /// The number.
+            pub const fn number(self) -> $ty {
+                self.0
+            }
+
+            /// Every one, in order.
+            pub fn all() -> impl Iterator<Item = Self> {
+                ($lo..=$hi).map(Self)
+            }
+        }
+
+        impl fmt::Display for $name {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                write!(f, "{}", self.0)
+            }
+        }
+    };
+}
+
+number_newtype!(
+    /// A robot program number, 1–999: what a welding recipe's `start rcm N`
+    /// names and the DNC link's `S` telegram selects.
+    RobotProgram(u16), 1..=999, "a robot program number"
+);
+
+number_newtype!(
+    /// A conveyor place with a presence sensor, 2–6 (`W2`–`W6` on the
+    /// thesis' layout): what a transport recipe waits for and the PLC map
+    /// reads.
+    Place(u8), 2..=6, "a place"
+);
+
+number_newtype!(
+    /// A conveyor station with a button and a busy lamp, 1–3 (`S1`–`S3`).
+    PlcStation(u8), 1..=3, "a station"
+);
+
+#[cfg(test)]
+mod number_tests {
+    use super::*;
+
+    #[test]
+    fn ranges_are_checked_in_one_place() {
+        assert_eq!(RobotProgram::parse("65").map(RobotProgram::number), Ok(65));
+        assert_eq!(
+            RobotProgram::parse("1000"),
+            Err("`1000` is not a robot program number (1–999)".into())
+        );
+        assert!(RobotProgram::parse("0").is_err() && RobotProgram::parse("x").is_err());
+        assert_eq!(Place::parse("7"), Err("`7` is not a place (2–6)".into()));
+        assert_eq!(
+            Place::all().map(Place::number).collect::<Vec<_>>(),
+            [2, 3, 4, 5, 6]
+        );
+        assert_eq!(PlcStation::new(0), None);
+        assert_eq!(PlcStation::MAX.to_string(), "3");
     }
 }

@@ -11,15 +11,12 @@
 //! | 19 | – | PLC ready |
 //! | 20 | – | emergency stop active |
 
+use falc_model::ids::{Place, PlcStation};
 use falc_recipe::check::{Button, Signal};
 use std::fmt;
 
 /// The conveyor lines, in map order (no I: it reads like 1).
 pub const LINES: [char; 11] = ['A', 'B', 'C', 'D', 'E', 'F', 'G', 'H', 'J', 'K', 'L'];
-/// Places with a presence sensor.
-pub const PLACES: std::ops::RangeInclusive<u8> = 2..=6;
-/// Stations with a button and a busy lamp.
-pub const STATIONS: std::ops::RangeInclusive<u8> = 1..=3;
 /// Number of coils in the map.
 pub const COILS: u16 = 15;
 /// Number of discrete inputs in the map.
@@ -54,8 +51,7 @@ impl Coil {
     pub fn offset(self) -> Option<u16> {
         match self {
             Coil::Button(Button::Line(c)) => line_index(c),
-            Coil::Button(Button::Station(n)) if STATIONS.contains(&n) => Some(10 + u16::from(n)),
-            Coil::Button(Button::Station(_)) => None,
+            Coil::Button(Button::Station(n)) => Some(10 + u16::from(n.number())),
             Coil::ExternalControl => Some(14),
         }
     }
@@ -64,7 +60,9 @@ impl Coil {
     pub fn at(offset: u16) -> Option<Coil> {
         match offset {
             0..=10 => Some(Coil::Button(Button::Line(LINES[usize::from(offset)]))),
-            11..=13 => Some(Coil::Button(Button::Station((offset - 10) as u8))),
+            11..=13 => {
+                PlcStation::new((offset - 10) as u8).map(|n| Coil::Button(Button::Station(n)))
+            }
             14 => Some(Coil::ExternalControl),
             _ => None,
         }
@@ -76,9 +74,8 @@ impl Input {
     pub fn offset(self) -> Option<u16> {
         match self {
             Input::Signal(Signal::Line(c)) => line_index(c),
-            Input::Signal(Signal::Place(n)) if PLACES.contains(&n) => Some(9 + u16::from(n)),
-            Input::Signal(Signal::Station(n)) if STATIONS.contains(&n) => Some(15 + u16::from(n)),
-            Input::Signal(_) => None,
+            Input::Signal(Signal::Place(n)) => Some(9 + u16::from(n.number())),
+            Input::Signal(Signal::Station(n)) => Some(15 + u16::from(n.number())),
             Input::Ready => Some(19),
             Input::EStop => Some(20),
         }
@@ -88,8 +85,10 @@ impl Input {
     pub fn at(offset: u16) -> Option<Input> {
         match offset {
             0..=10 => Some(Input::Signal(Signal::Line(LINES[usize::from(offset)]))),
-            11..=15 => Some(Input::Signal(Signal::Place((offset - 9) as u8))),
-            16..=18 => Some(Input::Signal(Signal::Station((offset - 15) as u8))),
+            11..=15 => Place::new((offset - 9) as u8).map(|n| Input::Signal(Signal::Place(n))),
+            16..=18 => {
+                PlcStation::new((offset - 15) as u8).map(|n| Input::Signal(Signal::Station(n)))
+            }
             19 => Some(Input::Ready),
             20 => Some(Input::EStop),
             _ => None,
@@ -277,11 +276,11 @@ impl fmt::Display for Inputs {
             .filter(|c| self.signal(Signal::Line(**c)))
             .map(|c| c.to_string())
             .collect();
-        let places = PLACES
+        let places = Place::all()
             .filter(|n| self.signal(Signal::Place(*n)))
             .map(|n| n.to_string())
             .collect();
-        let stations = STATIONS
+        let stations = PlcStation::all()
             .filter(|n| self.signal(Signal::Station(*n)))
             .map(|n| n.to_string())
             .collect();
@@ -329,12 +328,24 @@ mod tests {
         let map = IoMap::new(100, 200).expect("fits");
         assert_eq!(map.coil(Coil::Button(Button::Line('A'))), Some(100));
         assert_eq!(map.coil(Coil::Button(Button::Line('L'))), Some(110));
-        assert_eq!(map.coil(Coil::Button(Button::Station(3))), Some(113));
+        assert_eq!(
+            map.coil(Coil::Button(Button::Station(PlcStation::of(3)))),
+            Some(113)
+        );
         assert_eq!(map.coil(Coil::ExternalControl), Some(114));
         assert_eq!(map.coil(Coil::Button(Button::Line('I'))), None);
-        assert_eq!(Input::Signal(Signal::Place(2)).offset(), Some(11));
-        assert_eq!(Input::Signal(Signal::Place(6)).offset(), Some(15));
-        assert_eq!(Input::Signal(Signal::Station(1)).offset(), Some(16));
+        assert_eq!(
+            Input::Signal(Signal::Place(Place::of(2))).offset(),
+            Some(11)
+        );
+        assert_eq!(
+            Input::Signal(Signal::Place(Place::of(6))).offset(),
+            Some(15)
+        );
+        assert_eq!(
+            Input::Signal(Signal::Station(PlcStation::of(1))).offset(),
+            Some(16)
+        );
         assert_eq!(Input::Ready.offset(), Some(19));
         assert_eq!(Input::EStop.offset(), Some(20));
         assert_eq!(map.coil_at(99), None);

@@ -14,7 +14,7 @@
 use super::commands::{lookup, Arg, CommandSpec, Criteria, Handler, RecipeKind};
 use super::problem::{Problem, ProblemKind};
 use super::syntax::{CommandText, Criterion, Recipe, Report, Row, StateNo};
-use falc_model::ids::{ObjectName, StationName};
+use falc_model::ids::{ObjectName, Place, PlcStation, RobotProgram, StationName};
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
 
@@ -24,7 +24,7 @@ pub enum Button {
     /// Line A–H, J–L (upper case).
     Line(char),
     /// Station 1–3.
-    Station(u8),
+    Station(PlcStation),
 }
 
 /// A PLC input to wait for.
@@ -33,9 +33,9 @@ pub enum Signal {
     /// Line A–H, J–L running.
     Line(char),
     /// Place 2–6 occupied.
-    Place(u8),
+    Place(Place),
     /// Station 1–3 busy.
-    Station(u8),
+    Station(PlcStation),
 }
 
 /// What a `start` starts.
@@ -44,7 +44,7 @@ pub enum Job {
     /// A workstation recipe by name (cell).
     Recipe(ObjectName),
     /// A robot program number (welding).
-    Program(u16),
+    Program(RobotProgram),
 }
 
 /// A checked command.
@@ -161,13 +161,6 @@ fn line_letter(s: &str) -> Result<char, String> {
     }
 }
 
-fn number_in(s: &str, lo: u8, hi: u8, what: &str) -> Result<u8, String> {
-    match s.parse::<u8>() {
-        Ok(n) if (lo..=hi).contains(&n) => Ok(n),
-        _ => Err(format!("`{s}` is not {what} ({lo}–{hi})")),
-    }
-}
-
 /// Validates the arguments of a command against its spec.
 fn build_command(spec: &CommandSpec, c: &CommandText) -> Result<Command, String> {
     let fixed = spec
@@ -197,10 +190,7 @@ fn build_command(spec: &CommandSpec, c: &CommandText) -> Result<Command, String>
                         a(0)
                     ));
                 }
-                let program = match a(1).parse::<u16>() {
-                    Ok(n) if (1..=999).contains(&n) => n,
-                    _ => return Err(format!("`{}` is not a robot program number (1–999)", a(1))),
-                };
+                let program = RobotProgram::parse(a(1))?;
                 Command::Start {
                     target: target("rcm")?,
                     job: Job::Program(program),
@@ -227,7 +217,7 @@ fn build_command(spec: &CommandSpec, c: &CommandText) -> Result<Command, String>
         }
         Handler::Activate | Handler::Reset => {
             let b = match a(0).parse::<u8>() {
-                Ok(_) => Button::Station(number_in(a(0), 1, 3, "a station")?),
+                Ok(_) => Button::Station(PlcStation::parse(a(0))?),
                 Err(_) => Button::Line(line_letter(a(0))?),
             };
             if spec.handler == Handler::Activate {
@@ -239,8 +229,8 @@ fn build_command(spec: &CommandSpec, c: &CommandText) -> Result<Command, String>
         Handler::WaitInput => {
             let signal = match spec.args[0] {
                 Arg::Line => Signal::Line(line_letter(a(0))?),
-                Arg::Place => Signal::Place(number_in(a(0), 2, 6, "a place")?),
-                _ => Signal::Station(number_in(a(0), 1, 3, "a station")?),
+                Arg::Place => Signal::Place(Place::parse(a(0))?),
+                _ => Signal::Station(PlcStation::parse(a(0))?),
             };
             let level = match a(1) {
                 "1" => true,

@@ -551,6 +551,7 @@ mod tests {
     use crate::commands::RecipeKind;
     use crate::syntax::parse;
     use falc_model::alarm::AlarmClass;
+    use falc_model::ids::Place;
 
     fn st(s: &str) -> StationName {
         StationName::new(s).expect("valid")
@@ -727,7 +728,7 @@ mod tests {
                 Action::Activate(Button::Line('K')),
                 Action::Entered(StateNo(2)),
                 Action::Watch {
-                    signal: Signal::Place(3),
+                    signal: Signal::Place(Place::of(3)),
                     level: true
                 },
             ]

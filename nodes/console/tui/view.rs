@@ -5,9 +5,10 @@
 //! bright white on red.
 
 use super::app::{App, Command, Layer, Pick};
+use falc_model::ids::{Place, PlcStation};
 use falc_model::mms::vmd::{PhysicalStatus, RecipeState};
 use falc_model::topology::StationKind;
-use falc_plc::map::{Input, Inputs, LINES, PLACES, STATIONS};
+use falc_plc::map::{Input, Inputs, LINES};
 use falc_recipe::check::Signal;
 use falc_recipe::syntax::parse;
 use ratatui::layout::{Constraint, Layout, Rect};
@@ -284,7 +285,7 @@ fn overview(f: &mut Frame, app: &App, area: Rect) {
             cols[i],
         );
     }
-    let table = inputs.map(|i| i.signal(Signal::Station(3)));
+    let table = inputs.map(|i| i.signal(Signal::Station(PlcStation::of(3))));
     let table_look = match (table, transport.as_ref().map(|t| look(app, t))) {
         (_, Some(Look::Off)) | (None, _) => Look::Off,
         (_, Some(Look::Alarm)) => Look::Alarm,
@@ -309,11 +310,11 @@ fn overview(f: &mut Frame, app: &App, area: Rect) {
     let mut lines = Vec::new();
     match inputs {
         Some(i) => {
-            let places: Vec<String> = PLACES
+            let places: Vec<String> = Place::all()
                 .map(|p| format!("W{p} {}", lamp(i.signal(Signal::Place(p)))))
                 .collect();
             lines.push(Line::from(format!("places    {}", places.join("  "))));
-            let st: Vec<String> = STATIONS
+            let st: Vec<String> = PlcStation::all()
                 .map(|s| format!("S{s} {}", lamp(i.signal(Signal::Station(s)))))
                 .collect();
             lines.push(Line::from(format!("stations  {}", st.join("  "))));
