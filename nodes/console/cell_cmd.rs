@@ -6,6 +6,7 @@
 //! or the router's access control refused the call (zenoh cannot tell
 //! which; the text on stderr says both).
 
+use crate::clock::time_of_day_ms;
 use crate::edit;
 use clap::{Args, Subcommand};
 use falc_bus::operator_service::CallError;
@@ -160,18 +161,6 @@ pub enum OrderCommand {
     List,
 }
 
-/// Time of day (UTC) of a journal time stamp.
-fn clock(ms: i64) -> String {
-    let s = ms.div_euclid(1000).rem_euclid(86_400);
-    format!(
-        "{:02}:{:02}:{:02}.{:03}",
-        s / 3600,
-        s / 60 % 60,
-        s % 60,
-        ms.rem_euclid(1000)
-    )
-}
-
 fn show_order(o: &Order) -> String {
     let mut line = format!(
         "{:>4}  {:<12} {:<11} by {}",
@@ -187,7 +176,7 @@ fn show_entry(e: &Entry) -> String {
     let order = e.order.map(|o| format!(" #{o}")).unwrap_or_default();
     format!(
         "{} {:<8}{order} {}: {}",
-        clock(e.at_ms),
+        time_of_day_ms(e.at_ms),
         e.kind.as_str(),
         e.who,
         e.text
@@ -199,14 +188,14 @@ fn show_entry(e: &Entry) -> String {
 pub fn show_alarm(a: &Alarm) -> String {
     let order = a.order.map(|o| format!(" (order {o})")).unwrap_or_default();
     let state = match &a.acked {
-        Some((who, at)) => format!("{} by {who} {}", a.state(), clock(*at)),
+        Some((who, at)) => format!("{} by {who} {}", a.state(), time_of_day_ms(*at)),
         None if a.blocks_start() => format!("{}, needs ack", a.state()),
         None => a.state().to_string(),
     };
     format!(
         "#{:<3} {} {:<13} {:<10} {}{order}  [{state}]",
         a.id,
-        clock(a.raised_ms),
+        time_of_day_ms(a.raised_ms),
         a.class.as_str(),
         a.station,
         a.text

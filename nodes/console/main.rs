@@ -5,6 +5,7 @@
 //! edit store recipes in `$EDITOR` (`edit`).
 
 mod cell_cmd;
+mod clock;
 mod edit;
 mod recipe_cmd;
 mod tui;

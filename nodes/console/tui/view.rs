@@ -5,6 +5,7 @@
 //! bright white on red.
 
 use super::app::{App, Command, Layer, Pick};
+use crate::clock::time_of_day;
 use falc_model::ids::{Place, PlcStation};
 use falc_model::mms::vmd::{PhysicalStatus, RecipeState};
 use falc_model::topology::StationKind;
@@ -463,7 +464,7 @@ fn messages(f: &mut Frame, app: &App, area: Rect) {
                     Line::styled(
                         format!(
                             "{} {:<8} {}: {}",
-                            clock(e.at_ms),
+                            time_of_day(e.at_ms),
                             e.kind.as_str(),
                             e.who,
                             e.text
@@ -496,12 +497,6 @@ fn messages(f: &mut Frame, app: &App, area: Rect) {
             ask,
         );
     }
-}
-
-/// Time of day (UTC) of a journal time stamp.
-fn clock(ms: i64) -> String {
-    let s = ms.div_euclid(1000).rem_euclid(86_400);
-    format!("{:02}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
 }
 
 fn commands(f: &mut Frame, app: &App, area: Rect) {
