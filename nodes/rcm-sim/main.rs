@@ -13,7 +13,6 @@
 //! (n random bytes on the line), `unplug`, `replug`, `lose-end` (the next
 //! program end is never sent: the host must learn it from the status).
 
-mod pty;
 mod robot;
 
 use anyhow::{Context, Result};
@@ -23,8 +22,9 @@ use falc_dnc::telegram::{Mode, Telegram};
 use falc_node::say;
 use robot::{Control, Robot};
 use std::time::Duration;
-use tokio::io::{AsyncBufReadExt, BufReader};
+use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::time::Instant;
+use tokio_serial::{SerialPort, SerialStream};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -46,28 +46,13 @@ struct Cli {
     line: falc_node::dnc_link::LineArgs,
 }
 
-/// The twin's end of the line: a pty it made, or a serial device.
-enum Port {
-    Pty(pty::Pty),
-    Serial(tokio_serial::SerialStream),
-}
-
-impl Port {
-    async fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
-        use tokio::io::AsyncReadExt;
-        match self {
-            Port::Pty(p) => p.read(buf).await,
-            Port::Serial(s) => s.read(buf).await,
-        }
-    }
-
-    async fn write_all(&mut self, data: &[u8]) -> std::io::Result<()> {
-        use tokio::io::AsyncWriteExt;
-        match self {
-            Port::Pty(p) => p.write_all(data).await,
-            Port::Serial(s) => s.write_all(data).await,
-        }
-    }
+/// Opens a raw pty pair (tokio-serial's): the twin's end, the end a
+/// workstation opens (kept open here, so the line survives the workstation
+/// closing and reopening it), and that end's path (`/dev/pts/N`).
+fn pty_pair() -> Result<(SerialStream, SerialStream, String)> {
+    let (twin, workstation) = SerialStream::pair().context("cannot open a pty pair")?;
+    let path = workstation.name().context("the new pty has no path")?;
+    Ok((twin, workstation, path))
 }
 
 fn parse_mode(s: &str) -> Option<Mode> {
@@ -116,15 +101,14 @@ async fn main() -> Result<()> {
     let cli = Cli::parse();
     let mode = parse_mode(&cli.mode)
         .with_context(|| format!("unknown mode `{}` (manual, automatic, aue)", cli.mode))?;
-    let (mut port, path) = match cli.line.settings(None) {
+    let (mut port, _workstation_end, path) = match cli.line.settings(None) {
         Some(line) => {
             let serial = falc_node::dnc_link::open_serial(&line).map_err(anyhow::Error::msg)?;
-            (Port::Serial(serial), line.path)
+            (serial, None, line.path)
         }
         None => {
-            let pty = pty::Pty::open().context("cannot open a pty pair")?;
-            let path = pty.path.clone();
-            (Port::Pty(pty), path)
+            let (twin, workstation, path) = pty_pair()?;
+            (twin, Some(workstation), path)
         }
     };
     let mut robot = Robot::new(mode, cli.time_scale);
