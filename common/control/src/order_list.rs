@@ -1261,27 +1261,9 @@ mod tests {
     use falc_model::alarm::Cause;
     use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
 
-    const TOPOLOGY: &str = r#"
-cell = "t1"
-router = "tcp/127.0.0.1:7447"
-[[station]]
-name = "operator"
-kind = "operator"
-[[station]]
-name = "cell"
-kind = "cell"
-commander = "operator"
-[[station]]
-name = "welding"
-kind = "welding"
-commander = "cell"
-[[console]]
-name = "ann"
-role = "operator"
-[[console]]
-name = "obs"
-role = "observer"
-"#;
+    /// The cell as shipped (console users `console`, an operator, and
+    /// `observer`).
+    const TOPOLOGY: &str = include_str!("../../../launch/cell.toml");
 
     /// Recipes in memory; `broken` makes the set fail its check.
     #[derive(Default)]
@@ -1374,7 +1356,7 @@ role = "observer"
         }
 
         fn status(&mut self) -> CellStatus {
-            match self.ask("ann", ApiRequest::Status) {
+            match self.ask("console", ApiRequest::Status) {
                 Ok(ApiReply::Status(s)) => s,
                 other => panic!("{other:?}"),
             }
@@ -1385,6 +1367,18 @@ role = "observer"
             let result = result.map_err(ServiceError::unreachable);
             self.list.handle_cell_reply(self.now, result);
             self.outputs()
+        }
+
+        /// The cell asks the operator `prompt`; the question's ticket.
+        fn question(&mut self, prompt: &str) -> Ticket {
+            let q = self.ticket();
+            let input = Request::Input {
+                prompt: prompt.into(),
+                timeout_s: None,
+            };
+            self.list.handle_cell_request(self.now, q, input);
+            self.outputs();
+            q
         }
 
         fn publish(&mut self, u: Unconfirmed) -> Vec<Output> {
@@ -1403,7 +1397,7 @@ role = "observer"
         fn add(&mut self, n: usize) {
             for _ in 0..n {
                 let r = self.ask(
-                    "ann",
+                    "console",
                     ApiRequest::OrderAdd {
                         recipe: "dikdroog".into(),
                     },
@@ -1415,7 +1409,7 @@ role = "observer"
         /// `start` through association, delivery, Initiate and the
         /// cell's Start; the start's answer.
         fn start(&mut self) -> ApiResult {
-            let (t, mut out) = self.api("ann", ApiRequest::Start);
+            let (t, mut out) = self.api("console", ApiRequest::Start);
             loop {
                 if let Some(r) = reply(&out, t) {
                     return r;
@@ -1460,7 +1454,7 @@ role = "observer"
     fn a_start_associates_delivers_and_starts_and_status_is_answered_meanwhile() {
         let mut r = Rig::new();
         r.add(1);
-        let (start, out) = r.api("ann", ApiRequest::Start);
+        let (start, out) = r.api("console", ApiRequest::Start);
         assert_eq!(call(&out), Some(CellCall::Associate));
         // The loop does not wait for the cell: status is answered now.
         assert!(!r.status().cell_associated);
@@ -1509,7 +1503,7 @@ role = "observer"
         assert_eq!(r.status().list, ListState::Idle);
         // A second start: nothing to deliver again.
         r.add(1);
-        let (_, out) = r.api("ann", ApiRequest::Start);
+        let (_, out) = r.api("console", ApiRequest::Start);
         assert_eq!(call(&out), Some(CellCall::Initiate));
     }
 
@@ -1535,7 +1529,7 @@ role = "observer"
             .alarm
             .is_some_and(|a| a.contains("order 2 (dikdroog) not started")));
         // The way back: ack, start, done.
-        assert!(r.ask("ann", ApiRequest::Ack { id: None }).is_ok());
+        assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
         assert!(r.start().is_ok());
         r.job(JobEvent::Done);
         assert_eq!(r.order(2).state, OrderState::Done);
@@ -1591,16 +1585,7 @@ role = "observer"
         let mut r = Rig::new();
         r.add(2);
         assert!(r.start().is_ok());
-        let q = r.ticket();
-        r.list.handle_cell_request(
-            r.now,
-            q,
-            Request::Input {
-                prompt: "weld (ja/nee)?".into(),
-                timeout_s: None,
-            },
-        );
-        r.outputs();
+        let q = r.question("weld (ja/nee)?");
         r.list.records().failing = true;
         let out = r.publish(Unconfirmed::Report {
             station: st("welding"),
@@ -1621,11 +1606,11 @@ role = "observer"
         );
         let s = r.status();
         assert_eq!((s.list, s.running), (ListState::Alarm, None));
-        let refused = r.ask("ann", ApiRequest::Start);
+        let refused = r.ask("console", ApiRequest::Start);
         assert!(refused.is_err_and(|e| e.contains("cannot be written")));
         // The disk is freed: ack, start; the held end is written first.
         r.list.records().failing = false;
-        assert!(r.ask("ann", ApiRequest::Ack { id: None }).is_ok());
+        assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
         assert_eq!(
             r.start(),
             Ok(ApiReply::Done("order 2 (dikdroog) started".into()))
@@ -1650,16 +1635,7 @@ role = "observer"
         let mut r = Rig::new();
         r.add(2);
         assert!(r.start().is_ok());
-        let q = r.ticket();
-        r.list.handle_cell_request(
-            r.now,
-            q,
-            Request::Input {
-                prompt: "ok?".into(),
-                timeout_s: None,
-            },
-        );
-        r.outputs();
+        let q = r.question("ok?");
         r.list.handle_abort(r.now, "lease expired");
         let out = r.outputs();
         assert!(out
@@ -1672,7 +1648,7 @@ role = "observer"
             s.problem.as_deref(),
             Some("no connection with station cell")
         );
-        assert!(r.ask("ann", ApiRequest::Ack { id: None }).is_ok());
+        assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
         assert_eq!(r.status().alarms.len(), 1, "acknowledged, not cleared");
         r.list.handle_timeout(r.now);
         assert_eq!(call(&r.outputs()), Some(CellCall::Associate));
@@ -1689,7 +1665,7 @@ role = "observer"
     fn a_job_event_before_the_start_is_confirmed_is_kept_for_it() {
         let mut r = Rig::new();
         r.add(1);
-        let (t, mut out) = r.api("ann", ApiRequest::Start);
+        let (t, mut out) = r.api("console", ApiRequest::Start);
         while !matches!(call(&out), Some(CellCall::Start { .. })) {
             out = r.answer(Ok(()));
         }
@@ -1708,11 +1684,11 @@ role = "observer"
     fn stop_ends_the_order_and_roles_are_checked_again() {
         let mut r = Rig::new();
         r.add(1);
-        let refused = r.ask("obs", ApiRequest::Start);
+        let refused = r.ask("observer", ApiRequest::Start);
         assert!(refused.is_err_and(|e| e.contains("needs")));
         assert!(r.ask("mallory", ApiRequest::Status).is_err());
         assert!(r.start().is_ok());
-        let (t, out) = r.api("ann", ApiRequest::Stop);
+        let (t, out) = r.api("console", ApiRequest::Stop);
         assert_eq!(
             call(&out),
             Some(CellCall::Stop {
@@ -1736,7 +1712,7 @@ role = "observer"
         let mut r = Rig::new();
         r.add(1);
         r.list.source.broken = true;
-        let (t, out) = r.api("ann", ApiRequest::Start);
+        let (t, out) = r.api("console", ApiRequest::Start);
         assert!(call(&out).is_none(), "nothing delivered");
         let e = reply(&out, t).and_then(|r| r.err()).unwrap_or_default();
         assert!(e.contains("cell/dikdroog.rcp:3: unknown state 9"), "{e}");
