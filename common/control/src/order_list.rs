@@ -179,6 +179,8 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     db: R,
     source: S,
     recipes: RecipeSet,
+    /// The content hash of each of `recipes`, in the same order.
+    hashes: Vec<u64>,
     /// Content hash of each domain delivered to the cell in this association.
     delivered: BTreeMap<ObjectName, u64>,
     associated: bool,
@@ -218,6 +220,14 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     out: VecDeque<Output>,
 }
 
+/// The content hash of each recipe of `set`, in order.
+fn hashes_of(set: &RecipeSet) -> Vec<u64> {
+    set.deliveries
+        .iter()
+        .map(|d| content_hash(&d.content))
+        .collect()
+}
+
 impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// The order list of operator `me` over `cell`, with its records and
     /// checked recipes. Its first connection attempt is due at once.
@@ -242,6 +252,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             topology,
             db,
             source,
+            hashes: hashes_of(&recipes),
             recipes,
             delivered: BTreeMap::new(),
             associated: false,
@@ -511,12 +522,14 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         }
     }
 
-    /// The recipes whose content the cell does not have yet.
-    fn undelivered(&self) -> impl Iterator<Item = &Delivery> {
+    /// The recipes whose content the cell does not have yet, with their
+    /// content hash.
+    fn undelivered(&self) -> impl Iterator<Item = (&Delivery, u64)> {
         self.recipes
             .deliveries
             .iter()
-            .filter(|d| self.delivered.get(&d.domain) != Some(&content_hash(&d.content)))
+            .zip(self.hashes.iter().copied())
+            .filter(|(d, h)| self.delivered.get(&d.domain) != Some(h))
     }
 
     /// Associates the cell if it is not, and delivers what changed, one
@@ -528,12 +541,12 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             self.call(CellCall::Associate, Busy::Associating { after });
             return;
         }
-        let next = self.undelivered().next().cloned();
-        if let Some(d) = next {
+        let next = self.undelivered().next().map(|(d, h)| (d.clone(), h));
+        if let Some((d, hash)) = next {
             let busy = Busy::Delivering {
                 after,
                 domain: d.domain.clone(),
-                hash: content_hash(&d.content),
+                hash,
             };
             self.call(CellCall::Deliver(d), busy);
             return;
@@ -589,7 +602,10 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         }
         // The recipe store again: what was saved since is delivered now.
         match self.source.load() {
-            Ok(set) => self.recipes = set,
+            Ok(set) => {
+                self.hashes = hashes_of(&set);
+                self.recipes = set;
+            }
             Err(problems) => {
                 let text = format!(
                     "recipes refused, nothing delivered:\n{}",
