@@ -30,7 +30,7 @@ use falc_model::ids::StationName;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Request, Response, Severity};
 use falc_node::controller_node::ControllerNode;
-use falc_node::{init_tracing, say, NodeArgs};
+use falc_node::{init_tracing, lane, say, NodeArgs};
 use falc_recipe::commands::RecipeKind;
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
@@ -60,25 +60,20 @@ struct Lanes {
 impl Lanes {
     fn send(&mut self, cmd: Command) {
         let lane = self.lanes.entry(cmd.to.clone()).or_insert_with(|| {
-            let (tx, mut rx) = unbounded_channel::<Command>();
             let bus = self.bus.clone();
-            let replies = self.replies.clone();
-            tokio::spawn(async move {
-                while let Some(cmd) = rx.recv().await {
+            lane::spawn(self.replies.clone(), move |cmd: Command| {
+                let bus = bus.clone();
+                async move {
                     let result = bus
                         .request(&cmd.to, &cmd.request, cmd.limit)
                         .await
                         .map_err(|e| e.to_string());
-                    let reply = Reply {
+                    Reply {
                         awaiting: cmd.awaiting,
                         result,
-                    };
-                    if replies.send(reply).is_err() {
-                        break;
                     }
                 }
-            });
-            tx
+            })
         });
         if lane.send(cmd).is_err() {
             tracing::error!("a request lane stopped");

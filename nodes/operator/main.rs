@@ -22,12 +22,12 @@ use falc_bus::operator_service::ApiResponder;
 use falc_bus::station::{self, Station, StationEvent};
 use falc_bus::{Bus, Responder};
 use falc_control::order_list::{CellCall, OrderList, Output, Ticket};
-use falc_control::recipe_source::Delivery;
+use falc_control::recipe_source::{Delivery, RecipeSource};
 use falc_model::console::EntryKind;
 use falc_model::ids::StationName;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Peer, Request};
-use falc_node::{init_tracing, say, NodeArgs};
+use falc_node::{init_tracing, lane, say, NodeArgs};
 use recipe_store::RecipeDir;
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -82,11 +82,11 @@ fn cell_lane(
     bus: Bus,
     cell: StationName,
 ) -> (UnboundedSender<LaneJob>, UnboundedReceiver<LaneDone>) {
-    let (tx, mut jobs) = unbounded_channel::<LaneJob>();
     let (done_tx, done) = unbounded_channel();
-    tokio::spawn(async move {
-        while let Some(job) = jobs.recv().await {
-            let done = match job {
+    let jobs = lane::spawn(done_tx, move |job: LaneJob| {
+        let (bus, cell) = (bus.clone(), cell.clone());
+        async move {
+            match job {
                 LaneJob::Initiates(subs) => {
                     LaneDone::Initiates(station::initiate_all(&bus, subs).await)
                 }
@@ -99,13 +99,10 @@ fn cell_lane(
                 LaneJob::Deliver(d) => {
                     LaneDone::Done(bus.deliver_domain(&cell, &d.domain, &d.content).await)
                 }
-            };
-            if done_tx.send(done).is_err() {
-                break;
             }
         }
     });
-    (tx, done)
+    (jobs, done)
 }
 
 /// The operator node: the order list core and what carries out its outputs.
@@ -219,7 +216,12 @@ async fn run(cli: Cli) -> Result<ExitCode> {
         ),
     };
     // The PPS first: a defective recipe set never reaches the cell.
-    let recipes = match recipe_store::load(&cli.recipes, &topology, &cell) {
+    let source = RecipeDir {
+        dir: cli.recipes.clone(),
+        topology: topology.clone(),
+        cell: cell.clone(),
+    };
+    let recipes = match source.load() {
         Ok(set) => set,
         Err(problems) => {
             for p in &problems {
@@ -256,11 +258,6 @@ async fn run(cli: Cli) -> Result<ExitCode> {
     }
     bus.sync_with_router().await?;
     let (lane, mut lane_done) = cell_lane(bus.clone(), cell.clone());
-    let source = RecipeDir {
-        dir: cli.recipes.clone(),
-        topology: topology.clone(),
-        cell: cell.clone(),
-    };
     let list = OrderList::new(me.clone(), cell, topology, db, source, recipes);
     let mut op = Operator {
         list,

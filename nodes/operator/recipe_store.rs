@@ -49,7 +49,7 @@ impl RecipeSource for RecipeDir {
 /// Reads and checks the recipe tree `dir` against `topology`: the cell
 /// recipes go to `cell`, workstation recipes must belong to one of its
 /// workstations. Returns the set, or every problem (`file:line: reason`).
-pub fn load(dir: &Path, topology: &Topology, cell: &StationName) -> Result<RecipeSet, Vec<String>> {
+fn load(dir: &Path, topology: &Topology, cell: &StationName) -> Result<RecipeSet, Vec<String>> {
     let entries = files::load(&[PathBuf::from(dir)], None)?;
     check_entries(&entries, topology, cell)
 }
@@ -123,11 +123,7 @@ fn path_of(dir: &Path, file: &RecipeFile) -> PathBuf {
 }
 
 /// Every recipe file under `dir`, with its name where the text gives one.
-pub fn list(
-    dir: &Path,
-    topology: &Topology,
-    cell: &StationName,
-) -> Result<Vec<RecipeInfo>, String> {
+fn list(dir: &Path, topology: &Topology, cell: &StationName) -> Result<Vec<RecipeInfo>, String> {
     let mut out = Vec::new();
     for station in stations(topology, cell) {
         let sub = dir.join(station.as_str());
@@ -156,7 +152,7 @@ pub fn list(
 }
 
 /// One recipe file's text and content hash.
-pub fn get(dir: &Path, file: &RecipeFile) -> Result<RecipeText, String> {
+fn get(dir: &Path, file: &RecipeFile) -> Result<RecipeText, String> {
     let path = path_of(dir, file);
     match std::fs::read_to_string(&path) {
         Ok(text) => Ok(RecipeText {
@@ -175,7 +171,7 @@ pub fn get(dir: &Path, file: &RecipeFile) -> Result<RecipeText, String> {
 /// it and the file is still what the editor started from (`base`: its
 /// content hash; None for a new file). Written to a temporary file, synced
 /// and renamed: the store never holds half a recipe.
-pub fn put(
+fn put(
     dir: &Path,
     topology: &Topology,
     cell: &StationName,

@@ -108,63 +108,50 @@ struct Question {
     ticket: Ticket,
 }
 
+/// The console request a job answers when it ends, and its user.
+#[derive(Debug)]
+struct Caller {
+    ticket: Ticket,
+    who: String,
+}
+
 /// Work that needs the cell, done one after the other.
 #[derive(Debug)]
 enum Job {
     /// Associate if not, and deliver what changed (the retry).
     Connect,
     /// An operator's `start`.
-    Start { ticket: Ticket, who: String },
+    Start(Caller),
     /// The next order after one ended.
     Next,
     /// An operator's `stop`.
-    Stop { ticket: Ticket, who: String },
+    Stop(Caller),
     /// Stop the running order at the cell: a write failed.
     Halt,
 }
 
-/// What a connection is made for.
-#[derive(Debug)]
-enum After {
-    /// Nothing more (the retry).
-    Nothing,
-    /// An operator's start goes on.
-    Start { ticket: Ticket, who: String },
-}
-
-/// Who an order start is for.
-#[derive(Debug)]
-enum StartFor {
-    /// An operator's start: answered.
-    Operator { ticket: Ticket, who: String },
-    /// The list going on.
-    List,
-}
-
-/// The cell call out, and what its outcome goes on with.
+/// The cell call out, and what its outcome goes on with. `start` is the
+/// operator's start a connection is made for (None: the retry); `by` is
+/// whose start an order's is (None: the list going on).
 #[derive(Debug)]
 enum Busy {
     Associating {
-        after: After,
+        start: Option<Caller>,
     },
     Delivering {
-        after: After,
+        start: Option<Caller>,
         domain: ObjectName,
         hash: u64,
     },
-    Initiating {
-        ticket: Ticket,
-        who: String,
-    },
+    Initiating(Caller),
     Starting {
         order: Order,
         started_ms: i64,
-        purpose: StartFor,
+        by: Option<Caller>,
     },
     Stopping {
         order: Order,
-        ticket: Ticket,
-        who: String,
+        by: Caller,
     },
     Halting {
         order: Order,
@@ -303,8 +290,9 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.shutdown_pending && self.running.is_none() && self.busy.is_none()
     }
 
-    /// The records (the node journals its own start and stop).
-    pub fn records(&mut self) -> &mut R {
+    /// The records, for tests to look at and to make fail.
+    #[cfg(test)]
+    pub(crate) fn records(&mut self) -> &mut R {
         &mut self.db
     }
 
@@ -501,14 +489,14 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 
     fn begin(&mut self, now: Duration, job: Job) {
         match job {
-            Job::Connect => self.connect(After::Nothing, false),
-            Job::Start { ticket, who } => self.begin_start(ticket, who),
+            Job::Connect => self.connect(None, false),
+            Job::Start(by) => self.begin_start(by),
             Job::Next => {
                 if self.list == ListState::Running {
-                    self.start_next(StartFor::List);
+                    self.start_next(None);
                 }
             }
-            Job::Stop { ticket, who } => self.begin_stop(now, ticket, who),
+            Job::Stop(by) => self.begin_stop(now, by),
             Job::Halt => {
                 let Some(order) = self.running.take() else {
                     return;
@@ -535,16 +523,16 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// Associates the cell if it is not, and delivers what changed, one
     /// call at a time; then goes on with `after`. Quiet when nothing
     /// changed; says `EVENT cell-ready` when the cell holds every recipe
-    /// after a change (`sent`).
-    fn connect(&mut self, after: After, sent: bool) {
+    /// after a change (`sent`). Then goes on with an operator's `start`.
+    fn connect(&mut self, start: Option<Caller>, sent: bool) {
         if !self.associated {
-            self.call(CellCall::Associate, Busy::Associating { after });
+            self.call(CellCall::Associate, Busy::Associating { start });
             return;
         }
         let next = self.undelivered().next().map(|(d, h)| (d.clone(), h));
         if let Some((d, hash)) = next {
             let busy = Busy::Delivering {
-                after,
+                start,
                 domain: d.domain.clone(),
                 hash,
             };
@@ -555,15 +543,15 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             let n = self.recipes.deliveries.len();
             self.say(format!("EVENT cell-ready recipes={n}"));
         }
-        if let After::Start { ticket, who } = after {
-            self.call(CellCall::Initiate, Busy::Initiating { ticket, who });
+        if let Some(by) = start {
+            self.call(CellCall::Initiate, Busy::Initiating(by));
         }
     }
 
     /// A connection failed: the last refusal is kept as `problem`.
-    fn connect_failed(&mut self, after: After, text: String) {
-        if let After::Start { ticket, .. } = after {
-            self.reply(ticket, Err(text));
+    fn connect_failed(&mut self, start: Option<Caller>, text: String) {
+        if let Some(by) = start {
+            self.reply(by.ticket, Err(text));
         }
     }
 
@@ -584,7 +572,8 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.journal_mine(EntryKind::System, None, &text);
     }
 
-    fn begin_start(&mut self, ticket: Ticket, who: String) {
+    fn begin_start(&mut self, by: Caller) {
+        let ticket = by.ticket;
         if let Some(a) = self.alarms.blocking() {
             let text = format!(
                 "alarm {} waits for acknowledgement (falc ack {}, or falc ack for all)",
@@ -615,7 +604,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 return self.reply(ticket, Err(text));
             }
         }
-        self.connect(After::Start { ticket, who }, false);
+        self.connect(Some(by), false);
     }
 
     /// Writes the order ends a failed write held back; the error (the
@@ -639,7 +628,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 
     /// Starts the next queued order: durably `running` before the cell is
     /// asked to start it; back in the queue only if the cell refused.
-    fn start_next(&mut self, purpose: StartFor) {
+    fn start_next(&mut self, by: Option<Caller>) {
         let prepared = self.write_held_ends().and_then(|()| {
             let Some(order) = self.db.next_queued().map_err(|e| e.to_string())? else {
                 return Ok(None);
@@ -660,28 +649,29 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 let busy = Busy::Starting {
                     order,
                     started_ms,
-                    purpose,
+                    by,
                 };
                 self.call(CellCall::Start { name, argument }, busy);
             }
-            Ok(None) => self.start_ended(purpose, Ok(None)),
-            Err(text) => self.start_ended(purpose, Err(text)),
+            Ok(None) => self.start_ended(by, Ok(None)),
+            Err(text) => self.start_ended(by, Err(text)),
         }
     }
 
-    /// The outcome of a start, for whom it was.
-    fn start_ended(&mut self, purpose: StartFor, outcome: Result<Option<Order>, String>) {
-        match (purpose, outcome) {
-            (StartFor::Operator { ticket, who }, Ok(Some(order))) => {
+    /// The outcome of a start: answered to the operator who asked, or
+    /// the list goes on.
+    fn start_ended(&mut self, by: Option<Caller>, outcome: Result<Option<Order>, String>) {
+        match (by, outcome) {
+            (Some(Caller { ticket, who }), Ok(Some(order))) => {
                 self.list = ListState::Running;
                 self.journal(EntryKind::Action, None, &who, "started the list");
                 let text = format!("order {} ({}) started", order.id, order.recipe);
                 self.reply(ticket, Ok(ApiReply::Done(text)));
             }
-            (StartFor::Operator { ticket, .. }, Ok(None)) => {
+            (Some(Caller { ticket, .. }), Ok(None)) => {
                 self.reply(ticket, Err("the order list holds no queued order".into()));
             }
-            (StartFor::Operator { ticket, who }, Err(text)) => {
+            (Some(Caller { ticket, who }), Err(text)) => {
                 self.journal(
                     EntryKind::Action,
                     None,
@@ -690,31 +680,28 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 );
                 self.reply(ticket, Err(text));
             }
-            (StartFor::List, Ok(Some(_))) => {}
-            (StartFor::List, Ok(None)) => {
+            (None, Ok(Some(_))) => {}
+            (None, Ok(None)) => {
                 self.list = ListState::Idle;
                 self.journal_mine(EntryKind::System, None, "the order list is done");
                 self.say("EVENT list-done".into());
             }
-            (StartFor::List, Err(text)) => {
+            (None, Err(text)) => {
                 let me = self.me.to_string();
                 self.raise(&me, None, AlarmClass::Process, text);
             }
         }
     }
 
-    fn begin_stop(&mut self, now: Duration, ticket: Ticket, who: String) {
+    fn begin_stop(&mut self, now: Duration, by: Caller) {
         self.list = ListState::Idle;
         let Some(order) = self.running.take() else {
-            self.journal(EntryKind::Action, None, &who, "stopped the list");
-            return self.reply(ticket, Ok(ApiReply::Done("the list is stopped".into())));
+            self.journal(EntryKind::Action, None, &by.who, "stopped the list");
+            return self.reply(by.ticket, Ok(ApiReply::Done("the list is stopped".into())));
         };
         match ObjectName::new(&order.recipe) {
-            Ok(name) => self.call(
-                CellCall::Stop { name },
-                Busy::Stopping { order, ticket, who },
-            ),
-            Err(e) => self.stopped(now, order, ticket, &who, Err(e.to_string())),
+            Ok(name) => self.call(CellCall::Stop { name }, Busy::Stopping { order, by }),
+            Err(e) => self.stopped(now, order, by, Err(e.to_string())),
         }
     }
 
@@ -722,15 +709,14 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         &mut self,
         now: Duration,
         order: Order,
-        ticket: Ticket,
-        who: &str,
+        Caller { ticket, who }: Caller,
         result: Result<(), String>,
     ) {
         self.refuse_question("the order was stopped");
         self.journal(
             EntryKind::Action,
             Some(order.id),
-            who,
+            &who,
             &format!("stopped order {}", order.id),
         );
         let id = order.id;
@@ -773,49 +759,49 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             return;
         };
         match busy {
-            Busy::Associating { after } => match result {
+            Busy::Associating { start } => match result {
                 Ok(()) => {
                     self.associated_now();
-                    self.connect(after, false);
+                    self.connect(start, false);
                 }
                 Err(text) => {
                     if self.problem.as_deref() != Some(text.as_str()) {
                         self.say(format!("EVENT not-associated {text}"));
                     }
                     self.problem = Some(text.clone());
-                    self.connect_failed(after, text);
+                    self.connect_failed(start, text);
                 }
             },
             Busy::Delivering {
-                after,
+                start,
                 domain,
                 hash,
             } => match result {
                 Ok(()) => {
                     self.say(format!("EVENT delivered recipe={domain}"));
                     self.delivered.insert(domain, hash);
-                    self.connect(after, true);
+                    self.connect(start, true);
                 }
                 Err(text) => {
                     self.delivered.remove(&domain);
                     self.journal_mine(EntryKind::System, None, &text);
-                    self.connect_failed(after, text);
+                    self.connect_failed(start, text);
                 }
             },
-            Busy::Initiating { ticket, who } => match result {
+            Busy::Initiating(by) => match result {
                 Ok(()) => {
                     self.problem = None;
-                    self.start_next(StartFor::Operator { ticket, who });
+                    self.start_next(Some(by));
                 }
                 Err(text) => {
                     self.problem = Some(text.clone());
-                    self.reply(ticket, Err(text));
+                    self.reply(by.ticket, Err(text));
                 }
             },
             Busy::Starting {
                 order,
                 started_ms,
-                purpose,
+                by,
             } => {
                 let outcome = match result {
                     Ok(()) => {
@@ -850,12 +836,12 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                         Err(why)
                     }
                 };
-                self.start_ended(purpose, outcome);
+                self.start_ended(by, outcome);
                 for u in std::mem::take(&mut self.early) {
                     self.handle_publication(now, u);
                 }
             }
-            Busy::Stopping { order, ticket, who } => self.stopped(now, order, ticket, &who, result),
+            Busy::Stopping { order, by } => self.stopped(now, order, by, result),
             Busy::Halting { order } => self.halted(now, order, result),
         }
         self.pump(now);
@@ -1136,14 +1122,14 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 }
                 Ok(Err(why)) => Err(why),
             },
-            ApiRequest::Start => {
-                let who = who.to_string();
-                self.jobs.push_back(Job::Start { ticket, who });
-                return None;
-            }
-            ApiRequest::Stop => {
-                let who = who.to_string();
-                self.jobs.push_back(Job::Stop { ticket, who });
+            ApiRequest::Start | ApiRequest::Stop => {
+                let by = Caller {
+                    ticket,
+                    who: who.to_string(),
+                };
+                let stop = matches!(request, ApiRequest::Stop);
+                self.jobs
+                    .push_back(if stop { Job::Stop(by) } else { Job::Start(by) });
                 return None;
             }
             ApiRequest::Ack { id } => self.ack(who, id),

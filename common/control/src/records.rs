@@ -83,6 +83,8 @@ pub mod memory {
         pub journal: Vec<Entry>,
         /// Every alarm ever raised.
         pub alarms: Vec<Alarm>,
+        /// The highest id of a removed order.
+        removed: i64,
         clock: std::cell::Cell<i64>,
     }
 
@@ -111,8 +113,17 @@ pub mod memory {
         }
         fn add_order(&mut self, recipe: &str, who: &str) -> Result<Order, String> {
             self.write()?;
+            // Like AUTOINCREMENT: never an id a removed order had.
+            let id = self
+                .orders
+                .iter()
+                .map(|o| o.id)
+                .max()
+                .unwrap_or(0)
+                .max(self.removed)
+                + 1;
             let o = Order {
-                id: self.orders.len() as i64 + 1,
+                id,
                 recipe: recipe.into(),
                 state: OrderState::Queued,
                 added_by: who.into(),
@@ -147,6 +158,7 @@ pub mod memory {
             self.write()?;
             match self.orders.iter().position(|o| o.id == id) {
                 Some(i) if self.orders[i].state == OrderState::Queued => {
+                    self.removed = self.removed.max(id);
                     Ok(Ok(self.orders.remove(i)))
                 }
                 Some(_) => Ok(Err(format!("order {id} is not queued"))),
@@ -256,5 +268,21 @@ pub mod memory {
         fn listed_alarms(&self) -> Result<Vec<Alarm>, String> {
             Ok(self.alarms.iter().filter(|a| a.listed()).cloned().collect())
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::memory::Memory;
+    use super::Records;
+
+    #[test]
+    fn the_fake_never_reuses_an_order_id() {
+        let mut m = Memory::default();
+        let a = m.add_order("dikdroog", "ann").map(|o| o.id);
+        let b = m.add_order("dikdroog", "ann").map(|o| o.id);
+        assert_eq!((a, b), (Ok(1), Ok(2)));
+        assert!(m.remove_order(2).is_ok_and(|r| r.is_ok()));
+        assert_eq!(m.add_order("dikdroog", "ann").map(|o| o.id), Ok(3));
     }
 }

@@ -4,10 +4,12 @@
 //!
 //! - [`controller_node`]: drives a `falc_control` controller core on the bus;
 //! - [`dnc_link`]: the serial port under the DNC procedure (tokio-serial);
+//! - [`lane`]: a task that sends a node's requests one at a time;
 //! - [`plc_link`]: the Modbus TCP link to the conveyor PLC (tokio-modbus).
 
 pub mod controller_node;
 pub mod dnc_link;
+pub mod lane;
 pub mod plc_link;
 
 use falc_bus::credentials::{self, CredentialsError};
