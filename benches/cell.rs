@@ -112,6 +112,7 @@ impl Launched {
             endpoint: self.endpoint.clone(),
             lease: Duration::from_secs(1),
             credentials: Some(creds),
+            tls: None,
             connect_timeout: Duration::from_secs(5),
         })
         .await

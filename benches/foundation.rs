@@ -60,6 +60,7 @@ fn bare_server() {
         &endpoint,
         Duration::from_secs(1),
         Some(&creds),
+        None,
         Duration::ZERO,
     )
     .expect("config");

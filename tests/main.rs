@@ -18,6 +18,7 @@ mod recipes;
 mod recovery;
 mod roles;
 mod services;
+mod tls;
 mod transport;
 mod tui;
 mod welding;

@@ -132,6 +132,7 @@ fn roles_are_enforced_by_the_router_and_every_action_names_its_user() {
             endpoint: topology.router().to_string(),
             lease: topology.lease(),
             credentials: Some(creds),
+            tls: None,
             connect_timeout: Duration::from_secs(5),
         })
         .await

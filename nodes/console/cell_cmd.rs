@@ -216,13 +216,13 @@ async fn alarms(
             list.sort_by_key(|a| (a.class.priority(), a.id));
             if json {
                 match serde_json::to_string(&list) {
-                    Ok(t) => println!("{t}"),
+                    Ok(t) => crate::out!("{t}"),
                     Err(e) => return refuse(&format!("cannot write JSON: {e}")),
                 }
             } else if list.is_empty() {
-                println!("no alarms");
+                crate::out!("no alarms");
             } else {
-                list.iter().for_each(|a| println!("{}", show_alarm(a)));
+                list.iter().for_each(|a| crate::out!("{}", show_alarm(a)));
             }
             ExitCode::SUCCESS
         }
@@ -300,26 +300,26 @@ fn to_json(reply: &ApiReply) -> serde_json::Result<String> {
 fn print(reply: &ApiReply, json: bool) {
     if json {
         match to_json(reply) {
-            Ok(s) => println!("{s}"),
+            Ok(s) => crate::out!("{s}"),
             Err(e) => eprintln!("falc: cannot write JSON: {e}"),
         }
         return;
     }
     match reply {
-        ApiReply::Status(s) => println!("{}", show_status(s)),
-        ApiReply::Orders(v) if v.is_empty() => println!("the order list is empty"),
-        ApiReply::Orders(v) => v.iter().for_each(|o| println!("{}", show_order(o))),
-        ApiReply::Order(o) => println!("added: {}", show_order(o)),
-        ApiReply::Entries(v) => v.iter().for_each(|e| println!("{}", show_entry(e))),
-        ApiReply::Done(text) => println!("{text}"),
+        ApiReply::Status(s) => crate::out!("{}", show_status(s)),
+        ApiReply::Orders(v) if v.is_empty() => crate::out!("the order list is empty"),
+        ApiReply::Orders(v) => v.iter().for_each(|o| crate::out!("{}", show_order(o))),
+        ApiReply::Order(o) => crate::out!("added: {}", show_order(o)),
+        ApiReply::Entries(v) => v.iter().for_each(|e| crate::out!("{}", show_entry(e))),
+        ApiReply::Done(text) => crate::out!("{text}"),
         ApiReply::Recipes(v) => v.iter().for_each(|r| {
-            println!(
+            crate::out!(
                 "{:<28} {}",
                 r.file.to_string(),
                 r.name.as_deref().unwrap_or("?")
             )
         }),
-        ApiReply::Recipe(r) => print!("{}", r.text),
+        ApiReply::Recipe(r) => crate::out!("{}", r.text.trim_end_matches('\n')),
     }
 }
 
@@ -432,11 +432,11 @@ async fn view(
     match crate::recipe_cmd::graphviz(&dot, format, &out) {
         Ok(()) => {
             match current {
-                Some(s) => println!(
+                Some(s) => crate::out!(
                     "{} (state {s}, where it runs now, highlighted)",
                     out.display()
                 ),
-                None => println!("{} (not running now)", out.display()),
+                None => crate::out!("{} (not running now)", out.display()),
             }
             ExitCode::SUCCESS
         }
@@ -581,7 +581,7 @@ async fn watch(bus: &Bus, operator: &StationName, json: bool) -> ExitCode {
     let show = |last: &mut Option<ApiReply>, reply: ApiReply| {
         if last.as_ref() != Some(&reply) {
             if !json {
-                println!("---");
+                crate::out!("---");
             }
             print(&reply, json);
             *last = Some(reply);

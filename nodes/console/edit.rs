@@ -202,7 +202,7 @@ pub async fn interactive(bus: &Bus, operator: &StationName, file: &RecipeFile) -
         let text = match session.edited() {
             Ok(Some(t)) => t,
             Ok(None) => {
-                println!("{file}: nothing changed, nothing saved");
+                crate::out!("{file}: nothing changed, nothing saved");
                 session.discard();
                 return ExitCode::SUCCESS;
             }
@@ -213,7 +213,7 @@ pub async fn interactive(bus: &Bus, operator: &StationName, file: &RecipeFile) -
         };
         match session.save(bus, operator, text).await {
             Ok(said) => {
-                println!("{said}");
+                crate::out!("{said}");
                 return ExitCode::SUCCESS;
             }
             Err(why) => {

@@ -35,17 +35,24 @@ enum Command {
     Cell(cell_cmd::CellCommand),
 }
 
+/// `println!` that ends the program quietly when the reader of stdout has
+/// gone (`falc journal | head`), as Unix tools do. SIGPIPE itself stays
+/// ignored (Rust's default): with its default action a router that closes
+/// the connection (a refused certificate) killed `falc` without a word.
+macro_rules! out {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let mut stdout = std::io::stdout().lock();
+        if let Err(e) = writeln!(stdout, $($arg)*).and_then(|()| stdout.flush()) {
+            if e.kind() == std::io::ErrorKind::BrokenPipe {
+                std::process::exit(0);
+            }
+        }
+    }};
+}
+pub(crate) use out;
+
 fn main() -> ExitCode {
-    // `falc status | head` ends quietly when the reader goes, as Unix tools
-    // do, instead of panicking on the broken pipe.
-    // SAFETY: first thing in main, before any other thread exists; the
-    // default disposition installs no handler.
-    unsafe {
-        let _ = nix::sys::signal::signal(
-            nix::sys::signal::Signal::SIGPIPE,
-            nix::sys::signal::SigHandler::SigDfl,
-        );
-    }
     falc_node::init_tracing();
     let cli = Cli::parse();
     match cli.command {

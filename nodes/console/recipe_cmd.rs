@@ -153,7 +153,7 @@ pub fn run(cmd: RecipeCommand) -> ExitCode {
             let out = out.unwrap_or_else(|| file.with_extension(&format));
             match graphviz(&dot, &format, &out) {
                 Ok(()) => {
-                    println!("{}", out.display());
+                    crate::out!("{}", out.display());
                     ExitCode::SUCCESS
                 }
                 Err(e) => {
@@ -178,7 +178,7 @@ pub fn run(cmd: RecipeCommand) -> ExitCode {
                 } else {
                     format!("{n} problem(s)")
                 };
-                println!(
+                crate::out!(
                     "{:<10} {:<14} {:>3} states  {:<14} {origin}",
                     e.station.as_str(),
                     name,
@@ -194,12 +194,12 @@ pub fn run(cmd: RecipeCommand) -> ExitCode {
         }
         RecipeCommand::Check { kind, paths } => {
             // Problems go to stdout, one per line, for scripts.
-            let Some(entries) = load_or_say(paths, kind, |e| println!("{e}")) else {
+            let Some(entries) = load_or_say(paths, kind, |e| crate::out!("{e}")) else {
                 return ExitCode::FAILURE;
             };
             let (programs, problems) = check_set(&entries);
             for p in &problems {
-                println!("{p}");
+                crate::out!("{p}");
             }
             if problems.is_empty() {
                 eprintln!("{} recipes checked: no problems", programs.len());
@@ -219,7 +219,7 @@ pub fn run(cmd: RecipeCommand) -> ExitCode {
             file,
         } => match dot_of(&file, kind, current) {
             Ok(d) => {
-                print!("{d}");
+                crate::out!("{}", d.trim_end_matches('\n'));
                 ExitCode::SUCCESS
             }
             Err(errors) => {

@@ -2,14 +2,19 @@
 //! every node (usrpwd against a generated dictionary) and enforces the
 //! access control generated from `launch/cell.toml` (default deny; the
 //! hierarchy of DESIGN.md §4). Creates missing per-node credential files
-//! (mode 0600). With `--trace-acl` it logs ACL denials, which zenoh itself
-//! only traces (see `denials` for what that count can and cannot tell).
+//! (mode 0600) and the cell's certificates (a CA, a certificate per node and
+//! console user, the router's own), in a directory only its owner may
+//! enter (0700); `bundle` copies what one PC needs. On a `tls/…` endpoint
+//! every link is mutual TLS. Refused logins are logged at WARN with their
+//! source address (`logins`). With `--trace-acl` it logs ACL denials, which
+//! zenoh itself only traces (see `denials` for what that count can and
+//! cannot tell).
 
 mod denials;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
-use falc_bus::{acl, config, credentials};
+use falc_bus::{acl, certificates, config, credentials};
 use falc_model::topology::Topology;
 use std::path::{Path, PathBuf};
 
@@ -40,8 +45,19 @@ enum Command {
         #[arg(long)]
         trace_acl: bool,
     },
-    /// Create missing credential files and list them.
+    /// Create missing credential files and certificates (the cell CA, one
+    /// per node and console user, the router's) and list them.
     Credentials,
+    /// Copy what one PC needs into a new directory: the user's credentials,
+    /// certificate and key, the cell CA's certificate (never its key) and
+    /// the topology.
+    Bundle {
+        /// The station or console user the PC runs as.
+        user: String,
+        /// The directory to create (it must not exist yet).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Print the generated access control (zenoh JSON).
     Acl {
         /// Print the hierarchy matrix (Markdown) instead.
@@ -50,12 +66,79 @@ enum Command {
     },
 }
 
+/// Creates what is missing in the credentials directory (made private,
+/// 0700): each user's usrpwd file, the cell CA, each user's certificate,
+/// and the router's certificate for the topology's router host.
 fn ensure_credentials(topology: &Topology, dir: &Path) -> Result<Vec<credentials::Credentials>> {
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    private_dir(dir)?;
+    let authority = certificates::Authority::ensure(dir, topology.cell().as_str())?;
+    let host = certificates::endpoint_host(topology.router())
+        .with_context(|| format!("router endpoint `{}` names no host", topology.router()))?;
+    authority.issue_router(&[host])?;
     topology
         .users()
-        .map(|u| credentials::ensure(dir, u.as_str()).map_err(Into::into))
+        .map(|u| {
+            authority.ensure_client(u.as_str())?;
+            credentials::ensure(dir, u.as_str()).map_err(Into::into)
+        })
         .collect()
+}
+
+/// Creates `dir` if missing and makes it private (0700).
+fn private_dir(dir: &Path) -> Result<()> {
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o700))
+        .with_context(|| format!("cannot make {} private (chmod 700)", dir.display()))
+}
+
+/// `falc-router bundle USER --out DIR`.
+fn bundle(
+    topology: &Topology,
+    cli_topology: &Path,
+    dir: &Path,
+    user: &str,
+    out: &Path,
+) -> Result<()> {
+    if !topology.users().any(|u| u.as_str() == user) {
+        anyhow::bail!(
+            "`{user}` is neither a station nor a console of {}",
+            cli_topology.display()
+        );
+    }
+    if out.exists() {
+        anyhow::bail!("{} exists already; give a new directory", out.display());
+    }
+    ensure_credentials(topology, dir)?;
+    private_dir(out)?;
+    let files = certificates::TlsFiles::of(dir, user);
+    let copies = [
+        (dir.join(format!("{user}.toml")), true),
+        (files.key, true),
+        (files.cert, false),
+        (files.ca, false),
+        (cli_topology.to_path_buf(), false),
+    ];
+    for (from, private) in copies {
+        let name = if from == cli_topology {
+            "cell.toml".into()
+        } else {
+            from.file_name()
+                .map(|n| n.to_os_string())
+                .unwrap_or_default()
+        };
+        let to = out.join(name);
+        let text = std::fs::read_to_string(&from)
+            .with_context(|| format!("cannot read {}", from.display()))?;
+        credentials::write_private(&to, &text)?;
+        if !private {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(&to, std::fs::Permissions::from_mode(0o644))
+                .with_context(|| format!("chmod {}", to.display()))?;
+        }
+        println!("{}", to.display());
+    }
+    Ok(())
 }
 
 #[tokio::main]
@@ -88,6 +171,9 @@ async fn main() -> Result<()> {
             }
             Ok(())
         }
+        Command::Bundle { user, out } => {
+            bundle(&topology, &cli.topology, &cli.credentials_dir, &user, &out)
+        }
         Command::Run { listen, trace_acl } => {
             run(&topology, &cli.credentials_dir, listen, trace_acl).await
         }
@@ -105,10 +191,20 @@ async fn run(
     let dict = dir.join("router.dict");
     credentials::write_private(&dict, &credentials::dictionary(&creds))?;
     let listen = listen.unwrap_or_else(|| topology.router().to_string());
+    let tls = certificates::is_tls(topology.router())
+        .then(|| certificates::TlsFiles::of(dir, certificates::ROUTER));
+    if certificates::is_tls(&listen) != tls.is_some() {
+        anyhow::bail!(
+            "listen endpoint `{listen}` and the topology's router `{}` must both be tls/ or both not",
+            topology.router()
+        );
+    }
+    raise_open_files();
     let cfg = config::router(
         &listen,
         topology.lease(),
         &dict,
+        tls.as_ref(),
         acl::access_control(topology),
     )?;
     let session = zenoh::open(cfg)
@@ -117,6 +213,7 @@ async fn run(
     tracing::info!(
         %listen,
         stations = topology.stations().len(),
+        tls = tls.is_some(),
         "router up: usrpwd authentication on, access control default deny"
     );
     // The one line on stdout: tests and the launcher wait for it.
@@ -132,4 +229,19 @@ async fn run(
         .await
         .map_err(|e| anyhow::anyhow!("closing the router: {e}"))?;
     Ok(())
+}
+
+/// Raises the soft limit of open files to the hard limit: every connection
+/// in its handshake holds a file, and strangers may open hundreds.
+fn raise_open_files() {
+    use nix::sys::resource::{getrlimit, setrlimit, Resource};
+    match getrlimit(Resource::RLIMIT_NOFILE) {
+        Ok((soft, hard)) if soft < hard => {
+            if let Err(e) = setrlimit(Resource::RLIMIT_NOFILE, hard, hard) {
+                tracing::warn!("cannot raise the open-file limit from {soft} to {hard}: {e}");
+            }
+        }
+        Ok(_) => {}
+        Err(e) => tracing::warn!("cannot read the open-file limit: {e}"),
+    }
 }

@@ -8,7 +8,7 @@ pub mod chaos;
 pub mod rig;
 pub mod stats;
 
-use falc_bus::credentials;
+use falc_bus::{certificates, credentials};
 use falc_bus::{Bus, BusError, BusSettings, DEFAULT_DEADLINE};
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::keys::KeySpace;
@@ -375,8 +375,18 @@ pub struct TestCell {
 impl TestCell {
     /// Writes the topology with a free router port and starts the router.
     pub fn start() -> TestCell {
+        Self::start_on("tcp")
+    }
+
+    /// The same over mutual TLS (`tls/127.0.0.1:PORT`): the router creates
+    /// the cell CA and every certificate.
+    pub fn start_tls() -> TestCell {
+        Self::start_on("tls")
+    }
+
+    fn start_on(protocol: &str) -> TestCell {
         let dir = tempfile::tempdir().expect("tempdir");
-        let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+        let endpoint = format!("{protocol}/127.0.0.1:{}", free_port());
         let text = TOPOLOGY.replace("ROUTER", &endpoint);
         let topology_path = dir.path().join("cell.toml");
         std::fs::write(&topology_path, &text).expect("write topology");
@@ -448,12 +458,15 @@ impl TestCell {
         let me = StationName::new(station).expect("valid station");
         let creds = credentials::load(&self.credentials_dir().join(format!("{station}.toml")))
             .expect("credentials written by the router");
+        let tls = certificates::is_tls(&self.endpoint)
+            .then(|| certificates::TlsFiles::of(&self.credentials_dir(), station));
         BusSettings {
             keys: KeySpace::new(self.topology.cell().clone()),
             me,
             endpoint: self.endpoint.clone(),
             lease: self.topology.lease(),
             credentials: Some(creds),
+            tls,
             connect_timeout: Duration::ZERO,
         }
     }

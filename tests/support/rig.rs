@@ -29,7 +29,15 @@ pub fn rig(rcm_scale: &str) -> Rig {
 
 /// The cell with the operator's database at `db` (default: in the temp dir).
 pub fn rig_with_db(rcm_scale: &str, db: Option<PathBuf>) -> Rig {
-    let cell = TestCell::start();
+    rig_in(TestCell::start(), rcm_scale, db)
+}
+
+/// The whole cell over mutual TLS on localhost.
+pub fn rig_tls(rcm_scale: &str) -> Rig {
+    rig_in(TestCell::start_tls(), rcm_scale, None)
+}
+
+fn rig_in(cell: TestCell, rcm_scale: &str, db: Option<PathBuf>) -> Rig {
     let (rcm, rcm_path) = twin(
         env!("CARGO_BIN_EXE_falc-rcm-sim"),
         &["--time-scale", rcm_scale],

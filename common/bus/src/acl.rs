@@ -16,6 +16,9 @@
 //!   under its own name (`api/<call>/<user>`), and nothing else: the router
 //!   has authenticated the user, so the key tells the operator who asks.
 //!
+//! On a `tls/…` router each subject is the usrpwd user *and* the common
+//! name of its client certificate, over TLS links only.
+//!
 //! Everything else is denied by the router: a workstation commanding another
 //! or its commander, the operator commanding a workstation, anyone
 //! publishing on another station's keys.
@@ -277,6 +280,7 @@ pub fn matrix(topology: &Topology) -> String {
 
 /// The `access_control` section of the router's zenoh configuration.
 pub fn access_control(topology: &Topology) -> Value {
+    let tls = crate::certificates::is_tls(topology.router());
     let mut rules = Vec::new();
     let mut subjects = Vec::new();
     let mut policies = Vec::new();
@@ -296,7 +300,14 @@ pub fn access_control(topology: &Topology) -> Value {
             "rules": mine.iter().map(|r| r.id.clone()).collect::<Vec<_>>(),
             "subjects": [format!("{name}/subject")],
         }));
-        subjects.push(json!({ "id": format!("{name}/subject"), "usernames": [name.as_str()] }));
+        let mut subject = json!({ "id": format!("{name}/subject"), "usernames": [name.as_str()] });
+        if tls {
+            // The certificate and the password must both be this user's:
+            // a stolen password alone, or a certificate alone, opens nothing.
+            subject["cert_common_names"] = json!([name.as_str()]);
+            subject["link_protocols"] = json!(["tls"]);
+        }
+        subjects.push(subject);
         rules.extend(mine.into_iter().map(|r| {
             json!({
                 "id": r.id,
@@ -484,5 +495,20 @@ commander = "cell"
         ));
         let v = access_control(&t);
         assert_eq!(v["subjects"].as_array().map(|a| a.len()), Some(7));
+    }
+
+    #[test]
+    fn tls_subjects_need_the_certificate_and_the_user() {
+        let tcp = Topology::parse(TOPO, "t").expect("valid");
+        assert!(access_control(&tcp)["subjects"][0]["cert_common_names"].is_null());
+        let t = Topology::parse(&TOPO.replace("tcp/", "tls/"), "t").expect("valid");
+        let v = access_control(&t);
+        for subject in v["subjects"].as_array().expect("subjects") {
+            assert_eq!(
+                subject["usernames"], subject["cert_common_names"],
+                "{subject}"
+            );
+            assert_eq!(subject["link_protocols"], json!(["tls"]));
+        }
     }
 }

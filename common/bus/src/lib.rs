@@ -13,10 +13,11 @@
 //!   [`Bus::watch`] reports a peer's lost token as [`BusEvent::PeerLost`].
 //!
 //! Sub-modules: [`keys`] (every key), [`envelope`] (the payload format),
-//! [`credentials`], [`download`] (recipe delivery), [`api`] (operator API), [`config`] (generated zenoh configs), [`acl`] (the
+//! [`credentials`], [`certificates`] (the cell CA and mutual TLS), [`download`] (recipe delivery), [`api`] (operator API), [`config`] (generated zenoh configs), [`acl`] (the
 //! generated access control), [`station`] (a node's association runtime).
 
 pub mod acl;
+pub mod certificates;
 pub mod config;
 pub mod credentials;
 pub mod download;
@@ -81,6 +82,8 @@ pub struct BusSettings {
     pub lease: Duration,
     /// The node's credentials (None only in tests of refusal).
     pub credentials: Option<Credentials>,
+    /// The node's certificate, key and the cell CA, for a `tls/…` endpoint.
+    pub tls: Option<certificates::TlsFiles>,
     /// How long to keep trying to reach the router at start.
     pub connect_timeout: Duration,
 }
@@ -197,6 +200,7 @@ impl Bus {
             &settings.endpoint,
             settings.lease,
             settings.credentials.as_ref(),
+            settings.tls.as_ref(),
             settings.connect_timeout,
         )?;
         let session = zenoh::open(cfg).await.map_err(|e| BusError::Connect {

@@ -93,6 +93,10 @@ pub struct Topology {
     index: BTreeMap<StationName, usize>,
 }
 
+/// Names no station or console may have: their files in the credentials
+/// directory are the cell CA's (`ca.crt`, `ca.key`) and the router's.
+pub const RESERVED_NAMES: [&str; 2] = ["ca", "router"];
+
 /// Why a topology was refused.
 #[derive(Debug, thiserror::Error)]
 pub enum TopologyError {
@@ -152,6 +156,20 @@ impl Topology {
         for (i, st) in raw.stations.iter().enumerate() {
             if index.insert(st.name.clone(), i).is_some() {
                 return Err(fail(format!("station `{}` is defined twice", st.name)));
+            }
+        }
+        let names = raw
+            .stations
+            .iter()
+            .map(|s| &s.name)
+            .chain(raw.consoles.iter().map(|c| &c.name));
+        for name in names {
+            if RESERVED_NAMES.contains(&name.as_str()) {
+                return Err(fail(format!(
+                    "`{name}` cannot name a station or console: the credentials directory keeps \
+                     the cell CA and the router's certificate under the names {}",
+                    RESERVED_NAMES.join(" and ")
+                )));
             }
         }
         for c in &raw.consoles {
@@ -386,5 +404,19 @@ device = "/dev/ttyS0"
         assert!(
             refusal(&format!("{CELL}[[console]]\nname=\"ann\"\nrole=\"boss\"\n")).contains("boss")
         );
+    }
+
+    #[test]
+    fn reserved_names_are_refused() {
+        let refusal = |text: &str| match Topology::parse(text, "t") {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("accepted: {text}"),
+        };
+        let text = refusal(&format!(
+            "{CELL}[[console]]\nname=\"ca\"\nrole=\"observer\"\n"
+        ));
+        assert!(text.contains("`ca` cannot name"), "{text}");
+        let text = refusal(&CELL.replace("name = \"welding\"", "name = \"router\""));
+        assert!(text.contains("`router` cannot name"), "{text}");
     }
 }

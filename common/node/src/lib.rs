@@ -12,6 +12,7 @@ pub mod dnc_link;
 pub mod lane;
 pub mod plc_link;
 
+use falc_bus::certificates;
 use falc_bus::credentials::{self, CredentialsError};
 use falc_bus::BusSettings;
 use falc_model::ids::StationName;
@@ -29,7 +30,8 @@ pub struct NodeArgs {
     /// The router endpoint; overrides the topology's `router`.
     #[arg(long)]
     pub router: Option<String>,
-    /// Directory of credential files (`<user>.toml`, mode 0600).
+    /// Directory of credential files (`<user>.toml`, mode 0600; on a TLS
+    /// router also `<user>.crt`, `<user>.key` and the cell CA `ca.crt`).
     #[arg(long, default_value = "launch/credentials")]
     pub credentials_dir: PathBuf,
     /// This node's credentials file; default `<credentials-dir>/<station>.toml`.
@@ -85,12 +87,23 @@ impl NodeArgs {
             .credentials
             .clone()
             .unwrap_or_else(|| self.credentials_dir.join(format!("{station}.toml")));
+        let credentials = credentials::load(&path)?;
+        // On a TLS router the certificate and key sit beside the
+        // credentials file (`<user>.crt`, `<user>.key`, `ca.crt`).
+        let tls = if certificates::is_tls(topology.router()) {
+            let files = certificates::TlsFiles::beside(&path);
+            files.check()?;
+            Some(files)
+        } else {
+            None
+        };
         Ok(BusSettings {
             keys: KeySpace::new(topology.cell().clone()),
             me: station.clone(),
             endpoint: topology.router().to_string(),
             lease: topology.lease(),
-            credentials: Some(credentials::load(&path)?),
+            credentials: Some(credentials),
+            tls,
             connect_timeout: Duration::from_millis(self.connect_timeout_ms),
         })
     }

@@ -1,0 +1,184 @@
+//! Mutual TLS and the hardened router on localhost (no root needed): the
+//! whole cell runs orders over `tls/…`; a certificate from another CA, a
+//! plain-tcp node and a node in router or peer mode are refused; and 500
+//! silent connections held open do not keep a console out. The cell as
+//! separate hosts in network namespaces is `hosts`.
+
+use crate::support::rig::rig_tls;
+use crate::support::{run_falc, TestCell};
+use falc_model::console::{Call, OrderState};
+use falc_model::keys::KeySpace;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// `falc` args for the cell's topology file `topology` and credentials in
+/// `dir`, as the operator console user.
+fn console_args(topology: &Path, dir: &Path) -> Vec<String> {
+    vec![
+        "--topology".into(),
+        topology.display().to_string(),
+        "--credentials-dir".into(),
+        dir.display().to_string(),
+        "--connect-timeout-ms".into(),
+        "2000".into(),
+    ]
+}
+
+/// Copies every file of `from` into a new directory `to` (mode kept).
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).expect("mkdir");
+    for e in std::fs::read_dir(from).expect("dir") {
+        let p = e.expect("entry").path();
+        std::fs::copy(&p, to.join(p.file_name().expect("name"))).expect("copy");
+    }
+}
+
+#[test]
+fn the_cell_runs_orders_over_mutual_tls_and_refuses_strangers() {
+    let rig = rig_tls("20");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["order", "add", "dundroog"]);
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(120));
+    let orders = rig.orders();
+    assert_eq!(
+        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
+        vec![OrderState::Done; 2],
+        "{orders:?}"
+    );
+
+    let cell = &rig.cell;
+    let dir = cell.dir.path();
+    let own = console_args(&cell.topology_path, &cell.credentials_dir());
+    let (code, out) = run_falc(&own, &["status"]);
+    assert_eq!(code, 0, "the cell's own console: {out}");
+
+    // The console's password and name, but a certificate from another CA.
+    let foreign_topology = dir.join("foreign.toml");
+    std::fs::copy(&cell.topology_path, &foreign_topology).expect("copy");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_falc-router"))
+        .arg("--topology")
+        .arg(&foreign_topology)
+        .arg("--credentials-dir")
+        .arg(dir.join("foreign-ca"))
+        .arg("credentials")
+        .output()
+        .expect("falc-router credentials");
+    assert!(out.status.success(), "{out:?}");
+    let stolen = dir.join("stolen");
+    copy_dir(&cell.credentials_dir(), &stolen);
+    for f in ["console.crt", "console.key", "ca.crt"] {
+        std::fs::copy(dir.join("foreign-ca").join(f), stolen.join(f)).expect("copy");
+    }
+    let (code, out) = run_falc(&console_args(&cell.topology_path, &stolen), &["status"]);
+    assert_eq!(
+        code, 2,
+        "a certificate of another CA must be refused: {out}"
+    );
+    // Only the CA certificate swapped back: the router's certificate is
+    // trusted again, but the console's own is still the foreign one.
+    std::fs::copy(cell.credentials_dir().join("ca.crt"), stolen.join("ca.crt")).expect("copy");
+    let (code, out) = run_falc(&console_args(&cell.topology_path, &stolen), &["status"]);
+    assert_eq!(code, 2, "a client certificate of another CA: {out}");
+    // The right certificate, but another user's: the router authenticates
+    // `console` by password, yet the certificate's name is `observer`.
+    for f in ["console.crt", "console.key"] {
+        let from = cell
+            .credentials_dir()
+            .join(f.replace("console", "observer"));
+        std::fs::copy(from, stolen.join(f)).expect("copy");
+    }
+    let (code, out) = run_falc(&console_args(&cell.topology_path, &stolen), &["status"]);
+    assert_eq!(code, 2, "a certificate of another user: {out}");
+
+    // A plain-tcp node on the TLS port.
+    let plain = dir.join("plain.toml");
+    std::fs::write(
+        &plain,
+        std::fs::read_to_string(&cell.topology_path)
+            .expect("topology")
+            .replace("tls/", "tcp/"),
+    )
+    .expect("write");
+    let (code, out) = run_falc(&console_args(&plain, &cell.credentials_dir()), &["status"]);
+    assert_eq!(code, 2, "plain tcp must be refused: {out}");
+
+    // Valid credentials and certificate, but the session in router or peer
+    // mode: no reply from the operator API, where a client gets one.
+    let rt = tokio::runtime::Runtime::new().expect("runtime");
+    let replies = |mode: &str| rt.block_on(api_replies(cell, mode));
+    assert!(replies("client"), "control: a client session is answered");
+    assert!(!replies("router"), "a node in router mode must be refused");
+    assert!(!replies("peer"), "a node in peer mode must be refused");
+
+    // And the cell still works for its own.
+    let (code, out) = run_falc(&own, &["status"]);
+    assert_eq!(code, 0, "{out}");
+}
+
+/// Whether a zenoh session of the console user in `mode` gets any reply
+/// (even an error) from the operator API's `status` call.
+async fn api_replies(cell: &TestCell, mode: &str) -> bool {
+    let settings = cell.settings("console");
+    let mut cfg = falc_bus::config::client(
+        &settings.endpoint,
+        settings.lease,
+        settings.credentials.as_ref(),
+        settings.tls.as_ref(),
+        Duration::from_secs(2),
+    )
+    .expect("config");
+    cfg.insert_json5("mode", &format!("\"{mode}\""))
+        .expect("mode");
+    cfg.insert_json5("listen/endpoints", "[]").expect("listen");
+    let Ok(session) = zenoh::open(cfg).await else {
+        return false;
+    };
+    // Time for the router to refuse the transport, if it does.
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let keys = KeySpace::new(cell.topology.cell().clone());
+    let key = keys.api(&cell.topology.root().name, Call::Status, &settings.me);
+    let replies = session
+        .get(&key)
+        .payload(b"not a request".to_vec())
+        .timeout(Duration::from_secs(2))
+        .await
+        .expect("get");
+    let answered = replies.recv_async().await.is_ok();
+    let _ = session.close().await;
+    answered
+}
+
+#[test]
+fn silent_connections_do_not_keep_a_console_out() {
+    for cell in [TestCell::start(), TestCell::start_tls()] {
+        let address = cell
+            .endpoint
+            .split_once('/')
+            .map(|(_, a)| a.to_string())
+            .expect("address");
+        // 500 strangers connect and say nothing.
+        let held: Vec<std::net::TcpStream> = (0..500)
+            .map(|_| std::net::TcpStream::connect(&address).expect("connect"))
+            .collect();
+        let rt = tokio::runtime::Runtime::new().expect("runtime");
+        let begin = Instant::now();
+        let mut settings = cell.settings("console");
+        settings.connect_timeout = Duration::from_secs(2);
+        let session = rt.block_on(falc_bus::Bus::open(settings));
+        let took = begin.elapsed();
+        assert!(
+            session.is_ok(),
+            "{}: a console could not connect within 2 s while 500 silent connections were held ({took:?}): {:?}",
+            cell.endpoint,
+            session.err()
+        );
+        println!(
+            "{}: console connected in {:.1} ms with {} silent connections held",
+            cell.endpoint,
+            took.as_secs_f64() * 1000.0,
+            held.len()
+        );
+        drop(held);
+    }
+}
