@@ -12,6 +12,7 @@ mod cell;
 mod chaos;
 mod dnc;
 mod hierarchy;
+mod hosts;
 mod launch;
 mod operator;
 mod recipes;

@@ -128,8 +128,25 @@ impl Database {
             }
         };
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            // A missing directory shows up as the open error below.
-            let _ = std::fs::create_dir_all(dir);
+            if !dir.exists() {
+                // A directory that cannot be made shows up as the open
+                // error below; one made here is private.
+                use std::os::unix::fs::DirBuilderExt;
+                let _ = std::fs::DirBuilder::new()
+                    .recursive(true)
+                    .mode(0o700)
+                    .create(dir);
+            }
+        }
+        // The journal is private: the file is made 0600 before SQLite opens
+        // it, and its -wal and -shm files take the same mode.
+        if !path.exists() {
+            use std::os::unix::fs::OpenOptionsExt;
+            let _ = std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .mode(0o600)
+                .open(path);
         }
         let conn = Connection::open(path).map_err(fail("cannot open"))?;
         conn.pragma_update(None, "journal_mode", "WAL")
@@ -468,6 +485,20 @@ impl Records for Database {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_journal_and_its_directory_are_private() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("var/falc.db");
+        let mut db = Database::open(&path).expect("open");
+        db.raise_alarm("welding", AlarmClass::Safety, "estop", Some(1))
+            .expect("write");
+        let mode = |p: &Path| std::fs::metadata(p).expect("exists").permissions().mode() & 0o777;
+        assert_eq!(mode(&path), 0o600);
+        assert_eq!(mode(&dir.path().join("var")), 0o700);
+        assert_eq!(mode(&dir.path().join("var/falc.db-wal")), 0o600);
+    }
 
     #[test]
     fn alarms_survive_a_reopen_until_acknowledged_and_cleared() {

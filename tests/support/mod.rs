@@ -5,6 +5,7 @@
 #![allow(dead_code)]
 
 pub mod chaos;
+pub mod hosts;
 pub mod rig;
 pub mod stats;
 
@@ -204,6 +205,18 @@ impl Drop for Proc {
 pub fn twin(bin: &str, args: &[&str], announces: &str) -> (Proc, String) {
     let mut cmd = Command::new(bin);
     cmd.args(args);
+    twin_from(cmd, bin, announces)
+}
+
+/// `bin` run on `host` of `hosts`, or here.
+fn on(hosts: Option<&hosts::Hosts>, host: &str, bin: &str) -> Command {
+    match hosts {
+        Some(h) => h.command(host, bin),
+        None => Command::new(bin),
+    }
+}
+
+fn twin_from(cmd: Command, bin: &str, announces: &str) -> (Proc, String) {
     let name = std::path::Path::new(bin)
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
@@ -259,11 +272,12 @@ pub fn launcher(dir: &std::path::Path, time_scale: &str) -> (Command, String) {
 /// Runs `falc` with `cell` (how to reach the cell, as whom) and `args`:
 /// exit code, stdout (and stderr when it failed).
 pub fn run_falc(cell: &[String], args: &[&str]) -> (i32, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_falc"))
-        .args(cell)
-        .args(args)
-        .output()
-        .expect("run falc");
+    run_falc_with(Command::new(env!("CARGO_BIN_EXE_falc")), cell, args)
+}
+
+/// [`run_falc`] with the `falc` command given (run on another host).
+pub fn run_falc_with(mut falc: Command, cell: &[String], args: &[&str]) -> (i32, String) {
+    let out = falc.args(cell).args(args).output().expect("run falc");
     let mut text = String::from_utf8_lossy(&out.stdout).into_owned();
     if !out.status.success() {
         text.push_str(&String::from_utf8_lossy(&out.stderr));
@@ -370,6 +384,9 @@ pub struct TestCell {
     pub topology_path: PathBuf,
     pub endpoint: String,
     pub router: Proc,
+    /// The namespaces when the cell runs as separate hosts (removed after
+    /// the router stopped).
+    pub hosts: Option<hosts::Hosts>,
 }
 
 impl TestCell {
@@ -384,14 +401,25 @@ impl TestCell {
         Self::start_on("tls")
     }
 
+    /// The cell as separate hosts over mutual TLS: each node on a network
+    /// namespace of its own ([`hosts::Hosts`]); the console on the
+    /// operator's.
+    pub fn start_hosts(hosts: hosts::Hosts) -> TestCell {
+        let endpoint = format!("tls/{}:7447", hosts::ROUTER_ADDRESS);
+        Self::start_with(endpoint, Some(hosts))
+    }
+
     fn start_on(protocol: &str) -> TestCell {
+        Self::start_with(format!("{protocol}/127.0.0.1:{}", free_port()), None)
+    }
+
+    fn start_with(endpoint: String, hosts: Option<hosts::Hosts>) -> TestCell {
         let dir = tempfile::tempdir().expect("tempdir");
-        let endpoint = format!("{protocol}/127.0.0.1:{}", free_port());
         let text = TOPOLOGY.replace("ROUTER", &endpoint);
         let topology_path = dir.path().join("cell.toml");
         std::fs::write(&topology_path, &text).expect("write topology");
         let topology = Topology::parse(&text, "test").expect("valid topology");
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-router"));
+        let mut cmd = on(hosts.as_ref(), "router", env!("CARGO_BIN_EXE_falc-router"));
         cmd.arg("--topology")
             .arg(&topology_path)
             .arg("--credentials-dir")
@@ -400,6 +428,7 @@ impl TestCell {
         let mut router = Proc::spawn("falc-router", cmd);
         router.expect_line("falc-router ready", Duration::from_secs(20));
         TestCell {
+            hosts,
             dir,
             topology,
             topology_path,
@@ -414,8 +443,21 @@ impl TestCell {
 
     /// Starts node binary `bin` as `station` of this cell (with `args`) and
     /// waits until it says it is ready.
+    /// `bin` as a command on `host` (this machine, unless the cell runs
+    /// as separate hosts).
+    pub fn command(&self, host: &str, bin: &str) -> Command {
+        on(self.hosts.as_ref(), host, bin)
+    }
+
+    /// Starts a twin on `host` (see [`twin`]).
+    pub fn twin(&self, host: &str, bin: &str, args: &[&str], announces: &str) -> (Proc, String) {
+        let mut cmd = self.command(host, bin);
+        cmd.args(args);
+        twin_from(cmd, bin, announces)
+    }
+
     pub fn start_node(&self, bin: &str, station: &str, args: &[&str]) -> Proc {
-        let mut cmd = Command::new(bin);
+        let mut cmd = self.command(station, bin);
         cmd.args(["--station", station])
             .args(args)
             .arg("--topology")
@@ -438,7 +480,11 @@ impl TestCell {
             "--user".into(),
             user.into(),
         ];
-        run_falc(&cell, args)
+        run_falc_with(
+            self.command("operator", env!("CARGO_BIN_EXE_falc")),
+            &cell,
+            args,
+        )
     }
 
     /// `falc` as the operator console user; must succeed; its stdout.

@@ -4,7 +4,7 @@
 //! journal in a SQLite file in the test's temp dir). Nodes can be killed
 //! and started again one by one.
 
-use super::{twin, Proc, TestCell};
+use super::{Proc, TestCell};
 use falc_model::console::{CellStatus, Entry, ListState, Order};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -37,13 +37,20 @@ pub fn rig_tls(rcm_scale: &str) -> Rig {
     rig_in(TestCell::start_tls(), rcm_scale, None)
 }
 
+/// The whole cell as separate hosts over mutual TLS.
+pub fn rig_hosts(hosts: super::hosts::Hosts, rcm_scale: &str) -> Rig {
+    rig_in(TestCell::start_hosts(hosts), rcm_scale, None)
+}
+
 fn rig_in(cell: TestCell, rcm_scale: &str, db: Option<PathBuf>) -> Rig {
-    let (rcm, rcm_path) = twin(
+    let (rcm, rcm_path) = cell.twin(
+        "welding",
         env!("CARGO_BIN_EXE_falc-rcm-sim"),
         &["--time-scale", rcm_scale],
         "serial port: ",
     );
-    let (plc, plc_address) = twin(
+    let (plc, plc_address) = cell.twin(
+        "transport",
         env!("CARGO_BIN_EXE_falc-plc-sim"),
         &["--listen", "127.0.0.1:0", "--time-scale", "20"],
         "listening on ",
@@ -96,7 +103,9 @@ impl Rig {
     }
 
     pub fn operator_command(&self) -> std::process::Command {
-        let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_falc-operator"));
+        let mut cmd = self
+            .cell
+            .command("operator", env!("CARGO_BIN_EXE_falc-operator"));
         cmd.arg("--recipes")
             .arg(&self.recipes)
             .arg("--db")
