@@ -94,28 +94,20 @@ impl Hosts {
 
     /// Cuts `host`'s link (its bridge port down: nothing passes).
     pub fn cut(&self, host: &str) {
-        ip(&[
-            "-n",
-            &self.ns("router"),
-            "link",
-            "set",
-            &Self::port_of(host),
-            "down",
-        ])
-        .expect("link down");
+        self.set_port(host, "down");
     }
 
     /// Mends `host`'s link.
     pub fn mend(&self, host: &str) {
-        ip(&[
-            "-n",
-            &self.ns("router"),
-            "link",
-            "set",
-            &Self::port_of(host),
-            "up",
-        ])
-        .expect("link up");
+        self.set_port(host, "up");
+    }
+
+    fn set_port(&self, host: &str, state: &str) {
+        let router = self.ns("router");
+        let port = Self::port_of(host);
+        if let Err(e) = ip(&["-n", &router, "link", "set", &port, state]) {
+            panic!("{host}'s link {state}: {e}");
+        }
     }
 
     /// Starts capturing every frame on the bridge (a raw packet socket in
