@@ -111,6 +111,42 @@ fn the_cell_runs_orders_over_mutual_tls_and_refuses_strangers() {
     assert!(!replies("router"), "a node in router mode must be refused");
     assert!(!replies("peer"), "a node in peer mode must be refused");
 
+    // The way back for a PC with a wrong bundle: the one `falc-router
+    // bundle` makes, laid out as that PC's /etc/falc, and it connects.
+    let bundle = |user: &str| {
+        let out_dir = dir.join(format!("bundle-{user}"));
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_falc-router"))
+            .arg("--topology")
+            .arg(&cell.topology_path)
+            .arg("--credentials-dir")
+            .arg(cell.credentials_dir())
+            .args(["bundle", user, "--out"])
+            .arg(&out_dir)
+            .output()
+            .expect("falc-router bundle");
+        assert!(out.status.success(), "{out:?}");
+        out_dir
+    };
+    let console = bundle("console");
+    let (code, out) = run_falc(
+        &console_args(&console.join("cell.toml"), &console.join("credentials")),
+        &["status"],
+    );
+    assert_eq!(code, 0, "the console's bundle: {out}");
+    // A station called `cell`: its password file and the topology both
+    // named cell.toml, each in its place; never the CA's key.
+    let station = bundle("cell");
+    let password = falc_bus::credentials::load(&station.join("credentials/cell.toml"))
+        .expect("the cell's password file");
+    assert_eq!(password.user, "cell");
+    falc_model::topology::Topology::load(&station.join("cell.toml")).expect("the topology");
+    let mut names: Vec<String> = std::fs::read_dir(station.join("credentials"))
+        .expect("bundle")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    assert_eq!(names, ["ca.crt", "cell.crt", "cell.key", "cell.toml"]);
+
     // And the cell still works for its own.
     let (code, out) = run_falc(&own, &["status"]);
     assert_eq!(code, 0, "{out}");

@@ -36,9 +36,12 @@ enum Command {
 }
 
 /// `println!` that ends the program quietly when the reader of stdout has
-/// gone (`falc journal | head`), as Unix tools do. SIGPIPE itself stays
-/// ignored (Rust's default): with its default action a router that closes
-/// the connection (a refused certificate) killed `falc` without a word.
+/// gone (`falc journal | head`), as Unix tools do, and with a word and exit
+/// status 1 when stdout cannot be written otherwise (a full disk behind a
+/// redirection): output is never lost without saying so. SIGPIPE itself
+/// stays ignored (Rust's default): with its default action a router that
+/// closes the connection (a refused certificate) killed `falc` without a
+/// word.
 macro_rules! out {
     ($($arg:tt)*) => {{
         use std::io::Write as _;
@@ -47,6 +50,8 @@ macro_rules! out {
             if e.kind() == std::io::ErrorKind::BrokenPipe {
                 std::process::exit(0);
             }
+            eprintln!("falc: cannot write to standard output: {e}");
+            std::process::exit(1);
         }
     }};
 }

@@ -17,7 +17,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 pub struct DatabaseError {
     path: String,
     what: &'static str,
-    source: rusqlite::Error,
+    source: Box<dyn std::error::Error + Send + Sync>,
 }
 
 /// Milliseconds since the Unix epoch, now.
@@ -121,10 +121,10 @@ impl Database {
         let name = path.display().to_string();
         let fail = |what: &'static str| {
             let name = name.clone();
-            move |source| DatabaseError {
+            move |source: rusqlite::Error| DatabaseError {
                 path: name,
                 what,
-                source,
+                source: source.into(),
             }
         };
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
@@ -139,7 +139,8 @@ impl Database {
             }
         }
         // The journal is private: the file is made 0600 before SQLite opens
-        // it, and its -wal and -shm files take the same mode.
+        // it (its -wal and -shm files take the same mode), and one made
+        // before that rule is made private.
         if !path.exists() {
             use std::os::unix::fs::OpenOptionsExt;
             let _ = std::fs::OpenOptions::new()
@@ -147,6 +148,17 @@ impl Database {
                 .create_new(true)
                 .mode(0o600)
                 .open(path);
+        }
+        for file in [
+            path.to_path_buf(),
+            wal_of(path, "-wal"),
+            wal_of(path, "-shm"),
+        ] {
+            make_private(&file).map_err(|source| DatabaseError {
+                path: file.display().to_string(),
+                what: "cannot make the journal private (chmod 600)",
+                source: source.into(),
+            })?;
         }
         let conn = Connection::open(path).map_err(fail("cannot open"))?;
         conn.pragma_update(None, "journal_mode", "WAL")
@@ -161,10 +173,10 @@ impl Database {
     }
 
     fn fail(&self, what: &'static str) -> impl FnOnce(rusqlite::Error) -> DatabaseError + '_ {
-        move |source| DatabaseError {
+        move |source: rusqlite::Error| DatabaseError {
             path: self.path.clone(),
             what,
-            source,
+            source: source.into(),
         }
     }
 
@@ -176,7 +188,7 @@ impl Database {
         let tx = self.conn.transaction().map_err(|source| DatabaseError {
             path: self.path.clone(),
             what: "cannot begin recovery",
-            source,
+            source: source.into(),
         })?;
         for o in &running {
             tx.execute(
@@ -199,13 +211,13 @@ impl Database {
             .map_err(|source| DatabaseError {
                 path: self.path.clone(),
                 what: "cannot mark an order interrupted",
-                source,
+                source: source.into(),
             })?;
         }
         tx.commit().map_err(|source| DatabaseError {
             path: self.path.clone(),
             what: "cannot commit recovery",
-            source,
+            source: source.into(),
         })?;
         Ok(running
             .into_iter()
@@ -263,7 +275,7 @@ impl Records for Database {
         self.order(id)?.ok_or_else(|| DatabaseError {
             path: self.path.clone(),
             what: "the order just added is gone",
-            source: rusqlite::Error::QueryReturnedNoRows,
+            source: rusqlite::Error::QueryReturnedNoRows.into(),
         })
     }
 
@@ -482,6 +494,25 @@ impl Records for Database {
     }
 }
 
+/// `path` with `suffix` appended (`falc.db` → `falc.db-wal`).
+fn wal_of(path: &Path, suffix: &str) -> std::path::PathBuf {
+    let mut p = path.as_os_str().to_os_string();
+    p.push(suffix);
+    p.into()
+}
+
+/// Takes group and others' permissions off `file` if it exists.
+fn make_private(file: &Path) -> std::io::Result<()> {
+    use std::os::unix::fs::PermissionsExt;
+    match std::fs::metadata(file) {
+        Ok(meta) if meta.permissions().mode() & 0o077 != 0 => {
+            let mode = meta.permissions().mode() & 0o700;
+            std::fs::set_permissions(file, std::fs::Permissions::from_mode(mode))
+        }
+        _ => Ok(()),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -498,6 +529,12 @@ mod tests {
         assert_eq!(mode(&path), 0o600);
         assert_eq!(mode(&dir.path().join("var")), 0o700);
         assert_eq!(mode(&dir.path().join("var/falc.db-wal")), 0o600);
+        // A journal made before the rule, readable by all, is made private.
+        let old = dir.path().join("old.db");
+        drop(Database::open(&old).expect("open"));
+        std::fs::set_permissions(&old, std::fs::Permissions::from_mode(0o644)).expect("chmod");
+        drop(Database::open(&old).expect("reopen"));
+        assert_eq!(mode(&old), 0o600);
     }
 
     #[test]

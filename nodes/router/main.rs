@@ -92,7 +92,9 @@ fn private_dir(dir: &Path) -> Result<()> {
         .with_context(|| format!("cannot make {} private (chmod 700)", dir.display()))
 }
 
-/// `falc-router bundle USER --out DIR`.
+/// `falc-router bundle USER --out DIR`: DIR laid out as the PC's
+/// `/etc/falc`, `cell.toml` and `credentials/` (a station may be called
+/// `cell`, whose password file is `cell.toml` too).
 fn bundle(
     topology: &Topology,
     cli_topology: &Path,
@@ -110,31 +112,25 @@ fn bundle(
         anyhow::bail!("{} exists already; give a new directory", out.display());
     }
     ensure_credentials(topology, dir)?;
-    private_dir(out)?;
+    let to = out.join("credentials");
+    private_dir(&to)?;
     let files = certificates::TlsFiles::of(dir, user);
+    let name = |p: &Path| p.file_name().map(|n| n.to_os_string()).unwrap_or_default();
+    let password = dir.join(format!("{user}.toml"));
     let copies = [
-        (dir.join(format!("{user}.toml")), true),
-        (files.key, true),
-        (files.cert, false),
-        (files.ca, false),
-        (cli_topology.to_path_buf(), false),
+        (password.as_path(), to.join(name(&password)), true),
+        (&files.key, to.join(name(&files.key)), true),
+        (&files.cert, to.join(name(&files.cert)), false),
+        (&files.ca, to.join(name(&files.ca)), false),
+        (cli_topology, out.join("cell.toml"), false),
     ];
-    for (from, private) in copies {
-        let name = if from == cli_topology {
-            "cell.toml".into()
-        } else {
-            from.file_name()
-                .map(|n| n.to_os_string())
-                .unwrap_or_default()
-        };
-        let to = out.join(name);
-        let text = std::fs::read_to_string(&from)
+    for (from, to, private) in copies {
+        let text = std::fs::read_to_string(from)
             .with_context(|| format!("cannot read {}", from.display()))?;
-        credentials::write_private(&to, &text)?;
-        if !private {
-            use std::os::unix::fs::PermissionsExt;
-            std::fs::set_permissions(&to, std::fs::Permissions::from_mode(0o644))
-                .with_context(|| format!("chmod {}", to.display()))?;
+        if private {
+            credentials::write_private(&to, &text)?;
+        } else {
+            credentials::write_public(&to, &text)?;
         }
         println!("{}", to.display());
     }

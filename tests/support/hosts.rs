@@ -113,12 +113,48 @@ impl Hosts {
     /// Starts capturing every frame on the bridge (a raw packet socket in
     /// the router's namespace, opened by a thread that entered it).
     pub fn capture(&self) -> Capture {
-        let path = format!("/var/run/netns/{}", self.ns("router"));
+        let path = self.ns_path("router");
         let stop = Arc::new(AtomicBool::new(false));
         let stopped = stop.clone();
-        let thread = std::thread::spawn(move || capture_on_bridge(&path, &stopped));
+        let thread = std::thread::spawn(move || {
+            enter(&path)?;
+            capture_on_bridge(&stopped)
+        });
         Capture { stop, thread }
     }
+
+    /// Sends `text` in clear from `host` to `address` over TCP (what the
+    /// capture must see, so that a capture without the cell's texts means
+    /// something).
+    pub fn send_in_clear(&self, host: &str, address: &str, text: &str) {
+        let path = self.ns_path(host);
+        let (address, text) = (address.to_string(), text.to_string());
+        let sent = std::thread::spawn(move || -> Result<(), String> {
+            use std::io::Write;
+            enter(&path)?;
+            let mut stream =
+                std::net::TcpStream::connect(&address).map_err(|e| format!("{address}: {e}"))?;
+            stream
+                .write_all(text.as_bytes())
+                .map_err(|e| format!("write: {e}"))
+        })
+        .join()
+        .expect("sending thread");
+        if let Err(e) = sent {
+            panic!("cannot send in clear from {host}: {e}");
+        }
+    }
+
+    fn ns_path(&self, host: &str) -> String {
+        format!("/var/run/netns/{}", self.ns(host))
+    }
+}
+
+/// Moves the calling thread (only it) into the network namespace at `path`.
+fn enter(path: &str) -> Result<(), String> {
+    let file = std::fs::File::open(path).map_err(|e| format!("{path}: {e}"))?;
+    nix::sched::setns(&file, nix::sched::CloneFlags::CLONE_NEWNET)
+        .map_err(|e| format!("setns {path}: {e}"))
 }
 
 impl Drop for Hosts {
@@ -146,14 +182,12 @@ impl Capture {
     }
 }
 
-fn capture_on_bridge(netns: &str, stop: &AtomicBool) -> Result<Vec<u8>, String> {
+/// Every frame on the interfaces of the calling thread's namespace until
+/// `stop`.
+fn capture_on_bridge(stop: &AtomicBool) -> Result<Vec<u8>, String> {
     use nix::sys::socket::{
         recv, socket, AddressFamily, MsgFlags, SockFlag, SockProtocol, SockType,
     };
-    let file = std::fs::File::open(netns).map_err(|e| format!("{netns}: {e}"))?;
-    // Only this thread enters the router's namespace.
-    nix::sched::setns(&file, nix::sched::CloneFlags::CLONE_NEWNET)
-        .map_err(|e| format!("setns {netns}: {e}"))?;
     let sock = socket(
         AddressFamily::Packet,
         SockType::Raw,

@@ -16,12 +16,11 @@
 //! `ca` and `router` are therefore not allowed as station or console names
 //! (the topology refuses them).
 
-use crate::credentials::{write_private, CredentialsError};
+use crate::credentials::{check_private, write_private, write_public, CredentialsError};
 use rcgen::{
     BasicConstraints, CertificateParams, DistinguishedName, DnType, ExtendedKeyUsagePurpose, IsCa,
     KeyPair, KeyUsagePurpose, SanType,
 };
-use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
 
 /// The CA's file stem in the credentials directory.
@@ -87,18 +86,7 @@ impl TlsFiles {
                 source,
             })?;
         }
-        let meta = std::fs::metadata(&self.key).map_err(|source| CredentialsError::Io {
-            path: self.key.clone(),
-            source,
-        })?;
-        let mode = meta.permissions().mode() & 0o777;
-        if mode & 0o077 != 0 {
-            return Err(CredentialsError::TooOpen {
-                path: self.key.clone(),
-                mode,
-            });
-        }
-        Ok(())
+        check_private(&self.key)
     }
 }
 
@@ -116,22 +104,15 @@ fn read(path: &Path) -> Result<String, CredentialsError> {
     })
 }
 
-fn write_public(path: &Path, text: &str) -> Result<(), CredentialsError> {
-    write_private(path, text)?;
-    std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o644)).map_err(|source| {
-        CredentialsError::Io {
-            path: path.to_path_buf(),
-            source,
-        }
-    })
-}
-
 /// The cell's certificate authority, loaded or created in a credentials
 /// directory (the router PC's).
 pub struct Authority {
     cert: rcgen::Certificate,
     key: KeyPair,
     dir: PathBuf,
+    /// Made just now: every certificate of the directory was issued by a
+    /// CA that is gone, and is issued again.
+    fresh: bool,
 }
 
 fn leaf_params(common_name: &str) -> CertificateParams {
@@ -167,6 +148,7 @@ impl Authority {
                 cert,
                 key,
                 dir: dir.to_path_buf(),
+                fresh: false,
             });
         }
         let key = KeyPair::generate().map_err(|e| cert_error(&files.key, e))?;
@@ -187,14 +169,15 @@ impl Authority {
             cert,
             key,
             dir: dir.to_path_buf(),
+            fresh: true,
         })
     }
 
     /// The client certificate of `user` (common name = user), created if
-    /// it does not exist yet.
+    /// it does not exist yet or the CA was made anew.
     pub fn ensure_client(&self, user: &str) -> Result<TlsFiles, CredentialsError> {
         let files = TlsFiles::of(&self.dir, user);
-        if files.cert.exists() && files.key.exists() {
+        if !self.fresh && files.cert.exists() && files.key.exists() {
             files.check()?;
             return Ok(files);
         }
@@ -211,10 +194,7 @@ impl Authority {
         let files = TlsFiles::of(&self.dir, ROUTER);
         let mut params = leaf_params(ROUTER_COMMON_NAME);
         params.extended_key_usages = vec![ExtendedKeyUsagePurpose::ServerAuth];
-        let mut names: Vec<&str> = hosts.to_vec();
-        names.extend(["localhost", "127.0.0.1"]);
-        names.dedup();
-        for name in names {
+        for &name in hosts.iter().chain(&["localhost", "127.0.0.1"]) {
             let san = match name.parse::<std::net::IpAddr>() {
                 Ok(ip) => SanType::IpAddress(ip),
                 Err(_) => SanType::DnsName(
@@ -244,6 +224,7 @@ impl Authority {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::os::unix::fs::PermissionsExt;
 
     #[test]
     fn endpoint_hosts() {
@@ -275,7 +256,18 @@ mod tests {
             std::fs::read_to_string(dir.path().join("ca.crt")).expect("ca"),
             ca_file
         );
-        let router = again.issue_router(&["10.7.0.1"]).expect("router");
+        // A CA deleted to withdraw every certificate: a new one, and the
+        // certificates it did not issue are issued again.
+        std::fs::remove_file(dir.path().join("ca.crt")).expect("rm");
+        std::fs::remove_file(dir.path().join("ca.key")).expect("rm");
+        let renewed = Authority::ensure(dir.path(), "falc1").expect("new CA");
+        renewed.ensure_client("welding").expect("issued again");
+        assert_ne!(std::fs::read_to_string(&files.cert).expect("cert"), first);
+        assert_ne!(
+            std::fs::read_to_string(dir.path().join("ca.crt")).expect("ca"),
+            ca_file
+        );
+        let router = renewed.issue_router(&["10.7.0.1"]).expect("router");
         router.check().expect("router files");
         // A key that others may read is refused, naming the file.
         std::fs::set_permissions(&files.key, std::fs::Permissions::from_mode(0o644))

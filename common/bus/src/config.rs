@@ -54,6 +54,9 @@ fn tls_section(tls: &TlsFiles, listen: bool) -> Value {
         key: tls.key.display().to_string(),
         "enable_mtls": true,
         "verify_name_on_connect": true,
+        // An expired certificate is refused at the next connection; a
+        // link open when it expires stays (certificates run to 2045, and a
+        // replaced one is withdrawn by its new password).
         "close_link_on_expiration": false,
     })
 }

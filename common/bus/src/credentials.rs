@@ -67,8 +67,9 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> CredentialsError + '_ {
     }
 }
 
-/// Reads a credentials file, refusing one that group or others can read.
-pub fn load(path: &Path) -> Result<Credentials, CredentialsError> {
+/// Refuses a secret file (a password, a private key) that is missing or
+/// that group or others may read.
+pub fn check_private(path: &Path) -> Result<(), CredentialsError> {
     let meta = std::fs::metadata(path).map_err(io(path))?;
     let mode = meta.permissions().mode() & 0o777;
     if mode & 0o077 != 0 {
@@ -77,6 +78,12 @@ pub fn load(path: &Path) -> Result<Credentials, CredentialsError> {
             mode,
         });
     }
+    Ok(())
+}
+
+/// Reads a credentials file, refusing one that group or others can read.
+pub fn load(path: &Path) -> Result<Credentials, CredentialsError> {
+    check_private(path)?;
     let text = std::fs::read_to_string(path).map_err(io(path))?;
     let creds: Credentials = toml::from_str(&text).map_err(|e| CredentialsError::Syntax {
         path: path.to_path_buf(),
@@ -105,6 +112,13 @@ pub fn write_private(path: &Path, text: &str) -> Result<(), CredentialsError> {
     f.sync_all().map_err(io(&tmp))?;
     std::fs::set_permissions(&tmp, std::fs::Permissions::from_mode(0o600)).map_err(io(&tmp))?;
     std::fs::rename(&tmp, path).map_err(io(path))
+}
+
+/// Writes a file others may read (mode 0644: a certificate, the topology),
+/// atomically as [`write_private`].
+pub fn write_public(path: &Path, text: &str) -> Result<(), CredentialsError> {
+    write_private(path, text)?;
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o644)).map_err(io(path))
 }
 
 /// The credentials file of `user` in `dir`, created with a fresh random

@@ -353,6 +353,19 @@ mod tests {
 
     /// Runs the recipe to its `start transport store`, returning that
     /// command.
+    /// [`up_to_the_transport_job`], its start confirmed: the commands that
+    /// follow (none while the job runs).
+    fn transport_job_running(c: &mut Controller<Stations>) -> Vec<Command> {
+        let store = up_to_the_transport_job(c);
+        reply(
+            c,
+            secs(6),
+            &store,
+            Response::ProgramInvocationState(PiState::Running),
+        );
+        settle(c, secs(6))
+    }
+
     fn up_to_the_transport_job(c: &mut Controller<Stations>) -> Command {
         start(c).unwrap();
         // An output does not wait for its confirm: the question follows
@@ -387,14 +400,7 @@ mod tests {
     #[test]
     fn a_cell_recipe_runs_through_operator_and_workstation_to_done() {
         let mut c = cell();
-        let store = up_to_the_transport_job(&mut c);
-        reply(
-            &mut c,
-            secs(6),
-            &store,
-            Response::ProgramInvocationState(PiState::Running),
-        );
-        assert!(settle(&mut c, secs(6)).is_empty());
+        assert!(transport_job_running(&mut c).is_empty());
         assert_eq!(c.status().program.map(|p| p.state), Some(4));
         // Another program's end on the same station is not this job's.
         let other = c.device.unconfirmed(&job_done("transport", "MOVE_TO_MAN"));
@@ -455,14 +461,7 @@ mod tests {
     #[test]
     fn a_lost_workstation_ends_the_recipe_and_refuses_starts_until_the_commander_associates() {
         let mut c = cell();
-        let store = up_to_the_transport_job(&mut c);
-        reply(
-            &mut c,
-            secs(6),
-            &store,
-            Response::ProgramInvocationState(PiState::Running),
-        );
-        settle(&mut c, secs(6));
+        transport_job_running(&mut c);
         c.handle_abort(&st("transport"));
         settle(&mut c, secs(7));
         assert!(!c.is_running());
@@ -496,14 +495,7 @@ mod tests {
     #[test]
     fn a_stop_from_the_commander_stops_then_resets_the_job_below_in_that_order() {
         let mut c = cell();
-        let store = up_to_the_transport_job(&mut c);
-        reply(
-            &mut c,
-            secs(6),
-            &store,
-            Response::ProgramInvocationState(PiState::Running),
-        );
-        settle(&mut c, secs(6));
+        transport_job_running(&mut c);
         c.handle_request(secs(7), &Request::Stop { name: name("test") })
             .unwrap();
         let cmds = settle(&mut c, secs(7));
