@@ -2,8 +2,11 @@
 //! workstation in a network namespace of its own, joined by veth links to a
 //! bridge, every link mutual TLS (`support::hosts`). An order runs to done,
 //! and what crossed the bridge holds none of the recipe text, questions,
-//! answers or keys, while a control text sent in clear is seen. Then links are cut mid-order, for 3 s and for 30 s:
-//! each cut is an alarm within the lease, the station rejoins by itself,
+//! answers or keys, while a control text sent in clear is seen (and the
+//! router logs it as a refused login from the operator's address). A link
+//! 150 ms slow each way runs an order without an alarm. Then links are cut
+//! mid-order, for 3 s and for 30 s, and delayed 3 s (beyond the lease) for
+//! 5 s: each is an alarm within the lease, the station rejoins by itself,
 //! and `ack` + `start` run the next order. Needs root (namespaces); without
 //! it the test says so and does nothing else.
 
@@ -61,6 +64,48 @@ fn all_back(rig: &Rig, within: Duration) -> Duration {
     }
 }
 
+/// The delay of a slow link within the lease (1 s).
+const SLOW: Duration = Duration::from_millis(150);
+/// The delay of a spike beyond the lease.
+const SPIKE: Duration = Duration::from_secs(3);
+
+/// A fault on a station's link.
+#[derive(Clone, Copy)]
+enum Fault {
+    /// The link down: nothing passes.
+    Cut,
+    /// Everything the station sends and receives held back this long
+    /// (welding only: its link runs through the delay line).
+    Delay(Duration),
+}
+
+impl Fault {
+    fn name(self) -> String {
+        match self {
+            Fault::Cut => "cut".into(),
+            Fault::Delay(d) => format!("delayed {} ms", d.as_millis()),
+        }
+    }
+
+    fn begin(self, rig: &Rig, host: &str) {
+        match self {
+            Fault::Cut => rig.cell.hosts.as_ref().expect("hosts").cut(host),
+            Fault::Delay(d) => rig.welding_line.as_ref().expect("delay line").set_delay(d),
+        }
+    }
+
+    fn end(self, rig: &Rig, host: &str) {
+        match self {
+            Fault::Cut => rig.cell.hosts.as_ref().expect("hosts").mend(host),
+            Fault::Delay(_) => rig
+                .welding_line
+                .as_ref()
+                .expect("delay line")
+                .set_delay(Duration::ZERO),
+        }
+    }
+}
+
 #[test]
 fn the_cell_as_separate_hosts_over_tls_runs_orders_and_rides_out_cut_links() {
     let Some(hosts) = hosts_or_say_why() else {
@@ -73,9 +118,11 @@ fn the_cell_as_separate_hosts_over_tls_runs_orders_and_rides_out_cut_links() {
     if let Some(h) = rig.cell.hosts.as_ref() {
         h.send_in_clear("operator", &format!("{ROUTER_ADDRESS}:7447"), control);
     }
+    let begin = Instant::now();
     rig.cell.falc(&["order", "add", "dikdroog"]);
     rig.cell.falc(&["start"]);
     let questions = rig.work_list("ja", Duration::from_secs(120));
+    let order = begin.elapsed();
     assert!(!questions.is_empty(), "the order asked nothing");
     assert_eq!(
         rig.orders()[0].state,
@@ -110,22 +157,63 @@ fn the_cell_as_separate_hosts_over_tls_runs_orders_and_rides_out_cut_links() {
         bytes.len()
     );
 
-    for (host, cut) in [("welding", 3), ("transport", 3), ("welding", 30)] {
-        // The first order is cut, the second runs after the way back.
+    // The control text was a refused login from the operator's PC, logged
+    // with its address.
+    let refused = rig
+        .cell
+        .router
+        .expect_line("refused login from 10.77.0.11", Duration::from_secs(10));
+    assert!(refused.contains("WARN"), "{refused}");
+
+    // A slow link that stays within the lease: the welding workstation's
+    // traffic 150 ms late each way for a whole order, which runs to done
+    // without an alarm.
+    let line = rig.welding_line.as_ref().expect("the welding delay line");
+    line.set_delay(SLOW);
+    let alarms_before = rig.status().alarms.len();
+    let begin = Instant::now();
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(120));
+    let slow_order = begin.elapsed();
+    let orders = rig.orders();
+    assert_eq!(
+        orders.last().map(|o| o.state),
+        Some(OrderState::Done),
+        "{orders:?}"
+    );
+    let status = rig.status();
+    assert_eq!(status.alarms.len(), alarms_before, "{:?}", status.alarms);
+    println!(
+        "welding link {} ms late each way: dikdroog done in {:.1} s ({:.1} s without the delay), no alarm",
+        SLOW.as_millis(),
+        slow_order.as_secs_f64(),
+        order.as_secs_f64()
+    );
+    if let Some(line) = rig.welding_line.as_ref() {
+        line.set_delay(Duration::ZERO);
+    }
+
+    for (host, fault, lasting) in [
+        ("welding", Fault::Cut, 3),
+        ("transport", Fault::Cut, 3),
+        ("welding", Fault::Cut, 30),
+        ("welding", Fault::Delay(SPIKE), 5),
+    ] {
+        // The first order is hit, the second runs after the way back.
         rig.cell.falc(&["order", "add", "dikdroog"]);
         rig.cell.falc(&["order", "add", "dundroog"]);
         rig.rcm.forget("rx G");
         rig.cell.falc(&["start"]);
         rig.until_welding();
-        let hosts = rig.cell.hosts.as_ref().expect("hosts");
-        hosts.cut(host);
+        fault.begin(&rig, host);
         let noticed = alarm_of(&rig, host, Duration::from_secs(5));
-        std::thread::sleep(Duration::from_secs(cut).saturating_sub(noticed));
-        let hosts = rig.cell.hosts.as_ref().expect("hosts");
-        hosts.mend(host);
+        std::thread::sleep(Duration::from_secs(lasting).saturating_sub(noticed));
+        fault.end(&rig, host);
         let back = all_back(&rig, Duration::from_secs(30));
         println!(
-            "{host} cut for {cut} s mid-order: alarm after {} ms, back {} ms after the link was mended",
+            "{host} {} for {lasting} s mid-order: alarm after {} ms, back {} ms after the link was mended",
+            fault.name(),
             noticed.as_millis(),
             back.as_millis()
         );
@@ -137,7 +225,8 @@ fn the_cell_as_separate_hosts_over_tls_runs_orders_and_rides_out_cut_links() {
         assert_eq!(
             orders.last().map(|o| o.state),
             Some(OrderState::Done),
-            "after {host} cut for {cut} s: {orders:?}"
+            "after {host} {} for {lasting} s: {orders:?}",
+            fault.name()
         );
     }
 }

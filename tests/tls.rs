@@ -187,7 +187,7 @@ async fn api_replies(cell: &TestCell, mode: &str) -> bool {
 
 #[test]
 fn silent_connections_do_not_keep_a_console_out() {
-    for cell in [TestCell::start(), TestCell::start_tls()] {
+    for mut cell in [TestCell::start(), TestCell::start_tls()] {
         let address = cell
             .endpoint
             .split_once('/')
@@ -216,5 +216,88 @@ fn silent_connections_do_not_keep_a_console_out() {
             held.len()
         );
         drop(held);
+        // The router logged them refused, rate-limited: one line for the
+        // host, then the rest summed up when the window ends.
+        let router = &mut cell.router;
+        let summary = router.expect_line("refused logins: ", Duration::from_secs(20));
+        let held_back: u64 = summary
+            .split("refused logins: ")
+            .nth(1)
+            .and_then(|s| s.split(' ').next())
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("a count in {summary:?}"));
+        assert!(
+            held_back >= 400 && summary.contains("most from 127.0.0.1"),
+            "most of the 500 refusals are summed up, not logged one by one: {summary}"
+        );
+        let one_by_one = router.lines_containing("refused login from 127.0.0.1");
+        assert_eq!(one_by_one.len(), 1, "{one_by_one:?}");
+        println!(
+            "{}: {held_back} refusals held back in one line",
+            cell.endpoint
+        );
     }
+}
+
+#[test]
+fn refused_logins_are_logged_with_their_source() {
+    // A wrong password, on the all-in-one tcp cell.
+    let mut cell = TestCell::start();
+    let dir = cell.dir.path().to_path_buf();
+    let wrong = dir.join("wrong");
+    copy_dir(&cell.credentials_dir(), &wrong);
+    let file = wrong.join("console.toml");
+    let text = std::fs::read_to_string(&file).expect("password file");
+    let text: String = text
+        .lines()
+        .map(|l| {
+            if l.starts_with("password") {
+                "password = \"not-the-password\"".to_string()
+            } else {
+                l.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    std::fs::write(&file, text).expect("write");
+    let (code, out) = run_falc(&console_args(&cell.topology_path, &wrong), &["status"]);
+    assert_eq!(code, 2, "a wrong password: {out}");
+    let line = cell
+        .router
+        .expect_line("refused login from 127.0.0.1", Duration::from_secs(10));
+    assert!(
+        line.contains("WARN") && line.contains("Invalid password for user \"console\""),
+        "{line}"
+    );
+    assert!(line.contains("link=tcp/127.0.0.1:"), "{line}");
+
+    // A certificate of another CA, on a TLS cell.
+    let mut cell = TestCell::start_tls();
+    let dir = cell.dir.path().to_path_buf();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_falc-router"))
+        .arg("--topology")
+        .arg(&cell.topology_path)
+        .arg("--credentials-dir")
+        .arg(dir.join("foreign-ca"))
+        .arg("credentials")
+        .output()
+        .expect("falc-router credentials");
+    assert!(out.status.success(), "{out:?}");
+    let stolen = dir.join("stolen");
+    copy_dir(&cell.credentials_dir(), &stolen);
+    for f in ["console.crt", "console.key"] {
+        std::fs::copy(dir.join("foreign-ca").join(f), stolen.join(f)).expect("copy");
+    }
+    let (code, out) = run_falc(&console_args(&cell.topology_path, &stolen), &["status"]);
+    assert_eq!(code, 2, "a client certificate of another CA: {out}");
+    let line = cell
+        .router
+        .expect_line("refused login from 127.0.0.1", Duration::from_secs(10));
+    assert!(
+        line.contains("WARN")
+            && line.contains("certificate")
+            && line.contains("link=tls/127.0.0.1:"),
+        "{line}"
+    );
+    println!("{line}");
 }

@@ -16,10 +16,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
 use tracing::field::{Field, Visit};
-use tracing_subscriber::filter::{EnvFilter, Targets};
-use tracing_subscriber::layer::{Context, SubscriberExt};
-use tracing_subscriber::util::SubscriberInitExt;
-use tracing_subscriber::{Layer, Registry};
+use tracing_subscriber::filter::Targets;
+use tracing_subscriber::layer::Context;
+use tracing_subscriber::Layer;
 
 const ACL_TARGET: &str = "zenoh::net::routing::interceptor::access_control";
 
@@ -55,25 +54,23 @@ impl<S: tracing::Subscriber> Layer<S> for DenialLayer {
     }
 }
 
-/// Installs logging: the normal log (RUST_LOG, default info) to stderr and,
-/// with `trace_acl`, the denial counter on zenoh's ACL target.
-pub fn init_tracing(trace_acl: bool) -> Option<Denials> {
+/// With `trace_acl`, the layer that counts denials on zenoh's ACL target
+/// (listening to that target alone), and the receiving end for [`report`].
+pub fn layer<S>(trace_acl: bool) -> (Option<impl Layer<S>>, Option<Denials>)
+where
+    S: tracing::Subscriber + for<'a> tracing_subscriber::registry::LookupSpan<'a>,
+{
+    if !trace_acl {
+        return (None, None);
+    }
     let (tx, rx) = unbounded_channel();
     let count = Arc::new(AtomicU64::new(0));
-    let filter = EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| EnvFilter::new("info,zenoh=warn,zenoh_transport=warn"));
-    let fmt = tracing_subscriber::fmt::layer()
-        .with_writer(std::io::stderr)
-        .with_filter(filter);
-    let denial = trace_acl.then(|| {
-        DenialLayer {
-            count: count.clone(),
-            tx,
-        }
-        .with_filter(Targets::new().with_target(ACL_TARGET, tracing::Level::TRACE))
-    });
-    let _ = Registry::default().with(fmt).with(denial).try_init();
-    trace_acl.then_some(Denials { count, rx })
+    let layer = DenialLayer {
+        count: count.clone(),
+        tx,
+    }
+    .with_filter(Targets::new().with_target(ACL_TARGET, tracing::Level::TRACE));
+    (Some(layer), Some(Denials { count, rx }))
 }
 
 /// Logs each distinct denial once, with the running count of all.

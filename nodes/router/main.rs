@@ -11,6 +11,7 @@
 //! cannot tell).
 
 mod denials;
+mod logins;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
@@ -182,7 +183,7 @@ async fn run(
     listen: Option<String>,
     trace_acl: bool,
 ) -> Result<()> {
-    let denials = denials::init_tracing(trace_acl);
+    let (denials, refusals) = init_tracing(trace_acl);
     let creds = ensure_credentials(topology, dir)?;
     let dict = dir.join("router.dict");
     credentials::write_private(&dict, &credentials::dictionary(&creds))?;
@@ -215,16 +216,40 @@ async fn run(
     // The one line on stdout: tests and the launcher wait for it.
     println!("falc-router ready on {listen}");
     let reporter = denials.map(|d| tokio::spawn(denials::report(d)));
+    let logins = tokio::spawn(logins::report(refusals));
     falc_node::Shutdown::new().requested().await;
     tracing::info!("router stopping");
     if let Some(r) = reporter {
         r.abort();
     }
+    logins.abort();
     session
         .close()
         .await
         .map_err(|e| anyhow::anyhow!("closing the router: {e}"))?;
     Ok(())
+}
+
+/// Installs logging: the normal log ([`falc_node::log_filter`]) to stderr,
+/// the refused-login reports ([`logins`]) and, with `trace_acl`, the denial
+/// counter on zenoh's ACL target ([`denials`]).
+fn init_tracing(trace_acl: bool) -> (Option<denials::Denials>, logins::Refusals) {
+    use std::io::IsTerminal;
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    use tracing_subscriber::{Layer, Registry};
+    let fmt = tracing_subscriber::fmt::layer()
+        .with_ansi(std::io::stderr().is_terminal())
+        .with_writer(std::io::stderr)
+        .with_filter(falc_node::log_filter());
+    let (refused, refusals) = logins::layer();
+    let (denied, denials) = denials::layer(trace_acl);
+    let _ = Registry::default()
+        .with(fmt)
+        .with(refused)
+        .with(denied)
+        .try_init();
+    (denials, refusals)
 }
 
 /// Raises the soft limit of open files to the hard limit: every connection

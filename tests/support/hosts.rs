@@ -145,9 +145,134 @@ impl Hosts {
         }
     }
 
+    /// A delay line in the router's namespace: a TCP relay listening on
+    /// the router's address, port [`DELAY_LINE_PORT`], to the router's
+    /// port 7447. A node told to reach the router there (`--router
+    /// <DelayLine::endpoint>`) keeps its TLS end to end; what it sends and
+    /// receives is held back by the line's delay (none at first), in
+    /// order, like a slow link.
+    pub fn delay_line(&self) -> DelayLine {
+        let path = self.ns_path("router");
+        let delay = Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+        let (ready_tx, ready) = std::sync::mpsc::channel();
+        let line_delay = delay.clone();
+        std::thread::spawn(move || {
+            let run = || -> Result<(), String> {
+                enter(&path)?;
+                let rt = tokio::runtime::Builder::new_current_thread()
+                    .enable_all()
+                    .build()
+                    .map_err(|e| format!("runtime: {e}"))?;
+                rt.block_on(async {
+                    let listener = tokio::net::TcpListener::bind((ROUTER_ADDRESS, DELAY_LINE_PORT))
+                        .await
+                        .map_err(|e| format!("delay line listen: {e}"))?;
+                    let _ = ready_tx.send(Ok(()));
+                    tokio::select! {
+                        _ = stopped => Ok(()),
+                        r = relay(listener, line_delay) => r,
+                    }
+                })
+            };
+            if let Err(e) = run() {
+                let _ = ready_tx.send(Err(e));
+            }
+        });
+        match ready.recv() {
+            Ok(Ok(())) => DelayLine { delay, _stop: stop },
+            Ok(Err(e)) => panic!("cannot start the delay line: {e}"),
+            Err(e) => panic!("the delay line thread ended: {e}"),
+        }
+    }
+
     fn ns_path(&self, host: &str) -> String {
         format!("/var/run/netns/{}", self.ns(host))
     }
+}
+
+/// The port of the delay line on the router's address.
+pub const DELAY_LINE_PORT: u16 = 7448;
+
+/// A relay that delays a link ([`Hosts::delay_line`]); stops on drop.
+pub struct DelayLine {
+    delay: Arc<std::sync::atomic::AtomicU64>,
+    _stop: tokio::sync::oneshot::Sender<()>,
+}
+
+impl DelayLine {
+    /// The router endpoint through the line.
+    pub fn endpoint(&self) -> String {
+        format!("tls/{ROUTER_ADDRESS}:{DELAY_LINE_PORT}")
+    }
+
+    /// Delays every byte from now on by `delay`, each way.
+    pub fn set_delay(&self, delay: std::time::Duration) {
+        let ms = u64::try_from(delay.as_millis()).unwrap_or(u64::MAX);
+        self.delay.store(ms, Ordering::Relaxed);
+    }
+}
+
+/// Accepts links and relays each to the router through two delayed pumps;
+/// a link ends (both sides closed) when either side does.
+async fn relay(
+    listener: tokio::net::TcpListener,
+    delay: Arc<std::sync::atomic::AtomicU64>,
+) -> Result<(), String> {
+    loop {
+        let (near, _) = listener
+            .accept()
+            .await
+            .map_err(|e| format!("delay line accept: {e}"))?;
+        let delay = delay.clone();
+        tokio::spawn(async move {
+            let Ok(far) = tokio::net::TcpStream::connect((ROUTER_ADDRESS, 7447)).await else {
+                return;
+            };
+            let (near_rx, near_tx) = near.into_split();
+            let (far_rx, far_tx) = far.into_split();
+            tokio::select! {
+                _ = pump(near_rx, far_tx, delay.clone()) => {}
+                _ = pump(far_rx, near_tx, delay) => {}
+            }
+        });
+    }
+}
+
+/// Copies `from` to `to`, each chunk written `delay` after it was read,
+/// in order; ends at the end of `from` or an error either way.
+async fn pump(
+    mut from: tokio::net::tcp::OwnedReadHalf,
+    mut to: tokio::net::tcp::OwnedWriteHalf,
+    delay: Arc<std::sync::atomic::AtomicU64>,
+) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<(tokio::time::Instant, Vec<u8>)>();
+    let reader = async move {
+        let mut buf = vec![0u8; 65536];
+        loop {
+            match from.read(&mut buf).await {
+                Ok(0) | Err(_) => break,
+                Ok(n) => {
+                    let due = tokio::time::Instant::now()
+                        + std::time::Duration::from_millis(delay.load(Ordering::Relaxed));
+                    if tx.send((due, buf[..n].to_vec())).is_err() {
+                        break;
+                    }
+                }
+            }
+        }
+    };
+    let writer = async move {
+        while let Some((due, chunk)) = rx.recv().await {
+            tokio::time::sleep_until(due).await;
+            if to.write_all(&chunk).await.is_err() {
+                return;
+            }
+        }
+    };
+    // The writer drains what the reader queued, then ends with it.
+    tokio::join!(reader, writer);
 }
 
 /// Moves the calling thread (only it) into the network namespace at `path`.

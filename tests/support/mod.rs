@@ -72,9 +72,23 @@ pub struct Proc {
 }
 
 impl Proc {
-    pub fn spawn(name: &str, mut cmd: Command) -> Proc {
+    pub fn spawn(name: &str, cmd: Command) -> Proc {
+        Self::spawn_with(name, cmd, false)
+    }
+
+    /// The same, with its log (stderr) lines among the lines too (and
+    /// still echoed to the test's stderr).
+    pub fn spawn_logged(name: &str, cmd: Command) -> Proc {
+        Self::spawn_with(name, cmd, true)
+    }
+
+    fn spawn_with(name: &str, mut cmd: Command, logged: bool) -> Proc {
         cmd.stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
+            .stderr(if logged {
+                Stdio::piped()
+            } else {
+                Stdio::inherit()
+            })
             .stdin(Stdio::piped());
         let mut child = cmd
             .spawn()
@@ -82,6 +96,17 @@ impl Proc {
         let stdin = child.stdin.take();
         let stdout = child.stdout.take().expect("piped stdout");
         let (tx, rx) = channel();
+        if let Some(stderr) = child.stderr.take() {
+            let tx = tx.clone();
+            std::thread::spawn(move || {
+                for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                    eprintln!("{line}");
+                    if tx.send(line).is_err() {
+                        break;
+                    }
+                }
+            });
+        }
         std::thread::spawn(move || {
             for line in BufReader::new(stdout).lines().map_while(Result::ok) {
                 if tx.send(line).is_err() {
@@ -149,6 +174,15 @@ impl Proc {
                 Err(RecvTimeoutError::Disconnected) => return None,
             }
         }
+    }
+
+    /// The lines seen so far that contain `needle`.
+    pub fn lines_containing(&self, needle: &str) -> Vec<String> {
+        self.seen
+            .iter()
+            .filter(|l| l.contains(needle))
+            .cloned()
+            .collect()
     }
 
     /// Whether the process still runs.
@@ -425,7 +459,8 @@ impl TestCell {
             .arg("--credentials-dir")
             .arg(dir.path().join("credentials"))
             .arg("run");
-        let mut router = Proc::spawn("falc-router", cmd);
+        // Its log too: tests read the refused-login lines.
+        let mut router = Proc::spawn_logged("falc-router", cmd);
         router.expect_line("falc-router ready", Duration::from_secs(20));
         TestCell {
             hosts,
@@ -441,8 +476,6 @@ impl TestCell {
         self.dir.path().join("credentials")
     }
 
-    /// Starts node binary `bin` as `station` of this cell (with `args`) and
-    /// waits until it says it is ready.
     /// `bin` as a command on `host` (this machine, unless the cell runs
     /// as separate hosts).
     pub fn command(&self, host: &str, bin: &str) -> Command {
@@ -456,6 +489,8 @@ impl TestCell {
         twin_from(cmd, bin, announces)
     }
 
+    /// Starts node binary `bin` as `station` of this cell (with `args`) and
+    /// waits until it says it is ready.
     pub fn start_node(&self, bin: &str, station: &str, args: &[&str]) -> Proc {
         let mut cmd = self.command(station, bin);
         cmd.args(["--station", station])

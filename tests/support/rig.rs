@@ -21,6 +21,9 @@ pub struct Rig {
     pub operator: Option<Proc>,
     pub recipes: PathBuf,
     pub db: PathBuf,
+    /// The welding workstation's link through a delay line (the cell as
+    /// separate hosts only).
+    pub welding_line: Option<super::hosts::DelayLine>,
 }
 
 pub fn rig(rcm_scale: &str) -> Rig {
@@ -38,11 +41,23 @@ pub fn rig_tls(rcm_scale: &str) -> Rig {
 }
 
 /// The whole cell as separate hosts over mutual TLS.
+/// The welding workstation reaches the router through a delay line
+/// (no delay until the test sets one).
 pub fn rig_hosts(hosts: super::hosts::Hosts, rcm_scale: &str) -> Rig {
-    rig_in(TestCell::start_hosts(hosts), rcm_scale, None)
+    let line = hosts.delay_line();
+    rig_in_with(TestCell::start_hosts(hosts), rcm_scale, None, Some(line))
 }
 
 fn rig_in(cell: TestCell, rcm_scale: &str, db: Option<PathBuf>) -> Rig {
+    rig_in_with(cell, rcm_scale, db, None)
+}
+
+fn rig_in_with(
+    cell: TestCell,
+    rcm_scale: &str,
+    db: Option<PathBuf>,
+    welding_line: Option<super::hosts::DelayLine>,
+) -> Rig {
     let (rcm, rcm_path) = cell.twin(
         "welding",
         env!("CARGO_BIN_EXE_falc-rcm-sim"),
@@ -69,6 +84,7 @@ fn rig_in(cell: TestCell, rcm_scale: &str, db: Option<PathBuf>) -> Rig {
         recipes,
         db,
         cell,
+        welding_line,
     };
     rig.start_welding();
     rig.start_transport();
@@ -85,10 +101,15 @@ impl Rig {
     }
 
     pub fn start_welding(&mut self) {
+        let mut args = vec!["--device".to_string(), self.rcm_path.clone()];
+        if let Some(line) = &self.welding_line {
+            args.extend(["--router".to_string(), line.endpoint()]);
+        }
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
         self.welding = Some(self.cell.start_node(
             env!("CARGO_BIN_EXE_falc-welding"),
             "welding",
-            &["--device", &self.rcm_path],
+            &args,
         ));
     }
 

@@ -109,19 +109,23 @@ impl NodeArgs {
     }
 }
 
-/// Logs to stderr, filtered by `RUST_LOG` (default `info`; zenoh's own
-/// chatter at `warn`); colours only on a terminal.
+/// Logs to stderr, filtered by [`log_filter`]; colours only on a terminal.
 pub fn init_tracing() {
-    use tracing_subscriber::EnvFilter;
-    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-        EnvFilter::new("info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn")
-    });
     use std::io::IsTerminal;
     let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
+        .with_env_filter(log_filter())
         .with_ansi(std::io::stderr().is_terminal())
         .with_writer(std::io::stderr)
         .try_init();
+}
+
+/// The log filter of every FALC process: `RUST_LOG`, else `info` with
+/// zenoh's own chatter at `warn`.
+pub fn log_filter() -> tracing_subscriber::EnvFilter {
+    use tracing_subscriber::EnvFilter;
+    EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+        EnvFilter::new("info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn")
+    })
 }
 
 /// Prints one line on stdout and flushes it: the events a node announces

@@ -569,6 +569,15 @@ async fn accept_task(
                             tracing::error!("{}-{}: {}", file!(), line!(), e)
                         }
                     }
+                    // FALC-PATCH: a handshake that fails or times out is a
+                    // refused link, reported with its remote address and
+                    // without throttling the accept loop.
+                    Err(tls_listener::Error::TlsAcceptError { error, peer_addr, .. }) => {
+                        tracing::debug!(target: "zenoh::refused_link", remote = %format!("{TLS_LOCATOR_PREFIX}/{peer_addr}"), reason = %error, "inbound link refused");
+                    }
+                    Err(tls_listener::Error::HandshakeTimeout { peer_addr, .. }) => {
+                        tracing::debug!(target: "zenoh::refused_link", remote = %format!("{TLS_LOCATOR_PREFIX}/{peer_addr}"), reason = "no TLS handshake before the deadline", "inbound link refused");
+                    }
                     Err(e) => {
                         tracing::warn!("{}. Hint: increase the system open file limit.", e);
                         // Throttle the accept loop upon an error
