@@ -96,6 +96,49 @@ fn the_printed_recipes_are_rejected_with_their_defects() {
     assert!(line.to_string().ends_with("testrcp3.rcp:14: state 7: inconsistent: line 13 has `waitline D 1 30`, line 14 has `waitline d 1 90`"), "{line}");
 }
 
+/// The printed recipes keep appendix F's right-aligned states (`- 1` …
+/// `-10`), and every line beginning with `-` is a table line or a problem:
+/// none is lost as a comment.
+#[test]
+fn the_printed_right_aligned_states_are_read() {
+    let dir = root().join("tests/fixtures/thesis_printed");
+    let mut right_aligned = 0;
+    for kind in ["cell", "welding", "transport"] {
+        for entry in std::fs::read_dir(dir.join(kind)).expect("fixtures") {
+            let path = entry.expect("entry").path();
+            let text = std::fs::read_to_string(&path).expect("fixture");
+            if text.lines().any(|l| l.starts_with("- 1 ")) {
+                right_aligned += 1;
+            }
+            let r = falc_recipe::syntax::parse(&text, &path.display().to_string());
+            let read: BTreeSet<usize> = r
+                .rows
+                .iter()
+                .map(|row| row.line)
+                .chain(r.problems.iter().map(|p| p.line))
+                .collect();
+            for (i, line) in text.lines().enumerate() {
+                if line.trim_start().starts_with('-') {
+                    assert!(
+                        read.contains(&(i + 1)),
+                        "{}:{}: `{line}` was taken as a comment",
+                        path.display(),
+                        i + 1
+                    );
+                }
+            }
+        }
+    }
+    assert_eq!(
+        right_aligned, 6,
+        "the printed recipes with ten states or more"
+    );
+    let text = std::fs::read_to_string(dir.join("cell/dikdroog.rcp")).expect("dikdroog");
+    let r = falc_recipe::syntax::parse(&text, "dikdroog.rcp");
+    let states: BTreeSet<u16> = r.rows.iter().map(|row| row.state.0).collect();
+    assert_eq!(states, (1..=20).collect::<BTreeSet<u16>>());
+}
+
 /// What makes a criterion of the current state true, as the world would.
 fn trigger(e: &mut Engine, now: &mut Duration, c: &Option<Criterion>) {
     let st = e.program().states[&e.state()].clone();

@@ -1,7 +1,10 @@
 //! The recipe text format of the 1992 thesis (appendix E), parsed into rows.
 //!
-//! - A table line starts with `-` directly followed by the state number
-//!   (leading blanks allowed); every other line is a comment, except a
+//! - A table line starts with `-` followed by the state number, directly
+//!   (`-1`, appendix E) or after blanks (`- 1`, as appendix F prints its
+//!   states right-aligned); leading blanks are allowed. A line beginning
+//!   with `-` is always a table line: one without a state number is a
+//!   problem, never a comment. Every other line is a comment, except a
 //!   `#NAME` line (a `#` directly followed by a letter): the program
 //!   invocation name of a workstation recipe.
 //! - Columns are separated by `|` or `;`:
@@ -216,9 +219,6 @@ pub fn parse(text: &str, origin: &str) -> Recipe {
         let Some(after_dash) = trimmed.strip_prefix('-') else {
             continue; // a comment
         };
-        if !after_dash.starts_with(|c: char| c.is_ascii_digit()) {
-            continue; // `-` not followed by a state number: a comment
-        }
         let mut cols: Vec<&str> = after_dash.split(['|', ';']).map(str::trim).collect();
         if cols.len() == 6 && cols[5].is_empty() {
             cols.pop(); // a trailing separator
@@ -227,7 +227,14 @@ pub fn parse(text: &str, origin: &str) -> Recipe {
             problem(
                 None,
                 ProblemKind::MalformedLine,
-                format!("wrong line structure: `-{}` is not a state number", cols[0]),
+                if cols[0].is_empty() {
+                    "wrong line structure: a line beginning with `-` is a table line, and no state number follows the `-`".to_string()
+                } else {
+                    format!(
+                        "wrong line structure: a line beginning with `-` is a table line, and `{}` after the `-` is not a state number",
+                        cols[0]
+                    )
+                },
             );
             continue;
         };
@@ -329,6 +336,34 @@ mod tests {
     }
 
     #[test]
+    fn states_printed_right_aligned_are_table_lines() {
+        let r = parse(
+            "- 1 | output a | | | 2\n -\t2 | output b | | | 10\n-10 | output c | | | 0\n",
+            "f.rcp",
+        );
+        assert!(r.problems.is_empty(), "{:?}", r.problems);
+        let states: Vec<u16> = r.rows.iter().map(|row| row.state.0).collect();
+        assert_eq!(states, [1, 2, 10]);
+        assert_eq!(r.rows[0].line, 1);
+    }
+
+    #[test]
+    fn a_dash_line_is_never_a_silent_comment() {
+        for line in [
+            "-",
+            "- ",
+            "--- section ---",
+            "-a | b | | | 0",
+            "- 1 2 | a | | | 0",
+        ] {
+            let r = parse(&format!("comment\n{line}\n"), "f.rcp");
+            assert_eq!(r.problems.len(), 1, "{line:?}: {:?}", r.problems);
+            assert_eq!(r.problems[0].line, 2, "{line:?}");
+            assert_eq!(r.problems[0].kind, ProblemKind::MalformedLine, "{line:?}");
+        }
+    }
+
+    #[test]
     fn bad_lines_are_problems_with_line_numbers() {
         let r = parse("-1 | output x | | \n-x | a | | | 2\n-2 | a | b | | 2\n-3 | a | | soon | 0\n-4 | a | | | z\n- comment\n", "f.rcp");
         let got: Vec<(usize, ProblemKind)> = r.problems.iter().map(|p| (p.line, p.kind)).collect();
@@ -336,10 +371,19 @@ mod tests {
             got,
             vec![
                 (1, ProblemKind::MalformedLine),
+                (2, ProblemKind::MalformedLine),
                 (3, ProblemKind::MalformedLine),
                 (4, ProblemKind::WrongCriterion),
                 (5, ProblemKind::MalformedLine),
+                (6, ProblemKind::MalformedLine),
             ]
+        );
+        assert!(
+            r.problems[5]
+                .to_string()
+                .contains("a line beginning with `-` is a table line, and `comment` after the `-` is not a state number"),
+            "{}",
+            r.problems[5]
         );
         assert!(
             r.problems[0]
