@@ -356,3 +356,80 @@ fn falc_recipe_view_draws_with_graphviz_or_says_how_to_get_it() {
         assert!(!out.exists());
     }
 }
+
+/// `falc recipe verify`: the shipped set has no defect across levels (its
+/// notes are the statuses passed up on purpose and limits with room to
+/// spare); with the thesis' printed dikdroog and dundroog in it, the weld's
+/// limits disagree both ways, each with a trace, and `--dot` draws one.
+#[test]
+fn falc_recipe_verify_finds_the_printed_time_limits() {
+    let (code, out) = falc(&["recipe", "verify"]);
+    assert_eq!(code, 0, "{out}");
+    assert!(
+        !out.lines()
+            .any(|l| l.starts_with("recipes/") && !l.contains(": note: ")),
+        "{out}"
+    );
+
+    let tmp = tempfile::tempdir().expect("tempdir");
+    for sub in ["cell", "welding", "transport"] {
+        std::fs::create_dir_all(tmp.path().join(sub)).expect("mkdir");
+        for f in std::fs::read_dir(root().join("recipes").join(sub)).expect("dir") {
+            let f = f.expect("entry").path();
+            std::fs::copy(&f, tmp.path().join(sub).join(f.file_name().expect("name")))
+                .expect("copy");
+        }
+    }
+    for printed in ["dikdroog.rcp", "dundroog.rcp"] {
+        std::fs::copy(
+            root()
+                .join("tests/fixtures/thesis_printed/cell")
+                .join(printed),
+            tmp.path().join("cell").join(printed),
+        )
+        .expect("copy");
+    }
+    let dir = tmp.path().display().to_string();
+    let (code, out) = falc(&["recipe", "verify", &dir]);
+    assert_eq!(code, 1, "{out}");
+    let dik = out
+        .lines()
+        .find(|l| l.contains("dikdroog.rcp:") && l.contains("state 16: time limits disagree"))
+        .unwrap_or_else(|| panic!("{out}"));
+    assert!(
+        dik.contains("allows welding's DROOG_DIK 100 s, but its own limits allow it 180 s"),
+        "{dik}"
+    );
+    let dun = out
+        .lines()
+        .find(|l| l.contains("dundroog.rcp:") && l.contains("state 16: note: time limits disagree"))
+        .unwrap_or_else(|| panic!("{out}"));
+    assert!(
+        dun.contains("allows welding's DROOG_DUN 200 s, but its own limits end it within 180 s"),
+        "{dun}"
+    );
+    // The trace under the finding goes from the start to the wait.
+    let at = out.find(dik).expect("the finding");
+    let trace: Vec<&str> = out[at..]
+        .lines()
+        .skip(1)
+        .take_while(|l| l.starts_with("    "))
+        .collect();
+    assert!(
+        trace
+            .first()
+            .is_some_and(|l| l.contains("cell") && l.contains("start → 1")),
+        "{trace:?}"
+    );
+    assert!(
+        trace.iter().any(|l| l.contains("welding started")),
+        "{trace:?}"
+    );
+
+    let (code, dot) = falc(&["recipe", "verify", "--dot", "1", &dir]);
+    assert_eq!(code, 0, "{dot}");
+    assert!(
+        dot.starts_with("digraph trace {") && dot.contains("subgraph cluster_0"),
+        "{dot}"
+    );
+}

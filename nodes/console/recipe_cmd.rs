@@ -26,6 +26,21 @@ pub enum RecipeCommand {
         /// Files or directories (default `recipes`).
         paths: Vec<PathBuf>,
     },
+    /// Verify a recipe tree across levels: each cell recipe explored with
+    /// the workstation recipes it starts (every outcome they can reach,
+    /// every answer, every time-out). Prints `file:line: state N: kind:
+    /// finding` with a trace for each (`note:` before those that are
+    /// allowed); exit 1 if any defect.
+    Verify {
+        /// Explore at most this many states per recipe.
+        #[arg(long, default_value_t = falc_recipe::verify::STATE_LIMIT)]
+        limit: usize,
+        /// Print the trace of finding N (from 1) as Graphviz DOT instead.
+        #[arg(long, value_name = "N")]
+        dot: Option<usize>,
+        /// A recipe tree or its station directories (default `recipes`).
+        paths: Vec<PathBuf>,
+    },
     /// Print a recipe as a Graphviz DOT state diagram.
     Dot {
         /// The kind (else the directory name tells).
@@ -213,6 +228,7 @@ pub fn run(cmd: RecipeCommand) -> ExitCode {
                 ExitCode::FAILURE
             }
         }
+        RecipeCommand::Verify { limit, dot, paths } => verify(paths, limit, dot),
         RecipeCommand::Dot {
             kind,
             current,
@@ -227,5 +243,67 @@ pub fn run(cmd: RecipeCommand) -> ExitCode {
                 ExitCode::FAILURE
             }
         },
+    }
+}
+
+/// `falc recipe verify`: checks the set first (verification needs clean
+/// recipes), then verifies it across levels.
+fn verify(paths: Vec<PathBuf>, limit: usize, dot: Option<usize>) -> ExitCode {
+    let Some(entries) = load_or_say(paths, None, |e| crate::out!("{e}")) else {
+        return ExitCode::FAILURE;
+    };
+    let (programs, problems) = check_set(&entries);
+    if !problems.is_empty() {
+        for p in &problems {
+            crate::out!("{p}");
+        }
+        eprintln!(
+            "{} problems: `falc recipe check` must be clean before the recipes can be verified",
+            problems.len()
+        );
+        return ExitCode::FAILURE;
+    }
+    let begin = std::time::Instant::now();
+    let report = falc_recipe::verify::verify_with_limit(&programs, limit);
+    let took = begin.elapsed();
+    if let Some(n) = dot {
+        return match n.checked_sub(1).and_then(|i| report.findings.get(i)) {
+            Some(f) => {
+                crate::out!(
+                    "{}",
+                    falc_recipe::dot::trace_to_dot(&f.trace, &f.to_string()).trim_end()
+                );
+                ExitCode::SUCCESS
+            }
+            None => {
+                eprintln!("falc: no finding {n}: there are {}", report.findings.len());
+                ExitCode::FAILURE
+            }
+        };
+    }
+    for (i, f) in report.findings.iter().enumerate() {
+        crate::out!("{f}");
+        for line in f.trace.lines() {
+            crate::out!("    {line}");
+        }
+        if i + 1 < report.findings.len() {
+            crate::out!("");
+        }
+    }
+    for b in &report.bounded {
+        eprintln!("{b}");
+    }
+    let defects = report.defects().count();
+    eprintln!(
+        "{} recipes verified across levels: {} states explored in {:.1} ms; {defects} defects, {} notes",
+        programs.len(),
+        report.states,
+        took.as_secs_f64() * 1000.0,
+        report.findings.len() - defects
+    );
+    if defects == 0 && report.bounded.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
     }
 }

@@ -3,7 +3,10 @@
 //! and turns a clean set into what is delivered to the cell: each cell
 //! recipe as domain `NAME` (its file name), each workstation recipe as
 //! `STATION$NAME` (its `#NAME`), which the cell passes on. A set with any
-//! problem is refused whole, with every problem as `file:line: reason`.
+//! problem is refused whole, with every problem as `file:line: reason`;
+//! so is a set the verifier finds a defect in across levels
+//! ([`falc_recipe::verify`]: a wait that can only fail, a job cut short by
+//! the cell's limit, a recipe that never ends).
 //!
 //! It also lists, shows and saves single recipe files for the consoles
 //! (`falc store`, the TUI's recipe editor): a file is saved only if the
@@ -103,6 +106,25 @@ fn check_entries(
     }
     if !errors.is_empty() {
         return Err(errors);
+    }
+    // Across levels: a defect refuses the set like a checker problem;
+    // notes are allowed (`falc recipe verify` prints them with traces).
+    let report = falc_recipe::verify::verify(&programs);
+    let defects: Vec<String> = report
+        .defects()
+        .map(|f| format!("{f} (`falc recipe verify` shows the trace)"))
+        .collect();
+    tracing::info!(
+        states = report.states,
+        defects = defects.len(),
+        notes = report.findings.len() - defects.len(),
+        "recipes verified across levels"
+    );
+    for b in &report.bounded {
+        tracing::warn!("{b}");
+    }
+    if !defects.is_empty() {
+        return Err(defects);
     }
     stations.extend(cells);
     Ok(RecipeSet {
@@ -308,6 +330,30 @@ mod tests {
             Err(PutError::Refused(_))
         ));
         assert!(get(tmp.path(), &ws("nothing").expect("v")).is_err());
+    }
+
+    #[test]
+    fn a_save_with_a_defect_across_levels_is_refused() {
+        // Each recipe checks clean alone; together the cell gives up on
+        // MOVE_TO_MAN before its own limits can end it.
+        let tmp = shipped_copy();
+        let (t, cell) = (topology(), StationName::new("cell").expect("valid"));
+        let file = RecipeFile::new(cell.clone(), "dikdroog.rcp").expect("valid");
+        let got = get(tmp.path(), &file).expect("get");
+        let bad = got
+            .text
+            .replace("-12 | wait transport 90 ", "-12 | wait transport 45 ");
+        assert_ne!(bad, got.text);
+        match put(tmp.path(), &t, &cell, &file, &bad, Some(got.hash)) {
+            Err(PutError::Findings(f)) => assert!(
+                f.iter().any(|l| l.contains("dikdroog.rcp:")
+                    && l.contains("state 12: time limits disagree")
+                    && l.contains("falc recipe verify")),
+                "{f:?}"
+            ),
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(get(tmp.path(), &file).expect("get").text, got.text);
     }
 
     #[test]

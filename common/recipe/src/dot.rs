@@ -53,3 +53,90 @@ pub fn to_dot(program: &Program, title: &str, current: Option<StateNo>) -> Strin
     out.push_str("}\n");
     out
 }
+
+/// The DOT text of a verifier's counterexample: the states of each level
+/// in order, edges labelled with the events, each job's own trace in a box
+/// of its own joined to the step it explains; `finding` titles it.
+pub fn trace_to_dot(trace: &super::verify::Trace, finding: &str) -> String {
+    let mut out = String::new();
+    let _ = writeln!(out, "digraph trace {{");
+    let _ = writeln!(
+        out,
+        "  label=\"{}\";\n  labelloc=t;\n  rankdir=TB;\n  node [shape=box, style=rounded, fontname=\"Helvetica\"];\n  edge [fontname=\"Helvetica\", fontsize=10];",
+        escape(finding)
+    );
+    let mut next = 0usize;
+    trace_cluster(trace, &mut out, &mut next);
+    let _ = writeln!(out, "}}");
+    out
+}
+
+/// Writes `trace` as a cluster; returns the node ids of its steps.
+fn trace_cluster(trace: &super::verify::Trace, out: &mut String, next: &mut usize) -> Vec<usize> {
+    let cluster = *next;
+    *next += 1;
+    let _ = writeln!(
+        out,
+        "  subgraph cluster_{cluster} {{\n    label=\"{} {}\";",
+        escape(&trace.level),
+        escape(&trace.origin)
+    );
+    let path = |v: &[StateNo]| -> String {
+        if v.is_empty() {
+            "0".into()
+        } else {
+            v.iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(" → ")
+        }
+    };
+    let first = *next;
+    *next += 1;
+    let _ = writeln!(
+        out,
+        "    n{first} [label=\"start → {}\"];",
+        path(&trace.start)
+    );
+    let mut ids = Vec::new();
+    let mut last = first;
+    for step in &trace.steps {
+        let id = *next;
+        *next += 1;
+        let _ = writeln!(
+            out,
+            "    n{id} [label=\"{}\"];",
+            escape(&path(&step.entered))
+        );
+        let _ = writeln!(
+            out,
+            "    n{last} -> n{id} [label=\"state {}: {}\"];",
+            step.at,
+            escape(&step.event.to_string())
+        );
+        ids.push(id);
+        last = id;
+    }
+    if let Some(e) = trace.ending {
+        let id = *next;
+        *next += 1;
+        let _ = writeln!(
+            out,
+            "    n{id} [label=\"ends {}\", shape=doublecircle];",
+            escape(&e.to_string())
+        );
+        let _ = writeln!(out, "    n{last} -> n{id};");
+    }
+    let _ = writeln!(out, "  }}");
+    for (step, id) in trace.steps.iter().zip(&ids) {
+        if let Some(below) = &step.below {
+            let start = *next + 1; // the cluster's start node id
+            trace_cluster(below, out, next);
+            let _ = writeln!(
+                out,
+                "  n{start} -> n{id} [style=dashed, label=\"explains\"];"
+            );
+        }
+    }
+    ids
+}

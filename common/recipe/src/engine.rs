@@ -373,12 +373,8 @@ impl Engine {
     }
 
     fn job_ended(&mut self, now: Duration, target: &StationName, end: &JobEnd) {
-        let c = match end {
-            JobEnd::Done => Criterion::Done,
-            JobEnd::BadProduct => Criterion::BadProduct,
-            JobEnd::FailedSafe => Criterion::FailedSafe,
-            JobEnd::FailedDanger => Criterion::FailedDanger,
-            JobEnd::Alarm(_) => return,
+        let Some(c) = criterion_of(end) else {
+            return;
         };
         if self
             .current_branches()
@@ -529,6 +525,20 @@ impl Engine {
                         deadline,
                     };
                     if let JobState::Ended(end) = job.state {
+                        // The job ended before this wait: its branch is
+                        // taken at once, in this loop (a cycle of such
+                        // waits is a runaway, not a stack overflow).
+                        let branch = criterion_of(&end).and_then(|c| {
+                            st.branches
+                                .iter()
+                                .find(|(b, _)| b.as_ref() == Some(&c))
+                                .map(|(_, n)| *n)
+                        });
+                        if let Some(n) = branch {
+                            self.failure = None;
+                            next = n;
+                            continue;
+                        }
                         self.job_ended(now, &target, &end);
                     }
                     return;
@@ -541,6 +551,17 @@ impl Engine {
         ));
         self.actions.push_back(Action::Alarm(cause.clone()));
         self.end(Outcome::Alarm(cause));
+    }
+}
+
+/// The criterion a job's end takes (none for an alarm: it ends the recipe).
+fn criterion_of(end: &JobEnd) -> Option<Criterion> {
+    match end {
+        JobEnd::Done => Some(Criterion::Done),
+        JobEnd::BadProduct => Some(Criterion::BadProduct),
+        JobEnd::FailedSafe => Some(Criterion::FailedSafe),
+        JobEnd::FailedDanger => Some(Criterion::FailedDanger),
+        JobEnd::Alarm(_) => None,
     }
 }
 
@@ -603,6 +624,35 @@ mod tests {
         assert_eq!(e.state(), StateNo(4));
         drain(&mut e);
         e
+    }
+
+    #[test]
+    fn a_loop_of_waits_for_an_ended_job_is_a_runaway_not_a_stack_overflow() {
+        // State 3 waits again for the job state 2 already waited for: its
+        // old end takes `klaar` back to 3 at once, for ever. This used to
+        // recurse until the stack overflowed (found by the verifier's
+        // property test).
+        let mut e = engine(
+            "\
+-1 | start transport t | | gestart | 2
+-1 | start transport t | | tijdlimiet | 0
+-2 | wait transport 10 | | klaar | 3
+-2 | wait transport 10 | | tijdlimiet | 0
+-3 | wait transport 10 | | klaar | 3
+-3 | wait transport 10 | | tijdlimiet | 0
+",
+            RecipeKind::Cell,
+        );
+        e.start(secs(0));
+        e.handle(secs(1), Event::Started(st("transport")));
+        e.handle(secs(2), Event::Ended(st("transport"), JobEnd::Done));
+        match e.outcome() {
+            Some(Outcome::Alarm(c)) => assert!(
+                c.text.contains("states without waiting near state 3"),
+                "{c:?}"
+            ),
+            other => panic!("{other:?}"),
+        }
     }
 
     #[test]

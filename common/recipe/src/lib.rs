@@ -13,3 +13,4 @@ pub mod engine;
 pub mod files;
 pub mod problem;
 pub mod syntax;
+pub mod verify;
