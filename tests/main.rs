@@ -19,6 +19,7 @@ mod recipes;
 mod recovery;
 mod roles;
 mod services;
+mod stanzas;
 mod tls;
 mod transport;
 mod tui;

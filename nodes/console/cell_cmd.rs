@@ -15,6 +15,7 @@ use falc_model::alarm::Alarm;
 use falc_model::console::{ApiReply, ApiRequest, CellStatus, Entry, Order, RecipeFile};
 use falc_model::ids::StationName;
 use falc_node::NodeArgs;
+use falc_recipe::files::StationKinds;
 use std::process::ExitCode;
 use std::time::Duration;
 
@@ -354,7 +355,13 @@ impl StoreCommand {
 }
 
 /// `falc store …`.
-async fn store(bus: &Bus, operator: &StationName, cmd: StoreCommand, json: bool) -> ExitCode {
+async fn store(
+    bus: &Bus,
+    operator: &StationName,
+    cmd: StoreCommand,
+    json: bool,
+    kinds: &StationKinds,
+) -> ExitCode {
     let file = match cmd.file() {
         None => return once(bus, operator, ApiRequest::RecipeList, json).await,
         Some(Ok(f)) => f,
@@ -387,7 +394,9 @@ async fn store(bus: &Bus, operator: &StationName, cmd: StoreCommand, json: bool)
             )
             .await
         }
-        StoreCommand::View { format, out, .. } => view(bus, operator, &file, &format, out).await,
+        StoreCommand::View { format, out, .. } => {
+            view(bus, operator, &file, &format, out, kinds).await
+        }
         StoreCommand::Edit { .. } => edit::interactive(bus, operator, &file).await,
     }
 }
@@ -399,6 +408,7 @@ async fn view(
     file: &RecipeFile,
     format: &str,
     out: Option<std::path::PathBuf>,
+    kinds: &StationKinds,
 ) -> ExitCode {
     let text = match edit::fetch(bus, operator, file).await {
         Ok(Some(r)) => r.text,
@@ -406,7 +416,7 @@ async fn view(
         Err(e) => return fail(&e),
     };
     let path = std::path::Path::new(file.station().as_str()).join(file.file());
-    let entry = match falc_recipe::files::entry(&path, None, text) {
+    let entry = match falc_recipe::files::entry_in(&path, None, kinds, text) {
         Ok(e) => e,
         Err(e) => return refuse(&e),
     };
@@ -516,7 +526,15 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
             .await
         }
         CellCommand::Shutdown => ApiRequest::Shutdown,
-        CellCommand::Store(cmd) => return store(&bus, &operator, cmd, json).await,
+        CellCommand::Store(cmd) => {
+            // Each station's recipe kind, from the topology `connect` read.
+            let kinds = args
+                .node
+                .topology()
+                .map(|t| StationKinds::of(&t))
+                .unwrap_or_default();
+            return store(&bus, &operator, cmd, json, &kinds).await;
+        }
     };
     once(&bus, &operator, req, json).await
 }

@@ -61,7 +61,7 @@ fn main() -> ExitCode {
     falc_node::init_tracing();
     let cli = Cli::parse();
     match cli.command {
-        Command::Recipe(r) => recipe_cmd::run(r),
+        Command::Recipe(r) => recipe_cmd::run(r, &cli.console.node.topology),
         Command::Cell(c) => match tokio::runtime::Builder::new_multi_thread()
             .worker_threads(1)
             .enable_all()

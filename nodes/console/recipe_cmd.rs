@@ -5,7 +5,7 @@ use clap::Subcommand;
 use falc_recipe::check::{check, check_set};
 use falc_recipe::commands::RecipeKind;
 use falc_recipe::dot::to_dot;
-use falc_recipe::files;
+use falc_recipe::files::{self, StationKinds};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -72,13 +72,30 @@ pub enum RecipeCommand {
     },
 }
 
+/// The recipe kind of each station directory: from the topology at
+/// `path` when there is one (a second welding station's `welding2/` holds
+/// welding recipes), else from the directory names.
+fn station_kinds(path: &std::path::Path) -> StationKinds {
+    if !path.exists() {
+        return StationKinds::default();
+    }
+    match falc_model::topology::Topology::load(path) {
+        Ok(t) => StationKinds::of(&t),
+        Err(e) => {
+            eprintln!("falc: {e}; the recipe kinds come from the directory names");
+            StationKinds::default()
+        }
+    }
+}
+
 /// The DOT text of one recipe file, or every reason it has none.
 fn dot_of(
     file: &std::path::Path,
     kind: Option<RecipeKind>,
     current: Option<u16>,
+    kinds: &StationKinds,
 ) -> Result<String, Vec<String>> {
-    let entries = files::load(&[file.to_path_buf()], kind)?;
+    let entries = files::load_in(&[file.to_path_buf()], kind, kinds)?;
     let Some(entry) = entries.first() else {
         return Err(vec![format!("{}: no recipe", file.display())]);
     };
@@ -133,6 +150,7 @@ pub fn graphviz(dot: &str, format: &str, out: &std::path::Path) -> Result<(), St
 fn load_or_say(
     paths: Vec<PathBuf>,
     kind: Option<RecipeKind>,
+    kinds: &StationKinds,
     say: impl Fn(&str),
 ) -> Option<Vec<falc_recipe::check::Entry>> {
     let paths = if paths.is_empty() {
@@ -140,7 +158,7 @@ fn load_or_say(
     } else {
         paths
     };
-    match files::load(&paths, kind) {
+    match files::load_in(&paths, kind, kinds) {
         Ok(e) => Some(e),
         Err(errors) => {
             errors.iter().for_each(|e| say(e));
@@ -149,7 +167,9 @@ fn load_or_say(
     }
 }
 
-pub fn run(cmd: RecipeCommand) -> ExitCode {
+/// Runs a `falc recipe` command; `topology` tells each station's kind.
+pub fn run(cmd: RecipeCommand, topology: &std::path::Path) -> ExitCode {
+    let kinds = station_kinds(topology);
     match cmd {
         RecipeCommand::View {
             kind,
@@ -158,7 +178,7 @@ pub fn run(cmd: RecipeCommand) -> ExitCode {
             out,
             file,
         } => {
-            let dot = match dot_of(&file, kind, current) {
+            let dot = match dot_of(&file, kind, current, &kinds) {
                 Ok(d) => d,
                 Err(errors) => {
                     errors.iter().for_each(|e| eprintln!("{e}"));
@@ -178,7 +198,7 @@ pub fn run(cmd: RecipeCommand) -> ExitCode {
             }
         }
         RecipeCommand::List { paths } => {
-            let Some(entries) = load_or_say(paths, None, |e| eprintln!("{e}")) else {
+            let Some(entries) = load_or_say(paths, None, &kinds, |e| eprintln!("{e}")) else {
                 return ExitCode::FAILURE;
             };
             let (_, problems) = check_set(&entries);
@@ -209,7 +229,7 @@ pub fn run(cmd: RecipeCommand) -> ExitCode {
         }
         RecipeCommand::Check { kind, paths } => {
             // Problems go to stdout, one per line, for scripts.
-            let Some(entries) = load_or_say(paths, kind, |e| crate::out!("{e}")) else {
+            let Some(entries) = load_or_say(paths, kind, &kinds, |e| crate::out!("{e}")) else {
                 return ExitCode::FAILURE;
             };
             let (programs, problems) = check_set(&entries);
@@ -228,12 +248,12 @@ pub fn run(cmd: RecipeCommand) -> ExitCode {
                 ExitCode::FAILURE
             }
         }
-        RecipeCommand::Verify { limit, dot, paths } => verify(paths, limit, dot),
+        RecipeCommand::Verify { limit, dot, paths } => verify(paths, limit, dot, &kinds),
         RecipeCommand::Dot {
             kind,
             current,
             file,
-        } => match dot_of(&file, kind, current) {
+        } => match dot_of(&file, kind, current, &kinds) {
             Ok(d) => {
                 crate::out!("{}", d.trim_end_matches('\n'));
                 ExitCode::SUCCESS
@@ -248,8 +268,8 @@ pub fn run(cmd: RecipeCommand) -> ExitCode {
 
 /// `falc recipe verify`: checks the set first (verification needs clean
 /// recipes), then verifies it across levels.
-fn verify(paths: Vec<PathBuf>, limit: usize, dot: Option<usize>) -> ExitCode {
-    let Some(entries) = load_or_say(paths, None, |e| crate::out!("{e}")) else {
+fn verify(paths: Vec<PathBuf>, limit: usize, dot: Option<usize>, kinds: &StationKinds) -> ExitCode {
+    let Some(entries) = load_or_say(paths, None, kinds, |e| crate::out!("{e}")) else {
         return ExitCode::FAILURE;
     };
     let (programs, problems) = check_set(&entries);

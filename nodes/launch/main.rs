@@ -48,8 +48,9 @@ struct Cli {
     /// Where the FALC binaries are; default: next to this one.
     #[arg(long)]
     bin_dir: Option<PathBuf>,
-    /// Modbus address for a transport twin whose topology `device` is not
-    /// a host:port (default: the topology's device).
+    /// Modbus address for the first transport station's twin (default: its
+    /// topology `device` when that is a host:port; another transport
+    /// station's twin listens at its own device, else at a free port).
     #[arg(long)]
     plc_listen: Option<String>,
 }
@@ -269,6 +270,7 @@ async fn start(cli: &Cli, cell: &mut Cell) -> Result<Duration> {
         StationKind::Cell,
         StationKind::Operator,
     ];
+    let mut plc_taken = false;
     for kind in order {
         for st in topology.stations().iter().filter(|s| s.kind == kind) {
             let name = st.name.as_str();
@@ -286,11 +288,20 @@ async fn start(cli: &Cli, cell: &mut Cell) -> Result<Duration> {
                     "falc-welding"
                 }
                 StationKind::Transport => {
-                    let at = cli
-                        .plc_listen
+                    // `--plc-listen` is the first transport station's; a
+                    // second one listens at its own device, else anywhere.
+                    let first = !plc_taken;
+                    plc_taken = true;
+                    let own = st
+                        .device
                         .clone()
-                        .or_else(|| st.device.clone())
-                        .unwrap_or_else(|| "127.0.0.1:0".into());
+                        .filter(|d| d.parse::<std::net::SocketAddr>().is_ok());
+                    let at = if first {
+                        cli.plc_listen.clone().or(own)
+                    } else {
+                        own
+                    }
+                    .unwrap_or_else(|| "127.0.0.1:0".into());
                     let twin = cell.spawn(
                         &format!("plc-{name}"),
                         "falc-plc-sim",
@@ -341,7 +352,8 @@ operate it from another terminal (in this directory):
   {falc} shutdown           stop when the order list is done
   {falc} --user engineer store edit transport store   edit a recipe
 type here to disturb the twins: `rcm estop`, `rcm estop-clear`, `plc jam K`,
-`plc unjam K`, `plc show`, `plc layout W2 W2` …; Ctrl-C stops the cell."
+`plc unjam K`, `plc show`, `plc layout W2 W2` … (`rcm-welding2 estop`,
+`plc-transport2 show` for a second station's); Ctrl-C stops the cell."
     )
 }
 
@@ -417,7 +429,7 @@ async fn run(cli: &Cli, cell: &mut Cell) -> ExitCode {
                 Ok(Some(line)) => {
                     let line = line.trim();
                     let (to, rest) = line.split_once(' ').unwrap_or((line, ""));
-                    if !["rcm", "plc"].contains(&to) || !cell.control(to, rest).await {
+                    if !(to.starts_with("rcm") || to.starts_with("plc")) || !cell.control(to, rest).await {
                         say(&format!("falc-launch: `{line}`: type `rcm <control>` or `plc <control>`"));
                     }
                 }

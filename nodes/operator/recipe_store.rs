@@ -20,7 +20,7 @@ use falc_model::mms::domain::content_hash;
 use falc_model::topology::Topology;
 use falc_recipe::check::{check_set, Entry};
 use falc_recipe::commands::RecipeKind;
-use falc_recipe::files;
+use falc_recipe::files::{self, StationKinds};
 use std::path::{Path, PathBuf};
 
 /// The recipe directory of one cell, as the order list reads it.
@@ -53,7 +53,7 @@ impl RecipeSource for RecipeDir {
 /// recipes go to `cell`, workstation recipes must belong to one of its
 /// workstations. Returns the set, or every problem (`file:line: reason`).
 fn load(dir: &Path, topology: &Topology, cell: &StationName) -> Result<RecipeSet, Vec<String>> {
-    let entries = files::load(&[PathBuf::from(dir)], None)?;
+    let entries = files::load_in(&[PathBuf::from(dir)], None, &StationKinds::of(topology))?;
     check_entries(&entries, topology, cell)
 }
 
@@ -164,7 +164,15 @@ fn list(dir: &Path, topology: &Topology, cell: &StationName) -> Result<Vec<Recip
             };
             let name = std::fs::read_to_string(path_of(dir, &file))
                 .ok()
-                .and_then(|text| files::entry(&path_of(dir, &file), None, text).ok())
+                .and_then(|text| {
+                    files::entry_in(
+                        &path_of(dir, &file),
+                        None,
+                        &StationKinds::of(topology),
+                        text,
+                    )
+                    .ok()
+                })
                 .and_then(|e| e.name().ok())
                 .map(|n| n.to_string());
             out.push(RecipeInfo { file, name });
@@ -222,10 +230,13 @@ fn put(
             ),
         }));
     }
-    let mut entries = files::load(&[PathBuf::from(dir)], None).map_err(PutError::Findings)?;
+    let kinds = StationKinds::of(topology);
+    let mut entries =
+        files::load_in(&[PathBuf::from(dir)], None, &kinds).map_err(PutError::Findings)?;
     let origin = path.display().to_string();
     entries.retain(|e| e.recipe.origin != origin);
-    entries.push(files::entry(&path, None, text.to_string()).map_err(PutError::Refused)?);
+    entries
+        .push(files::entry_in(&path, None, &kinds, text.to_string()).map_err(PutError::Refused)?);
     check_entries(&entries, topology, cell).map_err(PutError::Findings)?;
     write_atomically(&path, text.as_bytes())
         .map_err(|e| PutError::Refused(format!("cannot save recipe {file}: {e}")))

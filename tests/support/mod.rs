@@ -443,13 +443,23 @@ impl TestCell {
         Self::start_with(endpoint, Some(hosts))
     }
 
+    /// The cell with more stanzas (`extra`, TOML) after [`TOPOLOGY`]'s.
+    pub fn start_grown(extra: &str) -> TestCell {
+        let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+        Self::start_text(endpoint, None, &format!("{TOPOLOGY}\n{extra}"))
+    }
+
     fn start_on(protocol: &str) -> TestCell {
         Self::start_with(format!("{protocol}/127.0.0.1:{}", free_port()), None)
     }
 
     fn start_with(endpoint: String, hosts: Option<hosts::Hosts>) -> TestCell {
+        Self::start_text(endpoint, hosts, TOPOLOGY)
+    }
+
+    fn start_text(endpoint: String, hosts: Option<hosts::Hosts>, topology: &str) -> TestCell {
         let dir = tempfile::tempdir().expect("tempdir");
-        let text = TOPOLOGY.replace("ROUTER", &endpoint);
+        let text = topology.replace("ROUTER", &endpoint);
         let topology_path = dir.path().join("cell.toml");
         std::fs::write(&topology_path, &text).expect("write topology");
         let topology = Topology::parse(&text, "test").expect("valid topology");

@@ -24,6 +24,9 @@ pub struct Rig {
     /// The welding workstation's link through a delay line (the cell as
     /// separate hosts only).
     pub welding_line: Option<super::hosts::DelayLine>,
+    /// Workstations beyond `welding` and `transport` (a grown topology):
+    /// name → (its twin, its node).
+    pub more: Vec<(String, Proc, Proc)>,
 }
 
 pub fn rig(rcm_scale: &str) -> Rig {
@@ -52,7 +55,73 @@ fn rig_in(cell: TestCell, rcm_scale: &str, db: Option<PathBuf>) -> Rig {
     rig_in_with(cell, rcm_scale, db, None)
 }
 
+/// The cell grown by the stanzas `extra` (TOML): every workstation of the
+/// topology beyond `welding` and `transport` gets its twin and node; then
+/// `recipes` may add to the recipe tree before the operator starts.
+pub fn rig_grown(extra: &str, rcm_scale: &str, recipes: impl FnOnce(&std::path::Path)) -> Rig {
+    let mut rig = assemble(TestCell::start_grown(extra), rcm_scale, None, None);
+    let more: Vec<_> = rig
+        .cell
+        .topology
+        .stations()
+        .iter()
+        .filter(|s| !["welding", "transport"].contains(&s.name.as_str()))
+        .map(|s| (s.name.to_string(), s.kind))
+        .collect();
+    for (name, kind) in more {
+        use falc_model::topology::StationKind;
+        let (twin, node) = match kind {
+            StationKind::Welding => {
+                let (twin, path) = rig.cell.twin(
+                    &name,
+                    env!("CARGO_BIN_EXE_falc-rcm-sim"),
+                    &["--time-scale", rcm_scale],
+                    "serial port: ",
+                );
+                let node = rig.cell.start_node(
+                    env!("CARGO_BIN_EXE_falc-welding"),
+                    &name,
+                    &["--device", &path],
+                );
+                (twin, node)
+            }
+            StationKind::Transport => {
+                let (twin, address) = rig.cell.twin(
+                    &name,
+                    env!("CARGO_BIN_EXE_falc-plc-sim"),
+                    &["--listen", "127.0.0.1:0", "--time-scale", "20"],
+                    "listening on ",
+                );
+                let mut node = rig.cell.start_node(
+                    env!("CARGO_BIN_EXE_falc-transport"),
+                    &name,
+                    &["--plc", &address],
+                );
+                node.expect_line("EVENT plc-ready", Duration::from_secs(10));
+                (twin, node)
+            }
+            _ => continue,
+        };
+        rig.more.push((name, twin, node));
+    }
+    recipes(&rig.recipes);
+    rig.start_operator();
+    rig
+}
+
 fn rig_in_with(
+    cell: TestCell,
+    rcm_scale: &str,
+    db: Option<PathBuf>,
+    welding_line: Option<super::hosts::DelayLine>,
+) -> Rig {
+    let mut rig = assemble(cell, rcm_scale, db, welding_line);
+    rig.start_operator();
+    rig
+}
+
+/// The twins, the welding, transport and cell nodes: all but the operator.
+fn assemble(
     cell: TestCell,
     rcm_scale: &str,
     db: Option<PathBuf>,
@@ -85,10 +154,10 @@ fn rig_in_with(
         db,
         cell,
         welding_line,
+        more: Vec::new(),
     };
     rig.start_welding();
     rig.start_transport();
-    rig.start_operator();
     rig
 }
 

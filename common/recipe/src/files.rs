@@ -1,15 +1,69 @@
 //! Reading recipes from disk: a file, a station directory
-//! (`recipes/welding/`) or a recipe tree (`recipes/` holding `cell/`,
-//! `welding/`, `transport/`). The directory a file sits in names its
-//! station and, unless given, its kind.
+//! (`recipes/welding/`) or a recipe tree (`recipes/` holding a directory
+//! per station: `cell/`, `welding/`, `transport/`, `welding2/` …). The
+//! directory a file sits in names its station; the station's kind comes
+//! from the topology ([`StationKinds`]), else from the directory's name.
 
 use super::check::Entry;
 use super::commands::RecipeKind;
 use super::syntax::parse;
 use falc_model::ids::StationName;
+use falc_model::topology::{StationKind, Topology};
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-fn read_entry(path: &Path, kind: Option<RecipeKind>) -> Result<Entry, String> {
+/// The recipe kind of each station, from the topology's stanzas: a second
+/// welding station `welding2` reads `recipes/welding2/` as welding
+/// recipes. A directory no stanza names is read by its own name (`cell`,
+/// `welding`, `transport`).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct StationKinds(BTreeMap<StationName, RecipeKind>);
+
+impl StationKinds {
+    /// The kinds of `topology`'s stations (the operator has no recipes).
+    pub fn of(topology: &Topology) -> Self {
+        Self(
+            topology
+                .stations()
+                .iter()
+                .filter_map(|s| {
+                    let kind = match s.kind {
+                        StationKind::Operator => return None,
+                        StationKind::Cell => RecipeKind::Cell,
+                        StationKind::Welding => RecipeKind::Welding,
+                        StationKind::Transport => RecipeKind::Transport,
+                    };
+                    Some((s.name.clone(), kind))
+                })
+                .collect(),
+        )
+    }
+
+    /// The kind of the recipes in directory `dir`.
+    fn kind_of(&self, dir: &str) -> Option<RecipeKind> {
+        StationName::new(dir)
+            .ok()
+            .and_then(|s| self.0.get(&s).copied())
+            .or_else(|| dir.parse().ok())
+    }
+
+    /// The station directories a recipe tree may hold.
+    fn dirs(&self) -> Vec<String> {
+        let mut v: Vec<String> = RecipeKind::ALL.iter().map(ToString::to_string).collect();
+        for s in self.0.keys() {
+            if !v.iter().any(|d| d == s.as_str()) {
+                v.push(s.as_str().to_string());
+            }
+        }
+        v
+    }
+}
+
+fn read_entry(
+    path: &Path,
+    kind: Option<RecipeKind>,
+    kinds: &StationKinds,
+) -> Result<Entry, String> {
     let text = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let text = String::from_utf8(text).map_err(|e| {
         format!(
@@ -18,12 +72,22 @@ fn read_entry(path: &Path, kind: Option<RecipeKind>) -> Result<Entry, String> {
             e.utf8_error().valid_up_to()
         )
     })?;
-    entry(path, kind, text)
+    entry_in(path, kind, kinds, text)
 }
 
 /// The entry of `text` as if read from `path` (a recipe about to be saved
 /// there): the directory names its station and, unless given, its kind.
 pub fn entry(path: &Path, kind: Option<RecipeKind>, text: String) -> Result<Entry, String> {
+    entry_in(path, kind, &StationKinds::default(), text)
+}
+
+/// [`entry`], the station's kind from `kinds`.
+pub fn entry_in(
+    path: &Path,
+    kind: Option<RecipeKind>,
+    kinds: &StationKinds,
+    text: String,
+) -> Result<Entry, String> {
     let dir = path
         .parent()
         .and_then(|p| p.file_name())
@@ -31,9 +95,9 @@ pub fn entry(path: &Path, kind: Option<RecipeKind>, text: String) -> Result<Entr
         .unwrap_or("");
     let kind = match kind {
         Some(k) => k,
-        None => dir.parse().map_err(|_| {
+        None => kinds.kind_of(dir).ok_or_else(|| {
             format!(
-                "{}: cannot tell the recipe kind: put it under cell/, welding/ or transport/, or pass --kind",
+                "{}: cannot tell the recipe kind: put it under the directory of a station of the topology (cell/, welding/, transport/ …), or pass --kind",
                 path.display()
             )
         })?,
@@ -63,14 +127,25 @@ fn rcp_files(dir: &Path) -> Result<Vec<PathBuf>, String> {
 /// Loads every recipe under `paths` (files, station directories or recipe
 /// trees). `kind` overrides the kind the directory names.
 pub fn load(paths: &[PathBuf], kind: Option<RecipeKind>) -> Result<Vec<Entry>, Vec<String>> {
+    load_in(paths, kind, &StationKinds::default())
+}
+
+/// [`load`], each station's kind (and the station directories of a tree)
+/// from `kinds`.
+pub fn load_in(
+    paths: &[PathBuf],
+    kind: Option<RecipeKind>,
+    kinds: &StationKinds,
+) -> Result<Vec<Entry>, Vec<String>> {
     let mut entries = Vec::new();
     let mut errors = Vec::new();
     let mut files = Vec::new();
     for p in paths {
         if p.is_dir() {
-            let subdirs: Vec<PathBuf> = RecipeKind::ALL
+            let subdirs: Vec<PathBuf> = kinds
+                .dirs()
                 .iter()
-                .map(|k| p.join(k.to_string()))
+                .map(|d| p.join(d))
                 .filter(|d| d.is_dir())
                 .collect();
             let dirs = if subdirs.is_empty() {
@@ -89,7 +164,7 @@ pub fn load(paths: &[PathBuf], kind: Option<RecipeKind>) -> Result<Vec<Entry>, V
         }
     }
     for f in files {
-        match read_entry(&f, kind) {
+        match read_entry(&f, kind, kinds) {
             Ok(e) => entries.push(e),
             Err(e) => errors.push(e),
         }
@@ -98,5 +173,54 @@ pub fn load(paths: &[PathBuf], kind: Option<RecipeKind>) -> Result<Vec<Entry>, V
         Ok(entries)
     } else {
         Err(errors)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TOPOLOGY: &str = r#"
+cell = "falc1"
+router = "tcp/127.0.0.1:7447"
+[[station]]
+name = "operator"
+kind = "operator"
+[[station]]
+name = "cell"
+kind = "cell"
+commander = "operator"
+[[station]]
+name = "welding2"
+kind = "welding"
+commander = "cell"
+"#;
+
+    #[test]
+    fn a_station_directory_s_kind_comes_from_the_topology() {
+        let tmp = tempfile::tempdir().expect("tempdir");
+        let dir = tmp.path().join("welding2");
+        std::fs::create_dir_all(&dir).expect("mkdir");
+        std::fs::write(
+            dir.join("w.rcp"),
+            "#W\n-1 | start rcm 65 | | gestart | 2\n-1 | start rcm 65 | | tijdlimiet | 0\n-2 | wait rcm 10 | | klaar | 0\n-2 | wait rcm 10 | | tijdlimiet | 0\n",
+        )
+        .expect("write");
+        let topology = Topology::parse(TOPOLOGY, "t.toml").expect("valid");
+        let kinds = StationKinds::of(&topology);
+        let entries = load_in(&[tmp.path().to_path_buf()], None, &kinds).expect("loaded");
+        assert_eq!(entries.len(), 1);
+        assert_eq!(entries[0].kind, RecipeKind::Welding);
+        assert_eq!(entries[0].station.as_str(), "welding2");
+        // Without the topology the tree has no such directory, and a file
+        // in it names no kind.
+        assert!(load(&[tmp.path().to_path_buf()], None)
+            .expect("loaded")
+            .is_empty());
+        let errors = load(&[dir.join("w.rcp")], None).expect_err("no kind");
+        assert!(
+            errors[0].contains("cannot tell the recipe kind"),
+            "{errors:?}"
+        );
     }
 }

@@ -238,6 +238,57 @@ fn lamp(on: bool) -> &'static str {
     }
 }
 
+/// The box of transport station `transport`'s conveyor: its PLC's inputs
+/// and the recipe it runs.
+fn conveyor_box<'a>(app: &App, transport: Option<&falc_model::ids::StationName>) -> Paragraph<'a> {
+    let inputs = transport
+        .and_then(|t| app.status.as_ref()?.stations.iter().find(|v| &v.name == t))
+        .and_then(|v| v.status.as_ref())
+        .and_then(|s| Inputs::from_bits(&s.inputs).ok());
+    let t_look = transport.map_or(Look::Off, |t| look(app, t));
+    let mut lines = Vec::new();
+    match inputs {
+        Some(i) => {
+            let places: Vec<String> = Place::all()
+                .map(|p| format!("W{p} {}", lamp(i.signal(Signal::Place(p)))))
+                .collect();
+            lines.push(Line::from(format!("places    {}", places.join("  "))));
+            let st: Vec<String> = PlcStation::all()
+                .map(|s| format!("S{s} {}", lamp(i.signal(Signal::Station(s)))))
+                .collect();
+            lines.push(Line::from(format!("stations  {}", st.join("  "))));
+            let running: Vec<String> = LINES
+                .iter()
+                .filter(|l| i.signal(Signal::Line(**l)))
+                .map(|l| l.to_string())
+                .collect();
+            lines.push(Line::from(format!(
+                "lines running: {}",
+                if running.is_empty() {
+                    "none".to_string()
+                } else {
+                    running.join(", ")
+                }
+            )));
+            let mut plc = vec![Span::raw(if i.get(Input::Ready) {
+                "PLC ready"
+            } else {
+                "PLC NOT ready"
+            })];
+            if i.get(Input::EStop) {
+                plc.push(Span::styled("  EMERGENCY STOP", ALARM));
+            }
+            lines.push(Line::from(plc));
+        }
+        None => lines.push(Line::from("no reading of the conveyor PLC")),
+    }
+    if let Some((p, s)) = transport.and_then(|t| app.running_program(t)) {
+        lines.push(Line::from(format!("recipe {p}, state {s}")));
+    }
+    let name = transport.map_or("conveyor".to_string(), |t| format!("{t} (conveyor)"));
+    Paragraph::new(lines).block(station_box(name, t_look))
+}
+
 fn overview(f: &mut Frame, app: &App, area: Rect) {
     let [upper, conveyor, row, hint] = Layout::vertical([
         Constraint::Length(7),
@@ -306,52 +357,17 @@ fn overview(f: &mut Frame, app: &App, area: Rect) {
         cols[n - 1],
     );
 
-    // The conveyor.
-    let t_look = transport.as_ref().map_or(Look::Off, |t| look(app, t));
-    let mut lines = Vec::new();
-    match inputs {
-        Some(i) => {
-            let places: Vec<String> = Place::all()
-                .map(|p| format!("W{p} {}", lamp(i.signal(Signal::Place(p)))))
-                .collect();
-            lines.push(Line::from(format!("places    {}", places.join("  "))));
-            let st: Vec<String> = PlcStation::all()
-                .map(|s| format!("S{s} {}", lamp(i.signal(Signal::Station(s)))))
-                .collect();
-            lines.push(Line::from(format!("stations  {}", st.join("  "))));
-            let running: Vec<String> = LINES
-                .iter()
-                .filter(|l| i.signal(Signal::Line(**l)))
-                .map(|l| l.to_string())
-                .collect();
-            lines.push(Line::from(format!(
-                "lines running: {}",
-                if running.is_empty() {
-                    "none".to_string()
-                } else {
-                    running.join(", ")
-                }
-            )));
-            let mut plc = vec![Span::raw(if i.get(Input::Ready) {
-                "PLC ready"
-            } else {
-                "PLC NOT ready"
-            })];
-            if i.get(Input::EStop) {
-                plc.push(Span::styled("  EMERGENCY STOP", ALARM));
-            }
-            lines.push(Line::from(plc));
+    // The conveyor of each transport station, side by side.
+    let transports = of_kind(StationKind::Transport);
+    if transports.is_empty() {
+        f.render_widget(conveyor_box(app, None), conveyor);
+    } else {
+        let n = transports.len();
+        let cols = Layout::horizontal(vec![Constraint::Ratio(1, n as u32); n]).split(conveyor);
+        for (i, t) in transports.iter().enumerate() {
+            f.render_widget(conveyor_box(app, Some(t)), cols[i]);
         }
-        None => lines.push(Line::from("no reading of the conveyor PLC")),
     }
-    if let Some((p, s)) = transport.as_ref().and_then(|t| app.running_program(t)) {
-        lines.push(Line::from(format!("recipe {p}, state {s}")));
-    }
-    let name = transport.map_or("conveyor".to_string(), |t| format!("{t} (conveyor)"));
-    f.render_widget(
-        Paragraph::new(lines).block(station_box(name, t_look)),
-        conveyor,
-    );
 
     // Every station in a row.
     let mut spans = vec![Span::raw(" ")];
@@ -693,4 +709,46 @@ fn recipe(f: &mut Frame, app: &App, area: Rect) {
             .block(Block::new().borders(Borders::ALL).title(title)),
         area,
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use falc_model::ids::StationName;
+    use falc_model::topology::Topology;
+    use ratatui::backend::TestBackend;
+    use ratatui::Terminal;
+
+    /// A cell grown by two stanzas: every workstation gets its box.
+    #[test]
+    fn the_overview_draws_a_box_for_every_workstation_of_the_topology() {
+        let text = std::fs::read_to_string(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("launch/cell.toml"),
+        )
+        .expect("the shipped topology");
+        let grown = format!(
+            "{text}\n[[station]]\nname = \"welding2\"\nkind = \"welding\"\ncommander = \"cell\"\n\n[[station]]\nname = \"transport2\"\nkind = \"transport\"\ncommander = \"cell\"\n"
+        );
+        let topology = Topology::parse(&grown, "grown.toml").expect("valid topology");
+        let app = App::new(topology, StationName::new("console").expect("valid"));
+        let mut terminal = Terminal::new(TestBackend::new(160, 40)).expect("terminal");
+        terminal
+            .draw(|f| overview(f, &app, f.area()))
+            .expect("drawn");
+        let screen: String = terminal
+            .backend()
+            .buffer()
+            .content()
+            .iter()
+            .map(|c| c.symbol())
+            .collect();
+        for title in [
+            "welding (robot)",
+            "welding2 (robot)",
+            "transport (conveyor)",
+            "transport2 (conveyor)",
+        ] {
+            assert!(screen.contains(title), "no box `{title}`:\n{screen}");
+        }
+    }
 }
