@@ -372,24 +372,17 @@ fn falc_recipe_verify_finds_the_printed_time_limits() {
     );
 
     let tmp = tempfile::tempdir().expect("tempdir");
-    for sub in ["cell", "welding", "transport"] {
-        std::fs::create_dir_all(tmp.path().join(sub)).expect("mkdir");
-        for f in std::fs::read_dir(root().join("recipes").join(sub)).expect("dir") {
-            let f = f.expect("entry").path();
-            std::fs::copy(&f, tmp.path().join(sub).join(f.file_name().expect("name")))
-                .expect("copy");
-        }
-    }
+    let tree = crate::support::copy_recipes(tmp.path());
     for printed in ["dikdroog.rcp", "dundroog.rcp"] {
         std::fs::copy(
             root()
                 .join("tests/fixtures/thesis_printed/cell")
                 .join(printed),
-            tmp.path().join("cell").join(printed),
+            tree.join("cell").join(printed),
         )
         .expect("copy");
     }
-    let dir = tmp.path().display().to_string();
+    let dir = tree.display().to_string();
     let (code, out) = falc(&["recipe", "verify", &dir]);
     assert_eq!(code, 1, "{out}");
     let dik = out

@@ -5,9 +5,9 @@
 //! topology, the operator delivers their recipes, and an order that uses
 //! both welding stations and both conveyors runs to done.
 
+use crate::support::copy_dir;
 use crate::support::rig::rig_grown;
 use falc_model::console::OrderState;
-use std::path::Path;
 use std::time::Duration;
 
 const MORE: &str = r#"
@@ -44,15 +44,6 @@ tweeling.rcp: both welding stations at once (a cell grown by two stanzas).
 -9  | output er is wat mis         | alarm |            | 0
 -10 | output tweeling klaar        |       |            | 0
 ";
-
-/// Copies every recipe of `from` into a new directory `to`.
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).expect("mkdir");
-    for e in std::fs::read_dir(from).expect("dir") {
-        let p = e.expect("entry").path();
-        std::fs::copy(&p, to.join(p.file_name().expect("name"))).expect("copy");
-    }
-}
 
 #[test]
 fn a_second_welding_and_transport_station_from_their_stanzas_alone() {

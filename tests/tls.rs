@@ -5,10 +5,10 @@
 //! separate hosts in network namespaces is `hosts`.
 
 use crate::support::rig::rig_tls;
-use crate::support::{run_falc, TestCell};
+use crate::support::{copy_dir, run_falc, TestCell};
 use falc_model::console::{Call, OrderState};
 use falc_model::keys::KeySpace;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// `falc` args for the cell's topology file `topology` and credentials in
@@ -24,13 +24,29 @@ fn console_args(topology: &Path, dir: &Path) -> Vec<String> {
     ]
 }
 
-/// Copies every file of `from` into a new directory `to` (mode kept).
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).expect("mkdir");
-    for e in std::fs::read_dir(from).expect("dir") {
-        let p = e.expect("entry").path();
-        std::fs::copy(&p, to.join(p.file_name().expect("name"))).expect("copy");
+/// The cell's credentials copied to `<cell dir>/stolen`, with `files`
+/// (of `console.crt`, `console.key`, `ca.crt`) replaced by those of
+/// another CA, made by `falc-router credentials` for the same topology.
+fn with_foreign(cell: &TestCell, files: &[&str]) -> PathBuf {
+    let dir = cell.dir.path();
+    let foreign = dir.join("foreign-ca");
+    if !foreign.exists() {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_falc-router"))
+            .arg("--topology")
+            .arg(&cell.topology_path)
+            .arg("--credentials-dir")
+            .arg(&foreign)
+            .arg("credentials")
+            .output()
+            .expect("falc-router credentials");
+        assert!(out.status.success(), "{out:?}");
     }
+    let stolen = dir.join("stolen");
+    copy_dir(&cell.credentials_dir(), &stolen);
+    for f in files {
+        std::fs::copy(foreign.join(f), stolen.join(f)).expect("copy");
+    }
+    stolen
 }
 
 #[test]
@@ -54,22 +70,7 @@ fn the_cell_runs_orders_over_mutual_tls_and_refuses_strangers() {
     assert_eq!(code, 0, "the cell's own console: {out}");
 
     // The console's password and name, but a certificate from another CA.
-    let foreign_topology = dir.join("foreign.toml");
-    std::fs::copy(&cell.topology_path, &foreign_topology).expect("copy");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_falc-router"))
-        .arg("--topology")
-        .arg(&foreign_topology)
-        .arg("--credentials-dir")
-        .arg(dir.join("foreign-ca"))
-        .arg("credentials")
-        .output()
-        .expect("falc-router credentials");
-    assert!(out.status.success(), "{out:?}");
-    let stolen = dir.join("stolen");
-    copy_dir(&cell.credentials_dir(), &stolen);
-    for f in ["console.crt", "console.key", "ca.crt"] {
-        std::fs::copy(dir.join("foreign-ca").join(f), stolen.join(f)).expect("copy");
-    }
+    let stolen = with_foreign(cell, &["console.crt", "console.key", "ca.crt"]);
     let (code, out) = run_falc(&console_args(&cell.topology_path, &stolen), &["status"]);
     assert_eq!(
         code, 2,
@@ -273,21 +274,7 @@ fn refused_logins_are_logged_with_their_source() {
 
     // A certificate of another CA, on a TLS cell.
     let mut cell = TestCell::start_tls();
-    let dir = cell.dir.path().to_path_buf();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_falc-router"))
-        .arg("--topology")
-        .arg(&cell.topology_path)
-        .arg("--credentials-dir")
-        .arg(dir.join("foreign-ca"))
-        .arg("credentials")
-        .output()
-        .expect("falc-router credentials");
-    assert!(out.status.success(), "{out:?}");
-    let stolen = dir.join("stolen");
-    copy_dir(&cell.credentials_dir(), &stolen);
-    for f in ["console.crt", "console.key"] {
-        std::fs::copy(dir.join("foreign-ca").join(f), stolen.join(f)).expect("copy");
-    }
+    let stolen = with_foreign(&cell, &["console.crt", "console.key"]);
     let (code, out) = run_falc(&console_args(&cell.topology_path, &stolen), &["status"]);
     assert_eq!(code, 2, "a client certificate of another CA: {out}");
     let line = cell

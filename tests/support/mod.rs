@@ -266,13 +266,18 @@ pub fn copy_recipes(dir: &std::path::Path) -> PathBuf {
     let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes");
     let to = dir.join("recipes");
     for sub in ["cell", "welding", "transport"] {
-        std::fs::create_dir_all(to.join(sub)).expect("mkdir");
-        for f in std::fs::read_dir(src.join(sub)).expect("recipe dir") {
-            let f = f.expect("entry").path();
-            std::fs::copy(&f, to.join(sub).join(f.file_name().expect("name"))).expect("copy");
-        }
+        copy_dir(&src.join(sub), &to.join(sub));
     }
     to
+}
+
+/// Copies every file of `from` into `to` (created; modes kept).
+pub fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
+    std::fs::create_dir_all(to).expect("mkdir");
+    for e in std::fs::read_dir(from).expect("dir") {
+        let p = e.expect("entry").path();
+        std::fs::copy(&p, to.join(p.file_name().expect("name"))).expect("copy");
+    }
 }
 
 /// A `falc-launch` command for a whole cell in `dir`: the topology written

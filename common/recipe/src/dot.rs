@@ -81,16 +81,7 @@ fn trace_cluster(trace: &super::verify::Trace, out: &mut String, next: &mut usiz
         escape(&trace.level),
         escape(&trace.origin)
     );
-    let path = |v: &[StateNo]| -> String {
-        if v.is_empty() {
-            "0".into()
-        } else {
-            v.iter()
-                .map(ToString::to_string)
-                .collect::<Vec<_>>()
-                .join(" → ")
-        }
-    };
+    let path = super::verify::path_text;
     let first = *next;
     *next += 1;
     let _ = writeln!(

@@ -212,7 +212,7 @@ impl Trace {
             "{indent}{} {}: start → {}",
             self.level,
             self.origin,
-            states(&self.start)
+            path_text(&self.start)
         ));
         for s in &self.steps {
             out.push(format!(
@@ -220,7 +220,7 @@ impl Trace {
                 self.level,
                 s.at,
                 s.event,
-                states(&s.entered)
+                path_text(&s.entered)
             ));
             if let Some(b) = &s.below {
                 b.write_lines(&format!("{indent}    "), out);
@@ -232,7 +232,9 @@ impl Trace {
     }
 }
 
-fn states(v: &[StateNo]) -> String {
+/// States entered one after the other, `9 → 10 → 11`; `0` for none (the
+/// recipe ended).
+pub fn path_text(v: &[StateNo]) -> String {
     if v.is_empty() {
         "0".into()
     } else {
