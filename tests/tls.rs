@@ -263,6 +263,10 @@ fn refused_logins_are_logged_with_their_source() {
     std::fs::write(&file, text).expect("write");
     let (code, out) = run_falc(&console_args(&cell.topology_path, &wrong), &["status"]);
     assert_eq!(code, 2, "a wrong password: {out}");
+    assert!(
+        out.contains("the router logs `refused login from` this PC"),
+        "the console says where to look: {out}"
+    );
     let line = cell
         .router
         .expect_line("refused login from 127.0.0.1", Duration::from_secs(10));

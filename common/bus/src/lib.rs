@@ -48,7 +48,9 @@ pub enum BusError {
     #[error(transparent)]
     Config(#[from] config::ConfigError),
     /// The session could not be opened: router down, wrong credentials …
-    #[error("cannot connect to the router at {endpoint} as `{user}`: {message}")]
+    #[error(
+        "cannot connect to the router at {endpoint} as `{user}`: {message} (is the router running there? A wrong password or a certificate of another cell is refused without a reason here: the router logs `refused login from` this PC, with the reason)"
+    )]
     Connect {
         /// The router endpoint.
         endpoint: String,
