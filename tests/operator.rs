@@ -221,6 +221,40 @@ fn a_recipe_defect_refuses_start_with_file_line_and_reason_and_downloads_nothing
     assert_eq!(rig.orders()[0].state, OrderState::Done);
 }
 
+/// Each recipe checks clean alone, but together the cell would give up on
+/// MOVE_TO_MAN within its own limits: the verifier's defect refuses the
+/// start like a checker problem; mended, the order runs to done.
+#[test]
+fn a_defect_across_levels_refuses_start_until_mended() {
+    let mut rig = rig("100");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    let cell = rig.recipes.join("cell/dikdroog.rcp");
+    let text = std::fs::read_to_string(&cell).expect("read");
+    let short = text.replace("-12 | wait transport 90 ", "-12 | wait transport 45 ");
+    assert_ne!(short, text);
+    std::fs::write(&cell, short).expect("write");
+    rig.operator().forget("EVENT delivered");
+    let (code, out) = rig.cell.falc_as("console", &["start"]);
+    assert_eq!(code, 1, "{out}");
+    assert!(
+        out.contains("dikdroog.rcp:") && out.contains("state 12: time limits disagree"),
+        "{out}"
+    );
+    assert!(
+        rig.operator()
+            .wait_line("EVENT delivered", Duration::from_millis(500))
+            .is_none(),
+        "nothing delivered"
+    );
+    assert_eq!(rig.orders()[0].state, OrderState::Queued);
+    // Mended: the same order runs.
+    std::fs::write(&cell, text).expect("write");
+    let out = rig.cell.falc(&["start"]);
+    assert!(out.contains("started"), "{out}");
+    rig.work_list("ja", Duration::from_secs(60));
+    assert_eq!(rig.orders()[0].state, OrderState::Done);
+}
+
 #[test]
 fn an_observer_reads_but_cannot_command() {
     let rig = rig("100");

@@ -14,6 +14,7 @@ use falc_bus::Bus;
 use falc_model::alarm::Alarm;
 use falc_model::console::{ApiReply, ApiRequest, CellStatus, Entry, Order, RecipeFile};
 use falc_model::ids::StationName;
+use falc_model::topology::Topology;
 use falc_node::NodeArgs;
 use falc_recipe::files::StationKinds;
 use std::process::ExitCode;
@@ -324,7 +325,8 @@ fn print(reply: &ApiReply, json: bool) {
     }
 }
 
-async fn connect(args: &ConsoleArgs) -> Result<(Bus, StationName), String> {
+/// Opens the console's session: the bus, and the topology it was read from.
+async fn connect(args: &ConsoleArgs) -> Result<(Bus, Topology), String> {
     let topology = args.node.topology().map_err(|e| e.to_string())?;
     if topology.console(&args.user).is_none() {
         return Err(format!(
@@ -338,7 +340,7 @@ async fn connect(args: &ConsoleArgs) -> Result<(Bus, StationName), String> {
         .settings(&topology, &args.user)
         .map_err(|e| e.to_string())?;
     let bus = Bus::open(settings).await.map_err(|e| e.to_string())?;
-    Ok((bus, topology.root().name.clone()))
+    Ok((bus, topology))
 }
 
 impl StoreCommand {
@@ -484,7 +486,7 @@ async fn once(bus: &Bus, operator: &StationName, req: ApiRequest, json: bool) ->
 
 /// Runs an operator API command.
 pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
-    let (bus, operator) = match connect(&args).await {
+    let (bus, topology) = match connect(&args).await {
         Ok(c) => c,
         Err(e) => {
             eprintln!("falc: {e}");
@@ -492,13 +494,11 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
         }
     };
     let json = args.json;
+    let operator = topology.root().name.clone();
     let req = match cmd {
         CellCommand::Status { watch: true } => return watch(&bus, &operator, json).await,
         CellCommand::Tui => {
-            return match args.node.topology() {
-                Ok(t) => crate::tui::run(&bus, &operator, t, args.user.clone()).await,
-                Err(e) => refuse(&e.to_string()),
-            }
+            return crate::tui::run(&bus, &operator, topology, args.user.clone()).await
         }
         CellCommand::Messages { follow: true } => return follow(&bus, &operator, json).await,
         CellCommand::Status { watch: false } => ApiRequest::Status,
@@ -527,12 +527,7 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
         }
         CellCommand::Shutdown => ApiRequest::Shutdown,
         CellCommand::Store(cmd) => {
-            // Each station's recipe kind, from the topology `connect` read.
-            let kinds = args
-                .node
-                .topology()
-                .map(|t| StationKinds::of(&t))
-                .unwrap_or_default();
+            let kinds = StationKinds::of(&topology);
             return store(&bus, &operator, cmd, json, &kinds).await;
         }
     };

@@ -430,7 +430,7 @@ async fn run(cli: &Cli, cell: &mut Cell) -> ExitCode {
                     let line = line.trim();
                     let (to, rest) = line.split_once(' ').unwrap_or((line, ""));
                     if !(to.starts_with("rcm") || to.starts_with("plc")) || !cell.control(to, rest).await {
-                        say(&format!("falc-launch: `{line}`: type `rcm <control>` or `plc <control>`"));
+                        say(&format!("falc-launch: `{line}`: type `rcm <control>` or `plc <control>` (`rcm-<station> …`, `plc-<station> …` for another station's twin)"));
                     }
                 }
                 _ => stdin_open = false,

@@ -147,6 +147,7 @@ fn path_of(dir: &Path, file: &RecipeFile) -> PathBuf {
 /// Every recipe file under `dir`, with its name where the text gives one.
 fn list(dir: &Path, topology: &Topology, cell: &StationName) -> Result<Vec<RecipeInfo>, String> {
     let mut out = Vec::new();
+    let kinds = StationKinds::of(topology);
     for station in stations(topology, cell) {
         let sub = dir.join(station.as_str());
         let Ok(read) = std::fs::read_dir(&sub) else {
@@ -164,15 +165,7 @@ fn list(dir: &Path, topology: &Topology, cell: &StationName) -> Result<Vec<Recip
             };
             let name = std::fs::read_to_string(path_of(dir, &file))
                 .ok()
-                .and_then(|text| {
-                    files::entry_in(
-                        &path_of(dir, &file),
-                        None,
-                        &StationKinds::of(topology),
-                        text,
-                    )
-                    .ok()
-                })
+                .and_then(|text| files::entry_in(&path_of(dir, &file), None, &kinds, text).ok())
                 .and_then(|e| e.name().ok())
                 .map(|n| n.to_string());
             out.push(RecipeInfo { file, name });

@@ -230,22 +230,16 @@ async fn run(
     Ok(())
 }
 
-/// Installs logging: the normal log ([`falc_node::log_filter`]) to stderr,
+/// Installs logging: the normal log ([`falc_node::log_layer`]),
 /// the refused-login reports ([`logins`]) and, with `trace_acl`, the denial
 /// counter on zenoh's ACL target ([`denials`]).
 fn init_tracing(trace_acl: bool) -> (Option<denials::Denials>, logins::Refusals) {
-    use std::io::IsTerminal;
     use tracing_subscriber::layer::SubscriberExt;
     use tracing_subscriber::util::SubscriberInitExt;
-    use tracing_subscriber::{Layer, Registry};
-    let fmt = tracing_subscriber::fmt::layer()
-        .with_ansi(std::io::stderr().is_terminal())
-        .with_writer(std::io::stderr)
-        .with_filter(falc_node::log_filter());
     let (refused, refusals) = logins::layer();
     let (denied, denials) = denials::layer(trace_acl);
-    let _ = Registry::default()
-        .with(fmt)
+    let _ = tracing_subscriber::Registry::default()
+        .with(falc_node::log_layer())
         .with(refused)
         .with(denied)
         .try_init();

@@ -115,13 +115,20 @@ pub struct Authority {
     fresh: bool,
 }
 
-fn leaf_params(common_name: &str) -> CertificateParams {
+/// A certificate's parameters named `common_name`, valid 2025–2045 (the
+/// CA's and every certificate it issues alike).
+fn named(common_name: &str) -> CertificateParams {
     let mut params = CertificateParams::default();
     let mut dn = DistinguishedName::new();
     dn.push(DnType::CommonName, common_name);
     params.distinguished_name = dn;
     params.not_before = rcgen::date_time_ymd(2025, 1, 1);
     params.not_after = rcgen::date_time_ymd(2045, 1, 1);
+    params
+}
+
+fn leaf_params(common_name: &str) -> CertificateParams {
+    let mut params = named(common_name);
     params.key_usages = vec![
         KeyUsagePurpose::DigitalSignature,
         KeyUsagePurpose::KeyEncipherment,
@@ -152,14 +159,9 @@ impl Authority {
             });
         }
         let key = KeyPair::generate().map_err(|e| cert_error(&files.key, e))?;
-        let mut params = CertificateParams::default();
-        let mut dn = DistinguishedName::new();
-        dn.push(DnType::CommonName, format!("FALC cell {cell} CA"));
-        params.distinguished_name = dn;
+        let mut params = named(&format!("FALC cell {cell} CA"));
         params.is_ca = IsCa::Ca(BasicConstraints::Constrained(0));
         params.key_usages = vec![KeyUsagePurpose::KeyCertSign, KeyUsagePurpose::CrlSign];
-        params.not_before = rcgen::date_time_ymd(2025, 1, 1);
-        params.not_after = rcgen::date_time_ymd(2045, 1, 1);
         let cert = params
             .self_signed(&key)
             .map_err(|e| cert_error(&files.ca, e))?;

@@ -106,9 +106,12 @@ pub fn router(
     if let Some(tls) = tls {
         v["transport"]["link"]["tls"] = tls_section(tls, true);
         v["transport"]["link"]["protocols"] = json!(["tls"]);
-        if !listen.contains('#') {
+        // An endpoint may carry its own configuration (`#a=1;b=2`); the
+        // time-out is added to it unless it sets one.
+        if !listen.contains("tls_handshake_timeout_ms") {
+            let sep = if listen.contains('#') { ';' } else { '#' };
             listen = format!(
-                "{listen}#tls_handshake_timeout_ms={}",
+                "{listen}{sep}tls_handshake_timeout_ms={}",
                 HANDSHAKE_TIMEOUT.as_millis()
             );
         }
@@ -157,5 +160,36 @@ mod tests {
             json!({ "enabled": true, "default_permission": "deny" })
         )
         .is_ok());
+    }
+
+    #[test]
+    fn a_tls_listen_endpoint_gets_the_handshake_time_out_unless_it_sets_one() {
+        let tls = TlsFiles::of(Path::new("/tmp/creds"), "router");
+        let listen = |endpoint: &str| {
+            let cfg = router(
+                endpoint,
+                Duration::from_secs(1),
+                Path::new("/tmp/dict"),
+                Some(&tls),
+                json!({ "enabled": true, "default_permission": "deny" }),
+            )
+            .expect("router config");
+            cfg.get_json("listen/endpoints").expect("endpoints")
+        };
+        assert!(
+            listen("tls/0.0.0.0:7447").contains("tls/0.0.0.0:7447#tls_handshake_timeout_ms=3000"),
+            "{}",
+            listen("tls/0.0.0.0:7447")
+        );
+        let own = listen("tls/0.0.0.0:7447#iface=eth0");
+        assert!(
+            own.contains("iface=eth0;tls_handshake_timeout_ms=3000"),
+            "{own}"
+        );
+        let set = listen("tls/0.0.0.0:7447#tls_handshake_timeout_ms=500");
+        assert!(
+            set.contains("tls_handshake_timeout_ms=500") && !set.contains("3000"),
+            "{set}"
+        );
     }
 }

@@ -351,8 +351,6 @@ mod tests {
         }
     }
 
-    /// Runs the recipe to its `start transport store`, returning that
-    /// command.
     /// [`up_to_the_transport_job`], its start confirmed: the commands that
     /// follow (none while the job runs).
     fn transport_job_running(c: &mut Controller<Stations>) -> Vec<Command> {
@@ -366,6 +364,8 @@ mod tests {
         settle(c, secs(6))
     }
 
+    /// Runs the recipe to its `start transport store`, returning that
+    /// command.
     fn up_to_the_transport_job(c: &mut Controller<Stations>) -> Command {
         start(c).unwrap();
         // An output does not wait for its confirm: the question follows

@@ -109,19 +109,33 @@ impl NodeArgs {
     }
 }
 
-/// Logs to stderr, filtered by [`log_filter`]; colours only on a terminal.
+/// Logs to stderr ([`log_layer`]).
 pub fn init_tracing() {
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    let _ = tracing_subscriber::Registry::default()
+        .with(log_layer())
+        .try_init();
+}
+
+/// The log of every FALC process, as a layer (the router adds its own
+/// beside it): to stderr, filtered by [`log_filter`], colours only on a
+/// terminal.
+pub fn log_layer<S>() -> impl tracing_subscriber::Layer<S>
+where
+    S: tracing::Subscriber + for<'a> tracing_subscriber::registry::LookupSpan<'a>,
+{
     use std::io::IsTerminal;
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(log_filter())
+    use tracing_subscriber::Layer;
+    tracing_subscriber::fmt::layer()
         .with_ansi(std::io::stderr().is_terminal())
         .with_writer(std::io::stderr)
-        .try_init();
+        .with_filter(log_filter())
 }
 
 /// The log filter of every FALC process: `RUST_LOG`, else `info` with
 /// zenoh's own chatter at `warn`.
-pub fn log_filter() -> tracing_subscriber::EnvFilter {
+fn log_filter() -> tracing_subscriber::EnvFilter {
     use tracing_subscriber::EnvFilter;
     EnvFilter::try_from_default_env().unwrap_or_else(|_| {
         EnvFilter::new("info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn")

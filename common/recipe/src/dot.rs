@@ -66,13 +66,14 @@ pub fn trace_to_dot(trace: &super::verify::Trace, finding: &str) -> String {
         escape(finding)
     );
     let mut next = 0usize;
-    trace_cluster(trace, &mut out, &mut next);
+    let _ = trace_cluster(trace, &mut out, &mut next);
     let _ = writeln!(out, "}}");
     out
 }
 
-/// Writes `trace` as a cluster; returns the node ids of its steps.
-fn trace_cluster(trace: &super::verify::Trace, out: &mut String, next: &mut usize) -> Vec<usize> {
+/// Writes `trace` as a cluster (node ids from `next` on); returns the id
+/// of its start node.
+fn trace_cluster(trace: &super::verify::Trace, out: &mut String, next: &mut usize) -> usize {
     let cluster = *next;
     *next += 1;
     let _ = writeln!(
@@ -121,13 +122,12 @@ fn trace_cluster(trace: &super::verify::Trace, out: &mut String, next: &mut usiz
     let _ = writeln!(out, "  }}");
     for (step, id) in trace.steps.iter().zip(&ids) {
         if let Some(below) = &step.below {
-            let start = *next + 1; // the cluster's start node id
-            trace_cluster(below, out, next);
+            let start = trace_cluster(below, out, next);
             let _ = writeln!(
                 out,
                 "  n{start} -> n{id} [style=dashed, label=\"explains\"];"
             );
         }
     }
-    ids
+    first
 }

@@ -329,8 +329,6 @@ pub struct Report {
     pub findings: Vec<Finding>,
     /// Explored states, all recipes together.
     pub states: usize,
-    /// Explored states per recipe file.
-    pub per_recipe: BTreeMap<String, usize>,
     /// The outcomes each workstation recipe can reach: (station, name).
     pub outcomes: BTreeMap<(StationName, ObjectName), BTreeSet<Ending>>,
     /// Set when a recipe had more states than the limit: what was cut short.
@@ -373,7 +371,7 @@ pub fn verify_with_limit(programs: &[(StationName, Program)], limit: usize) -> R
             run.endings.keys().copied().collect(),
         );
         below.insert((station.clone(), name), ends);
-        record(&mut report, p, run, &mut ws_findings);
+        record(&mut report, run, &mut ws_findings);
     }
     let durations: HashMap<(StationName, ObjectName), Option<Duration>> = programs
         .iter()
@@ -392,16 +390,15 @@ pub fn verify_with_limit(programs: &[(StationName, Program)], limit: usize) -> R
         };
         let mut run = explore(station, p, &jobs, limit);
         run.findings.extend(time_limits(p, &run, &durations));
-        record(&mut report, p, run, &mut cell_findings);
+        record(&mut report, run, &mut cell_findings);
     }
     report.findings = cell_findings;
     report.findings.append(&mut ws_findings);
     report
 }
 
-fn record(report: &mut Report, p: &Program, run: Run, findings: &mut Vec<Finding>) {
+fn record(report: &mut Report, run: Run, findings: &mut Vec<Finding>) {
     report.states += run.nodes;
-    report.per_recipe.insert(p.origin.clone(), run.nodes);
     if let Some(b) = run.bounded {
         report.bounded.push(b);
     }
@@ -1495,6 +1492,21 @@ mod tests {
         let below = last.below.as_ref().expect("the welding recipe's trace");
         assert_eq!(below.ending, Some(Ending::Failed(End::BadProduct)));
         assert_eq!(f[0].trace.ending, Some(Ending::Failed(End::BadProduct)));
+        // Drawn: the welding recipe's box, its start node joined to the
+        // cell's step it explains.
+        let dot = crate::dot::trace_to_dot(&f[0].trace, &f[0].to_string());
+        let start_below = dot
+            .lines()
+            .skip_while(|l| !l.contains("subgraph cluster_1"))
+            .find(|l| l.contains("[label=\"start → 1\"]"))
+            .and_then(|l| l.trim().split(' ').next())
+            .expect("the welding recipe's start node");
+        assert!(
+            dot.lines()
+                .any(|l| l.trim().starts_with(&format!("{start_below} -> "))
+                    && l.contains("explains")),
+            "{dot}"
+        );
     }
 
     #[test]
