@@ -14,6 +14,7 @@ mod dnc;
 mod hierarchy;
 mod hosts;
 mod launch;
+mod modes;
 mod operator;
 mod recipes;
 mod recovery;

@@ -34,7 +34,7 @@ fn every_shipped_recipe_checks_clean() {
     let count = |s: &str| programs.iter().filter(|(st, _)| st.as_str() == s).count();
     assert_eq!(
         (count("cell"), count("welding"), count("transport")),
-        (3, 3, 5)
+        (3, 3, 6)
     );
 }
 
@@ -273,7 +273,7 @@ fn falc_recipe_check_and_dot() {
     assert_eq!((code, out.as_str()), (0, ""));
     let (code, out) = falc(&["recipe", "list"]);
     assert_eq!(code, 0, "{out}");
-    assert_eq!(out.lines().count(), 11, "{out}");
+    assert_eq!(out.lines().count(), 12, "{out}");
     assert!(
         out.lines()
             .any(|l| l.starts_with("welding") && l.contains("DROOG_DIK") && l.contains("ok")),

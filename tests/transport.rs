@@ -5,7 +5,9 @@
 //! carriers went.
 
 use crate::support::{twin, Commander, Proc, TestCell};
-use falc_model::mms::pdu::JobEvent;
+use falc_model::ids::ObjectName;
+use falc_model::mms::pdu::{JobEvent, Request, Response};
+use falc_model::mms::program::PiState;
 use std::time::Duration;
 
 const SCALE: &str = "20";
@@ -421,4 +423,65 @@ async fn the_node_needs_nothing_but_the_documented_map() {
         [offset(Input::Signal(Signal::Place(falc_model::ids::Place::of(3))))] = true;
     assert_eq!(commander.job(Duration::from_secs(5)).await, JobEvent::Done);
     assert!(!image.lock().expect("image").coils[k], "K released");
+}
+
+/// Store one carrier, then wait for place 5 (the test puts a carrier there).
+const PARK: &str = "#PARK
+-1 | activate k        | | | 2
+-2 | waitplace 3 1 40  | | klaar | 3
+-2 | waitplace 3 1 40  | | tijdlimiet | 9
+-3 | reset k           | | | 4
+-4 | waitplace 5 1 600 | | klaar | 0
+-4 | waitplace 5 1 600 | | tijdlimiet | 9
+-9 |                   | alarm | | 0
+";
+
+/// The transport's program and the state its recipe is in, as its status
+/// says.
+async fn program_state(rig: &Rig) -> Option<(String, u16)> {
+    match rig.commander.call(Request::Status).await {
+        Ok(Response::Status(s)) => s.program.map(|p| (p.name.to_string(), p.state)),
+        other => panic!("status: {other:?}"),
+    }
+}
+
+/// ISO 9506 Stop then Resume: the program invocation goes on at the state
+/// it stopped in (here 4), not at state 1 (which would send a carrier
+/// along line K again).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stop_then_resume_of_a_transport_job_continues_at_its_state() {
+    let mut rig = rig().await;
+    rig.commander.load("park", PARK).await;
+    rig.commander.start("park").await;
+    let end = tokio::time::Instant::now() + RUN;
+    while program_state(&rig).await != Some(("PARK".into(), 4)) {
+        assert!(
+            tokio::time::Instant::now() < end,
+            "PARK never reached state 4"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert_eq!(rig.carriers(), "carriers: 1@W3 2@W2");
+    let name = ObjectName::new("park").expect("valid");
+    let r = rig
+        .commander
+        .call(Request::Stop { name: name.clone() })
+        .await;
+    assert_eq!(r, Ok(Response::ProgramInvocationState(PiState::Stopped)));
+    assert_eq!(program_state(&rig).await, None, "stopped: nothing runs");
+    rig.plc.expect_line("coil button line K 0", RUN);
+    rig.plc.forget("coil button line K");
+    let r = rig.commander.call(Request::Resume { name }).await;
+    assert_eq!(r, Ok(Response::ProgramInvocationState(PiState::Running)));
+    assert_eq!(program_state(&rig).await, Some(("PARK".into(), 4)));
+    // A carrier at W5 ends the wait: done, and line K was not pressed again.
+    rig.plc.control("layout W3 W5");
+    assert_eq!(rig.commander.job(RUN).await, JobEvent::Done);
+    assert!(
+        rig.plc
+            .wait_line("coil button line K 1", Duration::from_millis(500))
+            .is_none(),
+        "state 1 ran again"
+    );
+    assert_eq!(rig.carriers(), "carriers: 1@W3 2@W5");
 }

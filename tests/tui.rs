@@ -113,6 +113,19 @@ fn an_operator_runs_dikdroog_from_the_tui() {
     );
     assert!(s.contains("order 1 dikdroog · DIKDROOG state"), "{s}");
 
+    // F4: the cell's recipe, the state it waits in marked (the question
+    // holds it there, so the view is not a race with a fast twin).
+    tmux.keys(&["F4"]);
+    let s = tmux.wait_for(
+        &[
+            "← cell → runs DIKDROOG, state 6",
+            "cell/dikdroog.rcp  (current state 6",
+            "▶ -6",
+        ],
+        Duration::from_secs(20),
+    );
+    assert!(s.contains("highlighted"), "{s}");
+
     // F2: the question in the cell's pane, answered in place.
     tmux.keys(&["F2"]);
     tmux.wait_for(
@@ -121,18 +134,6 @@ fn an_operator_runs_dikdroog_from_the_tui() {
     );
     tmux.keys(&["j", "a", "Enter"]);
     tmux.wait_for(&["answered ja"], Duration::from_secs(10));
-
-    // F4: the cell's recipe, the state it is in marked.
-    tmux.keys(&["F4"]);
-    let s = tmux.wait_for(
-        &[
-            "← cell → runs DIKDROOG, state",
-            "cell/dikdroog.rcp  (current state",
-            "▶ -",
-        ],
-        Duration::from_secs(20),
-    );
-    assert!(s.contains("highlighted"), "{s}");
 
     // F1: the robot and the table busy, then everything idle and done.
     tmux.keys(&["F1"]);
@@ -199,7 +200,8 @@ fn an_engineer_edits_a_recipe_in_the_tui_checked_on_save() {
         &["(new recipe)", "transport/store.rcp"],
         Duration::from_secs(10),
     );
-    tmux.keys(&["Down", "Down", "Enter"]);
+    // (new recipe), home, move_to_man, store.
+    tmux.keys(&["Down", "Down", "Down", "Enter"]);
     let s = tmux.wait_for(&["recipe NOT saved", "waitplase"], Duration::from_secs(10));
     assert!(
         s.contains("store.rcp:"),
@@ -221,5 +223,90 @@ fn an_engineer_edits_a_recipe_in_the_tui_checked_on_save() {
         journal.contains("engineer: recipe transport/store.rcp changed"),
         "{journal}"
     );
+    tmux.keys(&["q"]);
+}
+
+#[test]
+fn step_mode_and_a_maintenance_action_in_the_tui() {
+    let cell = LaunchedCell::start("50");
+    let falc = env!("CARGO_BIN_EXE_falc");
+    let args = cell.falc_args("console").join(" ");
+    let tmux = Tmux::start(&format!("{falc} {args} tui"));
+    tmux.wait_for(
+        &["F1 overview", "cell IDLE", "mode AUTO"],
+        Duration::from_secs(20),
+    );
+    // F3 → m → step.
+    tmux.keys(&["F3", "m"]);
+    tmux.wait_for(
+        &["pick the cell's mode", "maintenance"],
+        Duration::from_secs(10),
+    );
+    tmux.keys(&["Down", "Enter"]);
+    tmux.wait_for(&["mode step (cell)", "mode STEP"], Duration::from_secs(10));
+    tmux.keys(&["o"]);
+    tmux.wait_for(&["pick a cell recipe", "dikdroog"], Duration::from_secs(10));
+    tmux.keys(&["Enter"]);
+    tmux.wait_for(&["added order 1 (dikdroog)"], Duration::from_secs(10));
+    tmux.keys(&["s"]);
+    tmux.wait_for(&["order 1 (dikdroog) started"], Duration::from_secs(10));
+    // F1: the first step waits; Enter carries it out, the next one waits.
+    tmux.keys(&["F1"]);
+    tmux.wait_for(
+        &["STEP: state 1 waits: output", "Enter: carry it out"],
+        Duration::from_secs(20),
+    );
+    tmux.keys(&["Enter"]);
+    tmux.wait_for(
+        &["STEP: state 2 waits: output dikke plaat droog"],
+        Duration::from_secs(20),
+    );
+    // Back to auto while the order runs: it goes on by itself.
+    tmux.keys(&["F3", "m"]);
+    tmux.wait_for(&["pick the cell's mode"], Duration::from_secs(10));
+    tmux.keys(&["Enter"]);
+    tmux.wait_for(&["mode auto", "mode AUTO"], Duration::from_secs(10));
+    tmux.keys(&["F2"]);
+    tmux.wait_for(&["answer: _"], Duration::from_secs(20));
+    tmux.keys(&["j", "a", "Enter"]);
+    tmux.keys(&["F1"]);
+    tmux.wait_for(
+        &["last: order 1 dikdroog done", "cell IDLE"],
+        Duration::from_secs(60),
+    );
+    tmux.keys(&["q"]);
+
+    // A maintainer: maintenance mode, then the conveyor home.
+    let args = cell.falc_args("maintainer").join(" ");
+    let tmux = Tmux::start(&format!("{falc} {args} tui"));
+    tmux.wait_for(
+        &["maintainer (Maintainer)", "mode AUTO"],
+        Duration::from_secs(20),
+    );
+    tmux.keys(&["F3", "m"]);
+    tmux.wait_for(&["pick the cell's mode"], Duration::from_secs(10));
+    tmux.keys(&["Down", "Down", "Enter"]);
+    tmux.wait_for(
+        &["mode maintenance", "mode MAINTENANCE"],
+        Duration::from_secs(10),
+    );
+    tmux.keys(&["h"]);
+    tmux.wait_for(
+        &["pick the workstation to bring home", "transport"],
+        Duration::from_secs(10),
+    );
+    tmux.keys(&["Down", "Enter"]);
+    tmux.wait_for(
+        &["manual on transport: run recipe home"],
+        Duration::from_secs(10),
+    );
+    let (code, journal) = cell.falc_as("maintainer", &["journal"]);
+    assert_eq!(code, 0, "{journal}");
+    assert!(
+        journal.contains("maintainer: manual on transport: run recipe home"),
+        "{journal}"
+    );
+    assert!(journal.contains("console: step on cell"), "{journal}");
+    assert!(journal.contains("console: mode step (cell)"), "{journal}");
     tmux.keys(&["q"]);
 }

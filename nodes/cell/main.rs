@@ -29,11 +29,16 @@ use falc_model::alarm::AlarmClass;
 use falc_model::ids::StationName;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Request, Response, Severity};
+use falc_model::mode::CellMode;
 use falc_node::controller_node::ControllerNode;
 use falc_node::{init_tracing, lane, say, NodeArgs};
 use falc_recipe::commands::RecipeKind;
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
+
+/// How long a workstation may take to confirm a mode, step or manual
+/// operation passed on.
+const PASS_LIMIT: Duration = Duration::from_secs(10);
 use tokio::sync::mpsc::{unbounded_channel, UnboundedSender};
 
 #[derive(Parser, Debug)]
@@ -127,12 +132,51 @@ impl Cell {
                 self.ctl.station_event(other).await;
                 if associated {
                     self.deliveries.catch_up(self.ctl.core.vmd());
+                    if self.ctl.core.mode().mode != CellMode::Auto {
+                        for st in self.subordinates.clone() {
+                            self.mode_to(st);
+                        }
+                    }
                 }
             }
         }
     }
 
     async fn indication(&mut self, ind: Indication) {
+        match &ind.request {
+            Request::Mode(_) => {
+                // Set here first (refused while a recipe runs, unless auto
+                // ↔ step), then on every workstation.
+                let result = self.ctl.indication(&ind.request).await;
+                if result.is_err() {
+                    return ind.responder.respond(result).await;
+                }
+                let to = self.subordinates.clone();
+                return self.pass_on(to, ind);
+            }
+            Request::Step {
+                station: Some(st), ..
+            }
+            | Request::Manual { station: st, .. }
+                if self.subordinates.contains(st) =>
+            {
+                let to = vec![st.clone()];
+                return self.pass_on(to, ind);
+            }
+            Request::Manual { station, .. } => {
+                let e = ServiceError::undefined(format!(
+                    "{station} is not a workstation of this cell: manual operations are \
+                     on the workstations ({})",
+                    self.subordinates
+                        .iter()
+                        .map(StationName::as_str)
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ));
+                return ind.responder.respond(Err(e)).await;
+            }
+            _ => {}
+        }
         let result = self.ctl.indication(&ind.request).await;
         if let (
             Ok(_),
@@ -165,6 +209,37 @@ impl Cell {
             }
         }
         ind.responder.respond(result).await;
+    }
+
+    /// Passes the commander's request on to workstations `to` (a mode to
+    /// every one, a step or a manual operation to the one it names) and
+    /// answers it with their confirms: the first refusal, named.
+    fn pass_on(&self, to: Vec<StationName>, ind: Indication) {
+        let bus = self.lanes.bus.clone();
+        tokio::spawn(async move {
+            let mut refused = Vec::new();
+            for st in to {
+                if let Err(e) = bus.request(&st, &ind.request, PASS_LIMIT).await {
+                    refused.push(e.description);
+                }
+            }
+            let result = match refused.is_empty() {
+                true => Ok(Response::Done),
+                false => Err(ServiceError::state_conflict(refused.join("; "))),
+            };
+            ind.responder.respond(result).await;
+        });
+    }
+
+    /// A workstation associated again: it gets the cell's mode.
+    fn mode_to(&self, st: StationName) {
+        let bus = self.lanes.bus.clone();
+        let mode = Request::Mode(self.ctl.core.mode().clone());
+        tokio::spawn(async move {
+            if let Err(e) = bus.request(&st, &mode, PASS_LIMIT).await {
+                tracing::warn!("the mode did not reach {st}: {e}");
+            }
+        });
     }
 
     /// A delivery ended: answer its download, then what was held back.

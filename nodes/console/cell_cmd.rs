@@ -1,4 +1,5 @@
-//! `falc status|order|start|stop|ack|alarms|answer|messages|journal|shutdown`: the
+//! `falc status|order|start|stop|ack|alarms|answer|messages|journal|shutdown`,
+//! `falc mode|step|restart|manual`: the
 //! operator API from the command line. Human-readable output by default,
 //! one JSON document per answer with `--json` (for scripts). Exit status: 0
 //! done, 1 refused by the operator node or by the console itself (the
@@ -14,6 +15,7 @@ use falc_bus::Bus;
 use falc_model::alarm::Alarm;
 use falc_model::console::{ApiReply, ApiRequest, CellStatus, Entry, Order, RecipeFile};
 use falc_model::ids::StationName;
+use falc_model::mode::{CellMode, ManualAction};
 use falc_model::topology::Topology;
 use falc_node::NodeArgs;
 use falc_recipe::files::StationKinds;
@@ -92,6 +94,102 @@ pub enum CellCommand {
     /// The operator's recipe store: list, show, save (engineers), edit.
     #[command(subcommand)]
     Store(StoreCommand),
+    /// Set the cell's mode: auto, step (each recipe step waits for `falc
+    /// step`), maintenance (no order runs; a maintainer operates by hand).
+    /// Only auto ↔ step while an order runs.
+    Mode {
+        /// auto, step or maintenance.
+        mode: CellMode,
+        /// In step mode, a workstation that steps as well as the cell
+        /// (repeat for more).
+        #[arg(long = "station")]
+        stations: Vec<StationName>,
+    },
+    /// Step mode: carry out the recipe step that waits (`falc status`
+    /// shows it), or every step up to state N.
+    Step {
+        /// The workstation whose step (default: the cell's).
+        #[arg(long)]
+        station: Option<StationName>,
+        /// Go on until this state waits.
+        #[arg(long)]
+        to: Option<u16>,
+    },
+    /// Run a failed, stopped or interrupted order again: from state
+    /// `--from` of its cell recipe; without it a stopped order goes on
+    /// where it stopped, any other from its first state.
+    Restart {
+        /// The order id.
+        order: i64,
+        /// The cell recipe's state to begin at.
+        #[arg(long)]
+        from: Option<u16>,
+    },
+    /// A manual operation on a workstation (maintainer; the cell in
+    /// maintenance mode).
+    Manual {
+        /// The workstation (`transport`, `welding`).
+        station: StationName,
+        #[command(subcommand)]
+        action: ManualCommand,
+    },
+}
+
+/// `falc manual STATION …`.
+#[derive(Subcommand, Debug)]
+pub enum ManualCommand {
+    /// Press a conveyor button: a line A–H, J–L or a station 1–3.
+    Press {
+        /// The button.
+        button: String,
+    },
+    /// Release a conveyor button.
+    Release {
+        /// The button.
+        button: String,
+    },
+    /// Run one conveyor line for a while (pressed, then released).
+    Line {
+        /// The line A–H, J–L.
+        line: String,
+        /// For how many seconds (1–600).
+        #[arg(default_value_t = 10)]
+        seconds: u32,
+    },
+    /// Select a robot program.
+    Select {
+        /// Its number (1–999).
+        program: u16,
+    },
+    /// Start the selected robot program.
+    Start,
+    /// Stop the robot program.
+    Stop,
+    /// Confirm the robot's alarm.
+    Confirm,
+    /// Run one of the station's recipes.
+    Run {
+        /// The recipe (`home`).
+        recipe: String,
+    },
+    /// Run the station's home recipe: back to the starting layout.
+    Home,
+}
+
+impl ManualCommand {
+    fn action(self) -> ManualAction {
+        match self {
+            Self::Press { button } => ManualAction::Press(button),
+            Self::Release { button } => ManualAction::Release(button),
+            Self::Line { line, seconds } => ManualAction::RunLine { line, seconds },
+            Self::Select { program } => ManualAction::SelectProgram(program),
+            Self::Start => ManualAction::StartProgram,
+            Self::Stop => ManualAction::StopProgram,
+            Self::Confirm => ManualAction::ConfirmAlarm,
+            Self::Run { recipe } => ManualAction::RunRecipe(recipe),
+            Self::Home => ManualAction::RunRecipe("home".into()),
+        }
+    }
 }
 
 /// `falc store …`: the recipes the operator delivers (not local files:
@@ -241,6 +339,33 @@ fn show_status(s: &CellStatus) -> String {
         None => format!("list {list}; no order running"),
     });
     out.push(format!("queued orders: {}", s.queued));
+    if let Some(mode) = s
+        .stations
+        .first()
+        .and_then(|st| st.status.as_ref())
+        .map(|v| v.mode)
+    {
+        out.push(format!("mode: {mode}"));
+    }
+    for st in &s.stations {
+        if let Some((v, h)) = st.status.as_ref().and_then(|v| Some((v, v.held.as_ref()?))) {
+            let program = v
+                .program
+                .as_ref()
+                .map_or(String::new(), |p| format!("{} ", p.name));
+            out.push(format!(
+                "STEP: {} {program}state {} waits: {}  (falc step{})",
+                st.name,
+                h.state,
+                h.command,
+                if st.name == s.stations[0].name {
+                    String::new()
+                } else {
+                    format!(" --station {}", st.name)
+                }
+            ));
+        }
+    }
     out.push(if s.cell_associated {
         "cell: associated".to_string()
     } else {
@@ -526,6 +651,13 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
             .await
         }
         CellCommand::Shutdown => ApiRequest::Shutdown,
+        CellCommand::Mode { mode, stations } => ApiRequest::Mode { mode, stations },
+        CellCommand::Step { station, to } => ApiRequest::Step { station, to },
+        CellCommand::Restart { order, from } => ApiRequest::Restart { order, from },
+        CellCommand::Manual { station, action } => ApiRequest::Manual {
+            station,
+            action: action.action(),
+        },
         CellCommand::Store(cmd) => {
             let kinds = StationKinds::of(&topology);
             return store(&bus, &operator, cmd, json, &kinds).await;

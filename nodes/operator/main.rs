@@ -143,6 +143,7 @@ impl Operator {
                             LaneJob::Request(Request::Start { name, argument })
                         }
                         CellCall::Stop { name } => LaneJob::Request(Request::Stop { name }),
+                        CellCall::Pass(request) => LaneJob::Request(request),
                     };
                     if self.lane.send(job).is_err() {
                         tracing::error!("the cell lane stopped");

@@ -308,6 +308,24 @@ impl Conveyor {
         &self.coils
     }
 
+    /// The buttons held (coils on), as the twin's `show` prints them:
+    /// `buttons held: none`, `buttons held: A 3`.
+    pub fn held(&self) -> String {
+        let held: Vec<String> = (0..COILS)
+            .filter(|&o| self.coils[usize::from(o)])
+            .filter_map(|o| match Coil::at(o) {
+                Some(Coil::Button(Button::Line(l))) => Some(l.to_string()),
+                Some(Coil::Button(Button::Station(n))) => Some(n.to_string()),
+                _ => None,
+            })
+            .collect();
+        if held.is_empty() {
+            "buttons held: none".into()
+        } else {
+            format!("buttons held: {}", held.join(" "))
+        }
+    }
+
     fn count_at(&self, s: Spot) -> usize {
         self.carriers.iter().filter(|c| c.pos == Pos::At(s)).count()
     }

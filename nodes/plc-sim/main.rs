@@ -97,6 +97,7 @@ impl Twin {
                 self.conveyor.handle_timeout(now);
                 say(&self.conveyor.describe());
                 say(&format!("inputs: {}", self.conveyor.inputs()));
+                say(&self.conveyor.held());
                 Ok(())
             }
             Ctl::Layout(l) => self.conveyor.set_layout(&l),

@@ -30,6 +30,7 @@
 use falc_control::controller::Device;
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
+use falc_model::mode::{CellMode, ManualAction};
 use falc_node::plc_link::{Pace, PlcCommand};
 use falc_plc::map::{Coil, Input, Inputs, SignalName};
 use falc_recipe::check::{Button, Signal};
@@ -63,6 +64,8 @@ pub struct Plc {
     last_line: Option<char>,
     /// Whether the link polls at the busy period.
     busy: bool,
+    /// A line a maintainer runs by hand, and when it is released.
+    manual_line: Option<(char, Duration)>,
 }
 
 impl Plc {
@@ -79,6 +82,7 @@ impl Plc {
             pressed: Vec::new(),
             last_line: None,
             busy: false,
+            manual_line: None,
         }
     }
 
@@ -252,6 +256,68 @@ impl Device for Plc {
             }
             Action::Unwatch => self.watch = None,
             other => tracing::warn!("a transport recipe cannot {other:?}"),
+        }
+    }
+
+    fn manual(&mut self, now: Duration, action: &ManualAction) -> Result<String, String> {
+        if let Some(why) = self.unavailable() {
+            return Err(why);
+        }
+        match action {
+            ManualAction::Press(b) | ManualAction::Release(b) => {
+                let button: Button = b.parse()?;
+                let press = matches!(action, ManualAction::Press(_));
+                self.write(button, press);
+                if press {
+                    Ok(format!("{button} pressed"))
+                } else {
+                    if self
+                        .manual_line
+                        .is_some_and(|(l, _)| button == Button::Line(l))
+                    {
+                        self.manual_line = None;
+                    }
+                    Ok(format!("{button} released"))
+                }
+            }
+            ManualAction::RunLine { line, seconds } => {
+                let Ok(Button::Line(l)) = line.parse::<Button>() else {
+                    return Err(format!("`{line}` is not a conveyor line (A–H, J–L)"));
+                };
+                if !(1..=600).contains(seconds) {
+                    return Err(format!("{seconds} s: a line runs by hand for 1–600 s"));
+                }
+                if let Some((other, _)) = self.manual_line {
+                    if other != l {
+                        self.write(Button::Line(other), false);
+                    }
+                }
+                self.write(Button::Line(l), true);
+                self.manual_line = Some((l, now + Duration::from_secs(u64::from(*seconds))));
+                Ok(format!("line {l} runs for {seconds} s"))
+            }
+            other => Err(format!("a transport station cannot {other}")),
+        }
+    }
+
+    fn mode_changed(&mut self, mode: CellMode) {
+        if mode != CellMode::Maintenance {
+            // What a maintainer left pressed is released as maintenance ends.
+            self.manual_line = None;
+            self.release(|_| true);
+        }
+    }
+
+    fn poll_timeout(&self) -> Option<Duration> {
+        self.manual_line.map(|(_, until)| until)
+    }
+
+    fn handle_timeout(&mut self, now: Duration, _out: &mut Vec<Event>) {
+        if let Some((l, until)) = self.manual_line {
+            if until <= now {
+                self.manual_line = None;
+                self.write(Button::Line(l), false);
+            }
         }
     }
 

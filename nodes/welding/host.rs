@@ -9,6 +9,7 @@ use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::RobotProgram;
 use falc_model::ids::StationName;
 use falc_model::mms::vmd::RobotStatusDetail;
+use falc_model::mode::ManualAction;
 use falc_recipe::engine::{Event, JobEnd};
 use std::time::Duration;
 
@@ -66,6 +67,8 @@ pub struct Host {
     /// to confirm it.
     suspect: Option<(Option<RobotProgram>, ProgramState)>,
     mode: Option<Mode>,
+    /// The RCM's last alarm message (what a maintainer confirms).
+    last_alarm: Option<u16>,
 }
 
 fn word(state: ProgramState) -> &'static str {
@@ -93,7 +96,39 @@ impl Host {
             open: false,
             suspect: None,
             mode: None,
+            last_alarm: None,
         }
+    }
+
+    /// A maintainer's operation of the robot (maintenance mode, no job of
+    /// ours runs): the telegram, and what was done in words.
+    pub fn manual(&mut self, action: &ManualAction) -> Result<(Telegram, String), String> {
+        if !self.open {
+            return Err(format!("the DNC line {} is not open", self.line));
+        }
+        Ok(match action {
+            ManualAction::SelectProgram(n) => {
+                let p = RobotProgram::new(*n)
+                    .ok_or_else(|| format!("{n} is not a robot program number (1–999)"))?;
+                (
+                    Telegram::SelectProgram(p),
+                    format!("robot program {p} selected"),
+                )
+            }
+            ManualAction::StartProgram => (Telegram::StartProgram, "robot program started".into()),
+            ManualAction::StopProgram => (Telegram::StopProgram, "robot program stopped".into()),
+            ManualAction::ConfirmAlarm => {
+                let code = self
+                    .last_alarm
+                    .take()
+                    .ok_or("the robot reported no alarm to confirm")?;
+                (
+                    Telegram::ConfirmAlarm(code),
+                    format!("robot alarm {code} confirmed"),
+                )
+            }
+            other => return Err(format!("a welding station cannot {other}")),
+        })
     }
 
     /// Whether the line is open and the RCM answered since it was
@@ -349,6 +384,7 @@ impl Host {
                 out
             }
             (Telegram::Alarm(code), _) => {
+                self.last_alarm = Some(code);
                 let entry = alarms::lookup(code);
                 let mut out: Vec<Out> = entry.detail().map(Out::Detail).into_iter().collect();
                 let text = format!("RCM message {code}: {}", entry.meaning);

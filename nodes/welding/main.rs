@@ -20,6 +20,7 @@ use falc_dnc::telegram::Telegram;
 use falc_model::alarm::Cause;
 use falc_model::ids::StationName;
 use falc_model::mms::vmd::{RobotStatusDetail, VmdStatus};
+use falc_model::mode::ManualAction;
 use falc_node::controller_node::ControllerNode;
 use falc_node::dnc_link::{self, LineSettings};
 use falc_node::{init_tracing, say, NodeArgs};
@@ -157,6 +158,13 @@ impl Device for Robot {
             Action::Stop(_) => self.halt(out),
             other => tracing::warn!("a welding recipe cannot {other:?}"),
         }
+    }
+
+    fn manual(&mut self, _now: Duration, action: &ManualAction) -> Result<String, String> {
+        let (telegram, done) = self.host.manual(action)?;
+        let mut events = Vec::new();
+        self.send(telegram, &mut events);
+        Ok(done)
     }
 
     fn halt(&mut self, out: &mut Vec<Event>) {

@@ -52,6 +52,9 @@ role = "observer"
 [[console]]
 name = "engineer"
 role = "engineer"
+[[console]]
+name = "maintainer"
+role = "maintainer"
 "#;
 
 /// A free TCP port on 127.0.0.1.

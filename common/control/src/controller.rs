@@ -12,6 +12,14 @@
 //! [`Duration`] since the driver's start, so tests run on a virtual clock.
 //! The driver on the bus is `falc_node::controller_node`.
 //!
+//! Modes (`falc_model::mode`): the commander sets the cell's mode with
+//! [`Request::Mode`]; in step mode a level that steps holds each recipe
+//! state until [`Request::Step`]; in maintenance mode no program starts
+//! but a [`Request::Manual`] is carried out by the device (or runs one of
+//! the station's recipes, its `home`), and refused in any other mode. A
+//! Stop keeps the run: Resume goes on where it stopped (ISO 9506); a Start
+//! whose argument ends in `from N` begins at state N (an order restarted).
+//!
 //! What differs per level is its [`Device`]: how the engine's device
 //! actions (`start rcm`, `activate`, `waitplace`, a cell's `start`) are
 //! carried out, why a recipe cannot start now, and what the device adds to
@@ -21,12 +29,13 @@ use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::error::{DefinitionError, ErrorClass, ServiceError};
 use falc_model::mms::pdu::{JobEvent, Request, Response, Severity};
-use falc_model::mms::program::{PiCompletion, PiRequest};
+use falc_model::mms::program::{PiCompletion, PiRequest, PiState};
 use falc_model::mms::vmd::{Identity, ProgramState, RecipeState, Vmd, VmdStatus};
+use falc_model::mode::{CellMode, HeldStep, ManualAction, ModeSetting};
 use falc_recipe::check::check;
 use falc_recipe::commands::RecipeKind;
 use falc_recipe::engine::{Action, Engine, Event, JobEnd, Outcome};
-use falc_recipe::syntax::parse;
+use falc_recipe::syntax::{parse, StateNo};
 use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::Duration;
@@ -75,6 +84,16 @@ pub trait Device {
     fn poll_alarm(&mut self) -> Option<Cause> {
         None
     }
+    /// The cell's mode changed (the device releases what a maintainer
+    /// left pressed when maintenance ends).
+    fn mode_changed(&mut self, _mode: CellMode) {}
+    /// A manual operation (maintenance mode, no recipe running; the
+    /// controller checked both): what was done, or why not.
+    fn manual(&mut self, _now: Duration, action: &ManualAction) -> Result<String, String> {
+        Err(format!(
+            "{action}: this station has no such manual operation"
+        ))
+    }
 }
 
 /// What the controller publishes, in order.
@@ -101,11 +120,19 @@ struct Running {
     engine: Engine,
     /// What the device saw when a limit last ran out.
     timed_out: Option<String>,
+    /// A workstation's job reported paused because a step waits (its
+    /// commander's limits stand still meanwhile).
+    paused_for_step: bool,
 }
 
 /// The runtime of one control level.
 pub struct Controller<D> {
     vmd: Vmd,
+    /// This station (whether it steps in step mode).
+    me: StationName,
+    mode: ModeSetting,
+    /// The run a Stop stopped, kept for Resume.
+    stopped: Option<Running>,
     /// The device.
     pub device: D,
     kind: RecipeKind,
@@ -124,12 +151,28 @@ impl<D: Device> Controller<D> {
                 model: kind.to_string(),
                 revision: env!("CARGO_PKG_VERSION").into(),
             }),
+            // cell, welding, transport: valid station names.
+            me: StationName::new(&kind.to_string())
+                .unwrap_or_else(|e| unreachable!("{kind} as a station name: {e}")),
+            mode: ModeSetting::default(),
+            stopped: None,
             device,
             kind,
             confirm_limit,
             running: None,
             out: VecDeque::new(),
         }
+    }
+
+    /// The station this controller is (default: its kind's name).
+    pub fn named(mut self, me: StationName) -> Self {
+        self.me = me;
+        self
+    }
+
+    /// The mode as this level has it.
+    pub fn mode(&self) -> &ModeSetting {
+        &self.mode
     }
 
     /// Whether a recipe runs.
@@ -213,6 +256,21 @@ impl<D: Device> Controller<D> {
                 name: r.name.clone(),
                 state: r.engine.state().0,
             }),
+            mode: self.mode.mode,
+            held: self.running.as_ref().and_then(|r| {
+                let state = r.engine.held()?;
+                let command = r
+                    .engine
+                    .program()
+                    .states
+                    .get(&state)
+                    .map(|s| s.text.clone())
+                    .unwrap_or_default();
+                Some(HeldStep {
+                    state: state.0,
+                    command,
+                })
+            }),
             ..VmdStatus::default()
         };
         self.device.status(&mut status);
@@ -235,11 +293,47 @@ impl<D: Device> Controller<D> {
                     self.report(Severity::Alarm(cause.class), cause.text);
                 }
                 Action::Entered(s) => tracing::debug!(state = %s, "recipe state"),
+                Action::Held(s) => {
+                    let command = r
+                        .engine
+                        .program()
+                        .states
+                        .get(&s)
+                        .map(|st| st.text.clone())
+                        .unwrap_or_default();
+                    let text = format!(
+                        "step: {} state {s} waits for `falc step`: {}",
+                        r.name,
+                        if command.is_empty() {
+                            "(no command)"
+                        } else {
+                            &command
+                        }
+                    );
+                    self.report(Severity::Info, text);
+                }
                 a => {
                     let mut out = Vec::new();
                     self.device.act(now, a, &mut out);
                     self.feed(now, out);
                 }
+            }
+        }
+        // A workstation whose step waits tells its commander its job is
+        // paused, so the limits above stand still too; and resumed.
+        if let Some(r) = &mut self.running {
+            let held = r.engine.held().is_some();
+            if self.kind.is_workstation() && held != r.paused_for_step {
+                r.paused_for_step = held;
+                let event = if held {
+                    JobEvent::Paused
+                } else {
+                    JobEvent::Resumed
+                };
+                self.out.push_back(Output::Job {
+                    program: r.name.clone(),
+                    event,
+                });
             }
         }
         let ended = self
@@ -333,6 +427,25 @@ impl<D: Device> Controller<D> {
         now: Duration,
         req: &Request,
     ) -> Result<Response, ServiceError> {
+        match req {
+            Request::Mode(setting) => return self.set_mode(now, setting),
+            Request::Step { station, to } => {
+                if station.as_ref().is_some_and(|s| *s != self.me) {
+                    return Err(ServiceError::undefined(format!(
+                        "{} has no station {} below it to step",
+                        self.me,
+                        station.as_ref().map_or("", |s| s.as_str())
+                    )));
+                }
+                return self.step(now, *to);
+            }
+            Request::Manual { action, by, .. } => return self.manual(now, action, by),
+            // A Start of a program invocation a Stop left stopped begins
+            // anew: it is reset first and the kept run dropped (ISO 9506
+            // would refuse it; a commander that starts means to start).
+            Request::Start { name, .. } => self.reset_stopped(name),
+            _ => {}
+        }
         let Some((result, transition)) = self.vmd.handle(req) else {
             return Err(ServiceError::malformed(format!(
                 "{} is not served by a {} station",
@@ -343,36 +456,30 @@ impl<D: Device> Controller<D> {
         let Some(t) = transition else { return result };
         let done = match t.request {
             PiRequest::Start | PiRequest::Resume => {
-                let refused = if self.running.is_some() {
-                    Some(ServiceError::state_conflict(format!(
-                        "another {} recipe is running",
-                        self.kind
-                    )))
-                } else {
-                    self.device.unavailable().map(ServiceError::state_conflict)
-                };
-                let engine = match refused {
-                    Some(e) => Err(e),
-                    None => self.engine_for(&t.name),
-                };
-                match engine {
-                    Ok(mut engine) => {
-                        engine.start(now);
-                        self.running = Some(Running {
-                            name: t.name.clone(),
-                            engine,
-                            timed_out: None,
-                        });
-                        if t.request == PiRequest::Start {
-                            PiCompletion::Started
-                        } else {
-                            PiCompletion::Resumed
+                let from = match req {
+                    Request::Start { argument, .. } => match restart_state(argument) {
+                        Ok(from) => from,
+                        Err(e) => {
+                            let _ = self.vmd.complete(&t.name, PiCompletion::StartFailed);
+                            return Err(e);
                         }
-                    }
-                    Err(e) => {
-                        let _ = self.vmd.complete(&t.name, PiCompletion::StartFailed);
-                        return Err(e);
-                    }
+                    },
+                    _ => None,
+                };
+                let refused = (self.mode.mode == CellMode::Maintenance).then(|| {
+                    ServiceError::state_conflict(format!(
+                        "{} is in maintenance mode: no recipe starts (falc mode auto)",
+                        self.me
+                    ))
+                });
+                if let Err(e) = self.launch(now, &t.name, t.request, from, refused) {
+                    let _ = self.vmd.complete(&t.name, PiCompletion::StartFailed);
+                    return Err(e);
+                }
+                if t.request == PiRequest::Start {
+                    PiCompletion::Started
+                } else {
+                    PiCompletion::Resumed
                 }
             }
             PiRequest::Stop | PiRequest::Kill => {
@@ -380,23 +487,228 @@ impl<D: Device> Controller<D> {
                 // cell forgets which workstations its recipe started).
                 let mut out = Vec::new();
                 self.device.halt(&mut out);
+                self.stopped = None;
                 if let Some(mut r) = self.running.take() {
                     let why = Cause::process(format!("{:?} by the commander", t.request));
                     r.engine.abort(why.clone());
                     self.device.finished(&Outcome::Alarm(why));
+                    if t.request == PiRequest::Stop {
+                        // Kept for Resume (ISO 9506): it goes on there.
+                        while r.engine.poll_action().is_some() {}
+                        self.stopped = Some(r);
+                    }
                 }
                 if t.request == PiRequest::Kill {
                     return result;
                 }
                 PiCompletion::Stopped
             }
-            PiRequest::Reset => PiCompletion::ResetDone,
+            PiRequest::Reset => {
+                self.stopped = None;
+                PiCompletion::ResetDone
+            }
             PiRequest::Delete => return result,
         };
         let state = self.vmd.complete(&t.name, done).unwrap_or_else(|s| s);
         self.settle(now);
         Ok(Response::ProgramInvocationState(state))
     }
+
+    /// Starts (or resumes) program invocation `name`: a Resume of the run a
+    /// Stop kept goes on where it stopped; else a new run, at state `from`
+    /// or the first. `refused` (and a device that is unavailable, or
+    /// another run) refuses it.
+    fn launch(
+        &mut self,
+        now: Duration,
+        name: &ObjectName,
+        request: PiRequest,
+        from: Option<StateNo>,
+        refused: Option<ServiceError>,
+    ) -> Result<(), ServiceError> {
+        let refused = refused.or_else(|| {
+            if self.running.is_some() {
+                Some(ServiceError::state_conflict(format!(
+                    "another {} recipe is running",
+                    self.kind
+                )))
+            } else {
+                self.device.unavailable().map(ServiceError::state_conflict)
+            }
+        });
+        if let Some(e) = refused {
+            return Err(e);
+        }
+        let steps = self.mode.steps(&self.me);
+        let kept = self.stopped.take().filter(|r| r.name == *name);
+        if let (PiRequest::Resume, Some(mut r)) = (request, kept) {
+            r.engine.set_stepping(now, steps);
+            r.timed_out = None;
+            r.paused_for_step = false;
+            let at = r.engine.resume(now);
+            tracing::info!(program = %name, state = ?at, "resumed where it stopped");
+            self.running = Some(r);
+            return Ok(());
+        }
+        let mut engine = self.engine_for(name)?;
+        engine.set_stepping(now, steps);
+        match from {
+            Some(state) => engine
+                .start_at(now, state)
+                .map_err(|e| ServiceError::undefined(format!("{name}: {e}")))?,
+            None => engine.start(now),
+        }
+        self.running = Some(Running {
+            name: name.clone(),
+            engine,
+            timed_out: None,
+            paused_for_step: false,
+        });
+        Ok(())
+    }
+
+    /// Resets program invocation `name` if a Stop left it stopped (its kept
+    /// run is dropped): a Start begins anew.
+    fn reset_stopped(&mut self, name: &ObjectName) {
+        if self.vmd.program(name).map(|p| p.state()) == Some(PiState::Stopped) {
+            let _ = self.vmd.handle(&Request::Reset { name: name.clone() });
+            let _ = self.vmd.complete(name, PiCompletion::ResetDone);
+            self.stopped = None;
+        }
+    }
+
+    /// The commander set the mode.
+    fn set_mode(&mut self, now: Duration, setting: &ModeSetting) -> Result<Response, ServiceError> {
+        if let Some(r) = &self.running {
+            if !self.mode.mode.may_change_running(setting.mode) {
+                return Err(ServiceError::state_conflict(format!(
+                    "the mode cannot change from {} to {} while {} runs (only auto and step \
+                     change while an order runs)",
+                    self.mode.mode, setting.mode, r.name
+                )));
+            }
+        }
+        if self.mode.mode != setting.mode {
+            self.device.mode_changed(setting.mode);
+        }
+        self.mode = setting.clone();
+        let steps = self.mode.steps(&self.me);
+        if let Some(r) = &mut self.running {
+            r.engine.set_stepping(now, steps);
+        }
+        tracing::info!(mode = %self.mode, steps, "mode set");
+        self.settle(now);
+        Ok(Response::Done)
+    }
+
+    /// Step mode: the waiting step is carried out (and, with `to`, the
+    /// steps up to state `to`).
+    fn step(&mut self, now: Duration, to: Option<u16>) -> Result<Response, ServiceError> {
+        let Some(r) = &mut self.running else {
+            return Err(ServiceError::state_conflict(format!(
+                "no recipe runs on {}: nothing to step",
+                self.me
+            )));
+        };
+        if !self.mode.steps(&self.me) {
+            return Err(ServiceError::state_conflict(format!(
+                "{} is not in step mode (falc mode step)",
+                self.me
+            )));
+        }
+        r.engine
+            .step(now, to.map(StateNo))
+            .map_err(|e| ServiceError::state_conflict(format!("{}: {e}", r.name)))?;
+        self.settle(now);
+        Ok(Response::Done)
+    }
+
+    /// A manual operation: only in maintenance mode, with no recipe running
+    /// (a home recipe it starts runs like any other, and reports its end).
+    fn manual(
+        &mut self,
+        now: Duration,
+        action: &ManualAction,
+        by: &str,
+    ) -> Result<Response, ServiceError> {
+        if self.mode.mode != CellMode::Maintenance {
+            return Err(ServiceError::state_conflict(format!(
+                "{action} refused by {}: the cell is in {} mode; manual operation needs \
+                 maintenance mode (falc mode maintenance)",
+                self.me, self.mode.mode
+            )));
+        }
+        if let Some(r) = &self.running {
+            return Err(ServiceError::state_conflict(format!(
+                "{action} refused by {}: recipe {} runs (falc stop first)",
+                self.me, r.name
+            )));
+        }
+        let done = match action {
+            ManualAction::RunRecipe(recipe) => {
+                let name = ObjectName::new(&recipe.to_uppercase())
+                    .map_err(|e| ServiceError::malformed(format!("recipe name `{recipe}`: {e}")))?;
+                if self.vmd.program(&name).is_none() {
+                    let known: Vec<String> = self
+                        .vmd
+                        .programs()
+                        .map(|p| p.name().as_str().to_lowercase())
+                        .collect();
+                    return Err(ServiceError::undefined(format!(
+                        "{} has no recipe {recipe} (it has: {})",
+                        self.me,
+                        known.join(", ")
+                    )));
+                }
+                self.reset_stopped(&name);
+                let start = Request::Start {
+                    name: name.clone(),
+                    argument: format!("manual by {by}"),
+                };
+                let Some((result, Some(t))) = self.vmd.handle(&start) else {
+                    return Err(ServiceError::state_conflict(format!(
+                        "{name} cannot start now"
+                    )));
+                };
+                result?;
+                if let Err(e) = self.launch(now, &t.name, PiRequest::Start, None, None) {
+                    let _ = self.vmd.complete(&t.name, PiCompletion::StartFailed);
+                    return Err(e);
+                }
+                let _ = self.vmd.complete(&t.name, PiCompletion::Started);
+                format!("{name} started")
+            }
+            other => self
+                .device
+                .manual(now, other)
+                .map_err(|e| ServiceError::state_conflict(format!("{other}: {e}")))?,
+        };
+        self.report(Severity::Info, format!("manual, by {by}: {done}"));
+        self.settle(now);
+        Ok(Response::Done)
+    }
+}
+
+/// The state a Start's argument asks to begin at (`order 7 from 12`), if
+/// any.
+fn restart_state(argument: &str) -> Result<Option<StateNo>, ServiceError> {
+    let mut words = argument.split_whitespace();
+    while let Some(w) = words.next() {
+        if w == "from" {
+            let n = words.next().unwrap_or_default();
+            return n
+                .parse::<u16>()
+                .ok()
+                .filter(|&n| n > 0)
+                .map(|n| Some(StateNo(n)))
+                .ok_or_else(|| {
+                    ServiceError::malformed(format!(
+                        "start argument `{argument}`: `from` needs a state number, not `{n}`"
+                    ))
+                });
+        }
+    }
+    Ok(None)
 }
 
 /// What the unit tests of the controller cores share: loading a recipe as
@@ -459,6 +771,8 @@ mod tests {
         supervised: Vec<Duration>,
         /// Raised by the supervision: a line gone silent.
         alarms: std::collections::VecDeque<Cause>,
+        /// The manual operations carried out.
+        manual: Vec<ManualAction>,
     }
 
     impl Device for Fake {
@@ -498,6 +812,10 @@ mod tests {
         fn poll_alarm(&mut self) -> Option<Cause> {
             self.alarms.pop_front()
         }
+        fn manual(&mut self, _now: Duration, action: &ManualAction) -> Result<String, String> {
+            self.manual.push(action.clone());
+            Ok(format!("{action} done"))
+        }
     }
 
     fn name(s: &str) -> ObjectName {
@@ -536,6 +854,198 @@ mod tests {
                 _ => None,
             })
             .collect()
+    }
+
+    fn mode(mode: CellMode, stepping: &[&str]) -> Request {
+        Request::Mode(ModeSetting {
+            mode,
+            stepping: stepping
+                .iter()
+                .map(|s| StationName::new(s).unwrap())
+                .collect(),
+        })
+    }
+
+    fn step(c: &mut Controller<Fake>, now: Duration) -> Result<Response, ServiceError> {
+        c.handle_request(
+            now,
+            &Request::Step {
+                station: None,
+                to: None,
+            },
+        )
+    }
+
+    #[test]
+    fn in_step_mode_each_state_waits_and_the_job_above_is_paused_meanwhile() {
+        let mut c = loaded();
+        assert!(step(&mut c, secs(0))
+            .unwrap_err()
+            .description
+            .contains("no recipe runs"));
+        c.handle_request(secs(0), &mode(CellMode::Step, &["welding"]))
+            .unwrap();
+        start(&mut c, secs(1)).unwrap();
+        assert!(c.device.acts.is_empty(), "state 1 waits before it starts");
+        let held = c.status().held.expect("a step waits");
+        assert_eq!((held.state, held.command.as_str()), (1, "start rcm 65"));
+        assert_eq!(c.status().mode, CellMode::Step);
+        let outs = outputs(&mut c);
+        assert_eq!(job_events(&outs), vec![JobEvent::Paused]);
+        assert!(outs.iter().any(|o| matches!(o, Output::Report { text, .. }
+            if text == "step: DROOG_DIK state 1 waits for `falc step`: start rcm 65")));
+        assert_eq!(c.poll_timeout(), None, "no limit runs while a step waits");
+        step(&mut c, secs(100)).unwrap();
+        assert_eq!(c.device.acts.len(), 1, "{:?}", c.device.acts);
+        assert_eq!(job_events(&outputs(&mut c)), vec![JobEvent::Resumed]);
+        c.feed(secs(101), vec![Event::Started(rcm())]);
+        c.settle(secs(101));
+        assert_eq!(c.status().held.map(|h| h.state), Some(2));
+        assert_eq!(job_events(&outputs(&mut c)), vec![JobEvent::Paused]);
+        // Back to auto while it runs: the step is carried out at once.
+        c.handle_request(secs(110), &mode(CellMode::Auto, &[]))
+            .unwrap();
+        assert_eq!(c.status().held, None);
+        assert_eq!(c.status().program.map(|p| p.state), Some(2));
+        assert_eq!(job_events(&outputs(&mut c)), vec![JobEvent::Resumed]);
+        assert_eq!(
+            c.poll_timeout(),
+            Some(secs(280)),
+            "170 s from state 2 at 110 s"
+        );
+    }
+
+    #[test]
+    fn another_station_in_step_mode_does_not_make_this_one_step() {
+        let mut c = loaded();
+        c.handle_request(secs(0), &mode(CellMode::Step, &["cell"]))
+            .unwrap();
+        start(&mut c, secs(1)).unwrap();
+        assert_eq!(c.status().held, None);
+        assert_eq!(c.device.acts.len(), 1);
+        let e = step(&mut c, secs(2)).unwrap_err();
+        assert!(e.description.contains("not in step mode"), "{e}");
+    }
+
+    #[test]
+    fn maintenance_only_while_idle_and_manual_operations_only_in_maintenance() {
+        let mut c = loaded();
+        let press = Request::Manual {
+            station: StationName::new("welding").unwrap(),
+            action: ManualAction::StopProgram,
+            by: "maint".into(),
+        };
+        let e = c.handle_request(secs(0), &press).unwrap_err();
+        assert!(
+            e.description
+                .contains("refused by welding: the cell is in auto mode"),
+            "{e}"
+        );
+        start(&mut c, secs(1)).unwrap();
+        let e = c
+            .handle_request(secs(2), &mode(CellMode::Maintenance, &[]))
+            .unwrap_err();
+        assert!(e.description.contains("while DROOG_DIK runs"), "{e}");
+        c.handle_request(secs(2), &mode(CellMode::Step, &[]))
+            .unwrap();
+        c.handle_request(
+            secs(3),
+            &Request::Stop {
+                name: name("droog_dik"),
+            },
+        )
+        .unwrap();
+        c.handle_request(secs(4), &mode(CellMode::Maintenance, &[]))
+            .unwrap();
+        let e = start(&mut c, secs(5)).unwrap_err();
+        assert_eq!(
+            c.vmd().program(&name("droog_dik")).map(|p| p.state()),
+            Some(PiState::Idle)
+        );
+        assert!(e.description.contains("maintenance mode"), "{e}");
+        outputs(&mut c);
+        c.handle_request(secs(6), &press).unwrap();
+        assert_eq!(c.device.manual, vec![ManualAction::StopProgram]);
+        assert!(outputs(&mut c)
+            .iter()
+            .any(|o| matches!(o, Output::Report { text, .. }
+            if text == "manual, by maint: stop the robot program done")));
+        // A station's own recipe, by hand.
+        let run = |r: &str| Request::Manual {
+            station: StationName::new("welding").unwrap(),
+            action: ManualAction::RunRecipe(r.into()),
+            by: "maint".into(),
+        };
+        let e = c.handle_request(secs(7), &run("home")).unwrap_err();
+        assert!(
+            e.description
+                .contains("welding has no recipe home (it has: droog_dik)"),
+            "{e}"
+        );
+        c.handle_request(secs(7), &run("droog_dik")).unwrap();
+        assert!(c.is_running());
+        let e = c.handle_request(secs(8), &press).unwrap_err();
+        assert!(e.description.contains("recipe DROOG_DIK runs"), "{e}");
+    }
+
+    #[test]
+    fn a_stop_keeps_the_run_and_resume_goes_on_where_it_stopped() {
+        let mut c = Controller::new(RecipeKind::Transport, secs(10), Fake::default());
+        load(
+            &mut c,
+            "park",
+            "#PARK\n\
+             -1 | activate a       | | | 2\n\
+             -2 | waitplace 3 1 30 | | klaar | 0\n\
+             -2 | waitplace 3 1 30 | | tijdlimiet | 3\n\
+             -3 |                  | alarm | | 0\n",
+        );
+        let park = name("park");
+        let go = Request::Start {
+            name: park.clone(),
+            argument: "order 1".into(),
+        };
+        c.handle_request(secs(0), &go).unwrap();
+        assert_eq!(c.status().program.map(|p| p.state), Some(2));
+        c.handle_request(secs(5), &Request::Stop { name: park.clone() })
+            .unwrap();
+        assert_eq!(c.device.halted, 1);
+        assert!(!c.is_running());
+        c.device.acts.clear();
+        let r = c
+            .handle_request(secs(50), &Request::Resume { name: park.clone() })
+            .unwrap();
+        assert_eq!(r, Response::ProgramInvocationState(PiState::Running));
+        assert_eq!(c.status().program.map(|p| p.state), Some(2));
+        assert_eq!(
+            c.device.acts.first(),
+            Some(&Action::Activate(falc_recipe::check::Button::Line('A'))),
+            "the line it held pressed again: {:?}",
+            c.device.acts
+        );
+        assert_eq!(c.poll_timeout(), Some(secs(80)), "the wait's limit anew");
+        // A Start after a Stop begins anew (at state 1, or `from`).
+        c.handle_request(secs(51), &Request::Stop { name: park.clone() })
+            .unwrap();
+        let from = |a: &str| Request::Start {
+            name: park.clone(),
+            argument: a.into(),
+        };
+        let e = c
+            .handle_request(secs(53), &from("order 1 from 7"))
+            .unwrap_err();
+        assert!(e.description.contains("state 7 does not exist"), "{e}");
+        let e = c
+            .handle_request(secs(53), &from("order 1 from x"))
+            .unwrap_err();
+        assert!(e.description.contains("needs a state number"), "{e}");
+        c.handle_request(secs(54), &from("order 1 from 3")).unwrap();
+        assert!(!c.is_running(), "state 3 ends in alarm at once");
+        let outs = outputs(&mut c);
+        assert!(
+            matches!(job_events(&outs).last(), Some(JobEvent::Alarm(_))),
+            "{outs:?}"
+        );
     }
 
     #[test]

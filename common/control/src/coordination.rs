@@ -147,6 +147,11 @@ pub fn handle_reply(cell: &mut Controller<Stations>, now: Duration, reply: Reply
             AlarmClass::Communication,
             format!("no answer from the operator: the operator answered {other:?}"),
         )),
+        // The recipe that asked was stopped meanwhile (the operator then
+        // refuses the question it waited on): nothing failed.
+        (Awaiting::Answer, Err(e)) if !cell.is_running() => {
+            tracing::info!("the question of a stopped recipe was withdrawn: {e}");
+        }
         (Awaiting::Answer, Err(e)) => cell.fault(Cause::new(
             AlarmClass::Communication,
             format!("no answer from the operator: {e}"),
@@ -538,6 +543,20 @@ mod tests {
         assert!(outputs(&mut c).iter().any(|o| matches!(o,
             Output::Report { severity: Severity::Alarm(AlarmClass::Communication), text }
                 if text.starts_with("no answer from the operator"))));
+    }
+
+    #[test]
+    fn the_question_of_a_stopped_recipe_refused_is_no_alarm() {
+        let mut c = cell();
+        start(&mut c).unwrap();
+        let cmds = settle(&mut c, Duration::ZERO);
+        reply(&mut c, secs(1), &cmds[0], Response::Done);
+        c.handle_request(secs(2), &Request::Stop { name: name("test") })
+            .unwrap();
+        outputs(&mut c);
+        refused(&mut c, secs(2), &cmds[1], "the order was stopped");
+        settle(&mut c, secs(2));
+        assert_eq!(outputs(&mut c), vec![], "no alarm: nothing failed");
     }
 
     #[test]

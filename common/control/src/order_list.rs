@@ -30,6 +30,7 @@ use falc_model::mms::domain::content_hash;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::vmd::VmdStatus;
+use falc_model::mode::{CellMode, ModeSetting};
 use falc_model::topology::Topology;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::time::Duration;
@@ -74,6 +75,9 @@ pub enum CellCall {
         /// The cell recipe.
         name: ObjectName,
     },
+    /// A request passed to the cell as it is: a mode, a step, a manual
+    /// operation for a workstation, a Resume.
+    Pass(Request),
 }
 
 /// What the node must do.
@@ -128,6 +132,19 @@ enum Job {
     Stop(Caller),
     /// Stop the running order at the cell: a write failed.
     Halt,
+    /// An operator's request passed to the cell (mode, step, manual):
+    /// journalled with the user as `done` once the cell confirmed it.
+    Pass {
+        by: Caller,
+        request: Request,
+        done: String,
+    },
+    /// An operator's `restart`.
+    Restart {
+        by: Caller,
+        order: i64,
+        from: Option<u16>,
+    },
 }
 
 /// The cell call out, and what its outcome goes on with. `start` is the
@@ -148,6 +165,13 @@ enum Busy {
         order: Order,
         started_ms: i64,
         by: Option<Caller>,
+        /// A restarted order as it was: what a refusal puts back (never
+        /// the queue: it ran before).
+        previous: Option<Order>,
+    },
+    Passing {
+        by: Caller,
+        done: String,
     },
     Stopping {
         order: Order,
@@ -497,6 +521,10 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 }
             }
             Job::Stop(by) => self.begin_stop(now, by),
+            Job::Pass { by, request, done } => {
+                self.call(CellCall::Pass(request), Busy::Passing { by, done });
+            }
+            Job::Restart { by, order, from } => self.begin_restart(by, order, from),
             Job::Halt => {
                 let Some(order) = self.running.take() else {
                     return;
@@ -585,6 +613,10 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         if self.shutdown_pending {
             return self.reply(ticket, Err("the cell is shutting down".into()));
         }
+        if !self.cell_mode().runs_orders() {
+            let text = "the cell is in maintenance mode: no order runs (falc mode auto)";
+            return self.reply(ticket, Err(text.into()));
+        }
         if self.running.is_some() {
             self.list = ListState::Running;
             return self.reply(ticket, Ok(ApiReply::Done("the list is running".into())));
@@ -605,6 +637,156 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             }
         }
         self.connect(Some(by), false);
+    }
+
+    /// The cell's mode, as its status says.
+    fn cell_mode(&self) -> CellMode {
+        self.statuses
+            .get(&self.cell)
+            .map(|s| s.mode)
+            .unwrap_or_default()
+    }
+
+    /// Why order `id` cannot be restarted now (from `from`), or the order,
+    /// the request that restarts it at the cell and the journal line.
+    fn restart_plan(
+        &self,
+        id: i64,
+        from: Option<u16>,
+    ) -> Result<(Order, CellCall, String), String> {
+        if let Some(a) = self.alarms.blocking() {
+            return Err(format!(
+                "alarm {} waits for acknowledgement (falc ack {})",
+                a.line(),
+                a.id
+            ));
+        }
+        if let Some(r) = &self.running {
+            return Err(format!("order {} runs: falc stop first", r.id));
+        }
+        if self.shutdown_pending {
+            return Err("the cell is shutting down".into());
+        }
+        if !self.cell_mode().runs_orders() {
+            return Err("the cell is in maintenance mode: no order runs (falc mode auto)".into());
+        }
+        if !self.associated || self.undelivered().next().is_some() {
+            return Err(format!(
+                "the cell does not hold the recipes yet ({}): try again in a moment",
+                self.problem.as_deref().unwrap_or("connecting")
+            ));
+        }
+        let orders = self.db.orders().map_err(|e| e.to_string())?;
+        let order = orders
+            .into_iter()
+            .find(|o| o.id == id)
+            .ok_or_else(|| format!("there is no order {id}"))?;
+        match order.state {
+            OrderState::Failed | OrderState::Stopped | OrderState::Interrupted => {}
+            OrderState::Queued => return Err(format!("order {id} is queued: falc start runs it")),
+            OrderState::Running => return Err(format!("order {id} runs")),
+            OrderState::Done => {
+                return Err(format!(
+                    "order {id} is done: add a new order to run {} again",
+                    order.recipe
+                ))
+            }
+        }
+        let name = ObjectName::new(&order.recipe).map_err(|e| e.to_string())?;
+        let Some(delivery) = self.recipes.deliveries.iter().find(|d| d.domain == name) else {
+            return Err(format!(
+                "order {id}'s recipe {} is no longer in the recipe store",
+                order.recipe
+            ));
+        };
+        if let Some(f) = from {
+            let text = String::from_utf8_lossy(&delivery.content);
+            let recipe = falc_recipe::syntax::parse(&text, &order.recipe);
+            let mut states: Vec<u16> = recipe.rows.iter().map(|r| r.state.0).collect();
+            states.sort_unstable();
+            states.dedup();
+            if !states.contains(&f) {
+                return Err(format!(
+                    "{} has no state {f}: its states are {}",
+                    order.recipe,
+                    states
+                        .iter()
+                        .map(u16::to_string)
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ));
+            }
+        }
+        Ok(match from {
+            None if order.state == OrderState::Stopped => {
+                let what = format!("resumed order {id} where it stopped");
+                (order, CellCall::Pass(Request::Resume { name }), what)
+            }
+            _ => {
+                let f = from.unwrap_or(1);
+                let argument = match from {
+                    Some(f) => format!("order {id} from {f}"),
+                    None => format!("order {id}"),
+                };
+                let what = format!("restarted order {id} from state {f}");
+                (order, CellCall::Start { name, argument }, what)
+            }
+        })
+    }
+
+    fn begin_restart(&mut self, by: Caller, id: i64, from: Option<u16>) {
+        let (order, call, what) = match self.restart_plan(id, from) {
+            Ok(plan) => plan,
+            Err(text) => {
+                let line = format!("restart of order {id} refused: {text}");
+                self.journal(EntryKind::Action, Some(id), &by.who, &line);
+                return self.reply(by.ticket, Err(text));
+            }
+        };
+        let started_ms = match self.db.set_running(id) {
+            Ok(ms) => ms,
+            Err(e) => {
+                let text = format!("order {id} not restarted: {e}");
+                self.db_failed(&e);
+                return self.reply(by.ticket, Err(text));
+            }
+        };
+        self.journal(EntryKind::Action, Some(id), &by.who, &what);
+        let busy = Busy::Starting {
+            order: order.clone(),
+            started_ms,
+            by: Some(by),
+            previous: Some(order),
+        };
+        self.call(call, busy);
+    }
+
+    /// The request passing `mode` to the cell, or why not.
+    fn mode_request(&self, mode: CellMode, stations: Vec<StationName>) -> Result<Request, String> {
+        if mode != CellMode::Step && !stations.is_empty() {
+            return Err("workstations step only in step mode".into());
+        }
+        for s in &stations {
+            if self.topology.commander_of(s) != Some(&self.cell) {
+                return Err(format!("{s} is not a workstation of {}", self.cell));
+            }
+        }
+        let current = self.cell_mode();
+        if let Some(r) = &self.running {
+            if !current.may_change_running(mode) {
+                return Err(format!(
+                    "order {} runs: the mode changes from {current} to {mode} only when no \
+                     order runs (falc stop first)",
+                    r.id
+                ));
+            }
+        }
+        let mut stepping = Vec::new();
+        if mode == CellMode::Step {
+            stepping.push(self.cell.clone());
+            stepping.extend(stations);
+        }
+        Ok(Request::Mode(ModeSetting { mode, stepping }))
     }
 
     /// Writes the order ends a failed write held back; the error (the
@@ -650,6 +832,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                     order,
                     started_ms,
                     by,
+                    previous: None,
                 };
                 self.call(CellCall::Start { name, argument }, busy);
             }
@@ -802,6 +985,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 order,
                 started_ms,
                 by,
+                previous,
             } => {
                 let outcome = match result {
                     Ok(()) => {
@@ -825,7 +1009,15 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                     Err(text) => {
                         let why =
                             format!("order {} ({}) not started: {text}", order.id, order.recipe);
-                        if let Err(e) = self.db.requeue(order.id) {
+                        let undone = match &previous {
+                            Some(p) => self.db.end_order(
+                                p.id,
+                                p.state,
+                                p.result.as_deref().unwrap_or_default(),
+                            ),
+                            None => self.db.requeue(order.id),
+                        };
+                        if let Err(e) = undone {
                             // Stays `running` in the records: interrupted at
                             // a restart, never run twice; failed once the
                             // records can be written again.
@@ -842,6 +1034,14 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 }
             }
             Busy::Stopping { order, by } => self.stopped(now, order, by, result),
+            Busy::Passing { by, done } => {
+                let text = match &result {
+                    Ok(()) => done.clone(),
+                    Err(e) => format!("{done} refused: {e}"),
+                };
+                self.journal(EntryKind::Action, self.running_id(), &by.who, &text);
+                self.reply(by.ticket, result.map(|()| ApiReply::Done(done)));
+            }
             Busy::Halting { order } => self.halted(now, order, result),
         }
         self.pump(now);
@@ -1167,6 +1367,61 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                     )),
                     Err(PutError::Refused(why)) => Err(format!("recipe {file} NOT saved: {why}")),
                 }
+            }
+            ApiRequest::Mode { mode, stations } => {
+                let request = match self.mode_request(mode, stations) {
+                    Ok(r) => r,
+                    Err(e) => return Some(Err(e)),
+                };
+                if mode == CellMode::Maintenance {
+                    self.list = ListState::Idle;
+                }
+                let done = match &request {
+                    Request::Mode(m) => format!("mode {m}"),
+                    _ => format!("mode {mode}"),
+                };
+                let by = Caller {
+                    ticket,
+                    who: who.to_string(),
+                };
+                self.jobs.push_back(Job::Pass { by, request, done });
+                return None;
+            }
+            ApiRequest::Step { station, to } => {
+                let on = station.clone().unwrap_or_else(|| self.cell.clone());
+                let done = match to {
+                    Some(t) => format!("step on {on} up to state {t}"),
+                    None => format!("step on {on}"),
+                };
+                let by = Caller {
+                    ticket,
+                    who: who.to_string(),
+                };
+                let request = Request::Step { station, to };
+                self.jobs.push_back(Job::Pass { by, request, done });
+                return None;
+            }
+            ApiRequest::Manual { station, action } => {
+                let done = format!("manual on {station}: {action}");
+                let request = Request::Manual {
+                    station,
+                    action,
+                    by: who.to_string(),
+                };
+                let by = Caller {
+                    ticket,
+                    who: who.to_string(),
+                };
+                self.jobs.push_back(Job::Pass { by, request, done });
+                return None;
+            }
+            ApiRequest::Restart { order, from } => {
+                let by = Caller {
+                    ticket,
+                    who: who.to_string(),
+                };
+                self.jobs.push_back(Job::Restart { by, order, from });
+                return None;
             }
             ApiRequest::Shutdown => {
                 self.journal(EntryKind::Action, None, who, "shut down requested");
@@ -1707,6 +1962,92 @@ mod tests {
         // A late end of the stopped job changes nothing.
         assert!(r.job(JobEvent::Done).is_empty());
         assert_eq!(r.order(1).state, OrderState::Stopped);
+    }
+
+    #[test]
+    fn a_stopped_order_resumes_at_the_cell_and_a_refused_restart_leaves_it_as_it_was() {
+        let mut r = Rig::new();
+        r.add(2);
+        assert!(r.start().is_ok());
+        let (_, _) = r.api("console", ApiRequest::Stop);
+        r.answer(Ok(()));
+        assert_eq!(r.order(1).state, OrderState::Stopped);
+        let restart = |order, from| ApiRequest::Restart { order, from };
+        // Without --from, a stopped order resumes where it stopped.
+        let (t, out) = r.api("console", restart(1, None));
+        assert_eq!(
+            call(&out),
+            Some(CellCall::Pass(Request::Resume {
+                name: name("dikdroog")
+            }))
+        );
+        assert_eq!(r.order(1).state, OrderState::Running);
+        // The cell refuses: back to stopped, never queued (it ran).
+        let out = r.answer(Err("Resume refused"));
+        assert!(reply(&out, t).is_some_and(|r| r.is_err()), "{out:?}");
+        assert_eq!(r.order(1).state, OrderState::Stopped);
+        assert_eq!(r.order(2).state, OrderState::Queued);
+        // From a state: the recipe must have it.
+        let e = r.ask("console", restart(1, Some(9))).unwrap_err();
+        assert!(e.contains("dikdroog has no state 9"), "{e}");
+        let e = r.ask("console", restart(2, None)).unwrap_err();
+        assert!(e.contains("order 2 is queued: falc start runs it"), "{e}");
+        let e = r.ask("console", restart(7, None)).unwrap_err();
+        assert!(e.contains("there is no order 7"), "{e}");
+        let e = r.ask("observer", restart(1, None)).unwrap_err();
+        assert!(e.contains("needs Operator"), "{e}");
+    }
+
+    #[test]
+    fn modes_pass_to_the_cell_and_maintenance_waits_until_no_order_runs() {
+        let mut r = Rig::new();
+        r.add(1);
+        assert!(r.start().is_ok());
+        let mode = |mode, stations: Vec<&str>| ApiRequest::Mode {
+            mode,
+            stations: stations.into_iter().map(st).collect(),
+        };
+        let e = r
+            .ask("console", mode(CellMode::Maintenance, vec![]))
+            .unwrap_err();
+        assert!(e.contains("only when no order runs"), "{e}");
+        let e = r
+            .ask("console", mode(CellMode::Auto, vec!["welding"]))
+            .unwrap_err();
+        assert!(e.contains("only in step mode"), "{e}");
+        let e = r
+            .ask("console", mode(CellMode::Step, vec!["operator"]))
+            .unwrap_err();
+        assert!(e.contains("operator is not a workstation of cell"), "{e}");
+        let (t, out) = r.api("console", mode(CellMode::Step, vec!["welding"]));
+        assert_eq!(
+            call(&out),
+            Some(CellCall::Pass(Request::Mode(ModeSetting {
+                mode: CellMode::Step,
+                stepping: vec![st("cell"), st("welding")],
+            })))
+        );
+        let out = r.answer(Ok(()));
+        let Some(Ok(ApiReply::Done(text))) = reply(&out, t) else {
+            panic!("{out:?}")
+        };
+        assert_eq!(text, "mode step (cell, welding)");
+        let journal = &r.list.records().journal;
+        assert!(journal
+            .iter()
+            .any(|e| e.who == "console" && e.text == "mode step (cell, welding)"));
+        // A manual operation is the maintainer's, passed on as it is.
+        let manual = ApiRequest::Manual {
+            station: st("transport"),
+            action: falc_model::mode::ManualAction::Press("A".into()),
+        };
+        let e = r.ask("console", manual.clone()).unwrap_err();
+        assert!(e.contains("needs Maintainer"), "{e}");
+        let (_, out) = r.api("maintainer", manual);
+        assert!(matches!(
+            call(&out),
+            Some(CellCall::Pass(Request::Manual { by, .. })) if by == "maintainer"
+        ));
     }
 
     #[test]

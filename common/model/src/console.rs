@@ -7,6 +7,7 @@
 
 use crate::ids::StationName;
 use crate::mms::vmd::VmdStatus;
+use crate::mode::{CellMode, ManualAction};
 use crate::topology::Role;
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -49,6 +50,10 @@ calls! {
     RecipeList = "recipe-list", Observer;
     RecipeGet = "recipe-get", Observer;
     RecipePut = "recipe-put", Engineer;
+    Mode = "mode", Operator;
+    Step = "step", Operator;
+    Restart = "restart", Operator;
+    Manual = "manual", Maintainer;
 }
 
 impl fmt::Display for Call {
@@ -119,6 +124,37 @@ pub enum ApiRequest {
         /// The content hash of the text the edit started from (None for a
         /// new file): refused if the file changed meanwhile.
         base: Option<u64>,
+    },
+    /// Sets the cell's mode (auto ↔ step also while an order runs).
+    Mode {
+        /// The mode.
+        mode: CellMode,
+        /// In step mode, the workstations that step as well as the cell.
+        stations: Vec<StationName>,
+    },
+    /// Step mode: carries out the step that waits (on the cell, or on a
+    /// workstation that steps), or the steps up to state `to`.
+    Step {
+        /// The workstation (None: the cell).
+        station: Option<StationName>,
+        /// Go on until this state waits.
+        to: Option<u16>,
+    },
+    /// Runs a failed, stopped or interrupted order again: from state
+    /// `from` of its cell recipe, or (None) a stopped order where it
+    /// stopped, else from its first state.
+    Restart {
+        /// The order.
+        order: i64,
+        /// The state to begin at.
+        from: Option<u16>,
+    },
+    /// A manual operation on a workstation (maintainer, maintenance mode).
+    Manual {
+        /// The workstation.
+        station: StationName,
+        /// What.
+        action: ManualAction,
     },
 }
 
@@ -282,6 +318,10 @@ impl ApiRequest {
             Self::RecipeList => Call::RecipeList,
             Self::RecipeGet { .. } => Call::RecipeGet,
             Self::RecipePut { .. } => Call::RecipePut,
+            Self::Mode { .. } => Call::Mode,
+            Self::Step { .. } => Call::Step,
+            Self::Restart { .. } => Call::Restart,
+            Self::Manual { .. } => Call::Manual,
         }
     }
 }

@@ -5,6 +5,7 @@
 //! - [`alarm`]: alarm classes, causes and the operator's alarm record;
 //! - [`mms`]: the MMS-equivalent service model, sans-I/O;
 //! - [`console`]: what a console asks the operator node and what it answers;
+//! - [`mode`]: the cell's operating modes and manual operations;
 //! - [`keys`]: every zenoh key of a cell, as data;
 //! - [`envelope`]: the payload format on the wire.
 
@@ -14,4 +15,5 @@ pub mod envelope;
 pub mod ids;
 pub mod keys;
 pub mod mms;
+pub mod mode;
 pub mod topology;

@@ -53,6 +53,9 @@ pub enum Role {
     Operator,
     /// Also recipes.
     Engineer,
+    /// Also manual operations on the workstations (maintenance mode):
+    /// buttons, lines, the robot, a station's home recipe.
+    Maintainer,
 }
 
 /// One console user stanza: a person (or script) using `falc`.

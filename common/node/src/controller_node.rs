@@ -32,9 +32,10 @@ impl<D: Device> ControllerNode<D> {
     /// A controller of `kind` on `station`; a `start` in its recipes waits
     /// `confirm_limit` for the device's confirm.
     pub fn new(station: Station, kind: RecipeKind, confirm_limit: Duration, device: D) -> Self {
+        let me = station.bus().me().station.clone();
         Self {
             station,
-            core: Controller::new(kind, confirm_limit, device),
+            core: Controller::new(kind, confirm_limit, device).named(me),
             origin: Instant::now(),
         }
     }

@@ -161,6 +161,27 @@ fn line_letter(s: &str) -> Result<char, String> {
     }
 }
 
+impl std::str::FromStr for Button {
+    type Err = String;
+    /// A line A–H, J–L, or a station 1–3, as a recipe (or a maintainer)
+    /// writes it.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.parse::<u8>() {
+            Ok(_) => Ok(Button::Station(PlcStation::parse(s)?)),
+            Err(_) => Ok(Button::Line(line_letter(s)?)),
+        }
+    }
+}
+
+impl std::fmt::Display for Button {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Line(l) => write!(f, "line button {l}"),
+            Self::Station(s) => write!(f, "station button {s}"),
+        }
+    }
+}
+
 /// Validates the arguments of a command against its spec.
 fn build_command(spec: &CommandSpec, c: &CommandText) -> Result<Command, String> {
     let fixed = spec
@@ -216,10 +237,7 @@ fn build_command(spec: &CommandSpec, c: &CommandText) -> Result<Command, String>
             }
         }
         Handler::Activate | Handler::Reset => {
-            let b = match a(0).parse::<u8>() {
-                Ok(_) => Button::Station(PlcStation::parse(a(0))?),
-                Err(_) => Button::Line(line_letter(a(0))?),
-            };
+            let b: Button = a(0).parse()?;
             if spec.handler == Handler::Activate {
                 Command::Activate(b)
             } else {

@@ -11,7 +11,14 @@
 //! - `bad_product`, `failed_safe`, `failed_danger` are criteria of `wait`
 //!   (unhandled, they end the recipe with the same failure, passed up);
 //! - while a job below reports paused, its time limits are frozen;
-//! - the alarm report stops every job still running below.
+//! - the alarm report stops every job still running below;
+//! - step mode ([`Engine::set_stepping`]): each state waits before it is
+//!   carried out until [`Engine::step`] (or runs on to a chosen state);
+//!   time limits do not run while a step waits;
+//! - an aborted run resumes ([`Engine::resume`], ISO 9506 Stop → Resume) at
+//!   the state it stopped in, or, where a job below was stopped with it,
+//!   at the state that started that job; the lines it held pressed are
+//!   pressed again first.
 
 use super::check::{Button, Command, Job, Program, Signal};
 use super::syntax::{Criterion, Report, StateNo};
@@ -93,6 +100,8 @@ pub enum Action {
     Unwatch,
     /// Report an alarm upward.
     Alarm(Cause),
+    /// Step mode: the state waits before it is carried out.
+    Held(StateNo),
 }
 
 /// How a run ended.
@@ -120,6 +129,9 @@ struct JobInfo {
     state: JobState,
     deadline: Option<Duration>,
     paused_since: Option<Duration>,
+    /// The state that started it, and the step count then (a resume goes
+    /// back to the earliest start of a job stopped with the run).
+    started_in: Option<(u64, StateNo)>,
 }
 
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -136,6 +148,10 @@ enum Phase {
     AwaitAnswer,
     AwaitInput {
         deadline: Duration,
+    },
+    /// Step mode: the state waits for [`Engine::step`] since then.
+    AwaitStep {
+        since: Duration,
     },
     Ended(Outcome),
 }
@@ -155,6 +171,17 @@ pub struct Engine {
     failure: Option<String>,
     steps: u64,
     confirm_limit: Duration,
+    /// Step mode: every state waits before it is carried out.
+    stepping: bool,
+    /// Step mode: run on until this state, then wait.
+    step_to: Option<StateNo>,
+    /// The next state entered is carried out without waiting (confirmed).
+    released: bool,
+    /// Where [`Engine::resume`] goes on, once aborted.
+    resume_at: Option<StateNo>,
+    /// The lines the run holds pressed (pressed again on resume: a halt
+    /// releases them).
+    lines: std::collections::BTreeSet<char>,
 }
 
 impl Engine {
@@ -170,7 +197,90 @@ impl Engine {
             failure: None,
             steps: 0,
             confirm_limit: START_CONFIRM_LIMIT,
+            stepping: false,
+            step_to: None,
+            released: false,
+            resume_at: None,
+            lines: std::collections::BTreeSet::new(),
         }
+    }
+
+    /// Step mode on or off. Off while a step waits: it is carried out now.
+    pub fn set_stepping(&mut self, now: Duration, on: bool) {
+        self.stepping = on;
+        if !on {
+            self.step_to = None;
+            if self.held().is_some() {
+                let _ = self.step(now, None);
+            }
+        }
+    }
+
+    /// The state waiting for confirmation (step mode), if one does.
+    pub fn held(&self) -> Option<StateNo> {
+        matches!(self.phase, Phase::AwaitStep { .. }).then_some(self.state)
+    }
+
+    /// Carries out the waiting step; with `to`, goes on without waiting
+    /// until state `to` is next (it then waits). The time limits of the
+    /// jobs below are moved on by the time the step waited.
+    pub fn step(&mut self, now: Duration, to: Option<StateNo>) -> Result<(), String> {
+        let Phase::AwaitStep { since } = self.phase else {
+            return Err(match &self.phase {
+                Phase::Ended(_) | Phase::NotStarted => "no recipe runs".to_string(),
+                _ => format!(
+                    "state {} is being carried out; the next step waits when it is reached",
+                    self.state
+                ),
+            });
+        };
+        if let Some(t) = to {
+            if !self.program.states.contains_key(&t) {
+                return Err(format!("state {t} does not exist in this recipe"));
+            }
+        }
+        let waited = now.saturating_sub(since);
+        for j in self.jobs.values_mut() {
+            j.deadline = j.deadline.map(|d| d + waited);
+        }
+        self.step_to = to;
+        self.released = true;
+        self.enter(now, self.state);
+        Ok(())
+    }
+
+    /// Starts the run at `state` instead of the first (a restart of an
+    /// order from a state the operator chose).
+    pub fn start_at(&mut self, now: Duration, state: StateNo) -> Result<(), String> {
+        if !self.program.states.contains_key(&state) {
+            return Err(format!("state {state} does not exist in this recipe"));
+        }
+        if self.phase == Phase::NotStarted {
+            self.enter(now, state);
+        }
+        Ok(())
+    }
+
+    /// After [`Engine::abort`]: where [`Engine::resume`] would go on.
+    pub fn resume_point(&self) -> Option<StateNo> {
+        self.resume_at
+    }
+
+    /// Goes on after an abort (ISO 9506 Resume after Stop): at the state it
+    /// stopped in, or at the earliest `start` of a job below that was
+    /// stopped with it; the lines it held are pressed again first. The
+    /// state to go on at, or None if the run was not aborted.
+    pub fn resume(&mut self, now: Duration) -> Option<StateNo> {
+        let at = self.resume_at.take()?;
+        self.jobs.clear();
+        self.alarm = None;
+        self.failure = None;
+        self.phase = Phase::NotStarted;
+        for l in self.lines.clone() {
+            self.actions.push_back(Action::Activate(Button::Line(l)));
+        }
+        self.enter(now, at);
+        Some(at)
     }
 
     /// How long a `start` waits for its confirm (default
@@ -222,6 +332,8 @@ impl Engine {
     pub fn poll_timeout(&self) -> Option<Duration> {
         match &self.phase {
             Phase::AwaitStart { deadline, .. } | Phase::AwaitInput { deadline } => Some(*deadline),
+            // Time limits do not run while a step waits.
+            Phase::AwaitStep { .. } => None,
             Phase::AwaitJob { target, deadline } => {
                 let paused = self
                     .jobs
@@ -263,6 +375,13 @@ impl Engine {
     /// link to a device was lost): stops the jobs below.
     pub fn abort(&mut self, cause: Cause) {
         if !matches!(self.phase, Phase::Ended(_)) {
+            let stopped_job = self
+                .jobs
+                .values()
+                .filter(|j| matches!(j.state, JobState::Starting | JobState::Running))
+                .filter_map(|j| j.started_in)
+                .min();
+            self.resume_at = Some(stopped_job.map_or(self.state, |(_, s)| s));
             self.stop_jobs(None);
             self.end(Outcome::Alarm(cause));
         }
@@ -308,6 +427,7 @@ impl Engine {
                     state: JobState::Running,
                     deadline: None,
                     paused_since: None,
+                    started_in: None,
                 });
                 j.state = JobState::Ended(end.clone());
                 j.paused_since = None;
@@ -439,6 +559,7 @@ impl Engine {
     /// Enters `next` and runs every state that does not wait.
     fn enter(&mut self, now: Duration, mut next: StateNo) {
         for _ in 0..MAX_IMMEDIATE_STEPS {
+            let released = std::mem::take(&mut self.released);
             if next == StateNo::END {
                 let outcome = self.alarm.take().map_or(Outcome::Done, Outcome::Alarm);
                 self.end(outcome);
@@ -451,6 +572,13 @@ impl Engine {
                 return;
             };
             self.state = next;
+            let wait_here = self.step_to.map_or(true, |t| t == next);
+            if self.stepping && !released && wait_here {
+                self.step_to = None;
+                self.phase = Phase::AwaitStep { since: now };
+                self.actions.push_back(Action::Held(next));
+                return;
+            }
             self.steps += 1;
             self.actions.push_back(Action::Entered(next));
             if st.report == Some(Report::Alarm) {
@@ -471,8 +599,18 @@ impl Engine {
             match st.command {
                 Command::Nothing => {}
                 Command::Output(text) => self.actions.push_back(Action::Output(text)),
-                Command::Activate(b) => self.actions.push_back(Action::Activate(b)),
-                Command::Reset(b) => self.actions.push_back(Action::Reset(b)),
+                Command::Activate(b) => {
+                    if let Button::Line(l) = b {
+                        self.lines.insert(l);
+                    }
+                    self.actions.push_back(Action::Activate(b));
+                }
+                Command::Reset(b) => {
+                    if let Button::Line(l) = b {
+                        self.lines.remove(&l);
+                    }
+                    self.actions.push_back(Action::Reset(b));
+                }
                 Command::Input(prompt) => {
                     self.actions.push_back(Action::Input(prompt));
                     self.phase = Phase::AwaitAnswer;
@@ -496,6 +634,7 @@ impl Engine {
                             state: JobState::Starting,
                             deadline: limit.map(|l| now + l),
                             paused_since: None,
+                            started_in: Some((self.steps, next)),
                         },
                     );
                     self.actions.push_back(Action::Start {
@@ -603,6 +742,123 @@ mod tests {
 
     fn drain(e: &mut Engine) -> Vec<Action> {
         std::iter::from_fn(|| e.poll_action()).collect()
+    }
+
+    fn entered(actions: &[Action]) -> Vec<u16> {
+        actions
+            .iter()
+            .filter_map(|a| match a {
+                Action::Entered(s) => Some(s.0),
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn step_mode_waits_before_each_state_and_its_time_stands_still() {
+        let mut e = engine(CELL, RecipeKind::Cell);
+        e.set_stepping(secs(0), true);
+        e.start(secs(0));
+        assert_eq!(drain(&mut e), vec![Action::Held(StateNo(1))]);
+        assert_eq!(e.held(), Some(StateNo(1)));
+        assert_eq!(e.poll_timeout(), None, "no limit runs while a step waits");
+        e.step(secs(5), None).expect("held");
+        let a = drain(&mut e);
+        assert_eq!(entered(&a), vec![1]);
+        assert!(matches!(a[1], Action::Start { .. }), "{a:?}");
+        e.handle(secs(6), Event::Started(st("welding")));
+        assert_eq!(drain(&mut e), vec![Action::Held(StateNo(2))]);
+        // Waiting 100 s before state 2 moves welding's limit (100 s from
+        // t=5) on by those 100 s.
+        e.step(secs(106), None).expect("held");
+        drain(&mut e);
+        e.handle(secs(106), Event::Started(st("transport")));
+        e.step(secs(106), None).expect("held at 3");
+        drain(&mut e);
+        e.handle(secs(107), Event::Ended(st("transport"), JobEnd::Done));
+        assert_eq!(drain(&mut e), vec![Action::Held(StateNo(4))]);
+        e.step(secs(108), None).expect("held at 4");
+        assert_eq!(
+            e.poll_timeout(),
+            Some(secs(206)),
+            "5 + 100, moved on by the waits before 2 (100 s) and 4 (1 s)"
+        );
+        assert!(e
+            .step(secs(108), None)
+            .unwrap_err()
+            .contains("being carried out"));
+    }
+
+    #[test]
+    fn step_to_runs_on_until_the_chosen_state_and_off_releases_the_wait() {
+        let mut e = engine(CELL, RecipeKind::Cell);
+        e.set_stepping(secs(0), true);
+        e.start(secs(0));
+        assert!(e
+            .step(secs(0), Some(StateNo(7)))
+            .unwrap_err()
+            .contains("state 7"));
+        e.step(secs(0), Some(StateNo(3))).expect("held");
+        e.handle(secs(1), Event::Started(st("welding")));
+        e.handle(secs(2), Event::Started(st("transport")));
+        let a = drain(&mut e);
+        assert_eq!(entered(&a), vec![1, 2]);
+        assert_eq!(a.last(), Some(&Action::Held(StateNo(3))));
+        e.set_stepping(secs(3), false);
+        assert_eq!(entered(&drain(&mut e)), vec![3]);
+        e.handle(secs(4), Event::Ended(st("transport"), JobEnd::Done));
+        assert_eq!(entered(&drain(&mut e)), vec![4], "no more waits");
+    }
+
+    #[test]
+    fn a_resume_goes_on_at_the_stopped_state_with_its_lines_pressed_again() {
+        let text = "#T\n\
+-1 | activate A |  |  | 2\n\
+-2 | waitplace 3 1 30 |  | klaar | 3\n\
+-2 | waitplace 3 1 30 |  | tijdlimiet | 0\n\
+-3 | reset A |  |  | 0\n";
+        let mut e = engine(text, RecipeKind::Transport);
+        e.start(secs(0));
+        drain(&mut e);
+        assert_eq!(e.state(), StateNo(2));
+        e.abort(Cause::process("Stop by the commander"));
+        assert_eq!(e.resume_point(), Some(StateNo(2)));
+        assert_eq!(e.resume(secs(50)), Some(StateNo(2)));
+        let a = drain(&mut e);
+        assert_eq!(a[0], Action::Activate(Button::Line('A')), "{a:?}");
+        assert_eq!(entered(&a), vec![2], "not state 1 again");
+        assert_eq!(e.poll_timeout(), Some(secs(80)), "its limit anew");
+        e.handle(secs(51), Event::InputReached);
+        assert_eq!(e.outcome(), Some(&Outcome::Done));
+        assert_eq!(e.resume(secs(52)), None, "only after an abort");
+    }
+
+    #[test]
+    fn a_resume_goes_back_to_the_start_of_a_job_stopped_with_the_run() {
+        let mut e = at_wait_welding();
+        e.abort(Cause::process("Stop by the commander"));
+        assert_eq!(drain(&mut e), vec![Action::Stop(st("welding"))]);
+        assert_eq!(
+            e.resume_point(),
+            Some(StateNo(1)),
+            "welding was started in state 1 and stopped with the run"
+        );
+        e.resume(secs(40));
+        let a = drain(&mut e);
+        assert_eq!(entered(&a), vec![1]);
+        assert!(matches!(&a[1], Action::Start { target, .. } if *target == st("welding")));
+    }
+
+    #[test]
+    fn a_run_starts_at_a_chosen_state_that_exists() {
+        let mut e = engine(CELL, RecipeKind::Cell);
+        assert!(e
+            .start_at(secs(0), StateNo(5))
+            .unwrap_err()
+            .contains("state 5"));
+        e.start_at(secs(0), StateNo(8)).expect("state 8 exists");
+        assert_eq!(entered(&drain(&mut e)), vec![8]);
+        assert_eq!(e.outcome(), Some(&Outcome::Done));
     }
 
     /// Runs the cell recipe to state 4 (waiting for welding) at t = 30 s.

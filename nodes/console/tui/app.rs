@@ -6,6 +6,7 @@
 use falc_model::console::{ApiReply, ApiRequest, CellStatus, Entry, Order, OrderState};
 use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::ids::StationName;
+use falc_model::mode::{CellMode, HeldStep, ManualAction};
 use falc_model::topology::{Role, StationKind, Topology};
 use ratatui::crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
 
@@ -56,11 +57,17 @@ pub enum Command {
     Edit,
     /// Show a recipe in the recipe view.
     View,
+    /// Set the cell's mode (pick one).
+    Mode,
+    /// Step mode: carry out the cell's step that waits.
+    Step,
+    /// Maintenance: run a workstation's home recipe (pick one).
+    Home,
 }
 
 impl Command {
     /// Every command, in menu order.
-    pub const ALL: [Command; 8] = [
+    pub const ALL: [Command; 11] = [
         Self::Order,
         Self::Remove,
         Self::Start,
@@ -69,6 +76,9 @@ impl Command {
         Self::Shutdown,
         Self::Edit,
         Self::View,
+        Self::Mode,
+        Self::Step,
+        Self::Home,
     ];
 
     /// The key that picks it, and its label.
@@ -82,6 +92,9 @@ impl Command {
             Self::Shutdown => ('d', "shut down when the list is done"),
             Self::Edit => ('e', "recipe: edit one, or make a new one"),
             Self::View => ('v', "recipe: view one's state table"),
+            Self::Mode => ('m', "mode: auto, step or maintenance"),
+            Self::Step => ('n', "next step (step mode; Enter on F1 too)"),
+            Self::Home => ('h', "home: a workstation back to its start"),
         }
     }
 
@@ -90,6 +103,7 @@ impl Command {
         match self {
             Self::Edit => Role::Engineer,
             Self::View => Role::Observer,
+            Self::Home => Role::Maintainer,
             _ => Role::Operator,
         }
     }
@@ -112,6 +126,10 @@ pub enum Pick {
     ConfirmShutdown,
     /// The checker refused an edit: edit again (e) or discard (Esc).
     EditAgain,
+    /// The cell's new mode.
+    Mode(Vec<CellMode>),
+    /// The workstation to bring home.
+    Home(Vec<StationName>),
 }
 
 /// Messages of one station.
@@ -416,6 +434,12 @@ impl App {
                 self.view_station = (self.view_station + n - 1) % n;
                 None
             }
+            (Layer::Overview, KeyCode::Enter) if self.held_step().is_some() => {
+                self.call(ApiRequest::Step {
+                    station: None,
+                    to: None,
+                })
+            }
             (Layer::Recipe, KeyCode::Right) => {
                 self.view_station = (self.view_station + 1) % self.panes.len().max(1);
                 None
@@ -464,6 +488,27 @@ impl App {
     }
 
     /// The program a station runs and its recipe state.
+    /// The cell's status as the operator last saw it.
+    fn cell_status(&self) -> Option<&falc_model::mms::vmd::VmdStatus> {
+        let s = self.status.as_ref()?;
+        let v = s.stations.iter().find(|v| {
+            self.topology
+                .station(&v.name)
+                .is_some_and(|st| st.kind == StationKind::Cell)
+        })?;
+        v.status.as_ref()
+    }
+
+    /// The cell's mode, once its status was seen.
+    pub fn cell_mode(&self) -> Option<CellMode> {
+        self.cell_status().map(|s| s.mode)
+    }
+
+    /// The cell's step that waits for confirmation (step mode).
+    pub fn held_step(&self) -> Option<&HeldStep> {
+        self.cell_status()?.held.as_ref()
+    }
+
     pub fn running_program(&self, station: &StationName) -> Option<(String, u16)> {
         let s = self.status.as_ref()?;
         let v = s.stations.iter().find(|v| &v.name == station)?;
@@ -544,6 +589,27 @@ impl App {
                 self.pick = Some(Pick::Station(self.stations(), c));
                 None
             }
+            Command::Mode => {
+                self.pick = Some(Pick::Mode(CellMode::ALL.to_vec()));
+                None
+            }
+            Command::Step => self.call(ApiRequest::Step {
+                station: None,
+                to: None,
+            }),
+            Command::Home => {
+                let below: Vec<StationName> = self
+                    .stations()
+                    .into_iter()
+                    .filter(|s| {
+                        self.topology
+                            .station(s)
+                            .is_some_and(|st| st.kind != StationKind::Cell)
+                    })
+                    .collect();
+                self.pick = Some(Pick::Home(below));
+                None
+            }
         }
     }
 
@@ -602,6 +668,8 @@ impl App {
             Pick::Order(v) => v.len(),
             Pick::Station(v, _) => v.len(),
             Pick::Recipe(v, _) => v.len(),
+            Pick::Mode(v) => v.len(),
+            Pick::Home(v) => v.len(),
             _ => 0,
         };
         match k.code {
@@ -633,6 +701,14 @@ impl App {
                     }
                     Pick::Recipe(v, Command::Edit) => Some(Intent::Edit(v[i].clone())),
                     Pick::Recipe(v, _) => self.call(ApiRequest::RecipeGet { file: v[i].clone() }),
+                    Pick::Mode(v) => self.call(ApiRequest::Mode {
+                        mode: v[i],
+                        stations: Vec::new(),
+                    }),
+                    Pick::Home(v) => self.call(ApiRequest::Manual {
+                        station: v[i].clone(),
+                        action: ManualAction::RunRecipe("home".into()),
+                    }),
                     _ => None,
                 }
             }

@@ -151,8 +151,12 @@ fn top_line(app: &App) -> Line<'static> {
             },
         },
     };
+    let mode = app
+        .cell_mode()
+        .map(|m| format!(" │ mode {}", m.as_str().to_uppercase()))
+        .unwrap_or_default();
     Line::from(format!(
-        " FALC {cell} │ {what} │ {} ({:?})",
+        " FALC {cell} │ {what}{mode} │ {} ({:?})",
         app.user, app.role
     ))
 }
@@ -389,6 +393,15 @@ fn overview(f: &mut Frame, app: &App, area: Rect) {
                 BUSY,
             ));
         }
+        if let Some(h) = app.held_step() {
+            notes.push(Line::styled(
+                format!(
+                    "STEP: state {} waits: {}  (Enter: carry it out)",
+                    h.state, h.command
+                ),
+                BUSY,
+            ));
+        }
         if !s.alarms.is_empty() {
             // The alarm list, highest priority first; those that hold the
             // cell back in the alarm colours.
@@ -573,6 +586,14 @@ fn commands(f: &mut Frame, app: &App, area: Rect) {
         Some(Pick::Recipe(v, _)) => (
             "pick a recipe".into(),
             v.iter().map(|r| r.to_string()).collect(),
+        ),
+        Some(Pick::Mode(v)) => (
+            "pick the cell's mode".into(),
+            v.iter().map(|m| m.to_string()).collect(),
+        ),
+        Some(Pick::Home(v)) => (
+            "pick the workstation to bring home (maintenance mode)".into(),
+            v.iter().map(|s| s.to_string()).collect(),
         ),
         Some(Pick::NewName(s, name)) => (
             format!("name of the new recipe of {s} (Enter)"),

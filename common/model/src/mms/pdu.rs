@@ -15,6 +15,7 @@ use super::domain::DomainAttributes;
 use super::program::PiState;
 use super::vmd::{Identity, VmdStatus};
 use crate::ids::{ObjectName, StationName};
+use crate::mode::{ManualAction, ModeSetting};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
@@ -70,6 +71,9 @@ services! {
     GetProgramInvocationAttributes => "get-program-invocation-attributes",
     Input => "input",
     Output => "output",
+    Mode => "mode",
+    Step => "step",
+    Manual => "manual",
 }
 
 impl ServiceName {
@@ -249,6 +253,26 @@ pub enum Request {
         /// The lines.
         lines: Vec<String>,
     },
+    /// The cell's operating mode (operator → cell → every workstation).
+    Mode(ModeSetting),
+    /// Step mode: carry out the step that waits for confirmation, on
+    /// `station` (None: the receiver), and (`to`) go on until that state.
+    Step {
+        /// The station whose step (None: the receiver's own).
+        station: Option<StationName>,
+        /// Run until this state waits, instead of one step.
+        to: Option<u16>,
+    },
+    /// A manual operation on a workstation (maintenance mode), passed down
+    /// by the cell.
+    Manual {
+        /// The workstation.
+        station: StationName,
+        /// What.
+        action: ManualAction,
+        /// The console user who asked (for the station's report).
+        by: String,
+    },
 }
 
 impl Request {
@@ -280,6 +304,9 @@ impl Request {
             Self::GetProgramInvocationAttributes { .. } => S::GetProgramInvocationAttributes,
             Self::Input { .. } => S::Input,
             Self::Output { .. } => S::Output,
+            Self::Mode(_) => S::Mode,
+            Self::Step { .. } => S::Step,
+            Self::Manual { .. } => S::Manual,
         }
     }
 }

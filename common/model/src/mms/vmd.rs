@@ -13,6 +13,7 @@ use super::error::{DefinitionError, ErrorClass, ServiceError};
 use super::pdu::{ObjectClass, PiAttributes, Request, Response};
 use super::program::{PiCompletion, PiRequest, PiState, ProgramInvocation};
 use crate::ids::ObjectName;
+use crate::mode::{CellMode, HeldStep};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt;
@@ -121,6 +122,13 @@ pub struct VmdStatus {
     /// lamps, `plc::map::Input::at`); empty for other devices. What the
     /// overview draws the conveyor from.
     pub inputs: Vec<bool>,
+    /// The cell's operating mode, as this station has it.
+    #[serde(default)]
+    pub mode: CellMode,
+    /// Step mode: the step of the running recipe that waits for `falc
+    /// step` before it is carried out.
+    #[serde(default)]
+    pub held: Option<HeldStep>,
 }
 
 /// A running program invocation and its recipe's current state.
@@ -141,6 +149,8 @@ impl Default for VmdStatus {
             additional: None,
             program: None,
             inputs: Vec::new(),
+            mode: CellMode::Auto,
+            held: None,
         }
     }
 }
@@ -283,7 +293,10 @@ impl Vmd {
             | Request::Abort { .. }
             | Request::Status
             | Request::Input { .. }
-            | Request::Output { .. } => None,
+            | Request::Output { .. }
+            | Request::Mode(_)
+            | Request::Step { .. }
+            | Request::Manual { .. } => None,
         }
     }
 

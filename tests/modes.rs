@@ -1,0 +1,303 @@
+//! Operating modes on the whole cell (real router, both twins, both
+//! workstations, `falc-cell`, `falc-operator`), driven through the `falc`
+//! CLI: dikdroog in step mode confirmed step by step; maintenance after a
+//! robot emergency stop (the router refuses a manual operation to anyone
+//! but the maintainer, the workstation refuses it outside maintenance
+//! mode, `home` puts the conveyor back, the next order runs in auto); a
+//! failed order restarted from a chosen state of its cell recipe.
+
+use crate::support::rig::{rig, Rig};
+use falc_model::console::{EntryKind, OrderState};
+use falc_model::mode::CellMode;
+use std::time::{Duration, Instant};
+
+/// The cell's mode, the state that waits for `falc step` on `station`
+/// (if one does), and the waiting question.
+fn held_on(rig: &Rig, station: &str) -> (CellMode, Option<u16>, Option<String>) {
+    let s = rig.status();
+    let cell = s
+        .stations
+        .iter()
+        .find(|v| v.name.as_str() == "cell")
+        .and_then(|v| v.status.clone())
+        .expect("the cell's status");
+    let held = s
+        .stations
+        .iter()
+        .find(|v| v.name.as_str() == station)
+        .and_then(|v| v.status.clone())
+        .and_then(|v| v.held)
+        .map(|h| h.state);
+    (cell.mode, held, s.question)
+}
+
+/// How often the journal says order `id` started.
+fn starts(rig: &Rig, id: i64) -> usize {
+    rig.journal(Some(id))
+        .iter()
+        .filter(|e| e.kind == EntryKind::Order && e.text.ends_with(") started"))
+        .count()
+}
+
+#[test]
+fn dikdroog_in_step_mode_is_confirmed_step_by_step_through_the_cli_to_done() {
+    let rig = rig("10");
+    let out = rig.cell.falc(&["mode", "step", "--station", "transport"]);
+    assert!(out.contains("mode step (cell, transport)"), "{out}");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    let mut cell_steps = Vec::new();
+    let mut transport_steps = 0;
+    let end = Instant::now() + Duration::from_secs(180);
+    loop {
+        let (mode, cell, question) = held_on(&rig, "cell");
+        let (_, transport, _) = held_on(&rig, "transport");
+        assert_eq!(mode, CellMode::Step);
+        if question.is_some() {
+            rig.cell.falc(&["answer", "ja"]);
+        } else if let Some(state) = transport {
+            // The transport's own recipe waits too: stepped by name.
+            rig.cell.falc(&["step", "--station", "transport"]);
+            transport_steps += 1;
+            while held_on(&rig, "transport").1 == Some(state) {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        } else if let Some(state) = cell {
+            let text = rig.cell.falc(&["status"]);
+            assert!(
+                text.contains(&format!("STEP: cell DIKDROOG state {state} waits:")),
+                "{text}"
+            );
+            cell_steps.push(state);
+            if state == 1 {
+                // Past the greeting in one go: it waits again at state 9.
+                rig.cell.falc(&["step", "--to", "9"]);
+            } else {
+                rig.cell.falc(&["step"]);
+            }
+            // The next step shows once this one was taken.
+            while held_on(&rig, "cell").1 == Some(state) {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        } else if rig.orders()[0].state == OrderState::Done {
+            break;
+        }
+        assert!(
+            Instant::now() < end,
+            "not done; cell steps seen: {cell_steps:?}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(
+        cell_steps,
+        vec![1, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 20],
+        "every step of the `ja` path from 9 on, in order"
+    );
+    // STORE 3, MOVE_TO_MAN, UNSTORE 7, UNLOAD: each of their states.
+    assert!(transport_steps >= 15, "{transport_steps} transport steps");
+    let j = rig.journal(Some(1));
+    let steps = |on: &str| {
+        j.iter()
+            .filter(|e| e.kind == EntryKind::Action && e.who == "console" && e.text == on)
+            .count()
+    };
+    assert_eq!(steps("step on cell"), 11, "each step journalled: {j:#?}");
+    assert_eq!(steps("step on transport"), transport_steps);
+    assert!(j.iter().any(|e| e.who == "cell"
+        && e.text.contains(
+            "step: DIKDROOG state 13 waits for `falc step`: start welding droog_dik 180"
+        )));
+    assert!(j.iter().any(|e| e.who == "transport"
+        && e.text
+            .contains("step: STORE state 1 waits for `falc step`: activate k")));
+    assert!(
+        !j.iter().any(|e| e.kind == EntryKind::Alarm),
+        "no limit ran out while steps waited: {j:#?}"
+    );
+    let out = rig.cell.falc(&["mode", "auto"]);
+    assert!(out.contains("mode auto"), "{out}");
+    assert!(rig.cell.falc(&["status"]).contains("mode: auto"));
+}
+
+#[test]
+fn maintenance_brings_the_cell_home_after_a_robot_estop_and_the_next_order_runs_in_auto() {
+    let mut rig = rig("10");
+    rig.start_list_until_welding(&["dikdroog", "dikdroog"]);
+    // Maintenance is refused while the order runs.
+    let (code, text) = rig.cell.falc_as("console", &["mode", "maintenance"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("only when no order runs"), "{text}");
+    rig.rcm.control("estop");
+    rig.operator().expect_line(
+        "EVENT order-ended id=1 state=failed",
+        Duration::from_secs(10),
+    );
+    rig.rcm.control("estop-clear");
+    rig.cell.falc(&["ack"]);
+
+    // In auto mode the workstation itself refuses a manual operation.
+    let (code, text) = rig
+        .cell
+        .falc_as("maintainer", &["manual", "transport", "press", "A"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(
+        text.contains("refused by transport: the cell is in auto mode"),
+        "{text}"
+    );
+    let out = rig.cell.falc(&["mode", "maintenance"]);
+    assert!(out.contains("mode maintenance"), "{out}");
+    // No order runs in maintenance mode.
+    let (code, text) = rig.cell.falc_as("console", &["start"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("maintenance mode"), "{text}");
+    // An operator (not a maintainer) is refused by the router: the call's
+    // key is not in its role's rules, so no reply comes (exit 2).
+    for user in ["console", "engineer"] {
+        let (code, text) = rig
+            .cell
+            .falc_as(user, &["manual", "transport", "press", "A"]);
+        assert_eq!(code, 2, "{user}: {text}");
+    }
+    // The maintainer presses and releases a button by hand, then runs home.
+    let out = rig
+        .cell
+        .falc_as("maintainer", &["manual", "transport", "press", "B"]);
+    assert_eq!(out.0, 0, "{}", out.1);
+    rig.plc
+        .expect_line("coil button line B 1", Duration::from_secs(5));
+    let out = rig
+        .cell
+        .falc_as("maintainer", &["manual", "transport", "release", "B"]);
+    assert_eq!(out.0, 0, "{}", out.1);
+    rig.plc
+        .expect_line("coil button line B 0", Duration::from_secs(5));
+    let (code, text) = rig
+        .cell
+        .falc_as("maintainer", &["manual", "welding", "home"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("welding has no recipe home"), "{text}");
+    let (code, text) = rig
+        .cell
+        .falc_as("maintainer", &["manual", "transport", "home"]);
+    assert_eq!(code, 0, "{text}");
+    rig.transport.as_mut().expect("transport node").expect_line(
+        "EVENT job program=HOME event=Done",
+        Duration::from_secs(120),
+    );
+    rig.plc.control("show");
+    rig.plc
+        .expect_line("carriers: 1@W2 2@W2", Duration::from_secs(5));
+    rig.plc
+        .expect_line("buttons held: none", Duration::from_secs(5));
+    let j = rig.journal(None);
+    for text in [
+        "manual on transport: press B",
+        "manual on transport: release B",
+        "manual on transport: run recipe home",
+    ] {
+        assert!(
+            j.iter()
+                .any(|e| e.who == "maintainer" && e.kind == EntryKind::Action && e.text == text),
+            "{text}: {j:#?}"
+        );
+    }
+    assert!(j
+        .iter()
+        .any(|e| e.who == "maintainer" && e.text.contains("manual on transport: press A refused")));
+
+    // Back to auto: the next order runs to done.
+    rig.cell.falc(&["mode", "auto"]);
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(120));
+    let orders = rig.orders();
+    assert_eq!(
+        (orders[0].state, orders[1].state),
+        (OrderState::Failed, OrderState::Done)
+    );
+    assert_eq!((starts(&rig, 1), starts(&rig, 2)), (1, 1));
+}
+
+#[test]
+fn a_failed_order_restarted_from_a_chosen_state_runs_to_done() {
+    let mut rig = rig("10");
+    rig.start_list_until_welding(&["dikdroog"]);
+    rig.rcm.control("estop");
+    rig.operator().expect_line(
+        "EVENT order-ended id=1 state=failed",
+        Duration::from_secs(10),
+    );
+    rig.rcm.control("estop-clear");
+    let (code, text) = rig
+        .cell
+        .falc_as("console", &["restart", "1", "--from", "9"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("waits for acknowledgement"), "{text}");
+    rig.cell.falc(&["ack"]);
+    let (code, text) = rig
+        .cell
+        .falc_as("console", &["restart", "1", "--from", "25"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("dikdroog has no state 25"), "{text}");
+    let (code, text) = rig.cell.falc_as("observer", &["restart", "1"]);
+    assert_eq!(code, 2, "an observer may not: {text}");
+    // The carriers where state 9 expects them, then from state 9 (the
+    // first transport job): no greeting, no question.
+    rig.plc.control("layout W2 W2");
+    let out = rig.cell.falc(&["restart", "1", "--from", "9"]);
+    assert!(out.contains("order 1 (dikdroog) started"), "{out}");
+    let questions = rig.work_list("ja", Duration::from_secs(120));
+    assert!(questions.is_empty(), "{questions:?}");
+    let orders = rig.orders();
+    assert_eq!(orders[0].state, OrderState::Done, "{orders:?}");
+    assert_eq!(starts(&rig, 1), 2);
+    let j = rig.journal(Some(1));
+    assert!(j
+        .iter()
+        .any(|e| e.who == "console" && e.text == "restarted order 1 from state 9"));
+    let (code, text) = rig.cell.falc_as("console", &["restart", "1"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(text.contains("order 1 is done"), "{text}");
+}
+
+#[test]
+fn a_stopped_order_resumes_where_it_stopped_and_the_recipe_starts_anew_after() {
+    let rig = rig("10");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    let end = Instant::now() + Duration::from_secs(30);
+    while rig.status().question.is_none() {
+        assert!(Instant::now() < end, "no question");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let out = rig.cell.falc(&["stop"]);
+    assert!(out.contains("order 1 stopped"), "{out}");
+    assert_eq!(rig.orders()[0].state, OrderState::Stopped);
+    // Resumed at the question (state 6), not at the greeting (state 1).
+    let greetings = |rig: &Rig| {
+        rig.journal(Some(1))
+            .iter()
+            .filter(|e| e.kind == EntryKind::Message && e.text == "dikke plaat droog")
+            .count()
+    };
+    assert_eq!(greetings(&rig), 1);
+    let out = rig.cell.falc(&["restart", "1"]);
+    assert!(out.contains("order 1 (dikdroog) started"), "{out}");
+    let questions = rig.work_list("ja", Duration::from_secs(120));
+    assert_eq!(questions.len(), 1, "{questions:?}");
+    assert_eq!(rig.orders()[0].state, OrderState::Done);
+    assert_eq!(
+        greetings(&rig),
+        2,
+        "state 2 once more only on the `ja` path (state 7)"
+    );
+    assert!(rig
+        .journal(Some(1))
+        .iter()
+        .any(|e| e.who == "console" && e.text == "resumed order 1 where it stopped"));
+    // The same recipe starts anew for the next order.
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(120));
+    assert_eq!(rig.orders()[1].state, OrderState::Done);
+    assert_eq!(starts(&rig, 2), 1);
+}
