@@ -434,6 +434,55 @@ mod tests {
     }
 
     #[test]
+    fn a_maintainer_presses_buttons_and_runs_a_line_for_a_while() {
+        let (mut p, mut rx) = plc();
+        let press = |b: &str| ManualAction::Press(b.into());
+        assert!(
+            p.manual(Duration::ZERO, &press("A")).is_err(),
+            "not connected"
+        );
+        p.connected();
+        p.inputs(ready(), 1);
+        drain(&mut rx);
+        assert_eq!(
+            p.manual(Duration::ZERO, &press("3")).as_deref(),
+            Ok("station button 3 pressed")
+        );
+        let e = p.manual(Duration::ZERO, &press("I")).unwrap_err();
+        assert!(e.contains("`I` is not a conveyor line"), "{e}");
+        let run = |line: &str, seconds| ManualAction::RunLine {
+            line: line.into(),
+            seconds,
+        };
+        assert!(p.manual(Duration::ZERO, &run("B", 0)).is_err());
+        assert!(p.manual(Duration::ZERO, &run("3", 5)).is_err());
+        assert!(p
+            .manual(Duration::ZERO, &ManualAction::StartProgram)
+            .unwrap_err()
+            .contains("transport station cannot"));
+        assert_eq!(
+            p.manual(Duration::from_secs(1), &run("b", 5)).as_deref(),
+            Ok("line B runs for 5 s")
+        );
+        assert_eq!(p.poll_timeout(), Some(Duration::from_secs(6)));
+        let line_b = Coil::Button(Button::Line('B'));
+        let station_3 = Coil::Button(Button::Station(PlcStation::of(3)));
+        assert_eq!(
+            drain(&mut rx),
+            vec![
+                PlcCommand::Write(station_3, true),
+                PlcCommand::Write(line_b, true)
+            ]
+        );
+        p.handle_timeout(Duration::from_secs(6), &mut Vec::new());
+        assert_eq!(drain(&mut rx), vec![PlcCommand::Write(line_b, false)]);
+        assert_eq!(p.poll_timeout(), None);
+        // Leaving maintenance releases what a maintainer left pressed.
+        p.mode_changed(CellMode::Auto);
+        assert_eq!(drain(&mut rx), vec![PlcCommand::Write(station_3, false)]);
+    }
+
+    #[test]
     fn unavailable_until_connected_and_read_and_while_estop() {
         let (mut p, mut rx) = plc();
         assert!(p.unavailable().is_some());

@@ -494,6 +494,40 @@ mod tests {
         h
     }
 
+    #[test]
+    fn a_maintainer_operates_the_robot_with_the_telegrams_that_exist() {
+        let mut h = Host::new("/dev/ttyS0");
+        let e = h.manual(&ManualAction::StartProgram).unwrap_err();
+        assert!(e.contains("not open"), "{e}");
+        h.connected(s(0));
+        let sel = h.manual(&ManualAction::SelectProgram(65)).unwrap();
+        assert_eq!(sel.0, Telegram::SelectProgram(p65()));
+        assert!(h.manual(&ManualAction::SelectProgram(1000)).is_err());
+        assert_eq!(
+            h.manual(&ManualAction::StartProgram).unwrap().0,
+            Telegram::StartProgram
+        );
+        assert_eq!(
+            h.manual(&ManualAction::StopProgram).unwrap().0,
+            Telegram::StopProgram
+        );
+        let e = h.manual(&ManualAction::ConfirmAlarm).unwrap_err();
+        assert!(e.contains("no alarm to confirm"), "{e}");
+        h.telegram(s(1), Telegram::Alarm(24));
+        let confirm = h.manual(&ManualAction::ConfirmAlarm).unwrap();
+        assert_eq!(
+            confirm,
+            (
+                Telegram::ConfirmAlarm(24),
+                "robot alarm 24 confirmed".into()
+            )
+        );
+        assert!(h
+            .manual(&ManualAction::Press("A".into()))
+            .unwrap_err()
+            .contains("welding station cannot"));
+    }
+
     fn ended(out: &[Out]) -> Option<&JobEnd> {
         out.iter().find_map(|o| match o {
             Out::Engine(Event::Ended(_, e)) => Some(e),

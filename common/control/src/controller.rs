@@ -125,6 +125,17 @@ struct Running {
     paused_for_step: bool,
 }
 
+impl Running {
+    /// State `s`'s command as the recipe gives it (empty for none).
+    fn command_of(&self, s: StateNo) -> &str {
+        self.engine
+            .program()
+            .states
+            .get(&s)
+            .map_or("", |st| st.text.as_str())
+    }
+}
+
 /// The runtime of one control level.
 pub struct Controller<D> {
     vmd: Vmd,
@@ -259,16 +270,9 @@ impl<D: Device> Controller<D> {
             mode: self.mode.mode,
             held: self.running.as_ref().and_then(|r| {
                 let state = r.engine.held()?;
-                let command = r
-                    .engine
-                    .program()
-                    .states
-                    .get(&state)
-                    .map(|s| s.text.clone())
-                    .unwrap_or_default();
                 Some(HeldStep {
                     state: state.0,
-                    command,
+                    command: r.command_of(state).to_string(),
                 })
             }),
             ..VmdStatus::default()
@@ -294,20 +298,14 @@ impl<D: Device> Controller<D> {
                 }
                 Action::Entered(s) => tracing::debug!(state = %s, "recipe state"),
                 Action::Held(s) => {
-                    let command = r
-                        .engine
-                        .program()
-                        .states
-                        .get(&s)
-                        .map(|st| st.text.clone())
-                        .unwrap_or_default();
+                    let command = r.command_of(s);
                     let text = format!(
                         "step: {} state {s} waits for `falc step`: {}",
                         r.name,
                         if command.is_empty() {
                             "(no command)"
                         } else {
-                            &command
+                            command
                         }
                     );
                     self.report(Severity::Info, text);

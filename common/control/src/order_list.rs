@@ -1280,6 +1280,10 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         request: ApiRequest,
     ) -> Option<ApiResult> {
         let who = user.as_str();
+        let caller = || Caller {
+            ticket,
+            who: who.to_string(),
+        };
         // The router already refused what the user's role does not allow;
         // checked again here so a mis-generated ACL cannot widen a role.
         let call = request.call();
@@ -1323,10 +1327,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 Ok(Err(why)) => Err(why),
             },
             ApiRequest::Start | ApiRequest::Stop => {
-                let by = Caller {
-                    ticket,
-                    who: who.to_string(),
-                };
+                let by = caller();
                 let stop = matches!(request, ApiRequest::Stop);
                 self.jobs
                     .push_back(if stop { Job::Stop(by) } else { Job::Start(by) });
@@ -1380,11 +1381,11 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                     Request::Mode(m) => format!("mode {m}"),
                     _ => format!("mode {mode}"),
                 };
-                let by = Caller {
-                    ticket,
-                    who: who.to_string(),
-                };
-                self.jobs.push_back(Job::Pass { by, request, done });
+                self.jobs.push_back(Job::Pass {
+                    by: caller(),
+                    request,
+                    done,
+                });
                 return None;
             }
             ApiRequest::Step { station, to } => {
@@ -1408,19 +1409,19 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                     action,
                     by: who.to_string(),
                 };
-                let by = Caller {
-                    ticket,
-                    who: who.to_string(),
-                };
-                self.jobs.push_back(Job::Pass { by, request, done });
+                self.jobs.push_back(Job::Pass {
+                    by: caller(),
+                    request,
+                    done,
+                });
                 return None;
             }
             ApiRequest::Restart { order, from } => {
-                let by = Caller {
-                    ticket,
-                    who: who.to_string(),
-                };
-                self.jobs.push_back(Job::Restart { by, order, from });
+                self.jobs.push_back(Job::Restart {
+                    by: caller(),
+                    order,
+                    from,
+                });
                 return None;
             }
             ApiRequest::Shutdown => {
