@@ -253,12 +253,12 @@ fn step_mode_and_a_maintenance_action_in_the_tui() {
     // F1: the first step waits; Enter carries it out, the next one waits.
     tmux.keys(&["F1"]);
     tmux.wait_for(
-        &["STEP: state 1 waits: output", "Enter: carry it out"],
+        &["STEP: cell state 1 waits: output", "Enter: carry it out"],
         Duration::from_secs(20),
     );
     tmux.keys(&["Enter"]);
     tmux.wait_for(
-        &["STEP: state 2 waits: output dikke plaat droog"],
+        &["STEP: cell state 2 waits: output dikke plaat droog"],
         Duration::from_secs(20),
     );
     // Back to auto while the order runs: it goes on by itself.

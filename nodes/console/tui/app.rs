@@ -434,11 +434,13 @@ impl App {
                 self.view_station = (self.view_station + n - 1) % n;
                 None
             }
-            (Layer::Overview, KeyCode::Enter) if self.held_step().is_some() => {
-                self.call(ApiRequest::Step {
-                    station: None,
-                    to: None,
-                })
+            (Layer::Overview, KeyCode::Enter) if !self.held_steps().is_empty() => {
+                // The cell's step first, else the first workstation's.
+                let station = self
+                    .held_steps()
+                    .first()
+                    .and_then(|(name, cell, _)| (!cell).then(|| (*name).clone()));
+                self.call(ApiRequest::Step { station, to: None })
             }
             (Layer::Recipe, KeyCode::Right) => {
                 self.view_station = (self.view_station + 1) % self.panes.len().max(1);
@@ -487,7 +489,6 @@ impl App {
         })
     }
 
-    /// The program a station runs and its recipe state.
     /// The cell's status as the operator last saw it.
     fn cell_status(&self) -> Option<&falc_model::mms::vmd::VmdStatus> {
         let s = self.status.as_ref()?;
@@ -504,11 +505,29 @@ impl App {
         self.cell_status().map(|s| s.mode)
     }
 
-    /// The cell's step that waits for confirmation (step mode).
-    pub fn held_step(&self) -> Option<&HeldStep> {
-        self.cell_status()?.held.as_ref()
+    /// The steps that wait for confirmation (step mode), the cell's first:
+    /// the station, whether it is the cell, the step.
+    pub fn held_steps(&self) -> Vec<(&StationName, bool, &HeldStep)> {
+        let Some(s) = &self.status else {
+            return Vec::new();
+        };
+        let mut held: Vec<_> = s
+            .stations
+            .iter()
+            .filter_map(|v| {
+                let h = v.status.as_ref()?.held.as_ref()?;
+                let cell = self
+                    .topology
+                    .station(&v.name)
+                    .is_some_and(|st| st.kind == StationKind::Cell);
+                Some((&v.name, cell, h))
+            })
+            .collect();
+        held.sort_by_key(|(_, cell, _)| !cell);
+        held
     }
 
+    /// The program a station runs and its recipe state.
     pub fn running_program(&self, station: &StationName) -> Option<(String, u16)> {
         let s = self.status.as_ref()?;
         let v = s.stations.iter().find(|v| &v.name == station)?;
@@ -762,6 +781,46 @@ mod tests {
     }
 
     use falc_model::console::EntryKind;
+
+    #[test]
+    fn enter_on_the_overview_carries_out_the_cells_step_first_then_a_workstations() {
+        use falc_model::console::StationView;
+        use falc_model::mms::vmd::VmdStatus;
+        let view = |name: &str, state: Option<u16>| StationView {
+            name: StationName::new(name).expect("valid"),
+            status: Some(VmdStatus {
+                mode: CellMode::Step,
+                held: state.map(|state| HeldStep {
+                    state,
+                    command: "activate k".into(),
+                }),
+                ..VmdStatus::default()
+            }),
+            connected: true,
+        };
+        let mut a = app();
+        assert_eq!(a.key(key(KeyCode::Enter)), None, "nothing waits");
+        let mut s = status(None);
+        s.stations = vec![view("transport", Some(1)), view("cell", Some(9))];
+        a.status(Ok(s.clone()));
+        assert_eq!(a.cell_mode(), Some(CellMode::Step));
+        assert_eq!(
+            a.key(key(KeyCode::Enter)),
+            Some(Intent::Call(ApiRequest::Step {
+                station: None,
+                to: None
+            }))
+        );
+        s.stations = vec![view("transport", Some(1)), view("cell", None)];
+        a.status(Ok(s));
+        assert_eq!(
+            a.key(key(KeyCode::Enter)),
+            Some(Intent::Call(ApiRequest::Step {
+                station: Some(StationName::new("transport").expect("valid")),
+                to: None
+            }))
+        );
+    }
 
     #[test]
     fn messages_go_to_their_station_pane_and_count_as_unread_until_shown() {

@@ -393,10 +393,15 @@ fn overview(f: &mut Frame, app: &App, area: Rect) {
                 BUSY,
             ));
         }
-        if let Some(h) = app.held_step() {
+        for (i, (station, _, h)) in app.held_steps().into_iter().enumerate() {
+            let hint = if i == 0 {
+                "  (Enter: carry it out)"
+            } else {
+                ""
+            };
             notes.push(Line::styled(
                 format!(
-                    "STEP: state {} waits: {}  (Enter: carry it out)",
+                    "STEP: {station} state {} waits: {}{hint}",
                     h.state, h.command
                 ),
                 BUSY,
