@@ -11,6 +11,10 @@
 //! only when the workstation has it (else the cell drops its copy too: a
 //! recipe is never half-applied). Unchanged content is not sent again.
 //!
+//! Modes, steps and manual operations: where each goes is
+//! `coordination::route`; what is passed on is answered with the
+//! workstations' confirms (`Cell::pass_on`).
+//!
 //! A thin driver: the recipe runtime is `falc_control::controller`, the
 //! coordination of the stations below `falc_control::coordination` (both
 //! sans-I/O), driven by `falc_node::controller_node`; here are the request
@@ -24,7 +28,7 @@ use clap::Parser;
 use delivery::{workstation_domain, Delivered, Deliveries};
 use falc_bus::station::{Station, StationEvent};
 use falc_bus::{Bus, Indication};
-use falc_control::coordination::{self, Command, Reply, Stations};
+use falc_control::coordination::{self, Command, Reply, Route, Stations};
 use falc_model::alarm::AlarmClass;
 use falc_model::ids::StationName;
 use falc_model::mms::error::ServiceError;
@@ -143,10 +147,9 @@ impl Cell {
     }
 
     async fn indication(&mut self, ind: Indication) {
-        match &ind.request {
-            Request::Mode(_) => {
-                // Set here first (refused while a recipe runs, unless auto
-                // ↔ step), then on every workstation.
+        match coordination::route(&ind.request, &self.subordinates) {
+            Route::Here => {}
+            Route::HereThenAll => {
                 let result = self.ctl.indication(&ind.request).await;
                 if result.is_err() {
                     return ind.responder.respond(result).await;
@@ -154,28 +157,8 @@ impl Cell {
                 let to = self.subordinates.clone();
                 return self.pass_on(to, ind);
             }
-            Request::Step {
-                station: Some(st), ..
-            }
-            | Request::Manual { station: st, .. }
-                if self.subordinates.contains(st) =>
-            {
-                let to = vec![st.clone()];
-                return self.pass_on(to, ind);
-            }
-            Request::Manual { station, .. } => {
-                let e = ServiceError::undefined(format!(
-                    "{station} is not a workstation of this cell: manual operations are \
-                     on the workstations ({})",
-                    self.subordinates
-                        .iter()
-                        .map(StationName::as_str)
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ));
-                return ind.responder.respond(Err(e)).await;
-            }
-            _ => {}
+            Route::To(st) => return self.pass_on(vec![st], ind),
+            Route::Refused(e) => return ind.responder.respond(Err(e)).await,
         }
         let result = self.ctl.indication(&ind.request).await;
         if let (

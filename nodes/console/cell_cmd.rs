@@ -339,14 +339,7 @@ fn show_status(s: &CellStatus) -> String {
         None => format!("list {list}; no order running"),
     });
     out.push(format!("queued orders: {}", s.queued));
-    if let Some(mode) = s
-        .stations
-        .first()
-        .and_then(|st| st.status.as_ref())
-        .map(|v| v.mode)
-    {
-        out.push(format!("mode: {mode}"));
-    }
+    out.push(format!("mode: {}", s.mode));
     for st in &s.stations {
         if let Some((v, h)) = st.status.as_ref().and_then(|v| Some((v, v.held.as_ref()?))) {
             let program = v
@@ -354,15 +347,8 @@ fn show_status(s: &CellStatus) -> String {
                 .as_ref()
                 .map_or(String::new(), |p| format!("{} ", p.name));
             out.push(format!(
-                "STEP: {} {program}state {} waits: {}  (falc step{})",
-                st.name,
-                h.state,
-                h.command,
-                if st.name == s.stations[0].name {
-                    String::new()
-                } else {
-                    format!(" --station {}", st.name)
-                }
+                "STEP: {} {program}state {} waits: {}  (falc step --station {})",
+                st.name, h.state, h.command, st.name
             ));
         }
     }

@@ -61,7 +61,9 @@ struct Robot {
 }
 
 impl Robot {
-    fn send(&mut self, t: Telegram, out: &mut Vec<Event>) {
+    /// Sends `t`; false (and the link's failure applied) if the line is
+    /// not open.
+    fn send(&mut self, t: Telegram, out: &mut Vec<Event>) -> bool {
         let sent = self
             .dnc
             .as_ref()
@@ -75,13 +77,16 @@ impl Robot {
             let outs = self.host.link_failed(why);
             self.apply(outs, out);
         }
+        sent
     }
 
     /// Carries out host outputs; engine events go to `out`.
     fn apply(&mut self, outs: Vec<Out>, out: &mut Vec<Event>) {
         for o in outs {
             match o {
-                Out::Telegram(t) => self.send(t, out),
+                Out::Telegram(t) => {
+                    self.send(t, out);
+                }
                 Out::Engine(ev) => out.push(ev),
                 Out::Detail(d) => self.detail = Some(d),
                 Out::Info(text) => tracing::info!("{text}"),
@@ -162,9 +167,13 @@ impl Device for Robot {
 
     fn manual(&mut self, _now: Duration, action: &ManualAction) -> Result<String, String> {
         let (telegram, done) = self.host.manual(action)?;
+        // No recipe runs in maintenance: a link failure has no job to end.
         let mut events = Vec::new();
-        self.send(telegram, &mut events);
-        Ok(done)
+        if self.send(telegram, &mut events) {
+            Ok(done)
+        } else {
+            Err(format!("the DNC line {} is not open", self.line.path))
+        }
     }
 
     fn halt(&mut self, out: &mut Vec<Event>) {

@@ -30,7 +30,7 @@ use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::error::{DefinitionError, ErrorClass, ServiceError};
 use falc_model::mms::pdu::{JobEvent, Request, Response, Severity};
 use falc_model::mms::program::{PiCompletion, PiRequest, PiState};
-use falc_model::mms::vmd::{Identity, ProgramState, RecipeState, Vmd, VmdStatus};
+use falc_model::mms::vmd::{Identity, ProgramState, RecipeState, Transition, Vmd, VmdStatus};
 use falc_model::mode::{CellMode, HeldStep, ManualAction, ModeSetting};
 use falc_recipe::check::check;
 use falc_recipe::commands::RecipeKind;
@@ -437,6 +437,12 @@ impl<D: Device> Controller<D> {
                 }
                 return self.step(now, *to);
             }
+            Request::Manual { station, .. } if *station != self.me => {
+                return Err(ServiceError::undefined(format!(
+                    "a manual operation for {station} reached {}",
+                    self.me
+                )))
+            }
             Request::Manual { action, by, .. } => return self.manual(now, action, by),
             // A Start of a program invocation a Stop left stopped begins
             // anew: it is reset first and the kept run dropped (ISO 9506
@@ -454,31 +460,13 @@ impl<D: Device> Controller<D> {
         let Some(t) = transition else { return result };
         let done = match t.request {
             PiRequest::Start | PiRequest::Resume => {
-                let from = match req {
-                    Request::Start { argument, .. } => match restart_state(argument) {
-                        Ok(from) => from,
-                        Err(e) => {
-                            let _ = self.vmd.complete(&t.name, PiCompletion::StartFailed);
-                            return Err(e);
-                        }
-                    },
-                    _ => None,
-                };
                 let refused = (self.mode.mode == CellMode::Maintenance).then(|| {
                     ServiceError::state_conflict(format!(
                         "{} is in maintenance mode: no recipe starts (falc mode auto)",
                         self.me
                     ))
                 });
-                if let Err(e) = self.launch(now, &t.name, t.request, from, refused) {
-                    let _ = self.vmd.complete(&t.name, PiCompletion::StartFailed);
-                    return Err(e);
-                }
-                if t.request == PiRequest::Start {
-                    PiCompletion::Started
-                } else {
-                    PiCompletion::Resumed
-                }
+                self.start_invocation(now, req, &t, refused)?
             }
             PiRequest::Stop | PiRequest::Kill => {
                 // The device stops first: `finished` forgets what runs (a
@@ -510,6 +498,32 @@ impl<D: Device> Controller<D> {
         let state = self.vmd.complete(&t.name, done).unwrap_or_else(|s| s);
         self.settle(now);
         Ok(Response::ProgramInvocationState(state))
+    }
+
+    /// The Start or Resume transition `t` of request `req`: the run
+    /// launched (a Start's argument may name the state to begin at), or the
+    /// invocation marked failed to start with why.
+    fn start_invocation(
+        &mut self,
+        now: Duration,
+        req: &Request,
+        t: &Transition,
+        refused: Option<ServiceError>,
+    ) -> Result<PiCompletion, ServiceError> {
+        let from = match req {
+            Request::Start { argument, .. } => restart_state(argument),
+            _ => Ok(None),
+        };
+        let launched = from.and_then(|from| self.launch(now, &t.name, t.request, from, refused));
+        if let Err(e) = launched {
+            let _ = self.vmd.complete(&t.name, PiCompletion::StartFailed);
+            return Err(e);
+        }
+        Ok(if t.request == PiRequest::Start {
+            PiCompletion::Started
+        } else {
+            PiCompletion::Resumed
+        })
     }
 
     /// Starts (or resumes) program invocation `name`: a Resume of the run a
@@ -661,7 +675,7 @@ impl<D: Device> Controller<D> {
                 self.reset_stopped(&name);
                 let start = Request::Start {
                     name: name.clone(),
-                    argument: format!("manual by {by}"),
+                    argument: "manual".into(),
                 };
                 let Some((result, Some(t))) = self.vmd.handle(&start) else {
                     return Err(ServiceError::state_conflict(format!(
@@ -669,11 +683,9 @@ impl<D: Device> Controller<D> {
                     )));
                 };
                 result?;
-                if let Err(e) = self.launch(now, &t.name, PiRequest::Start, None, None) {
-                    let _ = self.vmd.complete(&t.name, PiCompletion::StartFailed);
-                    return Err(e);
-                }
-                let _ = self.vmd.complete(&t.name, PiCompletion::Started);
+                // Maintenance allows this one start.
+                let done = self.start_invocation(now, &start, &t, None)?;
+                let _ = self.vmd.complete(&t.name, done);
                 format!("{name} started")
             }
             other => self
@@ -1015,10 +1027,9 @@ mod tests {
             .unwrap();
         assert_eq!(r, Response::ProgramInvocationState(PiState::Running));
         assert_eq!(c.status().program.map(|p| p.state), Some(2));
-        assert_eq!(
-            c.device.acts.first(),
-            Some(&Action::Activate(falc_recipe::check::Button::Line('A'))),
-            "the line it held pressed again: {:?}",
+        assert!(
+            matches!(c.device.acts.as_slice(), [Action::Watch { .. }]),
+            "state 2 watches again, nothing is pressed again: {:?}",
             c.device.acts
         );
         assert_eq!(c.poll_timeout(), Some(secs(80)), "the wait's limit anew");

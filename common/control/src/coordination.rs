@@ -8,10 +8,13 @@
 //! Stop never overtakes its Start) and hands the confirm back with
 //! [`handle_reply`]. Job events the workstations publish come in through
 //! [`Stations::unconfirmed`]; only the job this recipe started counts.
+//! [`route`] says where a commander's request is answered: a mode here and
+//! then on every workstation, a step or manual operation on the one named.
 
 use crate::controller::{Controller, Device};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::{ObjectName, StationName};
+use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
 use falc_recipe::check::Job;
@@ -128,6 +131,47 @@ impl Stations {
             JobEvent::Paused => Event::Paused(st),
             JobEvent::Resumed => Event::Resumed(st),
         }]
+    }
+}
+
+/// Where a commander's request to the cell is answered ([`route`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Route {
+    /// By the cell's own controller.
+    Here,
+    /// By the cell's controller first (a mode); once it accepted, passed
+    /// on to every workstation, whose first refusal is the answer.
+    HereThenAll,
+    /// By the workstation named (a step on it, a manual operation).
+    To(StationName),
+    /// Refused at once.
+    Refused(ServiceError),
+}
+
+/// Where the commander's `request` is answered, for a cell over
+/// `workstations`. A manual operation is never the cell's own: it goes to
+/// the workstation it names, or is refused.
+pub fn route(request: &Request, workstations: &[StationName]) -> Route {
+    match request {
+        Request::Mode(_) => Route::HereThenAll,
+        Request::Step {
+            station: Some(st), ..
+        }
+        | Request::Manual { station: st, .. }
+            if workstations.contains(st) =>
+        {
+            Route::To(st.clone())
+        }
+        Request::Manual { station, .. } => Route::Refused(ServiceError::undefined(format!(
+            "{station} is not a workstation of this cell: manual operations are on the \
+             workstations ({})",
+            workstations
+                .iter()
+                .map(StationName::as_str)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))),
+        _ => Route::Here,
     }
 }
 
@@ -543,6 +587,37 @@ mod tests {
         assert!(outputs(&mut c).iter().any(|o| matches!(o,
             Output::Report { severity: Severity::Alarm(AlarmClass::Communication), text }
                 if text.starts_with("no answer from the operator"))));
+    }
+
+    #[test]
+    fn a_mode_goes_everywhere_a_step_or_manual_operation_to_its_workstation() {
+        use falc_model::mode::{ManualAction, ModeSetting};
+        let below = [st("welding"), st("transport")];
+        assert_eq!(
+            route(&Request::Mode(ModeSetting::default()), &below),
+            Route::HereThenAll
+        );
+        let step = |station: Option<&str>| Request::Step {
+            station: station.map(st),
+            to: None,
+        };
+        assert_eq!(route(&step(None), &below), Route::Here);
+        assert_eq!(route(&step(Some("cell")), &below), Route::Here);
+        assert_eq!(
+            route(&step(Some("transport")), &below),
+            Route::To(st("transport"))
+        );
+        let manual = |station: &str| Request::Manual {
+            station: st(station),
+            action: ManualAction::StopProgram,
+            by: "maint".into(),
+        };
+        assert_eq!(route(&manual("welding"), &below), Route::To(st("welding")));
+        let Route::Refused(e) = route(&manual("cell"), &below) else {
+            panic!("the cell has no manual operations")
+        };
+        assert!(e.description.contains("(welding, transport)"), "{e}");
+        assert_eq!(route(&Request::Status, &below), Route::Here);
     }
 
     #[test]

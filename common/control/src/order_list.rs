@@ -1242,6 +1242,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             journal_head: self.db.journal_head()?,
             question: self.question.as_ref().map(|q| q.prompt.clone()),
             shutdown_pending: self.shutdown_pending,
+            mode: self.cell_mode(),
             stations: self
                 .topology
                 .stations()

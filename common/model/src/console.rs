@@ -522,6 +522,9 @@ pub struct CellStatus {
     pub question: Option<String>,
     /// Set when `shutdown` waits for the list to end.
     pub shutdown_pending: bool,
+    /// The cell's mode, as its status last said (auto until seen).
+    #[serde(default)]
+    pub mode: CellMode,
     /// Every station below the operator.
     pub stations: Vec<StationView>,
     /// The newest journal entry's id: every order change and message

@@ -17,8 +17,9 @@
 //!   time limits do not run while a step waits;
 //! - an aborted run resumes ([`Engine::resume`], ISO 9506 Stop → Resume) at
 //!   the state it stopped in, or, where a job below was stopped with it,
-//!   at the state that started that job; the lines it held pressed are
-//!   pressed again first.
+//!   at the state that started that job. Nothing is pressed again: a
+//!   conveyor line runs on to its end once pressed, and a second press
+//!   would send the next carrier along it.
 
 use super::check::{Button, Command, Job, Program, Signal};
 use super::syntax::{Criterion, Report, StateNo};
@@ -179,9 +180,6 @@ pub struct Engine {
     released: bool,
     /// Where [`Engine::resume`] goes on, once aborted.
     resume_at: Option<StateNo>,
-    /// The lines the run holds pressed (pressed again on resume: a halt
-    /// releases them).
-    lines: std::collections::BTreeSet<char>,
 }
 
 impl Engine {
@@ -201,7 +199,6 @@ impl Engine {
             step_to: None,
             released: false,
             resume_at: None,
-            lines: std::collections::BTreeSet::new(),
         }
     }
 
@@ -268,17 +265,14 @@ impl Engine {
 
     /// Goes on after an abort (ISO 9506 Resume after Stop): at the state it
     /// stopped in, or at the earliest `start` of a job below that was
-    /// stopped with it; the lines it held are pressed again first. The
-    /// state to go on at, or None if the run was not aborted.
+    /// stopped with it. The state to go on at, or None if the run was not
+    /// aborted.
     pub fn resume(&mut self, now: Duration) -> Option<StateNo> {
         let at = self.resume_at.take()?;
         self.jobs.clear();
         self.alarm = None;
         self.failure = None;
         self.phase = Phase::NotStarted;
-        for l in self.lines.clone() {
-            self.actions.push_back(Action::Activate(Button::Line(l)));
-        }
         self.enter(now, at);
         Some(at)
     }
@@ -599,18 +593,8 @@ impl Engine {
             match st.command {
                 Command::Nothing => {}
                 Command::Output(text) => self.actions.push_back(Action::Output(text)),
-                Command::Activate(b) => {
-                    if let Button::Line(l) = b {
-                        self.lines.insert(l);
-                    }
-                    self.actions.push_back(Action::Activate(b));
-                }
-                Command::Reset(b) => {
-                    if let Button::Line(l) = b {
-                        self.lines.remove(&l);
-                    }
-                    self.actions.push_back(Action::Reset(b));
-                }
+                Command::Activate(b) => self.actions.push_back(Action::Activate(b)),
+                Command::Reset(b) => self.actions.push_back(Action::Reset(b)),
                 Command::Input(prompt) => {
                     self.actions.push_back(Action::Input(prompt));
                     self.phase = Phase::AwaitAnswer;
@@ -811,7 +795,7 @@ mod tests {
     }
 
     #[test]
-    fn a_resume_goes_on_at_the_stopped_state_with_its_lines_pressed_again() {
+    fn a_resume_goes_on_at_the_stopped_state_and_presses_nothing_again() {
         let text = "#T\n\
 -1 | activate A |  |  | 2\n\
 -2 | waitplace 3 1 30 |  | klaar | 3\n\
@@ -825,7 +809,10 @@ mod tests {
         assert_eq!(e.resume_point(), Some(StateNo(2)));
         assert_eq!(e.resume(secs(50)), Some(StateNo(2)));
         let a = drain(&mut e);
-        assert_eq!(a[0], Action::Activate(Button::Line('A')), "{a:?}");
+        assert!(
+            !a.iter().any(|x| matches!(x, Action::Activate(_))),
+            "line A runs on by itself; a second press would send another carrier: {a:?}"
+        );
         assert_eq!(entered(&a), vec![2], "not state 1 again");
         assert_eq!(e.poll_timeout(), Some(secs(80)), "its limit anew");
         e.handle(secs(51), Event::InputReached);

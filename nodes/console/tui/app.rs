@@ -247,17 +247,7 @@ impl App {
             .panes
             .iter()
             .position(|p| p.station.as_ref().is_some_and(|s| s.as_str() == e.who));
-        by_name.unwrap_or_else(|| {
-            let cell = self
-                .topology
-                .stations()
-                .iter()
-                .find(|s| s.kind == StationKind::Cell);
-            self.panes
-                .iter()
-                .position(|p| p.station.as_ref() == cell.map(|c| &c.name))
-                .unwrap_or(0)
-        })
+        by_name.unwrap_or_else(|| self.cell_pane().unwrap_or(0))
     }
 
     /// New messages arrived.
@@ -489,20 +479,9 @@ impl App {
         })
     }
 
-    /// The cell's status as the operator last saw it.
-    fn cell_status(&self) -> Option<&falc_model::mms::vmd::VmdStatus> {
-        let s = self.status.as_ref()?;
-        let v = s.stations.iter().find(|v| {
-            self.topology
-                .station(&v.name)
-                .is_some_and(|st| st.kind == StationKind::Cell)
-        })?;
-        v.status.as_ref()
-    }
-
-    /// The cell's mode, once its status was seen.
+    /// The cell's mode, once the operator answered.
     pub fn cell_mode(&self) -> Option<CellMode> {
-        self.cell_status().map(|s| s.mode)
+        self.status.as_ref().map(|s| s.mode)
     }
 
     /// The steps that wait for confirmation (step mode), the cell's first:
@@ -516,11 +495,7 @@ impl App {
             .iter()
             .filter_map(|v| {
                 let h = v.status.as_ref()?.held.as_ref()?;
-                let cell = self
-                    .topology
-                    .station(&v.name)
-                    .is_some_and(|st| st.kind == StationKind::Cell);
-                Some((&v.name, cell, h))
+                Some((&v.name, self.is_cell(&v.name), h))
             })
             .collect();
         held.sort_by_key(|(_, cell, _)| !cell);
@@ -544,14 +519,22 @@ impl App {
 
     /// Whether the shown pane holds the waiting question.
     pub fn question_here(&self) -> bool {
-        let cell = self
-            .topology
-            .stations()
-            .iter()
-            .find(|s| s.kind == StationKind::Cell)
-            .map(|s| &s.name);
         self.status.as_ref().is_some_and(|s| s.question.is_some())
-            && self.panes.get(self.pane).and_then(|p| p.station.as_ref()) == cell
+            && self.cell_pane() == Some(self.pane)
+    }
+
+    /// Whether `name` is the cell (not a workstation).
+    pub fn is_cell(&self, name: &StationName) -> bool {
+        self.topology
+            .station(name)
+            .is_some_and(|st| st.kind == StationKind::Cell)
+    }
+
+    /// The cell's message pane.
+    fn cell_pane(&self) -> Option<usize> {
+        self.panes
+            .iter()
+            .position(|p| p.station.as_ref().is_some_and(|s| self.is_cell(s)))
     }
 
     fn show(&mut self, layer: Layer) -> Option<Intent> {
@@ -560,13 +543,7 @@ impl App {
         if layer == Layer::Messages {
             // Open on the question if one waits, else where unread is.
             if self.status.as_ref().is_some_and(|s| s.question.is_some()) {
-                let cell = self
-                    .topology
-                    .stations()
-                    .iter()
-                    .find(|s| s.kind == StationKind::Cell)
-                    .map(|s| s.name.clone());
-                if let Some(i) = self.panes.iter().position(|p| p.station == cell) {
+                if let Some(i) = self.cell_pane() {
                     self.pane = i;
                 }
             } else if self.panes.get(self.pane).is_some_and(|p| p.unread == 0) {
@@ -620,11 +597,7 @@ impl App {
                 let below: Vec<StationName> = self
                     .stations()
                     .into_iter()
-                    .filter(|s| {
-                        self.topology
-                            .station(s)
-                            .is_some_and(|st| st.kind != StationKind::Cell)
-                    })
+                    .filter(|s| !self.is_cell(s))
                     .collect();
                 self.pick = Some(Pick::Home(below));
                 None
@@ -775,6 +748,7 @@ mod tests {
             queued: 0,
             question: question.map(String::from),
             shutdown_pending: false,
+            mode: CellMode::Auto,
             stations: Vec::new(),
             journal_head: 0,
         }
@@ -801,6 +775,7 @@ mod tests {
         let mut a = app();
         assert_eq!(a.key(key(KeyCode::Enter)), None, "nothing waits");
         let mut s = status(None);
+        s.mode = CellMode::Step;
         s.stations = vec![view("transport", Some(1)), view("cell", Some(9))];
         a.status(Ok(s.clone()));
         assert_eq!(a.cell_mode(), Some(CellMode::Step));

@@ -69,11 +69,7 @@ pub fn look(app: &App, name: &falc_model::ids::StationName) -> Look {
     let Some(s) = &app.status else {
         return Look::Off;
     };
-    let is_cell = app
-        .topology
-        .station(name)
-        .is_some_and(|st| st.kind == StationKind::Cell);
-    if is_cell && s.alarm.is_some() {
+    if app.is_cell(name) && s.alarm.is_some() {
         return Look::Alarm;
     }
     if s.alarms
@@ -132,11 +128,7 @@ fn top_line(app: &App) -> Line<'static> {
                 let state = app
                     .stations()
                     .iter()
-                    .filter(|n| {
-                        app.topology
-                            .station(n)
-                            .is_some_and(|st| st.kind == StationKind::Cell)
-                    })
+                    .filter(|n| app.is_cell(n))
                     .find_map(|n| app.running_program(n))
                     .map(|(p, st)| format!(" · {p} state {st}"))
                     .unwrap_or_default();
