@@ -15,6 +15,7 @@ mod hierarchy;
 mod hosts;
 mod launch;
 mod modes;
+mod opcua;
 mod operator;
 mod recipes;
 mod recovery;

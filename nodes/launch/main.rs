@@ -53,6 +53,10 @@ struct Cli {
     /// station's twin listens at its own device, else at a free port).
     #[arg(long)]
     plc_listen: Option<String>,
+    /// Also start the OPC UA gateway (`falc-opcua`, console user `opcua`),
+    /// listening at this host:port (`127.0.0.1:4840`).
+    #[arg(long)]
+    opcua: Option<String>,
 }
 
 /// A line from a child, for the launcher's loop.
@@ -329,6 +333,23 @@ async fn start(cli: &Cli, cell: &mut Cell) -> Result<Duration> {
                 cell.wait_for(id, "EVENT cell-ready", limit).await?;
             }
         }
+    }
+    if let Some(listen) = &cli.opcua {
+        let id = cell.spawn(
+            "opcua",
+            "falc-opcua",
+            &[
+                "--topology".into(),
+                cli.topology.display().to_string(),
+                "--credentials-dir".into(),
+                cli.credentials_dir.display().to_string(),
+                "--router".into(),
+                router.clone(),
+                "--listen".into(),
+                listen.clone(),
+            ],
+        )?;
+        cell.wait_for(id, "EVENT ready", limit).await?;
     }
     Ok(t0.elapsed())
 }

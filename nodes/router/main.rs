@@ -87,9 +87,7 @@ fn ensure_credentials(topology: &Topology, dir: &Path) -> Result<Vec<credentials
 
 /// Creates `dir` if missing and makes it private (0700).
 fn private_dir(dir: &Path) -> Result<()> {
-    use std::os::unix::fs::PermissionsExt;
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o700))
+    credentials::private_dir(dir)
         .with_context(|| format!("cannot make {} private (chmod 700)", dir.display()))
 }
 

@@ -6,6 +6,7 @@
 
 pub mod chaos;
 pub mod hosts;
+pub mod opcua;
 pub mod rig;
 pub mod stats;
 
@@ -55,6 +56,9 @@ role = "engineer"
 [[console]]
 name = "maintainer"
 role = "maintainer"
+[[console]]
+name = "opcua"
+role = "operator"
 "#;
 
 /// A free TCP port on 127.0.0.1.
@@ -157,6 +161,13 @@ impl Proc {
         }
     }
 
+    /// The next stdout line not read before, or None at the timeout.
+    pub fn next_line(&mut self, timeout: Duration) -> Option<String> {
+        let l = self.lines.recv_timeout(timeout).ok()?;
+        self.seen.push(l.clone());
+        Some(l)
+    }
+
     /// Waits for a stdout line containing any of `needles`; None at the
     /// timeout.
     pub fn wait_any(&mut self, needles: &[&str], timeout: Duration) -> Option<String> {
@@ -212,12 +223,17 @@ impl Proc {
     /// Writes a line to the process's stdin (a twin's control interface)
     /// and waits for its `ok` answer.
     pub fn control(&mut self, line: &str) {
-        let stdin = self.stdin.as_mut().expect("stdin piped");
-        writeln!(stdin, "{line}").expect("control line written");
-        stdin.flush().expect("flushed");
+        self.send(line);
         self.expect_line(&format!("ok {line}"), Duration::from_secs(10));
         // Answered lines are consumed, so the same control can be sent again.
         self.seen.retain(|l| l != &format!("ok {line}"));
+    }
+
+    /// Writes one line to its stdin.
+    pub fn send(&mut self, line: &str) {
+        let stdin = self.stdin.as_mut().expect("stdin piped");
+        writeln!(stdin, "{line}").expect("line written");
+        stdin.flush().expect("flushed");
     }
 
     /// SIGKILL, and reap.
@@ -340,8 +356,14 @@ pub struct LaunchedCell {
 impl LaunchedCell {
     /// Starts the cell at `time_scale` and waits until it is ready.
     pub fn start(time_scale: &str) -> Self {
+        Self::start_with(time_scale, &[])
+    }
+
+    /// [`LaunchedCell::start`] with more launcher arguments (`--opcua …`).
+    pub fn start_with(time_scale: &str, args: &[&str]) -> Self {
         let dir = tempfile::tempdir().expect("tempdir");
-        let (cmd, _) = launcher(dir.path(), time_scale);
+        let (mut cmd, _) = launcher(dir.path(), time_scale);
+        cmd.args(args);
         let mut launcher = Proc::spawn("falc-launch", cmd);
         launcher.expect_line("falc-launch: cell ready in", Duration::from_secs(60));
         Self { dir, launcher }

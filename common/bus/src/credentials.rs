@@ -128,14 +128,9 @@ pub fn ensure(dir: &Path, user: &str) -> Result<Credentials, CredentialsError> {
     if path.exists() {
         return load(&path);
     }
-    let password: String = rand::thread_rng()
-        .sample_iter(&Alphanumeric)
-        .take(32)
-        .map(char::from)
-        .collect();
     let creds = Credentials {
         user: user.to_string(),
-        password,
+        password: new_password(),
     };
     let text = format!(
         "# zenoh credentials of `{user}`; keep this file private (mode 0600)\n{}",
@@ -146,6 +141,25 @@ pub fn ensure(dir: &Path, user: &str) -> Result<Credentials, CredentialsError> {
     );
     write_private(&path, &text)?;
     Ok(creds)
+}
+
+/// Creates `dir` if missing and makes it private (0700).
+pub fn private_dir(dir: &Path) -> Result<(), CredentialsError> {
+    let io = |source| CredentialsError::Io {
+        path: dir.to_path_buf(),
+        source,
+    };
+    std::fs::create_dir_all(dir).map_err(io)?;
+    std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o700)).map_err(io)
+}
+
+/// A new random password: 32 letters and digits.
+pub fn new_password() -> String {
+    rand::thread_rng()
+        .sample_iter(&Alphanumeric)
+        .take(32)
+        .map(char::from)
+        .collect()
 }
 
 /// The usrpwd dictionary text for these credentials.

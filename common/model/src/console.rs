@@ -478,10 +478,11 @@ pub struct Entry {
 }
 
 /// What the order list does.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ListState {
     /// Not working through the list.
+    #[default]
     Idle,
     /// Working through the list.
     Running,
@@ -500,8 +501,9 @@ pub struct StationView {
     pub connected: bool,
 }
 
-/// The cell at a glance (`falc status`).
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+/// The cell at a glance (`falc status`); the default is an idle list
+/// with nothing known.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct CellStatus {
     /// The order list.
     pub list: ListState,

@@ -741,16 +741,8 @@ mod tests {
         CellStatus {
             list: ListState::Running,
             cell_associated: true,
-            problem: None,
-            alarm: None,
-            alarms: Vec::new(),
-            running: None,
-            queued: 0,
             question: question.map(String::from),
-            shutdown_pending: false,
-            mode: CellMode::Auto,
-            stations: Vec::new(),
-            journal_head: 0,
+            ..CellStatus::default()
         }
     }
 

@@ -1,0 +1,294 @@
+//! `falc-opcua`: the cell on OPC UA (IEC 62541) for a plant's SCADA, MES
+//! and historians. A client of the operator API like the console, as its
+//! own console user (`opcua`, role operator in `launch/cell.toml`, so the
+//! router's ACL bounds everything it does); it looks at the cell every
+//! `--poll-ms` and at once after a method call, and serves what it saw as
+//! an address space whose subscribers are notified of each change
+//! (`space` computes it, `server` serves it, `users` says who may do what,
+//! `packml` maps the cell onto PackML states).
+
+mod packml;
+mod server;
+mod space;
+mod users;
+
+use clap::Parser;
+use falc_bus::operator_service::CallError;
+use falc_bus::Bus;
+use falc_model::console::{ApiReply, ApiRequest, Entry, Order};
+use falc_model::ids::StationName;
+use falc_node::{say, NodeArgs, Shutdown};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::time::Duration;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "falc-opcua",
+    version,
+    about = "FALC OPC UA gateway: the cell's state, stations, orders, journal and alarms, and its methods, for any OPC UA client"
+)]
+struct Cli {
+    #[command(flatten)]
+    node: NodeArgs,
+    /// The gateway's console user (a `[[console]]` of the topology).
+    #[arg(long, default_value = "opcua")]
+    user: StationName,
+    /// Where OPC UA clients connect: host (named in the endpoint URL) and
+    /// port.
+    #[arg(long, default_value = "127.0.0.1:4840")]
+    listen: String,
+    /// The server's certificate and key (made on first start), trusted and
+    /// rejected client certificates; default `<credentials-dir>/opcua-pki`.
+    #[arg(long)]
+    pki_dir: Option<PathBuf>,
+    /// The OPC UA users (name, role, password; private); made from the
+    /// topology's console users on first start. Default
+    /// `<credentials-dir>/opcua-users.toml`.
+    #[arg(long)]
+    users: Option<PathBuf>,
+    /// How often to look at the cell, in ms.
+    #[arg(long, default_value_t = 100)]
+    poll_ms: u64,
+    /// How many of the newest journal entries to serve.
+    #[arg(long, default_value_t = 20)]
+    journal_entries: i64,
+    /// Also offer an endpoint without signing and encryption (commissioning
+    /// only; passwords still cross encrypted with the server's key).
+    #[arg(long)]
+    insecure: bool,
+}
+
+fn main() -> ExitCode {
+    falc_node::init_tracing();
+    let cli = Cli::parse();
+    match tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => match rt.block_on(run(cli)) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                tracing::error!("falc-opcua stops: {e}");
+                eprintln!("falc-opcua: {e}");
+                ExitCode::from(2)
+            }
+        },
+        Err(e) => {
+            eprintln!("falc-opcua: cannot start the async runtime: {e}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// `host:port`, the port a number.
+fn host_port(listen: &str) -> Result<(String, u16), String> {
+    let (host, port) = listen
+        .rsplit_once(':')
+        .ok_or_else(|| format!("--listen {listen}: give host:port (127.0.0.1:4840)"))?;
+    let port = port
+        .parse::<u16>()
+        .map_err(|e| format!("--listen {listen}: port: {e}"))?;
+    if host.is_empty() || port == 0 {
+        return Err(format!(
+            "--listen {listen}: give a host and a port other than 0 (clients must know it)"
+        ));
+    }
+    Ok((host.trim_matches(['[', ']']).to_string(), port))
+}
+
+async fn run(cli: Cli) -> Result<(), String> {
+    let topology = cli.node.topology().map_err(|e| e.to_string())?;
+    let me = topology.console(&cli.user).ok_or_else(|| {
+        format!(
+            "`{}` is not a console user of {}: add a [[console]] stanza for the gateway (role operator)",
+            cli.user,
+            cli.node.topology.display()
+        )
+    })?;
+    let ceiling = me.role;
+    let (host, port) = host_port(&cli.listen)?;
+    let users_path = cli
+        .users
+        .clone()
+        .unwrap_or_else(|| cli.node.credentials_dir.join("opcua-users.toml"));
+    let users = users::Users::ensure(&users_path, &topology, cli.user.as_str(), ceiling)
+        .map_err(|e| e.to_string())?;
+    let settings = cli
+        .node
+        .settings(&topology, &cli.user)
+        .map_err(|e| e.to_string())?;
+    let bus = Bus::open(settings).await.map_err(|e| e.to_string())?;
+    let operator = topology.root().name.clone();
+    let stations: Vec<_> = topology
+        .stations()
+        .iter()
+        .map(|s| (s.name.clone(), s.kind))
+        .collect();
+    let endpoint = server::Endpoint {
+        host: host.clone(),
+        port,
+        pki_dir: cli
+            .pki_dir
+            .clone()
+            .unwrap_or_else(|| cli.node.credentials_dir.join("opcua-pki")),
+        insecure: cli.insecure,
+    };
+    let (opcua_server, running) = server::build(
+        &endpoint,
+        topology.cell().as_str(),
+        stations.clone(),
+        Arc::new(users),
+        bus.clone(),
+        operator.clone(),
+    )?;
+    let mut serving = tokio::spawn(opcua_server.run());
+    // The server lays out the address space once it runs.
+    let laid_out = tokio::time::Instant::now() + Duration::from_secs(10);
+    while !running.laid_out() {
+        if tokio::time::Instant::now() > laid_out || serving.is_finished() {
+            return Err(format!(
+                "the OPC UA server did not start at {}:{port} (see the log above)",
+                host
+            ));
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    let mut shutdown = Shutdown::new();
+    let mut mirror = space::Mirror::default();
+    let mut poller = Poller::new(cli.journal_entries);
+    let mut ready = false;
+    let period = Duration::from_millis(cli.poll_ms.max(10));
+    loop {
+        let mut look = poller.look(&bus, &operator).await;
+        look.last_refusal = running
+            .last_refusal
+            .lock()
+            .map(|s| s.clone())
+            .unwrap_or_default();
+        let alarms = look
+            .status
+            .as_ref()
+            .map(|s| s.alarms.clone())
+            .unwrap_or_default();
+        let changes = mirror.update(space::values(&stations, &look), &alarms);
+        if !running.set(&changes.values) {
+            mirror = space::Mirror::default();
+        }
+        running.raise(&changes.events);
+        if !ready {
+            ready = true;
+            say(&format!(
+                "EVENT ready opc.tcp://{host}:{port}/ (falc-opcua, console user {})",
+                cli.user
+            ));
+        }
+        tokio::select! {
+            _ = tokio::time::sleep(period) => {}
+            _ = running.poked.notified() => {}
+            _ = shutdown.requested() => break,
+            ended = &mut serving => {
+                return Err(match ended {
+                    Ok(Ok(())) => "the OPC UA server ended".to_string(),
+                    Ok(Err(e)) => format!("the OPC UA server failed: {e}"),
+                    Err(e) => format!("the OPC UA server task failed: {e}"),
+                });
+            }
+        }
+    }
+    tracing::info!("falc-opcua stopping");
+    running.handle.cancel();
+    let _ = tokio::time::timeout(Duration::from_secs(5), serving).await;
+    Ok(())
+}
+
+/// Looks at the cell through the operator API: the status every time, the
+/// order list and the newest journal entries when the journal moved.
+struct Poller {
+    journal_head: Option<i64>,
+    orders: Vec<Order>,
+    journal: Vec<Entry>,
+    keep: i64,
+    unreachable_said: bool,
+}
+
+impl Poller {
+    fn new(keep: i64) -> Self {
+        Self {
+            journal_head: None,
+            orders: Vec::new(),
+            journal: Vec::new(),
+            keep: keep.max(1),
+            unreachable_said: false,
+        }
+    }
+
+    async fn call(&mut self, bus: &Bus, operator: &StationName, r: ApiRequest) -> Option<ApiReply> {
+        match bus.api(operator, r, Duration::from_secs(2)).await {
+            Ok(reply) => {
+                if self.unreachable_said {
+                    tracing::info!("the operator answers again");
+                    self.unreachable_said = false;
+                }
+                Some(reply)
+            }
+            Err(e) => {
+                if !self.unreachable_said {
+                    let what = match &e {
+                        CallError::NoReply(_) => "no reply",
+                        CallError::Refused(_) => "refused",
+                    };
+                    tracing::warn!("the operator API gave {what}: {e}");
+                    self.unreachable_said = true;
+                }
+                None
+            }
+        }
+    }
+
+    async fn look(&mut self, bus: &Bus, operator: &StationName) -> space::Look {
+        let Some(ApiReply::Status(status)) = self.call(bus, operator, ApiRequest::Status).await
+        else {
+            self.journal_head = None;
+            return space::Look::default();
+        };
+        if self.journal_head != Some(status.journal_head) {
+            let orders = self.call(bus, operator, ApiRequest::OrderList).await;
+            let after = (status.journal_head - self.keep).max(0);
+            let journal = self
+                .call(bus, operator, ApiRequest::Journal { order: None, after })
+                .await;
+            if let (Some(ApiReply::Orders(o)), Some(ApiReply::Entries(mut j))) = (orders, journal) {
+                let skip = j
+                    .len()
+                    .saturating_sub(usize::try_from(self.keep).unwrap_or(usize::MAX));
+                j.drain(..skip);
+                self.orders = o;
+                self.journal = j;
+                self.journal_head = Some(status.journal_head);
+            }
+        }
+        space::Look {
+            status: Some(status),
+            orders: self.orders.clone(),
+            journal: self.journal.clone(),
+            last_refusal: String::new(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn listen_addresses_are_checked() {
+        assert_eq!(host_port("127.0.0.1:4840"), Ok(("127.0.0.1".into(), 4840)));
+        assert_eq!(host_port("[::1]:4841"), Ok(("::1".into(), 4841)));
+        for bad in ["4840", "host:x", ":4840", "h:0"] {
+            assert!(host_port(bad).is_err(), "{bad}");
+        }
+    }
+}

@@ -1,0 +1,493 @@
+//! The OPC UA server of the gateway (async-opcua): endpoints and security,
+//! the address space laid out by `space`, values written and alarm events
+//! raised as the poll loop hands them over, and the cell's methods carried
+//! out as operator API calls in the calling user's role.
+
+use crate::space::{self, Arg, ArgType, Method, Value};
+use crate::users::Users;
+use async_trait::async_trait;
+use falc_bus::credentials;
+use falc_bus::operator_service::CallError;
+use falc_bus::Bus;
+use falc_model::console::{ApiReply, ApiRequest};
+use falc_model::ids::StationName;
+use falc_model::topology::StationKind;
+use opcua::server::address_space::{
+    AddressSpace, EventNotifier, MethodBuilder, ObjectBuilder, VariableBuilder,
+};
+use opcua::server::diagnostics::NamespaceMetadata;
+use opcua::server::node_manager::memory::{
+    InMemoryNodeManager, InMemoryNodeManagerBuilder, InMemoryNodeManagerImpl,
+};
+use opcua::server::node_manager::{MethodCall, RequestContext, ServerContext};
+use opcua::server::{Server, ServerBuilder, ServerEndpoint, ServerHandle, SubscriptionCache};
+use opcua::sync::RwLock;
+use opcua::types::{
+    BuildInfo, ByteString, DataTypeId, DataValue, DateTime, LocalizedText, NodeId, ObjectId,
+    ObjectTypeId, QualifiedName, StatusCode, UAString, VariableTypeId, Variant,
+};
+use std::os::unix::fs::PermissionsExt;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::sync::Notify;
+
+/// How long a method may wait for the operator.
+const CALL_LIMIT: Duration = Duration::from_secs(15);
+
+/// The fastest publishing interval a subscriber may ask for, in ms.
+const PUBLISH_MS: u64 = 20;
+
+/// Where and how the server listens.
+#[derive(Debug, Clone)]
+pub struct Endpoint {
+    /// Host name or address to bind and to name in endpoint URLs.
+    pub host: String,
+    /// TCP port.
+    pub port: u16,
+    /// The server's own certificate and key, trusted and rejected client
+    /// certificates (made on first start).
+    pub pki_dir: PathBuf,
+    /// Also offer an endpoint without signing or encryption (passwords are
+    /// still encrypted with the server's key).
+    pub insecure: bool,
+}
+
+/// The gateway's node manager: its address space and the methods.
+pub struct Nodes {
+    namespace: NamespaceMetadata,
+    stations: Vec<(StationName, StationKind)>,
+    users: Arc<Users>,
+    bus: Bus,
+    operator: StationName,
+    poked: Arc<Notify>,
+    last_refusal: Arc<std::sync::Mutex<String>>,
+}
+
+/// The node manager as the server holds it.
+pub type NodeManager = InMemoryNodeManager<Nodes>;
+
+fn node(ns: u16, id: &str) -> NodeId {
+    NodeId::new(ns, UAString::from(id))
+}
+
+fn data_type(v: &Value) -> (DataTypeId, i32) {
+    match v {
+        Value::Bool(_) => (DataTypeId::Boolean, -1),
+        Value::Byte(_) => (DataTypeId::Byte, -1),
+        Value::Int32(_) => (DataTypeId::Int32, -1),
+        Value::Int64(_) => (DataTypeId::Int64, -1),
+        Value::Text(_) => (DataTypeId::String, -1),
+        Value::Bools(_) => (DataTypeId::Boolean, 1),
+        Value::Int64s(_) => (DataTypeId::Int64, 1),
+        Value::Texts(_) => (DataTypeId::String, 1),
+        Value::Times(_) => (DataTypeId::DateTime, 1),
+    }
+}
+
+fn time(ms: i64) -> DateTime {
+    DateTime::from(chrono::DateTime::<chrono::Utc>::from_timestamp_millis(ms).unwrap_or_default())
+}
+
+/// The OPC UA variant of a value.
+pub fn variant(v: &Value) -> Variant {
+    match v {
+        Value::Bool(b) => Variant::from(*b),
+        Value::Byte(b) => Variant::from(*b),
+        Value::Int32(n) => Variant::from(*n),
+        Value::Int64(n) => Variant::from(*n),
+        Value::Text(t) => Variant::from(t.as_str()),
+        Value::Bools(v) => Variant::from(v.clone()),
+        Value::Int64s(v) => Variant::from(v.clone()),
+        Value::Texts(v) => Variant::from(
+            v.iter()
+                .map(|t| UAString::from(t.as_str()))
+                .collect::<Vec<_>>(),
+        ),
+        Value::Times(v) => Variant::from(v.iter().map(|&ms| time(ms)).collect::<Vec<_>>()),
+    }
+}
+
+impl Nodes {
+    fn build(&self, ns: u16, space_: &mut AddressSpace) {
+        // Browse names in the gateway's namespace (`2:FALC`).
+        let qn = |name: &str| QualifiedName::new(ns, name);
+        for o in space::layout(&self.stations) {
+            let id = node(ns, &o.id);
+            let parent = o
+                .parent
+                .as_deref()
+                .map_or_else(|| NodeId::from(ObjectId::ObjectsFolder), |p| node(ns, p));
+            if o.folder {
+                space_.add_folder(&id, qn(&o.name), o.name.as_str(), &parent);
+            } else {
+                let b = ObjectBuilder::new(&id, qn(&o.name), o.name.as_str())
+                    .has_type_definition(ObjectTypeId::BaseObjectType);
+                let b = if o.parent.is_none() {
+                    b.organized_by(parent)
+                        .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
+                } else {
+                    b.organized_by(parent)
+                };
+                b.insert(space_);
+            }
+        }
+        for (id, v) in space::values(&self.stations, &space::Look::default()) {
+            let (parent, name) = id.rsplit_once('.').unwrap_or((space::ROOT, &id));
+            let (dt, rank) = data_type(&v);
+            let b = VariableBuilder::new(&node(ns, &id), qn(name), name)
+                .data_type(dt)
+                .value_rank(rank)
+                .value(variant(&v))
+                .has_type_definition(VariableTypeId::BaseDataVariableType)
+                .component_of(node(ns, parent));
+            let b = if rank == 1 {
+                b.array_dimensions(&[0])
+            } else {
+                b
+            };
+            b.insert(space_);
+        }
+        let root = node(ns, space::ROOT);
+        for m in Method::ALL {
+            let id = node(ns, &m.id());
+            let mut b = MethodBuilder::new(&id, qn(m.name()), m.name())
+                .component_of(root.clone())
+                .executable(true)
+                .user_executable(true);
+            let inputs: Vec<_> = m
+                .inputs()
+                .iter()
+                .map(|(name, t)| {
+                    let dt = match t {
+                        ArgType::Text => DataTypeId::String,
+                        ArgType::Int64 => DataTypeId::Int64,
+                    };
+                    (*name, dt).into()
+                })
+                .collect();
+            if !inputs.is_empty() {
+                b = b.input_args(space_, &node(ns, &format!("{}.In", m.id())), &inputs);
+            }
+            b = b.output_args(
+                space_,
+                &node(ns, &format!("{}.Out", m.id())),
+                &[("Result", DataTypeId::String).into()],
+            );
+            b.insert(space_);
+        }
+    }
+
+    /// Carries out one method call as `token`'s user: the answer in words,
+    /// or the status code that refuses it.
+    async fn call_one(
+        &self,
+        token: &opcua::server::authenticator::UserToken,
+        method: Method,
+        args: &[Variant],
+    ) -> Result<String, StatusCode> {
+        if let Err(why) = self.users.may(token, method.call()) {
+            tracing::warn!("OPC UA {}: {why}", method.name());
+            return Err(StatusCode::BadUserAccessDenied);
+        }
+        let args: Vec<Arg> = args
+            .iter()
+            .map(|a| match a {
+                Variant::String(s) => Arg::Text(s.as_ref().to_string()),
+                Variant::Int64(n) => Arg::Int64(*n),
+                Variant::Int32(n) => Arg::Int64(i64::from(*n)),
+                Variant::UInt32(n) => Arg::Int64(i64::from(*n)),
+                Variant::Int16(n) => Arg::Int64(i64::from(*n)),
+                Variant::UInt16(n) => Arg::Int64(i64::from(*n)),
+                _ => Arg::Text(String::new()),
+            })
+            .collect();
+        let request = method.request(&args).map_err(|why| {
+            tracing::warn!("OPC UA {}: {why}", method.name());
+            self.refused(why);
+            StatusCode::BadInvalidArgument
+        })?;
+        tracing::info!(user = token.0, "OPC UA {}: {request:?}", method.name());
+        let result = self
+            .bus
+            .api(&self.operator, request.clone(), CALL_LIMIT)
+            .await;
+        self.poked.notify_one();
+        match result {
+            Ok(ApiReply::Order(o)) => Ok(o.id.to_string()),
+            Ok(ApiReply::Done(text)) => Ok(text),
+            Ok(other) => Ok(format!("{other:?}")),
+            Err(CallError::Refused(why)) => {
+                tracing::warn!(user = token.0, "OPC UA {}: refused: {why}", method.name());
+                self.refused(why);
+                Err(match request {
+                    ApiRequest::OrderAdd { .. } | ApiRequest::OrderRemove { .. } => {
+                        StatusCode::BadInvalidArgument
+                    }
+                    _ => StatusCode::BadInvalidState,
+                })
+            }
+            Err(CallError::NoReply(why)) => {
+                tracing::warn!("OPC UA {}: {why}", method.name());
+                self.refused(why);
+                Err(StatusCode::BadCommunicationError)
+            }
+        }
+    }
+
+    fn refused(&self, why: String) {
+        if let Ok(mut last) = self.last_refusal.lock() {
+            *last = why;
+        }
+        self.poked.notify_one();
+    }
+}
+
+#[async_trait]
+impl InMemoryNodeManagerImpl for Nodes {
+    async fn init(&self, space_: &mut AddressSpace, _context: ServerContext) {
+        self.build(self.namespace.namespace_index, space_);
+    }
+
+    fn name(&self) -> &str {
+        "falc"
+    }
+
+    fn namespaces(&self) -> Vec<NamespaceMetadata> {
+        vec![self.namespace.clone()]
+    }
+
+    async fn call(
+        &self,
+        context: &RequestContext,
+        _space: &RwLock<AddressSpace>,
+        methods: &mut [&mut &mut MethodCall],
+    ) -> Result<(), StatusCode> {
+        for call in methods {
+            let Some(m) = Method::of(call.method_id()) else {
+                call.set_status(StatusCode::BadMethodInvalid);
+                continue;
+            };
+            let args = call.arguments().to_vec();
+            match self.call_one(&context.token, m, &args).await {
+                Ok(text) => {
+                    call.set_outputs(vec![Variant::from(text.as_str())]);
+                    call.set_status(StatusCode::Good);
+                }
+                Err(code) => call.set_status(code),
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What the poll loop needs of the running server.
+pub struct Running {
+    /// Stops the server.
+    pub handle: ServerHandle,
+    /// The node manager (values are set through it).
+    pub nodes: Arc<NodeManager>,
+    /// Our namespace's index.
+    pub ns: u16,
+    /// Notified after each method call, so its effect shows at once.
+    pub poked: Arc<Notify>,
+    /// The operator's refusal of the last method call.
+    pub last_refusal: Arc<std::sync::Mutex<String>>,
+}
+
+impl Running {
+    fn subscriptions(&self) -> &Arc<SubscriptionCache> {
+        self.handle.subscriptions()
+    }
+
+    /// Whether the server has laid out the address space (it does so once
+    /// it runs).
+    pub fn laid_out(&self) -> bool {
+        self.nodes
+            .address_space()
+            .read()
+            .find(&node(self.ns, space::ROOT))
+            .is_some()
+    }
+
+    /// Writes changed values; subscribers are notified. False if they
+    /// could not be written (then all are written again next time).
+    pub fn set(&self, changes: &[(String, Value)]) -> bool {
+        let now = DateTime::now();
+        let ids: Vec<NodeId> = changes.iter().map(|(id, _)| node(self.ns, id)).collect();
+        let values = changes.iter().zip(&ids).map(|((_, v), id)| {
+            let dv = DataValue {
+                value: Some(variant(v)),
+                status: Some(StatusCode::Good),
+                source_timestamp: Some(now),
+                server_timestamp: Some(now),
+                ..DataValue::null()
+            };
+            (id, None, dv)
+        });
+        match self.nodes.set_values(self.subscriptions(), values) {
+            Ok(()) => true,
+            Err(e) => {
+                tracing::warn!("OPC UA values not set: {e}");
+                false
+            }
+        }
+    }
+
+    /// Raises alarm events on the cell object (and the Server object, where
+    /// clients listening to everything subscribe).
+    pub fn raise(&self, events: &[space::AlarmEvent]) {
+        let root = node(self.ns, space::ROOT);
+        let server = NodeId::from(ObjectId::Server);
+        let made: Vec<_> = events
+            .iter()
+            .map(|e| {
+                let id =
+                    ByteString::from(format!("falc-alarm-{}-{}", e.id, e.message).into_bytes());
+                opcua::nodes::BaseEventType::new_now(
+                    ObjectTypeId::BaseEventType,
+                    id,
+                    LocalizedText::from(e.message.as_str()),
+                )
+                .set_source_node(root.clone())
+                .set_source_name(UAString::from(e.station.as_str()))
+                .set_severity(e.severity)
+            })
+            .collect();
+        for e in &made {
+            for emitter in [&root, &server] {
+                self.subscriptions()
+                    .notify_events([(e as &dyn opcua::nodes::Event, emitter)].into_iter());
+            }
+        }
+    }
+}
+
+/// Builds the server: endpoints, users, the node manager.
+pub fn build(
+    endpoint: &Endpoint,
+    cell: &str,
+    stations: Vec<(StationName, StationKind)>,
+    users: Arc<Users>,
+    bus: Bus,
+    operator: StationName,
+) -> Result<(Server, Running), String> {
+    let uri = format!("urn:falc:{cell}");
+    let poked = Arc::new(Notify::new());
+    let last_refusal = Arc::new(std::sync::Mutex::new(String::new()));
+    let (poked2, refusal2) = (poked.clone(), last_refusal.clone());
+    let users2 = users.clone();
+    let namespace_uri = uri.clone();
+    let manager = InMemoryNodeManagerBuilder::new(
+        move |context: ServerContext, space_: &mut AddressSpace| {
+            let index = context
+                .type_tree
+                .write()
+                .namespaces_mut()
+                .add_namespace(&namespace_uri);
+            space_.add_namespace(&namespace_uri, index);
+            Nodes {
+                namespace: NamespaceMetadata {
+                    namespace_uri: namespace_uri.clone(),
+                    namespace_index: index,
+                    ..Default::default()
+                },
+                stations,
+                users: users2,
+                bus,
+                operator,
+                poked: poked2,
+                last_refusal: refusal2,
+            }
+        },
+    );
+    let path = "/";
+    let mut builder = ServerBuilder::new()
+        .application_name(format!("FALC cell {cell}"))
+        .application_uri(format!("urn:falc:{cell}:opcua"))
+        .product_uri("urn:falc:opcua")
+        .build_info(BuildInfo {
+            product_uri: "urn:falc:opcua".into(),
+            manufacturer_name: "FALC".into(),
+            product_name: "falc-opcua".into(),
+            software_version: env!("CARGO_PKG_VERSION").into(),
+            build_number: "1".into(),
+            build_date: DateTime::now(),
+        })
+        .host(endpoint.host.clone())
+        .port(endpoint.port)
+        .pki_dir(endpoint.pki_dir.clone())
+        .create_sample_keypair(true)
+        .certificate_path("own/cert.der")
+        .private_key_path("private/private.pem")
+        .trust_client_certs(false)
+        .discovery_urls(vec![path.to_owned()])
+        .with_authenticator(users as Arc<dyn opcua::server::authenticator::AuthManager>)
+        .with_node_manager(manager)
+        // Subscribers hear of a change within 20 ms of the gateway's look
+        // (async-opcua's default is 100 ms).
+        .subscription_poll_interval_ms(PUBLISH_MS);
+    builder
+        .limits_mut()
+        .subscriptions
+        .min_publishing_interval_ms = PUBLISH_MS as f64;
+    builder.limits_mut().subscriptions.min_sampling_interval_ms = PUBLISH_MS as f64;
+    let none: [String; 0] = [];
+    use opcua::crypto::SecurityPolicy as P;
+    use opcua::types::MessageSecurityMode as M;
+    let mut endpoints: Vec<(&str, P, M)> = vec![
+        (
+            "basic256sha256_sign_encrypt",
+            P::Basic256Sha256,
+            M::SignAndEncrypt,
+        ),
+        (
+            "aes256_sha256_rsapss_sign_encrypt",
+            P::Aes256Sha256RsaPss,
+            M::SignAndEncrypt,
+        ),
+        (
+            "aes128_sha256_rsaoaep_sign_encrypt",
+            P::Aes128Sha256RsaOaep,
+            M::SignAndEncrypt,
+        ),
+        (
+            "aes128_sha256_rsaoaep_sign",
+            P::Aes128Sha256RsaOaep,
+            M::Sign,
+        ),
+    ];
+    if endpoint.insecure {
+        endpoints.push(("none", P::None, M::None));
+    }
+    let endpoints = endpoints
+        .into_iter()
+        .map(|(name, p, m)| (name, ServerEndpoint::new(path, p, m, &none)));
+    for (name, e) in endpoints {
+        builder = builder.add_endpoint(name, e);
+    }
+    // The server's key is made inside a private directory, and kept
+    // private (async-opcua writes it with the default mode).
+    credentials::private_dir(&endpoint.pki_dir).map_err(|e| e.to_string())?;
+    let (server, handle) = builder.build()?;
+    let key = endpoint.pki_dir.join("private/private.pem");
+    std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o600))
+        .map_err(|e| format!("cannot make {} private (chmod 600): {e}", key.display()))?;
+    let nodes = handle
+        .node_managers()
+        .get_of_type::<NodeManager>()
+        .ok_or("the FALC node manager is missing")?;
+    let ns = handle
+        .get_namespace_index(&uri)
+        .ok_or("the FALC namespace is missing")?;
+    Ok((
+        server,
+        Running {
+            handle,
+            nodes,
+            ns,
+            poked,
+            last_refusal,
+        },
+    ))
+}

@@ -1,0 +1,771 @@
+//! The gateway's address space, and what fills it, without I/O: the node
+//! of every value and method ([`Method`], [`layout`]), the values of one
+//! look at the cell ([`values`]: status, order list, journal), and the
+//! [`Mirror`] that turns successive looks into the changes to publish and
+//! the alarm events to raise. The server side (`server.rs`) only writes
+//! what this module computes.
+//!
+//! ```text
+//! Objects/FALC                      the cell (PackML state, mode, order …)
+//! Objects/FALC/<methods>            AddOrder, RemoveOrder, Start, Stop, Acknowledge, Answer
+//! Objects/FALC/Orders               Ids, Recipes, States, Results
+//! Objects/FALC/Journal              Ids, Times, Kinds, Who, Texts (the last entries)
+//! Objects/FALC/Alarms               Ids, Texts (every listed alarm)
+//! Objects/FALC/Stations/<station>   Connected, Kind, Program, RecipeState, … per kind
+//! ```
+
+use crate::packml;
+use falc_model::alarm::{Alarm, AlarmClass};
+use falc_model::console::{ApiRequest, Call, CellStatus, Entry, Order};
+use falc_model::ids::StationName;
+use falc_model::mms::vmd::VmdStatus;
+use falc_model::topology::StationKind;
+use std::collections::{BTreeMap, HashMap};
+
+/// The prefix of every node id of the gateway's namespace.
+pub const ROOT: &str = "FALC";
+
+/// A value of the address space, with its OPC UA type.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Value {
+    /// Boolean.
+    Bool(bool),
+    /// Byte.
+    Byte(u8),
+    /// Int32.
+    Int32(i32),
+    /// Int64.
+    Int64(i64),
+    /// String.
+    Text(String),
+    /// Boolean[].
+    Bools(Vec<bool>),
+    /// Int64[].
+    Int64s(Vec<i64>),
+    /// String[].
+    Texts(Vec<String>),
+    /// DateTime[], as ms since the Unix epoch.
+    Times(Vec<i64>),
+}
+
+/// A folder or object of the layout, and the object it belongs to.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Object {
+    /// Its node id (`FALC.Stations.welding`).
+    pub id: String,
+    /// Its browse name (`welding`).
+    pub name: String,
+    /// The object it belongs to (None: the Objects folder).
+    pub parent: Option<String>,
+    /// Whether it is a plain folder.
+    pub folder: bool,
+}
+
+/// The objects of the address space for these stations, parents first.
+pub fn layout(stations: &[(StationName, StationKind)]) -> Vec<Object> {
+    let object = |id: String, name: &str, parent: Option<&str>, folder: bool| Object {
+        id,
+        name: name.to_string(),
+        parent: parent.map(str::to_string),
+        folder,
+    };
+    let mut out = vec![
+        object(ROOT.into(), ROOT, None, false),
+        object(format!("{ROOT}.Orders"), "Orders", Some(ROOT), true),
+        object(format!("{ROOT}.Journal"), "Journal", Some(ROOT), true),
+        object(format!("{ROOT}.Alarms"), "Alarms", Some(ROOT), true),
+        object(format!("{ROOT}.Stations"), "Stations", Some(ROOT), true),
+    ];
+    let stations_id = format!("{ROOT}.Stations");
+    for (name, _) in stations {
+        out.push(object(
+            station_id(name),
+            name.as_str(),
+            Some(&stations_id),
+            false,
+        ));
+    }
+    out
+}
+
+fn station_id(name: &StationName) -> String {
+    format!("{ROOT}.Stations.{name}")
+}
+
+/// A method of the cell object: the operator API call it makes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Method {
+    /// `AddOrder(Recipe: String) → OrderId: Int64`.
+    AddOrder,
+    /// `RemoveOrder(OrderId: Int64)`.
+    RemoveOrder,
+    /// `Start()`: works through the order list.
+    Start,
+    /// `Stop()`: stops the running order and the list.
+    Stop,
+    /// `Acknowledge(AlarmId: Int64)`: one alarm, or 0 for every one.
+    Acknowledge,
+    /// `Answer(Text: String)`: answers the waiting question.
+    Answer,
+}
+
+/// An argument's OPC UA type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ArgType {
+    /// String.
+    Text,
+    /// Int64.
+    Int64,
+}
+
+/// A method's argument as the client passed it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Arg {
+    /// A String.
+    Text(String),
+    /// An Int64 (or a smaller integer).
+    Int64(i64),
+}
+
+impl Method {
+    /// Every method.
+    pub const ALL: [Method; 6] = [
+        Self::AddOrder,
+        Self::RemoveOrder,
+        Self::Start,
+        Self::Stop,
+        Self::Acknowledge,
+        Self::Answer,
+    ];
+
+    /// Its browse name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::AddOrder => "AddOrder",
+            Self::RemoveOrder => "RemoveOrder",
+            Self::Start => "Start",
+            Self::Stop => "Stop",
+            Self::Acknowledge => "Acknowledge",
+            Self::Answer => "Answer",
+        }
+    }
+
+    /// Its node id.
+    pub fn id(self) -> String {
+        format!("{ROOT}.{}", self.name())
+    }
+
+    /// The method whose node id is `id` (in any namespace: the ids are the
+    /// gateway's own).
+    pub fn of(id: &opcua::types::NodeId) -> Option<Self> {
+        match &id.identifier {
+            opcua::types::Identifier::String(s) => {
+                Self::ALL.into_iter().find(|m| s.as_ref() == m.id())
+            }
+            _ => None,
+        }
+    }
+
+    /// The operator API call it makes (whose role it needs).
+    pub fn call(self) -> Call {
+        match self {
+            Self::AddOrder => Call::OrderAdd,
+            Self::RemoveOrder => Call::OrderRemove,
+            Self::Start => Call::Start,
+            Self::Stop => Call::Stop,
+            Self::Acknowledge => Call::Ack,
+            Self::Answer => Call::Answer,
+        }
+    }
+
+    /// Its input arguments: name and type.
+    pub fn inputs(self) -> &'static [(&'static str, ArgType)] {
+        match self {
+            Self::AddOrder => &[("Recipe", ArgType::Text)],
+            Self::RemoveOrder => &[("OrderId", ArgType::Int64)],
+            Self::Acknowledge => &[("AlarmId", ArgType::Int64)],
+            Self::Answer => &[("Text", ArgType::Text)],
+            Self::Start | Self::Stop => &[],
+        }
+    }
+
+    /// The request for these arguments, or what is wrong with them.
+    pub fn request(self, args: &[Arg]) -> Result<ApiRequest, String> {
+        let text = |i: usize| match args.get(i) {
+            Some(Arg::Text(t)) => Ok(t.clone()),
+            _ => Err(format!(
+                "{}: argument {} must be a String",
+                self.name(),
+                self.inputs()[i].0
+            )),
+        };
+        let number = |i: usize| match args.get(i) {
+            Some(Arg::Int64(n)) => Ok(*n),
+            _ => Err(format!(
+                "{}: argument {} must be an integer",
+                self.name(),
+                self.inputs()[i].0
+            )),
+        };
+        if args.len() != self.inputs().len() {
+            return Err(format!(
+                "{} takes {} argument(s), not {}",
+                self.name(),
+                self.inputs().len(),
+                args.len()
+            ));
+        }
+        let request = match self {
+            Self::AddOrder => ApiRequest::OrderAdd { recipe: text(0)? },
+            Self::RemoveOrder => ApiRequest::OrderRemove { id: number(0)? },
+            Self::Start => ApiRequest::Start,
+            Self::Stop => ApiRequest::Stop,
+            Self::Acknowledge => ApiRequest::Ack {
+                id: Some(number(0)?).filter(|&n| n != 0),
+            },
+            Self::Answer => ApiRequest::Answer { text: text(0)? },
+        };
+        request.check_limits()?;
+        Ok(request)
+    }
+}
+
+/// One look at the cell: what the operator answered (None: not reached).
+#[derive(Debug, Clone, Default)]
+pub struct Look {
+    /// `status`.
+    pub status: Option<CellStatus>,
+    /// `order-list`.
+    pub orders: Vec<Order>,
+    /// The newest journal entries, oldest first.
+    pub journal: Vec<Entry>,
+    /// Why the operator refused the last method call through this gateway.
+    pub last_refusal: String,
+}
+
+/// Every value of the address space for this look: node id and value. The
+/// set of ids depends only on `stations`, never on the look.
+pub fn values(stations: &[(StationName, StationKind)], look: &Look) -> Vec<(String, Value)> {
+    let mut out: Vec<(String, Value)> = Vec::new();
+    let mut put = |id: String, v: Value| out.push((id, v));
+    let s = look.status.as_ref();
+    let last_ended = look
+        .orders
+        .iter()
+        .filter(|o| o.ended_ms.is_some())
+        .max_by_key(|o| (o.ended_ms, o.id))
+        .map(|o| o.state);
+    let (state, mode) = match s {
+        Some(s) => (packml::state(s, last_ended), s.mode),
+        None => (packml::State::Stopped, Default::default()),
+    };
+    let (unit_mode, unit_mode_name) = packml::unit_mode(mode);
+    let cell_station = stations
+        .iter()
+        .find(|(_, k)| *k == StationKind::Cell)
+        .and_then(|(n, _)| s?.stations.iter().find(|v| &v.name == n))
+        .and_then(|v| v.status.as_ref()?.program.clone());
+    let text = |t: Option<&String>| Value::Text(t.cloned().unwrap_or_default());
+    let r = |n: &str| format!("{ROOT}.{n}");
+    put(r("OperatorReachable"), Value::Bool(s.is_some()));
+    put(r("PackMLState"), Value::Text(state.name().into()));
+    put(r("PackMLStateCode"), Value::Int32(state.code()));
+    put(r("Mode"), Value::Text(mode.to_string()));
+    put(r("PackMLUnitMode"), Value::Int32(unit_mode));
+    put(r("PackMLUnitModeName"), Value::Text(unit_mode_name.into()));
+    put(
+        r("List"),
+        Value::Text(s.map_or(String::new(), |s| format!("{:?}", s.list).to_lowercase())),
+    );
+    put(
+        r("CellAssociated"),
+        Value::Bool(s.is_some_and(|s| s.cell_associated)),
+    );
+    put(r("Problem"), text(s.and_then(|s| s.problem.as_ref())));
+    let running = s.and_then(|s| s.running.as_ref());
+    put(r("RunningOrder"), Value::Int64(running.map_or(0, |o| o.id)));
+    put(r("RunningRecipe"), text(running.map(|o| &o.recipe)));
+    put(
+        r("CellProgram"),
+        Value::Text(
+            cell_station
+                .as_ref()
+                .map_or(String::new(), |p| p.name.to_string()),
+        ),
+    );
+    put(
+        r("CellRecipeState"),
+        Value::Int32(cell_station.as_ref().map_or(0, |p| i32::from(p.state))),
+    );
+    put(r("Question"), text(s.and_then(|s| s.question.as_ref())));
+    put(r("Alarm"), text(s.and_then(|s| s.alarm.as_ref())));
+    put(
+        r("Queued"),
+        Value::Int32(s.map_or(0, |s| i32::try_from(s.queued).unwrap_or(i32::MAX))),
+    );
+    put(r("LastRefusal"), Value::Text(look.last_refusal.clone()));
+
+    let o = &look.orders;
+    put(
+        r("Orders.Ids"),
+        Value::Int64s(o.iter().map(|o| o.id).collect()),
+    );
+    put(
+        r("Orders.Recipes"),
+        Value::Texts(o.iter().map(|o| o.recipe.clone()).collect()),
+    );
+    put(
+        r("Orders.States"),
+        Value::Texts(o.iter().map(|o| o.state.to_string()).collect()),
+    );
+    put(
+        r("Orders.Results"),
+        Value::Texts(
+            o.iter()
+                .map(|o| o.result.clone().unwrap_or_default())
+                .collect(),
+        ),
+    );
+
+    let j = &look.journal;
+    put(
+        r("Journal.Ids"),
+        Value::Int64s(j.iter().map(|e| e.id).collect()),
+    );
+    put(
+        r("Journal.Times"),
+        Value::Times(j.iter().map(|e| e.at_ms).collect()),
+    );
+    put(
+        r("Journal.Kinds"),
+        Value::Texts(j.iter().map(|e| e.kind.as_str().to_string()).collect()),
+    );
+    put(
+        r("Journal.Who"),
+        Value::Texts(j.iter().map(|e| e.who.clone()).collect()),
+    );
+    put(
+        r("Journal.Texts"),
+        Value::Texts(j.iter().map(|e| e.text.clone()).collect()),
+    );
+
+    let alarms = s.map_or(&[][..], |s| &s.alarms[..]);
+    put(
+        r("Alarms.Ids"),
+        Value::Int64s(alarms.iter().map(|a| a.id).collect()),
+    );
+    put(
+        r("Alarms.Texts"),
+        Value::Texts(alarms.iter().map(alarm_text).collect()),
+    );
+
+    for (name, kind) in stations {
+        let view = s.and_then(|s| s.stations.iter().find(|v| &v.name == name));
+        let vmd = view.and_then(|v| v.status.as_ref());
+        let id = |n: &str| format!("{}.{n}", station_id(name));
+        put(
+            id("Connected"),
+            Value::Bool(view.is_some_and(|v| v.connected)),
+        );
+        put(id("Kind"), Value::Text(format!("{kind:?}").to_lowercase()));
+        put(
+            id("Logical"),
+            Value::Text(vmd.map_or(String::new(), |v| format!("{:?}", v.logical))),
+        );
+        put(
+            id("Physical"),
+            Value::Text(vmd.map_or(String::new(), |v| format!("{:?}", v.physical))),
+        );
+        put(
+            id("RecipeStatus"),
+            Value::Text(vmd.map_or(String::new(), |v| v.local_detail.to_string())),
+        );
+        let program = vmd.and_then(|v| v.program.as_ref());
+        put(
+            id("Program"),
+            Value::Text(program.map_or(String::new(), |p| p.name.to_string())),
+        );
+        put(
+            id("RecipeState"),
+            Value::Int32(program.map_or(0, |p| i32::from(p.state))),
+        );
+        put(
+            id("Mode"),
+            Value::Text(vmd.map_or(String::new(), |v| v.mode.to_string())),
+        );
+        put(
+            id("HeldStep"),
+            Value::Text(
+                vmd.and_then(|v| v.held.as_ref())
+                    .map_or(String::new(), |h| {
+                        format!("state {}: {}", h.state, h.command)
+                    }),
+            ),
+        );
+        match kind {
+            StationKind::Transport => station_inputs(vmd, &id, &mut put),
+            StationKind::Welding => {
+                let robot = vmd.and_then(|v| v.additional);
+                put(
+                    id("RobotState"),
+                    Value::Text(robot.map_or(String::new(), |r| format!("{:?}", r.state))),
+                );
+                put(
+                    id("RobotStatusBits"),
+                    Value::Byte(robot.map_or(0, |r| r.specific & r.mask)),
+                );
+            }
+            StationKind::Operator | StationKind::Cell => {}
+        }
+    }
+    out
+}
+
+/// A transport station's conveyor inputs: every bit, and the lit ones by
+/// name.
+fn station_inputs(
+    vmd: Option<&VmdStatus>,
+    id: &dyn Fn(&str) -> String,
+    put: &mut dyn FnMut(String, Value),
+) {
+    let bits = vmd.map_or(Vec::new(), |v| v.inputs.clone());
+    let lit = bits
+        .iter()
+        .enumerate()
+        .filter(|(_, on)| **on)
+        .filter_map(|(i, _)| falc_plc::map::Input::at(u16::try_from(i).ok()?))
+        .map(|input| input.to_string())
+        .collect();
+    put(id("Inputs"), Value::Bools(bits));
+    put(id("LitInputs"), Value::Texts(lit));
+}
+
+/// One alarm in a line: `#3 welding communication: …`.
+pub fn alarm_text(a: &Alarm) -> String {
+    format!("#{} {} {}: {}", a.id, a.station, a.class, a.text)
+}
+
+/// The OPC UA severity (1–1000) of an alarm class.
+pub fn severity(class: AlarmClass) -> u16 {
+    match class {
+        AlarmClass::Safety => 1000,
+        AlarmClass::Communication => 800,
+        AlarmClass::Device => 700,
+        AlarmClass::Process => 500,
+        AlarmClass::Warning => 300,
+    }
+}
+
+/// An alarm event to raise on the cell object.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct AlarmEvent {
+    /// The alarm's number.
+    pub id: i64,
+    /// The station that raised it.
+    pub station: String,
+    /// Severity 1–1000.
+    pub severity: u16,
+    /// The message: what happened to it.
+    pub message: String,
+}
+
+fn acked_by(a: &Alarm) -> String {
+    format!(
+        "acknowledged by {}",
+        a.acked.as_ref().map_or("?", |(w, _)| w.as_str())
+    )
+}
+
+fn event(a: &Alarm, what: &str) -> AlarmEvent {
+    AlarmEvent {
+        id: a.id,
+        station: a.station.clone(),
+        severity: severity(a.class),
+        message: format!("alarm {what}: {}", alarm_text(a)),
+    }
+}
+
+/// Successive looks, as changes: each value only when it changed, an
+/// event when an alarm appears, is acknowledged or clears.
+#[derive(Debug, Default)]
+pub struct Mirror {
+    values: HashMap<String, Value>,
+    alarms: BTreeMap<i64, Alarm>,
+    seen: bool,
+}
+
+/// What one look changed.
+#[derive(Debug, Default, PartialEq)]
+pub struct Changes {
+    /// The values that changed (all of them on the first look).
+    pub values: Vec<(String, Value)>,
+    /// Alarm events to raise.
+    pub events: Vec<AlarmEvent>,
+}
+
+impl Mirror {
+    /// Takes in a look's values and alarms.
+    pub fn update(&mut self, values: Vec<(String, Value)>, alarms: &[Alarm]) -> Changes {
+        let mut out = Changes::default();
+        for (id, v) in values {
+            if self.values.get(&id) != Some(&v) {
+                self.values.insert(id.clone(), v.clone());
+                out.values.push((id, v));
+            }
+        }
+        let mut now = BTreeMap::new();
+        for a in alarms {
+            let before = self.alarms.get(&a.id);
+            let what = match before {
+                None if !self.seen => None,
+                None if a.acked.is_none() => Some("raised".to_string()),
+                None => Some(acked_by(a)),
+                Some(b) if b.acked.is_none() && a.acked.is_some() => Some(acked_by(a)),
+                Some(b) if b.cleared_ms.is_none() && a.cleared_ms.is_some() => {
+                    Some("cleared".to_string())
+                }
+                Some(_) => None,
+            };
+            if let Some(what) = what {
+                out.events.push(event(a, &what));
+            }
+            now.insert(a.id, a.clone());
+        }
+        // An alarm leaves the list once both acknowledged and cleared.
+        for (id, b) in &self.alarms {
+            if !now.contains_key(id) {
+                let what = match (b.acked.is_none(), b.cleared_ms.is_none()) {
+                    (true, true) => "acknowledged and cleared",
+                    (true, false) => "acknowledged",
+                    (false, _) => "cleared",
+                };
+                out.events.push(event(b, what));
+            }
+        }
+        self.alarms = now;
+        self.seen = true;
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use falc_model::console::{ListState, OrderState, StationView};
+    use falc_model::mms::vmd::{ProgramState, RobotStatusDetail, RobotVmdState};
+
+    fn st(s: &str) -> StationName {
+        StationName::new(s).expect("valid")
+    }
+
+    fn stations() -> Vec<(StationName, StationKind)> {
+        vec![
+            (st("operator"), StationKind::Operator),
+            (st("cell"), StationKind::Cell),
+            (st("welding"), StationKind::Welding),
+            (st("transport"), StationKind::Transport),
+        ]
+    }
+
+    fn alarm(id: i64) -> Alarm {
+        Alarm {
+            id,
+            station: "welding".into(),
+            class: AlarmClass::Communication,
+            text: "gone".into(),
+            order: None,
+            raised_ms: 0,
+            acked: None,
+            cleared_ms: None,
+        }
+    }
+
+    fn status() -> CellStatus {
+        CellStatus {
+            list: ListState::Running,
+            cell_associated: true,
+            running: Some(Order {
+                id: 7,
+                recipe: "dikdroog".into(),
+                state: OrderState::Running,
+                added_by: "opcua".into(),
+                started_ms: Some(1),
+                ended_ms: None,
+                result: None,
+            }),
+            queued: 2,
+            question: Some("Gereed?".into()),
+            stations: vec![
+                StationView {
+                    name: st("cell"),
+                    status: Some(VmdStatus {
+                        program: Some(ProgramState {
+                            name: "DIKDROOG".parse().expect("valid"),
+                            state: 6,
+                        }),
+                        ..VmdStatus::default()
+                    }),
+                    connected: true,
+                },
+                StationView {
+                    name: st("welding"),
+                    status: Some(VmdStatus {
+                        additional: Some(RobotStatusDetail {
+                            state: RobotVmdState::Executing,
+                            specific: 0b10110,
+                            mask: 0b11111,
+                        }),
+                        ..VmdStatus::default()
+                    }),
+                    connected: true,
+                },
+                StationView {
+                    name: st("transport"),
+                    status: Some(VmdStatus {
+                        inputs: vec![
+                            true, false, false, false, false, false, false, false, false, false,
+                            false, true,
+                        ],
+                        ..VmdStatus::default()
+                    }),
+                    connected: false,
+                },
+            ],
+            ..CellStatus::default()
+        }
+    }
+
+    fn get<'a>(v: &'a [(String, Value)], id: &str) -> &'a Value {
+        &v.iter()
+            .find(|(i, _)| i == id)
+            .unwrap_or_else(|| panic!("{id}"))
+            .1
+    }
+
+    #[test]
+    fn the_values_say_what_the_status_says() {
+        let look = Look {
+            status: Some(status()),
+            ..Look::default()
+        };
+        let v = values(&stations(), &look);
+        assert_eq!(get(&v, "FALC.PackMLState"), &Value::Text("Held".into()));
+        assert_eq!(get(&v, "FALC.PackMLStateCode"), &Value::Int32(11));
+        assert_eq!(get(&v, "FALC.RunningOrder"), &Value::Int64(7));
+        assert_eq!(get(&v, "FALC.CellProgram"), &Value::Text("DIKDROOG".into()));
+        assert_eq!(get(&v, "FALC.CellRecipeState"), &Value::Int32(6));
+        assert_eq!(get(&v, "FALC.Question"), &Value::Text("Gereed?".into()));
+        assert_eq!(get(&v, "FALC.Queued"), &Value::Int32(2));
+        assert_eq!(
+            get(&v, "FALC.Stations.welding.RobotState"),
+            &Value::Text("Executing".into())
+        );
+        assert_eq!(
+            get(&v, "FALC.Stations.welding.RobotStatusBits"),
+            &Value::Byte(0b10110)
+        );
+        assert_eq!(
+            get(&v, "FALC.Stations.transport.Connected"),
+            &Value::Bool(false)
+        );
+        let Value::Texts(lit) = get(&v, "FALC.Stations.transport.LitInputs") else {
+            panic!("texts")
+        };
+        assert_eq!(lit.len(), 2, "{lit:?}");
+        // The same ids whether or not the operator answered.
+        let empty = values(&stations(), &Look::default());
+        let ids = |v: &[(String, Value)]| v.iter().map(|(i, _)| i.clone()).collect::<Vec<_>>();
+        assert_eq!(ids(&v), ids(&empty));
+        assert_eq!(get(&empty, "FALC.OperatorReachable"), &Value::Bool(false));
+        assert_eq!(
+            get(&empty, "FALC.PackMLState"),
+            &Value::Text("Stopped".into())
+        );
+        // Every id under an object of the layout.
+        let objects: Vec<String> = layout(&stations()).into_iter().map(|o| o.id).collect();
+        for id in ids(&v) {
+            let parent = id.rsplit_once('.').map(|(p, _)| p).unwrap_or_default();
+            assert!(objects.iter().any(|o| o == parent), "{id}");
+        }
+    }
+
+    #[test]
+    fn the_mirror_passes_on_changes_and_alarm_events() {
+        let mut m = Mirror::default();
+        let look = Look {
+            status: Some(status()),
+            ..Look::default()
+        };
+        let first = m.update(values(&stations(), &look), &[alarm(1)]);
+        assert!(first.values.len() > 30);
+        assert!(first.events.is_empty(), "alarms listed before are no news");
+        let again = m.update(values(&stations(), &look), &[alarm(1)]);
+        assert_eq!(again, Changes::default());
+        let mut s = status();
+        s.question = None;
+        let look = Look {
+            status: Some(s),
+            ..Look::default()
+        };
+        let mut acked = alarm(1);
+        acked.acked = Some(("console".into(), 5));
+        let c = m.update(values(&stations(), &look), &[acked, alarm(2)]);
+        let ids: Vec<&str> = c.values.iter().map(|(i, _)| i.as_str()).collect();
+        assert!(
+            ids.contains(&"FALC.Question") && ids.contains(&"FALC.PackMLState"),
+            "{ids:?}"
+        );
+        assert_eq!(c.events.len(), 2, "{:?}", c.events);
+        assert!(c.events[0]
+            .message
+            .starts_with("alarm acknowledged by console"));
+        assert!(c.events[1].message.starts_with("alarm raised: #2 welding"));
+        assert_eq!(c.events[1].severity, 800);
+        // Both leave the list: #1 (acknowledged) by clearing, #2 at once.
+        let c = m.update(values(&stations(), &look), &[]);
+        let texts: Vec<&str> = c.events.iter().map(|e| e.message.as_str()).collect();
+        assert_eq!(texts.len(), 2, "{texts:?}");
+        assert!(texts[0].starts_with("alarm cleared: #1"), "{texts:?}");
+        assert!(
+            texts[1].starts_with("alarm acknowledged and cleared: #2"),
+            "{texts:?}"
+        );
+    }
+
+    #[test]
+    fn methods_make_their_requests_and_refuse_bad_arguments() {
+        use Arg::*;
+        assert_eq!(
+            Method::AddOrder.request(&[Text("dikdroog".into())]),
+            Ok(ApiRequest::OrderAdd {
+                recipe: "dikdroog".into()
+            })
+        );
+        assert_eq!(
+            Method::Acknowledge.request(&[Int64(0)]),
+            Ok(ApiRequest::Ack { id: None })
+        );
+        assert_eq!(
+            Method::Acknowledge.request(&[Int64(3)]),
+            Ok(ApiRequest::Ack { id: Some(3) })
+        );
+        assert_eq!(Method::Start.request(&[]), Ok(ApiRequest::Start));
+        let e = Method::AddOrder.request(&[Int64(1)]).expect_err("type");
+        assert!(e.contains("Recipe must be a String"), "{e}");
+        let e = Method::Start.request(&[Int64(1)]).expect_err("count");
+        assert!(e.contains("takes 0"), "{e}");
+        let e = Method::Answer
+            .request(&[Text("ja\nnee".into())])
+            .expect_err("limits");
+        assert!(e.contains("control character"), "{e}");
+        for m in Method::ALL {
+            let id = opcua::types::NodeId::new(2, m.id());
+            assert_eq!(Method::of(&id), Some(m));
+        }
+        assert_eq!(Method::of(&opcua::types::NodeId::new(0, 2253u32)), None);
+        assert_eq!(
+            Method::Start.call().role(),
+            falc_model::topology::Role::Operator
+        );
+    }
+}

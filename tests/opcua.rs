@@ -1,0 +1,232 @@
+//! The OPC UA gateway driven by an independent client: Python asyncua
+//! (`tests/opcua_client.py`, installed by `.ci/run`) against `falc-opcua`
+//! started by the launcher with the all-in-one cell. Every step the client
+//! takes is a JSON line this test asserts on: an unknown client certificate
+//! refused until admitted, the address space browsed, the robot's
+//! emergency stop seen as an alarm event and acknowledged through the
+//! Acknowledge method, then the way back (AddOrder dikdroog, Start, Answer
+//! "ja") to done and the PackML state back to Idle; the observer reads but
+//! every method refuses it, a wrong password and an anonymous session are
+//! refused.
+
+use crate::support::opcua::{client, step};
+use crate::support::{free_port, LaunchedCell};
+use serde_json::Value;
+use std::time::Duration;
+
+fn strings(v: &Value) -> Vec<String> {
+    v.as_array()
+        .unwrap_or_else(|| panic!("not an array: {v}"))
+        .iter()
+        .map(|s| s.as_str().map_or_else(|| s.to_string(), str::to_string))
+        .collect()
+}
+
+#[test]
+fn a_plant_client_browses_subscribes_and_runs_dikdroog_over_opcua() {
+    let port = free_port();
+    let listen = format!("127.0.0.1:{port}");
+    let mut cell = LaunchedCell::start_with("50", &["--opcua", &listen]);
+    let url = format!("opc.tcp://{listen}/");
+    let mut c = client(&cell, "scenario", &url, &[]);
+    let t = Duration::from_secs(60);
+
+    // What the gateway keeps is private: its users, its key.
+    let creds = cell.dir.path().join("credentials");
+    let mode = |p: &str| {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::metadata(creds.join(p))
+            .unwrap_or_else(|e| panic!("{p}: {e}"))
+            .permissions()
+            .mode()
+            & 0o777
+    };
+    assert_eq!(mode("opcua-users.toml"), 0o600);
+    assert_eq!(mode("opcua-pki"), 0o700);
+    assert_eq!(mode("opcua-pki/private/private.pem"), 0o600);
+
+    let s = step(&mut c, "untrusted", t);
+    assert_eq!(s["refused"], "BadCertificateUntrusted", "{s}");
+    let s = step(&mut c, "admitted", t);
+    assert_eq!(s["files"], 1, "{s}");
+
+    let b = step(&mut c, "browse", t);
+    let cell_nodes = strings(&b["cell"]);
+    for n in [
+        "PackMLState",
+        "PackMLStateCode",
+        "Mode",
+        "RunningOrder",
+        "CellProgram",
+        "CellRecipeState",
+        "Question",
+        "Orders",
+        "Journal",
+        "Alarms",
+        "Stations",
+        "AddOrder",
+        "RemoveOrder",
+        "Start",
+        "Stop",
+        "Acknowledge",
+        "Answer",
+    ] {
+        assert!(cell_nodes.iter().any(|x| x == n), "{n} in {cell_nodes:?}");
+    }
+    assert_eq!(
+        strings(&b["stations"]),
+        ["cell", "operator", "transport", "welding"]
+    );
+    assert!(
+        strings(&b["welding"]).contains(&"RobotState".to_string()),
+        "{b}"
+    );
+    assert!(
+        strings(&b["transport"]).contains(&"LitInputs".to_string()),
+        "{b}"
+    );
+
+    let s = step(&mut c, "subscribed", t);
+    assert_eq!(s["first"]["FALC.PackMLState"], "Idle", "{s}");
+
+    // An alarm: the robot's emergency stop, seen as an event.
+    step(&mut c, "listening", t);
+    cell.launcher.send("rcm estop");
+    cell.launcher
+        .expect_line("[rcm-welding] ok estop", Duration::from_secs(10));
+    let r = step(&mut c, "raised", t);
+    let event = r["event"]
+        .as_str()
+        .unwrap_or_else(|| panic!("no event: {r}"));
+    assert!(event.contains("welding"), "{r}");
+    assert!(
+        !r["alarm"].as_str().unwrap_or_default().is_empty(),
+        "the Alarm value names it: {r}"
+    );
+    cell.launcher.send("rcm estop-clear");
+    cell.launcher
+        .expect_line("[rcm-welding] ok estop-clear", Duration::from_secs(10));
+    c.send("released");
+    let a = step(&mut c, "acknowledged", t);
+    assert!(
+        a["event"]
+            .as_str()
+            .is_some_and(|e| e.starts_with("alarm acknowledged") && e.contains("welding")),
+        "{a}"
+    );
+    assert_eq!(a["alarm"], "", "nothing holds start back: {a}");
+
+    // The way back: an order through the methods, to done.
+    let added = step(&mut c, "added", t);
+    let order = added["order"].as_str().expect("order id").to_string();
+    let q = step(&mut c, "question", Duration::from_secs(120));
+    assert_eq!(q["asked"], true, "{q}");
+    assert!(
+        q["question"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("(ja/nee)"),
+        "{q}"
+    );
+    let a = step(&mut c, "answered", t);
+    assert_eq!(a["reply"], "answered ja", "{a}");
+    let e = step(&mut c, "ended", Duration::from_secs(180));
+    assert_eq!(e["ended"], true, "{e}");
+    assert_eq!(e["order_state"], "done", "{e}");
+    let states = strings(&e["states"]);
+    for s in ["Execute", "Held"] {
+        assert!(states.contains(&s.to_string()), "{s} in {states:?}");
+    }
+    assert_eq!(
+        states.last().map(String::as_str),
+        Some("Idle"),
+        "{states:?}"
+    );
+    assert!(
+        e["recipe_states"].as_array().is_some_and(|v| v.len() > 3),
+        "the cell recipe's state moved: {e}"
+    );
+
+    let j = step(&mut c, "journal", t);
+    let texts = strings(&j["texts"]);
+    assert!(
+        texts
+            .iter()
+            .any(|t| t.contains(&format!("order {order} (dikdroog) done"))),
+        "{texts:?}"
+    );
+    let who = strings(&j["who"]);
+    assert!(
+        who.iter().any(|w| w == "opcua"),
+        "actions name the gateway: {who:?}"
+    );
+
+    let o = step(&mut c, "observer", t);
+    assert_eq!(o["state"], "Idle", "{o}");
+    assert_eq!(o["user_executable"], false, "{o}");
+    assert_eq!(o["start_refused"], "BadUserAccessDenied", "{o}");
+    assert_eq!(o["write_refused"], "BadServiceUnsupported", "{o}");
+    let w = step(&mut c, "wrong_password", t);
+    assert_eq!(w["refused"], "BadUserAccessDenied", "{w}");
+    let n = step(&mut c, "anonymous", t);
+    assert!(
+        n["refused"].as_str().is_some_and(|r| r.starts_with("Bad")),
+        "{n}"
+    );
+
+    // The operator's view agrees, and no order ran twice.
+    let (code, list) = cell.falc_as("observer", &["order", "list"]);
+    assert_eq!(code, 0, "{list}");
+    assert_eq!(list.lines().count(), 1, "{list}");
+    assert!(list.contains("done"), "{list}");
+}
+
+#[test]
+fn a_user_certificate_logs_in_as_its_user_and_role() {
+    let cell = LaunchedCell::start("50");
+    let t = Duration::from_secs(60);
+    let mut made = client(&cell, "user-cert", "-", &[]);
+    let der = step(&mut made, "user_cert", t)["der"]
+        .as_str()
+        .expect("path")
+        .to_string();
+    // A gateway of the test's own, whose users file names the certificate.
+    let own = cell.dir.path().join("gateway");
+    falc_bus::credentials::private_dir(&own).expect("dir");
+    let users = own.join("opcua-users.toml");
+    falc_bus::credentials::write_private(
+        &users,
+        &format!(
+            "[[user]]\nname = \"console\"\nrole = \"operator\"\npassword = \"console-secret\"\n\
+             [[user]]\nname = \"scada\"\nrole = \"observer\"\ncertificate = \"{der}\"\n"
+        ),
+    )
+    .expect("users file");
+    let listen = format!("127.0.0.1:{}", free_port());
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_falc-opcua"));
+    cmd.args(cell.falc_args("opcua"))
+        .args(["--listen", &listen, "--users"])
+        .arg(&users)
+        .arg("--pki-dir")
+        .arg(own.join("opcua-pki"));
+    let mut gateway = crate::support::Proc::spawn_logged("falc-opcua", cmd);
+    gateway.expect_line("EVENT ready", t);
+    let mut c = crate::support::opcua::client_of(
+        "by-certificate",
+        &format!("opc.tcp://{listen}/"),
+        &own,
+        &cell.dir.path().join("opcua-client"),
+        &[],
+    );
+    let s = step(&mut c, "by_certificate", t);
+    assert_eq!(s["state"], "Idle", "{s}");
+    assert_eq!(s["start_refused"], "BadUserAccessDenied", "{s}");
+    assert!(
+        s["stranger_refused"]
+            .as_str()
+            .is_some_and(|r| r.starts_with("Bad")),
+        "{s}"
+    );
+    let log = gateway.wait_line("authenticated by user certificate", t);
+    assert!(log.is_some_and(|l| l.contains("scada")));
+}

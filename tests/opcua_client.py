@@ -1,0 +1,336 @@
+"""An independent OPC UA client (Python asyncua) for falc-opcua's tests and
+benchmark. It prints one JSON object per line on stdout; the Rust side
+asserts on them.
+
+  opcua_client.py scenario URL CREDENTIALS_DIR WORK_DIR
+      the acceptance walk: an untrusted client certificate refused, then
+      admitted (rejected/ -> trusted/, as the install guide says); browse;
+      subscribe; an alarm event (after printing "listening"), Acknowledge
+      (after a line on stdin); AddOrder dikdroog, Start, Answer "ja" to the question,
+      the order done and the state back to Idle; the observer may read but
+      not Start; a wrong password and an anonymous session refused.
+  opcua_client.py user-cert - - WORK_DIR
+      makes an X.509 user certificate (WORK_DIR/user-cert.der).
+  opcua_client.py by-certificate URL CREDENTIALS_DIR WORK_DIR
+      logs in with that user certificate: reads, is refused Start (an
+      observer); a certificate the users file does not name is refused.
+  opcua_client.py watch URL CREDENTIALS_DIR WORK_DIR NODE...
+      prints every data change of the nodes (FALC.* ids) with the time it
+      arrived, until stdin closes (the benchmark).
+"""
+
+import asyncio
+import json
+import shutil
+import socket
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+from asyncua import Client, ua
+from asyncua.crypto.cert_gen import setup_self_signed_certificate
+from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+from cryptography.x509.oid import ExtendedKeyUsageOID
+
+APP_URI = "urn:falc:test-client"
+
+
+def say(**what):
+    print(json.dumps(what), flush=True)
+
+
+def users(credentials_dir: Path) -> dict:
+    text = (credentials_dir / "opcua-users.toml").read_text()
+    return {u["name"]: u.get("password", "") for u in tomllib.loads(text)["user"]}
+
+
+async def certificate(work: Path):
+    key, cert = work / "client-key.pem", work / "client-cert.der"
+    if not cert.exists():
+        await setup_self_signed_certificate(
+            key, cert, APP_URI, socket.gethostname(),
+            [ExtendedKeyUsageOID.CLIENT_AUTH],
+            {"countryName": "NL", "organizationName": "FALC", "commonName": "falc-test-client"},
+        )
+    return key, cert
+
+
+async def client(url, work, user=None, password=None, secure=True) -> Client:
+    c = Client(url, timeout=10)
+    c.application_uri = APP_URI
+    if user is not None:
+        c.set_user(user)
+        c.set_password(password)
+    if secure:
+        key, cert = await certificate(work)
+        await c.set_security(
+            SecurityPolicyBasic256Sha256, certificate=str(cert), private_key=str(key),
+            mode=ua.MessageSecurityMode.SignAndEncrypt,
+        )
+    return c
+
+
+async def connect(url, work, user, password, secure=True) -> Client:
+    """Connects, retrying while the gateway is still starting."""
+    end = time.monotonic() + 20
+    while True:
+        c = await client(url, work, user, password, secure)
+        try:
+            await c.connect()
+            return c
+        except (ConnectionError, OSError, asyncio.TimeoutError):
+            if time.monotonic() > end:
+                raise
+            await asyncio.sleep(0.2)
+
+
+class Changes:
+    """Data changes and events, as they arrive."""
+
+    def __init__(self):
+        self.queue = asyncio.Queue()
+        self.events = []
+
+    def datachange_notification(self, node, val, data):
+        self.queue.put_nowait((node.nodeid.Identifier, val, time.time()))
+
+    def event_notification(self, event):
+        self.events.append(str(event.Message.Text))
+
+    async def until(self, seen: dict, pred, limit: float):
+        end = time.monotonic() + limit
+        while not pred(seen):
+            left = end - time.monotonic()
+            if left <= 0:
+                return False
+            try:
+                ident, val, _ = await asyncio.wait_for(self.queue.get(), left)
+            except asyncio.TimeoutError:
+                return False
+            seen.setdefault(ident, []).append(val)
+        return True
+
+
+async def until_event(changes, text: str, limit: float):
+    """The first event whose message starts with `text`, within `limit` s."""
+    end = time.monotonic() + limit
+    while time.monotonic() < end:
+        for e in changes.events:
+            if e.startswith(text):
+                return e
+        await asyncio.sleep(0.05)
+    return None
+
+
+async def admit(url, creds: Path, work: Path):
+    """Connects with a new client certificate: refused, it lands in the
+    gateway's rejected/ directory; moved to trusted/ (what an administrator
+    does), it is admitted. Whether it was refused, and how many files moved."""
+    pw = users(creds)
+    pki = creds / "opcua-pki"
+    refused = None
+    end = time.monotonic() + 20
+    while refused is None:
+        c = await client(url, work, "console", pw["console"])
+        try:
+            await c.connect()
+            await c.disconnect()
+            refused = "no"
+        except ua.UaStatusCodeError as e:
+            refused = type(e).__name__
+        except (ConnectionError, OSError, asyncio.TimeoutError):
+            if time.monotonic() > end:
+                raise
+            await asyncio.sleep(0.2)
+    rejected = list((pki / "rejected").glob("*.der"))
+    (pki / "trusted").mkdir(exist_ok=True)
+    for f in rejected:
+        shutil.move(str(f), str(pki / "trusted" / f.name))
+    return refused, len(rejected)
+
+
+async def scenario(url, creds: Path, work: Path):
+    pw = users(creds)
+    # 1. An unknown client certificate is refused and lands in rejected/.
+    refused, files = await admit(url, creds, work)
+    say(step="untrusted", refused=refused)
+    say(step="admitted", files=files)
+
+    # 2. Browse as the operator.
+    c = await connect(url, work, "console", pw["console"])
+    ns = await c.get_namespace_index("urn:falc:falc1")
+    falc = await c.nodes.objects.get_child([f"{ns}:FALC"])
+    names = sorted([(await n.read_browse_name()).Name for n in await falc.get_children()])
+    stations = await falc.get_child([f"{ns}:Stations"])
+    station_names = sorted([(await n.read_browse_name()).Name for n in await stations.get_children()])
+    welding = await stations.get_child([f"{ns}:welding"])
+    welding_vars = sorted([(await n.read_browse_name()).Name for n in await welding.get_children()])
+    transport = await stations.get_child([f"{ns}:transport"])
+    transport_vars = sorted([(await n.read_browse_name()).Name for n in await transport.get_children()])
+    say(step="browse", cell=names, stations=station_names, welding=welding_vars, transport=transport_vars)
+
+    # 3. Subscribe to the cell's state, question and orders, and its events.
+    node = lambda i: c.get_node(ua.NodeId(i, ns))
+    changes = Changes()
+    sub = await c.create_subscription(50, changes)
+    watched = ["FALC.PackMLState", "FALC.Question", "FALC.Orders.Ids", "FALC.Orders.States",
+               "FALC.CellRecipeState", "FALC.Stations.welding.RobotState"]
+    await sub.subscribe_data_change([node(i) for i in watched])
+    await sub.subscribe_events(falc)
+    seen = {}
+    await changes.until(seen, lambda s: all(i in s for i in watched), 10)
+    say(step="subscribed", first={k: str(v[-1]) for k, v in seen.items()})
+
+    # 4. An alarm (the test presses the robot's emergency stop when it reads
+    # "listening") is an event; once the test says the stop is released,
+    # Acknowledge clears the way, also an event.
+    say(step="listening")
+    raised = await until_event(changes, "alarm raised", 60)
+    alarm = await node("FALC.Alarm").read_value()
+    say(step="raised", event=raised, alarm=alarm, state=await node("FALC.PackMLState").read_value())
+    loop = asyncio.get_running_loop()
+    await loop.run_in_executor(None, sys.stdin.readline)
+    reply = await falc.call_method(f"{ns}:Acknowledge", ua.Variant(0, ua.VariantType.Int64))
+    acked = await until_event(changes, "alarm acknowledged", 20)
+    await asyncio.sleep(0.5)
+    say(step="acknowledged", reply=reply, event=acked, alarm=await node("FALC.Alarm").read_value())
+
+    # 5. The way back: AddOrder, Start, Answer, done, back to Idle.
+    order = await falc.call_method(f"{ns}:AddOrder", "dikdroog")
+    say(step="added", order=order)
+    await falc.call_method(f"{ns}:Start")
+    asked = await changes.until(seen, lambda s: any(q for q in s.get("FALC.Question", [])), 120)
+    question = next((q for q in seen.get("FALC.Question", []) if q), None)
+    say(step="question", asked=asked, question=question)
+    answered = await falc.call_method(f"{ns}:Answer", "ja")
+    say(step="answered", reply=answered)
+
+    def done(s):
+        ids = s.get("FALC.Orders.Ids", [[]])[-1]
+        states = s.get("FALC.Orders.States", [[]])[-1]
+        mine = dict(zip(ids, states)).get(int(order))
+        return mine == "done" and s.get("FALC.PackMLState", [""])[-1] == "Idle"
+
+    ended = await changes.until(seen, done, 180)
+    ids = seen.get("FALC.Orders.Ids", [[]])[-1]
+    states = seen.get("FALC.Orders.States", [[]])[-1]
+    say(step="ended", ended=ended, order_state=dict(zip(map(str, ids), states)).get(str(order)),
+        states=seen.get("FALC.PackMLState", []),
+        recipe_states=sorted(set(seen.get("FALC.CellRecipeState", []))))
+    journal = await node("FALC.Journal.Texts").read_value()
+    who = await node("FALC.Journal.Who").read_value()
+    say(step="journal", texts=journal, who=who, events=changes.events)
+    await c.disconnect()
+
+    # 6. The observer reads but may not Start.
+    o = await connect(url, work, "observer", pw["observer"])
+    ns = await o.get_namespace_index("urn:falc:falc1")
+    falc = await o.nodes.objects.get_child([f"{ns}:FALC"])
+    state = await o.get_node(ua.NodeId("FALC.PackMLState", ns)).read_value()
+    start = await falc.get_child([f"{ns}:Start"])
+    executable = await start.read_attribute(ua.AttributeIds.UserExecutable)
+    try:
+        await falc.call_method(f"{ns}:Start")
+        refused = None
+    except ua.UaStatusCodeError as e:
+        refused = type(e).__name__
+    try:
+        await o.get_node(ua.NodeId("FALC.Question", ns)).write_value("x")
+        wrote = None
+    except ua.UaStatusCodeError as e:
+        wrote = type(e).__name__
+    say(step="observer", state=state, user_executable=executable.Value.Value,
+        start_refused=refused, write_refused=wrote)
+    await o.disconnect()
+
+    # 7. A wrong password, and no user at all, are refused.
+    for user, password, what in [("console", "wrong", "wrong_password"), (None, None, "anonymous")]:
+        try:
+            x = await client(url, work, user, password)
+            await x.connect()
+            await x.disconnect()
+            say(step=what, refused=None)
+        except ua.UaStatusCodeError as e:
+            say(step=what, refused=type(e).__name__)
+
+
+async def user_cert(work: Path):
+    """Makes an X.509 user certificate (for a users file entry)."""
+    key, cert = work / "user-key.pem", work / "user-cert.der"
+    await setup_self_signed_certificate(
+        key, cert, "urn:falc:scada-user", socket.gethostname(),
+        [ExtendedKeyUsageOID.CLIENT_AUTH],
+        {"countryName": "NL", "organizationName": "FALC", "commonName": "scada"},
+    )
+    say(step="user_cert", der=str(cert))
+
+
+async def by_certificate(url, creds: Path, work: Path):
+    """Logs in with the user certificate instead of a password: reads,
+    and is refused Start (the users file gives it role observer)."""
+    await admit(url, creds, work)
+    c = await client(url, work)
+    await c.load_client_certificate(str(work / "user-cert.der"))
+    await c.load_private_key(str(work / "user-key.pem"))
+    await c.connect()
+    ns = await c.get_namespace_index("urn:falc:falc1")
+    falc = await c.nodes.objects.get_child([f"{ns}:FALC"])
+    state = await c.get_node(ua.NodeId("FALC.PackMLState", ns)).read_value()
+    try:
+        await falc.call_method(f"{ns}:Start")
+        refused = None
+    except ua.UaStatusCodeError as e:
+        refused = type(e).__name__
+    await c.disconnect()
+    # Another certificate than the users file names is refused.
+    other = await client(url, work)
+    await other.load_client_certificate(str(work / "client-cert.der"))
+    await other.load_private_key(str(work / "client-key.pem"))
+    try:
+        await other.connect()
+        await other.disconnect()
+        stranger = None
+    except ua.UaStatusCodeError as e:
+        stranger = type(e).__name__
+    say(step="by_certificate", state=state, start_refused=refused, stranger_refused=stranger)
+
+
+async def watch(url, creds: Path, work: Path, nodes):
+    pw = users(creds)
+    await admit(url, creds, work)
+    c = await connect(url, work, "observer", pw["observer"])
+    ns = await c.get_namespace_index("urn:falc:falc1")
+    changes = Changes()
+    sub = await c.create_subscription(20, changes)
+    await sub.subscribe_data_change([c.get_node(ua.NodeId(i, ns)) for i in nodes])
+    say(step="watching")
+    loop = asyncio.get_running_loop()
+    stdin_closed = loop.run_in_executor(None, sys.stdin.read)
+    while not stdin_closed.done():
+        try:
+            ident, val, at = await asyncio.wait_for(changes.queue.get(), 0.2)
+        except asyncio.TimeoutError:
+            continue
+        say(step="change", node=ident, value=str(val), at=at)
+    await c.disconnect()
+
+
+def main():
+    what, url, creds, work = sys.argv[1:5]
+    creds, work = Path(creds), Path(work)
+    work.mkdir(parents=True, exist_ok=True)
+    if what == "scenario":
+        asyncio.run(scenario(url, creds, work))
+    elif what == "user-cert":
+        asyncio.run(user_cert(work))
+    elif what == "by-certificate":
+        asyncio.run(by_certificate(url, creds, work))
+    elif what == "watch":
+        asyncio.run(watch(url, creds, work, sys.argv[5:]))
+    else:
+        sys.exit(f"unknown command {what}")
+
+
+if __name__ == "__main__":
+    main()
