@@ -199,7 +199,7 @@ impl Nodes {
                 Variant::UInt32(n) => Arg::Int64(i64::from(*n)),
                 Variant::Int16(n) => Arg::Int64(i64::from(*n)),
                 Variant::UInt16(n) => Arg::Int64(i64::from(*n)),
-                _ => Arg::Text(String::new()),
+                other => Arg::Other(format!("{:?}", other.type_id())),
             })
             .collect();
         let request = method.request(&args).map_err(|why| {

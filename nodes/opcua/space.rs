@@ -125,6 +125,8 @@ pub enum Arg {
     Text(String),
     /// An Int64 (or a smaller integer).
     Int64(i64),
+    /// Anything else (its OPC UA type's name): never a valid argument.
+    Other(String),
 }
 
 impl Method {
@@ -752,6 +754,10 @@ mod tests {
         assert_eq!(Method::Start.request(&[]), Ok(ApiRequest::Start));
         let e = Method::AddOrder.request(&[Int64(1)]).expect_err("type");
         assert!(e.contains("Recipe must be a String"), "{e}");
+        let e = Method::Answer
+            .request(&[Other("Double".into())])
+            .expect_err("type");
+        assert!(e.contains("Text must be a String"), "{e}");
         let e = Method::Start.request(&[Int64(1)]).expect_err("count");
         assert!(e.contains("takes 0"), "{e}");
         let e = Method::Answer
