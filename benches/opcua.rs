@@ -31,27 +31,37 @@ fn now() -> f64 {
         .map_or(0.0, |d| d.as_secs_f64())
 }
 
-/// The transport station's mode in one `falc --json status` line.
-fn watched_mode(line: &str) -> Option<String> {
+/// The transport station's mode in one `falc --json status` line, and
+/// when the line was read.
+fn watched_mode(line: &str) -> Option<(String, f64)> {
     let v: serde_json::Value = serde_json::from_str(line).ok()?;
-    v["stations"]
+    let mode = v["stations"]
         .as_array()?
         .iter()
         .find(|s| s["name"] == "transport")?["status"]["mode"]
-        .as_str()
-        .map(str::to_string)
+        .as_str()?;
+    Some((mode.to_string(), now()))
 }
 
-/// Waits until `p` prints a line that `pick` maps to `want`; the time it
-/// was read (s since the epoch).
-fn until(p: &mut Proc, want: &str, pick: &dyn Fn(&str) -> Option<String>) -> f64 {
+/// The value of one data change the OPC UA client printed, and when the
+/// client had it (its own clock, read in its notification callback).
+fn notified(line: &str) -> Option<(String, f64)> {
+    let v: serde_json::Value = serde_json::from_str(line).ok()?;
+    if v["step"] != "change" {
+        return None;
+    }
+    Some((v["value"].as_str()?.to_string(), v["at"].as_f64()?))
+}
+
+/// Waits until `p` prints a line that `pick` reads as `want`; when it was
+/// seen (s since the epoch).
+fn until(p: &mut Proc, want: &str, pick: fn(&str) -> Option<(String, f64)>) -> f64 {
     let end = Instant::now() + Duration::from_secs(10);
     loop {
         let left = end.saturating_duration_since(Instant::now());
-        assert!(!left.is_zero(), "{want} not seen within 10 s");
+        assert!(!left.is_zero(), "{}: {want} not seen within 10 s", p.name);
         let line = p.next_line(left).expect("a line");
-        let at = now();
-        if pick(&line).as_deref() == Some(want) {
+        if let Some((_, at)) = pick(&line).filter(|(v, _)| v == want) {
             return at;
         }
     }
@@ -69,14 +79,6 @@ fn main() {
             .args(["--json", "status", "--watch"]);
         c
     });
-    let ua_mode = |line: &str| {
-        let v: serde_json::Value = serde_json::from_str(line).ok()?;
-        (v["step"] == "change").then(|| v["value"].as_str().map(str::to_string))?
-    };
-    let ua_at = |line: &str| {
-        let v: serde_json::Value = serde_json::from_str(line).ok()?;
-        v["at"].as_f64()
-    };
     let (mut by_ua, mut by_watch) = (Vec::new(), Vec::new());
     for i in 0..CHANGES {
         let mode = if i % 2 == 0 { "step" } else { "auto" };
@@ -85,18 +87,8 @@ fn main() {
         let t0 = now();
         let (code, out) = run_falc(&cell.falc_args("console"), &["mode", mode]);
         assert_eq!(code, 0, "{out}");
-        // The client stamps each change as it arrives (its own clock read
-        // in its notification callback); the watch line when it is read.
-        let seen_watch = until(&mut watch, mode, &watched_mode);
-        let end = Instant::now() + Duration::from_secs(10);
-        let seen_ua = loop {
-            let left = end.saturating_duration_since(Instant::now());
-            assert!(!left.is_zero(), "OPC UA change to {mode} not seen");
-            let line = ua.next_line(left).expect("a line");
-            if ua_mode(&line).as_deref() == Some(mode) {
-                break ua_at(&line).expect("a time");
-            }
-        };
+        let seen_watch = until(&mut watch, mode, watched_mode);
+        let seen_ua = until(&mut ua, mode, notified);
         by_ua.push((seen_ua - t0) * 1e3);
         by_watch.push((seen_watch - t0) * 1e3);
     }

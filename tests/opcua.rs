@@ -230,3 +230,55 @@ fn a_user_certificate_logs_in_as_its_user_and_role() {
     let log = gateway.wait_line("authenticated by user certificate", t);
     assert!(log.is_some_and(|l| l.contains("scada")));
 }
+
+#[test]
+fn the_gateway_rides_out_a_lost_operator_and_the_next_order_runs_through_it() {
+    let t = Duration::from_secs(60);
+    let mut rig = crate::support::rig::rig("50");
+    let listen = format!("127.0.0.1:{}", free_port());
+    let mut cmd = rig.cell.command("opcua", env!("CARGO_BIN_EXE_falc-opcua"));
+    cmd.args(["--user", "opcua", "--listen", &listen, "--topology"])
+        .arg(&rig.cell.topology_path)
+        .arg("--credentials-dir")
+        .arg(rig.cell.credentials_dir());
+    let mut gateway = crate::support::Proc::spawn_logged("falc-opcua", cmd);
+    gateway.expect_line("EVENT ready", t);
+    let url = format!("opc.tcp://{listen}/");
+    let creds = rig.cell.credentials_dir();
+    let work = rig.cell.dir.path().join("opcua-client");
+    let mut w = crate::support::opcua::client_of(
+        "watch",
+        &url,
+        &creds,
+        &work,
+        &["FALC.OperatorReachable", "FALC.PackMLState"],
+    );
+    step(&mut w, "watching", t);
+    let change =
+        |node: &str, value: &str| format!("\"node\": \"FALC.{node}\", \"value\": \"{value}\"");
+    w.take_line(&change("OperatorReachable", "True"), t);
+    w.take_line(&change("PackMLState", "Idle"), t);
+
+    // The operator node dies: subscribers are told, the gateway says so.
+    rig.operator().kill();
+    w.take_line(&change("OperatorReachable", "False"), t);
+    w.take_line(&change("PackMLState", "Stopped"), t);
+    gateway.expect_line("the operator API gave no reply", t);
+    assert!(gateway.alive(), "the gateway runs on without the operator");
+
+    // It comes back: so does the cell on OPC UA, by itself.
+    rig.start_operator();
+    w.take_line(&change("OperatorReachable", "True"), t);
+    w.take_line(&change("PackMLState", "Idle"), t);
+    gateway.expect_line("the operator answers again", t);
+
+    // And the next order runs through the gateway to done.
+    let mut o = crate::support::opcua::client_of("order", &url, &creds, &work, &[]);
+    let e = step(&mut o, "ended", Duration::from_secs(180));
+    assert_eq!(e["ended"], true, "{e}");
+    assert_eq!(e["order_state"], "done", "{e}");
+    let orders = rig.orders();
+    assert_eq!(orders.len(), 1, "{orders:?}");
+    assert_eq!(orders[0].state, falc_model::console::OrderState::Done);
+    w.send("done");
+}

@@ -14,9 +14,12 @@ asserts on them.
   opcua_client.py by-certificate URL CREDENTIALS_DIR WORK_DIR
       logs in with that user certificate: reads, is refused Start (an
       observer); a certificate the users file does not name is refused.
+  opcua_client.py order URL CREDENTIALS_DIR WORK_DIR
+      one order through the methods (AddOrder dikdroog, Start, Answer "ja")
+      to done and the state back to Idle.
   opcua_client.py watch URL CREDENTIALS_DIR WORK_DIR NODE...
       prints every data change of the nodes (FALC.* ids) with the time it
-      arrived, until stdin closes (the benchmark).
+      arrived, until a line (or the end) on stdin.
 """
 
 import asyncio
@@ -150,6 +153,60 @@ async def admit(url, creds: Path, work: Path):
     return refused, len(rejected)
 
 
+WATCHED = ["FALC.PackMLState", "FALC.Question", "FALC.Orders.Ids", "FALC.Orders.States",
+           "FALC.CellRecipeState", "FALC.Stations.welding.RobotState"]
+
+
+async def subscribe(c, ns, falc):
+    """Subscribes to the WATCHED values and the cell's events; returns the
+    changes and the values seen so far (the first of each)."""
+    changes = Changes()
+    sub = await c.create_subscription(50, changes)
+    await sub.subscribe_data_change([c.get_node(ua.NodeId(i, ns)) for i in WATCHED])
+    await sub.subscribe_events(falc)
+    seen = {}
+    await changes.until(seen, lambda s: all(i in s for i in WATCHED), 10)
+    return changes, seen
+
+
+async def run_order(falc, ns, changes, seen):
+    """AddOrder dikdroog, Start, Answer "ja" to the question when it is
+    notified, until the order is done and the state back to Idle."""
+    order = await falc.call_method(f"{ns}:AddOrder", "dikdroog")
+    say(step="added", order=order)
+    await falc.call_method(f"{ns}:Start")
+    asked = await changes.until(seen, lambda s: any(q for q in s.get("FALC.Question", [])), 120)
+    question = next((q for q in seen.get("FALC.Question", []) if q), None)
+    say(step="question", asked=asked, question=question)
+    answered = await falc.call_method(f"{ns}:Answer", "ja")
+    say(step="answered", reply=answered)
+
+    def done(s):
+        ids = s.get("FALC.Orders.Ids", [[]])[-1]
+        states = s.get("FALC.Orders.States", [[]])[-1]
+        mine = dict(zip(ids, states)).get(int(order))
+        return mine == "done" and s.get("FALC.PackMLState", [""])[-1] == "Idle"
+
+    ended = await changes.until(seen, done, 180)
+    ids = seen.get("FALC.Orders.Ids", [[]])[-1]
+    states = seen.get("FALC.Orders.States", [[]])[-1]
+    say(step="ended", ended=ended, order_state=dict(zip(map(str, ids), states)).get(str(order)),
+        states=seen.get("FALC.PackMLState", []),
+        recipe_states=sorted(set(seen.get("FALC.CellRecipeState", []))))
+
+
+async def order(url, creds: Path, work: Path):
+    """One order through the methods, as the operator user."""
+    pw = users(creds)
+    await admit(url, creds, work)
+    c = await connect(url, work, "console", pw["console"])
+    ns = await c.get_namespace_index("urn:falc:falc1")
+    falc = await c.nodes.objects.get_child([f"{ns}:FALC"])
+    changes, seen = await subscribe(c, ns, falc)
+    await run_order(falc, ns, changes, seen)
+    await c.disconnect()
+
+
 async def scenario(url, creds: Path, work: Path):
     pw = users(creds)
     # 1. An unknown client certificate is refused and lands in rejected/.
@@ -172,14 +229,7 @@ async def scenario(url, creds: Path, work: Path):
 
     # 3. Subscribe to the cell's state, question and orders, and its events.
     node = lambda i: c.get_node(ua.NodeId(i, ns))
-    changes = Changes()
-    sub = await c.create_subscription(50, changes)
-    watched = ["FALC.PackMLState", "FALC.Question", "FALC.Orders.Ids", "FALC.Orders.States",
-               "FALC.CellRecipeState", "FALC.Stations.welding.RobotState"]
-    await sub.subscribe_data_change([node(i) for i in watched])
-    await sub.subscribe_events(falc)
-    seen = {}
-    await changes.until(seen, lambda s: all(i in s for i in watched), 10)
+    changes, seen = await subscribe(c, ns, falc)
     say(step="subscribed", first={k: str(v[-1]) for k, v in seen.items()})
 
     # 4. An alarm (the test presses the robot's emergency stop when it reads
@@ -197,27 +247,7 @@ async def scenario(url, creds: Path, work: Path):
     say(step="acknowledged", reply=reply, event=acked, alarm=await node("FALC.Alarm").read_value())
 
     # 5. The way back: AddOrder, Start, Answer, done, back to Idle.
-    order = await falc.call_method(f"{ns}:AddOrder", "dikdroog")
-    say(step="added", order=order)
-    await falc.call_method(f"{ns}:Start")
-    asked = await changes.until(seen, lambda s: any(q for q in s.get("FALC.Question", [])), 120)
-    question = next((q for q in seen.get("FALC.Question", []) if q), None)
-    say(step="question", asked=asked, question=question)
-    answered = await falc.call_method(f"{ns}:Answer", "ja")
-    say(step="answered", reply=answered)
-
-    def done(s):
-        ids = s.get("FALC.Orders.Ids", [[]])[-1]
-        states = s.get("FALC.Orders.States", [[]])[-1]
-        mine = dict(zip(ids, states)).get(int(order))
-        return mine == "done" and s.get("FALC.PackMLState", [""])[-1] == "Idle"
-
-    ended = await changes.until(seen, done, 180)
-    ids = seen.get("FALC.Orders.Ids", [[]])[-1]
-    states = seen.get("FALC.Orders.States", [[]])[-1]
-    say(step="ended", ended=ended, order_state=dict(zip(map(str, ids), states)).get(str(order)),
-        states=seen.get("FALC.PackMLState", []),
-        recipe_states=sorted(set(seen.get("FALC.CellRecipeState", []))))
+    await run_order(falc, ns, changes, seen)
     journal = await node("FALC.Journal.Texts").read_value()
     who = await node("FALC.Journal.Who").read_value()
     say(step="journal", texts=journal, who=who, events=changes.events)
@@ -306,8 +336,8 @@ async def watch(url, creds: Path, work: Path, nodes):
     await sub.subscribe_data_change([c.get_node(ua.NodeId(i, ns)) for i in nodes])
     say(step="watching")
     loop = asyncio.get_running_loop()
-    stdin_closed = loop.run_in_executor(None, sys.stdin.read)
-    while not stdin_closed.done():
+    told = loop.run_in_executor(None, sys.stdin.readline)
+    while not told.done():
         try:
             ident, val, at = await asyncio.wait_for(changes.queue.get(), 0.2)
         except asyncio.TimeoutError:
@@ -322,6 +352,8 @@ def main():
     work.mkdir(parents=True, exist_ok=True)
     if what == "scenario":
         asyncio.run(scenario(url, creds, work))
+    elif what == "order":
+        asyncio.run(order(url, creds, work))
     elif what == "user-cert":
         asyncio.run(user_cert(work))
     elif what == "by-certificate":

@@ -22,8 +22,7 @@ use falc_recipe::files::StationKinds;
 use std::process::ExitCode;
 use std::time::Duration;
 
-/// How long one API call may take.
-pub const CALL_LIMIT: Duration = Duration::from_secs(15);
+pub use falc_bus::operator_service::CALL_LIMIT;
 /// How often `--watch` and `--follow` ask again.
 const POLL: Duration = Duration::from_millis(250);
 
@@ -333,7 +332,7 @@ async fn alarms(
 
 fn show_status(s: &CellStatus) -> String {
     let mut out = Vec::new();
-    let list = format!("{:?}", s.list).to_lowercase();
+    let list = s.list.as_str();
     out.push(match &s.running {
         Some(o) => format!("list {list}; running order {} ({})", o.id, o.recipe),
         None => format!("list {list}; no order running"),

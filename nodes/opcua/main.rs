@@ -162,7 +162,12 @@ async fn run(cli: Cli) -> Result<(), String> {
     let mut ready = false;
     let period = Duration::from_millis(cli.poll_ms.max(10));
     loop {
-        let mut look = poller.look(&bus, &operator).await;
+        // A look waits for the operator (up to 2 s a call when it is gone):
+        // a stop is heard meanwhile too.
+        let mut look = tokio::select! {
+            look = poller.look(&bus, &operator) => look,
+            _ = shutdown.requested() => break,
+        };
         look.last_refusal = running
             .last_refusal
             .lock()
@@ -175,7 +180,7 @@ async fn run(cli: Cli) -> Result<(), String> {
             .unwrap_or_default();
         let changes = mirror.update(space::values(&stations, &look), &alarms);
         if !running.set(&changes.values) {
-            mirror = space::Mirror::default();
+            mirror.forget_values();
         }
         running.raise(&changes.events);
         if !ready {

@@ -7,7 +7,7 @@ use crate::space::{self, Arg, ArgType, Method, Value};
 use crate::users::Users;
 use async_trait::async_trait;
 use falc_bus::credentials;
-use falc_bus::operator_service::CallError;
+use falc_bus::operator_service::{CallError, CALL_LIMIT};
 use falc_bus::Bus;
 use falc_model::console::{ApiReply, ApiRequest};
 use falc_model::ids::StationName;
@@ -29,11 +29,7 @@ use opcua::types::{
 use std::os::unix::fs::PermissionsExt;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::time::Duration;
 use tokio::sync::Notify;
-
-/// How long a method may wait for the operator.
-const CALL_LIMIT: Duration = Duration::from_secs(15);
 
 /// The fastest publishing interval a subscriber may ask for, in ms.
 const PUBLISH_MS: u64 = 20;

@@ -267,7 +267,7 @@ pub fn values(stations: &[(StationName, StationKind)], look: &Look) -> Vec<(Stri
         .find(|(_, k)| *k == StationKind::Cell)
         .and_then(|(n, _)| s?.stations.iter().find(|v| &v.name == n))
         .and_then(|v| v.status.as_ref()?.program.clone());
-    let text = |t: Option<&String>| Value::Text(t.cloned().unwrap_or_default());
+    let text = |t: Option<&String>| text_of(t, String::clone);
     let r = |n: &str| format!("{ROOT}.{n}");
     put(r("OperatorReachable"), Value::Bool(s.is_some()));
     put(r("PackMLState"), Value::Text(state.name().into()));
@@ -275,10 +275,7 @@ pub fn values(stations: &[(StationName, StationKind)], look: &Look) -> Vec<(Stri
     put(r("Mode"), Value::Text(mode.to_string()));
     put(r("PackMLUnitMode"), Value::Int32(unit_mode));
     put(r("PackMLUnitModeName"), Value::Text(unit_mode_name.into()));
-    put(
-        r("List"),
-        Value::Text(s.map_or(String::new(), |s| format!("{:?}", s.list).to_lowercase())),
-    );
+    put(r("List"), text_of(s, |s| s.list.as_str().to_string()));
     put(
         r("CellAssociated"),
         Value::Bool(s.is_some_and(|s| s.cell_associated)),
@@ -289,11 +286,7 @@ pub fn values(stations: &[(StationName, StationKind)], look: &Look) -> Vec<(Stri
     put(r("RunningRecipe"), text(running.map(|o| &o.recipe)));
     put(
         r("CellProgram"),
-        Value::Text(
-            cell_station
-                .as_ref()
-                .map_or(String::new(), |p| p.name.to_string()),
-        ),
+        text_of(cell_station.as_ref(), |p| p.name.to_string()),
     );
     put(
         r("CellRecipeState"),
@@ -369,40 +362,28 @@ pub fn values(stations: &[(StationName, StationKind)], look: &Look) -> Vec<(Stri
             id("Connected"),
             Value::Bool(view.is_some_and(|v| v.connected)),
         );
-        put(id("Kind"), Value::Text(format!("{kind:?}").to_lowercase()));
-        put(
-            id("Logical"),
-            Value::Text(vmd.map_or(String::new(), |v| format!("{:?}", v.logical))),
-        );
+        put(id("Kind"), Value::Text(kind.as_str().into()));
+        put(id("Logical"), text_of(vmd, |v| format!("{:?}", v.logical)));
         put(
             id("Physical"),
-            Value::Text(vmd.map_or(String::new(), |v| format!("{:?}", v.physical))),
+            text_of(vmd, |v| format!("{:?}", v.physical)),
         );
         put(
             id("RecipeStatus"),
-            Value::Text(vmd.map_or(String::new(), |v| v.local_detail.to_string())),
+            text_of(vmd, |v| v.local_detail.to_string()),
         );
         let program = vmd.and_then(|v| v.program.as_ref());
-        put(
-            id("Program"),
-            Value::Text(program.map_or(String::new(), |p| p.name.to_string())),
-        );
+        put(id("Program"), text_of(program, |p| p.name.to_string()));
         put(
             id("RecipeState"),
             Value::Int32(program.map_or(0, |p| i32::from(p.state))),
         );
-        put(
-            id("Mode"),
-            Value::Text(vmd.map_or(String::new(), |v| v.mode.to_string())),
-        );
+        put(id("Mode"), text_of(vmd, |v| v.mode.to_string()));
         put(
             id("HeldStep"),
-            Value::Text(
-                vmd.and_then(|v| v.held.as_ref())
-                    .map_or(String::new(), |h| {
-                        format!("state {}: {}", h.state, h.command)
-                    }),
-            ),
+            text_of(vmd.and_then(|v| v.held.as_ref()), |h| {
+                format!("state {}: {}", h.state, h.command)
+            }),
         );
         match kind {
             StationKind::Transport => station_inputs(vmd, &id, &mut put),
@@ -410,7 +391,7 @@ pub fn values(stations: &[(StationName, StationKind)], look: &Look) -> Vec<(Stri
                 let robot = vmd.and_then(|v| v.additional);
                 put(
                     id("RobotState"),
-                    Value::Text(robot.map_or(String::new(), |r| format!("{:?}", r.state))),
+                    text_of(robot, |r| format!("{:?}", r.state)),
                 );
                 put(
                     id("RobotStatusBits"),
@@ -421,6 +402,11 @@ pub fn values(stations: &[(StationName, StationKind)], look: &Look) -> Vec<(Stri
         }
     }
     out
+}
+
+/// A text value: what `f` says of `v`, or "" when there is none.
+fn text_of<T>(v: Option<T>, f: impl FnOnce(T) -> String) -> Value {
+    Value::Text(v.map_or_else(String::new, f))
 }
 
 /// A transport station's conveyor inputs: every bit, and the lit ones by
@@ -506,6 +492,12 @@ pub struct Changes {
 }
 
 impl Mirror {
+    /// Forgets the values passed on (they could not be written), so the
+    /// next look passes on every one; the alarms stay known.
+    pub fn forget_values(&mut self) {
+        self.values.clear();
+    }
+
     /// Takes in a look's values and alarms.
     pub fn update(&mut self, values: Vec<(String, Value)>, alarms: &[Alarm]) -> Changes {
         let mut out = Changes::default();
@@ -703,6 +695,12 @@ mod tests {
         assert!(first.events.is_empty(), "alarms listed before are no news");
         let again = m.update(values(&stations(), &look), &[alarm(1)]);
         assert_eq!(again, Changes::default());
+        // Values that could not be written are all passed on again, and
+        // no alarm is news for it.
+        m.forget_values();
+        let again = m.update(values(&stations(), &look), &[alarm(1)]);
+        assert_eq!(again.values.len(), first.values.len());
+        assert!(again.events.is_empty());
         let mut s = status();
         s.question = None;
         let look = Look {

@@ -17,6 +17,10 @@ use tokio::sync::mpsc::UnboundedSender;
 use zenoh::query::Query;
 use zenoh::Wait;
 
+/// How long a client of the operator API (the console, the OPC UA gateway)
+/// waits for the answer to a call that changes something.
+pub const CALL_LIMIT: Duration = Duration::from_secs(15);
+
 /// A console's request that arrived at the operator node.
 #[derive(Debug)]
 pub struct ApiIndication {

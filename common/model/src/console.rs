@@ -490,6 +490,17 @@ pub enum ListState {
     Alarm,
 }
 
+impl ListState {
+    /// The word shown (`idle`, `running`, `alarm`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Idle => "idle",
+            Self::Running => "running",
+            Self::Alarm => "alarm",
+        }
+    }
+}
+
 /// A station as the operator sees it.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct StationView {
@@ -612,6 +623,14 @@ mod tests {
             Some(OrderState::Interrupted)
         );
         assert_eq!(OrderState::parse("lost"), None);
+    }
+
+    #[test]
+    fn a_list_states_word_is_its_wire_name() {
+        for l in [ListState::Idle, ListState::Running, ListState::Alarm] {
+            let wire = serde_json::to_string(&l).expect("serializes");
+            assert_eq!(wire, format!("\"{}\"", l.as_str()));
+        }
     }
 
     #[test]

@@ -27,6 +27,18 @@ pub enum StationKind {
     Transport,
 }
 
+impl StationKind {
+    /// Its word in the topology file (`welding`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Operator => "operator",
+            Self::Cell => "cell",
+            Self::Welding => "welding",
+            Self::Transport => "transport",
+        }
+    }
+}
+
 /// One station stanza.
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -348,6 +360,19 @@ kind = "welding"
 commander = "cell"
 device = "/dev/ttyS0"
 "#;
+
+    #[test]
+    fn a_kinds_word_is_the_one_the_file_uses() {
+        for k in [
+            StationKind::Operator,
+            StationKind::Cell,
+            StationKind::Welding,
+            StationKind::Transport,
+        ] {
+            let wire = serde_json::to_string(&k).expect("serializes");
+            assert_eq!(wire, format!("\"{}\"", k.as_str()));
+        }
+    }
 
     #[test]
     fn parses_the_tree() {
