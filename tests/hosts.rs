@@ -1,18 +1,29 @@
 //! The cell as separate hosts: the router, the operator, the cell and each
 //! workstation in a network namespace of its own, joined by veth links to a
-//! bridge, every link mutual TLS (`support::hosts`). An order runs to done,
-//! and what crossed the bridge holds none of the recipe text, questions,
-//! answers or keys, while a control text sent in clear is seen (and the
-//! router logs it as a refused login from the operator's address). A link
-//! 150 ms slow each way runs an order without an alarm. Then links are cut
-//! mid-order, for 3 s and for 30 s, and delayed 3 s (beyond the lease) for
-//! 5 s: each is an alarm within the lease, the station rejoins by itself,
-//! and `ack` + `start` run the next order. Needs root (namespaces); without
-//! it the test says so and does nothing else.
+//! bridge, every link QUIC with mutual TLS, the router's PC behind the
+//! firewall `falc-router firewall` makes (`support::hosts`). An order runs
+//! to done, and what crossed the bridge holds none of the recipe text,
+//! questions, answers or keys, while a control text sent in clear is seen.
+//! The strangers of `secure` try from the operator's PC and are refused. A
+//! link 150 ms slow each way runs an order without an alarm. Then links
+//! are cut mid-order, for 3 s and for 30 s, and delayed 3 s (beyond the
+//! lease) for 5 s: each is an alarm within the lease, the station rejoins
+//! by itself, and `ack` + `start` run the next order.
+//!
+//! Apart: a stranger on the cell's segment floods the router's port with
+//! 300 silent QUIC handshakes, then with 100 failing ones a second for
+//! 30 s; the firewall drops them, and a console still logs in within 2 s.
+//!
+//! Needs root (namespaces, nftables); without it the tests say so and do
+//! nothing else.
 
+use crate::secure::strangers_are_refused;
+use crate::support::flood;
 use crate::support::hosts::{Hosts, ROUTER_ADDRESS};
 use crate::support::rig::{rig_hosts, Rig};
+use crate::support::TestCell;
 use falc_model::console::OrderState;
+use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 fn hosts_or_say_why() -> Option<Hosts> {
@@ -107,7 +118,7 @@ impl Fault {
 }
 
 #[test]
-fn the_cell_as_separate_hosts_over_tls_runs_orders_and_rides_out_cut_links() {
+fn the_cell_as_separate_hosts_on_the_secure_transport_runs_orders_and_rides_out_cut_links() {
     let Some(hosts) = hosts_or_say_why() else {
         return;
     };
@@ -157,12 +168,13 @@ fn the_cell_as_separate_hosts_over_tls_runs_orders_and_rides_out_cut_links() {
         bytes.len()
     );
 
-    // The control text was a refused login from the operator's PC, logged
-    // with its address.
+    // Strangers with the cell's PC but not its credentials are refused by
+    // the router, and it says so.
+    strangers_are_refused(&rig.cell, "operator");
     let refused = rig
         .cell
         .router
-        .expect_line("refused login from 10.77.0.11", Duration::from_secs(10));
+        .expect_line("refused login", Duration::from_secs(10));
     assert!(refused.contains("WARN"), "{refused}");
 
     // A slow link that stays within the lease: the welding workstation's
@@ -229,4 +241,115 @@ fn the_cell_as_separate_hosts_over_tls_runs_orders_and_rides_out_cut_links() {
             fault.name()
         );
     }
+}
+
+/// How long a console on the operator's PC takes to log in (its session
+/// open), or why it could not within 2 s.
+fn console_login(cell: &TestCell) -> Result<Duration, String> {
+    let mut settings = cell.settings("console");
+    settings.connect_timeout = Duration::from_secs(2);
+    let hosts = cell.hosts.as_ref().expect("hosts");
+    hosts
+        .on("operator", move || {
+            let rt = tokio::runtime::Runtime::new().expect("runtime");
+            rt.block_on(async move {
+                let begin = Instant::now();
+                let bus = falc_bus::Bus::open(settings)
+                    .await
+                    .map_err(|e| e.to_string())?;
+                let took = begin.elapsed();
+                let _ = bus.session().close().await;
+                Ok(took)
+            })
+        })
+        .join()
+        .expect("the console's thread")?
+}
+
+/// The packets the router's firewall dropped so far (its counter).
+fn dropped(cell: &TestCell) -> u64 {
+    let out = cell
+        .command("router", "nft")
+        .args(["list", "chain", "inet", "falc_router", "router_port"])
+        .output()
+        .expect("nft list");
+    let text = String::from_utf8_lossy(&out.stdout);
+    text.split("counter packets ")
+        .nth(1)
+        .and_then(|t| t.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no counter in the router's firewall: {text}"))
+}
+
+#[test]
+fn strangers_flooding_the_routers_port_do_not_keep_a_console_out() {
+    let Some(hosts) = hosts_or_say_why() else {
+        return;
+    };
+    let cell = TestCell::start_hosts(hosts);
+    let hosts = cell.hosts.as_ref().expect("hosts");
+    let router: SocketAddr = format!("{ROUTER_ADDRESS}:7447").parse().expect("address");
+    let quiet = console_login(&cell).expect("a console logs in with no flood");
+    println!("no flood: console logged in in {:.1} ms", ms(quiet));
+
+    // 300 silent handshakes, held open while the console logs in.
+    let before = dropped(&cell);
+    let held = hosts
+        .on("stranger", move || flood::silent_handshakes(router, 300))
+        .join()
+        .expect("stranger thread")
+        .expect("on the stranger's PC");
+    let took = console_login(&cell);
+    let knocked = dropped(&cell) - before;
+    assert!(
+        knocked >= 300,
+        "the firewall saw {knocked} of the 300 strangers' packets"
+    );
+    let took = took.unwrap_or_else(|e| {
+        panic!("a console could not log in while 300 silent handshakes were held: {e}")
+    });
+    println!(
+        "300 silent QUIC handshakes held: {knocked} packets dropped by the firewall, console logged in in {:.1} ms",
+        ms(took)
+    );
+    drop(held);
+
+    // 100 failing handshakes a second for 30 s; the console logs in every
+    // 5 s meanwhile.
+    let before = dropped(&cell);
+    let flood = hosts.on("stranger", move || {
+        flood::failing_handshakes(router, 100, Duration::from_secs(30))
+    });
+    let mut logins = Vec::new();
+    for _ in 0..5 {
+        std::thread::sleep(Duration::from_secs(5));
+        let took = console_login(&cell).unwrap_or_else(|e| {
+            panic!("a console could not log in under 100 failing handshakes a second: {e}")
+        });
+        logins.push(ms(took));
+    }
+    let failed = flood
+        .join()
+        .expect("stranger thread")
+        .expect("on the stranger's PC");
+    let knocked = dropped(&cell) - before;
+    assert!(
+        failed.begun >= 2500 && failed.answered == 0,
+        "the strangers began {} handshakes, {} answered: the firewall must answer none",
+        failed.begun,
+        failed.answered
+    );
+    assert!(
+        knocked >= failed.begun,
+        "{knocked} dropped of {}",
+        failed.begun
+    );
+    println!(
+        "{} failing QUIC handshakes in 30 s: {knocked} packets dropped, console logins in {logins:.1?} ms",
+        failed.begun
+    );
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1000.0
 }

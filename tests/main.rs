@@ -1,7 +1,7 @@
 //! The integration tests, as one test binary (one link against zenoh for
 //! all of them): real `falc-router`, real node processes and twins on free
 //! localhost ports, started by [`support`] and killed on drop. One module
-//! per area; the README's test table says what each covers.
+//! per area; docs/testing.md says what each covers.
 
 // A test stops on what it did not expect.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -20,9 +20,9 @@ mod operator;
 mod recipes;
 mod recovery;
 mod roles;
+mod secure;
 mod services;
 mod stanzas;
-mod tls;
 mod transport;
 mod tui;
 mod welding;

@@ -1,12 +1,18 @@
-//! Refused logins, logged at WARN with their source address and
-//! rate-limited. zenoh reports each inbound link it refuses before the link
-//! became a session (a TLS handshake that failed or timed out, a wrong user
-//! or password, a handshake not finished within the accept time-out, too
-//! many handshakes pending) at DEBUG on [`REFUSED_LINK_TARGET`], with the
-//! remote locator and the reason; that report is our patch of zenoh
-//! (`patches/zenoh-transport`, `patches/zenoh-link-tls`), since zenoh 1.10.2
-//! names no address. This module listens to that target alone and turns the
-//! reports into log lines.
+//! Refused logins, logged at WARN, rate-limited. zenoh 1.10 reports the
+//! links it refuses in its own log lines, on several targets and levels:
+//!
+//! | target | level | what |
+//! |---|---|---|
+//! | `zenoh_link_commons::quic…` | WARN, ERROR | a QUIC handshake that failed: another CA, no client certificate, a time-out |
+//! | `zenoh_transport::unicast::establishment::accept` | DEBUG, ERROR | a zenoh login refused: a wrong user or password, a broken handshake |
+//! | `zenoh_transport::unicast::manager` | DEBUG, TRACE | a login not finished within the accept time-out, too many pending |
+//!
+//! [`classify`] picks those out of everything those targets log; this
+//! module listens to them alone and turns them into one kind of line.
+//! zenoh names the remote address in few of them (upstream issue
+//! eclipse-zenoh/zenoh#2712): where it does, the line names it; where not,
+//! the source is `unreported` and the router's firewall log rule
+//! (`falc-router firewall`) names the addresses that knocked.
 //!
 //! The rate limit ([`RefusalLog`], sans-I/O with the clock passed in): in
 //! each window of [`WINDOW`] the first refusal from each source host is
@@ -25,8 +31,8 @@ use tracing_subscriber::filter::Targets;
 use tracing_subscriber::layer::Context;
 use tracing_subscriber::Layer;
 
-/// The target our zenoh patches report refused links on.
-pub const REFUSED_LINK_TARGET: &str = "zenoh::refused_link";
+/// What a refusal's source is called when zenoh did not name it.
+pub const UNREPORTED: &str = "unreported";
 /// The length of one rate-limit window.
 pub const WINDOW: Duration = Duration::from_secs(10);
 /// How many source hosts per window get a line of their own.
@@ -40,25 +46,62 @@ const QUEUE: usize = 4096;
 /// One link zenoh refused.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Refusal {
-    /// The remote locator, e.g. `tls/10.77.0.5:50312`.
-    pub remote: String,
+    /// The remote's socket address, where zenoh's line names it.
+    pub remote: Option<SocketAddr>,
     /// Why zenoh refused it.
     pub reason: String,
 }
 
 impl Refusal {
-    /// The remote's host (its IP address), the unit of the rate limit; the
-    /// whole locator when it names no socket address.
+    /// The remote's host (its IP address), the unit of the rate limit;
+    /// [`UNREPORTED`] when zenoh did not name it.
     pub fn host(&self) -> String {
-        let address = self
-            .remote
-            .split_once('/')
-            .map_or(self.remote.as_str(), |(_, a)| a);
-        let address = address.split_once('#').map_or(address, |(a, _)| a);
-        address
-            .parse::<SocketAddr>()
-            .map_or_else(|_| address.to_string(), |a| a.ip().to_string())
+        self.remote
+            .map_or_else(|| UNREPORTED.to_string(), |a| a.ip().to_string())
     }
+}
+
+/// Whether zenoh's log line `message` on `target` reports a refused link,
+/// and if so the refusal, with the remote address where the line names one.
+pub fn classify(target: &str, message: &str) -> Option<Refusal> {
+    let quic =
+        target.starts_with("zenoh_link_commons::quic") || target.starts_with("zenoh_link_quic");
+    let refused = if quic {
+        message.contains("QUIC acceptor failed") || message.starts_with("Cannot accept QUIC")
+    } else if target == "zenoh_transport::unicast::establishment::accept" {
+        !message.starts_with("New transport link accepted")
+            && !message.starts_with("Establishment Accept")
+    } else if target == "zenoh_transport::unicast::manager" {
+        message.starts_with("Failed to accept link before deadline")
+            || message.starts_with("Closing link for preventing potential DoS")
+    } else {
+        false
+    };
+    if !refused {
+        return None;
+    }
+    let reason = message
+        .split(" Hint: increase the system open file limit")
+        .next()
+        .unwrap_or(message);
+    Some(Refusal {
+        remote: remote_in(message),
+        reason: printable(without_location(reason.trim_end())),
+    })
+}
+
+/// The remote address in a zenoh line: a link shown as `local => remote`
+/// or as `… dst: remote …`.
+fn remote_in(message: &str) -> Option<SocketAddr> {
+    ["=> ", "dst: "].iter().find_map(|marker| {
+        let (_, after) = message.split_once(marker)?;
+        let token: String = after
+            .chars()
+            .take_while(|c| !c.is_whitespace() && !matches!(c, ',' | ')' | '}' | '"'))
+            .collect();
+        let token = token.split_once('/').map_or(token.as_str(), |(_, a)| a);
+        token.trim_end_matches('.').parse().ok()
+    })
 }
 
 /// What to log.
@@ -172,36 +215,29 @@ struct RefusalLayer {
     lost: Arc<AtomicU64>,
 }
 
+/// The message of one zenoh event.
 #[derive(Default)]
-struct Fields {
-    remote: String,
-    reason: String,
-}
+struct Message(String);
 
-impl Visit for Fields {
+impl Visit for Message {
     fn record_debug(&mut self, field: &Field, value: &dyn std::fmt::Debug) {
-        match field.name() {
-            "remote" => self.remote = printable(&format!("{value:?}")),
-            "reason" => self.reason = printable(without_location(&format!("{value:?}"))),
-            _ => {}
+        if field.name() == "message" {
+            self.0 = format!("{value:?}");
         }
     }
     fn record_str(&mut self, field: &Field, value: &str) {
-        match field.name() {
-            "remote" => self.remote = printable(value),
-            "reason" => self.reason = printable(without_location(value)),
-            _ => {}
+        if field.name() == "message" {
+            self.0 = value.to_string();
         }
     }
 }
 
 impl<S: tracing::Subscriber> Layer<S> for RefusalLayer {
     fn on_event(&self, event: &tracing::Event<'_>, _ctx: Context<'_, S>) {
-        let mut f = Fields::default();
-        event.record(&mut f);
-        let refusal = Refusal {
-            remote: f.remote,
-            reason: f.reason,
+        let mut m = Message::default();
+        event.record(&mut m);
+        let Some(refusal) = classify(event.metadata().target(), &m.0) else {
+            return;
         };
         if self.tx.try_send(refusal).is_err() {
             self.lost.fetch_add(1, Ordering::Relaxed);
@@ -209,19 +245,29 @@ impl<S: tracing::Subscriber> Layer<S> for RefusalLayer {
     }
 }
 
-/// The layer that collects zenoh's refused-link reports (listening to that
-/// target alone), and the receiving end for [`report`].
+/// The layer that collects zenoh's reports of refused links (listening to
+/// the targets of [`classify`] alone), and the receiving end for [`report`].
 pub fn layer<S>() -> (impl Layer<S>, Refusals)
 where
     S: tracing::Subscriber + for<'a> tracing_subscriber::registry::LookupSpan<'a>,
 {
+    use tracing::Level;
     let (tx, rx) = channel(QUEUE);
     let lost = Arc::new(AtomicU64::new(0));
     let layer = RefusalLayer {
         tx,
         lost: lost.clone(),
     }
-    .with_filter(Targets::new().with_target(REFUSED_LINK_TARGET, tracing::Level::DEBUG));
+    .with_filter(
+        Targets::new()
+            .with_target("zenoh_link_commons::quic", Level::WARN)
+            .with_target("zenoh_link_quic", Level::WARN)
+            .with_target(
+                "zenoh_transport::unicast::establishment::accept",
+                Level::DEBUG,
+            )
+            .with_target("zenoh_transport::unicast::manager", Level::TRACE),
+    );
     (layer, Refusals { rx, lost })
 }
 
@@ -261,10 +307,16 @@ async fn sleep_until(deadline: Option<tokio::time::Instant>) {
 
 fn emit(report: &Report) {
     match report {
+        Report::Refused { host, refusal } if refusal.remote.is_none() => tracing::warn!(
+            target: "falc_router::logins",
+            source = %host,
+            "refused login (zenoh names no source address, zenoh#2712; the firewall's log \
+             rule does): {}",
+            refusal.reason
+        ),
         Report::Refused { host, refusal } => tracing::warn!(
             target: "falc_router::logins",
             source = %host,
-            link = %refusal.remote,
             "refused login from {host}: {}",
             refusal.reason
         ),
@@ -313,9 +365,8 @@ mod tests {
 
     fn refusal(remote: &str) -> Refusal {
         Refusal {
-            remote: remote.into(),
-            reason: "UsrPwd extension - Recv OpenSyn. Invalid password for user \"console\"."
-                .into(),
+            remote: remote_in(&format!("=> {remote}")),
+            reason: "UsrPwd extension - Recv OpenSyn. Invalid password.".into(),
         }
     }
 
@@ -330,23 +381,64 @@ mod tests {
     }
 
     #[test]
-    fn the_host_is_the_ip_of_the_locator() {
-        assert_eq!(refusal("tls/10.77.0.5:50312").host(), "10.77.0.5");
-        assert_eq!(refusal("tcp/[::1]:7447").host(), "::1");
-        assert_eq!(refusal("tcp/127.0.0.1:9#iface=lo").host(), "127.0.0.1");
-        assert_eq!(refusal("serial/ttyS0").host(), "ttyS0");
+    fn the_host_is_the_ip_of_the_remote_or_unreported() {
+        assert_eq!(refusal("10.77.0.5:50312").host(), "10.77.0.5");
+        assert_eq!(refusal("[::1]:7447").host(), "::1");
+        assert_eq!(refusal("quic/127.0.0.1:9").host(), "127.0.0.1");
+        assert_eq!(refusal("ttyS0").host(), UNREPORTED);
+    }
+
+    #[test]
+    fn zenohs_refusals_are_picked_out_of_its_lines() {
+        let accept = "zenoh_transport::unicast::establishment::accept";
+        let r = classify(
+            accept,
+            "UsrPwd extension - Recv OpenSyn. Invalid password. at /x/zenoh-transport-1.10.2/src/unicast/establishment/ext/auth/usrpwd.rs:424.",
+        )
+        .expect("a wrong password is a refusal");
+        assert_eq!(
+            r.reason,
+            "UsrPwd extension - Recv OpenSyn. Invalid password."
+        );
+        assert_eq!(r.host(), UNREPORTED);
+        assert_eq!(
+            classify(accept, "New transport link accepted from a to b: x"),
+            None
+        );
+        let quic = classify(
+            "zenoh_link_commons::quic::unicast",
+            "QUIC acceptor failed: ConnectionLost(TransportError(Error { code: Code::crypto(30) })) Hint: increase the system open file limit.",
+        )
+        .expect("a failed QUIC handshake is a refusal");
+        assert!(!quic.reason.contains("Hint"), "{}", quic.reason);
+        let manager = "zenoh_transport::unicast::manager";
+        let dos = classify(
+            manager,
+            "Closing link for preventing potential DoS: 10.0.0.1:7447 => 10.0.0.7:40112",
+        )
+        .expect("too many pending");
+        assert_eq!(dos.host(), "10.0.0.7");
+        assert!(classify(manager, "Failed to accept link before deadline (3000ms)").is_some());
+        assert_eq!(classify(manager, "Will use Universal transport!"), None);
+        assert_eq!(classify("zenoh::net::routing", "Invalid password."), None);
+        let debug = classify(
+            accept,
+            "Received a close message (reason INVALID) instead of an OpenSyn on: Quic { src: 10.0.0.1:7447, dst: 10.0.0.8:5000 }",
+        )
+        .expect("a broken handshake");
+        assert_eq!(debug.host(), "10.0.0.8");
     }
 
     #[test]
     fn one_line_per_host_per_window_then_a_summary() {
         let t0 = Instant::now();
         let mut log = RefusalLog::new(Duration::from_secs(10), 3);
-        let first = log.refused(t0, refusal("tcp/127.0.0.1:1000"));
+        let first = log.refused(t0, refusal("127.0.0.1:1000"));
         assert_eq!(logged(&first), ["127.0.0.1"]);
         for i in 1..500u64 {
             let r = log.refused(
                 t0 + Duration::from_millis(i),
-                refusal(&format!("tcp/127.0.0.1:{}", 1000 + i)),
+                refusal(&format!("127.0.0.1:{}", 1000 + i)),
             );
             assert!(r.is_empty(), "refusal {i}: {r:?}");
         }
@@ -362,7 +454,7 @@ mod tests {
         );
         assert_eq!(log.deadline(), None, "the window is over");
         // The next window logs the host again.
-        let again = log.refused(t0 + Duration::from_secs(11), refusal("tcp/127.0.0.1:2"));
+        let again = log.refused(t0 + Duration::from_secs(11), refusal("127.0.0.1:2"));
         assert_eq!(logged(&again), ["127.0.0.1"]);
     }
 
@@ -372,14 +464,12 @@ mod tests {
         let mut log = RefusalLog::new(Duration::from_secs(10), 3);
         let mut lines = Vec::new();
         for i in 1..=20 {
-            lines.extend(logged(
-                &log.refused(t0, refusal(&format!("tls/10.0.0.{i}:5"))),
-            ));
+            lines.extend(logged(&log.refused(t0, refusal(&format!("10.0.0.{i}:5")))));
         }
-        lines.extend(logged(&log.refused(t0, refusal("tls/10.0.0.20:6"))));
+        lines.extend(logged(&log.refused(t0, refusal("10.0.0.20:6"))));
         assert_eq!(lines, ["10.0.0.1", "10.0.0.2", "10.0.0.3"]);
         // A window that is over is summed up by the next refusal too.
-        let next = log.refused(t0 + Duration::from_secs(10), refusal("tls/10.0.0.9:5"));
+        let next = log.refused(t0 + Duration::from_secs(10), refusal("10.0.0.9:5"));
         assert_eq!(
             next,
             vec![
@@ -390,7 +480,7 @@ mod tests {
                 },
                 Report::Refused {
                     host: "10.0.0.9".into(),
-                    refusal: refusal("tls/10.0.0.9:5")
+                    refusal: refusal("10.0.0.9:5")
                 }
             ]
         );
@@ -400,7 +490,7 @@ mod tests {
     fn a_window_with_nothing_held_back_ends_silently() {
         let t0 = Instant::now();
         let mut log = RefusalLog::new(Duration::from_secs(10), 3);
-        assert_eq!(logged(&log.refused(t0, refusal("tcp/10.0.0.1:1"))).len(), 1);
+        assert_eq!(logged(&log.refused(t0, refusal("10.0.0.1:1"))).len(), 1);
         assert_eq!(log.poll(t0 + Duration::from_secs(10)), None);
         assert_eq!(log.deadline(), None);
     }
@@ -423,8 +513,8 @@ mod tests {
     #[test]
     fn zenoh_source_locations_are_cut() {
         assert_eq!(
-            without_location("UsrPwd extension - Recv OpenSyn. Invalid password for user \"x\". at patches/zenoh-transport/src/unicast/establishment/ext/auth/usrpwd.rs:426."),
-            "UsrPwd extension - Recv OpenSyn. Invalid password for user \"x\"."
+            without_location("UsrPwd extension - Recv OpenSyn. Invalid password. at /r/zenoh-transport-1.10.2/src/unicast/establishment/ext/auth/usrpwd.rs:424."),
+            "UsrPwd extension - Recv OpenSyn. Invalid password."
         );
         assert_eq!(
             without_location("received fatal alert: UnknownCA"),

@@ -1,16 +1,18 @@
 //! `falc-router`: the cell's network. Runs a zenoh router that authenticates
 //! every node (usrpwd against a generated dictionary) and enforces the
 //! access control generated from `launch/cell.toml` (default deny; the
-//! hierarchy of DESIGN.md §4). Creates missing per-node credential files
+//! hierarchy of docs/architecture.md). Creates missing per-node credential files
 //! (mode 0600) and the cell's certificates (a CA, a certificate per node and
 //! console user, the router's own), in a directory only its owner may
-//! enter (0700); `bundle` copies what one PC needs. On a `tls/…` endpoint
-//! every link is mutual TLS. Refused logins are logged at WARN with their
-//! source address (`logins`). With `--trace-acl` it logs ACL denials, which
+//! enter (0700); `bundle` copies what one PC needs. On a `quic/…` endpoint
+//! every link is QUIC with mutual TLS. Refused logins are logged at WARN,
+//! rate-limited (`logins`); `firewall` prints the nftables rules that keep
+//! strangers off the router's port (`firewall`). With `--trace-acl` it logs ACL denials, which
 //! zenoh itself only traces (see `denials` for what that count can and
 //! cannot tell).
 
 mod denials;
+mod firewall;
 mod logins;
 
 use anyhow::{Context, Result};
@@ -58,6 +60,14 @@ enum Command {
         /// The directory to create (it must not exist yet).
         #[arg(long)]
         out: PathBuf,
+    },
+    /// Print the nftables rules that admit only the cell's hosts (the
+    /// `host` of each station and console) to the router's port, each
+    /// rate-limited; apply with `falc-router firewall | nft -f -`.
+    Firewall {
+        /// The endpoint the router listens on; default the topology's `router`.
+        #[arg(long)]
+        listen: Option<String>,
     },
     /// Print the generated access control (zenoh JSON).
     Acl {
@@ -166,6 +176,11 @@ async fn main() -> Result<()> {
             }
             Ok(())
         }
+        Command::Firewall { listen } => {
+            let listen = listen.unwrap_or_else(|| topology.router().to_string());
+            print!("{}", firewall::rules(&topology, &listen)?);
+            Ok(())
+        }
         Command::Bundle { user, out } => {
             bundle(&topology, &cli.topology, &cli.credentials_dir, &user, &out)
         }
@@ -186,11 +201,11 @@ async fn run(
     let dict = dir.join("router.dict");
     credentials::write_private(&dict, &credentials::dictionary(&creds))?;
     let listen = listen.unwrap_or_else(|| topology.router().to_string());
-    let tls = certificates::is_tls(topology.router())
+    let tls = certificates::is_secure(topology.router())
         .then(|| certificates::TlsFiles::of(dir, certificates::ROUTER));
-    if certificates::is_tls(&listen) != tls.is_some() {
+    if certificates::is_secure(&listen) != tls.is_some() {
         anyhow::bail!(
-            "listen endpoint `{listen}` and the topology's router `{}` must both be tls/ or both not",
+            "listen endpoint `{listen}` and the topology's router `{}` must both be quic/ or both not",
             topology.router()
         );
     }
@@ -208,7 +223,7 @@ async fn run(
     tracing::info!(
         %listen,
         stations = topology.stations().len(),
-        tls = tls.is_some(),
+        secure = tls.is_some(),
         "router up: usrpwd authentication on, access control default deny"
     );
     // The one line on stdout: tests and the launcher wait for it.

@@ -8,7 +8,7 @@
 //! sensor). It knows only the documented I/O map, never the conveyor's
 //! layout, so it works with any PLC that honours the map.
 //!
-//! The buttons' state is defined at every step (the README's wiring guide
+//! The buttons' state is defined at every step (docs/plc.md's wiring guide
 //! states the same rule):
 //! - **on (re)connection** every button is released and external control
 //!   taken, in one write;

@@ -1,16 +1,26 @@
 //! The cell as separate hosts on one machine: a network namespace per PC
-//! (router, operator, cell, welding, transport), each joined to a bridge in
-//! the router's namespace by a veth link of its own, addresses in
-//! 10.77.0.0/24 inside those namespaces only. Links can be cut and mended
-//! from the router's side, and the bridge's traffic captured. Everything is
-//! removed on drop (deleting a namespace deletes its links). Needs root.
+//! (router, operator, cell, welding, transport) and one for a stranger on
+//! the same segment, each joined to a bridge in the router's namespace by a
+//! veth link of its own, addresses in 10.77.0.0/24 inside those namespaces
+//! only. Links can be cut and mended from the router's side, the bridge's
+//! traffic captured, and the router's firewall rules applied in its
+//! namespace. Everything is removed on drop (deleting a namespace deletes
+//! its links and rules). Needs root.
 
 use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
-/// The PCs, each a namespace; the router's holds the bridge.
-pub const HOSTS: [&str; 5] = ["router", "operator", "cell", "welding", "transport"];
+/// The PCs, each a namespace; the router's holds the bridge. The last is
+/// no PC of the cell's: the topology does not name it.
+pub const HOSTS: [&str; 6] = [
+    "router",
+    "operator",
+    "cell",
+    "welding",
+    "transport",
+    "stranger",
+];
 
 /// The router's address on the bridge.
 pub const ROUTER_ADDRESS: &str = "10.77.0.1";
@@ -60,7 +70,7 @@ impl Hosts {
             "br0",
         ])?;
         ip(&["-n", &r, "link", "set", "br0", "up"])?;
-        for (i, h) in HOSTS.iter().enumerate().skip(1) {
+        for h in HOSTS.iter().skip(1) {
             let ns = hosts.ns(h);
             let port = Self::port_of(h);
             ip(&[
@@ -68,11 +78,52 @@ impl Hosts {
                 "netns", &r,
             ])?;
             ip(&["-n", &r, "link", "set", &port, "master", "br0", "up"])?;
-            let address = format!("10.77.0.{}/24", 10 + i);
+            let address = format!("{}/24", address_of(h));
             ip(&["-n", &ns, "addr", "add", &address, "dev", "eth0"])?;
             ip(&["-n", &ns, "link", "set", "eth0", "up"])?;
         }
         Ok(hosts)
+    }
+
+    /// Runs `f` on a thread that entered `host`'s namespace; what it
+    /// returned, or why it could not run there.
+    pub fn on<T: Send + 'static>(
+        &self,
+        host: &str,
+        f: impl FnOnce() -> T + Send + 'static,
+    ) -> std::thread::JoinHandle<Result<T, String>> {
+        let path = self.ns_path(host);
+        std::thread::spawn(move || {
+            enter(&path)?;
+            Ok(f())
+        })
+    }
+
+    /// Applies nftables rules (`nft -f -`) in `host`'s namespace, or says
+    /// why it could not.
+    pub fn nft(&self, host: &str, rules: &str) -> Result<(), String> {
+        use std::io::Write;
+        let mut child = self
+            .command(host, "nft")
+            .args(["-f", "-"])
+            .stdin(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .map_err(|e| format!("cannot run nft: {e}"))?;
+        if let Some(mut stdin) = child.stdin.take() {
+            stdin
+                .write_all(rules.as_bytes())
+                .map_err(|e| format!("nft stdin: {e}"))?;
+        }
+        let out = child.wait_with_output().map_err(|e| format!("nft: {e}"))?;
+        if out.status.success() {
+            Ok(())
+        } else {
+            Err(format!(
+                "nft -f: {}",
+                String::from_utf8_lossy(&out.stderr).trim()
+            ))
+        }
     }
 
     /// The namespace of `host`.
@@ -123,34 +174,32 @@ impl Hosts {
         Capture { stop, thread }
     }
 
-    /// Sends `text` in clear from `host` to `address` over TCP (what the
-    /// capture must see, so that a capture without the cell's texts means
-    /// something).
+    /// Sends `text` in clear from `host` to `address` in a UDP datagram
+    /// (what the capture must see, so that a capture without the cell's
+    /// texts means something).
     pub fn send_in_clear(&self, host: &str, address: &str, text: &str) {
-        let path = self.ns_path(host);
         let (address, text) = (address.to_string(), text.to_string());
-        let sent = std::thread::spawn(move || -> Result<(), String> {
-            use std::io::Write;
-            enter(&path)?;
-            let mut stream =
-                std::net::TcpStream::connect(&address).map_err(|e| format!("{address}: {e}"))?;
-            stream
-                .write_all(text.as_bytes())
-                .map_err(|e| format!("write: {e}"))
-        })
-        .join()
-        .expect("sending thread");
-        if let Err(e) = sent {
+        let sent = self
+            .on(host, move || -> Result<usize, String> {
+                let socket =
+                    std::net::UdpSocket::bind("0.0.0.0:0").map_err(|e| format!("bind: {e}"))?;
+                socket
+                    .send_to(text.as_bytes(), &address)
+                    .map_err(|e| format!("{address}: {e}"))
+            })
+            .join()
+            .expect("sending thread");
+        if let Err(e) = sent.and_then(|r| r) {
             panic!("cannot send in clear from {host}: {e}");
         }
     }
 
-    /// A delay line in the router's namespace: a TCP relay listening on
+    /// A delay line in the router's namespace: a UDP relay listening on
     /// the router's address, port [`DELAY_LINE_PORT`], to the router's
     /// port 7447. A node told to reach the router there (`--router
-    /// <DelayLine::endpoint>`) keeps its TLS end to end; what it sends and
-    /// receives is held back by the line's delay (none at first), in
-    /// order, like a slow link.
+    /// <DelayLine::endpoint>`) keeps its QUIC connection end to end; what it
+    /// sends and receives is held back by the line's delay (none at
+    /// first), in order, like a slow link.
     pub fn delay_line(&self) -> DelayLine {
         let path = self.ns_path("router");
         let delay = Arc::new(std::sync::atomic::AtomicU64::new(0));
@@ -165,7 +214,7 @@ impl Hosts {
                     .build()
                     .map_err(|e| format!("runtime: {e}"))?;
                 rt.block_on(async {
-                    let listener = tokio::net::TcpListener::bind((ROUTER_ADDRESS, DELAY_LINE_PORT))
+                    let listener = tokio::net::UdpSocket::bind((ROUTER_ADDRESS, DELAY_LINE_PORT))
                         .await
                         .map_err(|e| format!("delay line listen: {e}"))?;
                     let _ = ready_tx.send(Ok(()));
@@ -203,7 +252,7 @@ pub struct DelayLine {
 impl DelayLine {
     /// The router endpoint through the line.
     pub fn endpoint(&self) -> String {
-        format!("tls/{ROUTER_ADDRESS}:{DELAY_LINE_PORT}")
+        format!("quic/{ROUTER_ADDRESS}:{DELAY_LINE_PORT}")
     }
 
     /// Delays every byte from now on by `delay`, each way.
@@ -213,66 +262,105 @@ impl DelayLine {
     }
 }
 
-/// Accepts links and relays each to the router through two delayed pumps;
-/// a link ends (both sides closed) when either side does.
+/// Relays datagrams between each node (by its source address) and the
+/// router, each through a delayed pump; a node's relay socket stays for
+/// the line's life.
 async fn relay(
-    listener: tokio::net::TcpListener,
+    near: tokio::net::UdpSocket,
     delay: Arc<std::sync::atomic::AtomicU64>,
 ) -> Result<(), String> {
+    use std::collections::HashMap;
+    use std::net::SocketAddr;
+    let near = Arc::new(near);
+    let mut far_of: HashMap<SocketAddr, tokio::sync::mpsc::UnboundedSender<Delayed>> =
+        HashMap::new();
+    let mut buf = vec![0u8; 65536];
     loop {
-        let (near, _) = listener
-            .accept()
+        let (n, node) = near
+            .recv_from(&mut buf)
             .await
-            .map_err(|e| format!("delay line accept: {e}"))?;
-        let delay = delay.clone();
-        tokio::spawn(async move {
-            let Ok(far) = tokio::net::TcpStream::connect((ROUTER_ADDRESS, 7447)).await else {
-                return;
-            };
-            let (near_rx, near_tx) = near.into_split();
-            let (far_rx, far_tx) = far.into_split();
-            tokio::select! {
-                _ = pump(near_rx, far_tx, delay.clone()) => {}
-                _ = pump(far_rx, near_tx, delay) => {}
-            }
-        });
+            .map_err(|e| format!("delay line receive: {e}"))?;
+        let due = due_in(&delay);
+        if !far_of.contains_key(&node) {
+            let far = tokio::net::UdpSocket::bind((ROUTER_ADDRESS, 0))
+                .await
+                .map_err(|e| format!("delay line bind: {e}"))?;
+            far.connect((ROUTER_ADDRESS, 7447))
+                .await
+                .map_err(|e| format!("delay line connect: {e}"))?;
+            let far = Arc::new(far);
+            let (to_router, queued) = tokio::sync::mpsc::unbounded_channel::<Delayed>();
+            tokio::spawn(send_when_due(queued, far.clone(), None));
+            let (to_node, back) = tokio::sync::mpsc::unbounded_channel::<Delayed>();
+            tokio::spawn(send_when_due(back, near.clone(), Some(node)));
+            let delay = delay.clone();
+            tokio::spawn(async move {
+                let mut buf = vec![0u8; 65536];
+                while let Ok(n) = far.recv(&mut buf).await {
+                    if to_node.send((due_in(&delay), buf[..n].to_vec())).is_err() {
+                        return;
+                    }
+                }
+            });
+            far_of.insert(node, to_router);
+        }
+        if let Some(to_router) = far_of.get(&node) {
+            let _ = to_router.send((due, buf[..n].to_vec()));
+        }
     }
 }
 
-/// Copies `from` to `to`, each chunk written `delay` after it was read,
-/// in order; ends at the end of `from` or an error either way.
-async fn pump(
-    mut from: tokio::net::tcp::OwnedReadHalf,
-    mut to: tokio::net::tcp::OwnedWriteHalf,
-    delay: Arc<std::sync::atomic::AtomicU64>,
+/// A datagram and when it is due.
+type Delayed = (tokio::time::Instant, Vec<u8>);
+
+fn due_in(delay: &std::sync::atomic::AtomicU64) -> tokio::time::Instant {
+    tokio::time::Instant::now() + std::time::Duration::from_millis(delay.load(Ordering::Relaxed))
+}
+
+/// Sends each queued datagram when it is due, in order: on `socket`'s
+/// connected peer, or to `to`.
+async fn send_when_due(
+    mut queued: tokio::sync::mpsc::UnboundedReceiver<Delayed>,
+    socket: Arc<tokio::net::UdpSocket>,
+    to: Option<std::net::SocketAddr>,
 ) {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<(tokio::time::Instant, Vec<u8>)>();
-    let reader = async move {
-        let mut buf = vec![0u8; 65536];
-        loop {
-            match from.read(&mut buf).await {
-                Ok(0) | Err(_) => break,
-                Ok(n) => {
-                    let due = tokio::time::Instant::now()
-                        + std::time::Duration::from_millis(delay.load(Ordering::Relaxed));
-                    if tx.send((due, buf[..n].to_vec())).is_err() {
-                        break;
-                    }
-                }
-            }
+    while let Some((due, datagram)) = queued.recv().await {
+        tokio::time::sleep_until(due).await;
+        let _ = match to {
+            Some(to) => socket.send_to(&datagram, to).await,
+            None => socket.send(&datagram).await,
+        };
+    }
+}
+
+/// The address of `host` on the bridge (the router's, or 10.77.0.1X).
+pub fn address_of(host: &str) -> String {
+    match HOSTS.iter().position(|h| *h == host) {
+        Some(0) | None => ROUTER_ADDRESS.to_string(),
+        Some(i) => format!("10.77.0.{}", 10 + i),
+    }
+}
+
+/// `topology` with the address of each station's PC (`host = …`), and the
+/// operator's PC for every console user (consoles run there).
+pub fn with_hosts(topology: &str) -> String {
+    let mut out = String::new();
+    for line in topology.lines() {
+        out.push_str(line);
+        out.push('\n');
+        if let Some(name) = line
+            .strip_prefix("name = \"")
+            .and_then(|n| n.strip_suffix('"'))
+        {
+            let pc = if HOSTS.contains(&name) {
+                name
+            } else {
+                "operator"
+            };
+            out.push_str(&format!("host = \"{}\"\n", address_of(pc)));
         }
-    };
-    let writer = async move {
-        while let Some((due, chunk)) = rx.recv().await {
-            tokio::time::sleep_until(due).await;
-            if to.write_all(&chunk).await.is_err() {
-                return;
-            }
-        }
-    };
-    // The writer drains what the reader queued, then ends with it.
-    tokio::join!(reader, writer);
+    }
+    out
 }
 
 /// Moves the calling thread (only it) into the network namespace at `path`.

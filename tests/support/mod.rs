@@ -5,6 +5,7 @@
 #![allow(dead_code)]
 
 pub mod chaos;
+pub mod flood;
 pub mod hosts;
 pub mod opcua;
 pub mod rig;
@@ -61,12 +62,18 @@ name = "opcua"
 role = "operator"
 "#;
 
-/// A free TCP port on 127.0.0.1.
+/// A port on 127.0.0.1 free for both TCP and UDP (QUIC).
 pub fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("a free port on 127.0.0.1")
+    for _ in 0..100 {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .map(|a| a.port())
+            .expect("a free port on 127.0.0.1");
+        if std::net::UdpSocket::bind(("127.0.0.1", port)).is_ok() {
+            return port;
+        }
+    }
+    panic!("no port free for both TCP and UDP on 127.0.0.1")
 }
 
 /// A child process, killed on drop, with its stdout lines on a channel.
@@ -459,18 +466,35 @@ impl TestCell {
         Self::start_on("tcp")
     }
 
-    /// The same over mutual TLS (`tls/127.0.0.1:PORT`): the router creates
-    /// the cell CA and every certificate.
-    pub fn start_tls() -> TestCell {
-        Self::start_on("tls")
+    /// The same on the secure transport (`quic/127.0.0.1:PORT`, mutual
+    /// TLS): the router creates the cell CA and every certificate.
+    pub fn start_secure() -> TestCell {
+        Self::start_on("quic")
     }
 
-    /// The cell as separate hosts over mutual TLS: each node on a network
-    /// namespace of its own ([`hosts::Hosts`]); the console on the
-    /// operator's.
+    /// The cell as separate hosts on the secure transport: each node on a
+    /// network namespace of its own ([`hosts::Hosts`]); the consoles on the
+    /// operator's. The topology names each PC's address (`host`), so the
+    /// router's firewall rules can be made from it.
+    /// The router's firewall (`falc-router firewall`) is applied in its
+    /// namespace, as the install guide applies it on the router's PC.
     pub fn start_hosts(hosts: hosts::Hosts) -> TestCell {
-        let endpoint = format!("tls/{}:7447", hosts::ROUTER_ADDRESS);
-        Self::start_with(endpoint, Some(hosts))
+        let endpoint = format!("quic/{}:7447", hosts::ROUTER_ADDRESS);
+        let cell = Self::start_text(endpoint, Some(hosts), &hosts::with_hosts(TOPOLOGY));
+        let out = Command::new(env!("CARGO_BIN_EXE_falc-router"))
+            .arg("--topology")
+            .arg(&cell.topology_path)
+            .arg("firewall")
+            .output()
+            .expect("falc-router firewall");
+        assert!(out.status.success(), "falc-router firewall: {out:?}");
+        let rules = String::from_utf8(out.stdout).expect("rules are text");
+        if let Some(h) = cell.hosts.as_ref() {
+            if let Err(e) = h.nft("router", &rules) {
+                panic!("cannot apply the router's firewall: {e}\n{rules}");
+            }
+        }
+        cell
     }
 
     /// The cell with more stanzas (`extra`, TOML) after [`TOPOLOGY`]'s.
@@ -480,11 +504,11 @@ impl TestCell {
     }
 
     fn start_on(protocol: &str) -> TestCell {
-        Self::start_with(format!("{protocol}/127.0.0.1:{}", free_port()), None)
-    }
-
-    fn start_with(endpoint: String, hosts: Option<hosts::Hosts>) -> TestCell {
-        Self::start_text(endpoint, hosts, TOPOLOGY)
+        Self::start_text(
+            format!("{protocol}/127.0.0.1:{}", free_port()),
+            None,
+            TOPOLOGY,
+        )
     }
 
     fn start_text(endpoint: String, hosts: Option<hosts::Hosts>, topology: &str) -> TestCell {
@@ -579,7 +603,7 @@ impl TestCell {
         let me = StationName::new(station).expect("valid station");
         let creds = credentials::load(&self.credentials_dir().join(format!("{station}.toml")))
             .expect("credentials written by the router");
-        let tls = certificates::is_tls(&self.endpoint)
+        let tls = certificates::is_secure(&self.endpoint)
             .then(|| certificates::TlsFiles::of(&self.credentials_dir(), station));
         BusSettings {
             keys: KeySpace::new(self.topology.cell().clone()),

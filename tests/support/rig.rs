@@ -38,12 +38,12 @@ pub fn rig_with_db(rcm_scale: &str, db: Option<PathBuf>) -> Rig {
     rig_in(TestCell::start(), rcm_scale, db)
 }
 
-/// The whole cell over mutual TLS on localhost.
-pub fn rig_tls(rcm_scale: &str) -> Rig {
-    rig_in(TestCell::start_tls(), rcm_scale, None)
+/// The whole cell on the secure transport (QUIC, mutual TLS) on localhost.
+pub fn rig_secure(rcm_scale: &str) -> Rig {
+    rig_in(TestCell::start_secure(), rcm_scale, None)
 }
 
-/// The whole cell as separate hosts over mutual TLS.
+/// The whole cell as separate hosts on the secure transport.
 /// The welding workstation reaches the router through a delay line
 /// (no delay until the test sets one).
 pub fn rig_hosts(hosts: super::hosts::Hosts, rcm_scale: &str) -> Rig {

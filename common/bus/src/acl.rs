@@ -1,4 +1,5 @@
-//! The router's access control, generated from the topology (DESIGN.md §4).
+//! The router's access control, generated from the topology
+//! (docs/architecture.md, "Access control").
 //!
 //! Default deny. Each station may:
 //! - serve its own confirmed services (`svc/<service>`, every key listed
@@ -16,8 +17,8 @@
 //!   under its own name (`api/<call>/<user>`), and nothing else: the router
 //!   has authenticated the user, so the key tells the operator who asks.
 //!
-//! On a `tls/…` router each subject is the usrpwd user *and* the common
-//! name of its client certificate, over TLS links only.
+//! On a `quic/…` router each subject is the usrpwd user *and* the common
+//! name of its client certificate, over QUIC links (mutual TLS) only.
 //!
 //! Everything else is denied by the router: a workstation commanding another
 //! or its commander, the operator commanding a workstation, anyone
@@ -280,7 +281,7 @@ pub fn matrix(topology: &Topology) -> String {
 
 /// The `access_control` section of the router's zenoh configuration.
 pub fn access_control(topology: &Topology) -> Value {
-    let tls = crate::certificates::is_tls(topology.router());
+    let tls = crate::certificates::is_secure(topology.router());
     let mut rules = Vec::new();
     let mut subjects = Vec::new();
     let mut policies = Vec::new();
@@ -305,7 +306,7 @@ pub fn access_control(topology: &Topology) -> Value {
             // The certificate and the password must both be this user's:
             // a stolen password alone, or a certificate alone, opens nothing.
             subject["cert_common_names"] = json!([name.as_str()]);
-            subject["link_protocols"] = json!(["tls"]);
+            subject["link_protocols"] = json!([crate::certificates::SECURE_PROTOCOL]);
         }
         subjects.push(subject);
         rules.extend(mine.into_iter().map(|r| {
@@ -498,17 +499,17 @@ commander = "cell"
     }
 
     #[test]
-    fn tls_subjects_need_the_certificate_and_the_user() {
+    fn secure_subjects_need_the_certificate_and_the_user() {
         let tcp = Topology::parse(TOPO, "t").expect("valid");
         assert!(access_control(&tcp)["subjects"][0]["cert_common_names"].is_null());
-        let t = Topology::parse(&TOPO.replace("tcp/", "tls/"), "t").expect("valid");
+        let t = Topology::parse(&TOPO.replace("tcp/", "quic/"), "t").expect("valid");
         let v = access_control(&t);
         for subject in v["subjects"].as_array().expect("subjects") {
             assert_eq!(
                 subject["usernames"], subject["cert_common_names"],
                 "{subject}"
             );
-            assert_eq!(subject["link_protocols"], json!(["tls"]));
+            assert_eq!(subject["link_protocols"], json!(["quic"]));
         }
     }
 }

@@ -1,4 +1,5 @@
-//! The cell's certificates for mutual TLS between PCs (rcgen, no
+//! The cell's certificates for mutual TLS between PCs, which zenoh's QUIC
+//! link (`quic/…`) carries: TLS 1.3 inside QUIC (rcgen, no
 //! hand-written crypto). One certificate authority per cell; a client
 //! certificate per node and console user whose common name is the user
 //! name, so the router's ACL can ask for the certificate and the usrpwd
@@ -30,9 +31,17 @@ pub const ROUTER: &str = "router";
 /// The common name of the router's server certificate.
 pub const ROUTER_COMMON_NAME: &str = "falc-router";
 
-/// Whether a zenoh endpoint is a TLS one (`tls/host:port`).
-pub fn is_tls(endpoint: &str) -> bool {
-    endpoint.starts_with("tls/")
+/// The zenoh link protocol of the secure transport between PCs: QUIC,
+/// whose TLS 1.3 handshake authenticates both ends with the cell's
+/// certificates. (zenoh's `tls/` link is not used: it shares one TLS
+/// stream between its reading and writing tasks, zenoh issue #2557.)
+pub const SECURE_PROTOCOL: &str = "quic";
+
+/// Whether a zenoh endpoint is on the secure transport (`quic/host:port`).
+pub fn is_secure(endpoint: &str) -> bool {
+    endpoint
+        .strip_prefix(SECURE_PROTOCOL)
+        .is_some_and(|rest| rest.starts_with('/'))
 }
 
 /// The host of a `proto/host:port[#config]` endpoint (without the brackets
@@ -230,11 +239,12 @@ mod tests {
 
     #[test]
     fn endpoint_hosts() {
-        assert_eq!(endpoint_host("tls/10.0.0.1:7447"), Some("10.0.0.1"));
-        assert_eq!(endpoint_host("tls/router.cell:7447"), Some("router.cell"));
-        assert_eq!(endpoint_host("tls/[::1]:7447#x=1"), Some("::1"));
-        assert_eq!(endpoint_host("tls/:7447"), None);
-        assert!(is_tls("tls/a:1") && !is_tls("tcp/a:1"));
+        assert_eq!(endpoint_host("quic/10.0.0.1:7447"), Some("10.0.0.1"));
+        assert_eq!(endpoint_host("quic/router.cell:7447"), Some("router.cell"));
+        assert_eq!(endpoint_host("quic/[::1]:7447#x=1"), Some("::1"));
+        assert_eq!(endpoint_host("quic/:7447"), None);
+        assert!(is_secure("quic/a:1") && !is_secure("tcp/a:1") && !is_secure("tls/a:1"));
+        assert!(!is_secure("quicx/a:1"));
     }
 
     #[test]

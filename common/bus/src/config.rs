@@ -3,14 +3,16 @@
 //! link against the usrpwd dictionary and enforces the generated ACL.
 //! Nothing here is copied from a hand-written json5 file.
 //!
-//! With a `tls/…` endpoint every link is TLS 1.3 with mutual authentication
-//! against the cell CA ([`super::certificates`]), and nothing else is
-//! accepted. The router is hardened against strangers holding connections
-//! open: handshakes that do not finish within [`HANDSHAKE_TIMEOUT`] are
-//! dropped, and up to [`PENDING_HANDSHAKES`] may be in progress at once, so
-//! that hundreds of silent connections cannot keep a node out.
+//! With a `quic/…` endpoint every link is QUIC, whose TLS 1.3 handshake
+//! authenticates both ends against the cell CA ([`super::certificates`]),
+//! and nothing else is accepted. Handshakes at zenoh's level that do not
+//! finish within [`HANDSHAKE_TIMEOUT`] are dropped, and up to
+//! [`PENDING_HANDSHAKES`] may be in progress at once. zenoh's QUIC listener
+//! itself accepts one QUIC handshake at a time and offers no time-out for
+//! it, so strangers are kept off the router's port by its firewall
+//! (`falc-router firewall`, docs/install.md).
 
-use super::certificates::TlsFiles;
+use super::certificates::{TlsFiles, SECURE_PROTOCOL};
 use super::credentials::Credentials;
 use serde_json::{json, Value};
 use std::path::Path;
@@ -34,8 +36,8 @@ fn common(mode: &str, lease: Duration) -> Value {
     })
 }
 
-/// How long the router waits for a connection to finish its TLS and zenoh
-/// handshakes before it drops it (zenoh's default: 10 s).
+/// How long the router waits for a link to finish its zenoh handshake
+/// (the usrpwd login) before it drops it (zenoh's default: 10 s).
 pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(3);
 
 /// How many connections may be in their zenoh handshake at once (zenoh's
@@ -61,13 +63,20 @@ fn tls_section(tls: &TlsFiles, listen: bool) -> Value {
     })
 }
 
+/// The link settings of the secure transport: the certificates, and QUIC
+/// as the only protocol.
+fn secure(v: &mut Value, tls: &TlsFiles, listen: bool) {
+    v["transport"]["link"]["tls"] = tls_section(tls, listen);
+    v["transport"]["link"]["protocols"] = json!([SECURE_PROTOCOL]);
+}
+
 fn build(value: Value) -> Result<zenoh::Config, ConfigError> {
     zenoh::Config::from_json5(&value.to_string()).map_err(|e| ConfigError(e.to_string()))
 }
 
 /// A node's configuration: client of `endpoint`, authenticated by `credentials`
 /// (None only to show that an unauthenticated node is refused) and, on a
-/// `tls/…` endpoint, by its certificate.
+/// `quic/…` endpoint, by its certificate.
 pub fn client(
     endpoint: &str,
     lease: Duration,
@@ -77,8 +86,7 @@ pub fn client(
 ) -> Result<zenoh::Config, ConfigError> {
     let mut v = common("client", lease);
     if let Some(tls) = tls {
-        v["transport"]["link"]["tls"] = tls_section(tls, false);
-        v["transport"]["link"]["protocols"] = json!(["tls"]);
+        secure(&mut v, tls, false);
     }
     v["connect"] = json!({
         "endpoints": [endpoint],
@@ -92,7 +100,7 @@ pub fn client(
 }
 
 /// The router's configuration: listen on `listen`, authenticate against the
-/// dictionary file (and on `tls/…` the client certificates against the
+/// dictionary file (and on `quic/…` the client certificates against the
 /// cell CA), enforce `access_control` (see [`super::acl`]).
 pub fn router(
     listen: &str,
@@ -102,19 +110,8 @@ pub fn router(
     access_control: Value,
 ) -> Result<zenoh::Config, ConfigError> {
     let mut v = common("router", lease);
-    let mut listen = listen.to_string();
     if let Some(tls) = tls {
-        v["transport"]["link"]["tls"] = tls_section(tls, true);
-        v["transport"]["link"]["protocols"] = json!(["tls"]);
-        // An endpoint may carry its own configuration (`#a=1;b=2`); the
-        // time-out is added to it unless it sets one.
-        if !listen.contains("tls_handshake_timeout_ms") {
-            let sep = if listen.contains('#') { ';' } else { '#' };
-            listen = format!(
-                "{listen}{sep}tls_handshake_timeout_ms={}",
-                HANDSHAKE_TIMEOUT.as_millis()
-            );
-        }
+        secure(&mut v, tls, true);
     }
     v["transport"]["unicast"] = json!({
         "accept_timeout": HANDSHAKE_TIMEOUT.as_millis() as u64,
@@ -163,33 +160,38 @@ mod tests {
     }
 
     #[test]
-    fn a_tls_listen_endpoint_gets_the_handshake_time_out_unless_it_sets_one() {
+    fn a_secure_router_takes_quic_links_only_with_mutual_tls() {
         let tls = TlsFiles::of(Path::new("/tmp/creds"), "router");
-        let listen = |endpoint: &str| {
-            let cfg = router(
-                endpoint,
-                Duration::from_secs(1),
-                Path::new("/tmp/dict"),
-                Some(&tls),
-                json!({ "enabled": true, "default_permission": "deny" }),
-            )
-            .expect("router config");
-            cfg.get_json("listen/endpoints").expect("endpoints")
-        };
-        assert!(
-            listen("tls/0.0.0.0:7447").contains("tls/0.0.0.0:7447#tls_handshake_timeout_ms=3000"),
-            "{}",
-            listen("tls/0.0.0.0:7447")
+        let cfg = router(
+            "quic/0.0.0.0:7447",
+            Duration::from_secs(1),
+            Path::new("/tmp/dict"),
+            Some(&tls),
+            json!({ "enabled": true, "default_permission": "deny" }),
+        )
+        .expect("router config");
+        let get = |key: &str| cfg.get_json(key).expect(key);
+        assert_eq!(get("transport/link/protocols"), r#"["quic"]"#);
+        assert_eq!(get("transport/link/tls/enable_mtls"), "true");
+        assert!(get("transport/link/tls/listen_certificate").contains("router.crt"));
+        assert_eq!(get("transport/unicast/accept_timeout"), "3000");
+        let client = client(
+            "quic/10.0.0.1:7447",
+            Duration::from_secs(1),
+            None,
+            Some(&TlsFiles::of(Path::new("/tmp/creds"), "cell")),
+            Duration::ZERO,
+        )
+        .expect("client config");
+        assert_eq!(
+            client
+                .get_json("transport/link/protocols")
+                .expect("protocols"),
+            r#"["quic"]"#
         );
-        let own = listen("tls/0.0.0.0:7447#iface=eth0");
-        assert!(
-            own.contains("iface=eth0;tls_handshake_timeout_ms=3000"),
-            "{own}"
-        );
-        let set = listen("tls/0.0.0.0:7447#tls_handshake_timeout_ms=500");
-        assert!(
-            set.contains("tls_handshake_timeout_ms=500") && !set.contains("3000"),
-            "{set}"
-        );
+        assert!(client
+            .get_json("transport/link/tls/connect_certificate")
+            .expect("certificate")
+            .contains("cell.crt"));
     }
 }

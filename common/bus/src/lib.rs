@@ -49,7 +49,7 @@ pub enum BusError {
     Config(#[from] config::ConfigError),
     /// The session could not be opened: router down, wrong credentials …
     #[error(
-        "cannot connect to the router at {endpoint} as `{user}`: {message} (is the router running there? A wrong password or a certificate of another cell is refused without a reason here: the router logs `refused login from` this PC, with the reason)"
+        "cannot connect to the router at {endpoint} as `{user}`: {message} (is the router running there? A wrong password or a certificate of another cell is refused without a reason here: the router logs a `refused login` line with the reason)"
     )]
     Connect {
         /// The router endpoint.
@@ -84,7 +84,7 @@ pub struct BusSettings {
     pub lease: Duration,
     /// The node's credentials (None only in tests of refusal).
     pub credentials: Option<Credentials>,
-    /// The node's certificate, key and the cell CA, for a `tls/…` endpoint.
+    /// The node's certificate, key and the cell CA, for a `quic/…` endpoint.
     pub tls: Option<certificates::TlsFiles>,
     /// How long to keep trying to reach the router at start.
     pub connect_timeout: Duration,

@@ -1,5 +1,5 @@
 //! RCM message numbers → `RobotStatusDetail` and what the workstation does
-//! with them, as data (SEED-NOTES.md §5); and the detail of the robot's
+//! with them, as data (docs/the-1992-cell.md §5); and the detail of the robot's
 //! own program status ([`status_detail`]).
 //!
 //! The thesis' table maps a message number to two bytes: the high byte is

@@ -1,4 +1,4 @@
-//! The operator API (DESIGN.md §3, §8): what a console (`falc`) asks the
+//! The operator API (docs/architecture.md, "Key space"; docs/operator-guide.md): what a console (`falc`) asks the
 //! operator node, and what it answers. One zenoh key per call and user,
 //! `falc/<cell>/operator/api/<call>/<user>`, so the router's ACL grants
 //! calls per role ([`Call::role`]) and each user speaks only in its own

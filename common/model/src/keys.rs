@@ -1,4 +1,4 @@
-//! Every zenoh key FALC uses, built in one place (DESIGN.md §3).
+//! Every zenoh key FALC uses, built in one place (docs/architecture.md, "Key space").
 //!
 //! | key | primitive |
 //! |---|---|

@@ -1,4 +1,4 @@
-//! The cell's operating modes (SEED-NOTES.md §7: automatic, step and
+//! The cell's operating modes (docs/the-1992-cell.md §7: automatic, step and
 //! maintenance) and the manual operations maintenance mode allows, as they
 //! travel between the levels: the operator sets the mode at the cell, the
 //! cell passes it to every workstation, so a workstation itself refuses a

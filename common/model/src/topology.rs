@@ -10,6 +10,7 @@
 use crate::ids::{CellId, StationName};
 use serde::Deserialize;
 use std::collections::BTreeMap;
+use std::net::IpAddr;
 use std::path::Path;
 use std::time::Duration;
 
@@ -53,9 +54,13 @@ pub struct Station {
     /// Its device address (serial port, Modbus endpoint), if it has one.
     #[serde(default)]
     pub device: Option<String>,
+    /// The IP address of the PC it runs on, for the router's firewall
+    /// (`falc-router firewall`); absent in an all-in-one cell.
+    #[serde(default)]
+    pub host: Option<IpAddr>,
 }
 
-/// What a console user may do through the operator API (DESIGN.md §4).
+/// What a console user may do through the operator API (docs/architecture.md, "Access control").
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Deserialize, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Role {
@@ -78,6 +83,10 @@ pub struct Console {
     pub name: StationName,
     /// What it may do.
     pub role: Role,
+    /// The IP address of the PC it is used from, for the router's firewall
+    /// (`falc-router firewall`); absent in an all-in-one cell.
+    #[serde(default)]
+    pub host: Option<IpAddr>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -106,6 +115,30 @@ pub struct Topology {
     stations: Vec<Station>,
     consoles: Vec<Console>,
     index: BTreeMap<StationName, usize>,
+}
+
+/// The link protocols a router endpoint may use: `tcp` on one machine or a
+/// trusted segment, `quic` (mutual TLS 1.3) between PCs.
+pub const ROUTER_PROTOCOLS: [&str; 2] = ["tcp", "quic"];
+
+/// Checks the router endpoint's protocol. zenoh's `tls/` link is refused:
+/// it shares one TLS stream between its reading and writing tasks, which
+/// rustls does not allow (zenoh issue #2557), and links dropped under load.
+fn check_router(router: &str) -> Result<(), String> {
+    let protocol = router.split_once('/').map(|(p, _)| p).unwrap_or("");
+    if ROUTER_PROTOCOLS.contains(&protocol) {
+        return Ok(());
+    }
+    if protocol == "tls" {
+        return Err(format!(
+            "router = \"{router}\": zenoh's tls/ link drops links under load (zenoh \
+             issue #2557); use quic/ for mutual TLS between PCs"
+        ));
+    }
+    Err(format!(
+        "router = \"{router}\": the endpoint must begin with {}",
+        ROUTER_PROTOCOLS.map(|p| format!("{p}/")).join(" or ")
+    ))
 }
 
 /// Names no station or console may have: their files in the credentials
@@ -161,6 +194,7 @@ impl Topology {
             origin: origin.to_string(),
             message,
         };
+        check_router(&raw.router).map_err(fail)?;
         if raw.lease_ms < 100 {
             return Err(fail(format!(
                 "lease_ms = {} is too short; use at least 100",
@@ -293,6 +327,15 @@ impl Topology {
         &self.consoles
     }
 
+    /// Every station and console user with the IP address of its PC, if
+    /// the topology names one (`host = "…"`).
+    pub fn user_hosts(&self) -> impl Iterator<Item = (&StationName, Option<IpAddr>)> {
+        self.stations
+            .iter()
+            .map(|s| (&s.name, s.host))
+            .chain(self.consoles.iter().map(|c| (&c.name, c.host)))
+    }
+
     /// One console user by name.
     pub fn console(&self, name: &StationName) -> Option<&Console> {
         self.consoles.iter().find(|c| &c.name == name)
@@ -413,6 +456,43 @@ device = "/dev/ttyS0"
                 .contains("painting")
         );
         assert!(refusal(&CELL.replace("name = \"cell\"", "name = \"c ell\"")).contains("c ell"));
+    }
+
+    #[test]
+    fn the_router_is_tcp_or_quic_and_tls_is_refused_with_its_reason() {
+        for ok in ["tcp/", "quic/"] {
+            let t = Topology::parse(&CELL.replace("tcp/", ok), "t").expect("valid");
+            assert!(t.router().starts_with(ok));
+        }
+        let tls = refusal(&CELL.replace("tcp/", "tls/"));
+        assert!(tls.contains("#2557") && tls.contains("quic/"), "{tls}");
+        assert!(refusal(&CELL.replace("tcp/", "udp/")).contains("tcp/ or quic/"));
+    }
+
+    #[test]
+    fn stations_and_consoles_may_name_their_host() {
+        let t = Topology::parse(
+            &format!(
+                "{}[[console]]\nname=\"ann\"\nrole=\"operator\"\nhost=\"10.0.0.9\"\n",
+                CELL.replace("kind = \"cell\"", "kind = \"cell\"\nhost = \"10.0.0.2\"")
+            ),
+            "t",
+        )
+        .expect("valid");
+        let cell = StationName::new("cell").expect("valid");
+        let ann = StationName::new("ann").expect("valid");
+        assert_eq!(
+            t.station(&cell).and_then(|s| s.host),
+            Some("10.0.0.2".parse().expect("ip"))
+        );
+        assert_eq!(
+            t.console(&ann).and_then(|c| c.host),
+            Some("10.0.0.9".parse().expect("ip"))
+        );
+        assert!(
+            refusal(&CELL.replace("kind = \"cell\"", "kind = \"cell\"\nhost = \"pc7\""))
+                .contains("host")
+        );
     }
 
     #[test]

@@ -88,9 +88,9 @@ impl NodeArgs {
             .clone()
             .unwrap_or_else(|| self.credentials_dir.join(format!("{station}.toml")));
         let credentials = credentials::load(&path)?;
-        // On a TLS router the certificate and key sit beside the
+        // On a secure (QUIC) router the certificate and key sit beside the
         // credentials file (`<user>.crt`, `<user>.key`, `ca.crt`).
-        let tls = if certificates::is_tls(topology.router()) {
+        let tls = if certificates::is_secure(topology.router()) {
             let files = certificates::TlsFiles::beside(&path);
             files.check()?;
             Some(files)
@@ -134,11 +134,17 @@ where
 }
 
 /// The log filter of every FALC process: `RUST_LOG`, else `info` with
-/// zenoh's own chatter at `warn`.
+/// zenoh's own chatter at `warn`. zenoh's QUIC listener warns once per
+/// failed handshake, unthrottled (a stranger's flood would fill the log);
+/// the router reports those rate-limited in its own words
+/// (`falc-router`'s `logins`), so they are left out here.
 fn log_filter() -> tracing_subscriber::EnvFilter {
     use tracing_subscriber::EnvFilter;
     EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-        EnvFilter::new("info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn")
+        EnvFilter::new(
+            "info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn,\
+             zenoh_link_commons::quic::unicast=error",
+        )
     })
 }
 

@@ -1,6 +1,6 @@
 //! The conveyor PLC's I/O map: which coil is which button and which
 //! discrete input is which lamp, at configurable base addresses. One table
-//! for the transport node, the twin and the README (`falc-transport io
+//! for the transport node, the twin and docs/plc.md (`falc-transport io
 //! --map` prints it from this code), so a real PLC can be wired to it.
 //!
 //! | offset | coil (written by FALC) | discrete input (read by FALC) |
@@ -179,7 +179,7 @@ impl IoMap {
         address.checked_sub(self.coil_base).and_then(Coil::at)
     }
 
-    /// The table of the map at these bases, as Markdown (for the README
+    /// The table of the map at these bases, as Markdown (for docs/plc.md
     /// and for commissioning).
     pub fn table(&self) -> String {
         let mut out = String::from("| kind | address | meaning |\n|---|---|---|\n");

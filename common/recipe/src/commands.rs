@@ -1,5 +1,5 @@
 //! The command sets, as data: one [`CommandSpec`] per command and
-//! controller kind (DESIGN.md §6). Adding a command is one entry here and
+//! controller kind (recipes/README.md). Adding a command is one entry here and
 //! one [`Handler`] arm in the engine.
 
 use super::syntax::Criterion;

@@ -1,4 +1,4 @@
-//! The recipe language (DESIGN.md §6, SEED-NOTES.md §2): state tables that
+//! The recipe language (docs/the-1992-cell.md §2, recipes/README.md): state tables that
 //! operators write and controllers interpret at run time. No I/O here
 //! except [`files`], which reads recipe directories.
 //!

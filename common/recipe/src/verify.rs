@@ -284,7 +284,7 @@ pub enum Severity {
     /// The recipes can do something their writer cannot have meant: a
     /// wait that can only fail, a job cut short, a recipe that never ends.
     Defect,
-    /// Worth knowing, and allowed: a status passed up as the README
+    /// Worth knowing, and allowed: a status passed up as recipes/README.md
     /// documents, a limit that never fires first, a branch nothing takes.
     Note,
 }

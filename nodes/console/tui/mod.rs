@@ -1,4 +1,4 @@
-//! `falc tui`: the operator's screens (SEED-NOTES.md §6): F1 overview, F2
+//! `falc tui`: the operator's screens (docs/the-1992-cell.md §6): F1 overview, F2
 //! messages per station, F3 commands, F4 a recipe's state table. This is
 //! the driver: it owns the terminal and the bus, polls the operator API
 //! (the status every 250 ms; new messages and the order list when the

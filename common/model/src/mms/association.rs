@@ -1,7 +1,7 @@
 //! Associations, sans-I/O: who this node's commander is, which of its
 //! subordinates are associated, and what a lost peer means.
 //!
-//! The rules (DESIGN.md §5, the 1992 scheme):
+//! The rules (docs/architecture.md, "Associations"; the 1992 scheme):
 //! - a node accepts exactly one commander, the one the topology names; a
 //!   second Initiate (another session) is refused with an `initiate` error;
 //! - a node with subordinates initiates them before it confirms its own
