@@ -8,7 +8,8 @@
 //!
 //! Why a firewall: zenoh's QUIC listener (zenoh-link-commons 1.10,
 //! `accept_task`) waits for each QUIC handshake before it takes the next
-//! and has no time-out for it but QUIC's idle time-out, so strangers that
+//! and has no time-out for it but QUIC's idle time-out, and sleeps 100 ms
+//! after a failed one (upstream zenoh#2719 and #2685), so strangers that
 //! start handshakes and go quiet, or fail them by the hundred, hold every
 //! login back. No zenoh setting changes that; keeping strangers off the
 //! port does. Plain text out, no I/O: apply with `nft -f`.

@@ -281,32 +281,33 @@ async fn relay(
             .await
             .map_err(|e| format!("delay line receive: {e}"))?;
         let due = due_in(&delay);
-        if !far_of.contains_key(&node) {
-            let far = tokio::net::UdpSocket::bind((ROUTER_ADDRESS, 0))
-                .await
-                .map_err(|e| format!("delay line bind: {e}"))?;
-            far.connect((ROUTER_ADDRESS, 7447))
-                .await
-                .map_err(|e| format!("delay line connect: {e}"))?;
-            let far = Arc::new(far);
-            let (to_router, queued) = tokio::sync::mpsc::unbounded_channel::<Delayed>();
-            tokio::spawn(send_when_due(queued, far.clone(), None));
-            let (to_node, back) = tokio::sync::mpsc::unbounded_channel::<Delayed>();
-            tokio::spawn(send_when_due(back, near.clone(), Some(node)));
-            let delay = delay.clone();
-            tokio::spawn(async move {
-                let mut buf = vec![0u8; 65536];
-                while let Ok(n) = far.recv(&mut buf).await {
-                    if to_node.send((due_in(&delay), buf[..n].to_vec())).is_err() {
-                        return;
+        let to_router = match far_of.entry(node) {
+            std::collections::hash_map::Entry::Occupied(known) => known.into_mut(),
+            std::collections::hash_map::Entry::Vacant(new) => {
+                let far = tokio::net::UdpSocket::bind((ROUTER_ADDRESS, 0))
+                    .await
+                    .map_err(|e| format!("delay line bind: {e}"))?;
+                far.connect((ROUTER_ADDRESS, 7447))
+                    .await
+                    .map_err(|e| format!("delay line connect: {e}"))?;
+                let far = Arc::new(far);
+                let (to_router, queued) = tokio::sync::mpsc::unbounded_channel::<Delayed>();
+                tokio::spawn(send_when_due(queued, far.clone(), None));
+                let (to_node, back) = tokio::sync::mpsc::unbounded_channel::<Delayed>();
+                tokio::spawn(send_when_due(back, near.clone(), Some(node)));
+                let delay = delay.clone();
+                tokio::spawn(async move {
+                    let mut buf = vec![0u8; 65536];
+                    while let Ok(n) = far.recv(&mut buf).await {
+                        if to_node.send((due_in(&delay), buf[..n].to_vec())).is_err() {
+                            return;
+                        }
                     }
-                }
-            });
-            far_of.insert(node, to_router);
-        }
-        if let Some(to_router) = far_of.get(&node) {
-            let _ = to_router.send((due, buf[..n].to_vec()));
-        }
+                });
+                new.insert(to_router)
+            }
+        };
+        let _ = to_router.send((due, buf[..n].to_vec()));
     }
 }
 
