@@ -14,6 +14,7 @@ mod dnc;
 mod hierarchy;
 mod hosts;
 mod launch;
+mod limits;
 mod modes;
 mod opcua;
 mod operator;

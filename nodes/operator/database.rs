@@ -137,6 +137,12 @@ impl Database {
                     .mode(0o700)
                     .create(dir);
             }
+            // One made before (or by hand) is made private at every start.
+            make_private_dir(dir).map_err(|source| DatabaseError {
+                path: dir.display().to_string(),
+                what: "cannot make the journal's directory private (chmod 700)",
+                source: source.into(),
+            })?;
         }
         // The journal is private: the file is made 0600 before SQLite opens
         // it (its -wal and -shm files take the same mode), and one made
@@ -501,6 +507,31 @@ fn wal_of(path: &Path, suffix: &str) -> std::path::PathBuf {
     p.into()
 }
 
+/// Takes group and others' permissions off the journal's directory `dir`,
+/// if it is this user's own. A shared directory (another user's, or one
+/// with the sticky bit, like `/tmp`) is left as it is, with a warning: the
+/// journal's files are private in it all the same.
+fn make_private_dir(dir: &Path) -> std::io::Result<()> {
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    let Ok(meta) = std::fs::metadata(dir) else {
+        return Ok(());
+    };
+    let mode = meta.permissions().mode();
+    if mode & 0o077 == 0 {
+        return Ok(());
+    }
+    if mode & 0o1000 != 0 || meta.uid() != nix::unistd::geteuid().as_raw() {
+        tracing::warn!(
+            dir = %dir.display(),
+            "the journal's directory is shared (mode {:o}); its files are private, \
+             but give the journal a directory of its own (falc-operator --db)",
+            mode & 0o7777
+        );
+        return Ok(());
+    }
+    std::fs::set_permissions(dir, std::fs::Permissions::from_mode(mode & 0o700))
+}
+
 /// Takes group and others' permissions off `file` if it exists.
 fn make_private(file: &Path) -> std::io::Result<()> {
     use std::os::unix::fs::PermissionsExt;
@@ -535,6 +566,14 @@ mod tests {
         std::fs::set_permissions(&old, std::fs::Permissions::from_mode(0o644)).expect("chmod");
         drop(Database::open(&old).expect("reopen"));
         assert_eq!(mode(&old), 0o600);
+        // A directory made before, open to all, is made private too.
+        std::fs::set_permissions(
+            dir.path().join("var"),
+            std::fs::Permissions::from_mode(0o777),
+        )
+        .expect("chmod");
+        drop(Database::open(&path).expect("reopen"));
+        assert_eq!(mode(&dir.path().join("var")), 0o700);
     }
 
     #[test]

@@ -51,6 +51,9 @@ struct Cli {
     /// The order list and journal (SQLite).
     #[arg(long, default_value = "var/falc.db")]
     db: PathBuf,
+    /// How many orders may wait in the order list; one more is refused.
+    #[arg(long, default_value_t = falc_model::console::MAX_QUEUED_ORDERS)]
+    max_queued_orders: usize,
     #[command(flatten)]
     node: NodeArgs,
 }
@@ -259,7 +262,8 @@ async fn run(cli: Cli) -> Result<ExitCode> {
     }
     bus.sync_with_router().await?;
     let (lane, mut lane_done) = cell_lane(bus.clone(), cell.clone());
-    let list = OrderList::new(me.clone(), cell, topology, db, source, recipes);
+    let list = OrderList::new(me.clone(), cell, topology, db, source, recipes)
+        .with_max_queued(cli.max_queued_orders);
     let mut op = Operator {
         list,
         station,

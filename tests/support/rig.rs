@@ -209,7 +209,14 @@ impl Rig {
 
     /// Starts the operator node; returns once it delivered the recipes.
     pub fn start_operator(&mut self) {
-        let mut p = Proc::spawn("operator", self.operator_command());
+        self.start_operator_with(&[]);
+    }
+
+    /// [`Self::start_operator`] with more arguments for `falc-operator`.
+    pub fn start_operator_with(&mut self, args: &[&str]) {
+        let mut cmd = self.operator_command();
+        cmd.args(args);
+        let mut p = Proc::spawn("operator", cmd);
         p.expect_line("EVENT ready", Duration::from_secs(20));
         p.expect_line("EVENT delivered recipe=PIPDROOG", Duration::from_secs(20));
         self.operator = Some(p);

@@ -23,7 +23,7 @@ use crate::records::Records;
 use falc_model::alarm::AlarmClass;
 use falc_model::console::{
     ApiReply, ApiRequest, ApiResult, CellStatus, EntryKind, ListState, Order, OrderState,
-    StationView,
+    StationView, MAX_QUEUED_ORDERS,
 };
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::domain::content_hash;
@@ -196,6 +196,9 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     delivered: BTreeMap<ObjectName, u64>,
     associated: bool,
     problem: Option<String>,
+    /// How many orders may wait in the list ([`MAX_QUEUED_ORDERS`] unless
+    /// [`Self::with_max_queued`] says otherwise).
+    max_queued: usize,
     /// Whether the list goes on (`Running`) or waits (`Idle`); shown as
     /// `Alarm` while an alarm holds it back ([`Self::list_state`]).
     list: ListState,
@@ -268,6 +271,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             delivered: BTreeMap::new(),
             associated: false,
             problem: None,
+            max_queued: MAX_QUEUED_ORDERS,
             list: ListState::Idle,
             alarms,
             db_alarm: None,
@@ -285,6 +289,12 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             next_try: Duration::ZERO,
             out: VecDeque::new(),
         }
+    }
+
+    /// At most `max` orders wait in the list; one more is refused.
+    pub fn with_max_queued(mut self, max: usize) -> Self {
+        self.max_queued = max;
+        self
     }
 
     /// The next thing the node must do.
@@ -766,9 +776,12 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         if mode != CellMode::Step && !stations.is_empty() {
             return Err("workstations step only in step mode".into());
         }
-        for s in &stations {
+        for (i, s) in stations.iter().enumerate() {
             if self.topology.commander_of(s) != Some(&self.cell) {
                 return Err(format!("{s} is not a workstation of {}", self.cell));
+            }
+            if stations[..i].contains(s) {
+                return Err(format!("{s} is named more than once"));
             }
         }
         let current = self.cell_mode();
@@ -1404,6 +1417,9 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 return None;
             }
             ApiRequest::Manual { station, action } => {
+                if let Err(e) = falc_recipe::check::check_manual(&action) {
+                    return Some(Err(format!("manual on {station}: {e}")));
+                }
                 let done = format!("manual on {station}: {action}");
                 let request = Request::Manual {
                     station,
@@ -1459,6 +1475,21 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                     "there is no cell recipe {recipe}; the cell knows {}",
                     list.join(", ")
                 ));
+            }
+        }
+        match self.db.queued() {
+            Ok(queued) if queued >= self.max_queued => {
+                return Err(format!(
+                    "the order list holds {queued} queued orders, its limit \
+                     (falc-operator --max-queued-orders {}); remove some, or start the list",
+                    self.max_queued
+                ))
+            }
+            Ok(_) => {}
+            Err(e) => {
+                let text = e.to_string();
+                self.db_failed(&e);
+                return Err(text);
             }
         }
         let order = match self.db.add_order(&recipe.to_lowercase(), who) {
@@ -2021,6 +2052,11 @@ mod tests {
             .ask("console", mode(CellMode::Step, vec!["operator"]))
             .unwrap_err();
         assert!(e.contains("operator is not a workstation of cell"), "{e}");
+        let e = r
+            .ask("console", mode(CellMode::Step, vec!["welding"; 5000]))
+            .unwrap_err();
+        assert!(e.contains("welding is named more than once"), "{e}");
+        assert!(e.len() < 100, "{e}");
         let (t, out) = r.api("console", mode(CellMode::Step, vec!["welding"]));
         assert_eq!(
             call(&out),
@@ -2062,5 +2098,45 @@ mod tests {
         let e = reply(&out, t).and_then(|r| r.err()).unwrap_or_default();
         assert!(e.contains("cell/dikdroog.rcp:3: unknown state 9"), "{e}");
         assert_eq!(r.order(1).state, OrderState::Queued);
+    }
+
+    #[test]
+    fn the_list_takes_at_most_its_limit_of_waiting_orders() {
+        let mut r = Rig::new();
+        r.list = std::mem::replace(&mut r.list, Rig::new().list).with_max_queued(2);
+        r.add(2);
+        let e = r
+            .ask(
+                "console",
+                ApiRequest::OrderAdd {
+                    recipe: "dikdroog".into(),
+                },
+            )
+            .unwrap_err();
+        assert!(e.contains("holds 2 queued orders, its limit"), "{e}");
+        assert_eq!(r.list.db.orders().map(|o| o.len()), Ok(2));
+        // Removing one makes room.
+        assert!(r.ask("console", ApiRequest::OrderRemove { id: 1 }).is_ok());
+        r.add(1);
+    }
+
+    #[test]
+    fn a_manual_operation_with_a_huge_argument_is_refused_with_a_quote() {
+        use falc_model::mode::ManualAction;
+        let mut r = Rig::new();
+        let e = r
+            .ask(
+                "maintainer",
+                ApiRequest::Manual {
+                    station: st("transport"),
+                    action: ManualAction::Press("A".repeat(60_000)),
+                },
+            )
+            .unwrap_err();
+        assert!(e.contains("60000 characters") && e.len() < 200, "{e}");
+        assert!(
+            r.list.db.texts().iter().all(|t| t.len() < 200),
+            "nothing of it journalled"
+        );
     }
 }

@@ -258,6 +258,9 @@ pub struct RecipeText {
 pub const MAX_REQUEST_BYTES: usize = MAX_RECIPE_BYTES + 4096;
 /// The longest answer to an operator question, in characters.
 pub const MAX_ANSWER_CHARS: usize = 200;
+/// How many orders may wait in the order list by default (queued, not yet
+/// run); one more is refused (`falc-operator --max-queued-orders`).
+pub const MAX_QUEUED_ORDERS: usize = 1000;
 /// The longest cell recipe name an order may name, in characters.
 pub const MAX_RECIPE_NAME_CHARS: usize = 32;
 /// The largest recipe file, in bytes (the thesis' recipes are under 2 KiB).

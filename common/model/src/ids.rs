@@ -308,7 +308,9 @@ macro_rules! number_newtype {
                 s.parse::<$ty>()
                     .ok()
                     .and_then(Self::new)
-                    .ok_or_else(|| format!(concat!("`{}` is not ", $what, " ({}–{})"), s, $lo, $hi))
+                    .ok_or_else(|| {
+                        format!(concat!("`{}` is not ", $what, " ({}–{})"), excerpt(s), $lo, $hi)
+                    })
             }
 
             /// The number.

@@ -14,7 +14,8 @@
 use super::commands::{lookup, Arg, CommandSpec, Criteria, Handler, RecipeKind};
 use super::problem::{Problem, ProblemKind};
 use super::syntax::{CommandText, Criterion, Recipe, Report, Row, StateNo};
-use falc_model::ids::{ObjectName, Place, PlcStation, RobotProgram, StationName};
+use falc_model::ids::{excerpt, ObjectName, Place, PlcStation, RobotProgram, StationName};
+use falc_model::mode::ManualAction;
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
 
@@ -149,7 +150,10 @@ impl Ctx<'_> {
 fn seconds(s: &str) -> Result<Duration, String> {
     match s.parse::<u32>() {
         Ok(n) if (1..=86_400).contains(&n) => Ok(Duration::from_secs(n.into())),
-        _ => Err(format!("`{s}` is not a time limit in seconds (1–86400)")),
+        _ => Err(format!(
+            "`{}` is not a time limit in seconds (1–86400)",
+            excerpt(s)
+        )),
     }
 }
 
@@ -157,7 +161,28 @@ fn line_letter(s: &str) -> Result<char, String> {
     let mut it = s.chars();
     match (it.next().map(|c| c.to_ascii_uppercase()), it.next()) {
         (Some(c @ ('A'..='H' | 'J'..='L')), None) => Ok(c),
-        _ => Err(format!("`{s}` is not a conveyor line (A–H, J–L)")),
+        _ => Err(format!(
+            "`{}` is not a conveyor line (A–H, J–L)",
+            excerpt(s)
+        )),
+    }
+}
+
+/// Checks the texts of a manual operation as a recipe's arguments are
+/// checked: a button is a line A–H, J–L or a station 1–3, a line a line,
+/// a recipe a valid name. The refusal quotes an excerpt, never the whole
+/// text, so a maintainer's typo (or a 60 KB argument) is refused in a line.
+pub fn check_manual(action: &ManualAction) -> Result<(), String> {
+    match action {
+        ManualAction::Press(b) | ManualAction::Release(b) => b.parse::<Button>().map(|_| ()),
+        ManualAction::RunLine { line, .. } => line_letter(line).map(|_| ()),
+        ManualAction::RunRecipe(name) => {
+            ObjectName::new(name).map(|_| ()).map_err(|e| e.to_string())
+        }
+        ManualAction::SelectProgram(_)
+        | ManualAction::StartProgram
+        | ManualAction::StopProgram
+        | ManualAction::ConfirmAlarm => Ok(()),
     }
 }
 

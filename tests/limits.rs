@@ -1,0 +1,127 @@
+//! Bounded inputs, through the CLI on the whole cell: what an authorised
+//! caller may send is bounded, and a refusal is a line, not an echo.
+//! - a manual operation's 60,000-character button name is refused with a
+//!   short quote and never journalled; a workstation named 5,000 times in
+//!   `mode step` is refused in a line; then the way back: a real manual
+//!   press and release, the conveyor's `home`, step mode for one
+//!   workstation, auto, an order done;
+//! - the order list holds at most `--max-queued-orders` waiting orders, one
+//!   more is refused naming the limit, and once the list ran, orders are
+//!   taken again;
+//! - the journal's directory, made open to all before, is private (0700)
+//!   after the operator starts.
+
+use crate::support::rig::{rig, rig_with_db};
+use falc_model::console::OrderState;
+use std::os::unix::fs::PermissionsExt;
+use std::time::Duration;
+
+/// The longest refusal a bounded input may bring back (a line or two).
+const SHORT: usize = 400;
+
+#[test]
+fn huge_manual_arguments_and_repeated_stations_are_refused_in_a_line() {
+    let mut rig = rig("20");
+    rig.cell.falc(&["mode", "maintenance"]);
+    let huge = "A".repeat(60_000);
+    let (code, out) = rig
+        .cell
+        .falc_as("maintainer", &["manual", "transport", "press", &huge]);
+    assert_eq!(
+        code,
+        1,
+        "refused by the operator: {}",
+        &out[..out.len().min(300)]
+    );
+    assert!(
+        out.len() < SHORT && out.contains("60000 characters"),
+        "a short quote, not the text: {} bytes: {}",
+        out.len(),
+        &out[..out.len().min(300)]
+    );
+    let journal = rig.journal(None);
+    assert!(
+        journal.iter().all(|e| e.text.len() < SHORT),
+        "nothing of it journalled: {:?}",
+        journal.iter().map(|e| e.text.len()).max()
+    );
+    // The way back: a real press and release still work, and `home`
+    // brings the carriers back where the next order wants them.
+    for action in ["press", "release"] {
+        let (code, out) = rig
+            .cell
+            .falc_as("maintainer", &["manual", "transport", action, "B"]);
+        assert_eq!(code, 0, "{action} B: {out}");
+    }
+    let (code, out) = rig
+        .cell
+        .falc_as("maintainer", &["manual", "transport", "home"]);
+    assert_eq!(code, 0, "{out}");
+    rig.transport.as_mut().expect("transport node").expect_line(
+        "EVENT job program=HOME event=Done",
+        Duration::from_secs(120),
+    );
+    rig.cell.falc(&["mode", "auto"]);
+
+    // A workstation named 5,000 times.
+    let mut args = vec!["mode", "step"];
+    for _ in 0..5000 {
+        args.extend(["--station", "welding"]);
+    }
+    let (code, out) = rig.cell.falc_as("console", &args);
+    assert_eq!(code, 1, "{}", &out[..out.len().min(300)]);
+    assert!(
+        out.len() < SHORT && out.contains("named more than once"),
+        "{} bytes: {}",
+        out.len(),
+        &out[..out.len().min(300)]
+    );
+    // Named once, it steps; back to auto, an order runs to done.
+    rig.cell.falc(&["mode", "step", "--station", "welding"]);
+    rig.cell.falc(&["mode", "auto"]);
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(120));
+    let orders = rig.orders();
+    assert_eq!(
+        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
+        [OrderState::Done],
+        "{orders:?}"
+    );
+}
+
+#[test]
+fn the_order_list_is_bounded_and_the_journal_directory_private() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let var = dir.path().join("var");
+    std::fs::create_dir(&var).expect("var");
+    std::fs::set_permissions(&var, std::fs::Permissions::from_mode(0o777)).expect("chmod");
+    let mut rig = rig_with_db("20", Some(var.join("falc.db")));
+    let mode = std::fs::metadata(&var).expect("var").permissions().mode() & 0o777;
+    assert_eq!(mode, 0o700, "the journal's directory made private at start");
+
+    // The operator again, with room for two waiting orders.
+    rig.operator = None;
+    rig.start_operator_with(&["--max-queued-orders", "2"]);
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["order", "add", "dundroog"]);
+    let (code, out) = rig.cell.falc_as("console", &["order", "add", "dikdroog"]);
+    assert_eq!(code, 1, "{out}");
+    assert!(
+        out.contains("2 queued orders") && out.contains("--max-queued-orders"),
+        "{out}"
+    );
+    assert_eq!(rig.orders().len(), 2, "the refused one is not listed");
+    // The way back: the list runs, and then takes orders again.
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(180));
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(120));
+    let orders = rig.orders();
+    assert_eq!(
+        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
+        [OrderState::Done; 3],
+        "{orders:?}"
+    );
+}
