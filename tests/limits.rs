@@ -125,3 +125,37 @@ fn the_order_list_is_bounded_and_the_journal_directory_private() {
         "{orders:?}"
     );
 }
+
+#[test]
+fn a_recipes_terminal_escapes_reach_no_terminal() {
+    let rig = rig("20");
+    // A cell recipe whose output carries a colour escape and a bell.
+    std::fs::write(
+        rig.recipes.join("cell/escape.rcp"),
+        "-1 | output \u{1b}[31mred\u{1b}[0m\u{7} done | | | 0\n",
+    )
+    .expect("write recipe");
+    rig.cell.falc(&["order", "add", "escape"]);
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(60));
+    let orders = rig.orders();
+    assert_eq!(
+        orders.last().map(|o| o.state),
+        Some(OrderState::Done),
+        "{orders:?}"
+    );
+    for args in [&["messages"][..], &["journal"][..], &["status"][..]] {
+        let out = rig.cell.falc(args);
+        assert!(
+            !out.bytes().any(|b| b == 0x1b || b == 0x07),
+            "falc {args:?} printed a control character: {out:?}"
+        );
+        if args[0] != "status" {
+            assert!(out.contains("\\u{1b}[31mred"), "escaped, not lost: {out}");
+        }
+    }
+    println!("{}", rig.cell.falc(&["messages"]));
+    // Scripts still get the text itself, in JSON's own escapes.
+    let json = rig.cell.falc(&["--json", "messages"]);
+    assert!(json.contains("\\u001b[31mred"), "{json}");
+}

@@ -14,6 +14,7 @@ use falc_bus::operator_service::CallError;
 use falc_bus::Bus;
 use falc_model::alarm::Alarm;
 use falc_model::console::{ApiReply, ApiRequest, CellStatus, Entry, Order, RecipeFile};
+use falc_model::ids::printable;
 use falc_model::ids::StationName;
 use falc_model::mode::{CellMode, ManualAction};
 use falc_model::topology::Topology;
@@ -263,22 +264,27 @@ pub enum OrderCommand {
 fn show_order(o: &Order) -> String {
     let mut line = format!(
         "{:>4}  {:<12} {:<11} by {}",
-        o.id, o.recipe, o.state, o.added_by
+        o.id,
+        printable(&o.recipe),
+        o.state,
+        printable(&o.added_by)
     );
     if let Some(r) = &o.result {
-        line.push_str(&format!("  ({r})"));
+        line.push_str(&format!("  ({})", printable(r)));
     }
     line
 }
 
+/// One journal entry as a line: its text and its author escaped, so that
+/// neither a newline nor a terminal escape in them reaches the terminal.
 fn show_entry(e: &Entry) -> String {
     let order = e.order.map(|o| format!(" #{o}")).unwrap_or_default();
     format!(
         "{} {:<8}{order} {}: {}",
         time_of_day_ms(e.at_ms),
         e.kind.as_str(),
-        e.who,
-        e.text
+        printable(&e.who),
+        printable(&e.text)
     )
 }
 
@@ -292,12 +298,13 @@ pub fn show_alarm(a: &Alarm) -> String {
         None => a.state().to_string(),
     };
     format!(
-        "#{:<3} {} {:<13} {:<10} {}{order}  [{state}]",
+        "#{:<3} {} {:<13} {:<10} {}{order}  [{}]",
         a.id,
         time_of_day_ms(a.raised_ms),
         a.class.as_str(),
-        a.station,
-        a.text
+        printable(&a.station),
+        printable(&a.text),
+        printable(&state)
     )
 }
 
@@ -360,7 +367,7 @@ fn show_status(s: &CellStatus) -> String {
         )
     });
     if let Some(a) = &s.alarm {
-        out.push(format!("ALARM: {a}  (falc ack)"));
+        out.push(format!("ALARM: {}  (falc ack)", printable(a)));
     }
     let others = s
         .alarms
@@ -372,7 +379,7 @@ fn show_status(s: &CellStatus) -> String {
     if let Some(q) = &s.question {
         out.push(format!(
             "QUESTION: {}  (falc answer …)",
-            q.replace('\n', " / ")
+            printable(&q.replace('\n', " / "))
         ));
     }
     if s.shutdown_pending {
@@ -568,7 +575,7 @@ async fn view(
 
 /// Says why and exits 1.
 fn refuse(why: &str) -> ExitCode {
-    eprintln!("falc: {why}");
+    eprintln!("falc: {}", printable(why));
     ExitCode::FAILURE
 }
 
@@ -576,7 +583,7 @@ fn refuse(why: &str) -> ExitCode {
 /// it, 2 if the operator node could not be reached (or the router refused
 /// the call: zenoh cannot tell them apart).
 pub fn fail(why: &CallError) -> ExitCode {
-    eprintln!("falc: {why}");
+    eprintln!("falc: {}", printable(&why.to_string()));
     match why {
         CallError::Refused(_) => ExitCode::FAILURE,
         CallError::NoReply(_) => ExitCode::from(2),

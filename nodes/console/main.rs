@@ -45,8 +45,17 @@ enum Command {
 macro_rules! out {
     ($($arg:tt)*) => {{
         use std::io::Write as _;
+        // The last guard of the terminal: whatever a field brought, no
+        // control character but the line breaks the console itself makes
+        // reaches it (the fields are escaped with `printable` already).
+        let text = format!($($arg)*);
+        let text: String = text
+            .split('\n')
+            .map(|line| falc_model::ids::printable(line).into_owned())
+            .collect::<Vec<_>>()
+            .join("\n");
         let mut stdout = std::io::stdout().lock();
-        if let Err(e) = writeln!(stdout, $($arg)*).and_then(|()| stdout.flush()) {
+        if let Err(e) = writeln!(stdout, "{text}").and_then(|()| stdout.flush()) {
             if e.kind() == std::io::ErrorKind::BrokenPipe {
                 std::process::exit(0);
             }

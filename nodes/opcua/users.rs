@@ -206,13 +206,16 @@ impl AuthManager for Users {
                 Ok(UserToken(u.name.clone()))
             }
             _ => {
+                // A stranger's text: quoted short and escaped wherever it
+                // is logged (here, and by async-opcua with the error).
+                let quoted = falc_model::ids::excerpt(username);
                 tracing::warn!(
-                    user = username,
+                    user = %quoted,
                     "OPC UA login refused: unknown user or wrong password"
                 );
                 Err(Error::new(
                     StatusCode::BadUserAccessDenied,
-                    format!("cannot authenticate \"{username}\""),
+                    format!("cannot authenticate \"{quoted}\""),
                 ))
             }
         }
@@ -421,6 +424,19 @@ role = "operator"
             .authenticate_username_identity_token(&endpoint, "scada", &Password::new(String::new()))
             .await
             .is_err());
+        // A stranger's user name with a line of its own in it: refused,
+        // and the refusal quotes it escaped and short.
+        let forged = format!(
+            "x\n2026-01-01T00:00:00Z  INFO falc_opcua: forged{}",
+            "y".repeat(500)
+        );
+        let e = users
+            .authenticate_username_identity_token(&endpoint, &forged, &Password::new("p".into()))
+            .await
+            .expect_err("unknown user");
+        let text = format!("{e:?}");
+        assert!(!text.contains('\n') && text.contains(r"x\\n2026"), "{text}");
+        assert!(text.len() < 300, "{text}");
         let kinds: Vec<_> = users
             .user_token_policies(&endpoint)
             .into_iter()

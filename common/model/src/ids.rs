@@ -31,6 +31,25 @@ pub fn excerpt(text: &str) -> String {
     }
 }
 
+/// `text` with every control character escaped (`\u{1b}`, `\n`, …) and
+/// everything else as it is: how a text someone else wrote (a journal
+/// entry, a recipe's output, a user name) is printed to a terminal or a
+/// log, so that it can neither drive the terminal nor forge a line.
+pub fn printable(text: &str) -> std::borrow::Cow<'_, str> {
+    if !text.chars().any(char::is_control) {
+        return std::borrow::Cow::Borrowed(text);
+    }
+    let mut out = String::with_capacity(text.len() + 8);
+    for c in text.chars() {
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    std::borrow::Cow::Owned(out)
+}
+
 /// Why a name was refused.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum NameError {
@@ -369,5 +388,15 @@ mod number_tests {
         );
         assert_eq!(PlcStation::new(0), None);
         assert_eq!(PlcStation::MAX.to_string(), "3");
+    }
+
+    #[test]
+    fn printable_escapes_control_characters_only() {
+        assert_eq!(printable("staat blok 1 ë ?"), "staat blok 1 ë ?");
+        assert_eq!(
+            printable("B\n\u{1b}]0;owned\u{7}\u{1b}[2J"),
+            "B\\n\\u{1b}]0;owned\\u{7}\\u{1b}[2J"
+        );
+        assert!(!printable("\r\t\u{0}").chars().any(char::is_control));
     }
 }
