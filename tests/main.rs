@@ -15,6 +15,7 @@ mod hierarchy;
 mod hosts;
 mod launch;
 mod limits;
+mod lost;
 mod modes;
 mod opcua;
 mod operator;

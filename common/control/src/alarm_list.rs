@@ -57,6 +57,20 @@ pub fn condition_holds(alarm: &Alarm, status: Option<&VmdStatus>, present: bool)
     }
 }
 
+/// Whether `text` says that `station` cannot be reached ("no connection
+/// with station WELDING", also inside a passed-on alarm), not another
+/// station whose name begins the same.
+pub fn names_lost(text: &str, station: &str) -> bool {
+    let text = text.to_lowercase();
+    let needle = format!("no connection with station {}", station.to_lowercase());
+    text.match_indices(&needle).any(|(at, _)| {
+        !text[at + needle.len()..]
+            .chars()
+            .next()
+            .is_some_and(|c| c.is_alphanumeric() || c == '_' || c == '-')
+    })
+}
+
 impl AlarmList {
     /// The list as the database holds it.
     pub fn load<R: Records>(db: &R) -> Result<Self, R::Error> {
@@ -174,6 +188,19 @@ impl AlarmList {
     ) -> (Vec<Alarm>, Option<R::Error>) {
         self.clear_where(db, |a| {
             a.station == station && !condition_holds(a, status, present)
+        })
+    }
+
+    /// Clears the communication alarms that say `station` cannot be
+    /// reached, whoever raised them (the operator, or the cell passing its
+    /// lost workstation on): the station is back on the bus.
+    pub fn settle_reached<R: Records>(
+        &mut self,
+        db: &mut R,
+        station: &str,
+    ) -> (Vec<Alarm>, Option<R::Error>) {
+        self.clear_where(db, |a| {
+            a.class == AlarmClass::Communication && names_lost(&a.text, station)
         })
     }
 

@@ -20,7 +20,7 @@
 use crate::alarm_list::{AlarmList, Raised};
 use crate::recipe_source::{Delivery, PutError, RecipeSet, RecipeSource};
 use crate::records::Records;
-use falc_model::alarm::AlarmClass;
+use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::console::{
     ApiReply, ApiRequest, ApiResult, CellStatus, EntryKind, ListState, Order, OrderState,
     StationView, MAX_QUEUED_ORDERS,
@@ -449,12 +449,17 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         let (cleared, error) = self
             .alarms
             .settle(&mut self.db, station.as_str(), status, present);
+        self.cleared(station.as_str(), cleared, error);
+    }
+
+    /// Says and journals the alarms cleared because of `station`.
+    fn cleared(&mut self, station: &str, cleared: Vec<Alarm>, error: Option<R::Error>) {
         for a in cleared {
             self.say(format!("EVENT alarm-cleared id={}", a.id));
             self.journal(
                 EntryKind::Report,
                 a.order,
-                station.as_str(),
+                station,
                 &format!("alarm #{} cleared: {}", a.id, a.text),
             );
         }
@@ -1080,12 +1085,24 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.pump(now);
     }
 
-    /// A station came onto (`present`) or left the bus.
+    /// A station came onto (`present`) or left the bus. A workstation lost
+    /// while no order runs (in any mode, a manual operation too) is a
+    /// communication alarm of its own; while an order runs the cell raises
+    /// it. Back on the bus, every alarm saying it cannot be reached clears.
     pub fn handle_presence(&mut self, now: Duration, station: StationName, present: bool) {
         if present {
             self.present.insert(station.clone());
+            let (cleared, error) = self.alarms.settle_reached(&mut self.db, station.as_str());
+            self.cleared(station.as_str(), cleared, error);
         } else {
             self.present.remove(&station);
+            let workstation = station != self.me
+                && station != self.cell
+                && self.topology.station(&station).is_some();
+            if workstation && self.running.is_none() {
+                let text = format!("no connection with station {station}");
+                self.raise(station.as_str(), None, AlarmClass::Communication, text);
+            }
         }
         self.settle_alarms(&station);
         self.pump(now);
@@ -2138,5 +2155,46 @@ mod tests {
             r.list.db.texts().iter().all(|t| t.len() < 200),
             "nothing of it journalled"
         );
+    }
+
+    #[test]
+    fn a_workstation_lost_while_idle_is_an_alarm_that_clears_when_it_returns() {
+        let mut r = Rig::new();
+        r.list.handle_presence(r.now, st("welding"), true);
+        r.list.handle_presence(r.now, st("welding"), false);
+        let s = r.status();
+        let lost: Vec<_> = s
+            .alarms
+            .iter()
+            .filter(|a| a.station == "welding" && a.class == AlarmClass::Communication)
+            .collect();
+        assert_eq!(lost.len(), 1, "{:?}", s.alarms);
+        assert_eq!(lost[0].text, "no connection with station welding");
+        assert_eq!(s.list, ListState::Alarm, "start waits for the ack");
+        // The cell passing the same loss on, still listed: both clear when
+        // welding is back; a station named alike is not welding.
+        r.list.handle_publication(
+            r.now,
+            Unconfirmed::Report {
+                station: st("cell"),
+                severity: Severity::Alarm(AlarmClass::Communication),
+                text: "alarm in state 13: no connection with station WELDING".into(),
+            },
+        );
+        r.list.handle_presence(r.now, st("welding2"), true);
+        assert!(r.status().alarms.iter().all(|a| a.cleared_ms.is_none()));
+        r.list.handle_presence(r.now, st("welding"), true);
+        let s = r.status();
+        assert_eq!(s.alarms.len(), 2, "{:?}", s.alarms);
+        assert!(
+            s.alarms.iter().all(|a| a.cleared_ms.is_some()),
+            "{:?}",
+            s.alarms
+        );
+        assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+        assert!(r.status().alarms.is_empty(), "acknowledged and cleared");
+        // The cell is no workstation: its loss is the association's alarm.
+        r.list.handle_presence(r.now, st("cell"), false);
+        assert!(r.status().alarms.is_empty());
     }
 }

@@ -1,0 +1,113 @@
+//! A workstation lost while no order runs (issue 27, B17 and B18), on the
+//! whole cell through the CLI: SIGKILL of the transport workstation in
+//! auto mode with the list idle, and of the welding workstation in
+//! maintenance mode, are each a communication alarm naming the station;
+//! the alarm clears by itself when the station is back on the bus (no
+//! `start` needed), and `ack` + `start` run the next order to done. A
+//! workstation lost mid-order: the cell's "no connection with station"
+//! alarm clears when the station returns, not at the next start.
+
+use crate::support::rig::{rig, Rig};
+use falc_model::alarm::AlarmClass;
+use falc_model::console::OrderState;
+use std::time::{Duration, Instant};
+
+/// Waits until `falc status` lists an alarm of `station` that `done`
+/// accepts; that alarm's text.
+fn alarm_of(rig: &Rig, station: &str, done: impl Fn(&falc_model::alarm::Alarm) -> bool) -> String {
+    let end = Instant::now() + Duration::from_secs(10);
+    loop {
+        let s = rig.status();
+        if let Some(a) = s.alarms.iter().find(|a| a.station == station && done(a)) {
+            return a.text.clone();
+        }
+        assert!(
+            Instant::now() < end,
+            "no such alarm of {station}: {:?}",
+            s.alarms
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn a_workstation_lost_while_idle_is_an_alarm_cleared_by_its_return() {
+    let mut rig = rig("20");
+    // Auto mode, the list idle: transport dies.
+    if let Some(t) = rig.transport.as_mut() {
+        t.kill();
+    }
+    let text = alarm_of(&rig, "transport", |a| {
+        a.class == AlarmClass::Communication && a.cleared_ms.is_none()
+    });
+    assert_eq!(text, "no connection with station transport");
+    let (code, out) = rig.cell.falc_as("console", &["start"]);
+    assert_eq!(code, 1, "start waits for the acknowledgement: {out}");
+    rig.start_transport();
+    alarm_of(&rig, "transport", |a| a.cleared_ms.is_some());
+
+    // Maintenance mode: welding dies, then returns.
+    rig.cell.falc(&["mode", "maintenance"]);
+    if let Some(w) = rig.welding.as_mut() {
+        w.kill();
+    }
+    alarm_of(&rig, "welding", |a| {
+        a.text == "no connection with station welding" && a.cleared_ms.is_none()
+    });
+    rig.start_welding();
+    alarm_of(&rig, "welding", |a| a.cleared_ms.is_some());
+    rig.cell.falc(&["mode", "auto"]);
+
+    // The way back: ack, start, the next order done.
+    rig.cell.falc(&["ack"]);
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(120));
+    let orders = rig.orders();
+    assert_eq!(
+        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
+        [OrderState::Done],
+        "{orders:?}"
+    );
+    assert!(rig.status().alarms.is_empty(), "{:?}", rig.status().alarms);
+}
+
+#[test]
+fn the_cells_no_connection_alarm_clears_when_the_station_returns() {
+    let mut rig = rig("20");
+    rig.start_list_until_welding(&["dikdroog", "dundroog"]);
+    if let Some(w) = rig.welding.as_mut() {
+        w.kill();
+    }
+    let lost = |a: &falc_model::alarm::Alarm| {
+        a.class == AlarmClass::Communication
+            && a.text
+                .to_lowercase()
+                .contains("no connection with station welding")
+    };
+    let end = Instant::now() + Duration::from_secs(10);
+    while !rig.status().alarms.iter().any(|a| lost(a)) {
+        assert!(Instant::now() < end, "{:?}", rig.status().alarms);
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    rig.start_welding();
+    // Cleared by the return itself, before any start.
+    let end = Instant::now() + Duration::from_secs(10);
+    loop {
+        let s = rig.status();
+        let named: Vec<_> = s.alarms.iter().filter(|a| lost(a)).collect();
+        if !named.is_empty() && named.iter().all(|a| a.cleared_ms.is_some()) {
+            break;
+        }
+        assert!(
+            Instant::now() < end,
+            "not cleared by the return: {:?}",
+            s.alarms
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    rig.way_back();
+    let orders = rig.orders();
+    assert_eq!(orders[0].state, OrderState::Failed, "{orders:?}");
+    assert_eq!(orders[1].state, OrderState::Done, "{orders:?}");
+}
