@@ -159,3 +159,56 @@ fn a_recipes_terminal_escapes_reach_no_terminal() {
     let json = rig.cell.falc(&["--json", "messages"]);
     assert!(json.contains("\\u001b[31mred"), "{json}");
 }
+
+#[test]
+fn what_the_cell_may_show_and_ask_the_operator_is_bounded() {
+    use falc_model::mms::pdu::Request;
+    let rig = rig("20");
+    // A session with the cell's credentials, as a cell gone wrong would.
+    let rt = tokio::runtime::Runtime::new().expect("runtime");
+    let operator = crate::support::st("operator");
+    let refused = rt.block_on(async {
+        let bus = rig.cell.bus("cell").await.expect("a cell session");
+        let mut refused = Vec::new();
+        for request in [
+            Request::Output {
+                lines: vec!["x".repeat(1_000_000)],
+            },
+            Request::Output {
+                lines: vec!["y".into(); 20_000],
+            },
+            Request::Input {
+                prompt: "z".repeat(100_000),
+                timeout_s: Some(1),
+            },
+        ] {
+            let r = bus
+                .request(&operator, &request, falc_bus::DEFAULT_DEADLINE)
+                .await;
+            refused.push(r);
+        }
+        let _ = bus.session().close().await;
+        refused
+    });
+    for r in &refused {
+        let Err(e) = r else { panic!("accepted: {r:?}") };
+        assert!(e.to_string().len() < SHORT, "{e}");
+    }
+    let status = rig.cell.falc(&["--json", "status"]);
+    assert!(
+        status.len() < 10_000,
+        "status stays small: {} bytes",
+        status.len()
+    );
+    let journal = rig.cell.falc(&["journal"]);
+    assert!(
+        journal.len() < 10_000,
+        "nothing of it journalled: {} bytes",
+        journal.len()
+    );
+    // The cell itself runs an order as before.
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(120));
+    assert_eq!(rig.orders().last().map(|o| o.state), Some(OrderState::Done));
+}

@@ -23,7 +23,7 @@ use crate::records::Records;
 use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::console::{
     ApiReply, ApiRequest, ApiResult, CellStatus, EntryKind, ListState, Order, OrderState,
-    StationView, MAX_QUEUED_ORDERS,
+    StationView, MAX_OUTPUT_CHARS, MAX_OUTPUT_LINES, MAX_QUEUED_ORDERS, QUESTION_WINDOW_LINES,
 };
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::domain::content_hash;
@@ -1218,12 +1218,24 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     pub fn handle_cell_request(&mut self, now: Duration, ticket: Ticket, request: Request) {
         let cell = self.cell.to_string();
         let order = self.order_of_message(now);
+        if let Some(e) = too_long_for_the_operator(&request) {
+            self.out.push_back(Output::Respond {
+                ticket,
+                result: Err(e),
+            });
+            self.pump(now);
+            return;
+        }
         match request {
             Request::Output { lines } => {
                 for l in &lines {
                     self.journal(EntryKind::Message, order, &cell, l);
                 }
                 self.shown.extend(lines);
+                // The window that goes with the next question; the journal
+                // has every line.
+                let over = self.shown.len().saturating_sub(QUESTION_WINDOW_LINES);
+                self.shown.drain(..over);
                 self.out.push_back(Output::Respond {
                     ticket,
                     result: Ok(Response::Done),
@@ -1555,6 +1567,32 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             lines.join("; ")
         )))
     }
+}
+
+/// The refusal of an operator communication that carries more than an
+/// operator can read ([`MAX_OUTPUT_LINES`] lines of [`MAX_OUTPUT_CHARS`]
+/// characters), before any of it is journalled or shown.
+fn too_long_for_the_operator(request: &Request) -> Option<ServiceError> {
+    let too_long = |text: &str| text.chars().count() > MAX_OUTPUT_CHARS;
+    let why = match request {
+        Request::Output { lines } if lines.len() > MAX_OUTPUT_LINES => format!(
+            "an output of {} lines; the operator takes at most {MAX_OUTPUT_LINES} at once",
+            lines.len()
+        ),
+        Request::Output { lines } => match lines.iter().find(|l| too_long(l)) {
+            Some(l) => format!(
+                "an output line `{}`; the operator takes lines of at most {MAX_OUTPUT_CHARS} characters",
+                falc_model::ids::excerpt(l)
+            ),
+            None => return None,
+        },
+        Request::Input { prompt, .. } if too_long(prompt) => format!(
+            "a question `{}`; the operator takes questions of at most {MAX_OUTPUT_CHARS} characters",
+            falc_model::ids::excerpt(prompt)
+        ),
+        _ => return None,
+    };
+    Some(ServiceError::undefined(why))
 }
 
 #[cfg(test)]
@@ -2196,5 +2234,62 @@ mod tests {
         // The cell is no workstation: its loss is the association's alarm.
         r.list.handle_presence(r.now, st("cell"), false);
         assert!(r.status().alarms.is_empty());
+    }
+
+    #[test]
+    fn what_the_cell_shows_and_asks_is_bounded() {
+        let mut r = Rig::new();
+        r.add(1);
+        assert!(r.start().is_ok());
+        let mut output = |r: &mut Rig, lines: Vec<String>| {
+            let t = r.ticket();
+            r.list
+                .handle_cell_request(r.now, t, Request::Output { lines });
+            r.outputs().into_iter().find_map(|o| match o {
+                Output::Respond { ticket, result } if ticket == t => Some(result),
+                _ => None,
+            })
+        };
+        let many = output(&mut r, vec!["x".into(); MAX_OUTPUT_LINES + 1]);
+        assert!(
+            matches!(&many, Some(Err(e)) if e.to_string().contains("at most 100")),
+            "{many:?}"
+        );
+        let long = output(&mut r, vec!["y".repeat(MAX_OUTPUT_CHARS + 1)]);
+        let Some(Err(e)) = long else {
+            panic!("{long:?}")
+        };
+        assert!(e.to_string().len() < 300, "quoted short: {e}");
+        // 30 lines, then a question: it carries the newest 20, the
+        // journal all 30.
+        for i in 0..30 {
+            assert_eq!(
+                output(&mut r, vec![format!("line {i}")]),
+                Some(Ok(Response::Done))
+            );
+        }
+        r.question("ok?");
+        let q = r.status().question.expect("a question");
+        assert_eq!(q.lines().count(), QUESTION_WINDOW_LINES + 1, "{q}");
+        assert!(q.starts_with("line 10\n") && q.ends_with("ok?"), "{q}");
+        let journalled = r.list.db.texts();
+        assert!(
+            journalled.iter().any(|t| t.contains("line 0")),
+            "{journalled:?}"
+        );
+        let huge = r.ticket();
+        r.list.handle_cell_request(
+            r.now,
+            huge,
+            Request::Input {
+                prompt: "z".repeat(MAX_OUTPUT_CHARS + 1),
+                timeout_s: None,
+            },
+        );
+        assert!(r
+            .outputs()
+            .iter()
+            .any(|o| matches!(o, Output::Respond { ticket, result: Err(_) } if *ticket == huge)));
+        assert!(r.status().question.is_some_and(|q| q.ends_with("ok?")));
     }
 }

@@ -258,6 +258,14 @@ pub struct RecipeText {
 pub const MAX_REQUEST_BYTES: usize = MAX_RECIPE_BYTES + 4096;
 /// The longest answer to an operator question, in characters.
 pub const MAX_ANSWER_CHARS: usize = 200;
+/// The longest line the cell may show the operator (`output`), or ask
+/// (`input`), in characters; a longer one is refused.
+pub const MAX_OUTPUT_CHARS: usize = 4096;
+/// The most lines one `output` may carry.
+pub const MAX_OUTPUT_LINES: usize = 100;
+/// How many of the lines shown since the last question go with the next
+/// question into the status (all of them are in the journal).
+pub const QUESTION_WINDOW_LINES: usize = 20;
 /// How many orders may wait in the order list by default (queued, not yet
 /// run); one more is refused (`falc-operator --max-queued-orders`).
 pub const MAX_QUEUED_ORDERS: usize = 1000;
