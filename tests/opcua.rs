@@ -116,6 +116,17 @@ fn a_plant_client_browses_subscribes_and_runs_dikdroog_over_opcua() {
     );
     assert_eq!(a["alarm"], "", "nothing holds start back: {a}");
 
+    // A refused method's words are in LastRefusal as it returns.
+    let r = step(&mut c, "refusals", t);
+    for (i, name) in ["nosuch_a", "nosuch_b"].iter().enumerate() {
+        let one = &r["refusals"][i];
+        assert_eq!(one["code"], "BadInvalidArgument", "{r}");
+        assert!(
+            one["last"].as_str().is_some_and(|l| l.contains(name)),
+            "LastRefusal names {name} at once: {r}"
+        );
+    }
+
     // The way back: an order through the methods, to done.
     let added = step(&mut c, "added", t);
     let order = added["order"].as_str().expect("order id").to_string();

@@ -246,14 +246,26 @@ async def scenario(url, creds: Path, work: Path):
     await asyncio.sleep(0.5)
     say(step="acknowledged", reply=reply, event=acked, alarm=await node("FALC.Alarm").read_value())
 
-    # 5. The way back: AddOrder, Start, Answer, done, back to Idle.
+    # 5. A refused method's words are in LastRefusal when it returns: read
+    # at once, each time the newest refusal's.
+    refusals = []
+    for name in ["nosuch_a", "nosuch_b"]:
+        try:
+            await falc.call_method(f"{ns}:AddOrder", ua.Variant(name, ua.VariantType.String))
+            code = None
+        except ua.UaStatusCodeError as e:
+            code = type(e).__name__
+        refusals.append({"code": code, "last": await node("FALC.LastRefusal").read_value()})
+    say(step="refusals", refusals=refusals)
+
+    # 6. The way back: AddOrder, Start, Answer, done, back to Idle.
     await run_order(falc, ns, changes, seen)
     journal = await node("FALC.Journal.Texts").read_value()
     who = await node("FALC.Journal.Who").read_value()
     say(step="journal", texts=journal, who=who, events=changes.events)
     await c.disconnect()
 
-    # 6. The observer reads but may not Start.
+    # 7. The observer reads but may not Start.
     o = await connect(url, work, "observer", pw["observer"])
     ns = await o.get_namespace_index("urn:falc:falc1")
     falc = await o.nodes.objects.get_child([f"{ns}:FALC"])
@@ -274,7 +286,7 @@ async def scenario(url, creds: Path, work: Path):
         start_refused=refused, write_refused=wrote)
     await o.disconnect()
 
-    # 7. A wrong password, and no user at all, are refused.
+    # 8. A wrong password, and no user at all, are refused.
     for user, password, what in [("console", "wrong", "wrong_password"), (None, None, "anonymous")]:
         try:
             x = await client(url, work, user, password)

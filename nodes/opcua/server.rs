@@ -13,7 +13,7 @@ use falc_model::console::{ApiReply, ApiRequest};
 use falc_model::ids::StationName;
 use falc_model::topology::StationKind;
 use opcua::server::address_space::{
-    AddressSpace, EventNotifier, MethodBuilder, ObjectBuilder, VariableBuilder,
+    AddressSpace, EventNotifier, MethodBuilder, NodeType, ObjectBuilder, VariableBuilder,
 };
 use opcua::server::diagnostics::NamespaceMetadata;
 use opcua::server::node_manager::memory::{
@@ -23,8 +23,9 @@ use opcua::server::node_manager::{MethodCall, RequestContext, ServerContext};
 use opcua::server::{Server, ServerBuilder, ServerEndpoint, ServerHandle, SubscriptionCache};
 use opcua::sync::RwLock;
 use opcua::types::{
-    BuildInfo, ByteString, DataTypeId, DataValue, DateTime, LocalizedText, NodeId, ObjectId,
-    ObjectTypeId, QualifiedName, StatusCode, UAString, VariableTypeId, Variant,
+    AttributeId, BuildInfo, ByteString, DataTypeId, DataValue, DateTime, LocalizedText, NodeId,
+    ObjectId, ObjectTypeId, QualifiedName, StatusCode, TimestampsToReturn, UAString,
+    VariableTypeId, Variant,
 };
 use std::os::unix::fs::PermissionsExt;
 use std::path::PathBuf;
@@ -256,7 +257,7 @@ impl InMemoryNodeManagerImpl for Nodes {
     async fn call(
         &self,
         context: &RequestContext,
-        _space: &RwLock<AddressSpace>,
+        space_: &RwLock<AddressSpace>,
         methods: &mut [&mut &mut MethodCall],
     ) -> Result<(), StatusCode> {
         for call in methods {
@@ -265,7 +266,27 @@ impl InMemoryNodeManagerImpl for Nodes {
                 continue;
             };
             let args = call.arguments().to_vec();
-            match self.call_one(&context.token, m, &args).await {
+            let result = self.call_one(&context.token, m, &args).await;
+            if result.is_err() {
+                // `LastRefusal` says why before the method returns, so a
+                // client reading it at once reads this refusal's words.
+                let why = self
+                    .last_refusal
+                    .lock()
+                    .map(|w| w.clone())
+                    .unwrap_or_default();
+                let id = format!("{}.LastRefusal", space::ROOT);
+                let ns = self.namespace.namespace_index;
+                if !write_values(
+                    space_,
+                    &context.subscriptions,
+                    ns,
+                    &[(id, Value::Text(why))],
+                ) {
+                    tracing::warn!("OPC UA: LastRefusal not written");
+                }
+            }
+            match result {
                 Ok(text) => {
                     call.set_outputs(vec![Variant::from(text.as_str())]);
                     call.set_status(StatusCode::Good);
@@ -275,6 +296,52 @@ impl InMemoryNodeManagerImpl for Nodes {
         }
         Ok(())
     }
+}
+
+/// Writes values of our namespace `ns` into the address space and
+/// notifies their subscribers: the look loop's changes, and a method's
+/// refusal before the method returns. False if a node is missing or not a
+/// variable (nothing after it is written).
+fn write_values(
+    space_: &RwLock<AddressSpace>,
+    subscriptions: &SubscriptionCache,
+    ns: u16,
+    changes: &[(String, Value)],
+) -> bool {
+    let now = DateTime::now();
+    let mut space_ = space_.write();
+    let mut written = Vec::new();
+    for (id, value) in changes {
+        let id = node(ns, id);
+        match space_.find_mut(&id) {
+            Some(NodeType::Variable(v)) => {
+                v.set_data_value(DataValue {
+                    value: Some(variant(value)),
+                    status: Some(StatusCode::Good),
+                    source_timestamp: Some(now),
+                    server_timestamp: Some(now),
+                    ..DataValue::null()
+                });
+                written.push((id, AttributeId::Value));
+            }
+            _ => {
+                tracing::warn!("OPC UA value not set: no variable {id}");
+                return false;
+            }
+        }
+    }
+    subscriptions.maybe_notify(
+        written.iter().map(|(id, a)| (id, *a)),
+        |id, attribute, range, encoding| {
+            space_.find(id)?.as_node().get_attribute(
+                TimestampsToReturn::Both,
+                attribute,
+                range,
+                encoding,
+            )
+        },
+    );
+    true
 }
 
 /// What the poll loop needs of the running server.
@@ -309,25 +376,12 @@ impl Running {
     /// Writes changed values; subscribers are notified. False if they
     /// could not be written (then all are written again next time).
     pub fn set(&self, changes: &[(String, Value)]) -> bool {
-        let now = DateTime::now();
-        let ids: Vec<NodeId> = changes.iter().map(|(id, _)| node(self.ns, id)).collect();
-        let values = changes.iter().zip(&ids).map(|((_, v), id)| {
-            let dv = DataValue {
-                value: Some(variant(v)),
-                status: Some(StatusCode::Good),
-                source_timestamp: Some(now),
-                server_timestamp: Some(now),
-                ..DataValue::null()
-            };
-            (id, None, dv)
-        });
-        match self.nodes.set_values(self.subscriptions(), values) {
-            Ok(()) => true,
-            Err(e) => {
-                tracing::warn!("OPC UA values not set: {e}");
-                false
-            }
-        }
+        write_values(
+            self.nodes.address_space(),
+            self.subscriptions(),
+            self.ns,
+            changes,
+        )
     }
 
     /// Raises alarm events on the cell object (and the Server object, where

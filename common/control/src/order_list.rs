@@ -2241,7 +2241,7 @@ mod tests {
         let mut r = Rig::new();
         r.add(1);
         assert!(r.start().is_ok());
-        let mut output = |r: &mut Rig, lines: Vec<String>| {
+        let output = |r: &mut Rig, lines: Vec<String>| {
             let t = r.ticket();
             r.list
                 .handle_cell_request(r.now, t, Request::Output { lines });
