@@ -16,6 +16,7 @@ mod hosts;
 mod launch;
 mod limits;
 mod lost;
+mod manual;
 mod modes;
 mod opcua;
 mod operator;

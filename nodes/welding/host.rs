@@ -69,6 +69,9 @@ pub struct Host {
     mode: Option<Mode>,
     /// The RCM's last alarm message (what a maintainer confirms).
     last_alarm: Option<u16>,
+    /// A maintainer started the robot's program by hand: it is theirs,
+    /// not an orphan to stop, until it ends, is stopped, or a job starts.
+    by_hand: bool,
 }
 
 fn word(state: ProgramState) -> &'static str {
@@ -97,6 +100,7 @@ impl Host {
             suspect: None,
             mode: None,
             last_alarm: None,
+            by_hand: false,
         }
     }
 
@@ -106,7 +110,7 @@ impl Host {
         if !self.open {
             return Err(format!("the DNC line {} is not open", self.line));
         }
-        Ok(match action {
+        let done = match action {
             ManualAction::SelectProgram(n) => {
                 let p = RobotProgram::new(*n)
                     .ok_or_else(|| format!("{n} is not a robot program number (1–999)"))?;
@@ -128,7 +132,13 @@ impl Host {
                 )
             }
             other => return Err(format!("a welding station cannot {other}")),
-        })
+        };
+        match action {
+            ManualAction::StartProgram => self.by_hand = true,
+            ManualAction::StopProgram => self.by_hand = false,
+            _ => {}
+        }
+        Ok(done)
     }
 
     /// Whether the line is open and the RCM answered since it was
@@ -196,6 +206,7 @@ impl Host {
     /// The engine wants robot program `program` started.
     pub fn start(&mut self, program: RobotProgram) -> Vec<Out> {
         self.pending = Some(Pending::Select(program));
+        self.by_hand = false;
         vec![Out::Telegram(Telegram::SelectProgram(program))]
     }
 
@@ -278,7 +289,8 @@ impl Host {
         let active = matches!(state, ProgramState::Running | ProgramState::Paused);
         let acts = match self.running {
             Some(p) => self.pending.is_none() && !(program == Some(p) && active),
-            None => active && self.pending.is_none(),
+            // A program a maintainer started runs as theirs.
+            None => active && self.pending.is_none() && !self.by_hand,
         };
         if !acts {
             self.suspect = None;
@@ -369,6 +381,7 @@ impl Host {
             (Telegram::Ack { .. }, _) => Vec::new(),
             (Telegram::ProgramEnd { result, .. }, _) => {
                 self.running = None;
+                self.by_hand = false;
                 let end = match result {
                     EndResult::Complete => JobEnd::Done,
                     EndResult::WeldAborted => JobEnd::BadProduct,
@@ -415,6 +428,7 @@ impl Host {
                     // The program stopped with the alarm.
                     self.running = None;
                     self.pending = None;
+                    self.by_hand = false;
                 }
                 out
             }
@@ -797,6 +811,36 @@ mod tests {
         assert_eq!(
             h.handle_timeout(s(3000)),
             vec![Out::Telegram(Telegram::StatusRequest)]
+        );
+    }
+
+    #[test]
+    fn a_program_a_maintainer_started_is_theirs_not_an_orphan() {
+        let mut h = Host::new("/dev/ttyS0");
+        h.connected(s(0));
+        h.telegram(s(10), status(None, ProgramState::Idle));
+        h.manual(&ManualAction::SelectProgram(65)).unwrap();
+        h.manual(&ManualAction::StartProgram).unwrap();
+        for at in [30, 60, 90] {
+            let out = h.telegram(s(at), status(Some(p65()), ProgramState::Running));
+            assert!(
+                !out.contains(&Out::Telegram(Telegram::StopProgram)),
+                "a program started by hand is left running: {out:?}"
+            );
+        }
+        // Once it ended, a program running with no job is an orphan again.
+        h.telegram(
+            s(100),
+            Telegram::ProgramEnd {
+                program: p65(),
+                result: EndResult::Complete,
+            },
+        );
+        h.telegram(s(130), status(Some(p65()), ProgramState::Running));
+        let out = h.telegram(s(160), status(Some(p65()), ProgramState::Running));
+        assert!(
+            out.contains(&Out::Telegram(Telegram::StopProgram)),
+            "{out:?}"
         );
     }
 }
