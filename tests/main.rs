@@ -22,6 +22,7 @@ mod opcua;
 mod operator;
 mod recipes;
 mod recovery;
+mod restart;
 mod roles;
 mod secure;
 mod services;

@@ -94,7 +94,7 @@ async fn io(mut settings: PlcSettings, watch: bool) -> Result<()> {
             _ = tokio::signal::ctrl_c() => return Ok(()),
         };
         match ev {
-            Some(PlcEvent::Connected) => say(&format!("connected to {address}")),
+            Some(PlcEvent::Connected { .. }) => say(&format!("connected to {address}")),
             Some(PlcEvent::Inputs { inputs, .. }) => {
                 if let (Some(before), true) = (last, watch) {
                     let changes: Vec<String> = falc_plc::map::Inputs::changes(&before, &inputs)
@@ -168,9 +168,9 @@ async fn main() -> Result<()> {
         tokio::select! {
             ev = ws.station_recv() => if !ws.station_step(ev).await { break },
             ev = link.events.recv() => match ev {
-                Some(PlcEvent::Connected) => {
+                Some(PlcEvent::Connected { coils }) => {
                     say(&format!("EVENT plc-connected address={address}"));
-                    ws.core.device.connected();
+                    ws.core.device.connected(coils);
                 }
                 Some(PlcEvent::Inputs { inputs, commands_done }) => {
                     let was_down = ws.core.device.unavailable();

@@ -10,8 +10,15 @@
 //!
 //! The buttons' state is defined at every step (docs/plc.md's wiring guide
 //! states the same rule):
-//! - **on (re)connection** every button is released and external control
-//!   taken, in one write;
+//! - **on the first connection** of the process (a restart of the
+//!   workstation, perhaps mid-weld) the coils are read back and adopted:
+//!   what the PLC holds stays held (a workpiece stays clamped), nothing is
+//!   written but external control if it is off, until the commander says
+//!   otherwise (bumpless restart);
+//! - **on a reconnection** (the link came back) the node's own state
+//!   stands: each coil the PLC holds otherwise is written to it; where the
+//!   PLC does not read its coils back, every button is released and
+//!   external control taken, in one write;
 //! - **`activate`** always gives the PLC a rising edge: a button this node
 //!   already holds (a station button kept across an alarm, say) is
 //!   released and pressed again, so the PLC never waits for an edge that
@@ -32,7 +39,7 @@ use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
 use falc_model::mode::{CellMode, ManualAction};
 use falc_node::plc_link::{Pace, PlcCommand};
-use falc_plc::map::{Coil, Input, Inputs, SignalName};
+use falc_plc::map::{Coil, Input, Inputs, SignalName, COILS};
 use falc_recipe::check::{Button, Signal};
 use falc_recipe::engine::{Action, Event, Outcome};
 use std::time::Duration;
@@ -60,6 +67,9 @@ pub struct Plc {
     watch: Option<Watch>,
     /// Buttons this node holds pressed.
     pressed: Vec<Button>,
+    /// Whether this node's process was connected to the PLC before (its
+    /// own state of the coils stands) or not yet (the PLC's is adopted).
+    known: bool,
     /// The line last pressed by the running recipe.
     last_line: Option<char>,
     /// Whether the link polls at the busy period.
@@ -80,6 +90,7 @@ impl Plc {
             inputs_after: 0,
             watch: None,
             pressed: Vec::new(),
+            known: false,
             last_line: None,
             busy: false,
             manual_line: None,
@@ -120,16 +131,45 @@ impl Plc {
         self.send(PlcCommand::Write(Coil::Button(b), value));
     }
 
-    /// (Re)connected: the coils' state is unknown, so every button is
-    /// released and external control taken, in one write.
-    pub fn connected(&mut self) {
+    /// (Re)connected, with the coils the PLC holds (`held`, read back):
+    /// adopted on the process's first connection, corrected to this node's
+    /// own state on a later one; unknown, every button is released and
+    /// external control taken, in one write.
+    pub fn connected(&mut self, held: Option<[bool; COILS as usize]>) {
         self.down = None;
-        self.pressed.clear();
-        let mut all = [false; falc_plc::map::COILS as usize];
-        if let Some(o) = Coil::ExternalControl.offset() {
-            all[usize::from(o)] = true;
+        let first = !self.known;
+        self.known = true;
+        let Some(held) = held else {
+            self.pressed.clear();
+            let mut all = [false; COILS as usize];
+            if let Some(o) = Coil::ExternalControl.offset() {
+                all[usize::from(o)] = true;
+            }
+            self.send(PlcCommand::WriteAll(all));
+            return;
+        };
+        let on = |c: Coil| c.offset().is_some_and(|o| held[usize::from(o)]);
+        if first {
+            self.pressed = (0..COILS)
+                .filter_map(Coil::at)
+                .filter_map(|c| match c {
+                    Coil::Button(b) if on(c) => Some(b),
+                    _ => None,
+                })
+                .collect();
+        } else {
+            for coil in (0..COILS).filter_map(Coil::at) {
+                if let Coil::Button(b) = coil {
+                    let want = self.pressed.contains(&b);
+                    if on(coil) != want {
+                        self.send(PlcCommand::Write(coil, want));
+                    }
+                }
+            }
         }
-        self.send(PlcCommand::WriteAll(all));
+        if !on(Coil::ExternalControl) {
+            self.send(PlcCommand::Write(Coil::ExternalControl, true));
+        }
     }
 
     /// The link failed: `why` is the alarm.
@@ -441,7 +481,7 @@ mod tests {
             p.manual(Duration::ZERO, &press("A")).is_err(),
             "not connected"
         );
-        p.connected();
+        p.connected(None);
         p.inputs(ready(), 1);
         drain(&mut rx);
         assert_eq!(
@@ -486,7 +526,7 @@ mod tests {
     fn unavailable_until_connected_and_read_and_while_estop() {
         let (mut p, mut rx) = plc();
         assert!(p.unavailable().is_some());
-        p.connected();
+        p.connected(None);
         let mut all = [false; 15];
         all[14] = true;
         assert_eq!(
@@ -523,7 +563,7 @@ mod tests {
     #[test]
     fn a_watch_only_counts_readings_taken_after_its_own_writes() {
         let (mut p, mut rx) = plc();
-        p.connected();
+        p.connected(None);
         p.inputs(ready(), 1);
         assert!(act(&mut p, 0, Action::Activate(Button::Line('D'))).is_empty());
         let mut running = ready();
@@ -549,7 +589,7 @@ mod tests {
     #[test]
     fn a_met_watch_fires_at_once() {
         let (mut p, _rx) = plc();
-        p.connected();
+        p.connected(None);
         let mut i = ready();
         i.set(Input::Signal(Signal::Place(Place::of(3))), true);
         p.inputs(i, 1);
@@ -563,7 +603,7 @@ mod tests {
     #[test]
     fn an_alarm_releases_line_buttons_but_not_station_buttons() {
         let (mut p, mut rx) = plc();
-        p.connected();
+        p.connected(None);
         p.inputs(ready(), 1);
         act(
             &mut p,
@@ -611,7 +651,7 @@ mod tests {
     #[test]
     fn activate_of_a_held_button_gives_a_rising_edge() {
         let (mut p, mut rx) = plc();
-        p.connected();
+        p.connected(None);
         p.inputs(ready(), 1);
         act(
             &mut p,
@@ -643,7 +683,7 @@ mod tests {
     #[test]
     fn timeouts_are_explained_from_the_inputs() {
         let (mut p, _rx) = plc();
-        p.connected();
+        p.connected(None);
         p.inputs(ready(), 1);
         act(&mut p, 10, Action::Activate(Button::Line('E')));
         let watch = Action::Watch {
@@ -668,5 +708,46 @@ mod tests {
         );
         act(&mut p, 70, Action::Unwatch);
         assert_eq!(p.explain_timeout(Duration::from_secs(70)), None);
+    }
+
+    #[test]
+    fn a_restarted_workstation_adopts_the_coils_and_a_reconnected_one_restores_its_own() {
+        let (mut p, mut rx) = plc();
+        let at = |c: Coil| usize::from(c.offset().expect("in the map"));
+        let station_3 = Coil::Button(Button::Station(PlcStation::of(3)));
+        let line_e = Coil::Button(Button::Line('E'));
+        // A restart mid-weld: the PLC holds station 3 and external control.
+        let mut held = [false; COILS as usize];
+        held[at(station_3)] = true;
+        held[at(Coil::ExternalControl)] = true;
+        p.connected(Some(held));
+        assert_eq!(
+            drain(&mut rx),
+            vec![],
+            "nothing written: the workpiece stays clamped"
+        );
+        assert!(p.pressed.contains(&Button::Station(PlcStation::of(3))));
+        // A fresh PLC (external control off): only that is written.
+        let (mut q, mut qx) = plc();
+        q.connected(Some([false; COILS as usize]));
+        assert_eq!(
+            drain(&mut qx),
+            vec![PlcCommand::Write(Coil::ExternalControl, true)]
+        );
+        // The link comes back later: the node's own state stands, and only
+        // what the PLC holds otherwise is written.
+        let mut back = held;
+        back[at(line_e)] = true;
+        back[at(station_3)] = false;
+        p.connected(Some(back));
+        let mut written = drain(&mut rx);
+        written.sort_by_key(|c| format!("{c:?}"));
+        assert_eq!(
+            written,
+            vec![
+                PlcCommand::Write(line_e, false),
+                PlcCommand::Write(station_3, true)
+            ]
+        );
     }
 }

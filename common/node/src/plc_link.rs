@@ -124,8 +124,13 @@ pub enum Pace {
 /// What the link reports.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum PlcEvent {
-    /// Connected (again): the coils' state in the PLC is unknown.
-    Connected,
+    /// Connected (again), with the coils the PLC holds as it reads them
+    /// back (offset order), or None if it would not say (a Modbus
+    /// exception to the read).
+    Connected {
+        /// The coils, read back.
+        coils: Option<[bool; COILS as usize]>,
+    },
     /// A reading of the inputs (sent when it differs from the last one, and
     /// after every coil write).
     Inputs {
@@ -293,6 +298,27 @@ impl Link {
         }
     }
 
+    /// The coils of the map as the PLC holds them.
+    async fn read_coils(&self, ctx: &mut Context) -> Result<[bool; COILS as usize], Failure> {
+        let base = self.s.map.coil_base;
+        let what = format!("the read of coils {base}..{}", base + COILS - 1);
+        let bits = self.call(what, ctx.read_coils(base, COILS)).await?;
+        let mut coils = [false; COILS as usize];
+        if bits.len() < coils.len() {
+            return Err(Failure {
+                why: format!(
+                    "the conveyor PLC at {} answered the read of {COILS} coils with {}",
+                    self.s.address,
+                    bits.len()
+                ),
+                connection_lost: false,
+            });
+        }
+        let n = coils.len();
+        coils.copy_from_slice(&bits[..n]);
+        Ok(coils)
+    }
+
     async fn read(&self, ctx: &mut Context) -> Result<Inputs, Failure> {
         let base = self.s.map.input_base;
         let what = format!("the read of discrete inputs {base}..{}", base + INPUTS - 1);
@@ -335,7 +361,20 @@ impl Link {
                 }
             };
             tracing::info!(address = %self.s.address, "connected to the conveyor PLC");
-            if !self.emit(PlcEvent::Connected) {
+            let coils = match self.read_coils(&mut ctx).await {
+                Ok(coils) => Some(coils),
+                Err(f) if f.connection_lost => {
+                    if !self.fault(f.why) || !self.pause(&mut rx).await {
+                        return;
+                    }
+                    continue;
+                }
+                Err(f) => {
+                    tracing::warn!("{}: the coils are taken as unknown", f.why);
+                    None
+                }
+            };
+            if !self.emit(PlcEvent::Connected { coils }) {
                 return;
             }
             self.last = None;
