@@ -14,13 +14,14 @@
 //! the source is `unreported` and the router's firewall log rule
 //! (`falc-router firewall`) names the addresses that knocked.
 //!
-//! The rate limit ([`RefusalLog`], sans-I/O with the clock passed in): in
-//! each window of [`WINDOW`] the first refusal from each source host is
-//! logged in full, for at most [`HOSTS_PER_WINDOW`] hosts; the rest are
-//! counted and summed up in one line when the window ends. So a mistyped
-//! password is one line, and 500 strangers are a handful of lines, not 500.
+//! The rate limit ([`falc_bus::log_limit::LogLimit`], keyed by source
+//! host): in each window of [`WINDOW`] the first refusal from each source
+//! host is logged in full, for at most [`HOSTS_PER_WINDOW`] hosts; the rest
+//! are counted and summed up in one line when the window ends. So a
+//! mistyped password is one line, and 500 strangers are a handful of
+//! lines, not 500.
 
-use std::collections::{HashMap, HashSet};
+use falc_bus::log_limit::{LogLimit, Report};
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
@@ -104,106 +105,6 @@ fn remote_in(message: &str) -> Option<SocketAddr> {
     })
 }
 
-/// What to log.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Report {
-    /// A refusal logged in full.
-    Refused {
-        /// The source host.
-        host: String,
-        /// The refusal.
-        refusal: Refusal,
-    },
-    /// The refusals of a window that were not logged one by one.
-    HeldBack {
-        /// How many.
-        count: u64,
-        /// From how many source hosts.
-        hosts: usize,
-        /// The host most of them came from, and its count.
-        busiest: (String, u64),
-    },
-}
-
-struct Window {
-    start: Instant,
-    logged: HashSet<String>,
-    held_back: HashMap<String, u64>,
-}
-
-/// The rate limit: refusals in, reports out.
-pub struct RefusalLog {
-    window: Duration,
-    hosts_per_window: usize,
-    current: Option<Window>,
-}
-
-impl RefusalLog {
-    /// A limit of `hosts_per_window` lines in each `window`.
-    pub fn new(window: Duration, hosts_per_window: usize) -> Self {
-        Self {
-            window,
-            hosts_per_window,
-            current: None,
-        }
-    }
-
-    /// A refusal at `now`: the summary of a window that is over, if any,
-    /// then this refusal if it is to be logged.
-    pub fn refused(&mut self, now: Instant, refusal: Refusal) -> Vec<Report> {
-        let mut out: Vec<Report> = self.poll(now).into_iter().collect();
-        let window = self.current.get_or_insert_with(|| Window {
-            start: now,
-            logged: HashSet::new(),
-            held_back: HashMap::new(),
-        });
-        let host = refusal.host();
-        if window.logged.len() < self.hosts_per_window && window.logged.insert(host.clone()) {
-            out.push(Report::Refused { host, refusal });
-        } else {
-            *window.held_back.entry(host).or_default() += 1;
-        }
-        out
-    }
-
-    /// `count` refusals whose details were lost (the queue was full).
-    pub fn lost(&mut self, now: Instant, count: u64) -> Vec<Report> {
-        let out: Vec<Report> = self.poll(now).into_iter().collect();
-        let window = self.current.get_or_insert_with(|| Window {
-            start: now,
-            logged: HashSet::new(),
-            held_back: HashMap::new(),
-        });
-        *window.held_back.entry("unknown".into()).or_default() += count;
-        out
-    }
-
-    /// Ends the window if it is over: its summary, if anything was held back.
-    pub fn poll(&mut self, now: Instant) -> Option<Report> {
-        let window = self.current.as_ref()?;
-        if now < window.start + self.window {
-            return None;
-        }
-        let window = self.current.take()?;
-        let count = window.held_back.values().sum();
-        let busiest = window
-            .held_back
-            .iter()
-            .max_by(|a, b| a.1.cmp(b.1).then_with(|| b.0.cmp(a.0)))
-            .map(|(h, n)| (h.clone(), *n))?;
-        Some(Report::HeldBack {
-            count,
-            hosts: window.held_back.len(),
-            busiest,
-        })
-    }
-
-    /// When the current window ends.
-    pub fn deadline(&self) -> Option<Instant> {
-        self.current.as_ref().map(|w| w.start + self.window)
-    }
-}
-
 /// Refusals as zenoh reported them, for [`report`].
 pub struct Refusals {
     rx: Receiver<Refusal>,
@@ -271,17 +172,17 @@ where
     (layer, Refusals { rx, lost })
 }
 
-/// Logs refused logins at WARN, rate-limited by [`RefusalLog`], until the
+/// Logs refused logins at WARN, rate-limited by [`LogLimit`], until the
 /// layer is gone.
 pub async fn report(mut refusals: Refusals) {
-    let mut log = RefusalLog::new(WINDOW, HOSTS_PER_WINDOW);
+    let mut log = LogLimit::new(WINDOW, HOSTS_PER_WINDOW);
     loop {
         let deadline = log.deadline().map(tokio::time::Instant::from_std);
         let reports = tokio::select! {
             next = refusals.rx.recv() => match next {
                 Some(refusal) => {
                     let now = Instant::now();
-                    let mut out = log.refused(now, refusal);
+                    let mut out = log.offer(now, refusal.host(), refusal);
                     let lost = refusals.lost.swap(0, Ordering::Relaxed);
                     if lost > 0 {
                         out.extend(log.lost(now, lost));
@@ -305,16 +206,22 @@ async fn sleep_until(deadline: Option<tokio::time::Instant>) {
     }
 }
 
-fn emit(report: &Report) {
+fn emit(report: &Report<Refusal>) {
     match report {
-        Report::Refused { host, refusal } if refusal.remote.is_none() => tracing::warn!(
+        Report::Logged {
+            source: host,
+            item: refusal,
+        } if refusal.remote.is_none() => tracing::warn!(
             target: "falc_router::logins",
             source = %host,
             "refused login (zenoh names no source address, zenoh#2712; the firewall's log \
              rule does): {}",
             refusal.reason
         ),
-        Report::Refused { host, refusal } => tracing::warn!(
+        Report::Logged {
+            source: host,
+            item: refusal,
+        } => tracing::warn!(
             target: "falc_router::logins",
             source = %host,
             "refused login from {host}: {}",
@@ -322,7 +229,7 @@ fn emit(report: &Report) {
         ),
         Report::HeldBack {
             count,
-            hosts,
+            sources: hosts,
             busiest: (busiest, most),
         } => tracing::warn!(
             target: "falc_router::logins",
@@ -368,16 +275,6 @@ mod tests {
             remote: remote_in(&format!("=> {remote}")),
             reason: "UsrPwd extension - Recv OpenSyn. Invalid password.".into(),
         }
-    }
-
-    fn logged(reports: &[Report]) -> Vec<String> {
-        reports
-            .iter()
-            .filter_map(|r| match r {
-                Report::Refused { host, .. } => Some(host.clone()),
-                Report::HeldBack { .. } => None,
-            })
-            .collect()
     }
 
     #[test]
@@ -427,87 +324,6 @@ mod tests {
         )
         .expect("a broken handshake");
         assert_eq!(debug.host(), "10.0.0.8");
-    }
-
-    #[test]
-    fn one_line_per_host_per_window_then_a_summary() {
-        let t0 = Instant::now();
-        let mut log = RefusalLog::new(Duration::from_secs(10), 3);
-        let first = log.refused(t0, refusal("127.0.0.1:1000"));
-        assert_eq!(logged(&first), ["127.0.0.1"]);
-        for i in 1..500u64 {
-            let r = log.refused(
-                t0 + Duration::from_millis(i),
-                refusal(&format!("127.0.0.1:{}", 1000 + i)),
-            );
-            assert!(r.is_empty(), "refusal {i}: {r:?}");
-        }
-        assert_eq!(log.poll(t0 + Duration::from_secs(9)), None);
-        assert_eq!(log.deadline(), Some(t0 + Duration::from_secs(10)));
-        assert_eq!(
-            log.poll(t0 + Duration::from_secs(10)),
-            Some(Report::HeldBack {
-                count: 499,
-                hosts: 1,
-                busiest: ("127.0.0.1".into(), 499)
-            })
-        );
-        assert_eq!(log.deadline(), None, "the window is over");
-        // The next window logs the host again.
-        let again = log.refused(t0 + Duration::from_secs(11), refusal("127.0.0.1:2"));
-        assert_eq!(logged(&again), ["127.0.0.1"]);
-    }
-
-    #[test]
-    fn many_hosts_get_at_most_the_limit_of_lines() {
-        let t0 = Instant::now();
-        let mut log = RefusalLog::new(Duration::from_secs(10), 3);
-        let mut lines = Vec::new();
-        for i in 1..=20 {
-            lines.extend(logged(&log.refused(t0, refusal(&format!("10.0.0.{i}:5")))));
-        }
-        lines.extend(logged(&log.refused(t0, refusal("10.0.0.20:6"))));
-        assert_eq!(lines, ["10.0.0.1", "10.0.0.2", "10.0.0.3"]);
-        // A window that is over is summed up by the next refusal too.
-        let next = log.refused(t0 + Duration::from_secs(10), refusal("10.0.0.9:5"));
-        assert_eq!(
-            next,
-            vec![
-                Report::HeldBack {
-                    count: 18,
-                    hosts: 17,
-                    busiest: ("10.0.0.20".into(), 2)
-                },
-                Report::Refused {
-                    host: "10.0.0.9".into(),
-                    refusal: refusal("10.0.0.9:5")
-                }
-            ]
-        );
-    }
-
-    #[test]
-    fn a_window_with_nothing_held_back_ends_silently() {
-        let t0 = Instant::now();
-        let mut log = RefusalLog::new(Duration::from_secs(10), 3);
-        assert_eq!(logged(&log.refused(t0, refusal("10.0.0.1:1"))).len(), 1);
-        assert_eq!(log.poll(t0 + Duration::from_secs(10)), None);
-        assert_eq!(log.deadline(), None);
-    }
-
-    #[test]
-    fn lost_refusals_are_counted() {
-        let t0 = Instant::now();
-        let mut log = RefusalLog::new(Duration::from_secs(10), 3);
-        assert!(log.lost(t0, 7).is_empty());
-        assert_eq!(
-            log.poll(t0 + Duration::from_secs(10)),
-            Some(Report::HeldBack {
-                count: 7,
-                hosts: 1,
-                busiest: ("unknown".into(), 7)
-            })
-        );
     }
 
     #[test]

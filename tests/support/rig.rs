@@ -216,7 +216,15 @@ impl Rig {
     pub fn start_operator_with(&mut self, args: &[&str]) {
         let mut cmd = self.operator_command();
         cmd.args(args);
-        let mut p = Proc::spawn("operator", cmd);
+        self.run_operator(Proc::spawn("operator", cmd));
+    }
+
+    /// [`Self::start_operator`] with the operator's log among its lines.
+    pub fn start_operator_logged(&mut self) {
+        self.run_operator(Proc::spawn_logged("operator", self.operator_command()));
+    }
+
+    fn run_operator(&mut self, mut p: Proc) {
         p.expect_line("EVENT ready", Duration::from_secs(20));
         p.expect_line("EVENT delivered recipe=PIPDROOG", Duration::from_secs(20));
         self.operator = Some(p);

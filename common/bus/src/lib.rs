@@ -13,14 +13,18 @@
 //!   [`Bus::watch`] reports a peer's lost token as [`BusEvent::PeerLost`].
 //!
 //! Sub-modules: [`keys`] (every key), [`envelope`] (the payload format),
-//! [`credentials`], [`certificates`] (the cell CA and mutual TLS), [`download`] (recipe delivery), [`api`] (operator API), [`config`] (generated zenoh configs), [`acl`] (the
-//! generated access control), [`station`] (a node's association runtime).
+//! [`credentials`], [`certificates`] (the cell CA and the secure transport's
+//! certificates), [`download`] (recipe delivery), [`operator_service`] (the
+//! operator API), [`config`] (generated zenoh configs), [`acl`] (the
+//! generated access control), [`station`] (a node's association runtime),
+//! [`log_limit`] (warnings others cause, rate-limited per source).
 
 pub mod acl;
 pub mod certificates;
 pub mod config;
 pub mod credentials;
 pub mod download;
+pub mod log_limit;
 pub mod operator_service;
 pub mod station;
 
@@ -399,7 +403,10 @@ impl Bus {
                         Ok(m) => {
                             let _ = tx.send(m);
                         }
-                        Err(e) => tracing::warn!(key = %k, "dropped a malformed publication: {e}"),
+                        Err(e) => log_limit::warn(
+                            k.as_str(),
+                            &format!("dropped a malformed publication on {k}: {e}"),
+                        ),
                     }
                 })
                 .await
@@ -539,7 +546,7 @@ fn on_query(
             }
         }
         Err(text) => {
-            tracing::warn!("{text}");
+            log_limit::warn(query.key_expr().as_str(), &text);
             reply_err_now(&query, &text);
         }
     }

@@ -108,7 +108,7 @@ fn on_query(call: Call, query: Query, tx: &UnboundedSender<ApiIndication>) {
             }
         }
         Err(text) => {
-            tracing::warn!("{text}");
+            crate::log_limit::warn(query.key_expr().as_str(), &text);
             answer_now(&query, &Err(text));
         }
     }
