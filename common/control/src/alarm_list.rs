@@ -18,7 +18,7 @@
 //! error for the caller to stop the cell.
 
 use crate::records::Records;
-use falc_model::alarm::{passed_on_from, Alarm, AlarmClass};
+use falc_model::alarm::{passed_on_from, Alarm, AlarmClass, UNSTORED_ALARM_IDS};
 use falc_model::mms::vmd::{PhysicalStatus, RobotStatusDetail, RobotVmdState, VmdStatus};
 
 /// What raising an alarm did.
@@ -34,7 +34,8 @@ pub enum Raised {
 #[derive(Debug, Default)]
 pub struct AlarmList {
     listed: Vec<Alarm>,
-    /// The next number of an alarm the database could not keep (-1, -2, …).
+    /// How many alarms the database could not keep (numbered from
+    /// [`UNSTORED_ALARM_IDS`]).
     unstored: i64,
 }
 
@@ -91,7 +92,7 @@ impl AlarmList {
         self.listed
             .iter()
             .filter(|a| a.blocks_start())
-            .min_by_key(|a| (a.class.priority(), a.id.abs()))
+            .min_by_key(|a| (a.class.priority(), a.id))
     }
 
     /// Raises an alarm of `station`. On a database failure the alarm is kept
@@ -118,9 +119,9 @@ impl AlarmList {
         let (alarm, error) = match db.raise_alarm(station, class, text, order) {
             Ok(a) => (a, None),
             Err(e) => {
-                self.unstored -= 1;
+                self.unstored += 1;
                 let a = Alarm {
-                    id: self.unstored,
+                    id: UNSTORED_ALARM_IDS + self.unstored,
                     station: station.to_string(),
                     class,
                     text: text.to_string(),
@@ -236,7 +237,7 @@ impl AlarmList {
         let mut changed = Vec::new();
         for a in self.listed.iter_mut().filter(|a| which(a)) {
             set(a, at);
-            if a.id > 0 {
+            if a.id < UNSTORED_ALARM_IDS {
                 if let Err(e) = write(db, a.id, at) {
                     error.get_or_insert(e);
                 }
@@ -394,7 +395,7 @@ mod tests {
         let (r, e) = l.raise(&mut s, "operator", AlarmClass::Device, "disk full", None);
         assert!(e.is_some());
         let Raised::New(a) = r else { panic!() };
-        assert!(a.id < 0, "not stored: {a:?}");
+        assert_eq!(a.id, UNSTORED_ALARM_IDS + 1, "not stored, positive: {a:?}");
         assert_eq!(l.blocking().map(|b| b.id), Some(a.id));
         let (acked, e) = l.ack(&mut s, None, "ann").expect("ack");
         assert_eq!(acked.len(), 1);

@@ -807,6 +807,20 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         Ok(Request::Mode(ModeSetting { mode, stepping }))
     }
 
+    /// `orders` as they stand: an end the database could not take yet (a
+    /// full disk) shows, not the state written before it.
+    fn with_unwritten_ends(&self, mut orders: Vec<Order>) -> Vec<Order> {
+        for (id, state, result) in &self.unwritten_ends {
+            if let Some(o) = orders.iter_mut().find(|o| o.id == *id) {
+                o.state = *state;
+                o.result = Some(format!(
+                    "{result} (not yet written: the journal cannot be written)"
+                ));
+            }
+        }
+        orders
+    }
+
     /// Writes the order ends a failed write held back; the error (the
     /// fault raised again) while it still cannot.
     fn write_held_ends(&mut self) -> Result<(), String> {
@@ -1344,7 +1358,11 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         let db = |e: R::Error| e.to_string();
         Some(match request {
             ApiRequest::Status => self.status().map(ApiReply::Status).map_err(db),
-            ApiRequest::OrderList => self.db.orders().map(ApiReply::Orders).map_err(db),
+            ApiRequest::OrderList => self
+                .db
+                .orders()
+                .map(|orders| ApiReply::Orders(self.with_unwritten_ends(orders)))
+                .map_err(db),
             ApiRequest::Messages { after } => self
                 .db
                 .entries(after, None, true, PAGE)

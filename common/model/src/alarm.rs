@@ -134,6 +134,12 @@ impl fmt::Display for Cause {
     }
 }
 
+/// The first number of an alarm the database could not keep (a full
+/// disk): such alarms live in the operator's memory, numbered from here
+/// on, positive like every alarm (`falc ack 1000000001`) and far above any
+/// number the database gives.
+pub const UNSTORED_ALARM_IDS: i64 = 1_000_000_000;
+
 /// Where an alarm stands (ISA-18.2's states, folded for a cell): active
 /// until acknowledged or its condition clears; it leaves the list once it
 /// is both acknowledged and cleared.
