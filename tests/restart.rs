@@ -4,7 +4,9 @@
 //! PLC's coils back and adopts them: station 3 stays pressed (the twin
 //! gets no write releasing it), nothing moves. The order fails as a lost
 //! station's does; the way back (carriers set back, `ack`, `start`) runs
-//! the next order to done.
+//! the next order to done. And a workstation restarted in maintenance
+//! mode (issue 27, B13) comes back associated, in maintenance, with its
+//! recipes: the maintainer's manual operations and `home` work at once.
 
 use crate::support::rig::rig;
 use falc_model::console::OrderState;
@@ -46,4 +48,46 @@ fn a_restarted_transport_workstation_keeps_the_workpiece_clamped() {
     let orders = rig.orders();
     assert_eq!(orders[0].state, OrderState::Failed, "{orders:?}");
     assert_eq!(orders[1].state, OrderState::Done, "{orders:?}");
+}
+
+/// Issue 27, B13: a workstation restarted in maintenance mode is told the
+/// cell's mode and given its recipes when it comes back, so the
+/// maintainer's way back works without `mode auto` and an empty `start`.
+#[test]
+fn a_workstation_restarted_in_maintenance_gets_the_mode_and_its_recipes() {
+    let mut rig = rig("20");
+    rig.cell.falc(&["mode", "maintenance"]);
+    let (code, out) = rig
+        .cell
+        .falc_as("maintainer", &["manual", "transport", "line", "A", "20"]);
+    assert_eq!(code, 0, "{out}");
+    if let Some(t) = rig.transport.as_mut() {
+        t.kill();
+    }
+    rig.start_transport();
+    rig.operator()
+        .expect_line("EVENT rejoined station=transport", Duration::from_secs(10));
+    for args in [
+        &["manual", "transport", "press", "B"][..],
+        &["manual", "transport", "release", "B"][..],
+        &["manual", "transport", "home"][..],
+    ] {
+        let (code, out) = rig.cell.falc_as("maintainer", args);
+        assert_eq!(code, 0, "{args:?} after the restart: {out}");
+    }
+    rig.transport.as_mut().expect("transport node").expect_line(
+        "EVENT job program=HOME event=Done",
+        Duration::from_secs(120),
+    );
+    rig.cell.falc(&["mode", "auto"]);
+    rig.cell.falc(&["ack"]);
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(120));
+    let orders = rig.orders();
+    assert_eq!(
+        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
+        [OrderState::Done],
+        "{orders:?}"
+    );
 }

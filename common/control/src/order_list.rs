@@ -145,6 +145,10 @@ enum Job {
         order: i64,
         from: Option<u16>,
     },
+    /// A workstation came back on the bus while the cell is associated:
+    /// the cell is initiated again, which associates the workstation and
+    /// gives it the cell's mode and its recipes, in every mode.
+    Rejoin(StationName),
 }
 
 /// The cell call out, and what its outcome goes on with. `start` is the
@@ -180,6 +184,7 @@ enum Busy {
     Halting {
         order: Order,
     },
+    Rejoining(StationName),
 }
 
 /// The operator's order list.
@@ -452,6 +457,12 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.cleared(station.as_str(), cleared, error);
     }
 
+    /// Whether `station` is one of the cell's workstations (not the
+    /// operator, not the cell).
+    fn is_workstation(&self, station: &StationName) -> bool {
+        *station != self.me && *station != self.cell && self.topology.station(station).is_some()
+    }
+
     /// Says and journals the alarms cleared because of `station`.
     fn cleared(&mut self, station: &str, cleared: Vec<Alarm>, error: Option<R::Error>) {
         for a in cleared {
@@ -540,6 +551,12 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 self.call(CellCall::Pass(request), Busy::Passing { by, done });
             }
             Job::Restart { by, order, from } => self.begin_restart(by, order, from),
+            Job::Rejoin(station) => {
+                // Not associated: the next connection associates it all.
+                if self.associated && self.running.is_none() {
+                    self.call(CellCall::Initiate, Busy::Rejoining(station));
+                }
+            }
             Job::Halt => {
                 let Some(order) = self.running.take() else {
                     return;
@@ -1003,6 +1020,15 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                     self.connect_failed(start, text);
                 }
             },
+            Busy::Rejoining(station) => match result {
+                Ok(()) => self.say(format!("EVENT rejoined station={station}")),
+                Err(text) => {
+                    tracing::warn!(
+                        "{station} is back, but the cell could not associate it: {text}"
+                    );
+                    self.say(format!("EVENT not-rejoined station={station} {text}"));
+                }
+            },
             Busy::Initiating(by) => match result {
                 Ok(()) => {
                     self.problem = None;
@@ -1105,15 +1131,15 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// it. Back on the bus, every alarm saying it cannot be reached clears.
     pub fn handle_presence(&mut self, now: Duration, station: StationName, present: bool) {
         if present {
-            self.present.insert(station.clone());
+            let back = self.present.insert(station.clone());
             let (cleared, error) = self.alarms.settle_reached(&mut self.db, station.as_str());
             self.cleared(station.as_str(), cleared, error);
+            if back && self.is_workstation(&station) {
+                self.jobs.push_back(Job::Rejoin(station.clone()));
+            }
         } else {
             self.present.remove(&station);
-            let workstation = station != self.me
-                && station != self.cell
-                && self.topology.station(&station).is_some();
-            if workstation && self.running.is_none() {
+            if self.is_workstation(&station) && self.running.is_none() {
                 let text = format!("no connection with station {station}");
                 self.raise(station.as_str(), None, AlarmClass::Communication, text);
             }
@@ -2309,5 +2335,24 @@ mod tests {
             .iter()
             .any(|o| matches!(o, Output::Respond { ticket, result: Err(_) } if *ticket == huge)));
         assert!(r.status().question.is_some_and(|q| q.ends_with("ok?")));
+    }
+
+    #[test]
+    fn a_workstation_back_on_the_bus_is_associated_again_through_the_cell() {
+        let mut r = Rig::new();
+        r.add(1);
+        assert!(r.start().is_ok());
+        r.job(JobEvent::Done);
+        // Its first appearance (the cell associated): the cell is
+        // initiated again, harmlessly.
+        r.list.handle_presence(r.now, st("transport"), true);
+        assert_eq!(call(&r.outputs()), Some(CellCall::Initiate));
+        r.answer(Ok(()));
+        r.list.handle_presence(r.now, st("transport"), false);
+        r.list.handle_presence(r.now, st("transport"), true);
+        let out = r.outputs();
+        assert_eq!(call(&out), Some(CellCall::Initiate), "{out:?}");
+        let out = r.answer(Ok(()));
+        assert!(said(&out, "EVENT rejoined station=transport"), "{out:?}");
     }
 }
