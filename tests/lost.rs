@@ -86,7 +86,7 @@ fn the_cells_no_connection_alarm_clears_when_the_station_returns() {
                 .contains("no connection with station welding")
     };
     let end = Instant::now() + Duration::from_secs(10);
-    while !rig.status().alarms.iter().any(|a| lost(a)) {
+    while !rig.status().alarms.iter().any(&lost) {
         assert!(Instant::now() < end, "{:?}", rig.status().alarms);
         std::thread::sleep(Duration::from_millis(50));
     }
