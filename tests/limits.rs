@@ -79,15 +79,7 @@ fn huge_manual_arguments_and_repeated_stations_are_refused_in_a_line() {
     // Named once, it steps; back to auto, an order runs to done.
     rig.cell.falc(&["mode", "step", "--station", "welding"]);
     rig.cell.falc(&["mode", "auto"]);
-    rig.cell.falc(&["order", "add", "dikdroog"]);
-    rig.cell.falc(&["start"]);
-    rig.work_list("ja", Duration::from_secs(120));
-    let orders = rig.orders();
-    assert_eq!(
-        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
-        [OrderState::Done],
-        "{orders:?}"
-    );
+    rig.next_order_done("dikdroog");
 }
 
 #[test]
@@ -207,10 +199,7 @@ fn what_the_cell_may_show_and_ask_the_operator_is_bounded() {
         journal.len()
     );
     // The cell itself runs an order as before.
-    rig.cell.falc(&["order", "add", "dikdroog"]);
-    rig.cell.falc(&["start"]);
-    rig.work_list("ja", Duration::from_secs(120));
-    assert_eq!(rig.orders().last().map(|o| o.state), Some(OrderState::Done));
+    rig.next_order_done("dikdroog");
 }
 
 #[test]
@@ -253,8 +242,5 @@ fn malformed_requests_from_one_caller_are_a_line_not_a_flood() {
         warned.len()
     );
     // The cell goes on as before.
-    rig.cell.falc(&["order", "add", "dikdroog"]);
-    rig.cell.falc(&["start"]);
-    rig.work_list("ja", Duration::from_secs(120));
-    assert_eq!(rig.orders().last().map(|o| o.state), Some(OrderState::Done));
+    rig.next_order_done("dikdroog");
 }

@@ -60,15 +60,7 @@ fn a_workstation_lost_while_idle_is_an_alarm_cleared_by_its_return() {
 
     // The way back: ack, start, the next order done.
     rig.cell.falc(&["ack"]);
-    rig.cell.falc(&["order", "add", "dikdroog"]);
-    rig.cell.falc(&["start"]);
-    rig.work_list("ja", Duration::from_secs(120));
-    let orders = rig.orders();
-    assert_eq!(
-        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
-        [OrderState::Done],
-        "{orders:?}"
-    );
+    rig.next_order_done("dikdroog");
     assert!(rig.status().alarms.is_empty(), "{:?}", rig.status().alarms);
 }
 

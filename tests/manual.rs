@@ -5,7 +5,6 @@
 //! stop` stops it; back in auto, an order runs to done.
 
 use crate::support::rig::rig;
-use falc_model::console::OrderState;
 use std::time::Duration;
 
 #[test]
@@ -34,13 +33,5 @@ fn a_robot_program_started_by_hand_runs_until_the_maintainer_stops_it() {
     rig.rcm.expect_line("rx H", Duration::from_secs(5));
     rig.cell.falc(&["mode", "auto"]);
     rig.cell.falc(&["ack"]);
-    rig.cell.falc(&["order", "add", "dikdroog"]);
-    rig.cell.falc(&["start"]);
-    rig.work_list("ja", Duration::from_secs(120));
-    let orders = rig.orders();
-    assert_eq!(
-        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
-        [OrderState::Done],
-        "{orders:?}"
-    );
+    rig.next_order_done("dikdroog");
 }

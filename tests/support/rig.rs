@@ -300,6 +300,20 @@ impl Rig {
         out
     }
 
+    /// The way forward after any way back: `recipe` queued, the list
+    /// started and worked with `ja`; the order must end done.
+    pub fn next_order_done(&self, recipe: &str) {
+        self.cell.falc(&["order", "add", recipe]);
+        self.cell.falc(&["start"]);
+        self.work_list("ja", Duration::from_secs(120));
+        let orders = self.orders();
+        assert_eq!(
+            orders.last().map(|o| o.state),
+            Some(falc_model::console::OrderState::Done),
+            "{orders:?}"
+        );
+    }
+
     /// Plays the operator through the CLI until the list stops running:
     /// answers every question with `answer`. Returns the questions seen.
     pub fn work_list(&self, answer: &str, within: Duration) -> Vec<String> {
