@@ -204,32 +204,10 @@ fn what_the_cell_may_show_and_ask_the_operator_is_bounded() {
 
 #[test]
 fn malformed_requests_from_one_caller_are_a_line_not_a_flood() {
-    use falc_model::console::Call;
     let mut rig = rig("20");
     rig.operator = None;
     rig.start_operator_logged();
-    let settings = rig.cell.settings("console");
-    let keys = falc_model::keys::KeySpace::new(rig.cell.topology.cell().clone());
-    let key = keys.api(&rig.cell.topology.root().name, Call::Status, &settings.me);
-    let rt = tokio::runtime::Runtime::new().expect("runtime");
-    let answered = rt.block_on(async {
-        let bus = falc_bus::Bus::open(settings).await.expect("console");
-        let mut answered = 0;
-        for i in 0..2000u32 {
-            let replies = bus
-                .session()
-                .get(&key)
-                .payload(format!("not a request {i}").into_bytes())
-                .timeout(Duration::from_secs(2))
-                .await
-                .expect("get");
-            if replies.recv_async().await.is_ok() {
-                answered += 1;
-            }
-        }
-        let _ = bus.session().close().await;
-        answered
-    });
+    let (key, answered) = rig.cell.malformed_api_calls(2000);
     assert_eq!(answered, 2000, "each is answered with an error");
     let operator = rig.operator();
     operator.expect_line(&key, Duration::from_secs(5));

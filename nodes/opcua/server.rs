@@ -185,6 +185,8 @@ impl Nodes {
     ) -> Result<String, StatusCode> {
         if let Err(why) = self.users.may(token, method.call()) {
             tracing::warn!("OPC UA {}: {why}", method.name());
+            // Every refusal is the last one, this one too.
+            self.refused(why.to_string());
             return Err(StatusCode::BadUserAccessDenied);
         }
         let args: Vec<Arg> = args

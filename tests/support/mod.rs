@@ -616,6 +616,39 @@ impl TestCell {
         }
     }
 
+    /// Sends `count` malformed operator API calls (`status`, a payload
+    /// that is no request) as the console user `console`: the operator API
+    /// key they went to, and how many were answered (with an error).
+    pub fn malformed_api_calls(&self, count: u32) -> (String, u32) {
+        let settings = self.settings("console");
+        let keys = KeySpace::new(self.topology.cell().clone());
+        let key = keys.api(
+            &self.topology.root().name,
+            falc_model::console::Call::Status,
+            &settings.me,
+        );
+        let rt = tokio::runtime::Runtime::new().expect("runtime");
+        let answered = rt.block_on(async {
+            let bus = Bus::open(settings).await.expect("console");
+            let mut answered = 0;
+            for i in 0..count {
+                let replies = bus
+                    .session()
+                    .get(&key)
+                    .payload(format!("not a request {i}").into_bytes())
+                    .timeout(Duration::from_secs(2))
+                    .await
+                    .expect("get");
+                if replies.recv_async().await.is_ok() {
+                    answered += 1;
+                }
+            }
+            let _ = bus.session().close().await;
+            answered
+        });
+        (key, answered)
+    }
+
     /// A session of `station` from this test process.
     pub async fn bus(&self, station: &str) -> Result<Bus, BusError> {
         Bus::open(self.settings(station)).await
