@@ -95,7 +95,12 @@ fn dikdroog_in_step_mode_is_confirmed_step_by_step_through_the_cli_to_done() {
     );
     // STORE 3, MOVE_TO_MAN, UNSTORE 7, UNLOAD: each of their states.
     assert!(transport_steps >= 15, "{transport_steps} transport steps");
-    let j = rig.journal(Some(1));
+    let j = rig.journal_after_start(1);
+    assert!(
+        j.iter()
+            .any(|e| e.who == "cell" && e.text.contains("DIKDROOG state 1 waits")),
+        "the first step's report belongs to the order: {j:#?}"
+    );
     let steps = |on: &str| {
         j.iter()
             .filter(|e| e.kind == EntryKind::Action && e.who == "console" && e.text == on)

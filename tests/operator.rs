@@ -32,6 +32,13 @@ fn three_orders_run_in_sequence_to_done_with_questions_answered_via_the_cli() {
         questions[0].contains("staat blok 1 in de uitgangspositie ?"),
         "the question shows what the cell said before it: {questions:?}"
     );
+    // Each order's journal begins with its start, and holds the cell's
+    // first output (state 1's line) under its number.
+    for (o, first_line) in orders.iter().zip(["", "", "pijp-flens droog"]) {
+        let j = rig.journal_after_start(o.id);
+        let first = j.iter().find(|e| e.kind == EntryKind::Message);
+        assert_eq!(first.map(|e| e.text.as_str()), Some(first_line), "{j:#?}");
+    }
     // The journal holds the order's steps, the answer with who gave it.
     let j = rig.journal(Some(orders[0].id));
     let has =

@@ -5,7 +5,7 @@
 //! and started again one by one.
 
 use super::{Proc, TestCell};
-use falc_model::console::{CellStatus, Entry, ListState, Order};
+use falc_model::console::{CellStatus, Entry, EntryKind, ListState, Order};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -287,6 +287,27 @@ impl Rig {
             args.extend(["--order", id]);
         }
         self.reply(&args)
+    }
+
+    /// Order `id`'s journal, checked: nothing the cell or a station said
+    /// for it comes before "order `id` … started".
+    pub fn journal_after_start(&self, id: i64) -> Vec<Entry> {
+        let j = self.journal(Some(id));
+        let started = j
+            .iter()
+            .position(|e| e.kind == EntryKind::Order && e.text.ends_with(" started"))
+            .unwrap_or_else(|| panic!("order {id} has no start: {j:#?}"));
+        let early: Vec<_> = j[..started]
+            .iter()
+            .filter(|e| {
+                matches!(
+                    e.kind,
+                    EntryKind::Message | EntryKind::Question | EntryKind::Report
+                )
+            })
+            .collect();
+        assert!(early.is_empty(), "before order {id} started: {early:#?}");
+        j
     }
 
     /// The documented way back after a fault, once its cause is cleared:

@@ -38,6 +38,10 @@ use std::time::Duration;
 /// A station's message this soon after an order ended still belongs to it.
 const TRAIL: Duration = Duration::from_secs(2);
 
+/// At most this many messages and events wait for an order's start to be
+/// confirmed; more are journalled as they come (nothing is lost).
+const MAX_EARLY: usize = 1000;
+
 /// At most this many journal entries per API answer.
 const PAGE: usize = 500;
 
@@ -231,9 +235,13 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     busy: Option<Busy>,
     /// Jobs waiting for the cell call out to end.
     jobs: VecDeque<Job>,
-    /// The cell's job events that came while the Start of their order was
-    /// still unconfirmed: handled once it is.
+    /// The cell's job events and the stations' reports that came while
+    /// the Start of an order was still unconfirmed: handled once it is,
+    /// so that nothing of an order is journalled before its start.
     early: Vec<Unconfirmed>,
+    /// The cell's output and questions that came meanwhile (answered at
+    /// once, journalled once the start is).
+    early_messages: Vec<(EntryKind, String)>,
     /// When to try the cell again.
     next_try: Duration,
     out: VecDeque<Output>,
@@ -291,6 +299,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             busy: None,
             jobs: VecDeque::new(),
             early: Vec::new(),
+            early_messages: Vec::new(),
             next_try: Duration::ZERO,
             out: VecDeque::new(),
         }
@@ -476,6 +485,24 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         }
         if let Some(e) = error {
             self.db_failed(&e);
+        }
+    }
+
+    /// Whether the cell is being asked to start an order (its messages
+    /// wait for the start to be journalled).
+    fn starting(&self) -> bool {
+        matches!(self.busy, Some(Busy::Starting { .. }))
+    }
+
+    /// Journals a message of the cell; while an order is starting, once
+    /// its start is journalled.
+    fn journal_cell_message(&mut self, now: Duration, kind: EntryKind, text: &str) {
+        if self.starting() && self.early_messages.len() < MAX_EARLY {
+            self.early_messages.push((kind, text.to_string()));
+        } else {
+            let cell = self.cell.to_string();
+            let order = self.order_of_message(now);
+            self.journal(kind, order, &cell, text);
         }
     }
 
@@ -1087,6 +1114,11 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                     }
                 };
                 self.start_ended(by, outcome);
+                let cell = self.cell.to_string();
+                let order = self.order_of_message(now);
+                for (kind, text) in std::mem::take(&mut self.early_messages) {
+                    self.journal(kind, order, &cell, &text);
+                }
                 for u in std::mem::take(&mut self.early) {
                     self.handle_publication(now, u);
                 }
@@ -1155,6 +1187,10 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 self.statuses.insert(station.clone(), status);
                 self.settle_alarms(&station);
             }
+            Unconfirmed::Report { .. } if self.starting() && self.early.len() < MAX_EARLY => {
+                self.early.push(u);
+                return;
+            }
             Unconfirmed::Report {
                 station,
                 severity,
@@ -1179,7 +1215,9 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 event,
             } if station == self.cell => {
                 if let Some(Busy::Starting { order, .. }) = &self.busy {
-                    if ObjectName::new(&order.recipe).ok().as_ref() == Some(&program) {
+                    if ObjectName::new(&order.recipe).ok().as_ref() == Some(&program)
+                        && self.early.len() < MAX_EARLY
+                    {
                         self.early.push(Unconfirmed::Job {
                             station,
                             program,
@@ -1256,8 +1294,6 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// A request of the cell: operator communication. Answered through
     /// [`Output::Respond`] under `ticket` (an `input` once answered).
     pub fn handle_cell_request(&mut self, now: Duration, ticket: Ticket, request: Request) {
-        let cell = self.cell.to_string();
-        let order = self.order_of_message(now);
         if let Some(e) = too_long_for_the_operator(&request) {
             self.out.push_back(Output::Respond {
                 ticket,
@@ -1269,7 +1305,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         match request {
             Request::Output { lines } => {
                 for l in &lines {
-                    self.journal(EntryKind::Message, order, &cell, l);
+                    self.journal_cell_message(now, EntryKind::Message, l);
                 }
                 self.shown.extend(lines);
                 // The window that goes with the next question; the journal
@@ -1288,7 +1324,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 }
                 text.push_str(&prompt);
                 self.shown.clear();
-                self.journal(EntryKind::Question, order, &cell, &prompt);
+                self.journal_cell_message(now, EntryKind::Question, &prompt);
                 self.say(format!("EVENT question {prompt}"));
                 self.refuse_question("a newer question replaced this one");
                 self.question = Some(Question {
@@ -2067,6 +2103,61 @@ mod tests {
         assert!(reply(&out, t).is_some_and(|r| r.is_ok()));
         assert!(said(&out, "EVENT order-ended id=1 state=failed"));
         assert_eq!(r.order(1).state, OrderState::Failed);
+    }
+
+    #[test]
+    fn messages_before_the_start_is_confirmed_are_journalled_after_it() {
+        let mut r = Rig::new();
+        r.add(1);
+        let (t, mut out) = r.api("console", ApiRequest::Start);
+        while !matches!(call(&out), Some(CellCall::Start { .. })) {
+            out = r.answer(Ok(()));
+        }
+        // The cell runs the recipe before its Start confirm arrives: its
+        // first output, a step-mode report and a question come first.
+        let o = r.ticket();
+        let lines = vec!["lassen begint".to_string()];
+        r.list
+            .handle_cell_request(r.now, o, Request::Output { lines });
+        let answered = r.outputs();
+        assert!(
+            answered
+                .iter()
+                .any(|x| matches!(x, Output::Respond { ticket, result: Ok(_) } if *ticket == o)),
+            "the output is answered at once: {answered:?}"
+        );
+        r.publish(Unconfirmed::Report {
+            station: st("cell"),
+            severity: Severity::Info,
+            text: "state 1 waits".into(),
+        });
+        let q = r.question("verder?");
+        let out = r.answer(Ok(()));
+        assert!(reply(&out, t).is_some_and(|r| r.is_ok()));
+        let journal = r.list.records().entries(0, None, false, 100).expect("journal");
+        let started = journal
+            .iter()
+            .position(|e| e.text.contains("order 1 (dikdroog) started"))
+            .expect("the start is journalled");
+        for text in ["lassen begint", "state 1 waits", "verder?"] {
+            let at = journal
+                .iter()
+                .position(|e| e.text == text)
+                .unwrap_or_else(|| panic!("{text} not journalled: {journal:?}"));
+            assert!(at > started, "{text} before the start: {journal:?}");
+            assert_eq!(journal[at].order, Some(1), "{text} without its order");
+        }
+        // The question still waits for its answer.
+        let (a, out) = r.api(
+            "console",
+            ApiRequest::Answer {
+                text: "ja".into(),
+            },
+        );
+        assert!(reply(&out, a).is_some_and(|r| r.is_ok()), "{out:?}");
+        assert!(out
+            .iter()
+            .any(|x| matches!(x, Output::Respond { ticket, .. } if *ticket == q)));
     }
 
     #[test]
