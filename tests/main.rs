@@ -18,6 +18,7 @@ mod limits;
 mod lost;
 mod manual;
 mod modes;
+mod noise;
 mod opcua;
 mod operator;
 mod recipes;

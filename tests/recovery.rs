@@ -424,7 +424,7 @@ fn a_silent_robot_line_mid_weld_is_an_alarm_and_ack_start_run_the_next_order() {
     rig.rcm.control("unplug");
     rig.operator().expect_line(
         "EVENT order-ended id=1 state=failed",
-        Duration::from_secs(10),
+        Duration::from_secs(15),
     );
     let s = rig.status();
     let a = s

@@ -10,8 +10,10 @@
 //! Control lines on stdin (answered `ok …` or `error …` on stdout):
 //! `estop`, `estop-clear`, `person-in`, `person-out`, `limit-switch`,
 //! `abort-weld`, `alarm <code>`, `mode manual|automatic|aue`, `noise <n>`
-//! (n random bytes on the line), `unplug`, `replug`, `lose-end` (the next
-//! program end is never sent: the host must learn it from the status).
+//! (n random bytes on the line), `flips <percent>` (from now on each byte
+//! on the line, either way, has one bit flipped with that chance; `flips
+//! 0` ends it; answered with the count of bytes flipped so far), `unplug`, `replug`, `lose-end` (the next program end is
+//! never sent: the host must learn it from the status).
 
 mod robot;
 
@@ -67,6 +69,7 @@ fn parse_mode(s: &str) -> Option<Mode> {
 enum Line {
     Control(Control),
     Noise(usize),
+    Flips(f64),
     Unplug,
     Replug,
 }
@@ -89,6 +92,12 @@ fn parse_control(line: &str) -> Result<Line, String> {
             parse_mode(m).ok_or(format!("unknown mode `{m}`"))?,
         )),
         ["noise", n] => Line::Noise(n.parse().map_err(|_| format!("bad count `{n}`"))?),
+        ["flips", p] => Line::Flips(
+            p.parse::<f64>()
+                .ok()
+                .filter(|p| (0.0..=100.0).contains(p))
+                .ok_or(format!("bad percentage `{p}` (0 to 100)"))?,
+        ),
         ["unplug"] => Line::Unplug,
         ["replug"] => Line::Replug,
         _ => return Err(format!("unknown control `{line}`")),
@@ -124,6 +133,9 @@ async fn main() -> Result<()> {
     let mut stdin = BufReader::new(tokio::io::stdin()).lines();
     let mut stdin_open = true;
     let mut plugged = true;
+    // The chance of a bit flip per byte on the line (`flips`).
+    let mut flips = 0.0_f64;
+    let mut flipped_bytes = 0u64;
     let mut buf = [0u8; 256];
     loop {
         while let Some(ev) = link.poll_event() {
@@ -158,6 +170,7 @@ async fn main() -> Result<()> {
         if let Some(bytes) = link.poll_transmit() {
             if plugged {
                 wire_delay(byte_time * bytes.len() as u32);
+                let bytes = flipped(bytes, flips, &mut flipped_bytes);
                 tracing::debug!(bytes = %bytes.escape_ascii(), "to the line");
                 port.write_all(&bytes).await.context("pty write")?;
             }
@@ -173,7 +186,7 @@ async fn main() -> Result<()> {
                 tracing::debug!(bytes = %buf[..n].escape_ascii(), plugged, "from the line");
                 if plugged && n > 0 {
                     wire_delay(byte_time * n as u32);
-                    link.handle_bytes(now(), &buf[..n]);
+                    link.handle_bytes(now(), &flipped(buf[..n].to_vec(), flips, &mut flipped_bytes));
                 }
             }
             line = stdin.next_line(), if stdin_open => match line {
@@ -189,6 +202,10 @@ async fn main() -> Result<()> {
                         let noise: Vec<u8> = (0..n).map(|_| rand_byte()).collect();
                         port.write_all(&noise).await.context("pty write")?;
                         say(&format!("ok {}", line.trim()));
+                    }
+                    Ok(Line::Flips(p)) => {
+                        flips = p / 100.0;
+                        say(&format!("ok {} ({flipped_bytes} bytes flipped so far)", line.trim()));
                     }
                     Ok(Line::Unplug) => {
                         plugged = false;
@@ -219,6 +236,20 @@ fn wire_delay(d: Duration) {
     if !d.is_zero() {
         std::thread::sleep(d);
     }
+}
+
+/// `bytes` as a noisy line delivers them: each with one random bit
+/// flipped with chance `p` (counted in `count`).
+fn flipped(mut bytes: Vec<u8>, p: f64, count: &mut u64) -> Vec<u8> {
+    if p > 0.0 {
+        for b in &mut bytes {
+            if rand::random::<f64>() < p {
+                *b ^= 1 << (rand::random::<u8>() % 8);
+                *count += 1;
+            }
+        }
+    }
+    bytes
 }
 
 fn rand_byte() -> u8 {

@@ -4,6 +4,7 @@
 //! engine events and robot status (through the alarm table).
 
 use falc_dnc::alarms::{self, Effect};
+use falc_dnc::procedure::Timing;
 use falc_dnc::telegram::{EndResult, Mode, ProgramState, Telegram};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::RobotProgram;
@@ -13,11 +14,10 @@ use falc_model::mode::ManualAction;
 use falc_recipe::engine::{Event, JobEnd};
 use std::time::Duration;
 
-/// How often the RCM's status is asked while a program of ours runs.
+/// How often the RCM's status is asked while a program of ours runs. A
+/// request unanswered for the link's [`Timing::silent_after`] (6.88 s)
+/// makes the line silent: an alarm within 7.9 s of the line going quiet.
 pub const STATUS_PERIOD: Duration = Duration::from_secs(1);
-/// How long a status request may go unanswered before the line counts as
-/// silent: with the period, a silent line is an alarm within 3 s.
-pub const SILENT_LIMIT: Duration = Duration::from_secs(2);
 
 /// What the host wants done.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -53,6 +53,8 @@ pub struct Host {
     running: Option<RobotProgram>,
     /// When the unanswered status request went out.
     asked: Option<Duration>,
+    /// How long it may go unanswered ([`Timing::silent_after`]).
+    silent_limit: Duration,
     /// When the RCM was last heard.
     heard: Duration,
     /// The line went silent or was (re)opened: ask until the RCM answers,
@@ -85,14 +87,16 @@ fn word(state: ProgramState) -> &'static str {
 }
 
 impl Host {
-    /// A host on serial line `line` (for messages) with nothing pending.
-    pub fn new(line: &str) -> Self {
+    /// A host on serial line `line` (for messages), whose link runs with
+    /// `timing`, with nothing pending.
+    pub fn new(line: &str, timing: &Timing) -> Self {
         Self {
             rcm: StationName::new("rcm").unwrap_or_else(|_| unreachable!("`rcm` is a valid name")),
             line: line.to_string(),
             pending: None,
             running: None,
             asked: None,
+            silent_limit: timing.silent_after(),
             heard: Duration::ZERO,
             probing: false,
             asking: false,
@@ -237,7 +241,7 @@ impl Host {
             return None;
         }
         Some(match self.asked {
-            Some(at) => at + SILENT_LIMIT,
+            Some(at) => at + self.silent_limit,
             None => self.heard + STATUS_PERIOD,
         })
     }
@@ -499,7 +503,7 @@ mod tests {
 
     /// A host on an open line whose job runs program 65 since `t` ms.
     fn running(t: u64) -> Host {
-        let mut h = Host::new("/dev/ttyS0");
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
         h.connected(s(t));
         h.telegram(s(t), status(None, ProgramState::Idle));
         h.start(p65());
@@ -510,7 +514,7 @@ mod tests {
 
     #[test]
     fn a_maintainer_operates_the_robot_with_the_telegrams_that_exist() {
-        let mut h = Host::new("/dev/ttyS0");
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
         let e = h.manual(&ManualAction::StartProgram).unwrap_err();
         assert!(e.contains("not open"), "{e}");
         h.connected(s(0));
@@ -578,7 +582,7 @@ mod tests {
 
     #[test]
     fn select_then_start_then_started() {
-        let mut h = Host::new("/dev/ttyS0");
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
         let p = p65();
         assert_eq!(h.start(p), vec![Out::Telegram(Telegram::SelectProgram(p))]);
         assert_eq!(
@@ -604,7 +608,7 @@ mod tests {
 
     #[test]
     fn refusals_and_alarms_become_engine_events() {
-        let mut h = Host::new("/dev/ttyS0");
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
         h.start(p65());
         match h
             .telegram(
@@ -653,7 +657,7 @@ mod tests {
 
     #[test]
     fn an_alarm_while_no_job_runs_is_reported_as_it_is() {
-        let mut h = Host::new("/dev/ttyS0");
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
         let out = h.telegram(s(0), Telegram::Alarm(24));
         assert!(
             out.iter().any(|o| matches!(o, Out::Alarm(c) if c.class == AlarmClass::Safety && c.contains("emergency stop"))),
@@ -691,7 +695,10 @@ mod tests {
     }
 
     #[test]
-    fn a_running_program_is_supervised_and_a_silent_line_is_an_alarm_within_3_s() {
+    fn a_running_program_is_supervised_and_a_silent_line_is_an_alarm_within_the_links_budget() {
+        // The limit is the link's: two lost attempts on the way (6.88 s).
+        let limit = Timing::default().silent_after();
+        assert_eq!(limit, s(6880));
         let mut h = running(1000);
         // A status request a period after the RCM was last heard.
         assert_eq!(h.poll_timeout(), Some(s(2000)));
@@ -700,38 +707,41 @@ mod tests {
             h.handle_timeout(s(2000)),
             vec![Out::Telegram(Telegram::StatusRequest)]
         );
-        // Answered: running; the next request a period later.
-        let out = h.telegram(s(2050), status(Some(p65()), ProgramState::Running));
+        // Answered after two attempts were lost (4.88 s): no alarm.
+        let out = h.telegram(s(6880), status(Some(p65()), ProgramState::Running));
         assert!(ended(&out).is_none(), "{out:?}");
-        assert_eq!(h.poll_timeout(), Some(s(3050)));
-        h.handle_timeout(s(3050));
+        assert_eq!(h.poll_timeout(), Some(s(7880)));
+        h.handle_timeout(s(7880));
         // The line goes silent: the request goes unanswered.
-        assert_eq!(h.poll_timeout(), Some(s(5050)));
-        let out = h.handle_timeout(s(5050));
+        assert_eq!(h.poll_timeout(), Some(s(7880) + limit));
+        assert!(h.handle_timeout(s(7880) + limit - s(1)).is_empty());
+        let out = h.handle_timeout(s(7880) + limit);
         match ended(&out) {
             Some(JobEnd::Alarm(why)) => {
                 assert_eq!(why.class, AlarmClass::Communication);
                 assert!(why.contains("/dev/ttyS0"), "names the device: {why}");
-                assert!(why.contains("status request unanswered"), "{why}");
+                assert!(why.contains("status request unanswered for 6.9 s"), "{why}");
                 assert!(why.contains("program 65"), "{why}");
             }
             other => panic!("{other:?}"),
         }
-        // Silent since 2050 at the latest: the alarm came 3.0 s later.
+        // Silent since 6880 at the latest: the alarm came 7.9 s later.
         // It keeps asking, and when the line is back stops the program it
         // no longer owns; never a second request behind one the link
         // still tries (3964R: up to 6 × 2 s).
-        assert!(h.handle_timeout(s(6050)).is_empty());
+        let t = s(7880) + limit;
+        assert!(h.handle_timeout(t + s(1000)).is_empty());
         h.sent(&Telegram::StatusRequest.encode());
-        assert_eq!(h.poll_timeout(), Some(s(8050)));
-        h.handle_timeout(s(8050));
+        assert_eq!(h.poll_timeout(), Some(t + s(1000) + limit));
+        h.handle_timeout(t + s(1000) + limit);
         h.sent(&Telegram::StatusRequest.encode());
+        let t = t + s(2000) + limit;
         assert_eq!(
-            h.handle_timeout(s(10050)),
+            h.handle_timeout(t),
             vec![Out::Telegram(Telegram::StatusRequest)]
         );
         // Seen once: asked again to be sure; confirmed: stopped.
-        let out = h.telegram(s(10100), status(Some(p65()), ProgramState::Running));
+        let out = h.telegram(t + s(50), status(Some(p65()), ProgramState::Running));
         assert!(
             out.contains(&Out::Telegram(Telegram::StatusRequest)),
             "{out:?}"
@@ -740,7 +750,7 @@ mod tests {
             !out.contains(&Out::Telegram(Telegram::StopProgram)),
             "{out:?}"
         );
-        let out = h.telegram(s(10150), status(Some(p65()), ProgramState::Running));
+        let out = h.telegram(t + s(100), status(Some(p65()), ProgramState::Running));
         assert!(
             out.contains(&Out::Telegram(Telegram::StopProgram)),
             "{out:?}"
@@ -782,7 +792,7 @@ mod tests {
 
     #[test]
     fn on_connection_a_program_no_job_owns_is_stopped_and_reported() {
-        let mut h = Host::new("/dev/ttyS0");
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
         assert_eq!(
             h.connected(s(0)),
             vec![
@@ -797,26 +807,26 @@ mod tests {
             "{out:?}"
         );
         // An idle robot: nothing to do, nothing more to ask.
-        let mut h = Host::new("/dev/ttyS0");
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
         h.connected(s(0));
         let out = h.telegram(s(30), status(None, ProgramState::Idle));
         assert_eq!(out.len(), 1, "{out:?}");
         assert_eq!(h.poll_timeout(), None);
         // Unanswered at start-up (the line is silent): no alarm; asked
         // again once the link gave the first request up.
-        let mut h = Host::new("/dev/ttyS0");
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
         h.connected(s(0));
-        assert!(h.handle_timeout(s(2000)).is_empty());
+        assert!(h.handle_timeout(s(6880)).is_empty());
         h.sent(&Telegram::StatusRequest.encode());
         assert_eq!(
-            h.handle_timeout(s(3000)),
+            h.handle_timeout(s(7880)),
             vec![Out::Telegram(Telegram::StatusRequest)]
         );
     }
 
     #[test]
     fn a_program_a_maintainer_started_is_theirs_not_an_orphan() {
-        let mut h = Host::new("/dev/ttyS0");
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
         h.connected(s(0));
         h.telegram(s(10), status(None, ProgramState::Idle));
         h.manual(&ManualAction::SelectProgram(65)).unwrap();

@@ -234,9 +234,10 @@ async fn main() -> Result<()> {
         )
         .context("no serial port: give --device or a `device` in the topology")?;
     let station = Station::open(settings, &topology).await?;
+    let timing = Timing::default();
     let (dnc, mut dnc_events) = match dnc_link::open_serial(&line) {
         Ok(port) => {
-            let h = dnc_link::spawn(port, Priority::Low, Timing::default());
+            let h = dnc_link::spawn(port, Priority::Low, timing);
             (Some(h.send), Some(h.events))
         }
         Err(e) => {
@@ -245,15 +246,17 @@ async fn main() -> Result<()> {
         }
     };
     let robot = Robot {
-        host: Host::new(&line.path),
+        host: Host::new(&line.path, &timing),
         dnc,
         line,
         detail: None,
         alarms: VecDeque::new(),
     };
-    // select + start: 2 telegrams, each up to 6 × 2 s on a dead line, so
-    // the link's own, clearer failure arrives before the confirm limit.
-    let mut ws = ControllerNode::new(station, RecipeKind::Welding, Duration::from_secs(30), robot);
+    // select + start: 2 telegrams, each failing after 6 × 2 s on a dead
+    // line, so the link's own, clearer failure arrives before the confirm
+    // limit.
+    let confirm_limit = 2 * timing.dead_line_after() + Duration::from_secs(6);
+    let mut ws = ControllerNode::new(station, RecipeKind::Welding, confirm_limit, robot);
     if ws.core.device.dnc.is_some() {
         let now = ws.now();
         ws.core.device.connected(now);
@@ -282,7 +285,7 @@ async fn main() -> Result<()> {
             _ = reopen.tick(), if ws.core.device.dnc.is_none() => {
                 if let Ok(port) = dnc_link::open_serial(&ws.core.device.line) {
                     tracing::info!(path = %ws.core.device.line.path, "line to the RCM open again");
-                    let h = dnc_link::spawn(port, Priority::Low, Timing::default());
+                    let h = dnc_link::spawn(port, Priority::Low, timing);
                     ws.core.device.dnc = Some(h.send);
                     dnc_events = Some(h.events);
                     let now = ws.now();

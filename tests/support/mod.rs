@@ -7,6 +7,7 @@
 pub mod chaos;
 pub mod flood;
 pub mod hosts;
+pub mod noise;
 pub mod opcua;
 pub mod rig;
 pub mod stats;

@@ -60,6 +60,42 @@ impl Default for Timing {
     }
 }
 
+/// How many attempts a supervised request and its answer may lose on the
+/// way before the line counts as silent ([`Timing::silent_after`]).
+pub const SUPERVISED_LOSSES: u32 = 2;
+
+impl Timing {
+    /// The longest one lost attempt costs before the next begins: the
+    /// acknowledgement delay (no answer), or a NAK or wrong character and
+    /// the quiet line after it (two character delays).
+    pub fn lost_attempt(&self) -> Duration {
+        self.ack_delay + 2 * self.char_delay
+    }
+
+    /// How long a request and its answer may take on a line that loses
+    /// `lost` attempts on the way (of either telegram), with one
+    /// acknowledgement delay for the partner to answer: what a supervisor
+    /// allows before it calls the line silent. Defaults, `lost` = 2:
+    /// 2 s + 2 × 2.44 s = 6.88 s.
+    pub fn exchange_limit(&self, lost: u32) -> Duration {
+        self.ack_delay + self.lost_attempt() * lost
+    }
+
+    /// How long a supervisor waits for the answer to a request before it
+    /// calls the line silent: [`Self::exchange_limit`] of
+    /// [`SUPERVISED_LOSSES`], so a noisy line that needs a retry or two is
+    /// never taken for a dead one (6.88 s with the defaults).
+    pub fn silent_after(&self) -> Duration {
+        self.exchange_limit(SUPERVISED_LOSSES)
+    }
+
+    /// The longest a telegram takes to fail on a dead line: every
+    /// connection attempt unanswered.
+    pub fn dead_line_after(&self) -> Duration {
+        self.ack_delay * u32::from(self.connect_attempts)
+    }
+}
+
 /// Which side wins an initialisation conflict.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Priority {
