@@ -222,3 +222,113 @@ fn malformed_requests_from_one_caller_are_a_line_not_a_flood() {
     // The cell goes on as before.
     rig.next_order_done("dikdroog");
 }
+
+/// A1 and A7: an observer's credentials in router mode. zenoh 1.10 admits
+/// the session (no setting refuses it); the router names it in a WARN
+/// line, its rights stay the observer's (no operator call answered), and
+/// the 2,000 declarations it is denied plus the router-network errors it
+/// causes are a few zenoh lines and a summary, not thousands.
+#[test]
+fn a_router_mode_session_is_named_and_the_zenoh_errors_it_causes_are_rate_limited() {
+    use falc_model::console::Call;
+    use falc_model::keys::KeySpace;
+    let mut rig = rig("20");
+    let cell = &rig.cell;
+    let settings = cell.settings("observer");
+    let mut cfg = falc_bus::config::client(
+        &settings.endpoint,
+        settings.lease,
+        settings.credentials.as_ref(),
+        settings.tls.as_ref(),
+        Duration::from_secs(2),
+    )
+    .expect("config");
+    cfg.insert_json5("mode", "\"router\"").expect("mode");
+    cfg.insert_json5("listen/endpoints", "[]").expect("listen");
+    let keys = KeySpace::new(cell.topology.cell().clone());
+    let operator = cell.topology.root().name.clone();
+    let status = keys.api(&operator, Call::Status, &settings.me);
+    let start = keys.api(&operator, Call::Start, &settings.me);
+    let rt = tokio::runtime::Runtime::new().expect("runtime");
+    let (session, held, answered) = rt.block_on(async {
+        let session = zenoh::open(cfg).await.expect("zenoh admits the session");
+        // Declarations the observer is denied: queryables on the
+        // operator's API, tokens, puts, subscriptions to everything.
+        let mut queryables = Vec::new();
+        for i in 0..1_000 {
+            let k = format!("{}/forged/{i}", keys.api_any(&operator, Call::Start));
+            if let Ok(q) = session.declare_queryable(&k).await {
+                queryables.push(q);
+            }
+            let _ = session.put(&start, vec![0u8; 8]).await;
+            let _ = session
+                .liveliness()
+                .declare_token(format!(
+                    "{}/forged/{i}",
+                    keys.api_any(&operator, Call::Status)
+                ))
+                .await;
+        }
+        let mut subscribers = Vec::new();
+        for k in [
+            "**",
+            "@/**",
+            &format!("{}/**", keys.api_any(&operator, Call::Start)),
+        ] {
+            if let Ok(s) = session.declare_subscriber(k).await {
+                subscribers.push(s);
+            }
+            let _ = session.liveliness().declare_subscriber(k).await;
+            let _ = session.get(k).timeout(Duration::from_millis(200)).await;
+        }
+        let replies = session
+            .get(&status)
+            .payload(b"not a request".to_vec())
+            .timeout(Duration::from_secs(2))
+            .await
+            .expect("get");
+        let answered = replies.recv_async().await.is_ok();
+        (session, (queryables, subscribers), answered)
+    });
+    // While it is connected, a workstation leaves and comes back: its
+    // liveliness token goes through the router network the session joined.
+    for _ in 0..3 {
+        drop(rig.transport.take());
+        std::thread::sleep(Duration::from_secs(2));
+        rig.start_transport();
+    }
+    std::thread::sleep(Duration::from_secs(2));
+    drop(held);
+    rt.block_on(async {
+        let _ = session.close().await;
+    });
+    let cell = &mut rig.cell;
+    assert!(
+        !answered,
+        "a router-mode session must get nothing of the operator's"
+    );
+    let warn = cell.router.expect_line(
+        "a session in router mode is connected",
+        Duration::from_secs(5),
+    );
+    assert!(warn.contains("zid="), "{warn}");
+    // Every line the router wrote until its summary of the window.
+    let summary = cell
+        .router
+        .wait_line("more zenoh warnings and errors", Duration::from_secs(25));
+    let zenoh_lines = cell
+        .router
+        .lines_containing(" zenoh")
+        .into_iter()
+        .filter(|l| l.contains("ERROR") || l.contains("WARN"))
+        .count();
+    println!("router: {zenoh_lines} zenoh WARN/ERROR lines; summary: {summary:?}");
+    for l in cell.router.lines_containing("zenoh") {
+        println!("  {l}");
+    }
+    assert!(
+        zenoh_lines <= falc_node::zenoh_log::SITES_PER_WINDOW,
+        "{zenoh_lines} zenoh lines: {:#?}",
+        cell.router.lines_containing(" zenoh")
+    );
+}

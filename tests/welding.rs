@@ -176,7 +176,8 @@ async fn stop_and_kill_from_the_commander_reach_the_robot() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_silent_line_mid_weld_is_an_alarm_within_the_links_budget_and_the_orphan_program_is_stopped() {
+async fn a_silent_line_mid_weld_is_an_alarm_within_the_links_budget_and_the_orphan_program_is_stopped(
+) {
     // Program 65 takes 12 s here: it still runs when the line returns.
     let mut rig = rig("10").await;
     rig.load("droog_dik", &droog_dik()).await;

@@ -7,13 +7,16 @@
 //! enter (0700); `bundle` copies what one PC needs. On a `quic/…` endpoint
 //! every link is QUIC with mutual TLS. Refused logins are logged at WARN,
 //! rate-limited (`logins`); `firewall` prints the nftables rules that keep
-//! strangers off the router's port (`firewall`). With `--trace-acl` it logs ACL denials, which
+//! strangers off the router's port (`firewall`). A session in router or
+//! peer mode is logged at WARN (`modes`: zenoh refuses peers, but cannot
+//! refuse a router-mode session). With `--trace-acl` it logs ACL denials, which
 //! zenoh itself only traces (see `denials` for what that count can and
 //! cannot tell).
 
 mod denials;
 mod firewall;
 mod logins;
+mod modes;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
@@ -230,12 +233,14 @@ async fn run(
     println!("falc-router ready on {listen}");
     let reporter = denials.map(|d| tokio::spawn(denials::report(d)));
     let logins = tokio::spawn(logins::report(refusals));
+    let modes = tokio::spawn(modes::watch(session.clone()));
     falc_node::Shutdown::new().requested().await;
     tracing::info!("router stopping");
     if let Some(r) = reporter {
         r.abort();
     }
     logins.abort();
+    modes.abort();
     session
         .close()
         .await

@@ -33,11 +33,7 @@ pub fn list_with_flips(rig: &mut Rig, percent: &str, orders: usize) -> NoisyList
     let began = std::time::Instant::now();
     rig.cell.falc(&["start"]);
     rig.work_list("ja", Duration::from_secs(900));
-    while rig
-        .orders()
-        .iter()
-        .any(|o| o.state == OrderState::Queued)
-    {
+    while rig.orders().iter().any(|o| o.state == OrderState::Queued) {
         rig.way_back();
     }
     let took = began.elapsed();

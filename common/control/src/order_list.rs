@@ -2134,7 +2134,11 @@ mod tests {
         let q = r.question("verder?");
         let out = r.answer(Ok(()));
         assert!(reply(&out, t).is_some_and(|r| r.is_ok()));
-        let journal = r.list.records().entries(0, None, false, 100).expect("journal");
+        let journal = r
+            .list
+            .records()
+            .entries(0, None, false, 100)
+            .expect("journal");
         let started = journal
             .iter()
             .position(|e| e.text.contains("order 1 (dikdroog) started"))
@@ -2148,12 +2152,7 @@ mod tests {
             assert_eq!(journal[at].order, Some(1), "{text} without its order");
         }
         // The question still waits for its answer.
-        let (a, out) = r.api(
-            "console",
-            ApiRequest::Answer {
-                text: "ja".into(),
-            },
-        );
+        let (a, out) = r.api("console", ApiRequest::Answer { text: "ja".into() });
         assert!(reply(&out, a).is_some_and(|r| r.is_ok()), "{out:?}");
         assert!(out
             .iter()
