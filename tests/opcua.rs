@@ -293,3 +293,81 @@ fn the_gateway_rides_out_a_lost_operator_and_the_next_order_runs_through_it() {
     assert_eq!(orders[0].state, falc_model::console::OrderState::Done);
     w.send("done");
 }
+
+/// A8: failed logins are throttled per user name: ten wrong passwords
+/// for `console`, the first three answered at once, the next ones only
+/// after a growing delay; then the user is locked (the right password
+/// refused too) and logs in once the lockout is over. The log names each
+/// refusal and the lock.
+#[test]
+fn failed_logins_are_slowed_then_locked_and_the_user_logs_in_after_the_lockout() {
+    let cell = LaunchedCell::start("50");
+    let t = Duration::from_secs(90);
+    let own = cell.dir.path().join("gateway");
+    falc_bus::credentials::private_dir(&own).expect("dir");
+    let users = own.join("opcua-users.toml");
+    falc_bus::credentials::write_private(
+        &users,
+        "[[user]]\nname = \"console\"\nrole = \"operator\"\npassword = \"console-secret\"\n",
+    )
+    .expect("users file");
+    let listen = format!("127.0.0.1:{}", free_port());
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_falc-opcua"));
+    cmd.args(cell.falc_args("opcua"))
+        .args(["--listen", &listen, "--login-lockout-s", "3", "--users"])
+        .arg(&users)
+        .arg("--pki-dir")
+        .arg(own.join("opcua-pki"));
+    let mut gateway = crate::support::Proc::spawn_logged("falc-opcua", cmd);
+    gateway.expect_line("EVENT ready", t);
+    let mut c = crate::support::opcua::client_of(
+        "throttle",
+        &format!("opc.tcp://{listen}/"),
+        &own,
+        &cell.dir.path().join("opcua-client"),
+        &["3"],
+    );
+    let wrong = step(&mut c, "wrong", t);
+    let ms: Vec<u64> = wrong["ms"]
+        .as_array()
+        .expect("ms")
+        .iter()
+        .filter_map(Value::as_u64)
+        .collect();
+    println!("ten wrong passwords answered after (ms): {ms:?}");
+    assert!(
+        wrong["refused"]
+            .as_array()
+            .is_some_and(|r| r.len() == 10 && r.iter().all(|r| r == "BadUserAccessDenied")),
+        "{wrong}"
+    );
+    // Attempts 4 to 9 wait 0.25, 0.5, 1, 2, 4, 4 s more than the first.
+    let base = ms[..3].iter().copied().max().unwrap_or(0);
+    assert!(ms[3] >= base + 200, "{ms:?}");
+    assert!(ms[7] >= base + 3_500 && ms[8] >= base + 3_500, "{ms:?}");
+    assert!(ms[6] > ms[5] && ms[5] > ms[4] && ms[4] > ms[3], "{ms:?}");
+    let locked = step(&mut c, "locked", t);
+    assert_eq!(
+        locked["locked"], "BadUserAccessDenied",
+        "the right password while locked: {locked}"
+    );
+    assert_eq!(
+        locked["after"],
+        Value::Null,
+        "logged in after the lockout: {locked}"
+    );
+    let line = gateway
+        .wait_line("refused unchecked: locked", t)
+        .expect("the lock is logged");
+    assert!(
+        line.contains("console") && line.contains("10 failed logins"),
+        "{line}"
+    );
+    let first = gateway
+        .wait_line("refused: unknown user or wrong password (1 failed", t)
+        .expect("the first failure is logged");
+    assert!(first.contains("no client address"), "{first}");
+    assert!(gateway
+        .wait_line("OPC UA session authenticated", t)
+        .is_some());
+}

@@ -338,6 +338,31 @@ async def by_certificate(url, creds: Path, work: Path):
     say(step="by_certificate", state=state, start_refused=refused, stranger_refused=stranger)
 
 
+async def throttle(url, creds: Path, work: Path, lockout: float):
+    """Ten wrong passwords for `console` in a row, each timed; then the
+    right one at once (locked), then after the lockout (logged in)."""
+    await admit(url, creds, work)
+    right = users(creds)["console"]
+
+    async def attempt(password):
+        began = time.monotonic()
+        try:
+            c = await client(url, work, "console", password)
+            await c.connect()
+            await c.disconnect()
+            refused = None
+        except ua.UaStatusCodeError as e:
+            refused = type(e).__name__
+        return refused, round((time.monotonic() - began) * 1000)
+
+    wrong = [await attempt("wrong") for _ in range(10)]
+    say(step="wrong", refused=[r for r, _ in wrong], ms=[m for _, m in wrong])
+    locked, _ = await attempt(right)
+    await asyncio.sleep(lockout + 0.5)
+    after, _ = await attempt(right)
+    say(step="locked", locked=locked, after=after)
+
+
 async def watch(url, creds: Path, work: Path, nodes):
     pw = users(creds)
     await admit(url, creds, work)
@@ -370,6 +395,8 @@ def main():
         asyncio.run(user_cert(work))
     elif what == "by-certificate":
         asyncio.run(by_certificate(url, creds, work))
+    elif what == "throttle":
+        asyncio.run(throttle(url, creds, work, float(sys.argv[5])))
     elif what == "watch":
         asyncio.run(watch(url, creds, work, sys.argv[5:]))
     else:

@@ -4,12 +4,14 @@
 //! router's ACL bounds everything it does); it looks at the cell every
 //! `--poll-ms` and at once after a method call, and serves what it saw as
 //! an address space whose subscribers are notified of each change
-//! (`space` computes it, `server` serves it, `users` says who may do what,
+//! (`space` computes it, `server` serves it, `users` says who may do what
+//! and `throttle` slows and locks failed logins,
 //! `packml` maps the cell onto PackML states).
 
 mod packml;
 mod server;
 mod space;
+mod throttle;
 mod users;
 
 use clap::Parser;
@@ -54,6 +56,10 @@ struct Cli {
     /// How many of the newest journal entries to serve.
     #[arg(long, default_value_t = 20)]
     journal_entries: i64,
+    /// How long a user name stays locked after 10 failed logins, in
+    /// seconds (failures 4 to 9 are answered after a growing delay).
+    #[arg(long, default_value_t = 60)]
+    login_lockout_s: u64,
     /// Also offer an endpoint without signing and encryption (commissioning
     /// only; passwords still cross encrypted with the server's key).
     #[arg(long)]
@@ -115,7 +121,8 @@ async fn run(cli: Cli) -> Result<(), String> {
         .clone()
         .unwrap_or_else(|| cli.node.credentials_dir.join("opcua-users.toml"));
     let users = users::Users::ensure(&users_path, &topology, cli.user.as_str(), ceiling)
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| e.to_string())?
+        .with_lockout(Duration::from_secs(cli.login_lockout_s));
     let settings = cli
         .node
         .settings(&topology, &cli.user)
