@@ -11,6 +11,7 @@ mod support;
 mod cell;
 mod chaos;
 mod dnc;
+mod fuzz;
 mod hierarchy;
 mod hosts;
 mod launch;

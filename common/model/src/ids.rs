@@ -70,7 +70,7 @@ pub enum NameError {
         max: usize,
     },
     /// The name holds a character outside the allowed set.
-    #[error("{kind} `{name}` has `{bad}` at position {at}; allowed are {allowed}")]
+    #[error("{kind} `{name}` has `{}` at position {at}; allowed are {allowed}", bad.escape_debug())]
     BadCharacter {
         /// What kind of name it was meant to be.
         kind: &'static str,
