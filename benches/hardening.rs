@@ -110,22 +110,14 @@ fn main() {
     // 3. Log bytes for 10,000 malformed API calls from one console.
     rig.operator = None;
     rig.start_operator_logged();
-    let before: usize = rig
-        .operator()
-        .lines_containing("")
-        .iter()
-        .map(|l| l.len() + 1)
-        .sum();
+    let log_bytes =
+        |p: &support::Proc| -> usize { p.lines_containing("").iter().map(|l| l.len() + 1).sum() };
+    let before = log_bytes(rig.operator());
     let (_, answered) = rig.cell.malformed_api_calls(10_000);
     let _ = rig
         .operator()
         .wait_line("no such line", Duration::from_secs(2));
-    let after: usize = rig
-        .operator()
-        .lines_containing("")
-        .iter()
-        .map(|l| l.len() + 1)
-        .sum();
+    let after = log_bytes(rig.operator());
     println!(
         "10,000 malformed API calls from one console ({answered} answered): {} bytes of operator log",
         after - before

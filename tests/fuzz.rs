@@ -84,25 +84,18 @@ fn random_bytes(rng: &mut rand::rngs::StdRng) -> Vec<u8> {
     out
 }
 
-/// What a field's answer says, decoded: the refusal's text, or None for an
-/// acceptance.
-fn refusal_of_api(bytes: &[u8]) -> Option<String> {
-    match envelope::decode::<ApiResult>(bytes) {
-        Ok(Ok(_)) => None,
-        Ok(Err(text)) => Some(text),
-        Err(_) => envelope::decode::<ServiceError>(bytes)
-            .map(|e| e.description)
-            .map_or_else(|e| panic!("an answer that is no envelope: {e}"), Some),
-    }
-}
-
-fn refusal_of_service(bytes: &[u8]) -> Option<String> {
-    match envelope::decode::<Response>(bytes) {
-        Ok(_) => None,
-        Err(_) => envelope::decode::<ServiceError>(bytes)
-            .map(|e| e.description)
-            .map_or_else(|e| panic!("an answer that is no envelope: {e}"), Some),
-    }
+/// What an answer says, decoded: the refusal's text, or None for an
+/// acceptance (an API reply, or a service's response).
+fn refusal_of(bytes: &[u8], service: bool) -> Option<String> {
+    let accepted = if service {
+        envelope::decode::<Response>(bytes).map(|_| None)
+    } else {
+        envelope::decode::<ApiResult>(bytes).map(Result::err)
+    };
+    accepted.unwrap_or_else(|_| match envelope::decode::<ServiceError>(bytes) {
+        Ok(e) => Some(e.description),
+        Err(e) => panic!("an answer that is no envelope: {e}"),
+    })
 }
 
 #[test]
@@ -237,12 +230,7 @@ fn random_bytes_in_every_text_field_are_refused_by_name_or_stored_escaped() {
             bytes.len(),
             answer.len()
         );
-        let refusal = if service {
-            refusal_of_service(&answer)
-        } else {
-            refusal_of_api(&answer)
-        };
-        match refusal {
+        match refusal_of(&answer, service) {
             Some(text) => {
                 // Line breaks of its own (a list of recipe problems) only.
                 assert!(

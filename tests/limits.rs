@@ -235,16 +235,7 @@ fn a_router_mode_session_is_named_and_the_zenoh_errors_it_causes_are_rate_limite
     let mut rig = rig("20");
     let cell = &rig.cell;
     let settings = cell.settings("observer");
-    let mut cfg = falc_bus::config::client(
-        &settings.endpoint,
-        settings.lease,
-        settings.credentials.as_ref(),
-        settings.tls.as_ref(),
-        Duration::from_secs(2),
-    )
-    .expect("config");
-    cfg.insert_json5("mode", "\"router\"").expect("mode");
-    cfg.insert_json5("listen/endpoints", "[]").expect("listen");
+    let cfg = cell.session_config("observer", "router");
     let keys = KeySpace::new(cell.topology.cell().clone());
     let operator = cell.topology.root().name.clone();
     let status = keys.api(&operator, Call::Status, &settings.me);

@@ -192,6 +192,41 @@ fn a_plant_client_browses_subscribes_and_runs_dikdroog_over_opcua() {
     assert!(list.contains("done"), "{list}");
 }
 
+/// A gateway of the test's own beside the launched cell's, with the users
+/// file `users` and `extra` arguments, ready; and the client script doing
+/// `what` (with its arguments) against it.
+fn own_gateway(
+    cell: &LaunchedCell,
+    users: &str,
+    extra: &[&str],
+    (what, args): (&str, &[&str]),
+    within: Duration,
+) -> (crate::support::Proc, crate::support::Proc) {
+    let own = cell.dir.path().join("gateway");
+    falc_bus::credentials::private_dir(&own).expect("dir");
+    let file = own.join("opcua-users.toml");
+    falc_bus::credentials::write_private(&file, users).expect("users file");
+    let listen = format!("127.0.0.1:{}", free_port());
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_falc-opcua"));
+    cmd.args(cell.falc_args("opcua"))
+        .args(["--listen", &listen])
+        .args(extra)
+        .arg("--users")
+        .arg(&file)
+        .arg("--pki-dir")
+        .arg(own.join("opcua-pki"));
+    let mut gateway = crate::support::Proc::spawn_logged("falc-opcua", cmd);
+    gateway.expect_line("EVENT ready", within);
+    let client = crate::support::opcua::client_of(
+        what,
+        &format!("opc.tcp://{listen}/"),
+        &own,
+        &cell.dir.path().join("opcua-client"),
+        args,
+    );
+    (gateway, client)
+}
+
 #[test]
 fn a_user_certificate_logs_in_as_its_user_and_role() {
     let cell = LaunchedCell::start("50");
@@ -202,32 +237,15 @@ fn a_user_certificate_logs_in_as_its_user_and_role() {
         .expect("path")
         .to_string();
     // A gateway of the test's own, whose users file names the certificate.
-    let own = cell.dir.path().join("gateway");
-    falc_bus::credentials::private_dir(&own).expect("dir");
-    let users = own.join("opcua-users.toml");
-    falc_bus::credentials::write_private(
-        &users,
+    let (mut gateway, mut c) = own_gateway(
+        &cell,
         &format!(
             "[[user]]\nname = \"console\"\nrole = \"operator\"\npassword = \"console-secret\"\n\
              [[user]]\nname = \"scada\"\nrole = \"observer\"\ncertificate = \"{der}\"\n"
         ),
-    )
-    .expect("users file");
-    let listen = format!("127.0.0.1:{}", free_port());
-    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_falc-opcua"));
-    cmd.args(cell.falc_args("opcua"))
-        .args(["--listen", &listen, "--users"])
-        .arg(&users)
-        .arg("--pki-dir")
-        .arg(own.join("opcua-pki"));
-    let mut gateway = crate::support::Proc::spawn_logged("falc-opcua", cmd);
-    gateway.expect_line("EVENT ready", t);
-    let mut c = crate::support::opcua::client_of(
-        "by-certificate",
-        &format!("opc.tcp://{listen}/"),
-        &own,
-        &cell.dir.path().join("opcua-client"),
         &[],
+        ("by-certificate", &[]),
+        t,
     );
     let s = step(&mut c, "by_certificate", t);
     assert_eq!(s["state"], "Idle", "{s}");
@@ -303,29 +321,12 @@ fn the_gateway_rides_out_a_lost_operator_and_the_next_order_runs_through_it() {
 fn failed_logins_are_slowed_then_locked_and_the_user_logs_in_after_the_lockout() {
     let cell = LaunchedCell::start("50");
     let t = Duration::from_secs(90);
-    let own = cell.dir.path().join("gateway");
-    falc_bus::credentials::private_dir(&own).expect("dir");
-    let users = own.join("opcua-users.toml");
-    falc_bus::credentials::write_private(
-        &users,
+    let (mut gateway, mut c) = own_gateway(
+        &cell,
         "[[user]]\nname = \"console\"\nrole = \"operator\"\npassword = \"console-secret\"\n",
-    )
-    .expect("users file");
-    let listen = format!("127.0.0.1:{}", free_port());
-    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_falc-opcua"));
-    cmd.args(cell.falc_args("opcua"))
-        .args(["--listen", &listen, "--login-lockout-s", "3", "--users"])
-        .arg(&users)
-        .arg("--pki-dir")
-        .arg(own.join("opcua-pki"));
-    let mut gateway = crate::support::Proc::spawn_logged("falc-opcua", cmd);
-    gateway.expect_line("EVENT ready", t);
-    let mut c = crate::support::opcua::client_of(
-        "throttle",
-        &format!("opc.tcp://{listen}/"),
-        &own,
-        &cell.dir.path().join("opcua-client"),
-        &["3"],
+        &["--login-lockout-s", "3"],
+        ("throttle", &["3"]),
+        t,
     );
     let wrong = step(&mut c, "wrong", t);
     let ms: Vec<u64> = wrong["ms"]

@@ -194,23 +194,13 @@ pub fn strangers_are_refused(cell: &TestCell, host: &str) {
 /// no certificate of its own.
 fn api_replies(cell: &TestCell, host: &str, mode: &str, certificate: bool) -> bool {
     let settings = cell.settings("console");
-    let mut cfg = falc_bus::config::client(
-        &settings.endpoint,
-        settings.lease,
-        settings.credentials.as_ref(),
-        settings.tls.as_ref(),
-        Duration::from_secs(2),
-    )
-    .expect("config");
+    let mut cfg = cell.session_config("console", mode);
     if !certificate {
         for key in ["connect_certificate", "connect_private_key"] {
             cfg.insert_json5(&format!("transport/link/tls/{key}"), "null")
                 .expect("no certificate");
         }
     }
-    cfg.insert_json5("mode", &format!("\"{mode}\""))
-        .expect("mode");
-    cfg.insert_json5("listen/endpoints", "[]").expect("listen");
     let keys = KeySpace::new(cell.topology.cell().clone());
     let key = keys.api(&cell.topology.root().name, Call::Status, &settings.me);
     let ask = move || {

@@ -12,8 +12,9 @@
 //! `abort-weld`, `alarm <code>`, `mode manual|automatic|aue`, `noise <n>`
 //! (n random bytes on the line), `flips <percent>` (from now on each byte
 //! on the line, either way, has one bit flipped with that chance; `flips
-//! 0` ends it; answered with the count of bytes flipped so far), `unplug`, `replug`, `lose-end` (the next program end is
-//! never sent: the host must learn it from the status).
+//! 0` ends it; answered with the count of bytes flipped so far),
+//! `unplug`, `replug`, `lose-end` (the next program end is never sent:
+//! the host must learn it from the status).
 
 mod robot;
 

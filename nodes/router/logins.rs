@@ -227,15 +227,11 @@ fn emit(report: &Report<Refusal>) {
             "refused login from {host}: {}",
             refusal.reason
         ),
-        Report::HeldBack {
-            count,
-            sources: hosts,
-            busiest: (busiest, most),
-        } => tracing::warn!(
-            target: "falc_router::logins",
-            "refused logins: {count} more from {hosts} host(s) in the last {} s not logged one by one; most from {busiest} ({most})",
-            WINDOW.as_secs()
-        ),
+        held @ Report::HeldBack { .. } => {
+            if let Some(line) = held.summary("refusals", "host", WINDOW) {
+                tracing::warn!(target: "falc_router::logins", "refused logins: {line}");
+            }
+        }
     }
 }
 

@@ -21,7 +21,7 @@ use zenoh::config::{WhatAmI, ZenohId};
 /// How often the transports are looked at.
 pub const PERIOD: Duration = Duration::from_secs(1);
 
-/// The sessions in `mode` that are new since `seen`; `seen` becomes `now`.
+/// The sessions of `now` that were not in `seen`; `seen` becomes `now`.
 pub fn newly_seen(seen: &mut BTreeSet<String>, now: BTreeSet<String>) -> Vec<String> {
     let new = now.difference(seen).cloned().collect();
     *seen = now;

@@ -650,6 +650,25 @@ impl TestCell {
         (key, answered)
     }
 
+    /// The zenoh configuration of `user`'s session, as its console or node
+    /// makes it, but in zenoh `mode` (what a stranger with stolen
+    /// credentials might try) and listening nowhere.
+    pub fn session_config(&self, user: &str, mode: &str) -> zenoh::Config {
+        let settings = self.settings(user);
+        let mut cfg = falc_bus::config::client(
+            &settings.endpoint,
+            settings.lease,
+            settings.credentials.as_ref(),
+            settings.tls.as_ref(),
+            Duration::from_secs(2),
+        )
+        .expect("config");
+        cfg.insert_json5("mode", &format!("\"{mode}\""))
+            .expect("mode");
+        cfg.insert_json5("listen/endpoints", "[]").expect("listen");
+        cfg
+    }
+
     /// A session of `station` from this test process.
     pub async fn bus(&self, station: &str) -> Result<Bus, BusError> {
         Bus::open(self.settings(station)).await

@@ -31,6 +31,25 @@ pub enum Report<T> {
     },
 }
 
+impl<T> Report<T> {
+    /// The one line of a [`Report::HeldBack`]: "`count` more `what` from
+    /// `sources` `source_kind`(s) in the last `window` s not logged one by
+    /// one; most from `busiest` (`n`)"; None for an item logged in full.
+    pub fn summary(&self, what: &str, source_kind: &str, window: Duration) -> Option<String> {
+        match self {
+            Report::Logged { .. } => None,
+            Report::HeldBack {
+                count,
+                sources,
+                busiest: (busiest, most),
+            } => Some(format!(
+                "{count} more {what} from {sources} {source_kind}(s) in the last {} s not logged one by one; most from {busiest} ({most})",
+                window.as_secs()
+            )),
+        }
+    }
+}
+
 struct Window {
     start: Instant,
     logged: HashSet<String>,
@@ -136,16 +155,9 @@ pub fn warn(source: &str, text: &str) {
         }],
     };
     for r in reports {
-        match r {
-            Report::Logged { .. } => tracing::warn!(source, "{text}"),
-            Report::HeldBack {
-                count,
-                sources,
-                busiest: (busiest, most),
-            } => tracing::warn!(
-                "{count} more warnings from {sources} caller(s) in the last {} s not logged one by one; most from {busiest} ({most})",
-                WARN_WINDOW.as_secs()
-            ),
+        match r.summary("warnings", "caller", WARN_WINDOW) {
+            None => tracing::warn!(source, "{text}"),
+            Some(line) => tracing::warn!("{line}"),
         }
     }
 }
@@ -239,6 +251,27 @@ mod tests {
                 sources: 1,
                 busiest: ("unknown".into(), 7)
             })
+        );
+    }
+
+    #[test]
+    fn a_summary_is_one_line_naming_the_busiest_source() {
+        let held: Report<()> = Report::HeldBack {
+            count: 499,
+            sources: 1,
+            busiest: ("unreported".into(), 499),
+        };
+        assert_eq!(
+            held.summary("refusals", "host", Duration::from_secs(10)).as_deref(),
+            Some("499 more refusals from 1 host(s) in the last 10 s not logged one by one; most from unreported (499)")
+        );
+        let logged = Report::Logged {
+            source: "a".into(),
+            item: (),
+        };
+        assert_eq!(
+            logged.summary("refusals", "host", Duration::from_secs(10)),
+            None
         );
     }
 }

@@ -191,6 +191,17 @@ enum Busy {
     Rejoining(StationName),
 }
 
+/// What waits for an order's Start to be confirmed
+/// ([`OrderList::can_hold`]).
+#[derive(Debug)]
+enum Early {
+    /// The cell's job event of that order, or a station's report.
+    Publication(Unconfirmed),
+    /// The cell's output line or question (answered at once, journalled
+    /// once the start is).
+    Message(EntryKind, String),
+}
+
 /// The operator's order list.
 pub struct OrderList<R: Records, S: RecipeSource> {
     me: StationName,
@@ -235,13 +246,10 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     busy: Option<Busy>,
     /// Jobs waiting for the cell call out to end.
     jobs: VecDeque<Job>,
-    /// The cell's job events and the stations' reports that came while
-    /// the Start of an order was still unconfirmed: handled once it is,
-    /// so that nothing of an order is journalled before its start.
-    early: Vec<Unconfirmed>,
-    /// The cell's output and questions that came meanwhile (answered at
-    /// once, journalled once the start is).
-    early_messages: Vec<(EntryKind, String)>,
+    /// What came while the Start of an order was still unconfirmed, in
+    /// the order it came: handled once the start is, so that nothing of an
+    /// order is journalled before its start.
+    early: Vec<Early>,
     /// When to try the cell again.
     next_try: Duration,
     out: VecDeque<Output>,
@@ -299,7 +307,6 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             busy: None,
             jobs: VecDeque::new(),
             early: Vec::new(),
-            early_messages: Vec::new(),
             next_try: Duration::ZERO,
             out: VecDeque::new(),
         }
@@ -488,17 +495,17 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         }
     }
 
-    /// Whether the cell is being asked to start an order (its messages
-    /// wait for the start to be journalled).
-    fn starting(&self) -> bool {
-        matches!(self.busy, Some(Busy::Starting { .. }))
+    /// Whether what comes now waits ([`Early`]): the cell is being asked to
+    /// start an order, and fewer than [`MAX_EARLY`] things wait already.
+    fn can_hold(&self) -> bool {
+        matches!(self.busy, Some(Busy::Starting { .. })) && self.early.len() < MAX_EARLY
     }
 
     /// Journals a message of the cell; while an order is starting, once
     /// its start is journalled.
     fn journal_cell_message(&mut self, now: Duration, kind: EntryKind, text: &str) {
-        if self.starting() && self.early_messages.len() < MAX_EARLY {
-            self.early_messages.push((kind, text.to_string()));
+        if self.can_hold() {
+            self.early.push(Early::Message(kind, text.to_string()));
         } else {
             let cell = self.cell.to_string();
             let order = self.order_of_message(now);
@@ -1114,13 +1121,12 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                     }
                 };
                 self.start_ended(by, outcome);
-                let cell = self.cell.to_string();
-                let order = self.order_of_message(now);
-                for (kind, text) in std::mem::take(&mut self.early_messages) {
-                    self.journal(kind, order, &cell, &text);
-                }
-                for u in std::mem::take(&mut self.early) {
-                    self.handle_publication(now, u);
+                // In the order it came; the next job begins only after.
+                for e in std::mem::take(&mut self.early) {
+                    match e {
+                        Early::Publication(u) => self.publication(now, u),
+                        Early::Message(kind, text) => self.journal_cell_message(now, kind, &text),
+                    }
                 }
             }
             Busy::Stopping { order, by } => self.stopped(now, order, by, result),
@@ -1182,14 +1188,19 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 
     /// A publication of a station.
     pub fn handle_publication(&mut self, now: Duration, u: Unconfirmed) {
+        self.publication(now, u);
+        self.pump(now);
+    }
+
+    /// A publication of a station, without beginning the next job.
+    fn publication(&mut self, now: Duration, u: Unconfirmed) {
         match u {
             Unconfirmed::Status { station, status } => {
                 self.statuses.insert(station.clone(), status);
                 self.settle_alarms(&station);
             }
-            Unconfirmed::Report { .. } if self.starting() && self.early.len() < MAX_EARLY => {
-                self.early.push(u);
-                return;
+            Unconfirmed::Report { .. } if self.can_hold() => {
+                self.early.push(Early::Publication(u));
             }
             Unconfirmed::Report {
                 station,
@@ -1216,13 +1227,13 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             } if station == self.cell => {
                 if let Some(Busy::Starting { order, .. }) = &self.busy {
                     if ObjectName::new(&order.recipe).ok().as_ref() == Some(&program)
-                        && self.early.len() < MAX_EARLY
+                        && self.can_hold()
                     {
-                        self.early.push(Unconfirmed::Job {
+                        self.early.push(Early::Publication(Unconfirmed::Job {
                             station,
                             program,
                             event,
-                        });
+                        }));
                         return;
                     }
                 }
@@ -1236,7 +1247,6 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             }
             Unconfirmed::Job { .. } => {}
         }
-        self.pump(now);
     }
 
     /// A job event of the running order's program invocation.

@@ -46,16 +46,8 @@ fn site(meta: &Metadata<'_>) -> String {
 
 /// Logs a window's summary.
 fn summary(report: Report<()>) {
-    if let Report::HeldBack {
-        count,
-        sources,
-        busiest: (site, most),
-    } = report
-    {
-        tracing::warn!(
-            "{count} more zenoh warnings and errors from {sources} kind(s) of line in the last {} s not logged one by one; most from {site} ({most})",
-            WINDOW.as_secs()
-        );
+    if let Some(line) = report.summary("zenoh warnings and errors", "call site", WINDOW) {
+        tracing::warn!("{line}");
     }
 }
 
