@@ -8,8 +8,7 @@
 //! every link is QUIC with mutual TLS. Refused logins are logged at WARN,
 //! rate-limited (`logins`); `firewall` prints the nftables rules that keep
 //! strangers off the router's port (`firewall`). A session in router or
-//! peer mode is logged at WARN (`modes`: zenoh refuses peers, but cannot
-//! refuse a router-mode session). With `--trace-acl` it logs ACL denials, which
+//! peer mode is refused or closed as it opens (`modes`). With `--trace-acl` it logs ACL denials, which
 //! zenoh itself only traces (see `denials` for what that count can and
 //! cannot tell).
 
@@ -220,7 +219,7 @@ async fn run(
         tls.as_ref(),
         acl::access_control(topology),
     )?;
-    let session = zenoh::open(cfg)
+    let session = modes::open(cfg)
         .await
         .map_err(|e| anyhow::anyhow!("cannot start the router on {listen}: {e}"))?;
     tracing::info!(
@@ -233,14 +232,12 @@ async fn run(
     println!("falc-router ready on {listen}");
     let reporter = denials.map(|d| tokio::spawn(denials::report(d)));
     let logins = tokio::spawn(logins::report(refusals));
-    let modes = tokio::spawn(modes::watch(session.clone()));
     falc_node::Shutdown::new().requested().await;
     tracing::info!("router stopping");
     if let Some(r) = reporter {
         r.abort();
     }
     logins.abort();
-    modes.abort();
     session
         .close()
         .await

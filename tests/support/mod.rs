@@ -77,6 +77,33 @@ pub fn free_port() -> u16 {
     panic!("no port free for both TCP and UDP on 127.0.0.1")
 }
 
+/// How many established TCP connections this test process holds to `port`
+/// (its sockets in `/proc/self/fd`, matched with `/proc/net/tcp`).
+pub fn tcp_connections_to(port: u16) -> usize {
+    let ours: std::collections::HashSet<String> = std::fs::read_dir("/proc/self/fd")
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| std::fs::read_link(e.path()).ok())
+        .filter_map(|l| {
+            let l = l.to_string_lossy().into_owned();
+            l.strip_prefix("socket:[")
+                .and_then(|i| i.strip_suffix(']'))
+                .map(str::to_string)
+        })
+        .collect();
+    let remote = format!(":{port:04X}");
+    std::fs::read_to_string("/proc/net/tcp")
+        .unwrap_or_default()
+        .lines()
+        .skip(1)
+        .map(|l| l.split_whitespace().collect::<Vec<_>>())
+        // local, remote, state (01 established), …, inode
+        .filter(|f| f.len() > 9 && f[2].ends_with(&remote) && f[3] == "01")
+        .filter(|f| ours.contains(f[9]))
+        .count()
+}
+
 /// A child process, killed on drop, with its stdout lines on a channel.
 pub struct Proc {
     pub name: String,
@@ -462,6 +489,14 @@ pub struct TestCell {
 }
 
 impl TestCell {
+    /// The router's port.
+    pub fn port(&self) -> u16 {
+        self.endpoint
+            .rsplit_once(':')
+            .and_then(|(_, p)| p.parse().ok())
+            .expect("the endpoint ends in a port")
+    }
+
     /// Writes the topology with a free router port and starts the router.
     pub fn start() -> TestCell {
         Self::start_on("tcp")
