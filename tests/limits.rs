@@ -319,7 +319,7 @@ fn a_router_mode_session_is_closed_and_the_zenoh_errors_it_causes_are_rate_limit
     // Every line the router wrote until its summary of the window.
     let summary = cell
         .router
-        .wait_line("more zenoh warnings and errors", Duration::from_secs(25));
+        .wait_line("more library warnings and errors", Duration::from_secs(25));
     let zenoh_lines = cell
         .router
         .lines_containing(" zenoh")
@@ -331,7 +331,7 @@ fn a_router_mode_session_is_closed_and_the_zenoh_errors_it_causes_are_rate_limit
         println!("  {l}");
     }
     assert!(
-        zenoh_lines <= falc_node::zenoh_log::SITES_PER_WINDOW,
+        zenoh_lines <= falc_node::library_log::SITES_PER_WINDOW,
         "{zenoh_lines} zenoh lines: {:#?}",
         cell.router.lines_containing(" zenoh")
     );
@@ -339,7 +339,7 @@ fn a_router_mode_session_is_closed_and_the_zenoh_errors_it_causes_are_rate_limit
     // denied declaration), now one summary.
     let held_back: u64 = cell
         .router
-        .lines_containing("more zenoh warnings and errors")
+        .lines_containing("more library warnings and errors")
         .iter()
         .filter_map(|l| {
             l.split(": ")

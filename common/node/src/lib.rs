@@ -6,13 +6,14 @@
 //! - [`dnc_link`]: the serial port under the DNC procedure (tokio-serial);
 //! - [`lane`]: a task that sends a node's requests one at a time;
 //! - [`plc_link`]: the Modbus TCP link to the conveyor PLC (tokio-modbus);
-//! - [`zenoh_log`]: zenoh's own warnings and errors, rate-limited.
+//! - [`library_log`]: zenoh's and async-opcua's own warnings and errors,
+//!   rate-limited.
 
 pub mod controller_node;
 pub mod dnc_link;
 pub mod lane;
+pub mod library_log;
 pub mod plc_link;
-pub mod zenoh_log;
 
 use falc_bus::certificates;
 use falc_bus::credentials::{self, CredentialsError};
@@ -121,8 +122,8 @@ pub fn init_tracing() {
 }
 
 /// The log of every FALC process, as a layer (the router adds its own
-/// beside it): to stderr, filtered by [`log_filter`] and zenoh's own
-/// warnings and errors rate-limited ([`zenoh_log`]), colours only on a
+/// beside it): to stderr, filtered by [`log_filter`] and the libraries'
+/// own warnings and errors rate-limited ([`library_log`]), colours only on a
 /// terminal.
 pub fn log_layer<S>() -> impl tracing_subscriber::Layer<S>
 where
@@ -134,7 +135,7 @@ where
         .with_ansi(std::io::stderr().is_terminal())
         .with_writer(std::io::stderr)
         .with_filter(log_filter())
-        .with_filter(zenoh_log::ZenohLimit::new())
+        .with_filter(library_log::LibraryLimit::new())
 }
 
 /// The log filter of every FALC process: `RUST_LOG`, else `info` with

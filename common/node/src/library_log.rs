@@ -1,12 +1,13 @@
-//! zenoh's own WARN and ERROR lines, rate-limited. Many of them are caused
-//! by a client (a denied declaration, a session in router mode: "Network
-//! graph doesn't contain destination node"), and zenoh logs each one, so a
-//! client can fill a node's log. zenoh's lines do not name the client, so
-//! the unit of the limit is the line's call site in zenoh (one kind of
-//! line): through [`falc_bus::log_limit::LogLimit`], in each window of
-//! [`WINDOW`] the first line of each call site is logged, for at most
+//! The libraries' own WARN and ERROR lines, rate-limited: zenoh's and
+//! async-opcua's. Many of them are caused by a client (zenoh: a denied
+//! declaration, a session in router mode; async-opcua: one ERROR line per
+//! refused OPC UA login), and the library logs each one, so a client can
+//! fill a node's log. Their lines do not name the client, so the unit of
+//! the limit is the line's call site in the library (one kind of line):
+//! through [`falc_bus::log_limit::LogLimit`], in each window of [`WINDOW`]
+//! the first line of each call site is logged, for at most
 //! [`SITES_PER_WINDOW`] sites; the rest are counted and summed up in one
-//! line (target `falc_node::zenoh_log`) when the window ends.
+//! line (target `falc_node::library_log`) when the window ends.
 //!
 //! The filter decides; a thread of its own writes the summaries, so no
 //! line is logged from inside the logging of another.
@@ -22,9 +23,9 @@ pub const WINDOW: Duration = Duration::from_secs(10);
 /// How many call sites per window get their lines through.
 pub const SITES_PER_WINDOW: usize = 20;
 
-/// The filter: lets everything through but zenoh's WARN and ERROR lines
+/// The filter: lets everything through but the libraries' WARN and ERROR lines
 /// beyond the limit.
-pub struct ZenohLimit {
+pub struct LibraryLimit {
     limit: Arc<Mutex<LogLimit>>,
     /// Summaries of windows that ended at a line, for the thread.
     pending: Arc<Mutex<Vec<Report<()>>>>,
@@ -32,8 +33,11 @@ pub struct ZenohLimit {
 
 /// Whether a line of `meta` is one this filter limits.
 fn limited(meta: &Metadata<'_>) -> bool {
-    meta.target().starts_with("zenoh") && *meta.level() <= Level::WARN
+    LIBRARIES.iter().any(|l| meta.target().starts_with(l)) && *meta.level() <= Level::WARN
 }
+
+/// The targets (crate-name prefixes) whose lines are limited.
+pub const LIBRARIES: [&str; 2] = ["zenoh", "opcua"];
 
 /// The call site a line comes from: the unit of the limit.
 fn site(meta: &Metadata<'_>) -> String {
@@ -46,12 +50,16 @@ fn site(meta: &Metadata<'_>) -> String {
 
 /// Logs a window's summary.
 fn summary(report: Report<()>) {
-    if let Some(line) = report.summary("zenoh warnings and errors", "call site", WINDOW) {
+    if let Some(line) = report.summary(
+        "library warnings and errors (zenoh, async-opcua)",
+        "call site",
+        WINDOW,
+    ) {
         tracing::warn!("{line}");
     }
 }
 
-impl ZenohLimit {
+impl LibraryLimit {
     /// The filter, and the thread that writes its summaries.
     pub fn new() -> Self {
         let limit = Arc::new(Mutex::new(LogLimit::new(WINDOW, SITES_PER_WINDOW)));
@@ -59,7 +67,7 @@ impl ZenohLimit {
         let ticks = Arc::downgrade(&limit);
         let kept = Arc::downgrade(&pending);
         let spawned = std::thread::Builder::new()
-            .name("zenoh-log-limit".into())
+            .name("library-log-limit".into())
             .spawn(move || loop {
                 std::thread::sleep(Duration::from_secs(1));
                 let (Some(limit), Some(kept)) = (ticks.upgrade(), kept.upgrade()) else {
@@ -76,7 +84,7 @@ impl ZenohLimit {
                 reports.into_iter().for_each(summary);
             });
         if let Err(e) = spawned {
-            eprintln!("zenoh's log lines are limited, but their summaries are lost: {e}");
+            eprintln!("the libraries' log lines are limited, but their summaries are lost: {e}");
         }
         Self { limit, pending }
     }
@@ -104,13 +112,13 @@ impl ZenohLimit {
     }
 }
 
-impl Default for ZenohLimit {
+impl Default for LibraryLimit {
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl<S> Filter<S> for ZenohLimit {
+impl<S> Filter<S> for LibraryLimit {
     fn enabled(&self, _meta: &Metadata<'_>, _cx: &Context<'_, S>) -> bool {
         true
     }
@@ -127,7 +135,7 @@ mod tests {
 
     #[test]
     fn a_flood_of_one_kind_of_line_is_one_line_a_window() {
-        let f = ZenohLimit::new();
+        let f = LibraryLimit::new();
         let t0 = Instant::now();
         let admitted = (0..15_000)
             .filter(|_| f.admit(t0, "zenoh/src/net/routing/hat.rs:100".into()))
