@@ -99,7 +99,7 @@ fn main() {
     println!(
         "station status change (falc mode → the transport station's mode), n={CHANGES}, debug build, time scale 50"
     );
-    println!("  OPC UA data-change notification (falc-opcua, poll 100 ms, publish 20 ms): p50 {ua50:.1} ms, {name} {ua_tail:.1} ms");
-    println!("  falc status --watch (poll 250 ms):                         p50 {w50:.1} ms, {name} {w_tail:.1} ms");
+    println!("  OPC UA data-change notification (falc-opcua, on the operator's `changed`, publish 20 ms): p50 {ua50:.1} ms, {name} {ua_tail:.1} ms");
+    println!("  falc status --watch (on the operator's `changed`):                        p50 {w50:.1} ms, {name} {w_tail:.1} ms");
     println!("  ratio OPC UA / watch (p50): {:.2}", ua50 / w50);
 }

@@ -24,7 +24,8 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 pub use falc_bus::operator_service::CALL_LIMIT;
-/// How often `--watch` and `--follow` ask again.
+/// How often `--watch` and `--follow` ask again when the operator has
+/// said nothing; they ask at once when it publishes a change.
 const POLL: Duration = Duration::from_millis(250);
 
 /// How the console reaches the cell.
@@ -685,8 +686,9 @@ async fn all_entries(
     ExitCode::SUCCESS
 }
 
-/// Asks `request(state)` again every `POLL` until Ctrl-C or a failure;
-/// `show` prints what is new and updates the state.
+/// Asks `request(state)` again whenever the operator says its status
+/// changed, and every `POLL`, until Ctrl-C or a failure; `show` prints
+/// what is new and updates the state.
 async fn poll<S>(
     bus: &Bus,
     operator: &StationName,
@@ -695,6 +697,15 @@ async fn poll<S>(
     mut show: impl FnMut(&mut S, ApiReply),
 ) -> ExitCode {
     let mut stop = falc_node::Shutdown::new();
+    let changed = std::sync::Arc::new(tokio::sync::Notify::new());
+    let poke = changed.clone();
+    let _changed = match bus.on_changed(operator, move || poke.notify_one()).await {
+        Ok(d) => Some(d),
+        Err(e) => {
+            tracing::warn!("asking every {} ms only: {e}", POLL.as_millis());
+            None
+        }
+    };
     loop {
         tokio::select! {
             r = bus.api(operator, request(&state), CALL_LIMIT) => match r {
@@ -708,6 +719,7 @@ async fn poll<S>(
         }
         tokio::select! {
             _ = tokio::time::sleep(POLL) => {}
+            _ = changed.notified() => {}
             _ = stop.requested() => return ExitCode::SUCCESS,
         }
     }

@@ -50,8 +50,12 @@ struct Cli {
     /// `<credentials-dir>/opcua-users.toml`.
     #[arg(long)]
     users: Option<PathBuf>,
-    /// How often to look at the cell, in ms.
-    #[arg(long, default_value_t = 100)]
+    /// How often to look at the cell when the operator has said nothing,
+    /// in ms. A change is looked at as soon as the operator publishes it
+    /// (`falc/<cell>/<operator>/changed`); this look is for what that
+    /// publication cannot tell (the operator gone, a change while this
+    /// gateway was away).
+    #[arg(long, default_value_t = 1000)]
     poll_ms: u64,
     /// How many of the newest journal entries to serve.
     #[arg(long, default_value_t = 20)]
@@ -103,6 +107,30 @@ fn host_port(listen: &str) -> Result<(String, u16), String> {
         ));
     }
     Ok((host.trim_matches(['[', ']']).to_string(), port))
+}
+
+/// When (after the last write) the values written are written again,
+/// unchanged: covers sampling intervals up to 50 ms (asyncua's default)
+/// at once, up to 5 s eventually. async-opcua
+/// 0.18 holds back a change that comes within a monitored item's sampling
+/// interval of the previous one (asyncua clients ask for 50 ms) and, when
+/// its subscription ticks before the held value is due, forgets to tick it
+/// again (`Subscription::tick` drains `notified_monitored_items`): the
+/// change would reach the client only with the next one. Writing the
+/// same values again once the held one is due lets it out (an unchanged
+/// value is no notification of its own). Seen in benches/opcua.rs: 1 in
+/// ~70 changes lost without it.
+const REFRESH: [Duration; 3] = [
+    Duration::from_millis(60),
+    Duration::from_secs(1),
+    Duration::from_secs(5),
+];
+
+/// What the gateway does after waiting.
+#[derive(PartialEq)]
+enum Next {
+    Look,
+    Stop,
 }
 
 async fn run(cli: Cli) -> Result<(), String> {
@@ -163,11 +191,19 @@ async fn run(cli: Cli) -> Result<(), String> {
         }
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
+    // The operator's word that its status changed: look at once.
+    let poked = running.poked.clone();
+    let _changed = bus
+        .on_changed(&operator, move || poked.notify_one())
+        .await
+        .map_err(|e| e.to_string())?;
     let mut shutdown = Shutdown::new();
     let mut mirror = space::Mirror::default();
     let mut poller = Poller::new(cli.journal_entries);
     let mut ready = false;
     let period = Duration::from_millis(cli.poll_ms.max(10));
+    let mut refresh = std::collections::BTreeSet::new();
+    let mut refresh_at: Vec<tokio::time::Instant> = Vec::new();
     loop {
         // A look waits for the operator (up to 2 s a call when it is gone):
         // a stop is heard meanwhile too.
@@ -197,17 +233,41 @@ async fn run(cli: Cli) -> Result<(), String> {
                 cli.user
             ));
         }
-        tokio::select! {
-            _ = tokio::time::sleep(period) => {}
-            _ = running.poked.notified() => {}
-            _ = shutdown.requested() => break,
-            ended = &mut serving => {
-                return Err(match ended {
-                    Ok(Ok(())) => "the OPC UA server ended".to_string(),
-                    Ok(Err(e)) => format!("the OPC UA server failed: {e}"),
-                    Err(e) => format!("the OPC UA server task failed: {e}"),
-                });
+        if !changes.values.is_empty() {
+            refresh.extend(changes.values.iter().map(|(id, _)| id.clone()));
+            let now = tokio::time::Instant::now();
+            refresh_at = REFRESH.iter().map(|d| now + *d).collect();
+        }
+        // Until the next look: refresh what was written when it is due.
+        let next = loop {
+            let due = async {
+                match refresh_at.first() {
+                    Some(at) => tokio::time::sleep_until(*at).await,
+                    None => std::future::pending().await,
+                }
+            };
+            tokio::select! {
+                _ = tokio::time::sleep(period) => break Next::Look,
+                _ = running.poked.notified() => break Next::Look,
+                _ = due => {
+                    running.set(&mirror.current(&refresh));
+                    refresh_at.remove(0);
+                    if refresh_at.is_empty() {
+                        refresh.clear();
+                    }
+                }
+                _ = shutdown.requested() => break Next::Stop,
+                ended = &mut serving => {
+                    return Err(match ended {
+                        Ok(Ok(())) => "the OPC UA server ended".to_string(),
+                        Ok(Err(e)) => format!("the OPC UA server failed: {e}"),
+                        Err(e) => format!("the OPC UA server task failed: {e}"),
+                    });
+                }
             }
+        };
+        if next == Next::Stop {
+            break;
         }
     }
     tracing::info!("falc-opcua stopping");

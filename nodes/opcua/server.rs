@@ -476,14 +476,18 @@ pub fn build(
         .discovery_urls(vec![path.to_owned()])
         .with_authenticator(users as Arc<dyn opcua::server::authenticator::AuthManager>)
         .with_node_manager(manager)
-        // Subscribers hear of a change within 20 ms of the gateway's look
+        // Subscribers hear of a change within 20 ms of the gateway's write
         // (async-opcua's default is 100 ms).
         .subscription_poll_interval_ms(PUBLISH_MS);
     builder
         .limits_mut()
         .subscriptions
         .min_publishing_interval_ms = PUBLISH_MS as f64;
-    builder.limits_mut().subscriptions.min_sampling_interval_ms = PUBLISH_MS as f64;
+    // Values change only when the cell does (the gateway writes on the
+    // operator's word), so a monitored item that asks for sampling
+    // interval 0 gets every change as it is written (see `REFRESH` in
+    // main.rs for what happens with an interval).
+    builder.limits_mut().subscriptions.min_sampling_interval_ms = 0.0;
     let none: [String; 0] = [];
     use opcua::crypto::SecurityPolicy as P;
     use opcua::types::MessageSecurityMode as M;

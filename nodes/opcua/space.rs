@@ -20,7 +20,7 @@ use falc_model::console::{ApiRequest, Call, CellStatus, Entry, Order};
 use falc_model::ids::StationName;
 use falc_model::mms::vmd::VmdStatus;
 use falc_model::topology::StationKind;
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 /// The prefix of every node id of the gateway's namespace.
 pub const ROOT: &str = "FALC";
@@ -496,6 +496,13 @@ impl Mirror {
     /// next look passes on every one; the alarms stay known.
     pub fn forget_values(&mut self) {
         self.values.clear();
+    }
+
+    /// The values of `ids` as mirrored now (those still mirrored).
+    pub fn current(&self, ids: &BTreeSet<String>) -> Vec<(String, Value)> {
+        ids.iter()
+            .filter_map(|id| Some((id.clone(), self.values.get(id)?.clone())))
+            .collect()
     }
 
     /// Takes in a look's values and alarms.

@@ -164,6 +164,7 @@ impl Operator {
                     self.indications.remove(&ticket);
                 }
                 Output::Say(line) => say(&line),
+                Output::Changed => self.station.bus().publish_changed().await,
             }
         }
     }

@@ -99,6 +99,18 @@ pub fn rules_of(topology: &Topology, station: &StationName) -> Vec<Rule> {
     ));
 
     if topology.station(me).map(|s| s.kind) == Some(StationKind::Operator) {
+        out.push(rule(
+            format!("{me}/changed-in"),
+            "ingress",
+            &["put"],
+            vec![keys.changed(me)],
+        ));
+        out.push(rule(
+            format!("{me}/changed-out"),
+            "egress",
+            &["declare_subscriber"],
+            vec![keys.changed(me)],
+        ));
         let api: Vec<String> = Call::ALL.iter().map(|&c| keys.api_any(me, c)).collect();
         out.push(rule(
             format!("{me}/api-serve-in"),
@@ -198,8 +210,9 @@ pub fn rules_of(topology: &Topology, station: &StationName) -> Vec<Rule> {
     out
 }
 
-/// Every allow rule of a console user: its liveliness token, and queries
-/// on the operator API calls its role allows.
+/// Every allow rule of a console user: its liveliness token, queries on
+/// the operator API calls its role allows, and the operator's `changed`
+/// publications.
 pub fn console_rules(topology: &Topology, console: &Console) -> Vec<Rule> {
     let keys = KeySpace::new(topology.cell().clone());
     let me = &console.name;
@@ -217,6 +230,19 @@ pub fn console_rules(topology: &Topology, console: &Console) -> Vec<Rule> {
             vec![keys.alive_any(me)],
         ),
         rule(format!("{me}/api-in"), "ingress", &["query"], api.clone()),
+        // Every role may hear that the status changed (it may read it).
+        rule(
+            format!("{me}/changed-in"),
+            "ingress",
+            &["declare_subscriber"],
+            vec![keys.changed(operator)],
+        ),
+        rule(
+            format!("{me}/changed-out"),
+            "egress",
+            &["put"],
+            vec![keys.changed(operator)],
+        ),
         rule(
             format!("{me}/api-out"),
             "egress",

@@ -384,6 +384,32 @@ impl Bus {
         }
     }
 
+    /// Tells the consoles that watch that this operator's status changed
+    /// (an empty put on [`KeySpace::changed`]).
+    pub async fn publish_changed(&self) {
+        let key = self.keys.changed(&self.me.station);
+        if let Err(e) = self.session.put(&key, Vec::<u8>::new()).await {
+            tracing::warn!(%key, "publication failed: {e}");
+        }
+    }
+
+    /// Calls `on_change` each time `operator` says its status changed. The
+    /// payload is not read: nothing a sender puts there is taken in.
+    pub async fn on_changed(
+        &self,
+        operator: &StationName,
+        on_change: impl Fn() + Send + Sync + 'static,
+    ) -> Result<Declaration, BusError> {
+        let key = self.keys.changed(operator);
+        let sub = self
+            .session
+            .declare_subscriber(&key)
+            .callback(move |_| on_change())
+            .await
+            .map_err(declare_failed("subscriber", &key))?;
+        Ok(Declaration(Box::new(sub)))
+    }
+
     /// Subscribes to a station's `status` and `report`; decoded messages go
     /// to `out`, malformed ones are logged and dropped.
     pub async fn subscribe(

@@ -107,6 +107,9 @@ pub enum Output {
     Forget(Ticket),
     /// A line for the node's standard output (`EVENT …`, `JOURNAL …`).
     Say(String),
+    /// What `status` answers changed: tell the consoles that watch
+    /// (a publication, so they need not ask again and again).
+    Changed,
 }
 
 /// A question the cell asked, waiting for `answer`.
@@ -253,6 +256,8 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     /// When to try the cell again.
     next_try: Duration,
     out: VecDeque<Output>,
+    /// The status as last told by [`Output::Changed`].
+    told: Option<CellStatus>,
 }
 
 /// The content hash of each recipe of `set`, in order.
@@ -309,6 +314,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             early: Vec::new(),
             next_try: Duration::ZERO,
             out: VecDeque::new(),
+            told: None,
         }
     }
 
@@ -318,9 +324,18 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self
     }
 
-    /// The next thing the node must do.
+    /// The next thing the node must do. When nothing else is left, an
+    /// [`Output::Changed`] if the status differs from the one last told.
     pub fn poll_output(&mut self) -> Option<Output> {
-        self.out.pop_front()
+        if let Some(out) = self.out.pop_front() {
+            return Some(out);
+        }
+        let now = self.status().ok()?;
+        if self.told.as_ref() == Some(&now) {
+            return None;
+        }
+        self.told = Some(now);
+        Some(Output::Changed)
     }
 
     /// When to call [`Self::handle_timeout`]: the next attempt to
@@ -2016,6 +2031,41 @@ mod tests {
     }
 
     #[test]
+    fn a_change_of_status_is_told_once_and_a_look_is_no_change() {
+        let changed = |out: &[Output]| out.iter().filter(|o| matches!(o, Output::Changed)).count();
+        let mut r = Rig::new();
+        let _ = r.outputs();
+        // A station's status: told once, with the rest of what came out.
+        let status = VmdStatus {
+            logical: falc_model::mms::vmd::LogicalStatus::NoStateChangesAllowed,
+            ..VmdStatus::default()
+        };
+        let publish = |r: &mut Rig| {
+            r.publish(Unconfirmed::Status {
+                station: st("welding"),
+                status: status.clone(),
+            })
+        };
+        assert_eq!(changed(&publish(&mut r)), 1);
+        // The same status again, and a console's look: no change.
+        assert_eq!(changed(&publish(&mut r)), 0);
+        let (_, out) = r.api("console", ApiRequest::Status);
+        assert_eq!(changed(&out), 0, "{out:?}");
+        // A station gone and an order added: each a change.
+        r.list.handle_presence(r.now, st("welding"), false);
+        let _ = r.outputs();
+        r.list.handle_presence(r.now, st("welding"), true);
+        assert_eq!(changed(&r.outputs()), 1);
+        let (_, out) = r.api(
+            "console",
+            ApiRequest::OrderAdd {
+                recipe: "dikdroog".into(),
+            },
+        );
+        assert_eq!(changed(&out), 1, "{out:?}");
+    }
+
+    #[test]
     fn a_failed_write_halts_the_running_order_and_no_order_runs_twice() {
         let mut r = Rig::new();
         r.add(2);
@@ -2028,6 +2078,10 @@ mod tests {
             text: "seam 1 done".into(),
         });
         assert!(said(&out, "EVENT store-error disk full"));
+        let out: Vec<&Output> = out
+            .iter()
+            .filter(|o| !matches!(o, Output::Changed))
+            .collect();
         assert!(
             matches!(&out[..], [.., Output::Respond { ticket, result: Err(_) }, Output::Cell(CellCall::Stop { .. })] if *ticket == q),
             "the question refused, the order stopped at the cell: {out:?}"

@@ -7,6 +7,7 @@
 //! | `falc/<cell>/<st>/report` | put: information reports |
 //! | `falc/<cell>/alive/<st>/<session>` | liveliness token |
 //! | `falc/<cell>/<operator>/api/<call>` | queryable: operator API |
+//! | `falc/<cell>/<operator>/changed` | put: the operator's status changed (empty) |
 //!
 //! The liveliness key carries the session id as a last chunk so that an
 //! abort indication always refers to the one session that was associated,
@@ -53,6 +54,13 @@ impl KeySpace {
     /// in its own name, so the operator knows who asks from the key.
     pub fn api(&self, operator: &StationName, call: Call, user: &StationName) -> String {
         format!("falc/{}/{operator}/api/{call}/{user}", self.cell)
+    }
+
+    /// `falc/<cell>/<operator>/changed`: an empty publication each time
+    /// what the operator's `status` answers changed. Consoles that watch
+    /// (the OPC UA gateway, `falc status --watch`) ask again when it comes.
+    pub fn changed(&self, operator: &StationName) -> String {
+        format!("falc/{}/{operator}/changed", self.cell)
     }
 
     /// `falc/<cell>/<operator>/api/<call>/*`: a call by any user (the
