@@ -472,6 +472,35 @@ commander = "cell"
     }
 
     #[test]
+    fn every_console_hears_that_the_status_changed_and_only_the_operator_says_it() {
+        let t = Topology::parse(
+            &format!("{TOPO}\n[[console]]\nname = \"olga\"\nrole = \"observer\"\n"),
+            "t",
+        )
+        .expect("valid");
+        let key = "falc/falc1/operator/changed";
+        let allows = |rules: &[Rule], msg: &str| {
+            rules.iter().any(|r| {
+                r.flow == "ingress" && r.messages.contains(&msg) && r.keys.iter().any(|k| k == key)
+            })
+        };
+        let olga = t
+            .console(&StationName::new("olga").expect("valid"))
+            .expect("console");
+        assert!(allows(&console_rules(&t, olga), "declare_subscriber"));
+        assert!(!allows(&console_rules(&t, olga), "put"));
+        let operator = rules_of(&t, &StationName::new("operator").expect("valid"));
+        assert!(allows(&operator, "put"));
+        for st in ["cell", "welding"] {
+            let rules = rules_of(&t, &StationName::new(st).expect("valid"));
+            assert!(
+                !allows(&rules, "put") && !allows(&rules, "declare_subscriber"),
+                "{st}"
+            );
+        }
+    }
+
+    #[test]
     fn consoles_reach_only_the_api_calls_of_their_role() {
         let t = Topology::parse(
             &format!(
