@@ -5,7 +5,7 @@
 
 use falc_dnc::alarms::{self, Effect};
 use falc_dnc::procedure::Timing;
-use falc_dnc::telegram::{EndResult, Mode, ProgramState, Telegram};
+use falc_dnc::telegram::{AckError, EndResult, Mode, ProgramState, Telegram};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::RobotProgram;
 use falc_model::ids::StationName;
@@ -74,6 +74,8 @@ pub struct Host {
     /// A maintainer started the robot's program by hand: it is theirs,
     /// not an orphan to stop, until it ends, is stopped, or a job starts.
     by_hand: bool,
+    /// The job's select was sent again after a refusal noise can cause.
+    reselected: bool,
 }
 
 fn word(state: ProgramState) -> &'static str {
@@ -105,6 +107,7 @@ impl Host {
             mode: None,
             last_alarm: None,
             by_hand: false,
+            reselected: false,
         }
     }
 
@@ -211,6 +214,7 @@ impl Host {
     pub fn start(&mut self, program: RobotProgram) -> Vec<Out> {
         self.pending = Some(Pending::Select(program));
         self.by_hand = false;
+        self.reselected = false;
         vec![Out::Telegram(Telegram::SelectProgram(program))]
     }
 
@@ -369,6 +373,27 @@ impl Host {
                 self.asked = None;
                 vec![Out::Engine(Event::Started(rcm))]
             }
+            // 3964R's block check is an XOR: two flips in one column pass
+            // it. A select or start refused as an unknown program, a start
+            // with none selected or a telegram not understood may be such
+            // a spoilt telegram (seen at 2 % flips: "no such program" for
+            // a program the RCM has): the job selects once more.
+            (
+                Telegram::Ack {
+                    of,
+                    error:
+                        Some(
+                            AckError::UnknownProgram
+                            | AckError::NoProgramSelected
+                            | AckError::Malformed,
+                        ),
+                },
+                Some(Pending::Select(p) | Pending::Start(p)),
+            ) if !self.reselected && (of == b'S' || of == b'G') => {
+                self.reselected = true;
+                self.pending = Some(Pending::Select(p));
+                vec![Out::Telegram(Telegram::SelectProgram(p))]
+            }
             (Telegram::Ack { of, error: Some(e) }, Some(step))
                 if of
                     == match step {
@@ -474,7 +499,6 @@ impl Host {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use falc_dnc::telegram::AckError;
     use falc_model::mms::vmd::RobotVmdState;
 
     fn rcm() -> StationName {
@@ -625,6 +649,20 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+        // A refusal noise can cause: selected once more, then refused.
+        h.start(p65());
+        let unknown = Telegram::Ack {
+            of: b'S',
+            error: Some(AckError::UnknownProgram),
+        };
+        assert!(matches!(
+            h.telegram(s(0), unknown.clone()).as_slice(),
+            [Out::Telegram(Telegram::SelectProgram(p))] if *p == p65()
+        ));
+        assert!(matches!(
+            h.telegram(s(0), unknown).as_slice(),
+            [Out::Engine(Event::StartFailed(_, _))]
+        ));
         let estop = h.telegram(s(0), Telegram::Alarm(24));
         assert!(
             matches!(&estop[0], Out::Detail(d) if d.specific & RobotStatusDetail::SAFETY_INTERLOCKS_VIOLATED != 0)
