@@ -5,7 +5,7 @@
 
 use falc_dnc::alarms::{self, Effect};
 use falc_dnc::procedure::Timing;
-use falc_dnc::telegram::{AckError, EndResult, Mode, ProgramState, Telegram};
+use falc_dnc::telegram::{EndResult, Mode, ProgramState, Telegram};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::RobotProgram;
 use falc_model::ids::StationName;
@@ -74,7 +74,8 @@ pub struct Host {
     /// A maintainer started the robot's program by hand: it is theirs,
     /// not an orphan to stop, until it ends, is stopped, or a job starts.
     by_hand: bool,
-    /// The job's select was sent again after a refusal noise can cause.
+    /// The job's select was sent again after a refusal noise can cause
+    /// ([`falc_dnc::telegram::AckError::may_be_noise`]).
     reselected: bool,
 }
 
@@ -373,27 +374,6 @@ impl Host {
                 self.asked = None;
                 vec![Out::Engine(Event::Started(rcm))]
             }
-            // 3964R's block check is an XOR: two flips in one column pass
-            // it. A select or start refused as an unknown program, a start
-            // with none selected or a telegram not understood may be such
-            // a spoilt telegram (seen at 2 % flips: "no such program" for
-            // a program the RCM has): the job selects once more.
-            (
-                Telegram::Ack {
-                    of,
-                    error:
-                        Some(
-                            AckError::UnknownProgram
-                            | AckError::NoProgramSelected
-                            | AckError::Malformed,
-                        ),
-                },
-                Some(Pending::Select(p) | Pending::Start(p)),
-            ) if !self.reselected && (of == b'S' || of == b'G') => {
-                self.reselected = true;
-                self.pending = Some(Pending::Select(p));
-                vec![Out::Telegram(Telegram::SelectProgram(p))]
-            }
             (Telegram::Ack { of, error: Some(e) }, Some(step))
                 if of
                     == match step {
@@ -401,6 +381,14 @@ impl Host {
                         Pending::Start(_) => b'G',
                     } =>
             {
+                if e.may_be_noise() && !std::mem::replace(&mut self.reselected, true) {
+                    // Perhaps a spoilt telegram (seen at 2 % flips: "no
+                    // such program" for a program the RCM has): the job
+                    // selects once more.
+                    let (Pending::Select(p) | Pending::Start(p)) = step;
+                    self.pending = Some(Pending::Select(p));
+                    return vec![Out::Telegram(Telegram::SelectProgram(p))];
+                }
                 self.pending = None;
                 vec![Out::Engine(Event::StartFailed(
                     rcm,
@@ -499,6 +487,7 @@ impl Host {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use falc_dnc::telegram::AckError;
     use falc_model::mms::vmd::RobotVmdState;
 
     fn rcm() -> StationName {

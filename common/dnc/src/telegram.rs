@@ -107,6 +107,18 @@ impl AckError {
         })
     }
 
+    /// Whether a spoilt telegram may have caused this refusal rather than
+    /// the RCM's state: 3964R's block check is an XOR, so two flips in one
+    /// bit column pass it, and a program number or command spoilt that way
+    /// comes back as an unknown program, a start with none selected or a
+    /// telegram not understood. Sending the select again is worth it once.
+    pub fn may_be_noise(self) -> bool {
+        matches!(
+            self,
+            Self::UnknownProgram | Self::NoProgramSelected | Self::Malformed
+        )
+    }
+
     /// The ISO 9506 error the workstation answers with.
     pub fn to_service_error(self) -> ServiceError {
         let (class, text) = match self {
