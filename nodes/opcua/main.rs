@@ -109,23 +109,6 @@ fn host_port(listen: &str) -> Result<(String, u16), String> {
     Ok((host.trim_matches(['[', ']']).to_string(), port))
 }
 
-/// When (after the last write) the values written are written again,
-/// unchanged: covers sampling intervals up to 50 ms (asyncua's default)
-/// at once, up to 5 s eventually. async-opcua
-/// 0.18 holds back a change that comes within a monitored item's sampling
-/// interval of the previous one (asyncua clients ask for 50 ms) and, when
-/// its subscription ticks before the held value is due, forgets to tick it
-/// again (`Subscription::tick` drains `notified_monitored_items`): the
-/// change would reach the client only with the next one. Writing the
-/// same values again once the held one is due lets it out (an unchanged
-/// value is no notification of its own). Seen in benches/opcua.rs: 1 in
-/// ~70 changes lost without it.
-const REFRESH: [Duration; 3] = [
-    Duration::from_millis(60),
-    Duration::from_secs(1),
-    Duration::from_secs(5),
-];
-
 /// What the gateway does after waiting.
 #[derive(PartialEq)]
 enum Next {
@@ -202,8 +185,6 @@ async fn run(cli: Cli) -> Result<(), String> {
     let mut poller = Poller::new(cli.journal_entries);
     let mut ready = false;
     let period = Duration::from_millis(cli.poll_ms.max(10));
-    let mut refresh = std::collections::BTreeSet::new();
-    let mut refresh_at: Vec<tokio::time::Instant> = Vec::new();
     loop {
         // A look waits for the operator (up to 2 s a call when it is gone):
         // a stop is heard meanwhile too.
@@ -233,16 +214,13 @@ async fn run(cli: Cli) -> Result<(), String> {
                 cli.user
             ));
         }
-        if !changes.values.is_empty() {
-            refresh.extend(changes.values.iter().map(|(id, _)| id.clone()));
-            let now = tokio::time::Instant::now();
-            refresh_at = REFRESH.iter().map(|d| now + *d).collect();
-        }
-        // Until the next look: refresh what was written when it is due.
+        mirror.written(std::time::Instant::now(), &changes.values);
+        // Until the next look: write again what was written when it is due
+        // (space::REFRESH).
         let next = loop {
             let due = async {
-                match refresh_at.first() {
-                    Some(at) => tokio::time::sleep_until(*at).await,
+                match mirror.next_refresh() {
+                    Some(at) => tokio::time::sleep_until(at.into()).await,
                     None => std::future::pending().await,
                 }
             };
@@ -250,11 +228,7 @@ async fn run(cli: Cli) -> Result<(), String> {
                 _ = tokio::time::sleep(period) => break Next::Look,
                 _ = running.poked.notified() => break Next::Look,
                 _ = due => {
-                    running.set(&mirror.current(&refresh));
-                    refresh_at.remove(0);
-                    if refresh_at.is_empty() {
-                        refresh.clear();
-                    }
+                    running.set(&mirror.refresh(std::time::Instant::now()));
                 }
                 _ = shutdown.requested() => break Next::Stop,
                 ended = &mut serving => {

@@ -485,8 +485,8 @@ pub fn build(
         .min_publishing_interval_ms = PUBLISH_MS as f64;
     // Values change only when the cell does (the gateway writes on the
     // operator's word), so a monitored item that asks for sampling
-    // interval 0 gets every change as it is written (see `REFRESH` in
-    // main.rs for what happens with an interval).
+    // interval 0 gets every change as it is written (`space::REFRESH`
+    // says what happens with an interval).
     builder.limits_mut().subscriptions.min_sampling_interval_ms = 0.0;
     let none: [String; 0] = [];
     use opcua::crypto::SecurityPolicy as P;

@@ -20,7 +20,8 @@ use falc_model::console::{ApiRequest, Call, CellStatus, Entry, Order};
 use falc_model::ids::StationName;
 use falc_model::mms::vmd::VmdStatus;
 use falc_model::topology::StationKind;
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
+use std::time::{Duration, Instant};
 
 /// The prefix of every node id of the gateway's namespace.
 pub const ROOT: &str = "FALC";
@@ -473,13 +474,34 @@ fn event(a: &Alarm, what: &str) -> AlarmEvent {
     }
 }
 
+/// When, after the last write, the values written are written again,
+/// unchanged: covers sampling intervals up to 50 ms (asyncua's default)
+/// at once, up to 5 s eventually. async-opcua 0.18 holds back a change
+/// that comes within a monitored item's sampling interval of the previous
+/// one and, when its subscription ticks before the held value is due,
+/// forgets to tick it again (`Subscription::tick` drains
+/// `notified_monitored_items`): the change would reach the client only
+/// with the next one. Writing the same values again once the held one is
+/// due lets it out (an unchanged value is no notification of its own).
+/// Seen in benches/opcua.rs: 1 in ~70 changes lost without it.
+pub const REFRESH: [Duration; 3] = [
+    Duration::from_millis(60),
+    Duration::from_secs(1),
+    Duration::from_secs(5),
+];
+
 /// Successive looks, as changes: each value only when it changed, an
-/// event when an alarm appears, is acknowledged or clears.
+/// event when an alarm appears, is acknowledged or clears; and when to
+/// write the values written again ([`REFRESH`]).
 #[derive(Debug, Default)]
 pub struct Mirror {
     values: HashMap<String, Value>,
     alarms: BTreeMap<i64, Alarm>,
     seen: bool,
+    /// The values written since the refreshes began, and when each
+    /// refresh is due (earliest first).
+    refresh: BTreeSet<String>,
+    refresh_due: VecDeque<Instant>,
 }
 
 /// What one look changed.
@@ -498,11 +520,38 @@ impl Mirror {
         self.values.clear();
     }
 
-    /// The values of `ids` as mirrored now (those still mirrored).
-    pub fn current(&self, ids: &BTreeSet<String>) -> Vec<(String, Value)> {
-        ids.iter()
+    /// `values` were written at `now`: the refreshes begin again.
+    pub fn written(&mut self, now: Instant, values: &[(String, Value)]) {
+        if values.is_empty() {
+            return;
+        }
+        self.refresh.extend(values.iter().map(|(id, _)| id.clone()));
+        self.refresh_due = REFRESH.iter().map(|d| now + *d).collect();
+    }
+
+    /// When the next refresh is due.
+    pub fn next_refresh(&self) -> Option<Instant> {
+        self.refresh_due.front().copied()
+    }
+
+    /// At `now`: the values to write again, as mirrored now (none when
+    /// no refresh is due).
+    pub fn refresh(&mut self, now: Instant) -> Vec<(String, Value)> {
+        if !matches!(self.next_refresh(), Some(due) if due <= now) {
+            return Vec::new();
+        }
+        while self.next_refresh().is_some_and(|due| due <= now) {
+            self.refresh_due.pop_front();
+        }
+        let values = self
+            .refresh
+            .iter()
             .filter_map(|id| Some((id.clone(), self.values.get(id)?.clone())))
-            .collect()
+            .collect();
+        if self.refresh_due.is_empty() {
+            self.refresh.clear();
+        }
+        values
     }
 
     /// Takes in a look's values and alarms.
@@ -554,6 +603,30 @@ mod tests {
     use super::*;
     use falc_model::console::{ListState, OrderState, StationView};
     use falc_model::mms::vmd::{ProgramState, RobotStatusDetail, RobotVmdState};
+
+    #[test]
+    fn written_values_are_written_again_when_each_refresh_is_due() {
+        let mut m = Mirror::default();
+        let t0 = Instant::now();
+        let v = |s: &str| Value::Text(s.into());
+        let changes = m.update(vec![("a".into(), v("1")), ("b".into(), v("2"))], &[]);
+        m.written(t0, &changes.values);
+        assert_eq!(m.next_refresh(), Some(t0 + REFRESH[0]));
+        assert!(m.refresh(t0).is_empty(), "not due yet");
+        // A later write of `a` starts the refreshes again, with its value
+        // as mirrored then.
+        let later = m.update(vec![("a".into(), v("3")), ("b".into(), v("2"))], &[]);
+        let t1 = t0 + Duration::from_millis(30);
+        m.written(t1, &later.values);
+        assert!(m.refresh(t0 + REFRESH[0]).is_empty());
+        let due = m.refresh(t1 + REFRESH[0]);
+        assert_eq!(due, vec![("a".into(), v("3")), ("b".into(), v("2"))]);
+        assert_eq!(m.next_refresh(), Some(t1 + REFRESH[1]));
+        // Late: every refresh that passed is one write, then none is left.
+        assert_eq!(m.refresh(t1 + REFRESH[2]).len(), 2);
+        assert_eq!(m.next_refresh(), None);
+        assert!(m.refresh(t1 + REFRESH[2] * 2).is_empty());
+    }
 
     fn st(s: &str) -> StationName {
         StationName::new(s).expect("valid")
