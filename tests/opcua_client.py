@@ -162,7 +162,12 @@ async def subscribe(c, ns, falc):
     changes and the values seen so far (the first of each)."""
     changes = Changes()
     sub = await c.create_subscription(50, changes)
-    await sub.subscribe_data_change([c.get_node(ua.NodeId(i, ns)) for i in WATCHED])
+    # Sampling interval 0: every value the gateway writes. With asyncua's
+    # default (50 ms) a state shorter than that (Held, when a question is
+    # asked and answered within 50 ms at time scale 50) is sampled away.
+    await sub.subscribe_data_change(
+        [c.get_node(ua.NodeId(i, ns)) for i in WATCHED], sampling_interval=0.0
+    )
     await sub.subscribe_events(falc)
     seen = {}
     await changes.until(seen, lambda s: all(i in s for i in WATCHED), 10)
