@@ -54,6 +54,7 @@ CREATE TABLE IF NOT EXISTS journal (
     text TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS journal_order ON journal(order_id);
+CREATE INDEX IF NOT EXISTS orders_state ON orders(state);
 CREATE TABLE IF NOT EXISTS alarms (
     id INTEGER PRIMARY KEY AUTOINCREMENT,
     station TEXT NOT NULL,
@@ -313,7 +314,16 @@ impl Records for Database {
 
     /// How many orders are queued.
     fn queued(&self) -> Result<usize, Self::Error> {
-        Ok(self.orders_in(OrderState::Queued)?.len())
+        // Read with every status, and the order list told of each change
+        // of it: counted, not listed.
+        self.conn
+            .query_row(
+                "SELECT COUNT(*) FROM orders WHERE state = ?1",
+                params![OrderState::Queued.as_str()],
+                |r| r.get::<_, i64>(0),
+            )
+            .map(|n| usize::try_from(n).unwrap_or(0))
+            .map_err(self.fail("cannot count the queued orders"))
     }
 
     /// Removes a queued order; refuses any other.
