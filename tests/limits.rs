@@ -364,4 +364,8 @@ fn a_router_mode_session_is_closed_and_the_zenoh_errors_it_causes_are_rate_limit
         held_back >= 1_000,
         "the denied declarations cause zenoh errors, held back in the summary: {summary:?}"
     );
+    // The way back from the workstation's comings and goings (each an
+    // alarm, cleared by its return): ack, and the next order done.
+    rig.cell.falc(&["ack"]);
+    rig.next_order_done("dikdroog");
 }
