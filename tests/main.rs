@@ -22,6 +22,7 @@ mod modes;
 mod noise;
 mod opcua;
 mod operator;
+mod plant;
 mod recipes;
 mod recovery;
 mod restart;

@@ -16,10 +16,13 @@ mod denials;
 mod firewall;
 mod logins;
 mod modes;
+mod plant;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use falc_bus::{acl, certificates, config, credentials};
+use falc_model::ids::CellId;
+use falc_model::plant::Plant;
 use falc_model::topology::Topology;
 use std::path::{Path, PathBuf};
 
@@ -35,6 +38,10 @@ struct Cli {
     /// Directory of credential files (created if missing).
     #[arg(long, default_value = "launch/credentials", global = true)]
     credentials_dir: PathBuf,
+    /// A plant topology (`launch/factory.toml`) instead of one cell's:
+    /// `run` is then the factory router, `run --cell ID` that cell's router.
+    #[arg(long, global = true)]
+    plant: Option<PathBuf>,
     #[command(subcommand)]
     command: Option<Command>,
 }
@@ -49,6 +56,9 @@ enum Command {
         /// Log each distinct ACL denial once (a diagnostic; see the docs).
         #[arg(long)]
         trace_acl: bool,
+        /// With `--plant`: run this cell's router (default: the factory router).
+        #[arg(long)]
+        cell: Option<CellId>,
     },
     /// Create missing credential files and certificates (the cell CA, one
     /// per node and console user, the router's) and list them.
@@ -151,11 +161,19 @@ fn bundle(
 #[tokio::main]
 async fn main() -> Result<()> {
     let cli = Cli::parse();
-    let topology = Topology::load(&cli.topology)?;
-    match cli.command.unwrap_or(Command::Run {
+    let command = cli.command.unwrap_or(Command::Run {
         listen: None,
         trace_acl: false,
-    }) {
+        cell: None,
+    });
+    if let Some(path) = &cli.plant {
+        return plant_main(&Plant::load(path)?, &cli.credentials_dir, command).await;
+    }
+    if let Command::Run { cell: Some(id), .. } = &command {
+        anyhow::bail!("`run --cell {id}` runs a cell router of a plant: give the plant (--plant)");
+    }
+    let topology = Topology::load(&cli.topology)?;
+    match command {
         Command::Acl { matrix: true } => {
             print!("{}", acl::matrix(&topology));
             Ok(())
@@ -186,8 +204,65 @@ async fn main() -> Result<()> {
         Command::Bundle { user, out } => {
             bundle(&topology, &cli.topology, &cli.credentials_dir, &user, &out)
         }
-        Command::Run { listen, trace_acl } => {
-            run(&topology, &cli.credentials_dir, listen, trace_acl).await
+        Command::Run {
+            listen, trace_acl, ..
+        } => run(&topology, &cli.credentials_dir, listen, trace_acl).await,
+    }
+}
+
+/// `falc-router --plant FILE …`: the routers of a plant ([`plant`]).
+async fn plant_main(plant: &Plant, dir: &Path, command: Command) -> Result<()> {
+    match command {
+        Command::Run {
+            listen,
+            trace_acl,
+            cell,
+        } => {
+            let router = match &cell {
+                Some(id) => plant::cell(plant, id, dir, listen)?,
+                None => plant::factory(plant, dir, listen)?,
+            };
+            let what = match &cell {
+                Some(id) => format!("cell {id}'s router, linked to the factory router"),
+                None => format!("plant {}'s factory router", plant.name()),
+            };
+            serve(
+                router.config,
+                router.admit,
+                &router.listen,
+                trace_acl,
+                &what,
+            )
+            .await
+        }
+        Command::Credentials => {
+            for f in plant::ensure_credentials(plant, dir)? {
+                println!("{}", f.display());
+            }
+            Ok(())
+        }
+        Command::Acl { matrix: false } => {
+            let mut all = serde_json::Map::new();
+            all.insert("factory".into(), acl::factory_access_control(plant));
+            for c in plant.cells() {
+                all.insert(
+                    c.id().to_string(),
+                    acl::cell_router_access_control(plant, c),
+                );
+            }
+            println!("{}", serde_json::to_string_pretty(&all)?);
+            Ok(())
+        }
+        Command::Acl { matrix: true } => {
+            for c in plant.cells() {
+                println!("cell {}:\n", c.id());
+                print!("{}", acl::matrix(c.topology()));
+                println!();
+            }
+            Ok(())
+        }
+        Command::Bundle { .. } | Command::Firewall { .. } => {
+            anyhow::bail!("`bundle` and `firewall` take one cell's topology for now, not a plant")
         }
     }
 }
@@ -198,7 +273,6 @@ async fn run(
     listen: Option<String>,
     trace_acl: bool,
 ) -> Result<()> {
-    let (denials, refusals) = init_tracing(trace_acl);
     let creds = ensure_credentials(topology, dir)?;
     let dict = dir.join("router.dict");
     credentials::write_private(&dict, &credentials::dictionary(&creds))?;
@@ -211,22 +285,39 @@ async fn run(
             topology.router()
         );
     }
-    raise_open_files();
     let cfg = config::router(
         &listen,
         topology.lease(),
         &dict,
         tls.as_ref(),
         acl::access_control(topology),
+        config::Place::Cell,
     )?;
-    let session = modes::open(cfg)
+    let what = format!(
+        "cell {}'s router, {} stations, secure transport {}",
+        topology.cell(),
+        topology.stations().len(),
+        if tls.is_some() { "on" } else { "off" }
+    );
+    serve(cfg, modes::Admit::default(), &listen, trace_acl, &what).await
+}
+
+/// Runs a router on `cfg` until asked to stop; `what` says which in its log.
+async fn serve(
+    cfg: zenoh::Config,
+    admit: modes::Admit,
+    listen: &str,
+    trace_acl: bool,
+    what: &str,
+) -> Result<()> {
+    let (denials, refusals) = init_tracing(trace_acl);
+    raise_open_files();
+    let session = modes::open(cfg, admit)
         .await
         .map_err(|e| anyhow::anyhow!("cannot start the router on {listen}: {e}"))?;
     tracing::info!(
         %listen,
-        stations = topology.stations().len(),
-        secure = tls.is_some(),
-        "router up: usrpwd authentication on, access control default deny"
+        "router up ({what}): usrpwd authentication on, access control default deny"
     );
     // The one line on stdout: tests and the launcher wait for it.
     println!("falc-router ready on {listen}");

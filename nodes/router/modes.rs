@@ -20,6 +20,7 @@
 //! two, the remote's first messages may be routed: within its user's
 //! rights, as the access control applies to every session.
 
+use std::collections::BTreeSet;
 use std::sync::Arc;
 use zenoh::config::WhatAmI;
 use zenoh_transport::{
@@ -27,9 +28,31 @@ use zenoh_transport::{
     TransportMulticastEventHandler, TransportPeer, TransportPeerEventHandler,
 };
 
-/// Whether a remote of this mode may keep its session.
-pub fn admitted(mode: WhatAmI) -> bool {
-    mode == WhatAmI::Client
+/// Which routers a router admits besides clients: none in a cell of its
+/// own; in a plant, the factory router admits each cell router (by the
+/// user it logged in with), and a cell router its own link up to the
+/// factory router (which it opened: no user logged in on it).
+#[derive(Debug, Clone, Default)]
+pub struct Admit {
+    /// The cell routers' users (at the factory router).
+    pub routers: BTreeSet<String>,
+    /// The factory router's zenoh id (at a cell router).
+    pub uplink: Option<String>,
+}
+
+/// Whether a remote may keep its session: a client, unless it claims the
+/// factory router's id (only the link the cell router opened may carry
+/// it, and that one has no user), or a router the plant names.
+pub fn admitted(admit: &Admit, mode: WhatAmI, user: Option<&str>, zid: &str) -> bool {
+    let is_uplink = admit.uplink.as_deref() == Some(zid);
+    match mode {
+        WhatAmI::Client => !is_uplink,
+        WhatAmI::Router => match user {
+            Some(user) => admit.routers.contains(user),
+            None => is_uplink,
+        },
+        WhatAmI::Peer => false,
+    }
 }
 
 /// The host part of a locator (`tcp/10.0.0.5:41234` → `tcp/10.0.0.5`): a
@@ -44,12 +67,14 @@ pub fn host(locator: &str) -> &str {
 /// used by zenoh beyond being told of links and the end.
 pub struct ClientsOnly {
     tasks: tokio::runtime::Handle,
+    admit: Admit,
 }
 
 impl ClientsOnly {
-    /// A handler whose closes run on `tasks`.
-    pub fn new(tasks: tokio::runtime::Handle) -> Self {
-        ClientsOnly { tasks }
+    /// A handler whose closes run on `tasks`, admitting clients and the
+    /// routers `admit` names.
+    pub fn new(tasks: tokio::runtime::Handle, admit: Admit) -> Self {
+        ClientsOnly { tasks, admit }
     }
 }
 
@@ -59,19 +84,35 @@ impl TransportEventHandler for ClientsOnly {
         peer: TransportPeer,
         transport: TransportUnicast,
     ) -> zenoh::Result<Arc<dyn TransportPeerEventHandler>> {
-        if admitted(peer.whatami) {
-            return Err("a client: nothing to do".into());
+        let user = transport
+            .get_auth_ids()
+            .ok()
+            .and_then(|ids| ids.username().cloned());
+        let zid = peer.zid.to_string();
+        if admitted(&self.admit, peer.whatami, user.as_deref(), &zid) {
+            if peer.whatami == WhatAmI::Router {
+                tracing::info!(
+                    "router {zid} linked ({})",
+                    user.as_deref()
+                        .unwrap_or("the link up to the factory router")
+                );
+            }
+            return Err("admitted: nothing to do".into());
         }
         let from = peer
             .links
             .first()
             .map(|l| l.dst.to_string())
             .unwrap_or_else(|| "an unknown address".into());
+        let who = user
+            .as_deref()
+            .map(|u| format!(" as {}", falc_model::ids::printable(u)))
+            .unwrap_or_default();
         falc_bus::log_limit::warn(
             host(&from),
             &format!(
-                "a session in {} mode from {from} (zenoh id {}) closed: FALC admits clients only (docs/install.md, \"Clients only\")",
-                peer.whatami, peer.zid
+                "a session in {} mode from {from}{who} (zenoh id {zid}) closed: FALC admits clients only, and in a plant the routers it names (docs/install.md, \"Clients only\")",
+                peer.whatami
             ),
         );
         // The close holds the transport from its first poll, here: zenoh
@@ -103,13 +144,14 @@ impl TransportEventHandler for ClientsOnly {
 
 /// Opens the router's zenoh session on `cfg` with [`ClientsOnly`] in place
 /// before it listens.
-pub async fn open(cfg: zenoh::Config) -> zenoh::Result<zenoh::Session> {
+pub async fn open(cfg: zenoh::Config, admit: Admit) -> zenoh::Result<zenoh::Session> {
     use zenoh::internal::runtime::{DynamicRuntime, RuntimeBuilder};
     let mut runtime = RuntimeBuilder::new(cfg).build().await?;
     let dynamic = DynamicRuntime::from(runtime.clone());
-    dynamic.new_handler(Arc::new(
-        ClientsOnly::new(tokio::runtime::Handle::current()),
-    ));
+    dynamic.new_handler(Arc::new(ClientsOnly::new(
+        tokio::runtime::Handle::current(),
+        admit,
+    )));
     let session = zenoh::session::init(dynamic).await?;
     runtime.start().await?;
     Ok(session)
@@ -121,9 +163,45 @@ mod tests {
 
     #[test]
     fn only_clients_are_admitted() {
-        assert!(admitted(WhatAmI::Client));
-        assert!(!admitted(WhatAmI::Router));
-        assert!(!admitted(WhatAmI::Peer));
+        let cell = Admit::default();
+        assert!(admitted(&cell, WhatAmI::Client, Some("welding"), "a1"));
+        assert!(!admitted(&cell, WhatAmI::Router, Some("welding"), "a1"));
+        assert!(!admitted(&cell, WhatAmI::Router, None, "a1"));
+        assert!(!admitted(&cell, WhatAmI::Peer, Some("welding"), "a1"));
+    }
+
+    #[test]
+    fn in_a_plant_the_named_routers_are_admitted_and_nobody_else_as_the_factory() {
+        let factory = Admit {
+            routers: ["router-falc1".to_string()].into(),
+            uplink: None,
+        };
+        assert!(admitted(
+            &factory,
+            WhatAmI::Router,
+            Some("router-falc1"),
+            "c1"
+        ));
+        assert!(!admitted(&factory, WhatAmI::Router, Some("operator"), "c1"));
+        assert!(!admitted(
+            &factory,
+            WhatAmI::Peer,
+            Some("router-falc1"),
+            "c1"
+        ));
+        assert!(admitted(&factory, WhatAmI::Client, Some("operator"), "b2"));
+        let cell = Admit {
+            routers: Default::default(),
+            uplink: Some("f123".into()),
+        };
+        // Its own link up: a router with no user logged in (it opened it).
+        assert!(admitted(&cell, WhatAmI::Router, None, "f123"));
+        assert!(!admitted(&cell, WhatAmI::Router, None, "f999"));
+        // A station that claims the factory router's id is closed, in
+        // any mode: the access control names the link up by that id.
+        assert!(!admitted(&cell, WhatAmI::Client, Some("welding"), "f123"));
+        assert!(!admitted(&cell, WhatAmI::Router, Some("welding"), "f123"));
+        assert!(admitted(&cell, WhatAmI::Client, Some("welding"), "a1"));
     }
 
     #[test]

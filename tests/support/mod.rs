@@ -9,6 +9,7 @@ pub mod flood;
 pub mod hosts;
 pub mod noise;
 pub mod opcua;
+pub mod plant;
 pub mod rig;
 pub mod stats;
 

@@ -28,6 +28,7 @@ use falc_model::console::Call;
 use falc_model::ids::StationName;
 use falc_model::keys::KeySpace;
 use falc_model::mms::pdu::ServiceName;
+use falc_model::plant::{Plant, PlantCell};
 use falc_model::topology::{Console, StationKind, Topology};
 use serde_json::{json, Value};
 
@@ -63,8 +64,49 @@ pub fn served_services(topology: &Topology, station: &StationName) -> Vec<Servic
     v
 }
 
-/// Every allow rule of `station`.
+/// Every allow rule of `station`: its part of the hierarchy and, for the
+/// operator, serving the operator API.
 pub fn rules_of(topology: &Topology, station: &StationName) -> Vec<Rule> {
+    let mut out = hierarchy_rules(topology, station);
+    if topology.station(station).map(|s| s.kind) == Some(StationKind::Operator) {
+        out.extend(api_rules(topology, station));
+    }
+    out
+}
+
+/// The operator's rules for serving the operator API under the
+/// topology's name (a cell's, or a plant's) and telling that its status
+/// changed.
+pub fn api_rules(topology: &Topology, me: &StationName) -> Vec<Rule> {
+    let keys = KeySpace::new(topology.cell().clone());
+    let api: Vec<String> = Call::ALL.iter().map(|&c| keys.api_any(me, c)).collect();
+    vec![
+        rule(
+            format!("{me}/changed-in"),
+            "ingress",
+            &["put"],
+            vec![keys.changed(me)],
+        ),
+        rule(
+            format!("{me}/changed-out"),
+            "egress",
+            &["declare_subscriber"],
+            vec![keys.changed(me)],
+        ),
+        rule(
+            format!("{me}/api-serve-in"),
+            "ingress",
+            &["declare_queryable", "reply"],
+            api.clone(),
+        ),
+        rule(format!("{me}/api-serve-out"), "egress", &["query"], api),
+    ]
+}
+
+/// The rules of `station`'s place in the hierarchy of the topology's
+/// cell: serving and publishing its own, commanding its subordinates,
+/// asking the operator, watching and reading.
+pub fn hierarchy_rules(topology: &Topology, station: &StationName) -> Vec<Rule> {
     let keys = KeySpace::new(topology.cell().clone());
     let svc = |st: &StationName, services: &mut dyn Iterator<Item = ServiceName>| -> Vec<String> {
         services.map(|s| keys.service(st, s)).collect()
@@ -97,34 +139,6 @@ pub fn rules_of(topology: &Topology, station: &StationName) -> Vec<Rule> {
         &["declare_subscriber"],
         own_pub,
     ));
-
-    if topology.station(me).map(|s| s.kind) == Some(StationKind::Operator) {
-        out.push(rule(
-            format!("{me}/changed-in"),
-            "ingress",
-            &["put"],
-            vec![keys.changed(me)],
-        ));
-        out.push(rule(
-            format!("{me}/changed-out"),
-            "egress",
-            &["declare_subscriber"],
-            vec![keys.changed(me)],
-        ));
-        let api: Vec<String> = Call::ALL.iter().map(|&c| keys.api_any(me, c)).collect();
-        out.push(rule(
-            format!("{me}/api-serve-in"),
-            "ingress",
-            &["declare_queryable", "reply"],
-            api.clone(),
-        ));
-        out.push(rule(
-            format!("{me}/api-serve-out"),
-            "egress",
-            &["query"],
-            api,
-        ));
-    }
 
     let subordinates = topology.subordinates_of(me);
     for sub in &subordinates {
@@ -305,35 +319,47 @@ pub fn matrix(topology: &Topology) -> String {
     out
 }
 
-/// The `access_control` section of the router's zenoh configuration.
-pub fn access_control(topology: &Topology) -> Value {
-    let tls = crate::certificates::is_secure(topology.router());
+/// Who a subject of the access control is.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Subject {
+    /// A user the router authenticated (usrpwd; on a secure router also
+    /// the common name of its client certificate, over QUIC only).
+    User(String),
+    /// A cell router's link up to the factory router, which the cell
+    /// router opened itself: the factory router's zenoh id. The cell
+    /// router closes every other session that claims that id
+    /// (`nodes/router/modes.rs`), so only its own link carries it.
+    Uplink {
+        /// The factory router's zenoh id ([`crate::config::factory_router_id`]).
+        zid: String,
+    },
+}
+
+/// The `access_control` section of a router's zenoh configuration: default
+/// deny, and for each subject its rules.
+fn section(secure: bool, entries: Vec<(Subject, Vec<Rule>)>) -> Value {
     let mut rules = Vec::new();
     let mut subjects = Vec::new();
     let mut policies = Vec::new();
-    let users = topology
-        .stations()
-        .iter()
-        .map(|st| (&st.name, rules_of(topology, &st.name)))
-        .chain(
-            topology
-                .consoles()
-                .iter()
-                .map(|c| (&c.name, console_rules(topology, c))),
-        );
-    for (name, mine) in users {
+    for (who, mine) in entries {
+        let (name, mut subject) = match &who {
+            Subject::User(name) => (name.clone(), json!({ "usernames": [name] })),
+            Subject::Uplink { zid } => ("uplink".to_string(), json!({ "zids": [zid] })),
+        };
+        subject["id"] = json!(format!("{name}/subject"));
+        if secure {
+            if let Subject::User(name) = &who {
+                // The certificate and the password must both be this user's:
+                // a stolen password alone, or a certificate alone, opens nothing.
+                subject["cert_common_names"] = json!([name]);
+            }
+            subject["link_protocols"] = json!([crate::certificates::SECURE_PROTOCOL]);
+        }
         policies.push(json!({
             "id": format!("{name}/policy"),
             "rules": mine.iter().map(|r| r.id.clone()).collect::<Vec<_>>(),
             "subjects": [format!("{name}/subject")],
         }));
-        let mut subject = json!({ "id": format!("{name}/subject"), "usernames": [name.as_str()] });
-        if tls {
-            // The certificate and the password must both be this user's:
-            // a stolen password alone, or a certificate alone, opens nothing.
-            subject["cert_common_names"] = json!([name.as_str()]);
-            subject["link_protocols"] = json!([crate::certificates::SECURE_PROTOCOL]);
-        }
         subjects.push(subject);
         rules.extend(mine.into_iter().map(|r| {
             json!({
@@ -352,6 +378,114 @@ pub fn access_control(topology: &Topology) -> Value {
         "subjects": subjects,
         "policies": policies,
     })
+}
+
+/// The `access_control` section of the cell router's zenoh configuration.
+pub fn access_control(topology: &Topology) -> Value {
+    let users = topology
+        .stations()
+        .iter()
+        .map(|st| (&st.name, rules_of(topology, &st.name)))
+        .chain(
+            topology
+                .consoles()
+                .iter()
+                .map(|c| (&c.name, console_rules(topology, c))),
+        )
+        .map(|(name, rules)| (Subject::User(name.as_str().to_string()), rules))
+        .collect();
+    section(crate::certificates::is_secure(topology.router()), users)
+}
+
+/// Every message kind zenoh's access control knows.
+const EVERY_MESSAGE: [&str; 9] = [
+    "put",
+    "delete",
+    "declare_subscriber",
+    "query",
+    "reply",
+    "declare_queryable",
+    "liveliness_token",
+    "declare_liveliness_subscriber",
+    "liveliness_query",
+];
+
+/// `rules` with ids made unique per cell (`<cell>:<id>`): the operator
+/// has the same rules in every cell.
+fn in_cell(cell: &PlantCell, rules: Vec<Rule>) -> Vec<Rule> {
+    rules
+        .into_iter()
+        .map(|r| Rule {
+            id: format!("{}:{}", cell.id(), r.id),
+            ..r
+        })
+        .collect()
+}
+
+/// The factory router's access control in a plant:
+/// - the operator serves the operator API under the plant's name and has
+///   its place at the root of every cell (commanding each cell
+///   controller, reading every station, serving operator communication);
+/// - each console user reaches the API calls of its role, as in a cell;
+/// - each cell router's link carries its own cell's keys, nothing else
+///   (`falc/<cell>/**`): within the cell its router holds the hierarchy.
+pub fn factory_access_control(plant: &Plant) -> Value {
+    let factory = plant.factory();
+    let operator = &plant.operator().name;
+    let mut operator_rules = api_rules(factory, operator);
+    for cell in plant.cells() {
+        operator_rules.extend(in_cell(cell, hierarchy_rules(cell.topology(), operator)));
+    }
+    let mut entries = vec![(Subject::User(operator.as_str().to_string()), operator_rules)];
+    for c in factory.consoles() {
+        entries.push((
+            Subject::User(c.name.as_str().to_string()),
+            console_rules(factory, c),
+        ));
+    }
+    for cell in plant.cells() {
+        let user = cell.router_user().as_str();
+        let keys = vec![KeySpace::new(cell.id().clone()).cell_any()];
+        entries.push((
+            Subject::User(user.to_string()),
+            vec![
+                rule(
+                    format!("{user}/cell-in"),
+                    "ingress",
+                    &EVERY_MESSAGE,
+                    keys.clone(),
+                ),
+                rule(format!("{user}/cell-out"), "egress", &EVERY_MESSAGE, keys),
+            ],
+        ));
+    }
+    section(crate::certificates::is_secure(plant.router()), entries)
+}
+
+/// A cell router's access control in a plant: each station of the cell
+/// as in a cell of its own, and the link up to the factory router with
+/// the operator's rules in this cell (commander traffic only).
+pub fn cell_router_access_control(plant: &Plant, cell: &PlantCell) -> Value {
+    let topology = cell.topology();
+    let operator = &topology.root().name;
+    let mut entries: Vec<(Subject, Vec<Rule>)> = topology
+        .stations()
+        .iter()
+        .filter(|st| &st.name != operator)
+        .map(|st| {
+            (
+                Subject::User(st.name.as_str().to_string()),
+                rules_of(topology, &st.name),
+            )
+        })
+        .collect();
+    entries.push((
+        Subject::Uplink {
+            zid: crate::config::factory_router_id(plant.name()),
+        },
+        hierarchy_rules(topology, operator),
+    ));
+    section(crate::certificates::is_secure(topology.router()), entries)
 }
 
 #[cfg(test)]
@@ -566,5 +700,125 @@ commander = "cell"
             );
             assert_eq!(subject["link_protocols"], json!(["quic"]));
         }
+    }
+
+    const PLANT: &str = r#"
+plant = "plant"
+router = "tcp/127.0.0.1:7440"
+[operator]
+name = "operator"
+[[console]]
+name = "olga"
+role = "observer"
+[[cell]]
+cell = "falc1"
+router = "tcp/127.0.0.1:7441"
+[[cell.station]]
+name = "cell"
+kind = "cell"
+commander = "operator"
+[[cell.station]]
+name = "welding"
+kind = "welding"
+commander = "cell"
+[[cell]]
+cell = "falc2"
+router = "tcp/127.0.0.1:7442"
+[[cell.station]]
+name = "cell"
+kind = "cell"
+commander = "operator"
+"#;
+
+    /// The rules of `subject` in a generated section.
+    fn rules_for<'a>(v: &'a Value, subject: &str) -> Vec<&'a Value> {
+        let policy = v["policies"]
+            .as_array()
+            .expect("policies")
+            .iter()
+            .find(|p| p["subjects"][0] == format!("{subject}/subject"))
+            .expect("the subject's policy");
+        let ids: Vec<&str> = policy["rules"]
+            .as_array()
+            .expect("rules")
+            .iter()
+            .filter_map(|r| r.as_str())
+            .collect();
+        v["rules"]
+            .as_array()
+            .expect("rules")
+            .iter()
+            .filter(|r| r["id"].as_str().is_some_and(|id| ids.contains(&id)))
+            .collect()
+    }
+
+    fn keys_of(rules: &[&Value]) -> Vec<String> {
+        rules
+            .iter()
+            .flat_map(|r| r["key_exprs"].as_array().expect("keys").iter())
+            .filter_map(|k| k.as_str().map(str::to_string))
+            .collect()
+    }
+
+    #[test]
+    fn the_factory_router_scopes_each_cell_router_to_its_cell() {
+        let plant = Plant::parse(PLANT, "p").expect("plant");
+        let v = factory_access_control(&plant);
+        let ids: Vec<&str> = v["rules"]
+            .as_array()
+            .expect("rules")
+            .iter()
+            .filter_map(|r| r["id"].as_str())
+            .collect();
+        let unique: std::collections::BTreeSet<_> = ids.iter().collect();
+        assert_eq!(ids.len(), unique.len(), "rule ids are unique");
+        // operator, olga, router-falc1, router-falc2
+        assert_eq!(v["subjects"].as_array().map(|a| a.len()), Some(4));
+        for cell in ["falc1", "falc2"] {
+            let keys = keys_of(&rules_for(&v, &format!("router-{cell}")));
+            assert_eq!(keys, [format!("falc/{cell}/**"), format!("falc/{cell}/**")]);
+        }
+        // The operator serves the API under the plant's name and commands
+        // each cell controller, never a workstation.
+        let op = keys_of(&rules_for(&v, "operator"));
+        assert!(op.contains(&"falc/plant/operator/api/start/*".to_string()));
+        assert!(op.contains(&"falc/falc1/cell/svc/start".to_string()));
+        assert!(op.contains(&"falc/falc2/cell/svc/start".to_string()));
+        assert!(!op.iter().any(|k| k.contains("/welding/svc/")), "{op:?}");
+        let olga = keys_of(&rules_for(&v, "olga"));
+        assert!(olga.contains(&"falc/plant/operator/api/status/olga".to_string()));
+        assert!(
+            olga.iter().all(|k| k.starts_with("falc/plant/")),
+            "{olga:?}"
+        );
+    }
+
+    #[test]
+    fn a_cell_router_takes_its_stations_and_the_operators_traffic_from_the_link_up() {
+        let plant = Plant::parse(PLANT, "p").expect("plant");
+        let cell = &plant.cells()[0];
+        let v = cell_router_access_control(&plant, cell);
+        let subjects = v["subjects"].as_array().expect("subjects");
+        // cell, welding, the link up; the operator and consoles log in at
+        // the factory router, never here.
+        assert_eq!(subjects.len(), 3, "{subjects:?}");
+        let uplink = subjects
+            .iter()
+            .find(|s| s["id"] == "uplink/subject")
+            .expect("the link up");
+        assert_eq!(
+            uplink["zids"],
+            json!([crate::config::factory_router_id(plant.name())])
+        );
+        assert!(uplink["usernames"].is_null());
+        let up = keys_of(&rules_for(&v, "uplink"));
+        assert!(up.contains(&"falc/falc1/cell/svc/start".to_string()));
+        assert!(up.contains(&"falc/falc1/operator/svc/input".to_string()));
+        assert!(
+            up.iter()
+                .all(|k| k.starts_with("falc/falc1/") && !k.contains("/api/")),
+            "commander traffic of this cell only: {up:?}"
+        );
+        assert!(!up.iter().any(|k| k.contains("/welding/svc/")), "{up:?}");
     }
 }

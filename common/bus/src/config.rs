@@ -14,6 +14,7 @@
 
 use super::certificates::{TlsFiles, SECURE_PROTOCOL};
 use super::credentials::Credentials;
+use falc_model::ids::CellId;
 use serde_json::{json, Value};
 use std::path::Path;
 use std::time::Duration;
@@ -108,6 +109,7 @@ pub fn router(
     dictionary: &Path,
     tls: Option<&TlsFiles>,
     access_control: Value,
+    place: Place<'_>,
 ) -> Result<zenoh::Config, ConfigError> {
     let mut v = common("router", lease);
     if let Some(tls) = tls {
@@ -126,7 +128,62 @@ pub fn router(
         "usrpwd": { "dictionary_file": dictionary.display().to_string() }
     });
     v["access_control"] = access_control;
+    match place {
+        Place::Cell => {}
+        Place::Factory { plant } => v["id"] = json!(factory_router_id(plant)),
+        Place::CellInPlant {
+            uplink,
+            credentials,
+        } => {
+            v["connect"] = json!({
+                "endpoints": [uplink],
+                "exit_on_failure": false,
+                // Tried again after 0.5 s, then doubling to at most 2 s.
+                "retry": {
+                    "period_init_ms": 500,
+                    "period_max_ms": 2000,
+                    "period_increase_factor": 2,
+                },
+            });
+            v["transport"]["auth"]["usrpwd"]["user"] = json!(credentials.user);
+            v["transport"]["auth"]["usrpwd"]["password"] = json!(credentials.password);
+        }
+    }
     build(v)
+}
+
+/// Where a router stands.
+#[derive(Debug, Clone, Copy)]
+pub enum Place<'a> {
+    /// The router of a cell on its own (`launch/cell.toml`).
+    Cell,
+    /// The factory router of a plant (`launch/factory.toml`): its zenoh id
+    /// is [`factory_router_id`], by which each cell router knows its link.
+    Factory {
+        /// The plant's name.
+        plant: &'a CellId,
+    },
+    /// A cell router of a plant: it also connects to the factory router,
+    /// logging in with its own credentials, and keeps trying while the
+    /// link is cut.
+    CellInPlant {
+        /// The factory router's endpoint.
+        uplink: &'a str,
+        /// The cell router's user at the factory router.
+        credentials: &'a Credentials,
+    },
+}
+
+/// The factory router's zenoh id, derived from the plant's name (FNV-1a):
+/// each cell router's access control names its link up by it.
+pub fn factory_router_id(plant: &CellId) -> String {
+    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in format!("falc-factory-router/{plant}").bytes() {
+        hash ^= u64::from(b);
+        hash = hash.wrapping_mul(0x0100_0000_01b3);
+    }
+    // A leading non-zero digit: zenoh prints an id without leading zeros.
+    format!("f{:015x}", hash >> 4)
 }
 
 #[cfg(test)]
@@ -154,7 +211,8 @@ mod tests {
             Duration::from_secs(1),
             Path::new("/tmp/dict"),
             None,
-            json!({ "enabled": true, "default_permission": "deny" })
+            json!({ "enabled": true, "default_permission": "deny" }),
+            Place::Cell,
         )
         .is_ok());
     }
@@ -168,6 +226,7 @@ mod tests {
             Path::new("/tmp/dict"),
             Some(&tls),
             json!({ "enabled": true, "default_permission": "deny" }),
+            Place::Cell,
         )
         .expect("router config");
         let get = |key: &str| cfg.get_json(key).expect(key);
@@ -193,5 +252,45 @@ mod tests {
             .get_json("transport/link/tls/connect_certificate")
             .expect("certificate")
             .contains("cell.crt"));
+    }
+
+    #[test]
+    fn a_cell_router_in_a_plant_links_up_and_the_factory_router_has_its_known_id() {
+        let plant = CellId::new("plant").expect("id");
+        let id = factory_router_id(&plant);
+        assert_eq!(id.len(), 16);
+        assert!(id.starts_with('f'), "{id}");
+        assert_ne!(id, factory_router_id(&CellId::new("plant2").expect("id")));
+        let factory = router(
+            "tcp/127.0.0.1:7440",
+            Duration::from_secs(1),
+            Path::new("/tmp/dict"),
+            None,
+            json!({ "enabled": true, "default_permission": "deny" }),
+            Place::Factory { plant: &plant },
+        )
+        .expect("factory router config");
+        assert_eq!(factory.get_json("id").expect("id"), format!("\"{id}\""));
+        let up = Credentials {
+            user: "router-falc1".into(),
+            password: "p".into(),
+        };
+        let cell = router(
+            "tcp/127.0.0.1:7441",
+            Duration::from_secs(1),
+            Path::new("/tmp/dict"),
+            None,
+            json!({ "enabled": true, "default_permission": "deny" }),
+            Place::CellInPlant {
+                uplink: "tcp/127.0.0.1:7440",
+                credentials: &up,
+            },
+        )
+        .expect("cell router config");
+        let get = |key: &str| cell.get_json(key).expect(key);
+        assert_eq!(get("connect/endpoints"), r#"["tcp/127.0.0.1:7440"]"#);
+        assert_eq!(get("connect/exit_on_failure"), "false");
+        assert_eq!(get("transport/auth/usrpwd/user"), r#""router-falc1""#);
+        assert!(get("transport/auth/usrpwd/dictionary_file").contains("/tmp/dict"));
     }
 }

@@ -9,6 +9,9 @@
 //! | `falc/<cell>/<operator>/api/<call>` | queryable: operator API |
 //! | `falc/<cell>/<operator>/changed` | put: the operator's status changed (empty) |
 //!
+//! In a plant (`launch/factory.toml`) every cell has its own key space, and
+//! the operator API and `changed` are under the plant's name.
+//!
 //! The liveliness key carries the session id as a last chunk so that an
 //! abort indication always refers to the one session that was associated,
 //! even while a restarted node already holds a new token.
@@ -67,6 +70,12 @@ impl KeySpace {
     /// operator's queryable and its ACL rules).
     pub fn api_any(&self, operator: &StationName, call: Call) -> String {
         format!("falc/{}/{operator}/api/{call}/*", self.cell)
+    }
+
+    /// `falc/<cell>/**`: every key of the cell (a cell router's link to
+    /// the factory router carries nothing else).
+    pub fn cell_any(&self) -> String {
+        format!("falc/{}/**", self.cell)
     }
 
     /// `falc/<cell>/alive/<st>/*`: every token of a station (ACL rules).

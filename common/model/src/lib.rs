@@ -2,6 +2,7 @@
 //!
 //! - [`ids`]: validated names (stations, cells, MMS objects);
 //! - [`topology`]: `launch/cell.toml`, the cell's stations and hierarchy;
+//! - [`plant`]: `launch/factory.toml`, several cells under one operator;
 //! - [`alarm`]: alarm classes, causes and the operator's alarm record;
 //! - [`mms`]: the MMS-equivalent service model, sans-I/O;
 //! - [`console`]: what a console asks the operator node and what it answers;
@@ -16,4 +17,5 @@ pub mod ids;
 pub mod keys;
 pub mod mms;
 pub mod mode;
+pub mod plant;
 pub mod topology;

@@ -89,20 +89,21 @@ pub struct Console {
     pub host: Option<IpAddr>,
 }
 
+/// A topology as read, before validation.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct RawTopology {
-    cell: CellId,
-    router: String,
+pub(crate) struct RawTopology {
+    pub(crate) cell: CellId,
+    pub(crate) router: String,
     #[serde(default = "default_lease_ms")]
-    lease_ms: u64,
+    pub(crate) lease_ms: u64,
     #[serde(rename = "station", default)]
-    stations: Vec<Station>,
+    pub(crate) stations: Vec<Station>,
     #[serde(rename = "console", default)]
-    consoles: Vec<Console>,
+    pub(crate) consoles: Vec<Console>,
 }
 
-fn default_lease_ms() -> u64 {
+pub(crate) fn default_lease_ms() -> u64 {
     1000
 }
 
@@ -190,6 +191,12 @@ impl Topology {
             origin: origin.to_string(),
             message: e.to_string().trim_end().to_string(),
         })?;
+        Self::from_raw(raw, origin)
+    }
+
+    /// Validates a topology given in parts (a plant's cells are built
+    /// this way, [`crate::plant`]); `origin` names it in errors.
+    pub(crate) fn from_raw(raw: RawTopology, origin: &str) -> Result<Self, TopologyError> {
         let fail = |message: String| TopologyError::Hierarchy {
             origin: origin.to_string(),
             message,

@@ -18,8 +18,9 @@ pub mod plc_link;
 use falc_bus::certificates;
 use falc_bus::credentials::{self, CredentialsError};
 use falc_bus::BusSettings;
-use falc_model::ids::StationName;
+use falc_model::ids::{CellId, StationName};
 use falc_model::keys::KeySpace;
+use falc_model::plant::Plant;
 use falc_model::topology::{Topology, TopologyError};
 use std::path::PathBuf;
 use std::time::Duration;
@@ -43,6 +44,11 @@ pub struct NodeArgs {
     /// How long to keep trying to reach the router at start, in ms.
     #[arg(long, default_value_t = 10_000)]
     pub connect_timeout_ms: u64,
+    /// In a plant: the topology file is the plant's (`launch/factory.toml`)
+    /// and this node is a station of cell CELL, reaching that cell's
+    /// router with its credentials from `<credentials-dir>/<CELL>/`.
+    #[arg(long)]
+    pub cell: Option<CellId>,
 }
 
 /// Why a node could not be set up.
@@ -54,6 +60,14 @@ pub enum SetupError {
     /// The credentials are missing, unreadable or too open.
     #[error(transparent)]
     Credentials(#[from] CredentialsError),
+    /// The plant has no such cell.
+    #[error("the plant {topology} has no cell `{cell}`")]
+    UnknownCell {
+        /// The cell asked for.
+        cell: CellId,
+        /// The plant file.
+        topology: String,
+    },
     /// The station (or console user) is not in the topology.
     #[error("station or console `{station}` is not defined in {topology}")]
     UnknownStation {
@@ -67,7 +81,19 @@ pub enum SetupError {
 impl NodeArgs {
     /// Loads the topology (with the router override applied).
     pub fn topology(&self) -> Result<Topology, SetupError> {
-        let mut t = Topology::load(&self.topology)?;
+        let mut t = match &self.cell {
+            None => Topology::load(&self.topology)?,
+            Some(id) => {
+                let plant = Plant::load(&self.topology)?;
+                plant
+                    .cell(id)
+                    .map(|c| c.topology().clone())
+                    .ok_or_else(|| SetupError::UnknownCell {
+                        cell: id.clone(),
+                        topology: self.topology.display().to_string(),
+                    })?
+            }
+        };
         if let Some(r) = &self.router {
             t.set_router(r.clone());
         }
@@ -86,10 +112,14 @@ impl NodeArgs {
                 topology: self.topology.display().to_string(),
             });
         }
+        let dir = match &self.cell {
+            Some(cell) => self.credentials_dir.join(cell.as_str()),
+            None => self.credentials_dir.clone(),
+        };
         let path = self
             .credentials
             .clone()
-            .unwrap_or_else(|| self.credentials_dir.join(format!("{station}.toml")));
+            .unwrap_or_else(|| dir.join(format!("{station}.toml")));
         let credentials = credentials::load(&path)?;
         // On a secure (QUIC) router the certificate and key sit beside the
         // credentials file (`<user>.crt`, `<user>.key`, `ca.crt`).

@@ -1,0 +1,326 @@
+//! A plant: the factory router and a router per cell (real `falc-router`
+//! processes joined by zenoh's own router-to-router links), demo stations
+//! in two cells, and sessions of this test process as the operator, as
+//! stations of either cell and as a cell router. The hierarchy holds
+//! across routers, nothing of one cell reaches another, and a cell router
+//! links up again by itself.
+
+use crate::support::plant::TestPlant;
+use crate::support::st;
+use falc_bus::{Bus, DEFAULT_DEADLINE};
+use falc_model::mms::error::ServiceError;
+use falc_model::mms::pdu::{Request, Response};
+use std::time::{Duration, Instant};
+
+fn is_unreachable(e: &ServiceError) -> bool {
+    e.class.to_string() == "application-reference/application-unreachable"
+}
+
+async fn status(bus: &Bus, station: &str) -> Result<Response, ServiceError> {
+    bus.request(&st(station), &Request::Status, DEFAULT_DEADLINE)
+        .await
+}
+
+async fn refused(bus: &Bus, station: &str, what: &str) {
+    let r = status(bus, station).await;
+    assert!(matches!(&r, Err(e) if is_unreachable(e)), "{what}: {r:?}");
+}
+
+/// Every sample `bus` receives on `key` within `wait`.
+async fn heard(bus: &Bus, key: &str, wait: Duration) -> usize {
+    let sub = bus
+        .session()
+        .declare_subscriber(key)
+        .await
+        .expect("subscriber");
+    let mut n = 0;
+    let end = tokio::time::Instant::now() + wait;
+    while let Ok(Ok(_)) = tokio::time::timeout_at(end, sub.recv_async()).await {
+        n += 1;
+    }
+    n
+}
+
+/// Every liveliness token `bus` sees under `key`.
+async fn tokens(bus: &Bus, key: &str) -> Vec<String> {
+    let replies = bus
+        .session()
+        .liveliness()
+        .get(key)
+        .timeout(Duration::from_secs(1))
+        .await
+        .expect("liveliness get");
+    let mut v = Vec::new();
+    while let Ok(r) = replies.recv_async().await {
+        if let Ok(s) = r.result() {
+            v.push(s.key_expr().to_string());
+        }
+    }
+    v
+}
+
+/// The operator commands each cell controller through the factory router
+/// and that cell's router; a cell's controller associates its own
+/// workstation there. Cell 1's welding credentials reach nothing of cell 2
+/// (neither through its own router nor at cell 2's or the factory's), nor
+/// the operator API; cell 1's router's credentials reach nothing of
+/// cell 2 at the factory router.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_hierarchy_holds_across_routers_and_no_cell_reaches_another() {
+    let plant = TestPlant::start();
+    let _stations = [
+        plant.demo_station("falc1", "cell"),
+        plant.demo_station("falc1", "welding"),
+        plant.demo_station("falc2", "cell"),
+        plant.demo_station("falc2", "transport"),
+    ];
+    for cell in ["falc1", "falc2"] {
+        let op = plant.operator_in(cell).await;
+        let r = op
+            .request(
+                &st("cell"),
+                &Request::Initiate {
+                    calling: op.me().clone(),
+                },
+                DEFAULT_DEADLINE,
+            )
+            .await;
+        assert!(
+            matches!(r, Ok(Response::Initiate { .. })),
+            "{cell}: the operator associates the cell (and it its workstation): {r:?}"
+        );
+        assert!(
+            matches!(status(&op, "cell").await, Ok(Response::Status(_))),
+            "{cell}"
+        );
+        let ws = if cell == "falc1" {
+            "welding"
+        } else {
+            "transport"
+        };
+        refused(
+            &op,
+            ws,
+            "the operator skips no level, across routers either",
+        )
+        .await;
+        let alive = tokens(&op, &format!("falc/{cell}/alive/{ws}/*")).await;
+        assert!(
+            alive.iter().any(|k| k.contains(&format!("/alive/{ws}/"))),
+            "{cell}: the operator watches every station of the cell: {alive:?}"
+        );
+        op.session().close().await.expect("close");
+    }
+
+    // Cell 1's welding credentials, at its own router, in cell 2's keys.
+    let router1 = plant.cell_router("falc1");
+    let router2 = plant.cell_router("falc2");
+    let foreign = plant
+        .station_at("falc1", "welding", &router1, "falc2")
+        .await
+        .expect("welding logs in at its own router");
+    for target in ["cell", "transport", "operator"] {
+        refused(
+            &foreign,
+            target,
+            &format!("cell 1's welding → cell 2's {target}"),
+        )
+        .await;
+    }
+    for key in [
+        "falc/falc2/cell/svc/status",
+        "falc/falc2/transport/svc/start",
+        "falc/falc2/**",
+        "falc/plant/operator/api/status/welding",
+        "falc/plant/operator/api/status/console",
+    ] {
+        let replies = foreign
+            .session()
+            .get(key)
+            .timeout(Duration::from_secs(1))
+            .await
+            .expect("get");
+        assert!(
+            replies.recv_async().await.is_err(),
+            "cell 1's welding got a reply on {key}"
+        );
+    }
+    // (Its own token, declared in cell 2's keys, is its session's own:
+    // the router never took it.)
+    let seen: Vec<String> = tokens(&foreign, "falc/falc2/**")
+        .await
+        .into_iter()
+        .filter(|k| !k.contains("/alive/welding/"))
+        .collect();
+    assert!(
+        seen.is_empty(),
+        "cell 2's stations seen from cell 1: {seen:?}"
+    );
+    // Cell 2's transport publishes; the operator hears it across the
+    // routers, cell 1's welding does not.
+    let op2 = plant.operator_in("falc2").await;
+    let foreign2 = foreign.clone();
+    let listen_op = tokio::spawn(async move {
+        heard(&op2, "falc/falc2/transport/status", Duration::from_secs(3)).await
+    });
+    let listen_foreign =
+        tokio::spawn(
+            async move { heard(&foreign2, "falc/falc2/**", Duration::from_secs(3)).await },
+        );
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let transport2 = plant
+        .station_at("falc2", "transport", &router2, "falc2")
+        .await
+        .expect("transport logs in at its router");
+    for i in 0..5 {
+        transport2
+            .session()
+            .put("falc/falc2/transport/status", vec![i])
+            .await
+            .expect("put");
+    }
+    assert_eq!(listen_op.await.expect("task"), 5, "the operator hears all");
+    assert_eq!(listen_foreign.await.expect("task"), 0, "cell 1 hears none");
+
+    // Cell 1's welding credentials at cell 2's router and at the factory
+    // router: no session at all.
+    for (endpoint, which) in [
+        (&router2, "cell 2's router"),
+        (&plant.plant.router().to_string(), "the factory router"),
+    ] {
+        let r = plant
+            .station_at("falc1", "welding", endpoint, "falc2")
+            .await;
+        assert!(r.is_err(), "cell 1's welding logged in at {which}");
+    }
+
+    // Cell 1's router's credentials as a client of the factory router:
+    // nothing of cell 2, nor the operator API.
+    let rogue = Bus::open(plant.settings(
+        "router-falc1",
+        "router-falc1.toml",
+        plant.plant.router(),
+        "falc2",
+    ))
+    .await
+    .expect("a cell router's user may log in at the factory router");
+    refused(&rogue, "cell", "router-falc1 → cell 2's controller").await;
+    refused(
+        &rogue,
+        "operator",
+        "router-falc1 → cell 2's operator services",
+    )
+    .await;
+    let seen: Vec<String> = tokens(&rogue, "falc/falc2/**")
+        .await
+        .into_iter()
+        .filter(|k| !k.contains("/alive/router-falc1/"))
+        .collect();
+    assert!(
+        seen.is_empty(),
+        "cell 2's stations seen by router-falc1: {seen:?}"
+    );
+    let replies = rogue
+        .session()
+        .get("falc/plant/operator/api/status/console")
+        .timeout(Duration::from_secs(1))
+        .await
+        .expect("get");
+    assert!(replies.recv_async().await.is_err());
+}
+
+/// A session that claims the factory router's zenoh id at a cell router
+/// (the id by which the cell router's access control knows its link up)
+/// gets no session: while the link is up zenoh refuses a second transport
+/// of that id; while it is cut the cell router closes it at once and names
+/// it. The real link comes back untouched.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_session_claiming_the_factory_routers_id_is_closed() {
+    let mut plant = TestPlant::start();
+    let _cell = plant.demo_station("falc1", "cell");
+    let router1 = plant.cell_router("falc1");
+    let id = falc_bus::config::factory_router_id(plant.plant.name());
+    let settings = plant.settings("welding", "falc1/welding.toml", &router1, "falc1");
+    let forge = || {
+        let mut cfg = falc_bus::config::client(
+            &settings.endpoint,
+            settings.lease,
+            settings.credentials.as_ref(),
+            None,
+            Duration::from_secs(2),
+        )
+        .expect("config");
+        cfg.insert_json5("id", &format!("\"{id}\"")).expect("id");
+        zenoh::open(cfg)
+    };
+    // While the link up is there.
+    let forged = forge().await;
+    assert!(
+        forged.is_err(),
+        "a second transport with the factory router's id was admitted"
+    );
+    // While it is cut.
+    let mut factory = plant.routers.pop().expect("the factory router");
+    factory.kill();
+    drop(factory);
+    tokio::time::sleep(plant.plant.lease() * 3).await;
+    let forged = forge().await;
+    let line = plant.routers[0]
+        .wait_line("closed", Duration::from_secs(5))
+        .expect("the cell router logs the forged session's close");
+    assert!(line.contains(&id) && line.contains("as welding"), "{line}");
+    if let Ok(s) = forged {
+        let end = Instant::now() + Duration::from_secs(5);
+        while s.info().routers_zid().await.count() > 0 {
+            assert!(Instant::now() < end, "the forged session stays connected");
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        let _ = s.close().await;
+    }
+    // The real link comes back, and the operator commands the cell.
+    plant.routers.push(plant.router(None));
+    let op = plant.operator_in("falc1").await;
+    let end = Instant::now() + Duration::from_secs(15);
+    while !matches!(status(&op, "cell").await, Ok(Response::Status(_))) {
+        assert!(Instant::now() < end, "cell 1 not reached again");
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+}
+
+/// The factory router stops and starts again: each cell router links up
+/// again by itself, and the operator reaches every cell once more.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cell_router_links_up_again_by_itself() {
+    let mut plant = TestPlant::start();
+    let _stations = [
+        plant.demo_station("falc1", "cell"),
+        plant.demo_station("falc2", "cell"),
+    ];
+    let op = plant.operator_in("falc2").await;
+    assert!(matches!(status(&op, "cell").await, Ok(Response::Status(_))));
+    op.session().close().await.expect("close");
+    let mut factory = plant.routers.pop().expect("the factory router");
+    factory.kill();
+    drop(factory);
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let started = Instant::now();
+    plant.routers.push(plant.router(None));
+    for cell in ["falc1", "falc2"] {
+        let op = plant.operator_in(cell).await;
+        let end = Instant::now() + Duration::from_secs(15);
+        loop {
+            match status(&op, "cell").await {
+                Ok(Response::Status(_)) => break,
+                r => assert!(
+                    Instant::now() < end,
+                    "{cell} not reached 15 s after the factory router came back: {r:?}"
+                ),
+            }
+            tokio::time::sleep(Duration::from_millis(200)).await;
+        }
+        eprintln!(
+            "{cell} reached {:?} after the factory router came back",
+            started.elapsed()
+        );
+    }
+}
