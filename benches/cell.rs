@@ -194,10 +194,7 @@ async fn main() {
         }
     };
     for _ in 0..ORDERS {
-        api(ApiRequest::OrderAdd {
-            recipe: "dikdroog".into(),
-        })
-        .await;
+        api(ApiRequest::order_add("dikdroog")).await;
     }
     let mut steps = Vec::new();
     let mut handovers = Vec::new();

@@ -118,7 +118,11 @@ fn random_bytes_in_every_text_field_are_refused_by_name_or_stored_escaped() {
         (
             "console",
             "OrderAdd.recipe",
-            ApiRequest::OrderAdd { recipe: mark() },
+            ApiRequest::OrderAdd {
+                recipe: mark(),
+                placement: Default::default(),
+                count: 1,
+            },
         ),
         (
             "console",

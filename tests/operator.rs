@@ -317,3 +317,64 @@ fn shutdown_waits_until_the_list_is_done() {
         && e.who == "console"
         && e.text.contains("shut down")));
 }
+
+/// Orders placed through the CLI: `--priority` and `--due` decide which
+/// runs first, `--count` adds several at once, and a cell the plant does
+/// not have, a count beyond the limit or a due time that is no time are
+/// refused with the reason, nothing added. The list then runs in the
+/// placed order, each order on the cell.
+#[test]
+fn placed_orders_run_by_priority_then_due_time() {
+    let rig = rig("100");
+    rig.cell.falc(&["order", "add", "dikdroog", "--count", "2"]);
+    rig.cell
+        .falc(&["order", "add", "pipdroog", "--due", "2026-01-01T08:00Z"]);
+    let out = rig.cell.falc(&[
+        "order",
+        "add",
+        "dundroog",
+        "--priority",
+        "5",
+        "--cell",
+        "falc1",
+    ]);
+    assert!(
+        out.contains("priority 5") && out.contains("for falc1"),
+        "{out}"
+    );
+    for (args, why) in [
+        (vec!["--cell", "falc9"], "there is no cell falc9"),
+        (vec!["--count", "101"], "give 1 to 100"),
+        (vec!["--due", "tomorrow"], "due time \"tomorrow\""),
+        (vec!["--priority", "-100"], "priority -100"),
+    ] {
+        let (code, out) = rig.cell.falc_as(
+            "console",
+            &[&["order", "add", "dikdroog"][..], &args].concat(),
+        );
+        assert_eq!(code, 1, "{args:?}: {out}");
+        assert!(out.contains(why), "{args:?}: {out}");
+    }
+    assert_eq!(rig.orders().len(), 4, "none of the refused added");
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(240));
+    let mut orders = rig.orders();
+    assert!(
+        orders
+            .iter()
+            .all(|o| o.state == OrderState::Done && o.cell.as_deref() == Some("falc1")),
+        "{orders:?}"
+    );
+    orders.sort_by_key(|o| o.started_ms);
+    let ran: Vec<(i64, &str)> = orders.iter().map(|o| (o.id, o.recipe.as_str())).collect();
+    assert_eq!(
+        ran,
+        [
+            (4, "dundroog"),
+            (3, "pipdroog"),
+            (1, "dikdroog"),
+            (2, "dikdroog")
+        ],
+        "priority first, then the one due, then the oldest"
+    );
+}

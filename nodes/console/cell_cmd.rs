@@ -13,8 +13,9 @@ use clap::{Args, Subcommand};
 use falc_bus::operator_service::CallError;
 use falc_bus::Bus;
 use falc_model::alarm::Alarm;
-use falc_model::console::{ApiReply, ApiRequest, CellStatus, Entry, Order, RecipeFile};
+use falc_model::console::{ApiReply, ApiRequest, CellStatus, Entry, Order, Placement, RecipeFile};
 use falc_model::ids::printable;
+use falc_model::ids::CellId;
 use falc_model::ids::StationName;
 use falc_model::mode::{CellMode, ManualAction};
 use falc_model::topology::Topology;
@@ -248,10 +249,26 @@ pub enum StoreCommand {
 /// `falc order …`.
 #[derive(Subcommand, Debug)]
 pub enum OrderCommand {
-    /// Add an order for a cell recipe at the end of the list.
+    /// Add an order for a cell recipe: at the end of the list unless a
+    /// priority or a due time places it earlier.
     Add {
         /// The cell recipe (`dikdroog`).
         recipe: String,
+        /// Only this cell may run it (default: any cell that has the recipe).
+        #[arg(long)]
+        cell: Option<CellId>,
+        /// Higher runs first (-99 to 99).
+        #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
+        priority: i32,
+        /// When it is due, in this PC's time zone (`2026-11-25T14:00`,
+        /// `2026-11-25 14:00`, `14:00` for today) or with an offset
+        /// (`2026-11-25T14:00+01:00`); of equal priority, the one due first
+        /// runs first.
+        #[arg(long)]
+        due: Option<String>,
+        /// How many orders (1 to 100).
+        #[arg(long, default_value_t = 1)]
+        count: u16,
     },
     /// Remove a queued order.
     Rm {
@@ -270,6 +287,17 @@ fn show_order(o: &Order) -> String {
         o.state,
         printable(&o.added_by)
     );
+    if o.priority != 0 {
+        line.push_str(&format!("  priority {}", o.priority));
+    }
+    if let Some(due) = o.due_ms {
+        line.push_str(&format!("  due {}", crate::clock::date_time(due)));
+    }
+    match (&o.cell, &o.wanted) {
+        (Some(cell), _) => line.push_str(&format!("  on {}", printable(cell))),
+        (None, Some(wanted)) => line.push_str(&format!("  for {}", printable(wanted))),
+        (None, None) => {}
+    }
     if let Some(r) = &o.result {
         line.push_str(&format!("  ({})", printable(r)));
     }
@@ -620,7 +648,27 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
         }
         CellCommand::Messages { follow: true } => return follow(&bus, &operator, json).await,
         CellCommand::Status { watch: false } => ApiRequest::Status,
-        CellCommand::Order(OrderCommand::Add { recipe }) => ApiRequest::OrderAdd { recipe },
+        CellCommand::Order(OrderCommand::Add {
+            recipe,
+            cell,
+            priority,
+            due,
+            count,
+        }) => {
+            let due_ms = match due.as_deref().map(crate::clock::parse_due).transpose() {
+                Ok(d) => d,
+                Err(e) => return refuse(&e),
+            };
+            ApiRequest::OrderAdd {
+                recipe,
+                placement: Placement {
+                    cell,
+                    priority,
+                    due_ms,
+                },
+                count,
+            }
+        }
         CellCommand::Order(OrderCommand::Rm { id }) => ApiRequest::OrderRemove { id },
         CellCommand::Order(OrderCommand::List) => ApiRequest::OrderList,
         CellCommand::Start => ApiRequest::Start,

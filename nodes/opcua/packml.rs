@@ -116,6 +116,10 @@ mod tests {
                 started_ms: Some(0),
                 ended_ms: None,
                 result: None,
+                cell: Some("falc1".into()),
+                wanted: None,
+                priority: 0,
+                due_ms: None,
             }),
             ..idle()
         }

@@ -219,7 +219,7 @@ impl Method {
             ));
         }
         let request = match self {
-            Self::AddOrder => ApiRequest::OrderAdd { recipe: text(0)? },
+            Self::AddOrder => ApiRequest::order_add(&text(0)?),
             Self::RemoveOrder => ApiRequest::OrderRemove { id: number(0)? },
             Self::Start => ApiRequest::Start,
             Self::Stop => ApiRequest::Stop,
@@ -666,6 +666,10 @@ mod tests {
                 started_ms: Some(1),
                 ended_ms: None,
                 result: None,
+                cell: Some("falc1".into()),
+                wanted: None,
+                priority: 0,
+                due_ms: None,
             }),
             queued: 2,
             question: Some("Gereed?".into()),
@@ -817,9 +821,7 @@ mod tests {
         use Arg::*;
         assert_eq!(
             Method::AddOrder.request(&[Text("dikdroog".into())]),
-            Ok(ApiRequest::OrderAdd {
-                recipe: "dikdroog".into()
-            })
+            Ok(ApiRequest::order_add("dikdroog"))
         );
         assert_eq!(
             Method::Acknowledge.request(&[Int64(0)]),

@@ -6,7 +6,7 @@
 
 use falc_control::records::Records;
 use falc_model::alarm::{Alarm, AlarmClass};
-use falc_model::console::{Entry, EntryKind, Order, OrderState};
+use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement};
 use rusqlite::{params, Connection, OptionalExtension, Row};
 use std::path::Path;
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -54,7 +54,6 @@ CREATE TABLE IF NOT EXISTS journal (
     text TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS journal_order ON journal(order_id);
-CREATE INDEX IF NOT EXISTS orders_state ON orders(state);
 CREATE TABLE IF NOT EXISTS alarms (
     id INTEGER PRIMARY KEY AUTOINCREMENT,
     station TEXT NOT NULL,
@@ -67,6 +66,25 @@ CREATE TABLE IF NOT EXISTS alarms (
     cleared_ms INTEGER
 );
 ";
+
+/// Columns added since the first schema, each with its definition: a file
+/// made before gets them at open (`ALTER TABLE … ADD COLUMN`), its orders
+/// reading as placed by default (any cell, priority 0, no due time).
+const ADDED_COLUMNS: [(&str, &str, &str); 4] = [
+    ("orders", "cell", "TEXT"),
+    ("orders", "wanted", "TEXT"),
+    ("orders", "priority", "INTEGER NOT NULL DEFAULT 0"),
+    ("orders", "due_ms", "INTEGER"),
+];
+
+/// Made after the columns they index exist.
+const INDEXES: &str = "
+CREATE INDEX IF NOT EXISTS orders_state ON orders(state);
+CREATE INDEX IF NOT EXISTS orders_dispatch ON orders(state, priority DESC, due_ms IS NULL, due_ms, id);
+";
+
+/// The queued orders as the dispatch takes them ([`Order::dispatch_key`]).
+const DISPATCH_ORDER: &str = "priority DESC, due_ms IS NULL, due_ms, id";
 
 const ALARM_COLUMNS: &str =
     "id, station, class, text, order_id, raised_ms, acked_by, acked_ms, cleared_ms";
@@ -88,7 +106,8 @@ fn alarm_of(row: &Row<'_>) -> rusqlite::Result<Alarm> {
     })
 }
 
-const ORDER_COLUMNS: &str = "id, recipe, state, added_by, started_ms, ended_ms, result";
+const ORDER_COLUMNS: &str =
+    "id, recipe, state, added_by, started_ms, ended_ms, result, cell, wanted, priority, due_ms";
 
 fn order_of(row: &Row<'_>) -> rusqlite::Result<Order> {
     let state: String = row.get(2)?;
@@ -101,7 +120,28 @@ fn order_of(row: &Row<'_>) -> rusqlite::Result<Order> {
         started_ms: row.get(4)?,
         ended_ms: row.get(5)?,
         result: row.get(6)?,
+        cell: row.get(7)?,
+        wanted: row.get(8)?,
+        priority: row.get(9)?,
+        due_ms: row.get(10)?,
     })
+}
+
+/// Adds the columns of [`ADDED_COLUMNS`] a file made before lacks.
+fn add_missing_columns(conn: &Connection) -> rusqlite::Result<()> {
+    for (table, column, definition) in ADDED_COLUMNS {
+        let present: i64 = conn.query_row(
+            &format!("SELECT COUNT(*) FROM pragma_table_info('{table}') WHERE name = ?1"),
+            params![column],
+            |r| r.get(0),
+        )?;
+        if present == 0 {
+            conn.execute_batch(&format!(
+                "ALTER TABLE {table} ADD COLUMN {column} {definition}"
+            ))?;
+        }
+    }
+    Ok(())
 }
 
 fn entry_of(row: &Row<'_>) -> rusqlite::Result<Entry> {
@@ -176,6 +216,9 @@ impl Database {
             .map_err(fail("cannot set the busy timeout"))?;
         conn.execute_batch(SCHEMA)
             .map_err(fail("cannot create the tables"))?;
+        add_missing_columns(&conn).map_err(fail("cannot add the new columns"))?;
+        conn.execute_batch(INDEXES)
+            .map_err(fail("cannot create the indexes"))?;
         Ok(Self { conn, path: name })
     }
 
@@ -270,12 +313,25 @@ impl Records for Database {
         now_ms()
     }
 
-    /// Adds a queued order at the end of the list.
-    fn add_order(&mut self, recipe: &str, who: &str) -> Result<Order, Self::Error> {
+    /// Adds a queued order, placed as `placement` says.
+    fn add_order(
+        &mut self,
+        recipe: &str,
+        who: &str,
+        placement: &Placement,
+    ) -> Result<Order, Self::Error> {
         self.conn
             .execute(
-                "INSERT INTO orders (recipe, state, added_by, added_ms) VALUES (?1, 'queued', ?2, ?3)",
-                params![recipe, who, now_ms()],
+                "INSERT INTO orders (recipe, state, added_by, added_ms, wanted, priority, due_ms) \
+                 VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6)",
+                params![
+                    recipe,
+                    who,
+                    now_ms(),
+                    placement.cell.as_ref().map(|c| c.as_str()),
+                    placement.priority,
+                    placement.due_ms
+                ],
             )
             .map_err(self.fail("cannot add an order"))?;
         let id = self.conn.last_insert_rowid();
@@ -299,9 +355,20 @@ impl Records for Database {
             .map_err(self.fail("cannot list orders"))
     }
 
-    /// The first queued order.
-    fn next_queued(&self) -> Result<Option<Order>, Self::Error> {
-        Ok(self.orders_in(OrderState::Queued)?.into_iter().next())
+    /// The queued order `cell` runs next: of those it may run, the
+    /// highest priority, then the one due first, then the oldest.
+    fn next_queued(&self, cell: &str) -> Result<Option<Order>, Self::Error> {
+        self.conn
+            .query_row(
+                &format!(
+                    "SELECT {ORDER_COLUMNS} FROM orders WHERE state = 'queued' \
+                     AND (wanted IS NULL OR wanted = ?1) ORDER BY {DISPATCH_ORDER} LIMIT 1"
+                ),
+                params![cell],
+                order_of,
+            )
+            .optional()
+            .map_err(self.fail("cannot read the next order"))
     }
 
     /// The id of the newest journal entry (0 for an empty journal): a
@@ -343,13 +410,13 @@ impl Records for Database {
         Ok(Ok(order))
     }
 
-    /// Marks an order running; returns the start time it wrote (ms).
-    fn set_running(&mut self, id: i64) -> Result<i64, Self::Error> {
+    /// Marks an order running on `cell`; returns the start time it wrote (ms).
+    fn set_running(&mut self, id: i64, cell: &str) -> Result<i64, Self::Error> {
         let started = now_ms();
         self.conn
             .execute(
-                "UPDATE orders SET state = 'running', started_ms = ?1 WHERE id = ?2",
-                params![started, id],
+                "UPDATE orders SET state = 'running', started_ms = ?1, cell = ?2 WHERE id = ?3",
+                params![started, cell, id],
             )
             .map_err(self.fail("cannot mark an order running"))
             .map(|_| started)
@@ -361,7 +428,8 @@ impl Records for Database {
     fn requeue(&mut self, id: i64) -> Result<(), Self::Error> {
         self.conn
             .execute(
-                "UPDATE orders SET state = 'queued', started_ms = NULL WHERE id = ?1 AND state = 'running'",
+                "UPDATE orders SET state = 'queued', started_ms = NULL, cell = NULL \
+                 WHERE id = ?1 AND state = 'running'",
                 params![id],
             )
             .map_err(self.fail("cannot put an order back in the queue"))
@@ -557,6 +625,93 @@ fn make_private(file: &Path) -> std::io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use falc_model::ids::CellId;
+
+    const ANY: Placement = Placement {
+        cell: None,
+        priority: 0,
+        due_ms: None,
+    };
+
+    /// The file's dispatch order is the model's ([`Order::dispatch_key`]
+    /// among the orders a cell may run), for every cell.
+    #[test]
+    fn the_next_order_is_the_one_the_core_would_take() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut db = Database::open(&dir.path().join("falc.db")).expect("open");
+        let cells = [None, Some("falc1"), Some("falc2")];
+        let mut seed: u64 = 7;
+        let mut next = || {
+            seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+            (seed >> 33) as i64
+        };
+        for _ in 0..60 {
+            let placement = Placement {
+                cell: cells[(next() % 3) as usize].map(|c| CellId::new(c).expect("id")),
+                priority: (next() % 5) as i32 - 2,
+                due_ms: (next() % 2 == 0).then(|| next() % 4),
+            };
+            db.add_order("dikdroog", "ann", &placement).expect("add");
+        }
+        for round in 0..60 {
+            let cell = ["falc1", "falc2", "falc3"][round % 3];
+            let a = db.next_queued(cell).expect("next").map(|o| o.id);
+            let b = db
+                .orders()
+                .expect("orders")
+                .into_iter()
+                .filter(|o| o.state == OrderState::Queued && o.may_run_on(cell))
+                .min_by_key(|o| o.dispatch_key())
+                .map(|o| o.id);
+            assert_eq!(a, b, "round {round}, {cell}");
+            if let Some(id) = a {
+                db.set_running(id, cell).expect("run");
+            }
+        }
+        let on = |id| db.order(id).expect("read").and_then(|o| o.cell);
+        let ran: Vec<Order> = db
+            .orders()
+            .expect("orders")
+            .into_iter()
+            .filter(|o| o.state == OrderState::Running)
+            .collect();
+        assert!(!ran.is_empty());
+        for o in ran {
+            assert!(o.may_run_on(on(o.id).as_deref().unwrap_or("")), "{o:?}");
+        }
+    }
+
+    /// A file made before orders had a cell, a priority and a due time
+    /// gets the columns at open; its orders read as placed by default.
+    #[test]
+    fn a_file_of_the_first_schema_gets_the_new_columns() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("falc.db");
+        {
+            let conn = Connection::open(&path).expect("open");
+            conn.execute_batch(
+                "CREATE TABLE orders (id INTEGER PRIMARY KEY AUTOINCREMENT, recipe TEXT NOT NULL, \
+                 state TEXT NOT NULL, added_by TEXT NOT NULL, added_ms INTEGER NOT NULL, \
+                 started_ms INTEGER, ended_ms INTEGER, result TEXT); \
+                 INSERT INTO orders (recipe, state, added_by, added_ms) VALUES ('dikdroog', 'queued', 'ann', 1);",
+            )
+            .expect("the first schema");
+        }
+        let mut db = Database::open(&path).expect("open");
+        let o = db
+            .next_queued("falc1")
+            .expect("next")
+            .expect("the old order");
+        assert_eq!(
+            (o.recipe.as_str(), o.priority, o.due_ms, o.wanted, o.cell),
+            ("dikdroog", 0, None, None, None)
+        );
+        db.set_running(o.id, "falc1").expect("run");
+        drop(db);
+        let db = Database::open(&path).expect("opened again");
+        let o = db.order(o.id).expect("read").expect("there");
+        assert_eq!(o.cell.as_deref(), Some("falc1"));
+    }
 
     #[test]
     fn the_journal_and_its_directory_are_private() {
@@ -625,12 +780,15 @@ mod tests {
     fn only_a_running_order_goes_back_to_the_queue() {
         let dir = tempfile::tempdir().expect("tempdir");
         let mut s = Database::open(&dir.path().join("falc.db")).expect("open");
-        let a = s.add_order("dikdroog", "ann").expect("add");
-        s.set_running(a.id).expect("run");
+        let a = s.add_order("dikdroog", "ann", &ANY).expect("add");
+        s.set_running(a.id, "falc1").expect("run");
         s.requeue(a.id).expect("requeue");
         let o = s.order(a.id).expect("read").expect("there");
-        assert_eq!((o.state, o.started_ms), (OrderState::Queued, None));
-        s.set_running(a.id).expect("run");
+        assert_eq!(
+            (o.state, o.started_ms, o.cell),
+            (OrderState::Queued, None, None)
+        );
+        s.set_running(a.id, "falc1").expect("run");
         s.end_order(a.id, OrderState::Done, "done").expect("end");
         s.requeue(a.id).expect("a no-op");
         let o = s.order(a.id).expect("read").expect("there");
@@ -647,12 +805,15 @@ mod tests {
         let path = dir.path().join("falc.db");
         {
             let mut s = Database::open(&path).expect("open");
-            let a = s.add_order("dikdroog", "ann").expect("add");
-            let b = s.add_order("dundroog", "ann").expect("add");
-            s.set_running(a.id).expect("run");
+            let a = s.add_order("dikdroog", "ann", &ANY).expect("add");
+            let b = s.add_order("dundroog", "ann", &ANY).expect("add");
+            s.set_running(a.id, "falc1").expect("run");
             s.journal(EntryKind::Order, Some(a.id), "operator", "started")
                 .expect("journal");
-            assert_eq!(s.next_queued().expect("next").map(|o| o.id), Some(b.id));
+            assert_eq!(
+                s.next_queued("falc1").expect("next").map(|o| o.id),
+                Some(b.id)
+            );
             assert!(s.remove_order(a.id).expect("db").is_err(), "running");
             // Dropped without ending the order: a crash.
         }

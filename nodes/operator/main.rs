@@ -153,7 +153,7 @@ impl Operator {
                     }
                 }
                 Output::Reply { ticket, result } => match self.consoles.remove(&ticket) {
-                    Some(r) => r.respond(result).await,
+                    Some(r) => r.respond(*result).await,
                     None => tracing::warn!("no console waits for answer {ticket:?}"),
                 },
                 Output::Respond { ticket, result } => match self.indications.remove(&ticket) {

@@ -23,7 +23,8 @@ use crate::records::Records;
 use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::console::{
     ApiReply, ApiRequest, ApiResult, CellStatus, EntryKind, ListState, Order, OrderState,
-    StationView, MAX_OUTPUT_CHARS, MAX_OUTPUT_LINES, MAX_QUEUED_ORDERS, QUESTION_WINDOW_LINES,
+    Placement, StationView, MAX_OUTPUT_CHARS, MAX_OUTPUT_LINES, MAX_QUEUED_ORDERS,
+    QUESTION_WINDOW_LINES,
 };
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::domain::content_hash;
@@ -93,8 +94,8 @@ pub enum Output {
     Reply {
         /// Which.
         ticket: Ticket,
-        /// The answer.
-        result: ApiResult,
+        /// The answer (boxed: a status is large, the other outputs small).
+        result: Box<ApiResult>,
     },
     /// Answer an indication of the cell.
     Respond {
@@ -260,6 +261,22 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     told: Option<CellStatus>,
 }
 
+/// How an order was placed, for its journal line (`, priority 5, for
+/// falc2`), empty for the default.
+fn placed(order: &Order) -> String {
+    let mut v = Vec::new();
+    if order.priority != 0 {
+        v.push(format!("priority {}", order.priority));
+    }
+    if let Some(due) = order.due_ms {
+        v.push(format!("due {}", falc_model::console::utc_text(due)));
+    }
+    if let Some(cell) = &order.wanted {
+        v.push(format!("for {cell}"));
+    }
+    v.iter().map(|p| format!(", {p}")).collect()
+}
+
 /// The content hash of each recipe of `set`, in order.
 fn hashes_of(set: &RecipeSet) -> Vec<u64> {
     set.deliveries
@@ -371,7 +388,10 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     }
 
     fn reply(&mut self, ticket: Ticket, result: ApiResult) {
-        self.out.push_back(Output::Reply { ticket, result });
+        self.out.push_back(Output::Reply {
+            ticket,
+            result: Box::new(result),
+        });
     }
 
     fn call(&mut self, call: CellCall, busy: Busy) {
@@ -824,7 +844,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 return self.reply(by.ticket, Err(text));
             }
         };
-        let started_ms = match self.db.set_running(id) {
+        let started_ms = match self.db.set_running(id, self.topology.cell().as_str()) {
             Ok(ms) => ms,
             Err(e) => {
                 let text = format!("order {id} not restarted: {e}");
@@ -910,12 +930,20 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// asked to start it; back in the queue only if the cell refused.
     fn start_next(&mut self, by: Option<Caller>) {
         let prepared = self.write_held_ends().and_then(|()| {
-            let Some(order) = self.db.next_queued().map_err(|e| e.to_string())? else {
+            let cell = self.topology.cell().as_str();
+            let Some(order) = self.db.next_queued(cell).map_err(|e| e.to_string())? else {
                 return Ok(None);
             };
             let name = ObjectName::new(&order.recipe).map_err(|e| e.to_string())?;
-            match self.db.set_running(order.id) {
-                Ok(ms) => Ok(Some((order, name, ms))),
+            match self.db.set_running(order.id, cell) {
+                Ok(ms) => Ok(Some((
+                    Order {
+                        cell: Some(cell.to_string()),
+                        ..order
+                    },
+                    name,
+                    ms,
+                ))),
                 Err(e) => {
                     let why = format!("order {} ({}) not started: {e}", order.id, order.recipe);
                     self.db_failed(&e);
@@ -1460,7 +1488,11 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 .entries(after, order, false, PAGE)
                 .map(ApiReply::Entries)
                 .map_err(db),
-            ApiRequest::OrderAdd { recipe } => self.add_order(who, &recipe),
+            ApiRequest::OrderAdd {
+                recipe,
+                placement,
+                count,
+            } => self.add_order(who, &recipe, &placement, count),
             ApiRequest::OrderRemove { id } => match self.db.remove_order(id) {
                 Err(e) => Err(e.to_string()),
                 Ok(Ok(order)) => {
@@ -1589,8 +1621,27 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         })
     }
 
-    fn add_order(&mut self, who: &str, recipe: &str) -> ApiResult {
+    /// Adds `count` orders of `recipe`, placed as `placement` says; each
+    /// journalled with the user. The list's limit counts them all: none
+    /// is added when they do not all fit.
+    fn add_order(
+        &mut self,
+        who: &str,
+        recipe: &str,
+        placement: &Placement,
+        count: u16,
+    ) -> ApiResult {
         let name = ObjectName::new(recipe).map_err(|e| e.to_string())?;
+        if let Some(cell) = placement
+            .cell
+            .as_ref()
+            .filter(|c| *c != self.topology.cell())
+        {
+            return Err(format!(
+                "there is no cell {cell}; the order list runs on cell {}",
+                self.topology.cell()
+            ));
+        }
         if !self.recipes.cell_recipes().contains(&&name) {
             // A recipe saved since the last start is known once the recipe
             // store checks clean with it (delivered at the start).
@@ -1612,12 +1663,17 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             }
         }
         match self.db.queued() {
-            Ok(queued) if queued >= self.max_queued => {
+            Ok(queued) if queued + usize::from(count) > self.max_queued => {
+                let more = if count > 1 {
+                    format!("; {count} more do not fit")
+                } else {
+                    String::new()
+                };
                 return Err(format!(
                     "the order list holds {queued} queued orders, its limit \
-                     (falc-operator --max-queued-orders {}); remove some, or start the list",
+                     (falc-operator --max-queued-orders {}){more}; remove some, or start the list",
                     self.max_queued
-                ))
+                ));
             }
             Ok(_) => {}
             Err(e) => {
@@ -1626,21 +1682,37 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 return Err(text);
             }
         }
-        let order = match self.db.add_order(&recipe.to_lowercase(), who) {
-            Ok(o) => o,
-            Err(e) => {
-                let text = e.to_string();
-                self.db_failed(&e);
-                return Err(text);
+        let mut added = Vec::new();
+        for _ in 0..count {
+            let order = match self.db.add_order(&recipe.to_lowercase(), who, placement) {
+                Ok(o) => o,
+                Err(e) => {
+                    let text = e.to_string();
+                    self.db_failed(&e);
+                    return Err(text);
+                }
+            };
+            self.journal(
+                EntryKind::Action,
+                Some(order.id),
+                who,
+                &format!(
+                    "added order {} ({}{})",
+                    order.id,
+                    order.recipe,
+                    placed(&order)
+                ),
+            );
+            added.push(order);
+        }
+        match added.pop() {
+            Some(only) if added.is_empty() => Ok(ApiReply::Order(only)),
+            Some(last) => {
+                added.push(last);
+                Ok(ApiReply::Orders(added))
             }
-        };
-        self.journal(
-            EntryKind::Action,
-            Some(order.id),
-            who,
-            &format!("added order {} ({})", order.id, order.recipe),
-        );
-        Ok(ApiReply::Order(order))
+            None => Err("no order added".into()),
+        }
     }
 
     /// Acknowledges alarm `id`, or all; journalled with the user.
@@ -1846,12 +1918,7 @@ mod tests {
 
         fn add(&mut self, n: usize) {
             for _ in 0..n {
-                let r = self.ask(
-                    "console",
-                    ApiRequest::OrderAdd {
-                        recipe: "dikdroog".into(),
-                    },
-                );
+                let r = self.ask("console", ApiRequest::order_add("dikdroog"));
                 assert!(matches!(r, Ok(ApiReply::Order(_))), "{r:?}");
             }
         }
@@ -1883,7 +1950,7 @@ mod tests {
 
     fn reply(out: &[Output], ticket: Ticket) -> Option<ApiResult> {
         out.iter().find_map(|o| match o {
-            Output::Reply { ticket: t, result } if *t == ticket => Some(result.clone()),
+            Output::Reply { ticket: t, result } if *t == ticket => Some(*result.clone()),
             _ => None,
         })
     }
@@ -2056,12 +2123,7 @@ mod tests {
         let _ = r.outputs();
         r.list.handle_presence(r.now, st("welding"), true);
         assert_eq!(changed(&r.outputs()), 1);
-        let (_, out) = r.api(
-            "console",
-            ApiRequest::OrderAdd {
-                recipe: "dikdroog".into(),
-            },
-        );
+        let (_, out) = r.api("console", ApiRequest::order_add("dikdroog"));
         assert_eq!(changed(&out), 1, "{out:?}");
     }
 
@@ -2359,18 +2421,80 @@ mod tests {
         r.list = std::mem::replace(&mut r.list, Rig::new().list).with_max_queued(2);
         r.add(2);
         let e = r
-            .ask(
-                "console",
-                ApiRequest::OrderAdd {
-                    recipe: "dikdroog".into(),
-                },
-            )
+            .ask("console", ApiRequest::order_add("dikdroog"))
             .unwrap_err();
         assert!(e.contains("holds 2 queued orders, its limit"), "{e}");
         assert_eq!(r.list.db.orders().map(|o| o.len()), Ok(2));
         // Removing one makes room.
         assert!(r.ask("console", ApiRequest::OrderRemove { id: 1 }).is_ok());
         r.add(1);
+    }
+
+    /// `order add` with a count, a priority, a due time and a cell: the
+    /// orders added and journalled; the start takes the highest priority,
+    /// then the one due first; a cell the list does not run on, and more
+    /// than the limit holds, are refused with nothing added.
+    #[test]
+    fn placed_orders_run_by_priority_and_due_time_and_a_foreign_cell_is_refused() {
+        use falc_model::console::Placement;
+        use falc_model::ids::CellId;
+        let mut r = Rig::new();
+        r.list = std::mem::replace(&mut r.list, Rig::new().list).with_max_queued(6);
+        let add = |priority: i32, due_ms: Option<i64>, cell: Option<&str>, count: u16| {
+            ApiRequest::OrderAdd {
+                recipe: "dikdroog".into(),
+                placement: Placement {
+                    cell: cell.map(|c| CellId::new(c).expect("id")),
+                    priority,
+                    due_ms,
+                },
+                count,
+            }
+        };
+        let three = r.ask("console", add(0, None, None, 3));
+        assert!(
+            matches!(&three, Ok(ApiReply::Orders(v)) if v.iter().map(|o| o.id).eq(1..=3)),
+            "{three:?}"
+        );
+        let due = r.ask("console", add(0, Some(1_795_611_600_000), Some("falc1"), 1));
+        assert!(
+            matches!(&due, Ok(ApiReply::Order(o)) if o.id == 4),
+            "{due:?}"
+        );
+        let urgent = r.ask("console", add(5, None, None, 1));
+        assert!(
+            matches!(&urgent, Ok(ApiReply::Order(o)) if o.id == 5),
+            "{urgent:?}"
+        );
+        let texts = r.list.db.texts();
+        assert!(
+            texts
+                .iter()
+                .any(|t| t == "added order 4 (dikdroog, due 2026-11-25 13:00 UTC, for falc1)"),
+            "{texts:?}"
+        );
+        assert!(texts
+            .iter()
+            .any(|t| t == "added order 5 (dikdroog, priority 5)"));
+        let e = r
+            .ask("console", add(0, None, Some("falc2"), 1))
+            .unwrap_err();
+        assert!(e.contains("there is no cell falc2"), "{e}");
+        let e = r.ask("console", add(0, None, None, 2)).unwrap_err();
+        assert!(e.contains("2 more do not fit"), "{e}");
+        assert_eq!(
+            r.list.db.orders().map(|o| o.len()),
+            Ok(5),
+            "none of them added"
+        );
+        assert!(r.start().is_ok());
+        let running = r.status().running.map(|o| (o.id, o.cell));
+        assert_eq!(
+            running,
+            Some((5, Some("falc1".into()))),
+            "the urgent one first"
+        );
+        assert_eq!(r.order(4).state, OrderState::Queued);
     }
 
     #[test]

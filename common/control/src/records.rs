@@ -6,7 +6,7 @@
 //! the error and changes nothing.
 
 use falc_model::alarm::{Alarm, AlarmClass};
-use falc_model::console::{Entry, EntryKind, Order, OrderState};
+use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement};
 use std::fmt::Display;
 
 /// The order list's durable records.
@@ -16,21 +16,29 @@ pub trait Records {
 
     /// Milliseconds since the Unix epoch, now (the records' clock).
     fn now_ms(&self) -> i64;
-    /// Adds a queued order of cell recipe `recipe`.
-    fn add_order(&mut self, recipe: &str, who: &str) -> Result<Order, Self::Error>;
+    /// Adds a queued order of cell recipe `recipe`, placed as `placement`
+    /// says.
+    fn add_order(
+        &mut self,
+        recipe: &str,
+        who: &str,
+        placement: &Placement,
+    ) -> Result<Order, Self::Error>;
     /// Every order, lowest id first.
     fn orders(&self) -> Result<Vec<Order>, Self::Error>;
-    /// The queued order that runs next.
-    fn next_queued(&self) -> Result<Option<Order>, Self::Error>;
+    /// The queued order cell `cell` runs next ([`Order::dispatch_key`]
+    /// among those it may run).
+    fn next_queued(&self, cell: &str) -> Result<Option<Order>, Self::Error>;
     /// The id of the newest journal entry (0 for an empty journal).
     fn journal_head(&self) -> Result<i64, Self::Error>;
     /// How many orders are queued.
     fn queued(&self) -> Result<usize, Self::Error>;
     /// Removes a queued order; why not for any other.
     fn remove_order(&mut self, id: i64) -> Result<Result<Order, String>, Self::Error>;
-    /// Marks an order running; when it started.
-    fn set_running(&mut self, id: i64) -> Result<i64, Self::Error>;
-    /// Puts a running order back in the queue (the cell refused it).
+    /// Marks an order running on cell `cell`; when it started.
+    fn set_running(&mut self, id: i64, cell: &str) -> Result<i64, Self::Error>;
+    /// Puts a running order back in the queue (the cell refused it), for
+    /// any cell again unless it was added for one.
     fn requeue(&mut self, id: i64) -> Result<(), Self::Error>;
     /// Ends an order with `state` and `result`.
     fn end_order(&mut self, id: i64, state: OrderState, result: &str) -> Result<(), Self::Error>;
@@ -111,7 +119,12 @@ pub mod memory {
             self.clock.set(self.clock.get() + 1);
             self.clock.get()
         }
-        fn add_order(&mut self, recipe: &str, who: &str) -> Result<Order, String> {
+        fn add_order(
+            &mut self,
+            recipe: &str,
+            who: &str,
+            placement: &Placement,
+        ) -> Result<Order, String> {
             self.write()?;
             // Like AUTOINCREMENT: never an id a removed order had.
             let id = self
@@ -130,6 +143,10 @@ pub mod memory {
                 started_ms: None,
                 ended_ms: None,
                 result: None,
+                cell: None,
+                wanted: placement.cell.as_ref().map(|c| c.to_string()),
+                priority: placement.priority,
+                due_ms: placement.due_ms,
             };
             self.orders.push(o.clone());
             Ok(o)
@@ -137,11 +154,12 @@ pub mod memory {
         fn orders(&self) -> Result<Vec<Order>, String> {
             Ok(self.orders.clone())
         }
-        fn next_queued(&self) -> Result<Option<Order>, String> {
+        fn next_queued(&self, cell: &str) -> Result<Option<Order>, String> {
             Ok(self
                 .orders
                 .iter()
-                .find(|o| o.state == OrderState::Queued)
+                .filter(|o| o.state == OrderState::Queued && o.may_run_on(cell))
+                .min_by_key(|o| o.dispatch_key())
                 .cloned())
         }
         fn journal_head(&self) -> Result<i64, String> {
@@ -165,12 +183,13 @@ pub mod memory {
                 None => Ok(Err(format!("there is no order {id}"))),
             }
         }
-        fn set_running(&mut self, id: i64) -> Result<i64, String> {
+        fn set_running(&mut self, id: i64, cell: &str) -> Result<i64, String> {
             self.write()?;
             let at = self.now_ms();
             if let Some(o) = self.order_mut(id) {
                 o.state = OrderState::Running;
                 o.started_ms = Some(at);
+                o.cell = Some(cell.into());
             }
             Ok(at)
         }
@@ -182,6 +201,7 @@ pub mod memory {
             {
                 o.state = OrderState::Queued;
                 o.started_ms = None;
+                o.cell = None;
             }
             Ok(())
         }
@@ -275,14 +295,66 @@ pub mod memory {
 mod tests {
     use super::memory::Memory;
     use super::Records;
+    use falc_model::console::Placement;
+    use falc_model::ids::CellId;
 
     #[test]
     fn the_fake_never_reuses_an_order_id() {
         let mut m = Memory::default();
-        let a = m.add_order("dikdroog", "ann").map(|o| o.id);
-        let b = m.add_order("dikdroog", "ann").map(|o| o.id);
+        let p = Placement::default();
+        let a = m.add_order("dikdroog", "ann", &p).map(|o| o.id);
+        let b = m.add_order("dikdroog", "ann", &p).map(|o| o.id);
         assert_eq!((a, b), (Ok(1), Ok(2)));
         assert!(m.remove_order(2).is_ok_and(|r| r.is_ok()));
-        assert_eq!(m.add_order("dikdroog", "ann").map(|o| o.id), Ok(3));
+        assert_eq!(m.add_order("dikdroog", "ann", &p).map(|o| o.id), Ok(3));
+    }
+
+    /// The dispatch order: priority, then due time (none last), then the
+    /// order added first; an order added for a cell runs there only, and a
+    /// refused start puts an order for any cell back for any cell.
+    #[test]
+    fn the_next_order_goes_by_priority_due_time_and_age_on_the_cells_it_may_run_on() {
+        let mut m = Memory::default();
+        let place = |cell: Option<&str>, priority: i32, due_ms: Option<i64>| Placement {
+            cell: cell.map(|c| CellId::new(c).expect("id")),
+            priority,
+            due_ms,
+        };
+        let mut add = |p: Placement| m.add_order("dikdroog", "ann", &p).expect("add").id;
+        let plain = add(place(None, 0, None));
+        let due_late = add(place(None, 0, Some(2_000)));
+        let due_soon = add(place(None, 0, Some(1_000)));
+        let urgent = add(place(None, 5, None));
+        let for_two = add(place(Some("falc2"), 9, None));
+        let next = |m: &Memory, cell: &str| m.next_queued(cell).expect("read").map(|o| o.id);
+        assert_eq!(next(&m, "falc2"), Some(for_two));
+        assert_eq!(
+            next(&m, "falc1"),
+            Some(urgent),
+            "falc1 may not take falc2's"
+        );
+        m.set_running(urgent, "falc1").expect("run");
+        assert_eq!(next(&m, "falc1"), Some(due_soon));
+        m.set_running(due_soon, "falc1").expect("run");
+        assert_eq!(next(&m, "falc1"), Some(due_late));
+        m.set_running(due_late, "falc1").expect("run");
+        assert_eq!(next(&m, "falc1"), Some(plain));
+        // A refused start: back in the queue, for any cell.
+        m.requeue(urgent).expect("requeue");
+        assert_eq!(next(&m, "falc3"), Some(urgent));
+        let o = m.orders().expect("orders");
+        assert_eq!(
+            o.iter()
+                .find(|o| o.id == urgent)
+                .and_then(|o| o.cell.clone()),
+            None
+        );
+        assert_eq!(
+            o.iter()
+                .find(|o| o.id == due_late)
+                .and_then(|o| o.cell.clone())
+                .as_deref(),
+            Some("falc1")
+        );
     }
 }

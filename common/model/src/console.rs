@@ -5,7 +5,7 @@
 //! name. The transport is in `bus::api`; the operator node owns the
 //! behaviour.
 
-use crate::ids::StationName;
+use crate::ids::{CellId, StationName};
 use crate::mms::vmd::VmdStatus;
 use crate::mode::{CellMode, ManualAction};
 use crate::topology::Role;
@@ -81,10 +81,15 @@ pub enum ApiRequest {
         /// Only entries with a larger id.
         after: i64,
     },
-    /// Adds an order for a cell recipe at the end of the list.
+    /// Adds `count` orders for a cell recipe, placed as `placement` says
+    /// (by default at the end of the list, on any cell that has it).
     OrderAdd {
         /// The cell recipe's name.
         recipe: String,
+        /// Which cell, how urgent, by when.
+        placement: Placement,
+        /// How many orders (1 to [`MAX_ORDERS_PER_ADD`]).
+        count: u16,
     },
     /// Removes a queued order.
     OrderRemove {
@@ -269,6 +274,26 @@ pub const QUESTION_WINDOW_LINES: usize = 20;
 /// How many orders may wait in the order list by default (queued, not yet
 /// run); one more is refused (`falc-operator --max-queued-orders`).
 pub const MAX_QUEUED_ORDERS: usize = 1000;
+
+/// At most this many orders are added by one `order add --count N`.
+pub const MAX_ORDERS_PER_ADD: u16 = 100;
+
+/// An order's priority lies within ± this (default 0; higher runs first).
+pub const MAX_PRIORITY: i32 = 99;
+
+/// Where and when an order should run: what the dispatch goes by. Of the
+/// queued orders a cell may run, the highest priority runs first, of
+/// equal priority the one due first (one with no due time after every one
+/// with), then the one added first.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Placement {
+    /// Only this cell may run it (None: any cell that has the recipe).
+    pub cell: Option<CellId>,
+    /// Higher runs first (within ±[`MAX_PRIORITY`], default 0).
+    pub priority: i32,
+    /// When it is due (ms since the Unix epoch), if it is.
+    pub due_ms: Option<i64>,
+}
 /// The longest cell recipe name an order may name, in characters.
 pub const MAX_RECIPE_NAME_CHARS: usize = 32;
 /// The largest recipe file, in bytes (the thesis' recipes are under 2 KiB).
@@ -295,10 +320,21 @@ impl ApiRequest {
                     ));
                 }
             }
-            Self::OrderAdd { recipe } if recipe.chars().count() > MAX_RECIPE_NAME_CHARS => {
+            Self::OrderAdd { recipe, .. } if recipe.chars().count() > MAX_RECIPE_NAME_CHARS => {
                 return Err(format!(
                     "recipe name \"{}\" is longer than {MAX_RECIPE_NAME_CHARS} characters: refused",
                     excerpt(recipe)
+                ));
+            }
+            Self::OrderAdd { count, .. } if !(1..=MAX_ORDERS_PER_ADD).contains(count) => {
+                return Err(format!(
+                    "{count} orders at once: give 1 to {MAX_ORDERS_PER_ADD}"
+                ));
+            }
+            Self::OrderAdd { placement, .. } if placement.priority.abs() > MAX_PRIORITY => {
+                return Err(format!(
+                    "priority {} is outside -{MAX_PRIORITY} to {MAX_PRIORITY}",
+                    placement.priority
                 ));
             }
             Self::RecipePut { file, text, .. } if text.len() > MAX_RECIPE_BYTES => {
@@ -310,6 +346,15 @@ impl ApiRequest {
             _ => {}
         }
         Ok(())
+    }
+
+    /// One order for `recipe`, at the end of the list, on any cell.
+    pub fn order_add(recipe: &str) -> Self {
+        Self::OrderAdd {
+            recipe: recipe.to_string(),
+            placement: Placement::default(),
+            count: 1,
+        }
     }
 
     /// The call (key) this request belongs to.
@@ -406,6 +451,56 @@ pub struct Order {
     pub ended_ms: Option<i64>,
     /// How it ended, in words.
     pub result: Option<String>,
+    /// The cell it runs (ran) on; None while queued.
+    pub cell: Option<String>,
+    /// The only cell it may run on, if it was added for one.
+    pub wanted: Option<String>,
+    /// Its priority (higher runs first).
+    pub priority: i32,
+    /// When it is due (ms since the Unix epoch), if it is.
+    pub due_ms: Option<i64>,
+}
+
+/// `ms` since the Unix epoch as `YYYY-MM-DD HH:MM UTC`, for a record's
+/// text (consoles show times in their own zone; a journal line says it
+/// once for all).
+pub fn utc_text(ms: i64) -> String {
+    let minutes = ms.div_euclid(60_000);
+    let (days, minute) = (minutes.div_euclid(1440), minutes.rem_euclid(1440));
+    // Days to a civil date (H. Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02} {:02}:{:02} UTC",
+        minute / 60,
+        minute % 60
+    )
+}
+
+impl Order {
+    /// Its place among the queued orders: the smallest runs first (the
+    /// highest priority, then the one due first, one with no due time
+    /// after every one with, then the one added first).
+    pub fn dispatch_key(&self) -> (std::cmp::Reverse<i32>, bool, Option<i64>, i64) {
+        (
+            std::cmp::Reverse(self.priority),
+            self.due_ms.is_none(),
+            self.due_ms,
+            self.id,
+        )
+    }
+
+    /// Whether cell `cell` may run it.
+    pub fn may_run_on(&self, cell: &str) -> bool {
+        self.wanted.as_deref().map_or(true, |w| w == cell)
+    }
 }
 
 /// What a journal entry records.
@@ -583,13 +678,42 @@ mod tests {
     use super::*;
 
     #[test]
+    fn utc_text_is_the_civil_date_and_time() {
+        assert_eq!(utc_text(0), "1970-01-01 00:00 UTC");
+        // 2026-11-23 12:34:56.789 UTC.
+        assert_eq!(utc_text(1_795_437_296_789), "2026-11-23 12:34 UTC");
+        assert_eq!(utc_text(951_782_400_000), "2000-02-29 00:00 UTC");
+        assert_eq!(utc_text(-60_000), "1969-12-31 23:59 UTC");
+    }
+
+    #[test]
+    fn an_order_add_names_a_count_and_a_priority_within_their_limits() {
+        let add = |count: u16, priority: i32| ApiRequest::OrderAdd {
+            recipe: "dikdroog".into(),
+            placement: Placement {
+                cell: None,
+                priority,
+                due_ms: None,
+            },
+            count,
+        };
+        assert!(add(1, 0).check_limits().is_ok());
+        assert!(add(MAX_ORDERS_PER_ADD, -MAX_PRIORITY)
+            .check_limits()
+            .is_ok());
+        let e = add(0, 0).check_limits().expect_err("no order");
+        assert!(e.contains("give 1 to 100"), "{e}");
+        assert!(add(MAX_ORDERS_PER_ADD + 1, 0).check_limits().is_err());
+        let e = add(1, 100).check_limits().expect_err("too high");
+        assert!(e.contains("priority 100"), "{e}");
+    }
+
+    #[test]
     fn texts_beyond_their_limits_are_refused_quoting_a_short_excerpt() {
         let huge = "j".repeat(16 * 1024 * 1024);
         for r in [
             ApiRequest::Answer { text: huge.clone() },
-            ApiRequest::OrderAdd {
-                recipe: huge.clone(),
-            },
+            ApiRequest::order_add(&huge),
             ApiRequest::RecipePut {
                 file: RecipeFile::new(StationName::new("cell").expect("valid"), "big.rcp")
                     .expect("valid"),

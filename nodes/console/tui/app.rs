@@ -678,9 +678,7 @@ impl App {
                 self.pick_cursor = 0;
                 self.pick = None;
                 match pick {
-                    Pick::OrderRecipe(v) => self.call(ApiRequest::OrderAdd {
-                        recipe: v[i].clone(),
-                    }),
+                    Pick::OrderRecipe(v) => self.call(ApiRequest::order_add(&v[i])),
                     Pick::Order(v) => self.call(ApiRequest::OrderRemove { id: v[i].id }),
                     Pick::Station(v, cmd) => {
                         self.pending_station = Some(v[i].clone());
@@ -860,9 +858,7 @@ mod tests {
         a.key(key(KeyCode::Down));
         assert_eq!(
             a.key(key(KeyCode::Enter)),
-            Some(Intent::Call(ApiRequest::OrderAdd {
-                recipe: "dundroog".into()
-            }))
+            Some(Intent::Call(ApiRequest::order_add("dundroog")))
         );
         a.answered(Err(
             "no reply (refused by the router's access control)".into()
