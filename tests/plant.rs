@@ -324,3 +324,152 @@ async fn a_cell_router_links_up_again_by_itself() {
         );
     }
 }
+
+/// Two whole cells (twins, workstations, cell controllers) under one
+/// operator: four orders of one list run on both cells at once, each
+/// started once; the plant's status shows each cell, `--cell` one cell.
+#[test]
+fn two_cells_work_through_one_order_list_in_parallel() {
+    use crate::support::plant::WHOLE_PLANT;
+    use falc_model::console::{EntryKind, OrderState};
+    let plant = TestPlant::start_text(WHOLE_PLANT);
+    let _one = plant.start_cell_nodes("falc1", "100");
+    let _two = plant.start_cell_nodes("falc2", "100");
+    let _operator = plant.start_operator();
+    let out = plant.falc(None, &["order", "add", "dikdroog", "--count", "4"]);
+    assert!(out.contains("4") && out.contains("dikdroog"), "{out}");
+    let out = plant.falc(None, &["start"]);
+    // Each cell takes one of the first two (whichever is ready first).
+    assert!(
+        out.lines().any(|l| l.starts_with("falc1: order "))
+            && out.lines().any(|l| l.starts_with("falc2: order "))
+            && out.contains("order 1 (dikdroog) started")
+            && out.contains("order 2 (dikdroog) started"),
+        "{out}"
+    );
+    let text = plant.falc(None, &["status"]);
+    assert!(
+        text.contains("falc1") && text.contains("falc2") && text.contains("list running"),
+        "{text}"
+    );
+    let one = plant.falc(Some("falc2"), &["status"]);
+    assert!(one.contains("list running; running order "), "{one}");
+    let asked = plant.work_list("ja", Duration::from_secs(240));
+    assert!(asked.iter().any(|(c, _)| c == "falc1") && asked.iter().any(|(c, _)| c == "falc2"));
+    let orders = plant.orders();
+    assert!(
+        orders.iter().all(|o| o.state == OrderState::Done),
+        "{orders:#?}"
+    );
+    let on = |cell: &str| {
+        orders
+            .iter()
+            .filter(|o| o.cell.as_deref() == Some(cell))
+            .count()
+    };
+    assert!(on("falc1") >= 1 && on("falc2") >= 1, "{orders:#?}");
+    assert_eq!(on("falc1") + on("falc2"), 4);
+    // In parallel: orders 1 and 2 ran at the same time.
+    let span = |id: i64| {
+        let o = orders.iter().find(|o| o.id == id).expect("order");
+        (o.started_ms.unwrap_or(0), o.ended_ms.unwrap_or(0))
+    };
+    let ((s1, e1), (s2, e2)) = (span(1), span(2));
+    assert!(
+        s1 < e2 && s2 < e1,
+        "orders 1 and 2 did not overlap: {orders:#?}"
+    );
+    // Each order started once, in the one journal.
+    let journal: Vec<falc_model::console::Entry> = plant.reply(None, &["journal"]);
+    for o in &orders {
+        let starts = journal
+            .iter()
+            .filter(|e| {
+                e.kind == EntryKind::Order && e.order == Some(o.id) && e.text.contains("started")
+            })
+            .count();
+        assert_eq!(starts, 1, "order {}: {journal:#?}", o.id);
+    }
+}
+
+/// A robot's emergency stop in cell 2 mid-weld stops cell 2's list only:
+/// cell 1 runs on and takes the next order; the failed order is not run
+/// again. Cell 2's way back is its own: the stop released, its carriers
+/// back, `ack` and `start` for cell 2, and the next order for it done.
+#[test]
+fn an_emergency_stop_in_one_cell_stops_that_cell_only_and_its_way_back_is_its_own() {
+    use crate::support::plant::WHOLE_PLANT;
+    use falc_model::console::{EntryKind, ListState, OrderState};
+    let plant = TestPlant::start_text(WHOLE_PLANT);
+    let _one = plant.start_cell_nodes("falc1", "100");
+    let mut two = plant.start_cell_nodes("falc2", "10");
+    let mut operator = plant.start_operator();
+    plant.falc(None, &["order", "add", "dikdroog", "--cell", "falc2"]);
+    plant.falc(None, &["order", "add", "dikdroog", "--count", "2"]);
+    plant.falc(None, &["start"]);
+    plant.until_welding(&mut two);
+    two.rcm.control("estop");
+    operator.expect_line(
+        "EVENT order-ended id=1 state=failed",
+        Duration::from_secs(10),
+    );
+    let status = plant.status();
+    let state = |cell: &str| {
+        status
+            .cells
+            .iter()
+            .find(|(c, _)| c.as_str() == cell)
+            .map(|(_, s)| s.clone())
+            .expect("cell")
+    };
+    assert_eq!(state("falc2").list, ListState::Alarm, "{status:#?}");
+    assert!(state("falc2")
+        .alarm
+        .as_deref()
+        .is_some_and(|a| a.contains("emergency stop")));
+    assert!(state("falc1").alarm.is_none(), "{status:#?}");
+    // Cell 1 runs both other orders; cell 2 stays stopped.
+    plant.work_list("ja", Duration::from_secs(120));
+    let orders = plant.orders();
+    let of = |id: i64| orders.iter().find(|o| o.id == id).expect("order").clone();
+    assert_eq!(
+        (of(1).state, of(1).cell.as_deref()),
+        (OrderState::Failed, Some("falc2"))
+    );
+    for id in [2, 3] {
+        assert_eq!(
+            (of(id).state, of(id).cell.as_deref()),
+            (OrderState::Done, Some("falc1")),
+            "{orders:#?}"
+        );
+    }
+    // `alarms` lists the plant's; `ack N` finds cell 2's alarm.
+    let alarms = plant.falc(None, &["alarms"]);
+    assert!(alarms.contains("emergency stop"), "{alarms}");
+    // Cell 2's way back: the stop released, carriers back, ack, start.
+    two.rcm.control("estop-clear");
+    two.plc.control("layout W2 W2");
+    let out = plant.falc(Some("falc2"), &["ack"]);
+    assert!(out.contains("emergency stop"), "{out}");
+    plant.falc(None, &["order", "add", "dikdroog", "--cell", "falc2"]);
+    let out = plant.falc(Some("falc2"), &["start"]);
+    assert!(out.contains("order 4 (dikdroog) started"), "{out}");
+    plant.work_list("ja", Duration::from_secs(120));
+    let orders = plant.orders();
+    let four = orders.iter().find(|o| o.id == 4).expect("order 4");
+    assert_eq!(
+        (four.state, four.cell.as_deref()),
+        (OrderState::Done, Some("falc2"))
+    );
+    // Nothing ran twice.
+    let journal: Vec<falc_model::console::Entry> = plant.reply(None, &["journal"]);
+    for o in &orders {
+        let starts = journal
+            .iter()
+            .filter(|e| {
+                e.kind == EntryKind::Order && e.order == Some(o.id) && e.text.contains("started")
+            })
+            .count();
+        assert_eq!(starts, 1, "order {}", o.id);
+    }
+}

@@ -142,6 +142,7 @@ fn roles_are_enforced_by_the_router_and_every_action_names_its_user() {
         let forged = bus
             .api_as(
                 &operator,
+                None,
                 ApiRequest::Start,
                 &console,
                 Duration::from_secs(2),

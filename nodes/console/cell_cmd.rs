@@ -13,7 +13,9 @@ use clap::{Args, Subcommand};
 use falc_bus::operator_service::CallError;
 use falc_bus::Bus;
 use falc_model::alarm::Alarm;
-use falc_model::console::{ApiReply, ApiRequest, CellStatus, Entry, Order, Placement, RecipeFile};
+use falc_model::console::{
+    ApiReply, ApiRequest, CellStatus, Entry, Order, Placement, PlantStatus, RecipeFile,
+};
 use falc_model::ids::printable;
 use falc_model::ids::CellId;
 use falc_model::ids::StationName;
@@ -344,26 +346,74 @@ async fn alarms(
     station: Option<&StationName>,
     json: bool,
 ) -> ExitCode {
-    match bus.api(operator, ApiRequest::Status, CALL_LIMIT).await {
-        Ok(ApiReply::Status(s)) => {
-            let mut list = s.alarms;
-            list.retain(|a| station.map_or(true, |st| a.station == st.as_str()));
-            list.sort_by_key(|a| (a.class.priority(), a.id));
-            if json {
-                match serde_json::to_string(&list) {
-                    Ok(t) => crate::out!("{t}"),
-                    Err(e) => return refuse(&format!("cannot write JSON: {e}")),
-                }
-            } else if list.is_empty() {
-                crate::out!("no alarms");
-            } else {
-                list.iter().for_each(|a| crate::out!("{}", show_alarm(a)));
-            }
-            ExitCode::SUCCESS
+    let mut list = match bus.api(operator, ApiRequest::Status, CALL_LIMIT).await {
+        Ok(ApiReply::Status(s)) => s.alarms,
+        // A plant: every cell's (the numbers are the plant's).
+        Ok(ApiReply::Plant(p)) => p.cells.into_iter().flat_map(|(_, s)| s.alarms).collect(),
+        Ok(other) => return refuse(&format!("status answered {other:?}")),
+        Err(why) => return fail(&why),
+    };
+    list.retain(|a| station.map_or(true, |st| a.station == st.as_str()));
+    list.sort_by_key(|a| (a.class.priority(), a.id));
+    if json {
+        match serde_json::to_string(&list) {
+            Ok(t) => crate::out!("{t}"),
+            Err(e) => return refuse(&format!("cannot write JSON: {e}")),
         }
-        Ok(other) => refuse(&format!("status answered {other:?}")),
-        Err(why) => fail(&why),
+    } else if list.is_empty() {
+        crate::out!("no alarms");
+    } else {
+        list.iter().for_each(|a| crate::out!("{}", show_alarm(a)));
     }
+    ExitCode::SUCCESS
+}
+
+/// A plant at a glance: a line per cell (its list, running order, queue,
+/// mode, alarm, question, stations), then how to see one cell whole.
+fn show_plant(p: &PlantStatus) -> String {
+    let mut out = Vec::new();
+    for (cell, s) in &p.cells {
+        let running = s.running.as_ref().map_or("no order".to_string(), |o| {
+            format!("order {} ({})", o.id, printable(&o.recipe))
+        });
+        let mut line = format!(
+            "{:<8} list {:<7} {running}, {} queued, {}",
+            cell.as_str(),
+            s.list.as_str(),
+            s.queued,
+            s.mode
+        );
+        if !s.cell_associated {
+            line.push_str(", NOT associated");
+        }
+        if let Some(a) = &s.alarm {
+            line.push_str(&format!("  ALARM: {}", printable(a)));
+        }
+        if let Some(q) = &s.question {
+            line.push_str(&format!(
+                "  QUESTION: {}",
+                printable(&q.replace('\n', " / "))
+            ));
+        }
+        let stations: Vec<String> = s
+            .stations
+            .iter()
+            .map(|st| {
+                let how = if !st.connected {
+                    "NO CONNECTION"
+                } else if st.status.is_some() {
+                    "ok"
+                } else {
+                    "?"
+                };
+                format!("{} {how}", st.name)
+            })
+            .collect();
+        line.push_str(&format!("  [{}]", stations.join(", ")));
+        out.push(line);
+    }
+    out.push("one cell whole: falc --cell CELL status".into());
+    out.join("\n")
 }
 
 fn show_status(s: &CellStatus) -> String {
@@ -436,6 +486,7 @@ fn show_status(s: &CellStatus) -> String {
 fn to_json(reply: &ApiReply) -> serde_json::Result<String> {
     match reply {
         ApiReply::Status(s) => serde_json::to_string(s),
+        ApiReply::Plant(p) => serde_json::to_string(p),
         ApiReply::Orders(o) => serde_json::to_string(o),
         ApiReply::Order(o) => serde_json::to_string(o),
         ApiReply::Entries(e) => serde_json::to_string(e),
@@ -455,6 +506,7 @@ fn print(reply: &ApiReply, json: bool) {
     }
     match reply {
         ApiReply::Status(s) => crate::out!("{}", show_status(s)),
+        ApiReply::Plant(p) => crate::out!("{}", show_plant(p)),
         ApiReply::Orders(v) if v.is_empty() => crate::out!("the order list is empty"),
         ApiReply::Orders(v) => v.iter().for_each(|o| crate::out!("{}", show_order(o))),
         ApiReply::Order(o) => crate::out!("added: {}", show_order(o)),
@@ -473,7 +525,7 @@ fn print(reply: &ApiReply, json: bool) {
 
 /// Opens the console's session: the bus, and the topology it was read from.
 async fn connect(args: &ConsoleArgs) -> Result<(Bus, Topology), String> {
-    let topology = args.node.topology().map_err(|e| e.to_string())?;
+    let topology = args.node.console_topology().map_err(|e| e.to_string())?;
     if topology.console(&args.user).is_none() {
         return Err(format!(
             "`{}` is not a console user of {}: add a [[console]] stanza",
@@ -483,10 +535,10 @@ async fn connect(args: &ConsoleArgs) -> Result<(Bus, Topology), String> {
     }
     let settings = args
         .node
-        .settings(&topology, &args.user)
+        .console_settings(&topology, &args.user)
         .map_err(|e| e.to_string())?;
     let bus = Bus::open(settings).await.map_err(|e| e.to_string())?;
-    Ok((bus, topology))
+    Ok((bus.for_cell(args.node.cell.clone()), topology))
 }
 
 impl StoreCommand {

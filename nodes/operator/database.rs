@@ -28,10 +28,16 @@ pub fn now_ms() -> i64 {
         .unwrap_or(0)
 }
 
-/// The order list and the journal.
+/// The order list and the journal, as one cell's order list sees them:
+/// the orders and the journal are the plant's (one table each, every
+/// cell's list reads all), the alarms the cell's own. Each cell's list
+/// has a connection of its own to the one file.
 pub struct Database {
     conn: Connection,
     path: String,
+    /// The cell whose alarms this connection lists and whose journal
+    /// entries and alarms it writes.
+    cell: String,
 }
 
 const SCHEMA: &str = "
@@ -70,11 +76,14 @@ CREATE TABLE IF NOT EXISTS alarms (
 /// Columns added since the first schema, each with its definition: a file
 /// made before gets them at open (`ALTER TABLE … ADD COLUMN`), its orders
 /// reading as placed by default (any cell, priority 0, no due time).
-const ADDED_COLUMNS: [(&str, &str, &str); 4] = [
+/// An alarm or journal entry with no cell is of the one cell there was.
+const ADDED_COLUMNS: [(&str, &str, &str); 6] = [
     ("orders", "cell", "TEXT"),
     ("orders", "wanted", "TEXT"),
     ("orders", "priority", "INTEGER NOT NULL DEFAULT 0"),
     ("orders", "due_ms", "INTEGER"),
+    ("journal", "cell", "TEXT"),
+    ("alarms", "cell", "TEXT"),
 ];
 
 /// Made after the columns they index exist.
@@ -157,8 +166,8 @@ fn entry_of(row: &Row<'_>) -> rusqlite::Result<Entry> {
 }
 
 impl Database {
-    /// Opens (creating if needed) the database at `path`.
-    pub fn open(path: &Path) -> Result<Self, DatabaseError> {
+    /// Opens (creating if needed) the database at `path` for cell `cell`.
+    pub fn open(path: &Path, cell: &str) -> Result<Self, DatabaseError> {
         let name = path.display().to_string();
         let fail = |what: &'static str| {
             let name = name.clone();
@@ -219,7 +228,11 @@ impl Database {
         add_missing_columns(&conn).map_err(fail("cannot add the new columns"))?;
         conn.execute_batch(INDEXES)
             .map_err(fail("cannot create the indexes"))?;
-        Ok(Self { conn, path: name })
+        Ok(Self {
+            conn,
+            path: name,
+            cell: cell.to_string(),
+        })
     }
 
     fn fail(&self, what: &'static str) -> impl FnOnce(rusqlite::Error) -> DatabaseError + '_ {
@@ -458,8 +471,8 @@ impl Records for Database {
         let at_ms = now_ms();
         self.conn
             .execute(
-                "INSERT INTO journal (at_ms, order_id, kind, who, text) VALUES (?1, ?2, ?3, ?4, ?5)",
-                params![at_ms, order, kind.as_str(), who, text],
+                "INSERT INTO journal (at_ms, order_id, kind, who, text, cell) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+                params![at_ms, order, kind.as_str(), who, text, self.cell],
             )
             .map_err(self.fail("cannot write the journal"))?;
         Ok(Entry {
@@ -483,8 +496,8 @@ impl Records for Database {
         let raised_ms = now_ms();
         self.conn
             .execute(
-                "INSERT INTO alarms (station, class, text, order_id, raised_ms) VALUES (?1, ?2, ?3, ?4, ?5)",
-                params![station, class.as_str(), text, order, raised_ms],
+                "INSERT INTO alarms (station, class, text, order_id, raised_ms, cell) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+                params![station, class.as_str(), text, order, raised_ms, self.cell],
             )
             .map_err(self.fail("cannot record an alarm"))?;
         Ok(Alarm {
@@ -528,11 +541,12 @@ impl Records for Database {
             .conn
             .prepare(&format!(
                 "SELECT {ALARM_COLUMNS} FROM alarms
-                 WHERE acked_ms IS NULL OR cleared_ms IS NULL ORDER BY id"
+                 WHERE (acked_ms IS NULL OR cleared_ms IS NULL) AND (cell IS NULL OR cell = ?1)
+                 ORDER BY id"
             ))
             .map_err(self.fail("cannot read the alarms"))?;
         let rows = st
-            .query_map([], alarm_of)
+            .query_map(params![self.cell], alarm_of)
             .map_err(self.fail("cannot read the alarms"))?;
         let all = rows
             .collect::<Result<Vec<_>, _>>()
@@ -638,7 +652,7 @@ mod tests {
     #[test]
     fn the_next_order_is_the_one_the_core_would_take() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let mut db = Database::open(&dir.path().join("falc.db")).expect("open");
+        let mut db = Database::open(&dir.path().join("falc.db"), "falc1").expect("open");
         let cells = [None, Some("falc1"), Some("falc2")];
         let mut seed: u64 = 7;
         let mut next = || {
@@ -681,6 +695,44 @@ mod tests {
         }
     }
 
+    /// Each cell's list sees its own alarms (and one of the file made
+    /// before cells had them), every order, and every journal entry; alarm
+    /// numbers are the plant's.
+    #[test]
+    fn alarms_are_each_cells_own_and_orders_and_journal_the_plants() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("falc.db");
+        let mut one = Database::open(&path, "falc1").expect("open");
+        let mut two = Database::open(&path, "falc2").expect("open");
+        one.conn
+            .execute(
+                "INSERT INTO alarms (station, class, text, raised_ms) VALUES ('cell', 'process', 'old', 1)",
+                [],
+            )
+            .expect("an alarm of before");
+        let a = one
+            .raise_alarm("welding", AlarmClass::Safety, "estop", None)
+            .expect("raise");
+        let b = two
+            .raise_alarm("transport", AlarmClass::Device, "jam", None)
+            .expect("raise");
+        assert_ne!(a.id, b.id);
+        let texts = |db: &Database| -> Vec<String> {
+            db.listed_alarms()
+                .expect("list")
+                .into_iter()
+                .map(|a| a.text)
+                .collect()
+        };
+        assert_eq!(texts(&one), ["old", "estop"]);
+        assert_eq!(texts(&two), ["old", "jam"]);
+        two.add_order("dikdroog", "ann", &ANY).expect("add");
+        one.journal(EntryKind::Action, None, "ann", "in falc1")
+            .expect("journal");
+        assert_eq!(one.orders().expect("orders").len(), 1);
+        assert_eq!(two.entries(0, None, false, 10).expect("journal").len(), 1);
+    }
+
     /// A file made before orders had a cell, a priority and a due time
     /// gets the columns at open; its orders read as placed by default.
     #[test]
@@ -697,7 +749,7 @@ mod tests {
             )
             .expect("the first schema");
         }
-        let mut db = Database::open(&path).expect("open");
+        let mut db = Database::open(&path, "falc1").expect("open");
         let o = db
             .next_queued("falc1")
             .expect("next")
@@ -708,7 +760,7 @@ mod tests {
         );
         db.set_running(o.id, "falc1").expect("run");
         drop(db);
-        let db = Database::open(&path).expect("opened again");
+        let db = Database::open(&path, "falc1").expect("opened again");
         let o = db.order(o.id).expect("read").expect("there");
         assert_eq!(o.cell.as_deref(), Some("falc1"));
     }
@@ -718,7 +770,7 @@ mod tests {
         use std::os::unix::fs::PermissionsExt;
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("var/falc.db");
-        let mut db = Database::open(&path).expect("open");
+        let mut db = Database::open(&path, "falc1").expect("open");
         db.raise_alarm("welding", AlarmClass::Safety, "estop", Some(1))
             .expect("write");
         let mode = |p: &Path| std::fs::metadata(p).expect("exists").permissions().mode() & 0o777;
@@ -727,9 +779,9 @@ mod tests {
         assert_eq!(mode(&dir.path().join("var/falc.db-wal")), 0o600);
         // A journal made before the rule, readable by all, is made private.
         let old = dir.path().join("old.db");
-        drop(Database::open(&old).expect("open"));
+        drop(Database::open(&old, "falc1").expect("open"));
         std::fs::set_permissions(&old, std::fs::Permissions::from_mode(0o644)).expect("chmod");
-        drop(Database::open(&old).expect("reopen"));
+        drop(Database::open(&old, "falc1").expect("reopen"));
         assert_eq!(mode(&old), 0o600);
         // A directory made before, open to all, is made private too.
         std::fs::set_permissions(
@@ -737,7 +789,7 @@ mod tests {
             std::fs::Permissions::from_mode(0o777),
         )
         .expect("chmod");
-        drop(Database::open(&path).expect("reopen"));
+        drop(Database::open(&path, "falc1").expect("reopen"));
         assert_eq!(mode(&dir.path().join("var")), 0o700);
     }
 
@@ -746,7 +798,7 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("falc.db");
         let (a, b) = {
-            let mut s = Database::open(&path).expect("open");
+            let mut s = Database::open(&path, "falc1").expect("open");
             let a = s
                 .raise_alarm("welding", AlarmClass::Safety, "estop", Some(1))
                 .expect("raise");
@@ -757,7 +809,7 @@ mod tests {
             s.clear_alarm(b.id, 6).expect("clear");
             (a, b)
         };
-        let mut s = Database::open(&path).expect("reopen");
+        let mut s = Database::open(&path, "falc1").expect("reopen");
         let listed = s.listed_alarms().expect("list");
         assert_eq!(listed.len(), 2);
         assert_eq!(listed[0].acked, Some(("ann".into(), 5)));
@@ -779,7 +831,7 @@ mod tests {
     #[test]
     fn only_a_running_order_goes_back_to_the_queue() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let mut s = Database::open(&dir.path().join("falc.db")).expect("open");
+        let mut s = Database::open(&dir.path().join("falc.db"), "falc1").expect("open");
         let a = s.add_order("dikdroog", "ann", &ANY).expect("add");
         s.set_running(a.id, "falc1").expect("run");
         s.requeue(a.id).expect("requeue");
@@ -804,7 +856,7 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("falc.db");
         {
-            let mut s = Database::open(&path).expect("open");
+            let mut s = Database::open(&path, "falc1").expect("open");
             let a = s.add_order("dikdroog", "ann", &ANY).expect("add");
             let b = s.add_order("dundroog", "ann", &ANY).expect("add");
             s.set_running(a.id, "falc1").expect("run");
@@ -817,7 +869,7 @@ mod tests {
             assert!(s.remove_order(a.id).expect("db").is_err(), "running");
             // Dropped without ending the order: a crash.
         }
-        let mut s = Database::open(&path).expect("reopen");
+        let mut s = Database::open(&path, "falc1").expect("reopen");
         let interrupted = s.recover().expect("recover");
         assert_eq!(interrupted.len(), 1);
         let orders = s.orders().expect("orders");
@@ -844,7 +896,7 @@ mod tests {
             .expect("journal");
         assert_eq!(s.entries(0, None, true, 1).expect("page"), vec![m.clone()]);
         assert_eq!(s.journal_head().expect("head"), m.id);
-        let empty = Database::open(&dir.path().join("empty.db")).expect("open");
+        let empty = Database::open(&dir.path().join("empty.db"), "falc1").expect("open");
         assert_eq!(empty.journal_head().expect("head"), 0);
     }
 }

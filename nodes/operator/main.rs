@@ -1,16 +1,20 @@
-//! `falc-operator`: the factory controller at the root of the cell. At start
-//! it checks every recipe of the recipe directory (the PPS, `recipe_store`) and
-//! refuses to start with every problem as `file:line: reason`; it opens the
-//! order list and journal (`database`, SQLite WAL), marks an order a crash
-//! interrupted, associates the cell (retrying every second while it cannot)
-//! and delivers the recipes; then it serves the operator API to consoles
-//! and operator communication (`input`, `output`) to the cell.
+//! `falc-operator`: the factory controller at the root of the cell, or of
+//! every cell of a plant (`--topology launch/factory.toml`). At start it
+//! checks every recipe of the recipe directory for each cell (the PPS,
+//! `recipe_store`) and refuses to start with every problem as
+//! `file:line: reason`; it opens the order list and journal (`database`,
+//! SQLite WAL, a connection per cell), marks an order a crash interrupted,
+//! associates each cell (retrying every second while it cannot) and
+//! delivers the recipes; then it serves the operator API to consoles and
+//! operator communication (`input`, `output`) to each cell.
 //!
-//! A thin driver: the order list is `falc_control::order_list` (sans-I/O);
-//! here are start-up, the event loop and the cell lane, the one task that
-//! sends the order list's requests to the cell, one at a time. Nothing in
-//! the loop waits on the cell: a console's `status` is answered while a
-//! start or a delivery is under way.
+//! A thin driver: the behaviour is `falc_control::plant` over one
+//! `falc_control::order_list` per cell (sans-I/O); here are start-up, the
+//! event loop and the cell lanes, one task per cell that sends its list's
+//! requests to its cell, one at a time. In a plant one session carries
+//! every cell's key space (`Bus::alongside`). Nothing in the loop waits on
+//! a cell: a console's `status` is answered while a start or a delivery is
+//! under way.
 
 mod database;
 mod recipe_store;
@@ -20,13 +24,17 @@ use clap::Parser;
 use database::Database;
 use falc_bus::operator_service::ApiResponder;
 use falc_bus::station::{self, Station, StationEvent};
-use falc_bus::{Bus, Responder};
+use falc_bus::{Bus, BusEvent, Declaration, Presence, Responder};
 use falc_control::order_list::{CellCall, OrderList, Output, Ticket};
+use falc_control::plant::{Plant, PlantOutput};
 use falc_control::recipe_source::{Delivery, RecipeSource};
 use falc_model::console::EntryKind;
 use falc_model::ids::StationName;
+use falc_model::keys::KeySpace;
 use falc_model::mms::error::ServiceError;
-use falc_model::mms::pdu::{Peer, Request};
+use falc_model::mms::pdu::{Peer, Request, Unconfirmed};
+use falc_model::plant::Layout;
+use falc_model::topology::Topology;
 use falc_node::{init_tracing, lane, say, NodeArgs};
 use recipe_store::RecipeDir;
 use std::collections::HashMap;
@@ -79,14 +87,23 @@ enum LaneDone {
     Done(Result<(), ServiceError>),
 }
 
-/// Starts the cell lane: its jobs go to `cell` one at a time, each outcome
-/// comes back on the returned receiver.
+/// Starts cell `index`'s lane: its jobs go to `cell` one at a time, each
+/// outcome comes back on `done` with the cell's index.
 fn cell_lane(
     bus: Bus,
     cell: StationName,
-) -> (UnboundedSender<LaneJob>, UnboundedReceiver<LaneDone>) {
-    let (done_tx, done) = unbounded_channel();
-    let jobs = lane::spawn(done_tx, move |job: LaneJob| {
+    index: usize,
+    done: UnboundedSender<(usize, LaneDone)>,
+) -> UnboundedSender<LaneJob> {
+    let (done_tx, mut outcomes) = unbounded_channel();
+    tokio::spawn(async move {
+        while let Some(d) = outcomes.recv().await {
+            if done.send((index, d)).is_err() {
+                break;
+            }
+        }
+    });
+    lane::spawn(done_tx, move |job: LaneJob| {
         let (bus, cell) = (bus.clone(), cell.clone());
         async move {
             match job {
@@ -104,20 +121,30 @@ fn cell_lane(
                 }
             }
         }
-    });
-    (jobs, done)
+    })
 }
 
-/// The operator node: the order list core and what carries out its outputs.
-struct Operator {
-    list: OrderList<Database, RecipeDir>,
+/// One cell as the operator drives it: its station (the operator's place
+/// in the cell), the lane to its cell controller, its subscriptions.
+struct CellDriver {
     station: Station,
-    started: Instant,
     lane: UnboundedSender<LaneJob>,
+    _subscriptions: Vec<Declaration>,
+}
+
+/// The operator node: the plant core (one order list per cell) and what
+/// carries out its outputs.
+struct Operator {
+    plant: Plant<Database, RecipeDir>,
+    cells: Vec<CellDriver>,
+    /// The session the consoles ask (the plant's key space, or the one
+    /// cell's).
+    api_bus: Bus,
+    started: Instant,
     next_ticket: u64,
     /// Console requests waiting for their answer.
     consoles: HashMap<Ticket, ApiResponder>,
-    /// The cell's indications waiting for their answer.
+    /// The cells' indications waiting for their answer.
     indications: HashMap<Ticket, Responder>,
 }
 
@@ -131,67 +158,103 @@ impl Operator {
         Ticket(self.next_ticket)
     }
 
-    /// Carries out what the order list put out.
+    /// Carries out what the plant put out.
     async fn drain(&mut self) {
-        while let Some(out) = self.list.poll_output() {
+        while let Some(out) = self.plant.poll_output() {
             match out {
-                Output::Cell(call) => {
-                    let job = match call {
-                        CellCall::Associate => LaneJob::Initiates(self.station.initiates_due()),
-                        CellCall::Initiate => LaneJob::Request(Request::Initiate {
-                            calling: self.station.bus().me().clone(),
-                        }),
-                        CellCall::Deliver(d) => LaneJob::Deliver(d),
-                        CellCall::Start { name, argument } => {
-                            LaneJob::Request(Request::Start { name, argument })
-                        }
-                        CellCall::Stop { name } => LaneJob::Request(Request::Stop { name }),
-                        CellCall::Pass(request) => LaneJob::Request(request),
-                    };
-                    if self.lane.send(job).is_err() {
-                        tracing::error!("the cell lane stopped");
-                    }
-                }
-                Output::Reply { ticket, result } => match self.consoles.remove(&ticket) {
+                PlantOutput::Reply { ticket, result } => match self.consoles.remove(&ticket) {
                     Some(r) => r.respond(*result).await,
                     None => tracing::warn!("no console waits for answer {ticket:?}"),
                 },
-                Output::Respond { ticket, result } => match self.indications.remove(&ticket) {
-                    Some(r) => r.respond(result).await,
-                    None => tracing::warn!("no indication waits for answer {ticket:?}"),
-                },
-                Output::Forget(ticket) => {
-                    self.indications.remove(&ticket);
-                }
-                Output::Say(line) => say(&line),
-                Output::Changed => self.station.bus().publish_changed().await,
+                PlantOutput::Cell(i, out) => self.carry_out(i, out).await,
             }
         }
     }
 
-    /// An outcome of the cell lane.
-    async fn lane_done(&mut self, done: LaneDone) {
+    /// Carries out cell `i`'s list's output.
+    async fn carry_out(&mut self, i: usize, out: Output) {
+        let Some(cell) = self.cells.get(i) else {
+            return tracing::error!("no cell {i}");
+        };
+        match out {
+            Output::Cell(call) => {
+                let job = match call {
+                    CellCall::Associate => LaneJob::Initiates(cell.station.initiates_due()),
+                    CellCall::Initiate => LaneJob::Request(Request::Initiate {
+                        calling: cell.station.bus().me().clone(),
+                    }),
+                    CellCall::Deliver(d) => LaneJob::Deliver(d),
+                    CellCall::Start { name, argument } => {
+                        LaneJob::Request(Request::Start { name, argument })
+                    }
+                    CellCall::Stop { name } => LaneJob::Request(Request::Stop { name }),
+                    CellCall::Pass(request) => LaneJob::Request(request),
+                };
+                if cell.lane.send(job).is_err() {
+                    tracing::error!("the cell lane stopped");
+                }
+            }
+            // The API's own answers come as the plant's (above).
+            Output::Reply { ticket, result } => match self.consoles.remove(&ticket) {
+                Some(r) => r.respond(*result).await,
+                None => tracing::warn!("no console waits for answer {ticket:?}"),
+            },
+            Output::Respond { ticket, result } => match self.indications.remove(&ticket) {
+                Some(r) => r.respond(result).await,
+                None => tracing::warn!("no indication waits for answer {ticket:?}"),
+            },
+            Output::Forget(ticket) => {
+                self.indications.remove(&ticket);
+            }
+            Output::Say(line) => say(&line),
+            Output::Changed => self.api_bus.publish_changed().await,
+        }
+    }
+
+    /// An outcome of cell `i`'s lane.
+    async fn lane_done(&mut self, i: usize, done: LaneDone) {
+        let Some(cell) = self.cells.get_mut(i) else {
+            return;
+        };
         let result = match done {
             LaneDone::Initiates(results) => {
-                self.station.record_initiates(results).await.map(|_| ())
+                cell.station.record_initiates(results).await.map(|_| ())
             }
             LaneDone::Done(result) => result,
         };
         let now = self.now();
-        self.list.handle_cell_reply(now, result);
+        if let Some(list) = self.plant.list(i) {
+            list.handle_cell_reply(now, result);
+        }
     }
 
-    async fn on_station(&mut self, ev: StationEvent) {
+    async fn on_station(&mut self, i: usize, ev: StationEvent) {
         let now = self.now();
         match ev {
             StationEvent::Indication(ind) => {
                 let ticket = self.ticket();
                 self.indications.insert(ticket, ind.responder);
-                self.list.handle_cell_request(now, ticket, ind.request);
+                if let Some(list) = self.plant.list(i) {
+                    list.handle_cell_request(now, ticket, ind.request);
+                }
             }
-            StationEvent::Abort(a) => self.list.handle_abort(now, &a.reason),
+            StationEvent::Abort(a) => {
+                if let Some(list) = self.plant.list(i) {
+                    list.handle_abort(now, &a.reason);
+                }
+            }
             StationEvent::Associated(_) | StationEvent::Concluded(_) => {}
         }
+    }
+
+    /// The next event of any cell's station.
+    async fn next_station_event(&mut self) -> Option<(usize, BusEvent)> {
+        if self.cells.is_empty() {
+            return std::future::pending().await;
+        }
+        let waits = self.cells.iter_mut().map(|c| Box::pin(c.station.recv()));
+        let (ev, i, _) = futures::future::select_all(waits).await;
+        ev.map(|ev| (i, ev))
     }
 }
 
@@ -209,79 +272,152 @@ async fn main() -> ExitCode {
     }
 }
 
+/// One cell of the operator's: its topology and the cell controller it
+/// commands.
+struct CellPlan {
+    topology: Topology,
+    cell: StationName,
+}
+
 async fn run(cli: Cli) -> Result<ExitCode> {
-    let topology = cli.node.topology()?;
     let me = &cli.station;
-    let cell = match topology.subordinates_of(me).as_slice() {
-        [cell] => (*cell).clone(),
-        other => anyhow::bail!(
-            "station {me} must command exactly one cell in {}, it commands {}",
-            cli.node.topology.display(),
-            other.len()
-        ),
-    };
-    // The PPS first: a defective recipe set never reaches the cell.
-    let source = RecipeDir {
-        dir: cli.recipes.clone(),
-        topology: topology.clone(),
-        cell: cell.clone(),
-    };
-    let recipes = match source.load() {
-        Ok(set) => set,
-        Err(problems) => {
-            for p in &problems {
-                say(p);
+    // One cell (`launch/cell.toml`) or a plant (`launch/factory.toml`).
+    let (plans, api_settings) = match Layout::load(&cli.node.topology)? {
+        Layout::Cell(_) => {
+            let topology = cli.node.topology()?;
+            let settings = cli.node.settings(&topology, me)?;
+            (vec![plan(&topology, me, &cli)?], settings)
+        }
+        Layout::Plant(mut plant) => {
+            if let Some(r) = &cli.node.router {
+                plant.set_router(r.clone());
             }
-            say(&format!(
-                "EVENT refused {} recipe problem(s) in {}: nothing started, nothing downloaded",
-                problems.len(),
-                cli.recipes.display()
-            ));
-            return Ok(ExitCode::from(2));
+            if &plant.operator().name != me {
+                anyhow::bail!(
+                    "the plant's operator is {}, not {me}",
+                    plant.operator().name
+                );
+            }
+            let factory = plant.factory().clone();
+            let settings = cli.node.settings(&factory, me)?;
+            let plans = plant
+                .cells()
+                .iter()
+                .map(|c| plan(c.topology(), me, &cli))
+                .collect::<Result<Vec<_>>>()?;
+            (plans, settings)
         }
     };
-    let mut db = Database::open(&cli.db)?;
-    for o in db.recover()? {
-        say(&format!(
-            "EVENT interrupted order={} recipe={}",
-            o.id, o.recipe
-        ));
+    // The PPS first: a defective recipe set never reaches a cell.
+    let mut sets = Vec::new();
+    for p in &plans {
+        let source = RecipeDir {
+            dir: cli.recipes.clone(),
+            topology: p.topology.clone(),
+            cell: p.cell.clone(),
+        };
+        match source.load() {
+            Ok(set) => sets.push((source, set)),
+            Err(problems) => {
+                for problem in &problems {
+                    say(problem);
+                }
+                say(&format!(
+                    "EVENT refused {} recipe problem(s) in {} for cell {}: nothing started, nothing downloaded",
+                    problems.len(),
+                    cli.recipes.display(),
+                    p.topology.cell()
+                ));
+                return Ok(ExitCode::from(2));
+            }
+        }
     }
-    let settings = cli.node.settings(&topology, me)?;
-    let station = Station::open(settings, &topology)
+    // The order list and journal: one file, a connection per cell.
+    let mut first = true;
+    let mut dbs = Vec::new();
+    for p in &plans {
+        let mut db = Database::open(&cli.db, p.topology.cell().as_str())?;
+        if first {
+            for o in db.recover()? {
+                say(&format!(
+                    "EVENT interrupted order={} recipe={}",
+                    o.id, o.recipe
+                ));
+            }
+            first = false;
+        }
+        dbs.push(db);
+    }
+    let plant_of_one = plans.len() == 1;
+    let api_bus = Bus::open(api_settings)
         .await
-        .context("cannot join the cell network")?;
-    let bus = station.bus().clone();
-    let (api_tx, mut api) = unbounded_channel();
-    let _api = bus.serve_api(api_tx).await?;
-    let (utx, mut publications) = unbounded_channel();
-    let (ptx, mut presence) = unbounded_channel();
-    let mut subscriptions = Vec::new();
-    for st in topology.stations().iter().filter(|s| &s.name != me) {
-        subscriptions.extend(bus.subscribe(&st.name, utx.clone()).await?);
-        subscriptions.push(bus.presence(&st.name, ptx.clone()).await?);
+        .context("cannot join the network")?;
+    let (utx, mut publications) = unbounded_channel::<(usize, Unconfirmed)>();
+    let (ptx, mut presence) = unbounded_channel::<(usize, Presence)>();
+    let (ltx, mut lane_done) = unbounded_channel::<(usize, LaneDone)>();
+    let mut cells = Vec::new();
+    let mut lists = Vec::new();
+    for (i, ((p, (source, set)), db)) in plans.iter().zip(sets).zip(dbs).enumerate() {
+        let keys = KeySpace::new(p.topology.cell().clone());
+        // In a cell of its own the operator's API and its place in the
+        // cell share the key space: one bus.
+        let bus = if plant_of_one && api_bus.keys() == &keys {
+            api_bus.clone()
+        } else {
+            api_bus.alongside(keys).await?
+        };
+        let station = Station::on(bus.clone(), &p.topology)
+            .await
+            .context("cannot join the cell network")?;
+        let mut subscriptions = Vec::new();
+        let (cell_utx, cell_urx) = unbounded_channel();
+        let (cell_ptx, cell_prx) = unbounded_channel();
+        forward(i, cell_urx, utx.clone());
+        forward(i, cell_prx, ptx.clone());
+        for st in p.topology.stations().iter().filter(|s| &s.name != me) {
+            subscriptions.extend(bus.subscribe(&st.name, cell_utx.clone()).await?);
+            subscriptions.push(bus.presence(&st.name, cell_ptx.clone()).await?);
+        }
+        bus.sync_with_router().await?;
+        let lane = cell_lane(bus.clone(), p.cell.clone(), i, ltx.clone());
+        lists.push(
+            OrderList::new(
+                me.clone(),
+                p.cell.clone(),
+                p.topology.clone(),
+                db,
+                source,
+                set,
+            )
+            .with_max_queued(cli.max_queued_orders),
+        );
+        cells.push(CellDriver {
+            station,
+            lane,
+            _subscriptions: subscriptions,
+        });
     }
-    bus.sync_with_router().await?;
-    let (lane, mut lane_done) = cell_lane(bus.clone(), cell.clone());
-    let list = OrderList::new(me.clone(), cell, topology, db, source, recipes)
-        .with_max_queued(cli.max_queued_orders);
+    let (api_tx, mut api) = unbounded_channel();
+    let _api = api_bus.serve_api(api_tx).await?;
+    api_bus.sync_with_router().await?;
     let mut op = Operator {
-        list,
-        station,
+        plant: Plant::new(lists),
+        cells,
+        api_bus,
         started: Instant::now(),
-        lane,
         next_ticket: 0,
         consoles: HashMap::new(),
         indications: HashMap::new(),
     };
     let who = me.to_string();
-    op.list
-        .journal(EntryKind::System, None, &who, "operator node started");
+    if let Some(list) = op.plant.list(0) {
+        list.journal(EntryKind::System, None, &who, "operator node started");
+    }
     op.drain().await;
     say(&format!("EVENT ready station={me} db={}", cli.db.display()));
     let mut shutdown = falc_node::Shutdown::new();
     loop {
-        let wake = op.list.poll_timeout().map(|t| op.started + t);
+        let wake = op.plant.poll_timeout().map(|t| op.started + t);
         let timer = async {
             match wake {
                 Some(at) => tokio::time::sleep_until(at).await,
@@ -289,43 +425,84 @@ async fn run(cli: Cli) -> Result<ExitCode> {
             }
         };
         tokio::select! {
-            ev = op.station.recv() => {
-                let Some(ev) = ev else { anyhow::bail!("the cell network session ended") };
-                if let Some(ev) = op.station.handle(ev).await {
-                    op.on_station(ev).await;
+            ev = op.next_station_event() => {
+                let Some((i, ev)) = ev else { anyhow::bail!("the cell network session ended") };
+                let handled = match op.cells.get_mut(i) {
+                    Some(c) => c.station.handle(ev).await,
+                    None => None,
+                };
+                if let Some(ev) = handled {
+                    op.on_station(i, ev).await;
                 }
             }
             Some(ind) = api.recv() => {
                 let ticket = op.ticket();
                 op.consoles.insert(ticket, ind.responder);
                 let now = op.now();
-                op.list.handle_api(now, ticket, &ind.user, ind.request);
+                op.plant.handle_api(now, ticket, &ind.user, ind.cell.as_ref(), ind.request);
             }
-            Some(u) = publications.recv() => {
+            Some((i, u)) = publications.recv() => {
                 let now = op.now();
-                op.list.handle_publication(now, u);
+                if let Some(list) = op.plant.list(i) {
+                    list.handle_publication(now, u);
+                }
             }
-            Some(p) = presence.recv() => {
+            Some((i, p)) = presence.recv() => {
                 let now = op.now();
-                op.list.handle_presence(now, p.station, p.present);
+                if let Some(list) = op.plant.list(i) {
+                    list.handle_presence(now, p.station, p.present);
+                }
             }
-            Some(done) = lane_done.recv() => op.lane_done(done).await,
+            Some((i, done)) = lane_done.recv() => op.lane_done(i, done).await,
             _ = timer => {
                 let now = op.now();
-                op.list.handle_timeout(now);
+                op.plant.handle_timeout(now);
             }
             _ = shutdown.requested() => break,
         }
         op.drain().await;
-        if op.list.should_stop() {
+        if op.plant.should_stop() {
             break;
         }
     }
-    op.list
-        .journal(EntryKind::System, None, &who, "operator node stopped");
+    if let Some(list) = op.plant.list(0) {
+        list.journal(EntryKind::System, None, &who, "operator node stopped");
+    }
     op.drain().await;
-    op.station.conclude_subordinates().await;
-    drop(subscriptions);
+    for c in &mut op.cells {
+        c.station.conclude_subordinates().await;
+    }
     say("EVENT stopped");
     Ok(ExitCode::SUCCESS)
+}
+
+/// The cell of `topology` the operator `me` commands.
+fn plan(topology: &Topology, me: &StationName, cli: &Cli) -> Result<CellPlan> {
+    match topology.subordinates_of(me).as_slice() {
+        [cell] => Ok(CellPlan {
+            topology: topology.clone(),
+            cell: (*cell).clone(),
+        }),
+        other => anyhow::bail!(
+            "station {me} must command exactly one cell controller in cell {} of {}, it commands {}",
+            topology.cell(),
+            cli.node.topology.display(),
+            other.len()
+        ),
+    }
+}
+
+/// Forwards what `rx` receives to `tx`, tagged with cell `index`.
+fn forward<T: Send + 'static>(
+    index: usize,
+    mut rx: UnboundedReceiver<T>,
+    tx: UnboundedSender<(usize, T)>,
+) {
+    tokio::spawn(async move {
+        while let Some(x) = rx.recv().await {
+            if tx.send((index, x)).is_err() {
+                break;
+            }
+        }
+    });
 }

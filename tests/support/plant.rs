@@ -49,6 +49,48 @@ kind = "transport"
 commander = "cell"
 "#;
 
+/// Two whole cells (cell, welding, transport each) under one operator.
+pub const WHOLE_PLANT: &str = r#"
+plant = "plant"
+router = "FACTORY"
+lease_ms = 1000
+[operator]
+name = "operator"
+[[console]]
+name = "console"
+role = "operator"
+[[cell]]
+cell = "falc1"
+router = "ROUTER1"
+[[cell.station]]
+name = "cell"
+kind = "cell"
+commander = "operator"
+[[cell.station]]
+name = "welding"
+kind = "welding"
+commander = "cell"
+[[cell.station]]
+name = "transport"
+kind = "transport"
+commander = "cell"
+[[cell]]
+cell = "falc2"
+router = "ROUTER2"
+[[cell.station]]
+name = "cell"
+kind = "cell"
+commander = "operator"
+[[cell.station]]
+name = "welding"
+kind = "welding"
+commander = "cell"
+[[cell.station]]
+name = "transport"
+kind = "transport"
+commander = "cell"
+"#;
+
 pub struct TestPlant {
     pub dir: tempfile::TempDir,
     pub plant: Plant,
@@ -60,9 +102,41 @@ pub struct TestPlant {
 impl TestPlant {
     /// Writes [`PLANT`] with free ports and starts every router.
     pub fn start() -> TestPlant {
+        Self::start_text(PLANT)
+    }
+
+    /// The same with the plant file `plant` (`FACTORY`, `ROUTER1`,
+    /// `ROUTER2` replaced by endpoints).
+    pub fn start_text(plant: &str) -> TestPlant {
+        Self::start_routers(plant, &["FACTORY", "ROUTER1", "ROUTER2"])
+    }
+
+    /// A plant of `cells` whole cells (`falc1` …, each cell, welding and
+    /// transport), its routers started.
+    pub fn start_cells(cells: usize) -> TestPlant {
+        let mut text = WHOLE_PLANT
+            .split("[[cell]]")
+            .next()
+            .unwrap_or_default()
+            .to_string();
+        let mut names = vec!["FACTORY".to_string()];
+        for i in 1..=cells {
+            text.push_str(&format!(
+                "[[cell]]\ncell = \"falc{i}\"\nrouter = \"CELLROUTER{i}X\"\n\
+                 [[cell.station]]\nname = \"cell\"\nkind = \"cell\"\ncommander = \"operator\"\n\
+                 [[cell.station]]\nname = \"welding\"\nkind = \"welding\"\ncommander = \"cell\"\n\
+                 [[cell.station]]\nname = \"transport\"\nkind = \"transport\"\ncommander = \"cell\"\n"
+            ));
+            names.push(format!("CELLROUTER{i}X"));
+        }
+        let names: Vec<&str> = names.iter().map(String::as_str).collect();
+        Self::start_routers(&text, &names)
+    }
+
+    fn start_routers(plant: &str, placeholders: &[&str]) -> TestPlant {
         let dir = tempfile::tempdir().expect("tempdir");
-        let mut text = PLANT.to_string();
-        for name in ["FACTORY", "ROUTER1", "ROUTER2"] {
+        let mut text = plant.to_string();
+        for name in placeholders {
             text = text.replace(name, &format!("tcp/127.0.0.1:{}", free_port()));
         }
         let path = dir.path().join("factory.toml");
@@ -167,5 +241,185 @@ impl TestPlant {
             .topology()
             .router()
             .to_string()
+    }
+}
+
+/// The real nodes of one cell of a plant and their twins.
+pub struct CellNodes {
+    pub rcm: Proc,
+    pub plc: Proc,
+    pub welding: Proc,
+    pub transport: Proc,
+    pub cell: Proc,
+}
+
+impl TestPlant {
+    /// Node binary `bin` as `station` of cell `cell` (with `args`), ready.
+    pub fn node(&self, cell: &str, bin: &str, station: &str, args: &[&str]) -> Proc {
+        let mut cmd = Command::new(bin);
+        cmd.args(["--station", station, "--cell", cell])
+            .args(args)
+            .arg("--topology")
+            .arg(&self.path)
+            .arg("--credentials-dir")
+            .arg(self.credentials_dir());
+        let mut p = Proc::spawn(&format!("{cell}/{station}"), cmd);
+        p.expect_line("EVENT ready", Duration::from_secs(20));
+        p
+    }
+
+    /// Cell `cell`'s twins (the robot at `rcm_scale`), workstations and
+    /// cell controller.
+    pub fn start_cell_nodes(&self, cell: &str, rcm_scale: &str) -> CellNodes {
+        let (rcm, rcm_path) = super::twin(
+            env!("CARGO_BIN_EXE_falc-rcm-sim"),
+            &["--time-scale", rcm_scale],
+            "serial port: ",
+        );
+        let (plc, plc_address) = super::twin(
+            env!("CARGO_BIN_EXE_falc-plc-sim"),
+            &["--listen", "127.0.0.1:0", "--time-scale", "20"],
+            "listening on ",
+        );
+        let welding = self.node(
+            cell,
+            env!("CARGO_BIN_EXE_falc-welding"),
+            "welding",
+            &["--device", &rcm_path],
+        );
+        let mut transport = self.node(
+            cell,
+            env!("CARGO_BIN_EXE_falc-transport"),
+            "transport",
+            &["--plc", &plc_address],
+        );
+        transport.expect_line("EVENT plc-ready", Duration::from_secs(10));
+        let node = self.node(cell, env!("CARGO_BIN_EXE_falc-cell"), "cell", &[]);
+        CellNodes {
+            rcm,
+            plc,
+            welding,
+            transport,
+            cell: node,
+        }
+    }
+
+    /// The operator of the whole plant (recipes copied into the test's
+    /// directory, the order list there); ready once every cell has its
+    /// recipes.
+    pub fn start_operator(&self) -> Proc {
+        let mut p = self.spawn_operator();
+        p.expect_line("EVENT ready", Duration::from_secs(30));
+        for _ in self.plant.cells() {
+            p.take_line("EVENT delivered recipe=PIPDROOG", Duration::from_secs(60));
+        }
+        p
+    }
+
+    /// The operator process, just spawned.
+    pub fn spawn_operator(&self) -> Proc {
+        let recipes = super::copy_recipes(self.dir.path());
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-operator"));
+        cmd.arg("--recipes")
+            .arg(&recipes)
+            .arg("--db")
+            .arg(self.dir.path().join("var/falc.db"))
+            .arg("--topology")
+            .arg(&self.path)
+            .arg("--credentials-dir")
+            .arg(self.credentials_dir());
+        Proc::spawn("operator", cmd)
+    }
+
+    /// `falc ARGS` as console user `user` of the plant, for cell `cell`
+    /// (None: the plant); exit code and output.
+    pub fn falc_as(&self, user: &str, cell: Option<&str>, args: &[&str]) -> (i32, String) {
+        let mut all = vec![
+            "--topology".to_string(),
+            self.path.display().to_string(),
+            "--credentials-dir".into(),
+            self.credentials_dir().display().to_string(),
+            "--user".into(),
+            user.into(),
+        ];
+        if let Some(c) = cell {
+            all.extend(["--cell".to_string(), c.to_string()]);
+        }
+        super::run_falc(&all, args)
+    }
+
+    /// `falc ARGS` as `console`; must succeed; its output.
+    pub fn falc(&self, cell: Option<&str>, args: &[&str]) -> String {
+        let (code, text) = self.falc_as("console", cell, args);
+        assert_eq!(code, 0, "falc {cell:?} {args:?}: {text}");
+        text
+    }
+
+    /// What `falc --json ARGS` prints, as `T`.
+    pub fn reply<T: serde::de::DeserializeOwned>(&self, cell: Option<&str>, args: &[&str]) -> T {
+        let mut all = vec!["--json"];
+        all.extend_from_slice(args);
+        let text = self.falc(cell, &all);
+        serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{e}: {text}"))
+    }
+
+    /// The plant at a glance.
+    pub fn status(&self) -> falc_model::console::PlantStatus {
+        self.reply(None, &["status"])
+    }
+
+    /// Every order of the plant.
+    pub fn orders(&self) -> Vec<falc_model::console::Order> {
+        self.reply(None, &["order", "list"])
+    }
+
+    /// Answers every cell's question with `answer` until no order is
+    /// queued or running, or `within` passed; the questions answered.
+    pub fn work_list(&self, answer: &str, within: Duration) -> Vec<(String, String)> {
+        use falc_model::console::OrderState;
+        let end = std::time::Instant::now() + within;
+        let mut asked = Vec::new();
+        loop {
+            let status = self.status();
+            for (cell, s) in &status.cells {
+                if let Some(q) = &s.question {
+                    let (code, _) =
+                        self.falc_as("console", Some(cell.as_str()), &["answer", answer]);
+                    if code == 0 {
+                        asked.push((cell.to_string(), q.clone()));
+                    }
+                }
+            }
+            let busy = self
+                .orders()
+                .iter()
+                .any(|o| matches!(o.state, OrderState::Queued | OrderState::Running));
+            let running = status.cells.iter().any(|(_, s)| s.running.is_some());
+            if !busy && !running {
+                return asked;
+            }
+            assert!(
+                std::time::Instant::now() < end,
+                "the plant's list not done within {within:?}: {status:#?}"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
+
+impl TestPlant {
+    /// Answers every cell's question with `ja` until `nodes`' robot starts
+    /// its program (its twin receives `G`): that cell's order is mid-weld.
+    pub fn until_welding(&self, nodes: &mut CellNodes) {
+        let end = std::time::Instant::now() + Duration::from_secs(60);
+        while nodes.rcm.wait_line("rx G", Duration::ZERO).is_none() {
+            assert!(std::time::Instant::now() < end, "the weld never started");
+            for (cell, s) in self.status().cells {
+                if s.question.is_some() {
+                    self.falc_as("console", Some(cell.as_str()), &["answer", "ja"]);
+                }
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
 }

@@ -433,6 +433,7 @@ pub fn factory_access_control(plant: &Plant) -> Value {
     let factory = plant.factory();
     let operator = &plant.operator().name;
     let mut operator_rules = api_rules(factory, operator);
+    operator_rules.extend(hierarchy_rules(factory, operator));
     for cell in plant.cells() {
         operator_rules.extend(in_cell(cell, hierarchy_rules(cell.topology(), operator)));
     }

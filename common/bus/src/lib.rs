@@ -194,6 +194,9 @@ pub struct Bus {
     keys: KeySpace,
     me: Peer,
     _token: std::sync::Arc<zenoh::liveliness::LivelinessToken>,
+    /// The cell of a plant this console's operator API calls are for
+    /// ([`Bus::for_cell`]); None: the plant, or the one cell.
+    api_cell: Option<falc_model::ids::CellId>,
 }
 
 /// Keeps a declaration alive; dropping it undeclares.
@@ -232,7 +235,34 @@ impl Bus {
             keys: settings.keys,
             me,
             _token: std::sync::Arc::new(token),
+            api_cell: None,
         })
+    }
+
+    /// The same session in key space `keys` (a plant's operator commands
+    /// each cell on one session), with a liveliness token of its own there.
+    pub async fn alongside(&self, keys: KeySpace) -> Result<Self, BusError> {
+        let key = keys.alive(&self.me.station, &self.me.session);
+        let token = self
+            .session
+            .liveliness()
+            .declare_token(&key)
+            .await
+            .map_err(declare_failed("liveliness token", &key))?;
+        Ok(Self {
+            session: self.session.clone(),
+            keys,
+            me: self.me.clone(),
+            _token: std::sync::Arc::new(token),
+            api_cell: None,
+        })
+    }
+
+    /// This bus with its operator API calls for cell `cell` of a plant
+    /// (`falc --cell C`; None: the plant, or the one cell).
+    pub fn for_cell(mut self, cell: Option<falc_model::ids::CellId>) -> Self {
+        self.api_cell = cell;
+        self
     }
 
     /// Returns once the router has processed every declaration this session

@@ -11,7 +11,7 @@
 use super::{declare_failed, Bus, BusError, Declaration};
 use falc_model::console::{ApiReply, ApiRequest, ApiResult, Call, MAX_REQUEST_BYTES};
 use falc_model::envelope;
-use falc_model::ids::StationName;
+use falc_model::ids::{CellId, StationName};
 use std::time::Duration;
 use tokio::sync::mpsc::UnboundedSender;
 use zenoh::query::Query;
@@ -27,11 +27,17 @@ pub struct ApiIndication {
     /// The console user who asks (authenticated by the router; named in the
     /// journal).
     pub user: StationName,
+    /// The cell it is for (`?cell=C` on the key), in a plant; None: the
+    /// plant's, or the one cell's.
+    pub cell: Option<CellId>,
     /// The request.
     pub request: ApiRequest,
     /// Answers it.
     pub responder: ApiResponder,
 }
+
+/// The selector parameter that names the cell a request is for.
+const CELL_PARAMETER: &str = "cell";
 
 /// Sends the answer to one API request.
 #[derive(Debug)]
@@ -69,6 +75,12 @@ fn on_query(call: Call, query: Query, tx: &UnboundedSender<ApiIndication>) {
         .next()
         .and_then(|u| StationName::new(u).ok())
         .ok_or_else(|| format!("API request on {key} names no valid user"));
+    let cell = match query.parameters().get(CELL_PARAMETER) {
+        None => Ok(None),
+        Some(c) => CellId::new(c)
+            .map(Some)
+            .map_err(|e| format!("API request on {key}: {e}")),
+    };
     let request = query
         .payload()
         .ok_or_else(|| format!("API request on {key} carries no payload"))
@@ -93,10 +105,11 @@ fn on_query(call: Call, query: Query, tx: &UnboundedSender<ApiIndication>) {
                 ))
             }
         });
-    match user.and_then(|u| request.map(|r| (u, r))) {
-        Ok((user, request)) => {
+    match user.and_then(|u| cell.and_then(|c| request.map(|r| (u, c, r)))) {
+        Ok((user, cell, request)) => {
             let ind = ApiIndication {
                 user,
+                cell,
                 request,
                 responder: ApiResponder { query },
             };
@@ -149,8 +162,9 @@ impl Bus {
         Ok(out)
     }
 
-    /// Makes an operator API call as this session's user; the reply, or why
-    /// there is none: no reply, or the operator's refusal.
+    /// Makes an operator API call as this session's user (for the cell of
+    /// [`Bus::for_cell`]); the reply, or why there is none: no reply, or
+    /// the operator's refusal.
     pub async fn api(
         &self,
         operator: &StationName,
@@ -158,7 +172,9 @@ impl Bus {
         deadline: Duration,
     ) -> Result<ApiReply, CallError> {
         let me = self.me.station.clone();
-        self.api_as(operator, request, &me, deadline).await
+        let cell = self.api_cell.clone();
+        self.api_as(operator, cell.as_ref(), request, &me, deadline)
+            .await
     }
 
     /// Makes an operator API call on the key of console user `user`. The
@@ -167,12 +183,16 @@ impl Bus {
     pub async fn api_as(
         &self,
         operator: &StationName,
+        cell: Option<&CellId>,
         request: ApiRequest,
         user: &StationName,
         deadline: Duration,
     ) -> Result<ApiReply, CallError> {
         let call = request.call();
-        let key = self.keys.api(operator, call, user);
+        let mut key = self.keys.api(operator, call, user);
+        if let Some(cell) = cell {
+            key = format!("{key}?{CELL_PARAMETER}={cell}");
+        }
         let payload = envelope::encode(&request);
         let what = format!("`{call}` of the operator API ({key})");
         match self

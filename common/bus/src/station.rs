@@ -51,7 +51,12 @@ pub struct Station {
 impl Station {
     /// Connects, serves this station's services and waits for a commander.
     pub async fn open(settings: BusSettings, topology: &Topology) -> Result<Self, BusError> {
-        let bus = Bus::open(settings).await?;
+        Self::on(Bus::open(settings).await?, topology).await
+    }
+
+    /// The same on a session already open (a plant's operator is a station
+    /// of every cell on one session: [`Bus::alongside`]).
+    pub async fn on(bus: Bus, topology: &Topology) -> Result<Self, BusError> {
         let me = bus.me().station.clone();
         let assoc = Associations::new(
             me.clone(),

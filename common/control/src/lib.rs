@@ -10,11 +10,14 @@
 //!   operator above, requests out as commands, confirms and job events in;
 //! - [`order_list`]: the operator's order list worked through the cell,
 //!   with its [`alarm_list`], over its durable [`records`] and the
-//!   [`recipe_source`].
+//!   [`recipe_source`];
+//! - [`plant`]: the factory controller over several cells: one order list
+//!   per cell, the API's requests routed to the cells they concern.
 
 pub mod alarm_list;
 pub mod controller;
 pub mod coordination;
 pub mod order_list;
+pub mod plant;
 pub mod recipe_source;
 pub mod records;

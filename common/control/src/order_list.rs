@@ -26,7 +26,7 @@ use falc_model::console::{
     Placement, StationView, MAX_OUTPUT_CHARS, MAX_OUTPUT_LINES, MAX_QUEUED_ORDERS,
     QUESTION_WINDOW_LINES,
 };
-use falc_model::ids::{ObjectName, StationName};
+use falc_model::ids::{CellId, ObjectName, StationName};
 use falc_model::mms::domain::content_hash;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
@@ -1401,7 +1401,45 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 
     // ---- the operator API ----
 
-    fn status(&self) -> Result<CellStatus, R::Error> {
+    /// The cell this list runs on.
+    pub fn cell(&self) -> &CellId {
+        self.topology.cell()
+    }
+
+    /// Whether the cell has a cell recipe of this name (as delivered, or
+    /// saved since).
+    pub fn knows_recipe(&self, recipe: &str) -> bool {
+        let Ok(name) = ObjectName::new(recipe) else {
+            return false;
+        };
+        self.recipes.cell_recipes().contains(&&name)
+            || self
+                .source
+                .load()
+                .is_ok_and(|set| set.cell_recipes().contains(&&name))
+    }
+
+    /// Whether alarm `id` is listed here.
+    pub fn has_alarm(&self, id: i64) -> bool {
+        self.alarms.listed().iter().any(|a| a.id == id)
+    }
+
+    /// Whether order `id` ran (or runs) on this cell.
+    pub fn ran(&self, id: i64) -> bool {
+        self.db.orders().is_ok_and(|orders| {
+            orders
+                .iter()
+                .any(|o| o.id == id && o.cell.as_deref() == Some(self.cell().as_str()))
+        })
+    }
+
+    /// Whether the cell's question waits for an answer.
+    pub fn question_waiting(&self) -> bool {
+        self.question.is_some()
+    }
+
+    /// The cell at a glance, as `status` answers it.
+    pub fn status(&self) -> Result<CellStatus, R::Error> {
         Ok(CellStatus {
             list: self.list_state(),
             cell_associated: self.associated,

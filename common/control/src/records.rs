@@ -291,6 +291,126 @@ pub mod memory {
     }
 }
 
+/// The plant's records in memory, for unit tests of several cells'
+/// lists: one [`memory::Memory`] shared, each cell's view of it listing
+/// its own alarms, as each cell's connection to the SQLite file does.
+#[cfg(test)]
+pub mod shared {
+    use super::memory::Memory;
+    use super::*;
+    use falc_model::console::Placement;
+    use std::cell::RefCell;
+    use std::collections::BTreeMap;
+    use std::rc::Rc;
+
+    /// One cell's view of the shared records.
+    pub struct Shared {
+        /// The plant's records.
+        pub all: Rc<RefCell<Memory>>,
+        /// Which cell raised each alarm.
+        owners: Rc<RefCell<BTreeMap<i64, String>>>,
+        cell: String,
+    }
+
+    /// A view for each of `cells`, over one set of records.
+    pub fn plant(cells: &[&str]) -> Vec<Shared> {
+        let all = Rc::new(RefCell::new(Memory::default()));
+        let owners = Rc::new(RefCell::new(BTreeMap::new()));
+        cells
+            .iter()
+            .map(|c| Shared {
+                all: all.clone(),
+                owners: owners.clone(),
+                cell: c.to_string(),
+            })
+            .collect()
+    }
+
+    impl Records for Shared {
+        type Error = String;
+        fn now_ms(&self) -> i64 {
+            self.all.borrow().now_ms()
+        }
+        fn add_order(&mut self, recipe: &str, who: &str, p: &Placement) -> Result<Order, String> {
+            self.all.borrow_mut().add_order(recipe, who, p)
+        }
+        fn orders(&self) -> Result<Vec<Order>, String> {
+            self.all.borrow().orders()
+        }
+        fn next_queued(&self, cell: &str) -> Result<Option<Order>, String> {
+            self.all.borrow().next_queued(cell)
+        }
+        fn journal_head(&self) -> Result<i64, String> {
+            self.all.borrow().journal_head()
+        }
+        fn queued(&self) -> Result<usize, String> {
+            self.all.borrow().queued()
+        }
+        fn remove_order(&mut self, id: i64) -> Result<Result<Order, String>, String> {
+            self.all.borrow_mut().remove_order(id)
+        }
+        fn set_running(&mut self, id: i64, cell: &str) -> Result<i64, String> {
+            self.all.borrow_mut().set_running(id, cell)
+        }
+        fn requeue(&mut self, id: i64) -> Result<(), String> {
+            self.all.borrow_mut().requeue(id)
+        }
+        fn end_order(&mut self, id: i64, state: OrderState, result: &str) -> Result<(), String> {
+            self.all.borrow_mut().end_order(id, state, result)
+        }
+        fn journal(
+            &mut self,
+            kind: EntryKind,
+            order: Option<i64>,
+            who: &str,
+            text: &str,
+        ) -> Result<Entry, String> {
+            self.all.borrow_mut().journal(kind, order, who, text)
+        }
+        fn entries(
+            &self,
+            after: i64,
+            order: Option<i64>,
+            messages_only: bool,
+            limit: usize,
+        ) -> Result<Vec<Entry>, String> {
+            self.all
+                .borrow()
+                .entries(after, order, messages_only, limit)
+        }
+        fn raise_alarm(
+            &mut self,
+            station: &str,
+            class: AlarmClass,
+            text: &str,
+            order: Option<i64>,
+        ) -> Result<Alarm, String> {
+            let a = self
+                .all
+                .borrow_mut()
+                .raise_alarm(station, class, text, order)?;
+            self.owners.borrow_mut().insert(a.id, self.cell.clone());
+            Ok(a)
+        }
+        fn ack_alarm(&mut self, id: i64, who: &str, at_ms: i64) -> Result<(), String> {
+            self.all.borrow_mut().ack_alarm(id, who, at_ms)
+        }
+        fn clear_alarm(&mut self, id: i64, at_ms: i64) -> Result<(), String> {
+            self.all.borrow_mut().clear_alarm(id, at_ms)
+        }
+        fn listed_alarms(&self) -> Result<Vec<Alarm>, String> {
+            let owners = self.owners.borrow();
+            Ok(self
+                .all
+                .borrow()
+                .listed_alarms()?
+                .into_iter()
+                .filter(|a| owners.get(&a.id) == Some(&self.cell))
+                .collect())
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::memory::Memory;

@@ -668,6 +668,16 @@ pub enum ApiReply {
     Recipes(Vec<RecipeInfo>),
     /// `recipe get`.
     Recipe(RecipeText),
+    /// `status` of a plant of several cells: each cell at a glance.
+    Plant(PlantStatus),
+}
+
+/// A plant of several cells at a glance: each cell's status, in the
+/// plant file's order.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PlantStatus {
+    /// Each cell's id and status.
+    pub cells: Vec<(CellId, CellStatus)>,
 }
 
 /// The answer to a request: the reply, or why it was refused.

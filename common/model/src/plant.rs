@@ -24,6 +24,35 @@ use std::net::IpAddr;
 use std::path::Path;
 use std::time::Duration;
 
+/// What a topology file describes: one cell (`launch/cell.toml`) or a
+/// plant (`launch/factory.toml`, a file with `plant = …`).
+#[derive(Debug, Clone)]
+pub enum Layout {
+    /// One cell, a plant of one.
+    Cell(Topology),
+    /// Several cells under one operator.
+    Plant(Plant),
+}
+
+impl Layout {
+    /// Reads a topology file, a cell's or a plant's.
+    pub fn load(path: &Path) -> Result<Self, TopologyError> {
+        let text = std::fs::read_to_string(path).map_err(|source| TopologyError::Read {
+            path: path.display().to_string(),
+            source,
+        })?;
+        let origin = path.display().to_string();
+        let is_plant = toml::from_str::<toml::Table>(&text)
+            .map(|t| t.contains_key("plant"))
+            .unwrap_or(false);
+        if is_plant {
+            Plant::parse(&text, &origin).map(Layout::Plant)
+        } else {
+            Topology::parse(&text, &origin).map(Layout::Cell)
+        }
+    }
+}
+
 /// The zenoh user name a cell's router logs in with at the factory router.
 pub fn router_user(cell: &CellId) -> String {
     format!("router-{cell}")
@@ -201,7 +230,10 @@ impl Plant {
                     stations: std::iter::once(operator.clone())
                         .chain(c.stations)
                         .collect(),
-                    consoles: Vec::new(),
+                    // The plant's console users, whose roles each cell's
+                    // order list checks again; they log in at the factory
+                    // router only.
+                    consoles: factory.consoles().to_vec(),
                 },
                 &format!("{origin}, cell `{id}`"),
             )?;
@@ -344,7 +376,13 @@ commander = "cell"
             .map(|s| s.name.as_str())
             .collect();
         assert_eq!(names, ["operator", "cell", "transport"]);
-        assert!(c2.topology().consoles().is_empty());
+        let consoles: Vec<&str> = c2
+            .topology()
+            .consoles()
+            .iter()
+            .map(|c| c.name.as_str())
+            .collect();
+        assert_eq!(consoles, ["console"], "the plant's, for their roles");
         assert_eq!(c2.router_user().as_str(), "router-falc2");
         assert_eq!(
             plant
@@ -354,6 +392,19 @@ commander = "cell"
         );
         let factory: Vec<&str> = plant.factory().users().map(|u| u.as_str()).collect();
         assert_eq!(factory, ["operator", "console"]);
+    }
+
+    #[test]
+    fn a_topology_file_is_read_as_a_cell_or_as_a_plant() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch");
+        assert!(matches!(
+            Layout::load(&root.join("cell.toml")),
+            Ok(Layout::Cell(_))
+        ));
+        assert!(matches!(
+            Layout::load(&root.join("factory.toml")),
+            Ok(Layout::Plant(_))
+        ));
     }
 
     #[test]

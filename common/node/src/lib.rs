@@ -20,7 +20,7 @@ use falc_bus::credentials::{self, CredentialsError};
 use falc_bus::BusSettings;
 use falc_model::ids::{CellId, StationName};
 use falc_model::keys::KeySpace;
-use falc_model::plant::Plant;
+use falc_model::plant::{Layout, Plant};
 use falc_model::topology::{Topology, TopologyError};
 use std::path::PathBuf;
 use std::time::Duration;
@@ -98,6 +98,35 @@ impl NodeArgs {
             t.set_router(r.clone());
         }
         Ok(t)
+    }
+
+    /// The topology a console logs in to: the cell's, or in a plant the
+    /// factory level's (the operator and the console users, the factory
+    /// router); `--cell` then names the cell its calls are for.
+    pub fn console_topology(&self) -> Result<Topology, SetupError> {
+        let mut t = match Layout::load(&self.topology)? {
+            Layout::Cell(t) => t,
+            Layout::Plant(p) => p.factory().clone(),
+        };
+        if let Some(r) = &self.router {
+            t.set_router(r.clone());
+        }
+        Ok(t)
+    }
+
+    /// A console user's bus settings in `topology` (from
+    /// [`Self::console_topology`]): its credentials from the credentials
+    /// directory itself, a plant's cell or not.
+    pub fn console_settings(
+        &self,
+        topology: &Topology,
+        user: &StationName,
+    ) -> Result<BusSettings, SetupError> {
+        Self {
+            cell: None,
+            ..self.clone()
+        }
+        .settings(topology, user)
     }
 
     /// The bus settings of `station` (or of a console user).
