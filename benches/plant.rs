@@ -1,6 +1,6 @@
 //! Plant scale benchmark: 1, 4 and 16 cells, each a cell router and three
-//! demo stations (cell, welding, transport: no device, so a started order
-//! runs until it is stopped), under one factory router and one
+//! demo stations (cell, welding, transport: no device; the cell's order
+//! ends by itself after 200 ms), under one factory router and one
 //! `falc-operator` (debug build unless run with `--profile release`).
 //!
 //! Prints, per plant size:
@@ -8,7 +8,9 @@
 //!   recipes delivered;
 //! - dispatch latency, p50 and tail: an order added for a cell → that
 //!   cell's `start` confirmed by the cell controller, the order running
-//!   (rounds: each cell's order stopped, a new one added and started);
+//!   (rounds: each demo cell's order ends by itself after 200 ms);
+//! - the hand-over in a running list: a batch for every cell worked from
+//!   the one list, one order's end → the same cell's next order running;
 //! - CPU (% of one core) and RSS of the factory router, the busiest cell
 //!   router and the operator, idle (5 s) and busy (the dispatch rounds);
 //! - how each figure grows against one cell.
@@ -61,17 +63,27 @@ struct Figures {
     startup_ms: f64,
     dispatch_p50: f64,
     dispatch_tail: (&'static str, f64),
+    handover_p50: f64,
+    handover_tail: (&'static str, f64),
+    handovers: usize,
     idle: Vec<Load>,
     busy: Vec<Load>,
 }
+
+/// How long a demo cell's order runs before it ends by itself.
+const JOB_MS: &str = "200";
+
+/// Orders per cell in the queued batch.
+const BATCH: usize = 4;
 
 fn run(cells: usize) -> Figures {
     let plant = TestPlant::start_cells(cells);
     let mut stations: Vec<Proc> = Vec::new();
     for c in plant.plant.cells() {
-        for st in ["welding", "transport", "cell"] {
-            stations.push(plant.demo_station(c.id().as_str(), st));
-        }
+        let id = c.id().as_str();
+        stations.push(plant.demo_station(id, "welding"));
+        stations.push(plant.demo_station(id, "transport"));
+        stations.push(plant.demo_station_with(id, "cell", &["--job-ms", JOB_MS]));
     }
     let spawned = Instant::now();
     let mut operator = plant.spawn_operator();
@@ -93,22 +105,21 @@ fn run(cells: usize) -> Figures {
 
     let rt = tokio::runtime::Runtime::new().expect("runtime");
     let mut samples = Vec::new();
+    let mut handovers = Vec::new();
     let busy = load_over(&watched, || {
         rt.block_on(async {
             let settings = plant.settings("console", "console.toml", plant.plant.router(), "plant");
             let console = Bus::open(settings).await.expect("console");
             let operator = StationName::new("operator").expect("name");
+            let api = |bus: Bus, r: ApiRequest| {
+                let operator = operator.clone();
+                async move { bus.api(&operator, r, Duration::from_secs(30)).await }
+            };
             let ids: Vec<CellId> = plant.plant.cells().iter().map(|c| c.id().clone()).collect();
-            for round in 0..ROUNDS {
+            // Order added for a cell → that cell's start confirmed.
+            for _ in 0..ROUNDS {
                 for id in &ids {
                     let to_cell = console.clone().for_cell(Some(id.clone()));
-                    if round > 0 {
-                        to_cell
-                            .api(&operator, ApiRequest::Stop, Duration::from_secs(20))
-                            .await
-                            .expect("stop");
-                    }
-                    let t = Instant::now();
                     let add = ApiRequest::OrderAdd {
                         recipe: "dikdroog".into(),
                         placement: Placement {
@@ -117,19 +128,43 @@ fn run(cells: usize) -> Figures {
                         },
                         count: 1,
                     };
-                    console
-                        .api(&operator, add, Duration::from_secs(20))
-                        .await
-                        .expect("order add");
-                    match to_cell
-                        .api(&operator, ApiRequest::Start, Duration::from_secs(20))
-                        .await
-                    {
+                    let t = Instant::now();
+                    api(console.clone(), add).await.expect("order add");
+                    match api(to_cell, ApiRequest::Start).await {
                         Ok(ApiReply::Done(text)) if text.contains("started") => {
                             samples.push(t.elapsed().as_secs_f64() * 1000.0)
                         }
                         other => panic!("{id}: start answered {other:?}"),
                     }
+                }
+                // Every cell's order ends by itself.
+                until_idle(&console, &operator).await;
+            }
+            // A batch for every cell at once, worked from the one list:
+            // one order's end → the same cell's next order running.
+            let add = ApiRequest::OrderAdd {
+                recipe: "dikdroog".into(),
+                placement: Placement::default(),
+                count: u16::try_from(BATCH * ids.len()).unwrap_or(100).min(100),
+            };
+            api(console.clone(), add).await.expect("batch");
+            api(console.clone(), ApiRequest::Start)
+                .await
+                .expect("start");
+            until_idle(&console, &operator).await;
+            let Ok(ApiReply::Orders(orders)) = api(console.clone(), ApiRequest::OrderList).await
+            else {
+                panic!("no order list")
+            };
+            for id in &ids {
+                let mut mine: Vec<_> = orders
+                    .iter()
+                    .filter(|o| o.cell.as_deref() == Some(id.as_str()))
+                    .filter_map(|o| Some((o.started_ms?, o.ended_ms?)))
+                    .collect();
+                mine.sort();
+                for w in mine.windows(2) {
+                    handovers.push((w[1].0 - w[0].1) as f64);
                 }
             }
         })
@@ -139,8 +174,32 @@ fn run(cells: usize) -> Figures {
         startup_ms,
         dispatch_p50: median(&samples),
         dispatch_tail: tail(&samples),
+        handover_p50: median(&handovers),
+        handover_tail: tail(&handovers),
+        handovers: handovers.len(),
         idle,
         busy,
+    }
+}
+
+/// Waits until no cell runs an order and none is queued.
+async fn until_idle(console: &Bus, operator: &StationName) {
+    let end = Instant::now() + Duration::from_secs(300);
+    loop {
+        // A plant of one answers as its one cell.
+        let cells = match console
+            .api(operator, ApiRequest::Status, Duration::from_secs(10))
+            .await
+        {
+            Ok(ApiReply::Plant(p)) => p.cells.into_iter().map(|(_, s)| s).collect(),
+            Ok(ApiReply::Status(s)) => vec![s],
+            _ => Vec::new(),
+        };
+        if !cells.is_empty() && cells.iter().all(|s| s.running.is_none() && s.queued == 0) {
+            return;
+        }
+        assert!(Instant::now() < end, "the plant's orders did not end");
+        tokio::time::sleep(Duration::from_millis(20)).await;
     }
 }
 
@@ -180,6 +239,10 @@ fn main() {
             f.dispatch_tail.0,
             f.dispatch_tail.1,
             n * ROUNDS
+        );
+        println!(
+            "  hand-over, an order's end → the cell's next queued order running: p50 {:.0} ms, {} {:.0} ms (n={}; ms of the records' clock)",
+            f.handover_p50, f.handover_tail.0, f.handover_tail.1, f.handovers
         );
         println!("  idle: {}", show(&f.idle));
         println!("  busy: {}", show(&f.busy));

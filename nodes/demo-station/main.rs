@@ -8,9 +8,10 @@
 use anyhow::Result;
 use clap::Parser;
 use falc_bus::station::{Station, StationEvent};
+use falc_model::ids::ObjectName;
 use falc_model::ids::StationName;
 use falc_model::mms::error::{ErrorClass, ResourceError, ServiceError};
-use falc_model::mms::pdu::{Request, Response, Severity, Unconfirmed};
+use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::program::{PiCompletion, PiRequest};
 use falc_model::mms::vmd::{Identity, RecipeState, Vmd, VmdStatus};
 use falc_node::{init_tracing, NodeArgs};
@@ -24,6 +25,11 @@ struct Cli {
     /// The station this process is.
     #[arg(long)]
     station: StationName,
+    /// A started program ends by itself (done) after this many ms, as a
+    /// recipe would, and says so as a job event; 0: it runs until it is
+    /// stopped.
+    #[arg(long, default_value_t = 0)]
+    job_ms: u64,
     #[command(flatten)]
     node: NodeArgs,
 }
@@ -60,9 +66,37 @@ async fn main() -> Result<()> {
         "ready station={} session={}",
         me.station, me.session
     ));
+    // Started programs that end by themselves (`--job-ms`), and when.
+    let mut ends: Vec<(tokio::time::Instant, ObjectName)> = Vec::new();
     loop {
+        let next_end = ends.iter().map(|(at, _)| *at).min();
+        let ended = async {
+            match next_end {
+                Some(at) => tokio::time::sleep_until(at).await,
+                None => std::future::pending().await,
+            }
+        };
         let ev = tokio::select! {
             ev = station.next() => ev,
+            _ = ended => {
+                let now = tokio::time::Instant::now();
+                let (due, later): (Vec<_>, Vec<_>) = ends.drain(..).partition(|(at, _)| *at <= now);
+                ends = later;
+                for (_, name) in due {
+                    if vmd.complete(&name, PiCompletion::Finished).is_ok() {
+                        station.set_status(status(&vmd)).await;
+                        station
+                            .bus()
+                            .publish(&Unconfirmed::Job {
+                                station: me.station.clone(),
+                                program: name,
+                                event: JobEvent::Done,
+                            })
+                            .await;
+                    }
+                }
+                continue;
+            }
             _ = tokio::signal::ctrl_c() => None,
         };
         let Some(ev) = ev else { break };
@@ -91,6 +125,13 @@ async fn main() -> Result<()> {
                                 };
                                 if let Some(c) = done {
                                     let _ = vmd.complete(&t.name, c);
+                                }
+                                if t.request == PiRequest::Start && cli.job_ms > 0 {
+                                    let at = tokio::time::Instant::now()
+                                        + std::time::Duration::from_millis(cli.job_ms);
+                                    ends.push((at, t.name.clone()));
+                                } else if matches!(t.request, PiRequest::Stop | PiRequest::Kill) {
+                                    ends.retain(|(_, n)| *n != t.name);
                                 }
                                 station.set_status(status(&vmd)).await;
                             }

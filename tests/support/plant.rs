@@ -186,8 +186,14 @@ impl TestPlant {
 
     /// Starts a demo station `station` of cell `cell`.
     pub fn demo_station(&self, cell: &str, station: &str) -> Proc {
+        self.demo_station_with(cell, station, &[])
+    }
+
+    /// The same with more arguments (`--job-ms N`).
+    pub fn demo_station_with(&self, cell: &str, station: &str, args: &[&str]) -> Proc {
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-demo-station"));
         cmd.args(["--station", station, "--cell", cell])
+            .args(args)
             .arg("--topology")
             .arg(&self.path)
             .arg("--credentials-dir")
