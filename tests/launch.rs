@@ -128,3 +128,101 @@ fn the_launcher_stops_the_cell_when_a_node_dies() {
         assert!(gone(pid), "node {pid} still runs");
     }
 }
+
+/// `falc-launch` with a plant file: the factory router, per cell its
+/// router, twins, workstations and cell controller, then the operator;
+/// two orders run, one on each cell; Ctrl-C stops every node.
+#[test]
+fn the_launched_plant_runs_an_order_on_each_cell_and_ctrl_c_stops_every_node() {
+    use crate::support::plant::WHOLE_PLANT;
+    use crate::support::{copy_recipes, free_port};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut text = WHOLE_PLANT.to_string();
+    for name in ["FACTORY", "ROUTER1", "ROUTER2"] {
+        text = text.replace(name, &format!("tcp/127.0.0.1:{}", free_port()));
+    }
+    let plant = dir.path().join("factory.toml");
+    std::fs::write(&plant, &text).expect("plant");
+    let recipes = copy_recipes(dir.path());
+    let bin_dir = Path::new(env!("CARGO_BIN_EXE_falc"))
+        .parent()
+        .expect("bin dir");
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-launch"));
+    cmd.arg("--topology")
+        .arg(&plant)
+        .arg("--credentials-dir")
+        .arg(dir.path().join("credentials"))
+        .arg("--db")
+        .arg(dir.path().join("falc.db"))
+        .arg("--recipes")
+        .arg(recipes)
+        .arg("--bin-dir")
+        .arg(bin_dir)
+        .args(["--plc-listen", "127.0.0.1:0", "--time-scale", "50"]);
+    let mut launcher = Proc::spawn("falc-launch", cmd);
+    launcher.expect_line("falc-launch: cell ready in", Duration::from_secs(90));
+    let nodes = nodes(launcher.pid());
+    assert_eq!(
+        nodes.len(),
+        1 + 2 * 6 + 1,
+        "factory router; per cell a router, 2 twins, 2 workstations, a cell; the operator"
+    );
+    launcher.expect_line("[falc2/transport] EVENT ready", Duration::ZERO);
+    let falc = |cell: Option<&str>, args: &[&str]| {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc"));
+        cmd.arg("--topology")
+            .arg(&plant)
+            .arg("--credentials-dir")
+            .arg(dir.path().join("credentials"));
+        if let Some(c) = cell {
+            cmd.args(["--cell", c]);
+        }
+        let out = cmd.args(args).output().expect("run falc");
+        let text = String::from_utf8_lossy(&out.stdout).into_owned();
+        assert!(
+            out.status.success(),
+            "falc {args:?}: {text}{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        text
+    };
+    falc(None, &["order", "add", "dikdroog", "--count", "2"]);
+    let out = falc(None, &["start"]);
+    assert!(
+        out.contains("falc1: order") && out.contains("falc2: order"),
+        "{out}"
+    );
+    let end = Instant::now() + Duration::from_secs(90);
+    loop {
+        let status = falc(None, &["status"]);
+        for cell in ["falc1", "falc2"] {
+            let line = status
+                .lines()
+                .find(|l| l.starts_with(cell))
+                .unwrap_or_default();
+            if line.contains("QUESTION") {
+                falc(Some(cell), &["answer", "ja"]);
+            }
+        }
+        if status.lines().filter(|l| l.contains("list idle")).count() == 2 {
+            break;
+        }
+        assert!(Instant::now() < end, "orders not done: {status}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let list = falc(None, &["order", "list"]);
+    assert_eq!(
+        list.lines().filter(|l| l.ends_with("(done)")).count(),
+        2,
+        "{list}"
+    );
+    assert!(
+        list.contains("on falc1") && list.contains("on falc2"),
+        "{list}"
+    );
+    kill(Pid::from_raw(launcher.pid() as i32), Signal::SIGINT).expect("SIGINT");
+    launcher.expect_line("every node stopped", Duration::from_secs(60));
+    for pid in nodes {
+        assert!(gone(pid), "node {pid} still runs");
+    }
+}

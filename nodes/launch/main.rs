@@ -2,6 +2,8 @@
 //! router, a digital twin per device (`falc-rcm-sim` on a pty for a welding
 //! station, `falc-plc-sim` on Modbus TCP for a transport station), every
 //! workstation, the cell and the operator, all from `launch/cell.toml`;
+//! or a whole plant from `launch/factory.toml` (the factory router, then
+//! each cell's router, twins and nodes, then the one operator);
 //! prefixes each node's log lines with its name; says when the cell is
 //! ready and how to operate it; routes `rcm …` / `plc …` lines typed on its
 //! stdin to the twins' control interfaces; and stops everything (SIGTERM,
@@ -12,6 +14,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
+use falc_model::plant::{Layout, Plant};
 use falc_model::topology::{StationKind, Topology};
 use falc_node::say;
 use std::path::{Path, PathBuf};
@@ -27,7 +30,8 @@ use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
     about = "FALC all-in-one: router, twins, workstations, cell and operator on this machine"
 )]
 struct Cli {
-    /// The cell topology.
+    /// The cell topology, or a plant's (`launch/factory.toml`: the factory
+    /// router, every cell's router, twins and nodes, one operator).
     #[arg(long, default_value = "launch/cell.toml")]
     topology: PathBuf,
     /// Directory of credential files (created by the router if missing).
@@ -243,6 +247,13 @@ fn node_args(cli: &Cli, topology_path: &Path, station: &str, router: &str) -> Ve
 }
 
 async fn start(cli: &Cli, cell: &mut Cell) -> Result<Duration> {
+    match Layout::load(&cli.topology)? {
+        Layout::Cell(_) => start_cell(cli, cell).await,
+        Layout::Plant(plant) => start_plant(cli, cell, &plant).await,
+    }
+}
+
+async fn start_cell(cli: &Cli, cell: &mut Cell) -> Result<Duration> {
     let t0 = Instant::now();
     let mut topology = Topology::load(&cli.topology)?;
     if let Some(r) = &cli.router {
@@ -250,7 +261,6 @@ async fn start(cli: &Cli, cell: &mut Cell) -> Result<Duration> {
     }
     let router = topology.router().to_string();
     let listen = router.clone();
-    let scale = cli.time_scale.to_string();
     let id = cell.spawn(
         "router",
         "falc-router",
@@ -266,74 +276,10 @@ async fn start(cli: &Cli, cell: &mut Cell) -> Result<Duration> {
     )?;
     cell.wait_for(id, "falc-router ready", Duration::from_secs(20))
         .await?;
-    let limit = Duration::from_secs(30);
-    // Workstations (with their twins) first, then the cell, then the operator.
-    let order = [
-        StationKind::Welding,
-        StationKind::Transport,
-        StationKind::Cell,
-        StationKind::Operator,
-    ];
+    let args = |station: &str| node_args(cli, &cli.topology, station, &router);
     let mut plc_taken = false;
-    for kind in order {
-        for st in topology.stations().iter().filter(|s| s.kind == kind) {
-            let name = st.name.as_str();
-            let mut args = node_args(cli, &cli.topology, name, &router);
-            let bin = match kind {
-                StationKind::Welding => {
-                    let twin = cell.spawn(
-                        &format!("rcm-{name}"),
-                        "falc-rcm-sim",
-                        &["--time-scale".into(), scale.clone()],
-                    )?;
-                    let line = cell.wait_for(twin, "serial port: ", limit).await?;
-                    let port = line.rsplit(' ').next().unwrap_or_default().to_string();
-                    args.extend(["--device".into(), port]);
-                    "falc-welding"
-                }
-                StationKind::Transport => {
-                    // `--plc-listen` is the first transport station's; a
-                    // second one listens at its own device, else anywhere.
-                    let first = !plc_taken;
-                    plc_taken = true;
-                    let own = st
-                        .device
-                        .clone()
-                        .filter(|d| d.parse::<std::net::SocketAddr>().is_ok());
-                    let at = if first {
-                        cli.plc_listen.clone().or(own)
-                    } else {
-                        own
-                    }
-                    .unwrap_or_else(|| "127.0.0.1:0".into());
-                    let twin = cell.spawn(
-                        &format!("plc-{name}"),
-                        "falc-plc-sim",
-                        &["--listen".into(), at, "--time-scale".into(), scale.clone()],
-                    )?;
-                    let line = cell.wait_for(twin, "listening on ", limit).await?;
-                    let address = line.rsplit(' ').next().unwrap_or_default().to_string();
-                    args.extend(["--plc".into(), address]);
-                    "falc-transport"
-                }
-                StationKind::Cell => "falc-cell",
-                StationKind::Operator => {
-                    args.extend([
-                        "--recipes".into(),
-                        cli.recipes.display().to_string(),
-                        "--db".into(),
-                        cli.db.display().to_string(),
-                    ]);
-                    "falc-operator"
-                }
-            };
-            let id = cell.spawn(name, bin, &args)?;
-            cell.wait_for(id, "EVENT ready", limit).await?;
-            if kind == StationKind::Operator {
-                cell.wait_for(id, "EVENT cell-ready", limit).await?;
-            }
-        }
-    }
+    start_stations(cli, cell, &topology, "", &args, &mut plc_taken).await?;
+    start_operator(cli, cell, &args("operator"), 1).await?;
     if let Some(listen) = &cli.opcua {
         let id = cell.spawn(
             "opcua",
@@ -349,9 +295,189 @@ async fn start(cli: &Cli, cell: &mut Cell) -> Result<Duration> {
                 listen.clone(),
             ],
         )?;
-        cell.wait_for(id, "EVENT ready", limit).await?;
+        cell.wait_for(id, "EVENT ready", LIMIT).await?;
     }
     Ok(t0.elapsed())
+}
+
+/// How long a node may take to say it is ready.
+const LIMIT: Duration = Duration::from_secs(30);
+
+/// A plant (`launch/factory.toml`): the factory router, then per cell its
+/// router, twins, workstations and cell controller (named `<cell>/<station>`,
+/// twins `rcm-<cell>-<station>`, `plc-<cell>-<station>`), then the operator
+/// of every cell.
+async fn start_plant(cli: &Cli, cell: &mut Cell, plant: &Plant) -> Result<Duration> {
+    let t0 = Instant::now();
+    if cli.opcua.is_some() || cli.router.is_some() {
+        bail!("--opcua and --router take one cell's topology, not a plant's");
+    }
+    let plant_args = |more: &[&str]| -> Vec<String> {
+        let mut v = vec![
+            "--plant".to_string(),
+            cli.topology.display().to_string(),
+            "--credentials-dir".into(),
+            cli.credentials_dir.display().to_string(),
+            "run".into(),
+        ];
+        v.extend(more.iter().map(|s| s.to_string()));
+        v
+    };
+    let id = cell.spawn("router", "falc-router", &plant_args(&[]))?;
+    cell.wait_for(id, "falc-router ready", Duration::from_secs(20))
+        .await?;
+    let mut plc_taken = false;
+    for c in plant.cells() {
+        let cid = c.id().as_str();
+        let id = cell.spawn(
+            &format!("router-{cid}"),
+            "falc-router",
+            &plant_args(&["--cell", cid]),
+        )?;
+        cell.wait_for(id, "falc-router ready", Duration::from_secs(20))
+            .await?;
+        let args = |station: &str| {
+            vec![
+                "--station".to_string(),
+                station.into(),
+                "--cell".into(),
+                cid.into(),
+                "--topology".into(),
+                cli.topology.display().to_string(),
+                "--credentials-dir".into(),
+                cli.credentials_dir.display().to_string(),
+            ]
+        };
+        start_stations(cli, cell, c.topology(), cid, &args, &mut plc_taken).await?;
+    }
+    let operator = plant.operator().name.as_str();
+    let args = vec![
+        "--station".to_string(),
+        operator.into(),
+        "--topology".into(),
+        cli.topology.display().to_string(),
+        "--credentials-dir".into(),
+        cli.credentials_dir.display().to_string(),
+    ];
+    start_operator(cli, cell, &args, plant.cells().len()).await?;
+    Ok(t0.elapsed())
+}
+
+/// Starts the operator with `args` and waits until each of its `cells`
+/// is ready (associated, recipes delivered).
+async fn start_operator(cli: &Cli, cell: &mut Cell, args: &[String], cells: usize) -> Result<()> {
+    let mut args = args.to_vec();
+    args.extend([
+        "--recipes".into(),
+        cli.recipes.display().to_string(),
+        "--db".into(),
+        cli.db.display().to_string(),
+    ]);
+    let id = cell.spawn("operator", "falc-operator", &args)?;
+    cell.wait_for(id, "EVENT ready", LIMIT).await?;
+    for _ in 0..cells {
+        cell.wait_for(id, "EVENT cell-ready", LIMIT).await?;
+    }
+    Ok(())
+}
+
+/// Starts the workstations of `topology` (each with its twin), then its
+/// cell controller; names are prefixed with `prefix/` in a plant.
+async fn start_stations(
+    cli: &Cli,
+    cell: &mut Cell,
+    topology: &Topology,
+    prefix: &str,
+    node_args: &dyn Fn(&str) -> Vec<String>,
+    plc_taken: &mut bool,
+) -> Result<()> {
+    let scale = cli.time_scale.to_string();
+    let named = |name: &str| {
+        if prefix.is_empty() {
+            name.to_string()
+        } else {
+            format!("{prefix}/{name}")
+        }
+    };
+    let twin = |kind: &str, name: &str| {
+        if prefix.is_empty() {
+            format!("{kind}-{name}")
+        } else {
+            format!("{kind}-{prefix}-{name}")
+        }
+    };
+    // Workstations (with their twins) first, then the cell.
+    for kind in [
+        StationKind::Welding,
+        StationKind::Transport,
+        StationKind::Cell,
+    ] {
+        for st in topology.stations().iter().filter(|s| s.kind == kind) {
+            let name = st.name.as_str();
+            let mut args = node_args(name);
+            let bin = match kind {
+                StationKind::Welding => {
+                    let id = cell.spawn(
+                        &twin("rcm", name),
+                        "falc-rcm-sim",
+                        &["--time-scale".into(), scale.clone()],
+                    )?;
+                    let line = cell.wait_for(id, "serial port: ", LIMIT).await?;
+                    let port = line.rsplit(' ').next().unwrap_or_default().to_string();
+                    args.extend(["--device".into(), port]);
+                    "falc-welding"
+                }
+                StationKind::Transport => {
+                    // `--plc-listen` is the first transport station's; a
+                    // second one listens at its own device, else anywhere.
+                    let first = !*plc_taken;
+                    *plc_taken = true;
+                    let own = st
+                        .device
+                        .clone()
+                        .filter(|d| d.parse::<std::net::SocketAddr>().is_ok());
+                    let at = if first {
+                        cli.plc_listen.clone().or(own)
+                    } else {
+                        own
+                    }
+                    .unwrap_or_else(|| "127.0.0.1:0".into());
+                    let id = cell.spawn(
+                        &twin("plc", name),
+                        "falc-plc-sim",
+                        &["--listen".into(), at, "--time-scale".into(), scale.clone()],
+                    )?;
+                    let line = cell.wait_for(id, "listening on ", LIMIT).await?;
+                    let address = line.rsplit(' ').next().unwrap_or_default().to_string();
+                    args.extend(["--plc".into(), address]);
+                    "falc-transport"
+                }
+                StationKind::Cell => "falc-cell",
+                StationKind::Operator => continue,
+            };
+            let id = cell.spawn(&named(name), bin, &args)?;
+            cell.wait_for(id, "EVENT ready", LIMIT).await?;
+        }
+    }
+    Ok(())
+}
+
+/// How to operate the launched plant: the consoles take the plant file,
+/// and `--cell C` for one cell.
+fn plant_help(bin_dir: &Path, topology: &Path) -> String {
+    let falc = bin_dir.join("falc");
+    let (falc, plant) = (falc.display(), topology.display());
+    format!(
+        "\
+operate the plant from another terminal (in this directory):
+  {falc} --topology {plant} status             every cell at a glance
+  {falc} --topology {plant} order add dikdroog --count 3
+  {falc} --topology {plant} start              every cell takes orders
+  {falc} --topology {plant} --cell falc2 answer ja
+  {falc} --topology {plant} --cell falc2 tui   one cell's screens
+type here to disturb a cell's twins: `rcm-falc2 estop`, `plc-falc2 show` …;
+Ctrl-C stops the plant."
+    )
 }
 
 /// How to operate the launched cell, with the console next to this binary.
@@ -421,7 +547,12 @@ async fn run(cli: &Cli, cell: &mut Cell) -> ExitCode {
                 took.as_millis(),
                 cli.time_scale
             ));
-            say(&help(&cell.bin_dir));
+            let plant = matches!(Layout::load(&cli.topology), Ok(Layout::Plant(_)));
+            say(&if plant {
+                plant_help(&cell.bin_dir, &cli.topology)
+            } else {
+                help(&cell.bin_dir)
+            });
         }
         Err(e) => {
             say(&format!("falc-launch: the cell did not start: {e:#}"));
