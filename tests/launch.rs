@@ -25,22 +25,29 @@ fn launch() -> Launched {
 
 impl Launched {
     fn falc(&self, args: &[&str]) -> String {
-        let out = Command::new(env!("CARGO_BIN_EXE_falc"))
-            .arg("--topology")
-            .arg(self.dir.path().join("cell.toml"))
-            .arg("--credentials-dir")
-            .arg(self.dir.path().join("credentials"))
-            .args(args)
-            .output()
-            .expect("run falc");
-        let text = String::from_utf8_lossy(&out.stdout).into_owned();
-        assert!(
-            out.status.success(),
-            "falc {args:?}: {text}{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        text
+        falc_in(self.dir.path(), "cell.toml", None, args)
     }
+}
+
+/// `falc ARGS` with the topology `topology` and the credentials of
+/// launcher directory `dir`, for cell `cell` of a plant; must succeed.
+fn falc_in(dir: &Path, topology: &str, cell: Option<&str>, args: &[&str]) -> String {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc"));
+    cmd.arg("--topology")
+        .arg(dir.join(topology))
+        .arg("--credentials-dir")
+        .arg(dir.join("credentials"));
+    if let Some(c) = cell {
+        cmd.args(["--cell", c]);
+    }
+    let out = cmd.args(args).output().expect("run falc");
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "falc {args:?}: {text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    text
 }
 
 /// The launcher's child processes.
@@ -134,15 +141,11 @@ fn the_launcher_stops_the_cell_when_a_node_dies() {
 /// two orders run, one on each cell; Ctrl-C stops every node.
 #[test]
 fn the_launched_plant_runs_an_order_on_each_cell_and_ctrl_c_stops_every_node() {
-    use crate::support::plant::WHOLE_PLANT;
-    use crate::support::{copy_recipes, free_port};
+    use crate::support::copy_recipes;
+    use crate::support::plant::{whole_plant, with_free_ports};
     let dir = tempfile::tempdir().expect("tempdir");
-    let mut text = WHOLE_PLANT.to_string();
-    for name in ["FACTORY", "ROUTER1", "ROUTER2"] {
-        text = text.replace(name, &format!("tcp/127.0.0.1:{}", free_port()));
-    }
     let plant = dir.path().join("factory.toml");
-    std::fs::write(&plant, &text).expect("plant");
+    std::fs::write(&plant, with_free_ports(&whole_plant())).expect("plant");
     let recipes = copy_recipes(dir.path());
     let bin_dir = Path::new(env!("CARGO_BIN_EXE_falc"))
         .parent()
@@ -168,24 +171,7 @@ fn the_launched_plant_runs_an_order_on_each_cell_and_ctrl_c_stops_every_node() {
         "factory router; per cell a router, 2 twins, 2 workstations, a cell; the operator"
     );
     launcher.expect_line("[falc2/transport] EVENT ready", Duration::ZERO);
-    let falc = |cell: Option<&str>, args: &[&str]| {
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc"));
-        cmd.arg("--topology")
-            .arg(&plant)
-            .arg("--credentials-dir")
-            .arg(dir.path().join("credentials"));
-        if let Some(c) = cell {
-            cmd.args(["--cell", c]);
-        }
-        let out = cmd.args(args).output().expect("run falc");
-        let text = String::from_utf8_lossy(&out.stdout).into_owned();
-        assert!(
-            out.status.success(),
-            "falc {args:?}: {text}{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        text
-    };
+    let falc = |cell: Option<&str>, args: &[&str]| falc_in(dir.path(), "factory.toml", cell, args);
     falc(None, &["order", "add", "dikdroog", "--count", "2"]);
     let out = falc(None, &["start"]);
     assert!(

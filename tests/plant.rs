@@ -330,9 +330,9 @@ async fn a_cell_router_links_up_again_by_itself() {
 /// started once; the plant's status shows each cell, `--cell` one cell.
 #[test]
 fn two_cells_work_through_one_order_list_in_parallel() {
-    use crate::support::plant::WHOLE_PLANT;
-    use falc_model::console::{EntryKind, OrderState};
-    let plant = TestPlant::start_text(WHOLE_PLANT);
+    use crate::support::plant::whole_plant;
+    use falc_model::console::OrderState;
+    let plant = TestPlant::start_text(&whole_plant());
     let _one = plant.start_cell_nodes("falc1", "100");
     let _two = plant.start_cell_nodes("falc2", "100");
     let _operator = plant.start_operator();
@@ -380,16 +380,7 @@ fn two_cells_work_through_one_order_list_in_parallel() {
         "orders 1 and 2 did not overlap: {orders:#?}"
     );
     // Each order started once, in the one journal.
-    let journal: Vec<falc_model::console::Entry> = plant.reply(None, &["journal"]);
-    for o in &orders {
-        let starts = journal
-            .iter()
-            .filter(|e| {
-                e.kind == EntryKind::Order && e.order == Some(o.id) && e.text.contains("started")
-            })
-            .count();
-        assert_eq!(starts, 1, "order {}: {journal:#?}", o.id);
-    }
+    plant.assert_each_started_once(&orders);
 }
 
 /// A robot's emergency stop in cell 2 mid-weld stops cell 2's list only:
@@ -398,9 +389,9 @@ fn two_cells_work_through_one_order_list_in_parallel() {
 /// back, `ack` and `start` for cell 2, and the next order for it done.
 #[test]
 fn an_emergency_stop_in_one_cell_stops_that_cell_only_and_its_way_back_is_its_own() {
-    use crate::support::plant::WHOLE_PLANT;
-    use falc_model::console::{EntryKind, ListState, OrderState};
-    let plant = TestPlant::start_text(WHOLE_PLANT);
+    use crate::support::plant::whole_plant;
+    use falc_model::console::{ListState, OrderState};
+    let plant = TestPlant::start_text(&whole_plant());
     let _one = plant.start_cell_nodes("falc1", "100");
     let mut two = plant.start_cell_nodes("falc2", "10");
     let mut operator = plant.start_operator();
@@ -445,7 +436,12 @@ fn an_emergency_stop_in_one_cell_stops_that_cell_only_and_its_way_back_is_its_ow
     }
     // `alarms` lists the plant's; `ack N` finds cell 2's alarm.
     let alarms = plant.falc(None, &["alarms"]);
-    assert!(alarms.contains("emergency stop"), "{alarms}");
+    assert!(
+        alarms
+            .lines()
+            .any(|l| l.starts_with("falc2") && l.contains("emergency stop")),
+        "each alarm with its cell: {alarms}"
+    );
     // Cell 2's way back: the stop released, carriers back, ack, start.
     two.rcm.control("estop-clear");
     two.plc.control("layout W2 W2");
@@ -462,14 +458,5 @@ fn an_emergency_stop_in_one_cell_stops_that_cell_only_and_its_way_back_is_its_ow
         (OrderState::Done, Some("falc2"))
     );
     // Nothing ran twice.
-    let journal: Vec<falc_model::console::Entry> = plant.reply(None, &["journal"]);
-    for o in &orders {
-        let starts = journal
-            .iter()
-            .filter(|e| {
-                e.kind == EntryKind::Order && e.order == Some(o.id) && e.text.contains("started")
-            })
-            .count();
-        assert_eq!(starts, 1, "order {}", o.id);
-    }
+    plant.assert_each_started_once(&orders);
 }

@@ -20,6 +20,7 @@ use falc_model::ids::printable;
 use falc_model::ids::CellId;
 use falc_model::ids::StationName;
 use falc_model::mode::{CellMode, ManualAction};
+use falc_model::plant::Layout;
 use falc_model::topology::Topology;
 use falc_node::NodeArgs;
 use falc_recipe::files::StationKinds;
@@ -346,24 +347,35 @@ async fn alarms(
     station: Option<&StationName>,
     json: bool,
 ) -> ExitCode {
-    let mut list = match bus.api(operator, ApiRequest::Status, CALL_LIMIT).await {
-        Ok(ApiReply::Status(s)) => s.alarms,
-        // A plant: every cell's (the numbers are the plant's).
-        Ok(ApiReply::Plant(p)) => p.cells.into_iter().flat_map(|(_, s)| s.alarms).collect(),
-        Ok(other) => return refuse(&format!("status answered {other:?}")),
-        Err(why) => return fail(&why),
-    };
-    list.retain(|a| station.map_or(true, |st| a.station == st.as_str()));
-    list.sort_by_key(|a| (a.class.priority(), a.id));
+    // Each alarm with its cell in a plant (the numbers are the plant's).
+    let mut list: Vec<(Option<CellId>, Alarm)> =
+        match bus.api(operator, ApiRequest::Status, CALL_LIMIT).await {
+            Ok(ApiReply::Status(s)) => s.alarms.into_iter().map(|a| (None, a)).collect(),
+            Ok(ApiReply::Plant(p)) => p
+                .cells
+                .into_iter()
+                .flat_map(|(c, s)| s.alarms.into_iter().map(move |a| (Some(c.clone()), a)))
+                .collect(),
+            Ok(other) => return refuse(&format!("status answered {other:?}")),
+            Err(why) => return fail(&why),
+        };
+    list.retain(|(_, a)| station.map_or(true, |st| a.station == st.as_str()));
+    list.sort_by_key(|(_, a)| (a.class.priority(), a.id));
     if json {
-        match serde_json::to_string(&list) {
+        let alarms: Vec<&Alarm> = list.iter().map(|(_, a)| a).collect();
+        match serde_json::to_string(&alarms) {
             Ok(t) => crate::out!("{t}"),
             Err(e) => return refuse(&format!("cannot write JSON: {e}")),
         }
     } else if list.is_empty() {
         crate::out!("no alarms");
     } else {
-        list.iter().for_each(|a| crate::out!("{}", show_alarm(a)));
+        for (cell, a) in &list {
+            match cell {
+                Some(c) => crate::out!("{c:<8} {}", show_alarm(a)),
+                None => crate::out!("{}", show_alarm(a)),
+            }
+        }
     }
     ExitCode::SUCCESS
 }
@@ -696,7 +708,21 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
     let req = match cmd {
         CellCommand::Status { watch: true } => return watch(&bus, &operator, json).await,
         CellCommand::Tui => {
-            return crate::tui::run(&bus, &operator, topology, args.user.clone()).await
+            // In a plant the screens show the cell `--cell` names.
+            let shown = match (Layout::load(&args.node.topology), &args.node.cell) {
+                (Ok(Layout::Plant(p)), Some(c)) => match p.cell(c) {
+                    Some(cell) => cell.topology().clone(),
+                    None => return refuse(&format!("the plant has no cell {c}")),
+                },
+                (Ok(Layout::Plant(_)), None) => {
+                    return refuse(
+                        "in a plant the screens show one cell: falc --cell CELL tui \
+                         (falc status shows every cell)",
+                    )
+                }
+                _ => topology,
+            };
+            return crate::tui::run(&bus, &operator, shown, args.user.clone()).await;
         }
         CellCommand::Messages { follow: true } => return follow(&bus, &operator, json).await,
         CellCommand::Status { watch: false } => ApiRequest::Status,

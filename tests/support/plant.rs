@@ -10,86 +10,58 @@ use std::path::PathBuf;
 use std::process::Command;
 use std::time::Duration;
 
+/// A plant file: the operator and two console users, then each cell of
+/// `cells` (its id and its workstations, under its cell controller), the
+/// routers' endpoints left as `FACTORY` and `ROUTER<n>`.
+pub fn plant_text(cells: &[(&str, &[&str])]) -> String {
+    let mut text = String::from(
+        "plant = \"plant\"\nrouter = \"FACTORY\"\nlease_ms = 1000\n\
+         [operator]\nname = \"operator\"\n\
+         [[console]]\nname = \"console\"\nrole = \"operator\"\n\
+         [[console]]\nname = \"observer\"\nrole = \"observer\"\n",
+    );
+    for (n, (cell, workstations)) in cells.iter().enumerate() {
+        text.push_str(&format!(
+            "[[cell]]\ncell = \"{cell}\"\nrouter = \"ROUTER{}\"\n\
+             [[cell.station]]\nname = \"cell\"\nkind = \"cell\"\ncommander = \"operator\"\n",
+            n + 1
+        ));
+        for ws in *workstations {
+            text.push_str(&format!(
+                "[[cell.station]]\nname = \"{ws}\"\nkind = \"{ws}\"\ncommander = \"cell\"\n"
+            ));
+        }
+    }
+    text
+}
+
 /// Two cells under one operator: `falc1` (cell, welding) and `falc2`
-/// (cell, transport); `FACTORY`, `ROUTER1`, `ROUTER2` are replaced by
-/// endpoints.
-pub const PLANT: &str = r#"
-plant = "plant"
-router = "FACTORY"
-lease_ms = 1000
-[operator]
-name = "operator"
-[[console]]
-name = "console"
-role = "operator"
-[[console]]
-name = "observer"
-role = "observer"
-[[cell]]
-cell = "falc1"
-router = "ROUTER1"
-[[cell.station]]
-name = "cell"
-kind = "cell"
-commander = "operator"
-[[cell.station]]
-name = "welding"
-kind = "welding"
-commander = "cell"
-[[cell]]
-cell = "falc2"
-router = "ROUTER2"
-[[cell.station]]
-name = "cell"
-kind = "cell"
-commander = "operator"
-[[cell.station]]
-name = "transport"
-kind = "transport"
-commander = "cell"
-"#;
+/// (cell, transport).
+pub fn plant_of_demo_stations() -> String {
+    plant_text(&[("falc1", &["welding"]), ("falc2", &["transport"])])
+}
 
 /// Two whole cells (cell, welding, transport each) under one operator.
-pub const WHOLE_PLANT: &str = r#"
-plant = "plant"
-router = "FACTORY"
-lease_ms = 1000
-[operator]
-name = "operator"
-[[console]]
-name = "console"
-role = "operator"
-[[cell]]
-cell = "falc1"
-router = "ROUTER1"
-[[cell.station]]
-name = "cell"
-kind = "cell"
-commander = "operator"
-[[cell.station]]
-name = "welding"
-kind = "welding"
-commander = "cell"
-[[cell.station]]
-name = "transport"
-kind = "transport"
-commander = "cell"
-[[cell]]
-cell = "falc2"
-router = "ROUTER2"
-[[cell.station]]
-name = "cell"
-kind = "cell"
-commander = "operator"
-[[cell.station]]
-name = "welding"
-kind = "welding"
-commander = "cell"
-[[cell.station]]
-name = "transport"
-kind = "transport"
-commander = "cell"
-"#;
+pub fn whole_plant() -> String {
+    plant_text(&[
+        ("falc1", &["welding", "transport"]),
+        ("falc2", &["welding", "transport"]),
+    ])
+}
+
+/// `plant` with each router placeholder (`FACTORY`, `ROUTER<n>`) a free
+/// localhost endpoint.
+pub fn with_free_ports(plant: &str) -> String {
+    let cells = plant.matches("router = \"ROUTER").count();
+    let mut text = plant.to_string();
+    for n in 1..=cells {
+        text = text.replace(
+            &format!("\"ROUTER{n}\""),
+            &format!("\"tcp/127.0.0.1:{}\"", free_port()),
+        );
+    }
+    text.replace("\"FACTORY\"", &format!("\"tcp/127.0.0.1:{}\"", free_port()))
+}
 
 pub struct TestPlant {
     pub dir: tempfile::TempDir,
@@ -100,45 +72,26 @@ pub struct TestPlant {
 }
 
 impl TestPlant {
-    /// Writes [`PLANT`] with free ports and starts every router.
+    /// Writes [`plant_of_demo_stations`] with free ports and starts every
+    /// router.
     pub fn start() -> TestPlant {
-        Self::start_text(PLANT)
-    }
-
-    /// The same with the plant file `plant` (`FACTORY`, `ROUTER1`,
-    /// `ROUTER2` replaced by endpoints).
-    pub fn start_text(plant: &str) -> TestPlant {
-        Self::start_routers(plant, &["FACTORY", "ROUTER1", "ROUTER2"])
+        Self::start_text(&plant_of_demo_stations())
     }
 
     /// A plant of `cells` whole cells (`falc1` …, each cell, welding and
     /// transport), its routers started.
     pub fn start_cells(cells: usize) -> TestPlant {
-        let mut text = WHOLE_PLANT
-            .split("[[cell]]")
-            .next()
-            .unwrap_or_default()
-            .to_string();
-        let mut names = vec!["FACTORY".to_string()];
-        for i in 1..=cells {
-            text.push_str(&format!(
-                "[[cell]]\ncell = \"falc{i}\"\nrouter = \"CELLROUTER{i}X\"\n\
-                 [[cell.station]]\nname = \"cell\"\nkind = \"cell\"\ncommander = \"operator\"\n\
-                 [[cell.station]]\nname = \"welding\"\nkind = \"welding\"\ncommander = \"cell\"\n\
-                 [[cell.station]]\nname = \"transport\"\nkind = \"transport\"\ncommander = \"cell\"\n"
-            ));
-            names.push(format!("CELLROUTER{i}X"));
-        }
-        let names: Vec<&str> = names.iter().map(String::as_str).collect();
-        Self::start_routers(&text, &names)
+        let names: Vec<String> = (1..=cells).map(|i| format!("falc{i}")).collect();
+        let whole: &[&str] = &["welding", "transport"];
+        let layout: Vec<(&str, &[&str])> = names.iter().map(|n| (n.as_str(), whole)).collect();
+        Self::start_text(&plant_text(&layout))
     }
 
-    fn start_routers(plant: &str, placeholders: &[&str]) -> TestPlant {
+    /// The plant file `plant` (from [`plant_text`]) with free ports, and
+    /// every router started.
+    pub fn start_text(plant: &str) -> TestPlant {
         let dir = tempfile::tempdir().expect("tempdir");
-        let mut text = plant.to_string();
-        for name in placeholders {
-            text = text.replace(name, &format!("tcp/127.0.0.1:{}", free_port()));
-        }
+        let text = with_free_ports(plant);
         let path = dir.path().join("factory.toml");
         std::fs::write(&path, &text).expect("write plant");
         let plant = Plant::parse(&text, "test").expect("valid plant");
@@ -191,16 +144,7 @@ impl TestPlant {
 
     /// The same with more arguments (`--job-ms N`).
     pub fn demo_station_with(&self, cell: &str, station: &str, args: &[&str]) -> Proc {
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-demo-station"));
-        cmd.args(["--station", station, "--cell", cell])
-            .args(args)
-            .arg("--topology")
-            .arg(&self.path)
-            .arg("--credentials-dir")
-            .arg(self.credentials_dir());
-        let mut p = Proc::spawn(&format!("{cell}/{station}"), cmd);
-        p.expect_line("EVENT ready", Duration::from_secs(20));
-        p
+        self.node(cell, env!("CARGO_BIN_EXE_falc-demo-station"), station, args)
     }
 
     /// Bus settings of `user` with the credentials file `creds` (relative
@@ -377,6 +321,23 @@ impl TestPlant {
     /// Every order of the plant.
     pub fn orders(&self) -> Vec<falc_model::console::Order> {
         self.reply(None, &["order", "list"])
+    }
+
+    /// The journal holds one start of each of `orders`: none ran twice.
+    pub fn assert_each_started_once(&self, orders: &[falc_model::console::Order]) {
+        use falc_model::console::{Entry, EntryKind};
+        let journal: Vec<Entry> = self.reply(None, &["journal"]);
+        for o in orders {
+            let starts = journal
+                .iter()
+                .filter(|e| {
+                    e.kind == EntryKind::Order
+                        && e.order == Some(o.id)
+                        && e.text.contains("started")
+                })
+                .count();
+            assert_eq!(starts, 1, "order {}: {journal:#?}", o.id);
+        }
     }
 
     /// Answers every cell's question with `answer` until no order is

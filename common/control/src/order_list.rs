@@ -1817,49 +1817,13 @@ mod tests {
     //! [`CellCall`]) and the consoles.
 
     use super::*;
+    use crate::recipe_source::fake::{set, Source};
     use crate::records::memory::Memory;
     use falc_model::alarm::Cause;
-    use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
 
     /// The cell as shipped (console users `console`, an operator, and
     /// `observer`).
     const TOPOLOGY: &str = include_str!("../../../launch/cell.toml");
-
-    /// Recipes in memory; `broken` makes the set fail its check.
-    #[derive(Default)]
-    struct Source {
-        broken: bool,
-    }
-
-    fn set() -> RecipeSet {
-        let d = |domain: &str, is_cell| Delivery {
-            domain: name(domain),
-            is_cell,
-            content: domain.as_bytes().to_vec(),
-        };
-        RecipeSet {
-            deliveries: vec![d("WELDING$DROOG_DIK", false), d("DIKDROOG", true)],
-        }
-    }
-
-    impl RecipeSource for Source {
-        fn load(&self) -> Result<RecipeSet, Vec<String>> {
-            if self.broken {
-                Err(vec!["cell/dikdroog.rcp:3: unknown state 9".into()])
-            } else {
-                Ok(set())
-            }
-        }
-        fn list(&self) -> Result<Vec<RecipeInfo>, String> {
-            Ok(Vec::new())
-        }
-        fn get(&self, file: &RecipeFile) -> Result<RecipeText, String> {
-            Err(format!("no {file}"))
-        }
-        fn put(&self, _: &RecipeFile, _: &str, _: Option<u64>) -> Result<(), PutError> {
-            Err(PutError::Refused("read-only".into()))
-        }
-    }
 
     fn name(s: &str) -> ObjectName {
         ObjectName::new(s).expect("a valid name")

@@ -341,44 +341,14 @@ mod tests {
 
     use super::*;
     use crate::order_list::CellCall;
-    use crate::recipe_source::{Delivery, PutError, RecipeSet};
+    use crate::recipe_source::fake::{set, Source};
     use crate::records::shared::{self, Shared};
     use falc_model::alarm::{AlarmClass, Cause};
-    use falc_model::console::{
-        ListState, OrderState, Placement, RecipeFile, RecipeInfo, RecipeText,
-    };
+    use falc_model::console::{ListState, OrderState, Placement};
     use falc_model::ids::ObjectName;
     use falc_model::mms::pdu::{JobEvent, Request, Unconfirmed};
     use falc_model::mode::CellMode;
     use falc_model::topology::Topology;
-
-    struct Source;
-
-    fn set() -> RecipeSet {
-        let d = |domain: &str, is_cell| Delivery {
-            domain: ObjectName::new(domain).expect("name"),
-            is_cell,
-            content: domain.as_bytes().to_vec(),
-        };
-        RecipeSet {
-            deliveries: vec![d("WELDING$DROOG_DIK", false), d("DIKDROOG", true)],
-        }
-    }
-
-    impl RecipeSource for Source {
-        fn load(&self) -> Result<RecipeSet, Vec<String>> {
-            Ok(set())
-        }
-        fn list(&self) -> Result<Vec<RecipeInfo>, String> {
-            Ok(Vec::new())
-        }
-        fn get(&self, file: &RecipeFile) -> Result<RecipeText, String> {
-            Err(format!("no {file}"))
-        }
-        fn put(&self, _: &RecipeFile, _: &str, _: Option<u64>) -> Result<(), PutError> {
-            Err(PutError::Refused("read-only".into()))
-        }
-    }
 
     fn st(s: &str) -> StationName {
         StationName::new(s).expect("station")
@@ -410,7 +380,14 @@ mod tests {
                 .into_iter()
                 .zip(views)
                 .map(|(c, db)| {
-                    OrderList::new(st("operator"), st("cell"), topology(c), db, Source, set())
+                    OrderList::new(
+                        st("operator"),
+                        st("cell"),
+                        topology(c),
+                        db,
+                        Source::default(),
+                        set(),
+                    )
                 })
                 .collect();
             Rig {

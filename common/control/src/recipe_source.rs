@@ -58,3 +58,46 @@ pub trait RecipeSource {
     /// is still what the editor started from (`base`, its content hash).
     fn put(&self, file: &RecipeFile, text: &str, base: Option<u64>) -> Result<(), PutError>;
 }
+
+/// A recipe store in memory, for unit tests of the cores: the cell recipe
+/// DIKDROOG with its welding recipe; `broken` makes the set fail its check.
+#[cfg(test)]
+pub(crate) mod fake {
+    use super::*;
+
+    #[derive(Default)]
+    pub(crate) struct Source {
+        pub(crate) broken: bool,
+    }
+
+    /// The set the fake delivers.
+    pub(crate) fn set() -> RecipeSet {
+        let d = |domain: &str, is_cell| Delivery {
+            domain: ObjectName::new(domain).unwrap_or_else(|e| panic!("{e}")),
+            is_cell,
+            content: domain.as_bytes().to_vec(),
+        };
+        RecipeSet {
+            deliveries: vec![d("WELDING$DROOG_DIK", false), d("DIKDROOG", true)],
+        }
+    }
+
+    impl RecipeSource for Source {
+        fn load(&self) -> Result<RecipeSet, Vec<String>> {
+            if self.broken {
+                Err(vec!["cell/dikdroog.rcp:3: unknown state 9".into()])
+            } else {
+                Ok(set())
+            }
+        }
+        fn list(&self) -> Result<Vec<RecipeInfo>, String> {
+            Ok(Vec::new())
+        }
+        fn get(&self, file: &RecipeFile) -> Result<RecipeText, String> {
+            Err(format!("no {file}"))
+        }
+        fn put(&self, _: &RecipeFile, _: &str, _: Option<u64>) -> Result<(), PutError> {
+            Err(PutError::Refused("read-only".into()))
+        }
+    }
+}

@@ -16,7 +16,8 @@
 
 use crate::ids::{CellId, StationName};
 use crate::topology::{
-    default_lease_ms, Console, RawTopology, Station, StationKind, Topology, TopologyError,
+    default_lease_ms, from_toml, read, Console, RawTopology, Station, StationKind, Topology,
+    TopologyError,
 };
 use serde::Deserialize;
 use std::collections::BTreeSet;
@@ -37,11 +38,7 @@ pub enum Layout {
 impl Layout {
     /// Reads a topology file, a cell's or a plant's.
     pub fn load(path: &Path) -> Result<Self, TopologyError> {
-        let text = std::fs::read_to_string(path).map_err(|source| TopologyError::Read {
-            path: path.display().to_string(),
-            source,
-        })?;
-        let origin = path.display().to_string();
+        let (text, origin) = read(path)?;
         let is_plant = toml::from_str::<toml::Table>(&text)
             .map(|t| t.contains_key("plant"))
             .unwrap_or(false);
@@ -144,19 +141,13 @@ pub struct Plant {
 impl Plant {
     /// Reads and validates a plant file.
     pub fn load(path: &Path) -> Result<Self, TopologyError> {
-        let text = std::fs::read_to_string(path).map_err(|source| TopologyError::Read {
-            path: path.display().to_string(),
-            source,
-        })?;
-        Self::parse(&text, &path.display().to_string())
+        let (text, origin) = read(path)?;
+        Self::parse(&text, &origin)
     }
 
     /// Parses and validates plant text; `origin` names it in errors.
     pub fn parse(text: &str, origin: &str) -> Result<Self, TopologyError> {
-        let raw: RawPlant = toml::from_str(text).map_err(|e| TopologyError::Syntax {
-            origin: origin.to_string(),
-            message: e.to_string().trim_end().to_string(),
-        })?;
+        let raw: RawPlant = from_toml(text, origin)?;
         let fail = |message: String| TopologyError::Hierarchy {
             origin: origin.to_string(),
             message,

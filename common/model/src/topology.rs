@@ -175,23 +175,39 @@ pub enum TopologyError {
     },
 }
 
+/// A topology file's text and the name it goes by in errors (its path).
+pub(crate) fn read(path: &Path) -> Result<(String, String), TopologyError> {
+    let origin = path.display().to_string();
+    match std::fs::read_to_string(path) {
+        Ok(text) => Ok((text, origin)),
+        Err(source) => Err(TopologyError::Read {
+            path: origin,
+            source,
+        }),
+    }
+}
+
+/// TOML text as `T`, or the parser's message with line and column.
+pub(crate) fn from_toml<T: serde::de::DeserializeOwned>(
+    text: &str,
+    origin: &str,
+) -> Result<T, TopologyError> {
+    toml::from_str(text).map_err(|e| TopologyError::Syntax {
+        origin: origin.to_string(),
+        message: e.to_string().trim_end().to_string(),
+    })
+}
+
 impl Topology {
     /// Reads and validates a topology file.
     pub fn load(path: &Path) -> Result<Self, TopologyError> {
-        let text = std::fs::read_to_string(path).map_err(|source| TopologyError::Read {
-            path: path.display().to_string(),
-            source,
-        })?;
-        Self::parse(&text, &path.display().to_string())
+        let (text, origin) = read(path)?;
+        Self::parse(&text, &origin)
     }
 
     /// Parses and validates topology text; `origin` names it in errors.
     pub fn parse(text: &str, origin: &str) -> Result<Self, TopologyError> {
-        let raw: RawTopology = toml::from_str(text).map_err(|e| TopologyError::Syntax {
-            origin: origin.to_string(),
-            message: e.to_string().trim_end().to_string(),
-        })?;
-        Self::from_raw(raw, origin)
+        Self::from_raw(from_toml(text, origin)?, origin)
     }
 
     /// Validates a topology given in parts (a plant's cells are built
