@@ -162,6 +162,7 @@ fn entry_of(row: &Row<'_>) -> rusqlite::Result<Entry> {
         kind: EntryKind::parse(&kind).unwrap_or(EntryKind::System),
         who: row.get(4)?,
         text: row.get(5)?,
+        cell: row.get(6)?,
     })
 }
 
@@ -482,6 +483,7 @@ impl Records for Database {
             kind,
             who: who.to_string(),
             text: text.to_string(),
+            cell: Some(self.cell.clone()),
         })
     }
 
@@ -563,6 +565,7 @@ impl Records for Database {
         after: i64,
         order: Option<i64>,
         messages_only: bool,
+        cell: Option<&str>,
         limit: usize,
     ) -> Result<Vec<Entry>, Self::Error> {
         // The kinds asked for, in SQL: a page is `limit` matching entries,
@@ -575,15 +578,16 @@ impl Records for Database {
         let mut st = self
             .conn
             .prepare(&format!(
-                "SELECT id, at_ms, order_id, kind, who, text FROM journal
+                "SELECT id, at_ms, order_id, kind, who, text, cell FROM journal
                  WHERE id > ?1 AND (?2 IS NULL OR order_id = ?2) AND kind IN ('{}')
+                 AND (?4 IS NULL OR cell IS NULL OR cell = ?4)
                  ORDER BY id LIMIT ?3",
                 kinds.join("','")
             ))
             .map_err(self.fail("cannot read the journal"))?;
         let limit = i64::try_from(limit).unwrap_or(i64::MAX);
         let rows = st
-            .query_map(params![after, order, limit], entry_of)
+            .query_map(params![after, order, limit, cell], entry_of)
             .map_err(self.fail("cannot read the journal"))?;
         let out = rows
             .collect::<Result<Vec<_>, _>>()
@@ -730,7 +734,22 @@ mod tests {
         one.journal(EntryKind::Action, None, "ann", "in falc1")
             .expect("journal");
         assert_eq!(one.orders().expect("orders").len(), 1);
-        assert_eq!(two.entries(0, None, false, 10).expect("journal").len(), 1);
+        assert_eq!(
+            two.entries(0, None, false, None, 10)
+                .expect("journal")
+                .len(),
+            1
+        );
+        // A cell's own journal: its entries and those of before cells.
+        assert!(two
+            .entries(0, None, false, Some("falc2"), 10)
+            .expect("journal")
+            .is_empty());
+        let of_one = one
+            .entries(0, None, false, Some("falc1"), 10)
+            .expect("journal");
+        assert_eq!(of_one.len(), 1);
+        assert_eq!(of_one[0].cell.as_deref(), Some("falc1"));
     }
 
     /// A file made before orders had a cell, a priority and a due time
@@ -876,11 +895,11 @@ mod tests {
         assert_eq!(orders[0].state, OrderState::Interrupted);
         assert_eq!(orders[1].state, OrderState::Queued);
         let j = s
-            .entries(0, Some(orders[0].id), false, 100)
+            .entries(0, Some(orders[0].id), false, None, 100)
             .expect("entries");
         assert_eq!(j.len(), 2);
         assert!(j[1].text.contains("interrupted"), "{j:?}");
-        assert!(s.entries(0, None, true, 100).expect("m").is_empty());
+        assert!(s.entries(0, None, true, None, 100).expect("m").is_empty());
         assert_eq!(
             s.remove_order(orders[1].id).expect("db").map(|o| o.recipe),
             Ok("dundroog".into())
@@ -894,7 +913,10 @@ mod tests {
         let m = s
             .journal(EntryKind::Message, Some(2), "cell", "einde")
             .expect("journal");
-        assert_eq!(s.entries(0, None, true, 1).expect("page"), vec![m.clone()]);
+        assert_eq!(
+            s.entries(0, None, true, None, 1).expect("page"),
+            vec![m.clone()]
+        );
         assert_eq!(s.journal_head().expect("head"), m.id);
         let empty = Database::open(&dir.path().join("empty.db"), "falc1").expect("open");
         assert_eq!(empty.journal_head().expect("head"), 0);

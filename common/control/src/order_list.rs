@@ -259,6 +259,9 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     out: VecDeque<Output>,
     /// The status as last told by [`Output::Changed`].
     told: Option<CellStatus>,
+    /// While a request for this cell of a plant is handled: the journal
+    /// entries it reads are this cell's ([`Self::handle_cell_api`]).
+    entries_of: Option<String>,
 }
 
 /// How an order was placed, for its journal line (`, priority 5, for
@@ -332,6 +335,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             next_try: Duration::ZERO,
             out: VecDeque::new(),
             told: None,
+            entries_of: None,
         }
     }
 
@@ -1466,6 +1470,21 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         })
     }
 
+    /// The same for a request a console made for this cell of a plant
+    /// (`falc --cell C`): the journal and the messages it reads are this
+    /// cell's (with those written before entries had a cell).
+    pub fn handle_cell_api(
+        &mut self,
+        now: Duration,
+        ticket: Ticket,
+        user: &StationName,
+        request: ApiRequest,
+    ) {
+        self.entries_of = Some(self.cell().to_string());
+        self.handle_api(now, ticket, user, request);
+        self.entries_of = None;
+    }
+
     /// One operator API request from console user `user`, answered through
     /// [`Output::Reply`] under `ticket`: at once, or (`start`, `stop`) when
     /// the cell confirmed.
@@ -1518,12 +1537,12 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 .map_err(db),
             ApiRequest::Messages { after } => self
                 .db
-                .entries(after, None, true, PAGE)
+                .entries(after, None, true, self.entries_of.as_deref(), PAGE)
                 .map(ApiReply::Entries)
                 .map_err(db),
             ApiRequest::Journal { order, after } => self
                 .db
-                .entries(after, order, false, PAGE)
+                .entries(after, order, false, self.entries_of.as_deref(), PAGE)
                 .map(ApiReply::Entries)
                 .map_err(db),
             ApiRequest::OrderAdd {
@@ -2265,7 +2284,7 @@ mod tests {
         let journal = r
             .list
             .records()
-            .entries(0, None, false, 100)
+            .entries(0, None, false, None, 100)
             .expect("journal");
         let started = journal
             .iter()

@@ -149,7 +149,7 @@ impl<R: Records, S: RecipeSource> Plant<R, S> {
     ) {
         let to = match cell {
             Some(id) => match self.lists.iter().position(|l| l.cell() == id) {
-                Some(i) => Route::One(i),
+                Some(i) => Route::Cell(i),
                 None => Route::Refuse(format!(
                     "there is no cell {id}; the plant has {}",
                     self.names()
@@ -160,6 +160,7 @@ impl<R: Records, S: RecipeSource> Plant<R, S> {
         };
         match to {
             Route::One(i) => self.lists[i].handle_api(now, ticket, user, request),
+            Route::Cell(i) => self.lists[i].handle_cell_api(now, ticket, user, request),
             Route::Every => {
                 self.fans.insert(
                     ticket,
@@ -328,7 +329,10 @@ impl<R: Records, S: RecipeSource> Plant<R, S> {
 
 /// Where a console request goes.
 enum Route {
+    /// To one cell's list, as the plant's request.
     One(usize),
+    /// To one cell's list, as a request for that cell (`--cell`).
+    Cell(usize),
     Every,
     Status,
     Refuse(String),
@@ -572,12 +576,31 @@ mod tests {
         );
         let answered = r.ask(None, ApiRequest::Answer { text: "ja".into() });
         assert_eq!(answered, Ok(ApiReply::Done("answered ja".into())));
-        // Start with nothing for falc1: falc1 says so, falc2 runs on.
+        // The journal: the plant's whole, or one cell's with --cell
+        // (an order added through falc1 is journalled in falc1).
+        assert!(r.ask(Some("falc1"), add(None)).is_ok());
+        let cells_of = |r: &mut Rig, cell: Option<&str>| -> Vec<Option<String>> {
+            match r.ask(
+                cell,
+                ApiRequest::Journal {
+                    order: None,
+                    after: 0,
+                },
+            ) {
+                Ok(ApiReply::Entries(v)) => v.into_iter().map(|e| e.cell).collect(),
+                other => panic!("{other:?}"),
+            }
+        };
+        let all = cells_of(&mut r, None);
+        assert!(all.contains(&Some("falc1".into())) && all.contains(&Some("falc2".into())));
+        let two = cells_of(&mut r, Some("falc2"));
+        assert!(!two.is_empty() && two.iter().all(|c| c.as_deref() == Some("falc2")));
+        // Start: falc1 takes the order added through it, falc2 runs on.
         let e = r.ask(None, ApiRequest::Start);
         assert_eq!(
             e,
             Ok(ApiReply::Done(
-                "falc1: the order list holds no queued order\nfalc2: the list is running".into()
+                "falc1: order 2 (dikdroog) started\nfalc2: the list is running".into()
             ))
         );
         // Start with nothing anywhere: refused by every cell, refused.

@@ -50,13 +50,15 @@ pub trait Records {
         who: &str,
         text: &str,
     ) -> Result<Entry, Self::Error>;
-    /// Journal entries after `after` (of `order`, or messages only), at
-    /// most `limit`.
+    /// Journal entries after `after` (of `order`, or messages only; of
+    /// cell `cell`, with those written before entries had a cell), at most
+    /// `limit`.
     fn entries(
         &self,
         after: i64,
         order: Option<i64>,
         messages_only: bool,
+        cell: Option<&str>,
         limit: usize,
     ) -> Result<Vec<Entry>, Self::Error>;
     /// Records a new alarm, active.
@@ -230,6 +232,7 @@ pub mod memory {
                 kind,
                 who: who.into(),
                 text: text.into(),
+                cell: None,
             };
             self.journal.push(e.clone());
             Ok(e)
@@ -239,6 +242,7 @@ pub mod memory {
             after: i64,
             order: Option<i64>,
             messages_only: bool,
+            cell: Option<&str>,
             limit: usize,
         ) -> Result<Vec<Entry>, String> {
             Ok(self
@@ -246,6 +250,7 @@ pub mod memory {
                 .iter()
                 .filter(|e| e.id > after && order.map_or(true, |o| e.order == Some(o)))
                 .filter(|e| !messages_only || e.kind.is_message())
+                .filter(|e| cell.map_or(true, |c| e.cell.as_deref().map_or(true, |x| x == c)))
                 .take(limit)
                 .cloned()
                 .collect())
@@ -365,18 +370,25 @@ pub mod shared {
             who: &str,
             text: &str,
         ) -> Result<Entry, String> {
-            self.all.borrow_mut().journal(kind, order, who, text)
+            let mut all = self.all.borrow_mut();
+            let mut e = all.journal(kind, order, who, text)?;
+            e.cell = Some(self.cell.clone());
+            if let Some(last) = all.journal.last_mut() {
+                last.cell = e.cell.clone();
+            }
+            Ok(e)
         }
         fn entries(
             &self,
             after: i64,
             order: Option<i64>,
             messages_only: bool,
+            cell: Option<&str>,
             limit: usize,
         ) -> Result<Vec<Entry>, String> {
             self.all
                 .borrow()
-                .entries(after, order, messages_only, limit)
+                .entries(after, order, messages_only, cell, limit)
         }
         fn raise_alarm(
             &mut self,

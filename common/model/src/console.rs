@@ -581,6 +581,9 @@ pub struct Entry {
     pub who: String,
     /// What, for a person.
     pub text: String,
+    /// The cell it happened in (None: written before entries had one).
+    #[serde(default)]
+    pub cell: Option<String>,
 }
 
 /// What the order list does.

@@ -732,6 +732,7 @@ mod tests {
             kind,
             who: who.into(),
             text: format!("entry {id}"),
+            cell: None,
         }
     }
 
