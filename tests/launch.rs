@@ -163,7 +163,7 @@ fn the_launched_plant_runs_an_order_on_each_cell_and_ctrl_c_stops_every_node() {
         .arg(bin_dir)
         .args(["--plc-listen", "127.0.0.1:0", "--time-scale", "50"]);
     let mut launcher = Proc::spawn("falc-launch", cmd);
-    launcher.expect_line("falc-launch: cell ready in", Duration::from_secs(90));
+    launcher.expect_line("falc-launch: plant ready in", Duration::from_secs(90));
     let nodes = nodes(launcher.pid());
     assert_eq!(
         nodes.len(),

@@ -542,12 +542,13 @@ async fn run(cli: &Cli, cell: &mut Cell) -> ExitCode {
     };
     match started {
         Ok(took) => {
+            let plant = matches!(Layout::load(&cli.topology), Ok(Layout::Plant(_)));
             say(&format!(
-                "falc-launch: cell ready in {} ms (time scale {})",
+                "falc-launch: {} ready in {} ms (time scale {})",
+                if plant { "plant" } else { "cell" },
                 took.as_millis(),
                 cli.time_scale
             ));
-            let plant = matches!(Layout::load(&cli.topology), Ok(Layout::Plant(_)));
             say(&if plant {
                 plant_help(&cell.bin_dir, &cli.topology)
             } else {
