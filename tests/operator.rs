@@ -153,40 +153,64 @@ fn sigkill_of_a_workstation_mid_order_then_start_refused_until_it_returns() {
     );
 }
 
+/// The operator node killed mid-weld: the cell runs the order on by
+/// itself (the weld is not stopped); the operator, started again, adopts
+/// the order it had running, asks the cell how it stands and follows it to
+/// its end. List and journal are intact, nothing ran twice, and `start`
+/// runs the next order.
 #[test]
-fn sigkill_of_the_operator_mid_order_keeps_list_and_journal_and_marks_it_interrupted() {
+fn sigkill_of_the_operator_mid_order_keeps_list_and_journal_and_the_order_is_adopted() {
     let mut rig = rig("10");
     rig.start_list_until_welding(&["dikdroog", "dundroog"]);
     let before = rig.journal(None);
     rig.operator().kill();
     rig.operator = None;
-    // The cell lost its commander: it stops the weld.
-    rig.rcm.expect_line("rx H", Duration::from_secs(5));
+    rig.cell_node.expect_line(
+        "EVENT abort-indication peer=operator",
+        Duration::from_secs(5),
+    );
     rig.start_operator();
     rig.operator()
-        .expect_line("EVENT associated", Duration::from_secs(1));
+        .expect_line("EVENT adopted order=1", Duration::from_secs(1));
+    // Followed while it runs on, or its end learned if it ended meanwhile.
+    let learned = rig.operator().wait_any(
+        &["EVENT order-followed id=1", "EVENT order-ended id=1"],
+        Duration::from_secs(5),
+    );
+    assert!(learned.is_some(), "the operator asked the cell");
     let orders = rig.orders();
-    assert_eq!(orders[0].state, OrderState::Interrupted, "{orders:?}");
     assert_eq!(orders[1].state, OrderState::Queued, "{orders:?}");
     let after = rig.journal(None);
     assert_eq!(&after[..before.len()], &before[..], "the journal is intact");
     assert!(after
         .iter()
-        .any(|e| e.order == Some(1) && e.text.contains("interrupted")));
-    // Never re-run by itself: start runs the next queued order (once the
-    // operator has put the carriers back by hand).
-    rig.plc.control("layout W2 W2");
+        .any(|e| e.order == Some(1) && e.text.contains("the cell is asked how it ended")));
+    // The order ends at the cell; the operator hears it (the list was not
+    // started again: it waits).
+    rig.work_list("ja", Duration::from_secs(120));
+    let orders = rig.orders();
+    assert_eq!(
+        orders[0].state,
+        OrderState::Done,
+        "{:#?}",
+        rig.journal(Some(1))
+    );
     let out = rig.cell.falc(&["start"]);
     assert!(out.contains("order 2 (dundroog) started"), "{out}");
     rig.work_list("ja", Duration::from_secs(120));
     let orders = rig.orders();
-    assert_eq!(orders[0].state, OrderState::Interrupted);
     assert_eq!(
         orders[1].state,
         OrderState::Done,
         "{:#?}",
         rig.journal(Some(2))
     );
+    let starts = rig
+        .journal(None)
+        .iter()
+        .filter(|e| e.text.ends_with(") started"))
+        .count();
+    assert_eq!(starts, 2, "each order started once");
 }
 
 #[test]

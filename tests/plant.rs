@@ -460,3 +460,198 @@ fn an_emergency_stop_in_one_cell_stops_that_cell_only_and_its_way_back_is_its_ow
     // Nothing ran twice.
     plant.assert_each_started_once(&orders);
 }
+
+/// The plant's cells as `plant.status()` shows them: cell `cell`'s.
+fn cell_status(plant: &TestPlant, cell: &str) -> falc_model::console::CellStatus {
+    plant
+        .status()
+        .cells
+        .into_iter()
+        .find(|(c, _)| c.as_str() == cell)
+        .map(|(_, s)| s)
+        .unwrap_or_else(|| panic!("no cell {cell} in the plant's status"))
+}
+
+/// Answers every cell's question with `ja` until `done` holds (checked
+/// every 50 ms), or panics after `within` with `what`.
+fn answer_until(plant: &TestPlant, within: Duration, what: &str, mut done: impl FnMut() -> bool) {
+    let end = Instant::now() + within;
+    while !done() {
+        assert!(Instant::now() < end, "{what} not within {within:?}");
+        for (cell, s) in plant.status().cells {
+            if s.question.is_some() {
+                plant.falc_as("console", Some(cell.as_str()), &["answer", "ja"]);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Three whole cells under one operator work through nine orders of one
+/// list in parallel. A robot's emergency stop in cell 2 stops cell 2 only;
+/// its way back is its own (the stop released, carriers back, ack, start).
+/// Cell 3's link to the factory router is cut for 30 s mid-order (a relay
+/// that drops every byte, as a pulled cable): cell 3 runs its order on to
+/// its end by its own recipe, the other cells run on, and when the link is
+/// back the operator learns how the order ended. No order is lost, none
+/// started twice; the journal says what happened.
+#[test]
+fn three_cells_run_nine_orders_through_an_estop_in_one_and_a_cut_uplink_of_another() {
+    use crate::support::plant::{plant_text, with_free_ports};
+    use crate::support::relay::Relay;
+    use falc_model::console::{Entry, ListState, OrderState};
+    let whole: &[&str] = &["welding", "transport"];
+    let factory = crate::support::free_port();
+    let relay = Relay::start(([127, 0, 0, 1], factory).into());
+    let text = plant_text(&[("falc1", whole), ("falc2", whole), ("falc3", whole)])
+        .replace("\"FACTORY\"", &format!("\"tcp/127.0.0.1:{factory}\""))
+        .replace(
+            "router = \"ROUTER3\"\n",
+            &format!("router = \"ROUTER3\"\nuplink = \"{}\"\n", relay.endpoint()),
+        );
+    let plant = TestPlant::start_text(&with_free_ports(&text));
+    let _one = plant.start_cell_nodes("falc1", "100");
+    let mut two = plant.start_cell_nodes("falc2", "100");
+    let mut three = plant.start_cell_nodes("falc3", "10");
+    let mut operator = plant.start_operator();
+    plant.falc(None, &["order", "add", "dikdroog", "--count", "9"]);
+    let out = plant.falc(None, &["start"]);
+    assert_eq!(
+        out.matches(") started").count(),
+        3,
+        "one order per cell: {out}"
+    );
+
+    // Cell 3 mid-weld: its link up is cut.
+    plant.until_welding(&mut three);
+    let cut_order = cell_status(&plant, "falc3")
+        .running
+        .expect("cell 3 runs an order")
+        .id;
+    relay.cut();
+    let cut = Instant::now();
+    three.cell.expect_line(
+        "EVENT abort-indication peer=operator",
+        Duration::from_secs(10),
+    );
+    answer_until(&plant, Duration::from_secs(10), "cell 3 seen lost", || {
+        !cell_status(&plant, "falc3").cell_associated
+    });
+    eprintln!("cell 3 lost {:?} after the cut", cut.elapsed());
+
+    // Meanwhile an emergency stop in cell 2, mid-weld.
+    two.rcm.forget("rx G");
+    plant.until_welding(&mut two);
+    two.rcm.control("estop");
+    answer_until(&plant, Duration::from_secs(15), "cell 2's alarm", || {
+        cell_status(&plant, "falc2").list == ListState::Alarm
+    });
+    // Cell 1 runs on through the cut (orders end there meanwhile).
+    let done_on_one = |plant: &TestPlant| {
+        plant
+            .orders()
+            .iter()
+            .filter(|o| o.cell.as_deref() == Some("falc1") && o.state == OrderState::Done)
+            .count()
+    };
+    let before = done_on_one(&plant);
+    answer_until(&plant, Duration::from_secs(60), "cell 1 running on", || {
+        done_on_one(&plant) > before
+    });
+    // The order of the cut cell is neither failed nor done while cut.
+    let during: Vec<_> = plant.orders();
+    let o = during.iter().find(|o| o.id == cut_order).expect("order");
+    assert_eq!(o.state, OrderState::Running, "{during:#?}");
+    // Acknowledged while cut (the alarm stays until the cell is back), a
+    // start is still refused: the order's end is not known.
+    let out = plant.falc(Some("falc3"), &["ack"]);
+    assert!(out.contains("no connection with station cell"), "{out}");
+    let (code, out) = plant.falc_as("console", Some("falc3"), &["start"]);
+    assert_ne!(
+        code, 0,
+        "start of a cell whose order's end is unknown: {out}"
+    );
+    assert!(out.contains("not known yet"), "{out}");
+
+    // The link back after 30 s: the order's true end is learned.
+    let left = Duration::from_secs(30).saturating_sub(cut.elapsed());
+    answer_until(&plant, left + Duration::from_secs(1), "30 s", || {
+        cut.elapsed() >= Duration::from_secs(30)
+    });
+    relay.mend();
+    let mended = Instant::now();
+    answer_until(
+        &plant,
+        Duration::from_secs(90),
+        "the cut order's end",
+        || {
+            plant
+                .orders()
+                .iter()
+                .any(|o| o.id == cut_order && o.state != OrderState::Running)
+        },
+    );
+    eprintln!(
+        "cell 3's order {cut_order} known {:?} after the link came back",
+        mended.elapsed()
+    );
+    let orders = plant.orders();
+    let o = orders.iter().find(|o| o.id == cut_order).expect("order");
+    assert_eq!(
+        (o.state, o.cell.as_deref()),
+        (OrderState::Done, Some("falc3")),
+        "the cell ran its order on to its end: {orders:#?}"
+    );
+    operator.expect_line(
+        &format!("EVENT order-ended id={cut_order} state=done"),
+        Duration::from_secs(1),
+    );
+    assert!(cell_status(&plant, "falc3").cell_associated);
+
+    // Each cell's way back: cell 2 (its stop released, carriers back, ack)
+    // and cell 3 (its alarm acknowledged above, its connection back) start.
+    two.rcm.control("estop-clear");
+    two.plc.control("layout W2 W2");
+    let out = plant.falc(Some("falc2"), &["ack"]);
+    assert!(out.contains("emergency stop"), "{out}");
+    // (Cell 2's failed order is never run again: an order for cell 2
+    // shows its way back to production, whatever the others took.)
+    plant.falc(None, &["order", "add", "dikdroog", "--cell", "falc2"]);
+    for cell in ["falc2", "falc3"] {
+        let (code, out) = plant.falc_as("console", Some(cell), &["start"]);
+        assert!(
+            code == 0 || out.contains("holds no queued order"),
+            "{cell}: {out}"
+        );
+    }
+    plant.work_list("ja", Duration::from_secs(150));
+    let orders = plant.orders();
+    assert_eq!(orders.len(), 10);
+    let failed: Vec<_> = orders
+        .iter()
+        .filter(|o| o.state != OrderState::Done)
+        .collect();
+    assert!(
+        matches!(failed.as_slice(), [o] if o.state == OrderState::Failed && o.cell.as_deref() == Some("falc2")),
+        "all done but cell 2's stopped order: {orders:#?}"
+    );
+    for cell in ["falc1", "falc2", "falc3"] {
+        assert!(
+            orders
+                .iter()
+                .any(|o| o.cell.as_deref() == Some(cell) && o.state == OrderState::Done),
+            "{cell} did an order: {orders:#?}"
+        );
+    }
+    plant.assert_each_started_once(&orders);
+    let journal: Vec<Entry> = plant.reply(
+        Some("falc3"),
+        &["journal", "--order", &cut_order.to_string()],
+    );
+    let says = |what: &str| journal.iter().any(|e| e.text.contains(what));
+    assert!(
+        says("the connection with cell was lost while it ran")
+            && says("ended at cell while the connection was lost"),
+        "{journal:#?}"
+    );
+}

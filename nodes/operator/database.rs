@@ -11,6 +11,15 @@ use rusqlite::{params, Connection, OptionalExtension, Row};
 use std::path::Path;
 use std::time::{SystemTime, UNIX_EPOCH};
 
+/// What [`Database::recover`] found running.
+#[derive(Debug, Default)]
+pub struct Recovered {
+    /// One order per cell, still running, for the cell's list to adopt.
+    pub adopted: Vec<Order>,
+    /// The others, now interrupted.
+    pub interrupted: Vec<Order>,
+}
+
 /// A database failure, with the file and what was being done.
 #[derive(Debug, thiserror::Error)]
 #[error("order list and journal {path}: {what}: {source}")]
@@ -244,17 +253,53 @@ impl Database {
         }
     }
 
-    /// After a crash: every order still marked running becomes interrupted,
-    /// with a journal entry. Returns those orders.
-    pub fn recover(&mut self) -> Result<Vec<Order>, DatabaseError> {
-        let running = self.orders_in(OrderState::Running)?;
+    /// After a stop or crash: the orders still marked running. The newest
+    /// on each of `cells` is adopted (it stays running: a cell runs its
+    /// order on without the operator, and is asked how it ended once it is
+    /// associated), with a journal entry; every other becomes interrupted,
+    /// with a journal entry.
+    pub fn recover(&mut self, cells: &[&str]) -> Result<Recovered, DatabaseError> {
+        let mut running = self.orders_in(OrderState::Running)?;
+        running.sort_by_key(|o| std::cmp::Reverse(o.id));
+        let mut adopted: Vec<Order> = Vec::new();
+        let mut interrupted = Vec::new();
+        for o in running {
+            let cell = o.cell.as_deref().filter(|c| cells.contains(c));
+            let taken = cell.is_some_and(|c| adopted.iter().any(|a| a.cell.as_deref() == Some(c)));
+            if cell.is_some() && !taken {
+                adopted.push(o);
+            } else {
+                interrupted.push(o);
+            }
+        }
         let now = now_ms();
         let tx = self.conn.transaction().map_err(|source| DatabaseError {
             path: self.path.clone(),
             what: "cannot begin recovery",
             source: source.into(),
         })?;
-        for o in &running {
+        for o in &adopted {
+            tx.execute(
+                "INSERT INTO journal (at_ms, order_id, kind, who, text) VALUES (?1, ?2, 'order', 'operator', ?3)",
+                params![
+                    now,
+                    o.id,
+                    format!(
+                        "order {} ({}) was running on {} when the operator node stopped: \
+                         the cell is asked how it ended",
+                        o.id,
+                        o.recipe,
+                        o.cell.as_deref().unwrap_or_default()
+                    )
+                ],
+            )
+            .map_err(|source| DatabaseError {
+                path: self.path.clone(),
+                what: "cannot journal an adopted order",
+                source: source.into(),
+            })?;
+        }
+        for o in &interrupted {
             tx.execute(
                 "UPDATE orders SET state = 'interrupted', ended_ms = ?1, result = ?2 WHERE id = ?3",
                 params![now, "interrupted: the operator node stopped while it ran", o.id],
@@ -283,13 +328,16 @@ impl Database {
             what: "cannot commit recovery",
             source: source.into(),
         })?;
-        Ok(running
-            .into_iter()
-            .map(|o| Order {
-                state: OrderState::Interrupted,
-                ..o
-            })
-            .collect())
+        Ok(Recovered {
+            adopted,
+            interrupted: interrupted
+                .into_iter()
+                .map(|o| Order {
+                    state: OrderState::Interrupted,
+                    ..o
+                })
+                .collect(),
+        })
     }
 
     /// One order.
@@ -848,6 +896,41 @@ mod tests {
     }
 
     #[test]
+    fn the_newest_running_order_of_a_cell_is_adopted_and_an_older_one_interrupted() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("falc.db");
+        let mut s = Database::open(&path, "falc1").expect("open");
+        let a = s.add_order("dikdroog", "ann", &ANY).expect("add");
+        let b = s.add_order("dundroog", "ann", &ANY).expect("add");
+        s.set_running(a.id, "falc1").expect("run");
+        s.set_running(b.id, "falc1").expect("run");
+        drop(s);
+        let mut s = Database::open(&path, "falc1").expect("reopen");
+        let r = s.recover(&["falc1"]).expect("recover");
+        assert_eq!(
+            r.adopted.iter().map(|o| o.id).collect::<Vec<_>>(),
+            vec![b.id]
+        );
+        assert_eq!(
+            r.interrupted.iter().map(|o| o.id).collect::<Vec<_>>(),
+            vec![a.id]
+        );
+        let states: Vec<OrderState> = s
+            .orders()
+            .expect("orders")
+            .iter()
+            .map(|o| o.state)
+            .collect();
+        assert_eq!(states, vec![OrderState::Interrupted, OrderState::Running]);
+        let j = s.entries(0, Some(b.id), false, None, 100).expect("entries");
+        assert!(
+            j.iter()
+                .any(|e| e.text.contains("the cell is asked how it ended")),
+            "{j:?}"
+        );
+    }
+
+    #[test]
     fn only_a_running_order_goes_back_to_the_queue() {
         let dir = tempfile::tempdir().expect("tempdir");
         let mut s = Database::open(&dir.path().join("falc.db"), "falc1").expect("open");
@@ -889,8 +972,9 @@ mod tests {
             // Dropped without ending the order: a crash.
         }
         let mut s = Database::open(&path, "falc1").expect("reopen");
-        let interrupted = s.recover().expect("recover");
-        assert_eq!(interrupted.len(), 1);
+        // Its cell is no cell of the plant now: interrupted.
+        let r = s.recover(&["falc2"]).expect("recover");
+        assert_eq!((r.adopted.len(), r.interrupted.len()), (0, 1));
         let orders = s.orders().expect("orders");
         assert_eq!(orders[0].state, OrderState::Interrupted);
         assert_eq!(orders[1].state, OrderState::Queued);

@@ -27,14 +27,14 @@ use falc_bus::station::{self, Station, StationEvent};
 use falc_bus::{Bus, BusEvent, Declaration, Presence, Responder};
 use falc_control::order_list::{CellCall, OrderList, Output, Ticket};
 use falc_control::plant::{Plant, PlantOutput};
-use falc_control::recipe_source::{Delivery, RecipeSource};
+use falc_control::recipe_source::{Delivery, RecipeSet, RecipeSource};
 use falc_model::console::EntryKind;
 use falc_model::ids::StationName;
 use falc_model::keys::KeySpace;
 use falc_model::mms::error::ServiceError;
-use falc_model::mms::pdu::{Peer, Request, Unconfirmed};
+use falc_model::mms::pdu::{Peer, Request, Response, Unconfirmed};
 use falc_model::plant::Layout;
-use falc_model::topology::Topology;
+use falc_model::topology::{StationKind, Topology};
 use falc_node::{init_tracing, lane, say, NodeArgs};
 use recipe_store::RecipeDir;
 use std::collections::HashMap;
@@ -84,7 +84,7 @@ enum LaneDone {
     /// The Initiates' outcomes, for the station to record.
     Initiates(Vec<(StationName, Result<Peer, ServiceError>)>),
     /// A request's or delivery's outcome.
-    Done(Result<(), ServiceError>),
+    Done(Result<Response, ServiceError>),
 }
 
 /// Starts cell `index`'s lane: its jobs go to `cell` one at a time, each
@@ -110,15 +110,17 @@ fn cell_lane(
                 LaneJob::Initiates(subs) => {
                     LaneDone::Initiates(station::initiate_all(&bus, subs).await)
                 }
-                LaneJob::Request(req) => {
-                    LaneDone::Done(bus.request(&cell, &req, CELL_LIMIT).await.map(|_| ()))
-                }
-                LaneJob::Deliver(d) if d.is_cell => {
-                    LaneDone::Done(bus.deliver(&cell, &d.domain, &d.content).await)
-                }
-                LaneJob::Deliver(d) => {
-                    LaneDone::Done(bus.deliver_domain(&cell, &d.domain, &d.content).await)
-                }
+                LaneJob::Request(req) => LaneDone::Done(bus.request(&cell, &req, CELL_LIMIT).await),
+                LaneJob::Deliver(d) if d.is_cell => LaneDone::Done(
+                    bus.deliver(&cell, &d.domain, &d.content)
+                        .await
+                        .map(|()| Response::Done),
+                ),
+                LaneJob::Deliver(d) => LaneDone::Done(
+                    bus.deliver_domain(&cell, &d.domain, &d.content)
+                        .await
+                        .map(|()| Response::Done),
+                ),
             }
         }
     })
@@ -189,6 +191,9 @@ impl Operator {
                     }
                     CellCall::Stop { name } => LaneJob::Request(Request::Stop { name }),
                     CellCall::Pass(request) => LaneJob::Request(request),
+                    CellCall::Ask { name } => {
+                        LaneJob::Request(Request::GetProgramInvocationAttributes { name })
+                    }
                 };
                 if cell.lane.send(job).is_err() {
                     tracing::error!("the cell lane stopped");
@@ -217,14 +222,16 @@ impl Operator {
             return;
         };
         let result = match done {
-            LaneDone::Initiates(results) => {
-                cell.station.record_initiates(results).await.map(|_| ())
-            }
+            LaneDone::Initiates(results) => cell
+                .station
+                .record_initiates(results)
+                .await
+                .map(|_| Response::Done),
             LaneDone::Done(result) => result,
         };
         let now = self.now();
         if let Some(list) = self.plant.list(i) {
-            list.handle_cell_reply(now, result);
+            list.handle_cell_answer(now, result);
         }
     }
 
@@ -308,16 +315,27 @@ async fn run(cli: Cli) -> Result<ExitCode> {
             (plans, settings)
         }
     };
-    // The PPS first: a defective recipe set never reaches a cell.
+    // The PPS first: a defective recipe set never reaches a cell. Cells
+    // of one layout (the same stations, kinds and commanders) have the
+    // same set: checked and verified once.
     let mut sets = Vec::new();
+    let mut checked: Vec<(Vec<LayoutKey>, RecipeSet)> = Vec::new();
     for p in &plans {
         let source = RecipeDir {
             dir: cli.recipes.clone(),
             topology: p.topology.clone(),
             cell: p.cell.clone(),
         };
+        let key = layout_key(&p.topology);
+        if let Some((_, set)) = checked.iter().find(|(k, _)| *k == key) {
+            sets.push((source, set.clone()));
+            continue;
+        }
         match source.load() {
-            Ok(set) => sets.push((source, set)),
+            Ok(set) => {
+                checked.push((key, set.clone()));
+                sets.push((source, set));
+            }
             Err(problems) => {
                 for problem in &problems {
                     say(problem);
@@ -333,21 +351,27 @@ async fn run(cli: Cli) -> Result<ExitCode> {
         }
     }
     // The order list and journal: one file, a connection per cell.
-    let mut first = true;
+    let mut recovered = None;
     let mut dbs = Vec::new();
+    let cell_ids: Vec<&str> = plans.iter().map(|p| p.topology.cell().as_str()).collect();
     for p in &plans {
         let mut db = Database::open(&cli.db, p.topology.cell().as_str())?;
-        if first {
-            for o in db.recover()? {
+        if recovered.is_none() {
+            let r = db.recover(&cell_ids)?;
+            for o in &r.interrupted {
                 say(&format!(
                     "EVENT interrupted order={} recipe={}",
                     o.id, o.recipe
                 ));
             }
-            first = false;
+            for o in &r.adopted {
+                say(&format!("EVENT adopted order={} recipe={}", o.id, o.recipe));
+            }
+            recovered = Some(r);
         }
         dbs.push(db);
     }
+    let mut adopted = recovered.map(|r| r.adopted).unwrap_or_default();
     let plant_of_one = plans.len() == 1;
     let api_bus = Bus::open(api_settings)
         .await
@@ -380,17 +404,23 @@ async fn run(cli: Cli) -> Result<ExitCode> {
         }
         bus.sync_with_router().await?;
         let lane = cell_lane(bus.clone(), p.cell.clone(), i, ltx.clone());
-        lists.push(
-            OrderList::new(
-                me.clone(),
-                p.cell.clone(),
-                p.topology.clone(),
-                db,
-                source,
-                set,
-            )
-            .with_max_queued(cli.max_queued_orders),
-        );
+        let mut list = OrderList::new(
+            me.clone(),
+            p.cell.clone(),
+            p.topology.clone(),
+            db,
+            source,
+            set,
+        )
+        .with_max_queued(cli.max_queued_orders);
+        let cell_id = p.topology.cell().as_str();
+        if let Some(k) = adopted
+            .iter()
+            .position(|o| o.cell.as_deref() == Some(cell_id))
+        {
+            list = list.adopting(adopted.swap_remove(k));
+        }
+        lists.push(list);
         cells.push(CellDriver {
             station,
             lane,
@@ -474,6 +504,18 @@ async fn run(cli: Cli) -> Result<ExitCode> {
     }
     say("EVENT stopped");
     Ok(ExitCode::SUCCESS)
+}
+
+/// What a cell's recipe set depends on: each station's name, kind and
+/// commander (not its device or host, nor the cell's id).
+type LayoutKey = (StationName, StationKind, Option<StationName>);
+
+fn layout_key(topology: &Topology) -> Vec<LayoutKey> {
+    topology
+        .stations()
+        .iter()
+        .map(|s| (s.name.clone(), s.kind, s.commander.clone()))
+        .collect()
 }
 
 /// The cell of `topology` the operator `me` commands.

@@ -164,7 +164,7 @@ pub fn cell(plant: &Plant, id: &CellId, dir: &Path, listen: Option<String>) -> R
         None,
         acl::cell_router_access_control(plant, cell),
         Place::CellInPlant {
-            uplink: plant.router(),
+            uplink: cell.uplink().unwrap_or(plant.router()),
             credentials: &up,
         },
     )?;

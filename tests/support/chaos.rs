@@ -190,6 +190,25 @@ fn run(rig: &mut Rig, r: &mut Round) -> Result<(), String> {
     kill(rig, r.victim);
     r.detected = detection(rig, r.victim, Duration::from_secs(5)).map(|_| killed.elapsed());
     restart(rig, r.victim);
+    if r.victim == Victim::Operator {
+        // The cell runs order A on without its operator; the operator,
+        // back, adopts it and learns how it ends. Only then are the
+        // carriers set back (not under a running order).
+        let end = Instant::now() + Duration::from_secs(120);
+        while rig
+            .orders()
+            .iter()
+            .any(|o| o.id == a && o.state == OrderState::Running)
+        {
+            if Instant::now() > end {
+                return Err(format!(
+                    "order {a} still running 120 s after the operator came back"
+                ));
+            }
+            play(rig, Instant::now() + Duration::from_millis(200));
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
     // The documented way back: carriers to where an order starts, then
     // ack + start, repeated while the cell is reassociating.
     rig.plc.control("layout W2 W2");

@@ -10,6 +10,7 @@ pub mod hosts;
 pub mod noise;
 pub mod opcua;
 pub mod plant;
+pub mod relay;
 pub mod rig;
 pub mod stats;
 

@@ -58,11 +58,15 @@ impl Station {
     /// of every cell on one session: [`Bus::alongside`]).
     pub async fn on(bus: Bus, topology: &Topology) -> Result<Self, BusError> {
         let me = bus.me().station.clone();
+        let runs_on_alone = topology
+            .station(&me)
+            .is_some_and(|s| s.kind.runs_on_alone());
         let assoc = Associations::new(
             me.clone(),
             topology.commander_of(&me).cloned(),
             topology.subordinates_of(&me).into_iter().cloned(),
-        );
+        )
+        .runs_on_alone(runs_on_alone);
         let (tx, rx) = unbounded_channel();
         let board = StatusBoard::default();
         let served = bus
@@ -150,7 +154,7 @@ impl Station {
     pub async fn handle(&mut self, ev: BusEvent) -> Option<StationEvent> {
         match ev {
             BusEvent::Indication(ind) => self.on_indication(ind).await,
-            BusEvent::PeerLost { peer, reason } => self.on_lost(&peer, &reason).await,
+            BusEvent::PeerLost { peer, reason } => self.on_lost(&peer, &reason, false).await,
         }
     }
 
@@ -173,7 +177,7 @@ impl Station {
             },
             Request::Abort { calling, reason } => {
                 ind.responder.respond(Ok(Response::Done)).await;
-                self.on_lost(&calling, &format!("Abort from {calling}: {reason}"))
+                self.on_lost(&calling, &format!("Abort from {calling}: {reason}"), true)
                     .await
             }
             ref r if changes_state(r) && self.assoc.commander().is_none() => {
@@ -232,9 +236,14 @@ impl Station {
         Some(StationEvent::Associated(commander))
     }
 
-    async fn on_lost(&mut self, peer: &Peer, reason: &str) -> Option<StationEvent> {
+    async fn on_lost(
+        &mut self,
+        peer: &Peer,
+        reason: &str,
+        sent_abort: bool,
+    ) -> Option<StationEvent> {
         self.unwatch(peer);
-        let (indication, abort) = self.assoc.lost(peer, reason)?;
+        let (indication, abort) = self.assoc.lost(peer, reason, sent_abort)?;
         for sub in abort {
             self.unwatch(&sub);
             let req = Request::Abort {

@@ -27,6 +27,7 @@
 
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::{ObjectName, StationName};
+use falc_model::mms::association::Role;
 use falc_model::mms::error::{DefinitionError, ErrorClass, ServiceError};
 use falc_model::mms::pdu::{JobEvent, Request, Response, Severity};
 use falc_model::mms::program::{PiCompletion, PiRequest, PiState};
@@ -149,6 +150,9 @@ pub struct Controller<D> {
     kind: RecipeKind,
     confirm_limit: Duration,
     running: Option<Running>,
+    /// Whether a running recipe goes on when the commander is lost
+    /// ([`Self::runs_on_alone`]).
+    runs_on_alone: bool,
     out: VecDeque<Output>,
 }
 
@@ -171,8 +175,18 @@ impl<D: Device> Controller<D> {
             kind,
             confirm_limit,
             running: None,
+            runs_on_alone: false,
             out: VecDeque::new(),
         }
+    }
+
+    /// A level whose running recipe goes on to its end when the commander
+    /// is lost (a cell: `StationKind::runs_on_alone`). The end is kept in
+    /// the program invocation ([`Vmd::record_end`]) for the commander to
+    /// ask once it is back; a lost subordinate still ends the recipe.
+    pub fn runs_on_alone(mut self, yes: bool) -> Self {
+        self.runs_on_alone = yes;
+        self
     }
 
     /// The station this controller is (default: its kind's name).
@@ -355,6 +369,9 @@ impl<D: Device> Controller<D> {
                     Outcome::Failed(JobEnd::FailedDanger) => JobEvent::FailedDanger,
                     Outcome::Failed(other) => JobEvent::Alarm(Cause::process(format!("{other:?}"))),
                 };
+                // Kept until the next Start: a commander that was away
+                // when it ended asks for it.
+                self.vmd.record_end(&r.name, event.clone());
                 self.out.push_back(Output::Job {
                     program: r.name,
                     event,
@@ -368,9 +385,21 @@ impl<D: Device> Controller<D> {
 
     /// The association with `peer` was lost (the commander, or a
     /// subordinate of a cell): a running recipe ends in a communication
-    /// alarm naming it.
-    pub fn handle_abort(&mut self, peer: &StationName) {
+    /// alarm naming it; unless `peer` is the commander and this level runs
+    /// on alone, when the recipe goes on and its end is kept.
+    pub fn handle_abort(&mut self, peer: &StationName, role: Role) {
         self.device.lost(peer);
+        if role == Role::Commander && self.runs_on_alone {
+            if let Some(r) = &self.running {
+                let text = format!(
+                    "no connection with the commander {peer}: {} runs on to its end, \
+                     which is kept for {peer}",
+                    r.name
+                );
+                self.report(Severity::Warning, text);
+            }
+            return;
+        }
         if self.running.is_some() {
             self.fault(Cause::new(
                 AlarmClass::Communication,
@@ -747,6 +776,16 @@ pub(crate) mod testing {
     pub fn outputs<D: Device>(c: &mut Controller<D>) -> Vec<Output> {
         std::iter::from_fn(|| c.poll_output()).collect()
     }
+
+    /// The job events among `outs`, in order.
+    pub fn job_events(outs: &[Output]) -> Vec<JobEvent> {
+        outs.iter()
+            .filter_map(|o| match o {
+                Output::Job { event, .. } => Some(event.clone()),
+                _ => None,
+            })
+            .collect()
+    }
 }
 
 #[cfg(test)]
@@ -755,7 +794,7 @@ mod tests {
     //! the recipe made it do: the paths the multi-process tests cover
     //! (done, time limit, lost association, refusal, stop, settling).
 
-    use super::testing::{load, outputs};
+    use super::testing::{job_events, load, outputs};
     use super::*;
     use falc_model::ids::RobotProgram;
     use falc_model::mms::program::PiState;
@@ -855,15 +894,6 @@ mod tests {
                 argument: String::new(),
             },
         )
-    }
-
-    fn job_events(outs: &[Output]) -> Vec<JobEvent> {
-        outs.iter()
-            .filter_map(|o| match o {
-                Output::Job { event, .. } => Some(event.clone()),
-                _ => None,
-            })
-            .collect()
     }
 
     fn mode(mode: CellMode, stepping: &[&str]) -> Request {
@@ -1126,7 +1156,7 @@ mod tests {
         let mut c = loaded();
         start(&mut c, Duration::ZERO).unwrap();
         let cell = StationName::new("cell").unwrap();
-        c.handle_abort(&cell);
+        c.handle_abort(&cell, Role::Commander);
         c.settle(secs(1));
         assert!(!c.is_running());
         assert_eq!(c.device.lost, vec![cell.clone()]);
@@ -1141,7 +1171,7 @@ mod tests {
         }));
         assert_eq!(job_events(&outs), vec![JobEvent::Alarm(expected)]);
         // Lost while idle: the device hears of it, nothing is reported.
-        c.handle_abort(&cell);
+        c.handle_abort(&cell, Role::Commander);
         assert_eq!(outputs(&mut c), vec![]);
         assert_eq!(c.device.lost.len(), 2);
     }

@@ -309,8 +309,9 @@ mod tests {
     //! commands it sends.
 
     use super::*;
-    use crate::controller::testing::{load, outputs};
+    use crate::controller::testing::{job_events, load, outputs};
     use crate::controller::Output;
+    use falc_model::mms::association::Role;
     use falc_model::mms::program::PiState;
     use falc_recipe::commands::RecipeKind;
 
@@ -511,7 +512,7 @@ mod tests {
     fn a_lost_workstation_ends_the_recipe_and_refuses_starts_until_the_commander_associates() {
         let mut c = cell();
         transport_job_running(&mut c);
-        c.handle_abort(&st("transport"));
+        c.handle_abort(&st("transport"), Role::Subordinate);
         settle(&mut c, secs(7));
         assert!(!c.is_running());
         let outs = outputs(&mut c);
@@ -539,6 +540,65 @@ mod tests {
             2,
             "output and question again"
         );
+    }
+
+    #[test]
+    fn a_cell_cut_off_from_its_commander_runs_its_order_to_the_end_and_keeps_it() {
+        let mut c = cell().runs_on_alone(true);
+        transport_job_running(&mut c);
+        c.handle_abort(&st("operator"), Role::Commander);
+        assert!(settle(&mut c, secs(7)).is_empty(), "nothing is stopped");
+        assert!(c.is_running());
+        let outs = outputs(&mut c);
+        assert!(
+            matches!(outs.as_slice(), [Output::Report { severity: Severity::Warning, text }]
+                if text.contains("runs on to its end")),
+            "{outs:?}"
+        );
+        // The workstation's job ends; the last output cannot reach the
+        // operator (refused at once): the recipe ends all the same.
+        let events = c.device.unconfirmed(&job_done("transport", "STORE"));
+        c.feed(secs(30), events);
+        let cmds = settle(&mut c, secs(30));
+        refused(
+            &mut c,
+            secs(30),
+            &cmds[0],
+            "no reply: the operator is not reachable",
+        );
+        settle(&mut c, secs(30));
+        assert!(!c.is_running());
+        assert_eq!(job_events(&outputs(&mut c)), vec![JobEvent::Done]);
+        // The end is kept for the commander, until the next Start.
+        let attributes = |c: &mut Controller<Stations>| match c.handle_request(
+            secs(31),
+            &Request::GetProgramInvocationAttributes { name: name("test") },
+        ) {
+            Ok(Response::PiAttributes(a)) => a,
+            other => panic!("{other:?}"),
+        };
+        let a = attributes(&mut c);
+        assert_eq!((a.state, a.last_end), (PiState::Idle, Some(JobEvent::Done)));
+        c.handle_associated();
+        start(&mut c).unwrap();
+        assert_eq!(attributes(&mut c).last_end, None);
+    }
+
+    #[test]
+    fn a_cell_that_does_not_run_on_alone_ends_its_order_when_the_commander_is_lost() {
+        let mut c = cell();
+        transport_job_running(&mut c);
+        c.handle_abort(&st("operator"), Role::Commander);
+        let cmds = settle(&mut c, secs(7));
+        assert!(!c.is_running());
+        assert!(cmds.iter().any(|c| c.request
+            == Request::Stop {
+                name: name("STORE")
+            }));
+        assert!(matches!(
+            job_events(&outputs(&mut c)).as_slice(),
+            [JobEvent::Alarm(cause)] if cause.text == "no connection with station operator"
+        ));
     }
 
     #[test]

@@ -30,6 +30,7 @@ use falc_model::ids::{CellId, ObjectName, StationName};
 use falc_model::mms::domain::content_hash;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
+use falc_model::mms::program::PiState;
 use falc_model::mms::vmd::VmdStatus;
 use falc_model::mode::{CellMode, ModeSetting};
 use falc_model::topology::Topology;
@@ -83,6 +84,13 @@ pub enum CellCall {
     /// A request passed to the cell as it is: a mode, a step, a manual
     /// operation for a workstation, a Resume.
     Pass(Request),
+    /// Ask how the run of program invocation `name` stands (the order that
+    /// ran while the cell was cut off, or when this node started): its
+    /// answer comes back through [`OrderList::handle_cell_answer`].
+    Ask {
+        /// The cell recipe.
+        name: ObjectName,
+    },
 }
 
 /// What the node must do.
@@ -193,6 +201,11 @@ enum Busy {
         order: Order,
     },
     Rejoining(StationName),
+    /// Asking how the running order's run stands at the cell after a cut
+    /// ([`OrderList::away`]).
+    Asking {
+        start: Option<Caller>,
+    },
 }
 
 /// What waits for an order's Start to be confirmed
@@ -232,6 +245,15 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     /// until it is acknowledged (the next write then tells).
     db_alarm: Option<i64>,
     running: Option<Order>,
+    /// The running order's run went on at the cell while this node could
+    /// not hear it (the cell was cut off, or this node started while it
+    /// ran): once the cell is associated again it is asked how the run
+    /// stands ([`CellCall::Ask`]) before anything else.
+    away: bool,
+    /// With `away`: the running order's Start was sent but never
+    /// confirmed, so the cell may not have started it (then it is queued
+    /// again).
+    start_unconfirmed: bool,
     question: Option<Question>,
     shutdown_pending: bool,
     statuses: BTreeMap<StationName, VmdStatus>,
@@ -322,6 +344,8 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             alarms,
             db_alarm: None,
             running: None,
+            away: false,
+            start_unconfirmed: false,
             question: None,
             shutdown_pending: false,
             statuses: BTreeMap::new(),
@@ -337,6 +361,15 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             told: None,
             entries_of: None,
         }
+    }
+
+    /// Takes over `order`, which was running on this cell when this node
+    /// stopped (the records still say `running`): the cell may have run it
+    /// on, so it is asked how the run stands once it is associated.
+    pub fn adopting(mut self, order: Order) -> Self {
+        self.running = Some(order);
+        self.away = true;
+        self
     }
 
     /// At most `max` orders wait in the list; one more is refused.
@@ -363,7 +396,8 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// associate the cell or deliver to it, while it is needed.
     pub fn poll_timeout(&self) -> Option<Duration> {
         let idle = self.busy.is_none() && self.jobs.is_empty();
-        (idle && (!self.associated || self.undelivered().next().is_some())).then_some(self.next_try)
+        let deliver = self.running.is_none() && self.undelivered().next().is_some();
+        (idle && (!self.associated || deliver)).then_some(self.next_try)
     }
 
     /// The time of [`Self::poll_timeout`] has come: try the cell again.
@@ -662,6 +696,24 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             self.call(CellCall::Associate, Busy::Associating { start });
             return;
         }
+        if self.away {
+            if let Some(order) = &self.running {
+                match ObjectName::new(&order.recipe) {
+                    Ok(name) => return self.call(CellCall::Ask { name }, Busy::Asking { start }),
+                    Err(e) => tracing::error!("order {}'s recipe: {e}", order.id),
+                }
+            }
+            self.away = false;
+        }
+        // A recipe in use is not replaced under the running order: what
+        // changed is delivered once it ended.
+        if self.running.is_some() {
+            if let Some(by) = start {
+                self.list = ListState::Running;
+                self.reply(by.ticket, Ok(ApiReply::Done("the list is running".into())));
+            }
+            return;
+        }
         let next = self.undelivered().next().map(|(d, h)| (d.clone(), h));
         if let Some((d, hash)) = next {
             let busy = Busy::Delivering {
@@ -722,7 +774,15 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             let text = "the cell is in maintenance mode: no order runs (falc mode auto)";
             return self.reply(ticket, Err(text.into()));
         }
-        if self.running.is_some() {
+        if let Some(order) = &self.running {
+            if self.away {
+                let text = format!(
+                    "order {} ({}) ran on {} when the connection was lost, and how it ended \
+                     is not known yet: {} is asked once it is reachable again (falc status)",
+                    order.id, order.recipe, self.cell, self.cell
+                );
+                return self.reply(ticket, Err(text));
+            }
             self.list = ListState::Running;
             return self.reply(ticket, Ok(ApiReply::Done("the list is running".into())));
         }
@@ -1066,6 +1126,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 
     /// The outcome of the call to the cell that is out.
     pub fn handle_cell_reply(&mut self, now: Duration, result: Result<(), ServiceError>) {
+        let unanswered = result.as_ref().is_err_and(ServiceError::unanswered);
         let result = result.map_err(|e| e.description);
         let Some(busy) = self.busy.take() else {
             tracing::warn!("a reply from the cell that nothing waits for: {result:?}");
@@ -1145,6 +1206,28 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                         self.say(format!("EVENT order-started id={}", order.id));
                         Ok(Some(order))
                     }
+                    // The Start may have reached the cell: it runs the
+                    // order on by itself, so the order is not queued
+                    // again before the cell says it never started.
+                    Err(text) if unanswered && previous.is_none() => {
+                        let order = Order {
+                            state: OrderState::Running,
+                            started_ms: Some(started_ms),
+                            ..order
+                        };
+                        self.running = Some(order.clone());
+                        self.away = true;
+                        self.start_unconfirmed = true;
+                        self.associated = false;
+                        self.problem = Some(text.clone());
+                        let line = format!(
+                            "order {} ({}): its start was not confirmed ({text}); the cell is \
+                             asked whether it runs",
+                            order.id, order.recipe
+                        );
+                        self.journal_mine(EntryKind::Order, Some(order.id), &line);
+                        Err(line)
+                    }
                     Err(text) => {
                         let why =
                             format!("order {} ({}) not started: {text}", order.id, order.recipe);
@@ -1186,13 +1269,29 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 self.reply(by.ticket, result.map(|()| ApiReply::Done(done)));
             }
             Busy::Halting { order } => self.halted(now, order, result),
+            // Answered through `handle_cell_answer`; a bare reply says
+            // nothing of the run.
+            Busy::Asking { start } => {
+                match result {
+                    Ok(()) => self.run_unknown(now, "the cell answered without its attributes"),
+                    Err(text) => {
+                        self.associated = false;
+                        self.problem = Some(text);
+                    }
+                }
+                self.connect(start, false);
+            }
         }
         self.pump(now);
     }
 
     // ---- the cell and the stations ----
 
-    /// The cell was lost (abort indication).
+    /// The cell was lost (abort indication). A cell runs its order on to
+    /// its end without its commander (`StationKind::runs_on_alone`): the
+    /// order stays `running` here, and once the cell is associated again
+    /// it is asked how the run ended ([`CellCall::Ask`]). Nothing is
+    /// assumed meanwhile, so nothing is lost and nothing runs twice.
     pub fn handle_abort(&mut self, now: Duration, reason: &str) {
         self.associated = false;
         self.delivered.clear();
@@ -1200,14 +1299,120 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.problem = Some(text.clone());
         self.say(format!("EVENT cell-lost {reason}"));
         self.forget_question();
-        let order = self.running.take();
-        let id = order.as_ref().map(|o| o.id);
-        if let Some(order) = order {
-            self.end(now, order, OrderState::Failed, &format!("alarm: {text}"));
+        let id = self.running_id();
+        if let Some(order) = &self.running {
+            self.away = true;
+            let line = format!(
+                "order {} ({}): the connection with {} was lost while it ran; the cell runs it \
+                 on, and is asked how it ended once it is back",
+                order.id, order.recipe, self.cell
+            );
+            self.journal_mine(EntryKind::Order, id, &line);
         }
         let me = self.me.to_string();
         self.raise(&me, id, AlarmClass::Communication, text);
         self.pump(now);
+    }
+
+    /// The answer of the cell to [`CellCall::Ask`] (the other calls are
+    /// answered through [`Self::handle_cell_reply`], which this also takes).
+    pub fn handle_cell_answer(&mut self, now: Duration, result: Result<Response, ServiceError>) {
+        let Some(Busy::Asking { .. }) = &self.busy else {
+            return self.handle_cell_reply(now, result.map(|_| ()));
+        };
+        let Some(Busy::Asking { start }) = self.busy.take() else {
+            return;
+        };
+        match result {
+            Ok(Response::PiAttributes(a)) => self.learned(now, a.state, a.last_end),
+            // The cell was lost again meanwhile: asked at the next
+            // association.
+            Ok(_) | Err(_) if !self.associated => {}
+            Ok(other) => {
+                let why = format!("the cell answered {other:?}");
+                self.run_unknown(now, &why);
+            }
+            Err(e) => {
+                // The cell does not know the program invocation: it was
+                // restarted.
+                if e.class.to_string().starts_with("definition") {
+                    self.run_unknown(now, &e.description);
+                } else {
+                    // The link broke again: asked at the next association.
+                    self.associated = false;
+                    self.problem = Some(e.description);
+                }
+            }
+        }
+        self.connect(start, false);
+        self.pump(now);
+    }
+
+    /// What the cell said of the run of the order that was away.
+    fn learned(&mut self, now: Duration, state: PiState, end: Option<JobEvent>) {
+        self.away = false;
+        let unconfirmed = std::mem::take(&mut self.start_unconfirmed);
+        let Some(order) = self.running.clone() else {
+            return;
+        };
+        let cell = self.cell.clone();
+        match (state, end) {
+            (PiState::Idle, None) if unconfirmed => {
+                // Never started: back in the queue, as a refused start.
+                self.running = None;
+                let line = format!(
+                    "order {} ({}) never began at {cell}: queued again",
+                    order.id, order.recipe
+                );
+                if let Err(e) = self.db.requeue(order.id) {
+                    self.unwritten_ends
+                        .push((order.id, OrderState::Failed, line.clone()));
+                    self.db_failed(&e);
+                }
+                self.journal_mine(EntryKind::Order, Some(order.id), &line);
+            }
+            (PiState::Starting | PiState::Running | PiState::Resuming, _) => {
+                let line = format!(
+                    "order {} ({}) still runs at {cell}: the list follows it again",
+                    order.id, order.recipe
+                );
+                self.journal_mine(EntryKind::Order, Some(order.id), &line);
+                self.say(format!("EVENT order-followed id={}", order.id));
+            }
+            (_, Some(event)) => {
+                let line = format!(
+                    "order {} ({}) ended at {cell} while the connection was lost: {event:?}",
+                    order.id, order.recipe
+                );
+                self.journal_mine(EntryKind::Order, Some(order.id), &line);
+                let program = ObjectName::new(&order.recipe);
+                match program {
+                    Ok(program) => self.job_event(now, order, &cell, &program, event),
+                    Err(e) => self.run_unknown(now, &e.to_string()),
+                }
+            }
+            (state, None) => self.run_unknown(now, &format!("its program invocation is {state}")),
+        }
+    }
+
+    /// The cell no longer knows how the running order's run went (it was
+    /// restarted while the connection was lost): the order ends
+    /// `interrupted` (never run again by itself: `falc restart N`).
+    fn run_unknown(&mut self, now: Duration, why: &str) {
+        self.away = false;
+        self.start_unconfirmed = false;
+        let Some(order) = self.running.take() else {
+            return;
+        };
+        self.forget_question();
+        let id = order.id;
+        let text = format!(
+            "order {id} ({}): {} kept no end of its run ({why}); not restarted (falc restart {id})",
+            order.recipe, self.cell
+        );
+        self.end(now, order, OrderState::Interrupted, &text);
+        let me = self.me.to_string();
+        self.raise(&me, Some(id), AlarmClass::Process, text);
     }
 
     /// A station came onto (`present`) or left the bus. A workstation lost
@@ -1905,11 +2110,32 @@ mod tests {
             }
         }
 
-        /// The cell answers the call that is out.
+        /// The cell answers the call that is out (an error is a refusal).
         fn answer(&mut self, result: Result<(), &str>) -> Vec<Output> {
-            let result = result.map_err(ServiceError::unreachable);
+            let result = result.map_err(ServiceError::state_conflict);
             self.list.handle_cell_reply(self.now, result);
             self.outputs()
+        }
+
+        /// No answer comes to the call that is out.
+        fn no_reply(&mut self) -> Vec<Output> {
+            let e = ServiceError::unreachable("no reply from cell");
+            self.list.handle_cell_reply(self.now, Err(e));
+            self.outputs()
+        }
+
+        /// The cell answers the [`CellCall::Ask`] that is out, and every
+        /// call that follows (deliveries) with success.
+        fn tell(&mut self, answer: Result<Response, ServiceError>) -> Vec<Output> {
+            self.list.handle_cell_answer(self.now, answer);
+            let mut all = self.outputs();
+            let mut more = call(&all).is_some();
+            while more {
+                let out = self.answer(Ok(()));
+                more = call(&out).is_some();
+                all.extend(out);
+            }
+            all
         }
 
         /// The cell asks the operator `prompt`; the question's ticket.
@@ -1958,6 +2184,16 @@ mod tests {
                 );
                 out = self.answer(Ok(()));
             }
+        }
+
+        /// `start` through association and delivery up to the cell's
+        /// Start, which is left out; the start's ticket.
+        fn start_until_the_cells_start(&mut self) -> Ticket {
+            let (t, mut out) = self.api("console", ApiRequest::Start);
+            while !matches!(call(&out), Some(CellCall::Start { .. })) {
+                out = self.answer(Ok(()));
+            }
+            t
         }
 
         fn order(&mut self, id: i64) -> Order {
@@ -2202,9 +2438,20 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_lost_cell_fails_the_order_and_its_return_clears_the_alarm() {
-        let mut r = Rig::new();
+    /// The cell answers the [`CellCall::Ask`] that is out with attributes
+    /// (`state`, `last_end`).
+    fn attributes(state: PiState, last_end: Option<JobEvent>) -> Result<Response, ServiceError> {
+        Ok(Response::PiAttributes(falc_model::mms::pdu::PiAttributes {
+            state,
+            domains: vec![name("dikdroog")],
+            reusable: true,
+            deletable: true,
+            last_end,
+        }))
+    }
+
+    /// A cut: order 1 runs with a question waiting, the cell is lost.
+    fn cut_mid_order(r: &mut Rig) {
         r.add(2);
         assert!(r.start().is_ok());
         let q = r.question("ok?");
@@ -2213,34 +2460,172 @@ mod tests {
         assert!(out
             .iter()
             .any(|o| matches!(o, Output::Forget(t) if *t == q)));
-        assert!(said(&out, "EVENT order-ended id=1 state=failed"));
+        assert!(!said(&out, "EVENT order-ended"), "{out:?}");
+        assert_eq!(r.order(1).state, OrderState::Running);
         let s = r.status();
         assert_eq!(s.list, ListState::Alarm);
         assert_eq!(
             s.problem.as_deref(),
             Some("no connection with station cell")
         );
-        assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
-        assert_eq!(r.status().alarms.len(), 1, "acknowledged, not cleared");
+        // While the cell is away, the retry associates it, and then asks
+        // how the order's run stands before anything else.
+        r.now += RETRY;
         r.list.handle_timeout(r.now);
         assert_eq!(call(&r.outputs()), Some(CellCall::Associate));
-        r.answer(Ok(()));
-        assert!(r.status().alarms.is_empty(), "the cell is back");
-        r.answer(Ok(()));
-        r.answer(Ok(()));
+        let out = r.answer(Ok(()));
+        assert_eq!(
+            call(&out),
+            Some(CellCall::Ask {
+                name: name("dikdroog")
+            })
+        );
+        assert!(
+            r.status().alarms.iter().all(|a| a.cleared_ms.is_some()),
+            "the cell is back"
+        );
+    }
+
+    #[test]
+    fn a_cut_off_cell_s_order_ends_as_the_cell_says_once_it_is_back() {
+        let mut r = Rig::new();
+        cut_mid_order(&mut r);
+        let out = r.tell(attributes(PiState::Idle, Some(JobEvent::Done)));
+        assert!(said(&out, "EVENT order-ended id=1 state=done"), "{out:?}");
+        assert_eq!(r.order(1).state, OrderState::Done);
+        assert_eq!(
+            r.order(2).state,
+            OrderState::Queued,
+            "the list waits for ack"
+        );
+        assert!(r.list.records().journal.iter().any(|e| e
+            .text
+            .contains("ended at cell while the connection was lost")));
+        // The way back: ack, start; the next order runs once.
+        assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+        assert!(r.start().is_ok());
+        r.job(JobEvent::Done);
+        assert_eq!(r.order(2).state, OrderState::Done);
+        let starts = r
+            .list
+            .records()
+            .journal
+            .iter()
+            .filter(|e| e.text.ends_with(") started"))
+            .count();
+        assert_eq!(starts, 2, "each order started once");
+    }
+
+    #[test]
+    fn a_cut_off_cell_whose_order_still_runs_is_followed_again() {
+        let mut r = Rig::new();
+        cut_mid_order(&mut r);
+        let out = r.tell(attributes(PiState::Running, None));
+        assert!(said(&out, "EVENT order-followed id=1"), "{out:?}");
+        assert_eq!(r.order(1).state, OrderState::Running);
+        // A recipe in use is not delivered again under the running order.
+        r.now += RETRY;
+        r.list.handle_timeout(r.now);
+        assert_eq!(call(&r.outputs()), None);
+        r.job(JobEvent::Alarm(falc_model::alarm::Cause::process(
+            "robot estop",
+        )));
+        assert_eq!(r.order(1).state, OrderState::Failed);
+        assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
         assert!(r.start().is_ok());
         r.job(JobEvent::Done);
         assert_eq!(r.order(2).state, OrderState::Done);
     }
 
     #[test]
+    fn a_cell_that_restarted_while_cut_off_kept_no_end_and_the_order_is_interrupted() {
+        let mut r = Rig::new();
+        cut_mid_order(&mut r);
+        let unknown = ServiceError::undefined("program invocation dikdroog is not defined");
+        let out = r.tell(Err(unknown));
+        assert!(
+            said(&out, "EVENT order-ended id=1 state=interrupted"),
+            "{out:?}"
+        );
+        // Recipes go to the restarted cell again, then the way back.
+        assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+        assert!(r.start().is_ok());
+        r.job(JobEvent::Done);
+        assert_eq!(r.order(2).state, OrderState::Done);
+        assert_eq!(r.order(1).state, OrderState::Interrupted);
+    }
+
+    #[test]
+    fn a_start_that_was_never_confirmed_is_queued_again_only_if_the_cell_never_began_it() {
+        for began in [false, true] {
+            let mut r = Rig::new();
+            r.add(1);
+            let t = r.start_until_the_cells_start();
+            let out = r.no_reply();
+            assert!(reply(&out, t).is_some_and(|a| a.is_err()), "{out:?}");
+            assert_eq!(
+                r.order(1).state,
+                OrderState::Running,
+                "not queued again yet"
+            );
+            r.now += RETRY;
+            r.list.handle_timeout(r.now);
+            assert_eq!(call(&r.outputs()), Some(CellCall::Associate));
+            assert!(matches!(
+                call(&r.answer(Ok(()))),
+                Some(CellCall::Ask { .. })
+            ));
+            let answer = if began {
+                attributes(PiState::Idle, Some(JobEvent::Done))
+            } else {
+                attributes(PiState::Idle, None)
+            };
+            r.tell(answer);
+            let expected = if began {
+                OrderState::Done
+            } else {
+                OrderState::Queued
+            };
+            assert_eq!(r.order(1).state, expected, "began: {began}");
+        }
+    }
+
+    #[test]
+    fn an_order_running_when_the_operator_stopped_is_adopted_and_asked_for() {
+        let mut r = Rig::new();
+        r.add(1);
+        assert!(r.start().is_ok());
+        let order = r.order(1);
+        let records = std::mem::take(r.list.records());
+        let topology = Topology::parse(TOPOLOGY, "test").expect("topology");
+        let mut list = OrderList::new(
+            st("operator"),
+            st("cell"),
+            topology,
+            records,
+            Source::default(),
+            set(),
+        )
+        .adopting(order);
+        list.handle_timeout(Duration::ZERO);
+        let out: Vec<Output> = std::iter::from_fn(|| list.poll_output()).collect();
+        assert_eq!(call(&out), Some(CellCall::Associate));
+        list.handle_cell_reply(Duration::ZERO, Ok(()));
+        let out: Vec<Output> = std::iter::from_fn(|| list.poll_output()).collect();
+        assert!(matches!(call(&out), Some(CellCall::Ask { .. })), "{out:?}");
+        list.handle_cell_answer(
+            Duration::ZERO,
+            attributes(PiState::Idle, Some(JobEvent::Done)),
+        );
+        let out: Vec<Output> = std::iter::from_fn(|| list.poll_output()).collect();
+        assert!(said(&out, "EVENT order-ended id=1 state=done"), "{out:?}");
+    }
+
+    #[test]
     fn a_job_event_before_the_start_is_confirmed_is_kept_for_it() {
         let mut r = Rig::new();
         r.add(1);
-        let (t, mut out) = r.api("console", ApiRequest::Start);
-        while !matches!(call(&out), Some(CellCall::Start { .. })) {
-            out = r.answer(Ok(()));
-        }
+        let t = r.start_until_the_cells_start();
         let early = r.job(JobEvent::Alarm(Cause::new(
             AlarmClass::Process,
             "alarm in state 2",
@@ -2256,10 +2641,7 @@ mod tests {
     fn messages_before_the_start_is_confirmed_are_journalled_after_it() {
         let mut r = Rig::new();
         r.add(1);
-        let (t, mut out) = r.api("console", ApiRequest::Start);
-        while !matches!(call(&out), Some(CellCall::Start { .. })) {
-            out = r.answer(Ok(()));
-        }
+        let t = r.start_until_the_cells_start();
         // The cell runs the recipe before its Start confirm arrives: its
         // first output, a step-mode report and a question come first.
         let o = r.ticket();

@@ -60,6 +60,9 @@ pub fn router_user(cell: &CellId) -> String {
 struct RawCell {
     cell: CellId,
     router: String,
+    /// The factory router's endpoint as this cell's router reaches it.
+    #[serde(default)]
+    uplink: Option<String>,
     /// The cell router PC's address, for the factory router's firewall.
     #[serde(default)]
     host: Option<IpAddr>,
@@ -98,6 +101,7 @@ struct RawPlant {
 #[derive(Debug, Clone)]
 pub struct PlantCell {
     topology: Topology,
+    uplink: Option<String>,
     host: Option<IpAddr>,
     router_user: StationName,
 }
@@ -117,6 +121,13 @@ impl PlantCell {
     /// The user its router logs in with at the factory router.
     pub fn router_user(&self) -> &StationName {
         &self.router_user
+    }
+
+    /// The factory router's endpoint as this cell's router reaches it
+    /// (`uplink` in its `[[cell]]`: another address, a gateway), if the
+    /// file names one; else the plant's `router`.
+    pub fn uplink(&self) -> Option<&str> {
+        self.uplink.as_deref()
     }
 
     /// The cell router PC's address, if the file names one.
@@ -237,6 +248,7 @@ impl Plant {
             }
             cells.push(PlantCell {
                 topology,
+                uplink: c.uplink,
                 host: c.host,
                 router_user,
             });

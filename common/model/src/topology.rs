@@ -38,6 +38,15 @@ impl StationKind {
             Self::Transport => "transport",
         }
     }
+
+    /// Whether a station of this kind runs its order on to its end when
+    /// its commander is lost (a cell: its recipe coordinates its
+    /// workstations by itself, and its commander asks how the order ended
+    /// once it is back). A workstation stops: without its cell nothing
+    /// coordinates it with the other workstations.
+    pub fn runs_on_alone(self) -> bool {
+        self == Self::Cell
+    }
 }
 
 /// One station stanza.

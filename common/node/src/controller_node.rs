@@ -33,9 +33,14 @@ impl<D: Device> ControllerNode<D> {
     /// `confirm_limit` for the device's confirm.
     pub fn new(station: Station, kind: RecipeKind, confirm_limit: Duration, device: D) -> Self {
         let me = station.bus().me().station.clone();
+        // A cell runs its order on when its commander is lost; the
+        // station's associations say so (from its kind in the topology).
+        let alone = station.associations().runs_alone();
         Self {
             station,
-            core: Controller::new(kind, confirm_limit, device).named(me),
+            core: Controller::new(kind, confirm_limit, device)
+                .named(me)
+                .runs_on_alone(alone),
             origin: Instant::now(),
         }
     }
@@ -164,7 +169,7 @@ impl<D: Device> ControllerNode<D> {
             }
             StationEvent::Abort(a) => {
                 say(&format!("EVENT abort-indication peer={}", a.peer.station));
-                self.core.handle_abort(&a.peer.station);
+                self.core.handle_abort(&a.peer.station, a.role);
                 self.flush().await;
             }
             StationEvent::Associated(p) => {

@@ -13,7 +13,14 @@
 //!   an alarm);
 //! - a lost liveliness token (or an Abort) is an abort indication: losing the
 //!   commander frees this node and aborts its subordinates; losing a
-//!   subordinate is reported to the node, which stops.
+//!   subordinate is reported to the node, which stops;
+//! - except that a node that runs on without its commander
+//!   ([`Associations::runs_on_alone`]: a cell, whose recipe coordinates its
+//!   workstations by itself) keeps its subordinates when its commander's
+//!   token is lost (the link up was cut, or the operator's process died):
+//!   its running order ends as its recipe decides, and the commander, back,
+//!   associates again and asks how it ended. An Abort the commander sends
+//!   still aborts the whole subtree.
 //!
 //! The driver (`bus::station`) does the I/O: it sends the Initiates this core
 //! asks for, watches tokens, and feeds results back.
@@ -87,6 +94,7 @@ pub struct Associations {
     commander_name: Option<StationName>,
     commander: CommanderSlot,
     subordinates: BTreeMap<StationName, Option<Peer>>,
+    runs_on_alone: bool,
 }
 
 impl Associations {
@@ -102,7 +110,21 @@ impl Associations {
             commander_name: commander,
             commander: CommanderSlot::Free,
             subordinates: subordinates.into_iter().map(|s| (s, None)).collect(),
+            runs_on_alone: false,
         }
+    }
+
+    /// A node that keeps its subordinates when its commander's token is
+    /// lost (see the module's rules).
+    pub fn runs_on_alone(mut self, yes: bool) -> Self {
+        self.runs_on_alone = yes;
+        self
+    }
+
+    /// Whether this node runs on alone when its commander is lost
+    /// ([`Self::runs_on_alone`]).
+    pub fn runs_alone(&self) -> bool {
+        self.runs_on_alone
     }
 
     /// The associated commander, if any.
@@ -260,10 +282,17 @@ impl Associations {
             .collect()
     }
 
-    /// A peer's liveliness token is gone, or it sent Abort: the abort
-    /// indication (None if it was not associated with us), and the
-    /// subordinates to abort in turn when it was our commander.
-    pub fn lost(&mut self, peer: &Peer, reason: &str) -> Option<(AbortIndication, Vec<Peer>)> {
+    /// A peer's liveliness token is gone (`sent_abort` false), or it sent
+    /// Abort: the abort indication (None if it was not associated with
+    /// us), and the subordinates to abort in turn when it was our
+    /// commander (none when this node runs on alone and only the token
+    /// was lost).
+    pub fn lost(
+        &mut self,
+        peer: &Peer,
+        reason: &str,
+        sent_abort: bool,
+    ) -> Option<(AbortIndication, Vec<Peer>)> {
         let indication = |role| AbortIndication {
             peer: peer.clone(),
             role,
@@ -272,7 +301,12 @@ impl Associations {
         if matches!(&self.commander, CommanderSlot::Associated(p) | CommanderSlot::Pending(p) if p == peer)
         {
             self.commander = CommanderSlot::Free;
-            return Some((indication(Role::Commander), self.take_subordinates()));
+            let abort = if self.runs_on_alone && !sent_abort {
+                Vec::new()
+            } else {
+                self.take_subordinates()
+            };
+            return Some((indication(Role::Commander), abort));
         }
         let slot = self
             .subordinates
@@ -400,7 +434,7 @@ mod tests {
         let mut a = cell();
         initiate_all(&mut a, peer("operator", "1"));
         let (ind, abort) = a
-            .lost(&peer("operator", "1"), "token lost")
+            .lost(&peer("operator", "1"), "token lost", false)
             .expect("associated");
         assert_eq!(ind.role, Role::Commander);
         assert_eq!(abort.len(), 2);
@@ -417,7 +451,7 @@ mod tests {
         let mut a = cell();
         initiate_all(&mut a, peer("operator", "1"));
         let (ind, abort) = a
-            .lost(&peer("welding", "5"), "token lost")
+            .lost(&peer("welding", "5"), "token lost", false)
             .expect("associated");
         assert_eq!(ind.role, Role::Subordinate);
         assert!(abort.is_empty());
@@ -430,7 +464,32 @@ mod tests {
             a.initiate(peer("operator", "1")),
             InitiateStep::InitiateSubordinates(vec![st("welding")])
         );
-        assert!(a.lost(&peer("nobody", "0"), "x").is_none());
+        assert!(a.lost(&peer("nobody", "0"), "x", false).is_none());
+    }
+
+    #[test]
+    fn a_cell_that_runs_on_alone_keeps_its_workstations_while_its_commander_is_away() {
+        let mut a = cell().runs_on_alone(true);
+        initiate_all(&mut a, peer("operator", "1"));
+        let (ind, abort) = a
+            .lost(&peer("operator", "1"), "token lost", false)
+            .expect("associated");
+        assert_eq!(ind.role, Role::Commander);
+        assert!(abort.is_empty(), "{abort:?}");
+        assert_eq!(a.commander(), None);
+        assert_eq!(a.associated_subordinates().len(), 2);
+        // Back (a new session, or the same after the link returned): it
+        // associates at once, the workstations still being associated.
+        assert_eq!(
+            a.initiate(peer("operator", "2")),
+            InitiateStep::Confirm(peer("operator", "2"))
+        );
+        // An Abort the commander sends takes the whole subtree down.
+        let (_, abort) = a
+            .lost(&peer("operator", "2"), "Abort from operator", true)
+            .expect("associated");
+        assert_eq!(abort.len(), 2);
+        assert!(a.associated_subordinates().is_empty());
     }
 
     #[test]

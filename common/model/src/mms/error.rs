@@ -293,6 +293,18 @@ impl ServiceError {
         )
     }
 
+    /// Whether no answer came (unreachable, connection lost, time-out):
+    /// the request may or may not have been carried out.
+    pub fn unanswered(&self) -> bool {
+        matches!(
+            self.class,
+            ErrorClass::ApplicationReference(
+                ApplicationReferenceError::ApplicationUnreachable
+                    | ApplicationReferenceError::ConnectionLost
+            ) | ErrorClass::ServicePreempt(ServicePreemptError::Timeout)
+        )
+    }
+
     /// `service-preempt/timeout`: the confirm did not come in time.
     pub fn timeout(description: impl Into<String>) -> Self {
         Self::new(

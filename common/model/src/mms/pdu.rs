@@ -322,6 +322,9 @@ pub struct PiAttributes {
     pub reusable: bool,
     /// Whether Delete is allowed.
     pub deletable: bool,
+    /// How its last run ended, until the next Start (a commander that was
+    /// cut off while it ran learns the end here).
+    pub last_end: Option<JobEvent>,
 }
 
 /// A positive confirm (subordinate → commander; operator → cell).

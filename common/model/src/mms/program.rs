@@ -4,6 +4,7 @@
 //! finish the transition. A refused request answers with the current state.
 
 use super::error::{ServiceError, ServiceSpecific};
+use super::pdu::JobEvent;
 use crate::ids::ObjectName;
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -76,6 +77,9 @@ pub struct ProgramInvocation {
     reusable: bool,
     deletable: bool,
     state: PiState,
+    /// How its last run ended, until the next Start: what a commander that
+    /// was away when it ended asks for ([`Self::last_end`]).
+    last_end: Option<JobEvent>,
 }
 
 impl ProgramInvocation {
@@ -96,6 +100,7 @@ impl ProgramInvocation {
             } else {
                 PiState::Unrunnable
             },
+            last_end: None,
         }
     }
 
@@ -124,12 +129,26 @@ impl ProgramInvocation {
         self.state
     }
 
+    /// How its last run ended (None while it runs, and before it ever ran).
+    pub fn last_end(&self) -> Option<&JobEvent> {
+        self.last_end.as_ref()
+    }
+
+    /// Records how the run ended (the executor, with
+    /// [`PiCompletion::Finished`]).
+    pub fn record_end(&mut self, end: JobEvent) {
+        self.last_end = Some(end);
+    }
+
     /// Applies a commander's request; on refusal the error carries the
     /// current state (`service/object-state-conflict`).
     pub fn request(&mut self, request: PiRequest) -> Result<PiState, ServiceError> {
         use PiState::*;
         let next = match (request, self.state) {
-            (PiRequest::Start, Idle) => Starting,
+            (PiRequest::Start, Idle) => {
+                self.last_end = None;
+                Starting
+            }
             (PiRequest::Stop, Running) => Stopping,
             (PiRequest::Resume, Stopped) => Resuming,
             (PiRequest::Reset, Stopped) => Resetting,

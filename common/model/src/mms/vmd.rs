@@ -10,7 +10,7 @@
 
 use super::domain::{Domain, DomainState, MAX_SEGMENT_BYTES};
 use super::error::{DefinitionError, ErrorClass, ServiceError};
-use super::pdu::{ObjectClass, PiAttributes, Request, Response};
+use super::pdu::{JobEvent, ObjectClass, PiAttributes, Request, Response};
 use super::program::{PiCompletion, PiRequest, PiState, ProgramInvocation};
 use crate::ids::ObjectName;
 use crate::mode::{CellMode, HeldStep};
@@ -284,6 +284,7 @@ impl Vmd {
                             domains: p.domains().to_vec(),
                             reusable: p.reusable(),
                             deletable: p.deletable(),
+                            last_end: p.last_end().cloned(),
                         })
                     })
                     .ok_or_else(|| undefined_pi(name)),
@@ -309,6 +310,14 @@ impl Vmd {
         match self.programs.get_mut(name) {
             Some(p) => p.complete(completion),
             None => Err(PiState::NonExistent),
+        }
+    }
+
+    /// The executor's record of how a run of `name` ended (kept until its
+    /// next Start; see [`ProgramInvocation::last_end`]).
+    pub fn record_end(&mut self, name: &ObjectName, end: JobEvent) {
+        if let Some(p) = self.programs.get_mut(name) {
+            p.record_end(end);
         }
     }
 
