@@ -310,3 +310,64 @@ fn step_mode_and_a_maintenance_action_in_the_tui() {
     assert!(journal.contains("console: mode step (cell)"), "{journal}");
     tmux.keys(&["q"]);
 }
+
+/// In a plant, `falc tui` opens on the plant overview: a line per cell
+/// with its mode, list and stations. ↓ and Enter open cell 2's screens
+/// (its own overview, F3 acting on it), Esc comes back to the plant.
+#[test]
+fn the_plant_overview_shows_each_cell_and_opens_one() {
+    use crate::support::plant::TestPlant;
+    let plant = TestPlant::start_cells(2);
+    let _stations: Vec<_> = ["falc1", "falc2"]
+        .iter()
+        .flat_map(|c| ["welding", "transport", "cell"].map(|s| plant.demo_station(c, s)))
+        .collect();
+    let mut operator = plant.spawn_operator();
+    operator.expect_line("EVENT ready", Duration::from_secs(60));
+    for _ in 0..2 {
+        operator.take_line("EVENT delivered recipe=PIPDROOG", Duration::from_secs(60));
+    }
+    let tmux = Tmux::start(&format!(
+        "{} --topology {} --credentials-dir {} --user console tui",
+        env!("CARGO_BIN_EXE_falc"),
+        plant.path.display(),
+        plant.credentials_dir().display()
+    ));
+    let s = tmux.wait_for(
+        &[
+            "FALC plant plant",
+            "2 cells",
+            " ▶ falc1",
+            "falc2",
+            "transport",
+        ],
+        Duration::from_secs(20),
+    );
+    let one = s.lines().find(|l| l.contains("falc1")).unwrap_or_default();
+    assert!(
+        one.contains("AUTO")
+            && one.contains("idle")
+            && one.contains("cell")
+            && one.contains("welding"),
+        "{s}"
+    );
+    // An order for cell 2 shows on its line once it runs.
+    plant.falc(None, &["order", "add", "dikdroog", "--cell", "falc2"]);
+    plant.falc(Some("falc2"), &["start"]);
+    let s = tmux.wait_for(&["order 1 dikdroog"], Duration::from_secs(20));
+    eprintln!("the plant overview:\n{s}");
+    let line = s
+        .lines()
+        .find(|l| l.contains("falc2"))
+        .unwrap_or_default()
+        .to_string();
+    assert!(line.contains("order 1 dikdroog"), "{s}");
+    tmux.keys(&["Down", "Enter"]);
+    tmux.wait_for(
+        &["FALC falc2", "F1 overview", "Esc plant"],
+        Duration::from_secs(20),
+    );
+    tmux.keys(&["Escape"]);
+    tmux.wait_for(&["FALC plant plant", " ▶ falc2"], Duration::from_secs(10));
+    tmux.keys(&["q"]);
+}

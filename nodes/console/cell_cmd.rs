@@ -9,6 +9,7 @@
 
 use crate::clock::time_of_day_ms;
 use crate::edit;
+use crate::tui::Screens;
 use clap::{Args, Subcommand};
 use falc_bus::operator_service::CallError;
 use falc_bus::Bus;
@@ -709,18 +710,15 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
         CellCommand::Status { watch: true } => return watch(&bus, &operator, json).await,
         CellCommand::Tui => {
             // In a plant the screens show the cell `--cell` names.
+            // In a plant the plant overview first, or the cell `--cell`
+            // names.
             let shown = match (Layout::load(&args.node.topology), &args.node.cell) {
                 (Ok(Layout::Plant(p)), Some(c)) => match p.cell(c) {
-                    Some(cell) => cell.topology().clone(),
+                    Some(cell) => Screens::Cell(cell.topology().clone()),
                     None => return refuse(&format!("the plant has no cell {c}")),
                 },
-                (Ok(Layout::Plant(_)), None) => {
-                    return refuse(
-                        "in a plant the screens show one cell: falc --cell CELL tui \
-                         (falc status shows every cell)",
-                    )
-                }
-                _ => topology,
+                (Ok(Layout::Plant(p)), None) => Screens::Plant(p),
+                _ => Screens::Cell(topology),
             };
             return crate::tui::run(&bus, &operator, shown, args.user.clone()).await;
         }

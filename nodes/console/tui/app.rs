@@ -36,6 +36,8 @@ pub enum Intent {
     Discard,
     /// Leave the TUI.
     Quit,
+    /// Back to the plant overview (a cell of a plant).
+    Back,
 }
 
 /// A command of the F3 layer.
@@ -181,6 +183,9 @@ pub struct App {
     pub last_entry: i64,
     /// The F3 pickers' cursor.
     pub pick_cursor: usize,
+    /// Whether these are one cell's screens of a plant (Esc goes back to
+    /// the plant overview).
+    pub in_plant: bool,
     /// What the last call was (to route its answer).
     pending: Option<ApiRequest>,
     /// The station picked for a recipe edit or view.
@@ -222,6 +227,7 @@ impl App {
             view_station: 0,
             last_entry: 0,
             pick_cursor: 0,
+            in_plant: false,
             pending: None,
             pending_station: None,
         }
@@ -403,6 +409,7 @@ impl App {
         }
         match (self.layer, k.code) {
             (_, KeyCode::Char('q')) => Some(Intent::Quit),
+            (_, KeyCode::Esc) if self.in_plant => Some(Intent::Back),
             (_, KeyCode::Char(c @ '1'..='4')) => self.show(match c {
                 '1' => Layer::Overview,
                 '2' => Layer::Messages,

@@ -1,20 +1,25 @@
 //! `falc tui`: the operator's screens (docs/the-1992-cell.md §6): F1 overview, F2
-//! messages per station, F3 commands, F4 a recipe's state table. This is
-//! the driver: it owns the terminal and the bus, polls the operator API
-//! (the status every 250 ms; new messages and the order list when the
-//! status says the journal moved),
-//! feeds keys and answers to the sans-I/O [`app::App`] and draws it with
-//! [`view::draw`]. Keyboard only, plain ANSI: works over SSH and in tmux.
+//! messages per station, F3 commands, F4 a recipe's state table; in a
+//! plant first the plant overview, a line per cell, whose Enter opens one
+//! cell's screens (Esc comes back). This is the driver: it owns the
+//! terminal and the bus, polls the operator API (the status every 250 ms;
+//! new messages and the order list when the status says the journal
+//! moved), feeds keys and answers to the sans-I/O [`app::App`] (a cell)
+//! and [`plant::PlantApp`] (the plant) and draws them with [`view`].
+//! Keyboard only, plain ANSI: works over SSH and in tmux.
 
 mod app;
+mod plant;
 mod view;
 
 use crate::edit::Session;
 use app::{App, Intent, Pick};
 use falc_bus::Bus;
 use falc_model::console::{ApiReply, ApiRequest};
-use falc_model::ids::StationName;
+use falc_model::ids::{CellId, StationName};
+use falc_model::plant::Plant;
 use falc_model::topology::Topology;
+use plant::{PlantApp, PlantIntent};
 use ratatui::crossterm::event::{self, Event, KeyEventKind};
 use ratatui::DefaultTerminal;
 use std::process::ExitCode;
@@ -25,11 +30,26 @@ const POLL: Duration = Duration::from_millis(250);
 /// How long one call from the TUI may take (it is not drawn meanwhile).
 const CALL_LIMIT: Duration = Duration::from_secs(5);
 
+/// What the screens show: one cell (a cell of its own, or the cell of a
+/// plant `--cell` names), or a plant (its overview first).
+pub enum Screens {
+    /// This cell's screens.
+    Cell(Topology),
+    /// The plant overview, each cell's screens from there.
+    Plant(Plant),
+}
+
+/// How a cell's screens were left.
+enum Exit {
+    Quit,
+    Back,
+}
+
 /// Runs the TUI until `q`, Ctrl-C, SIGINT or SIGTERM.
 pub async fn run(
     bus: &Bus,
     operator: &StationName,
-    topology: Topology,
+    screens: Screens,
     user: StationName,
 ) -> ExitCode {
     let mut terminal = match ratatui::try_init() {
@@ -39,14 +59,13 @@ pub async fn run(
             return ExitCode::from(2);
         }
     };
-    let mut tui = Tui {
-        bus,
-        operator,
-        app: App::new(topology, user),
-        session: None,
-        seen_head: None,
+    let outcome = match screens {
+        Screens::Cell(topology) => {
+            let mut tui = Tui::new(bus, operator, App::new(topology, user), None);
+            tui.main_loop(&mut terminal).await.map(|_| ())
+        }
+        Screens::Plant(p) => plant_loop(bus, operator, &p, user, &mut terminal).await,
     };
-    let outcome = tui.main_loop(&mut terminal).await;
     ratatui::restore();
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
@@ -57,9 +76,71 @@ pub async fn run(
     }
 }
 
+/// The plant overview until `q`; Enter runs the chosen cell's screens
+/// until they are left with Esc (back here) or `q`.
+async fn plant_loop(
+    bus: &Bus,
+    operator: &StationName,
+    plant: &Plant,
+    user: StationName,
+    terminal: &mut DefaultTerminal,
+) -> Result<(), String> {
+    let mut shutdown = falc_node::Shutdown::new();
+    let mut app = PlantApp::new(plant, user.clone());
+    let mut next_poll = Instant::now();
+    let mut dirty = true;
+    loop {
+        if dirty {
+            terminal
+                .draw(|f| view::draw_plant(f, &app))
+                .map_err(|e| format!("cannot draw: {e}"))?;
+            dirty = false;
+        }
+        while event::poll(Duration::ZERO).map_err(|e| format!("terminal: {e}"))? {
+            let ev = event::read().map_err(|e| format!("terminal: {e}"))?;
+            dirty = true;
+            let Event::Key(k) = ev else { continue };
+            if k.kind != KeyEventKind::Press {
+                continue;
+            }
+            match app.key(k) {
+                Some(PlantIntent::Quit) => return Ok(()),
+                Some(PlantIntent::Open(cell)) => {
+                    let Some(c) = plant.cell(&cell) else { continue };
+                    let mut screens = App::new(c.topology().clone(), user.clone());
+                    screens.in_plant = true;
+                    let mut tui = Tui::new(bus, operator, screens, Some(cell));
+                    match tui.main_loop(terminal).await? {
+                        Exit::Quit => return Ok(()),
+                        Exit::Back => terminal.clear().map_err(|e| format!("terminal: {e}"))?,
+                    }
+                    next_poll = Instant::now();
+                }
+                None => {}
+            }
+        }
+        if Instant::now() >= next_poll {
+            dirty = true;
+            next_poll = Instant::now() + POLL;
+            let status = match bus.api(operator, ApiRequest::Status, CALL_LIMIT).await {
+                Ok(ApiReply::Plant(p)) => Ok(p),
+                Ok(other) => Err(format!("unexpected answer to status: {other:?}")),
+                Err(e) => Err(e.to_string()),
+            };
+            app.status(status);
+        }
+        tokio::select! {
+            _ = tokio::time::sleep(Duration::from_millis(25)) => {}
+            _ = shutdown.requested() => return Ok(()),
+        }
+    }
+}
+
 struct Tui<'a> {
     bus: &'a Bus,
     operator: &'a StationName,
+    /// The cell of a plant these screens are for (each call names it).
+    cell: Option<CellId>,
     app: App,
     /// A recipe edit whose text the checker refused (kept to edit again).
     session: Option<Session>,
@@ -67,15 +148,32 @@ struct Tui<'a> {
     seen_head: Option<i64>,
 }
 
-impl Tui<'_> {
-    async fn call(&self, r: ApiRequest) -> Result<ApiReply, String> {
-        self.bus
-            .api(self.operator, r, CALL_LIMIT)
-            .await
-            .map_err(|e| e.to_string())
+impl<'a> Tui<'a> {
+    fn new(bus: &'a Bus, operator: &'a StationName, app: App, cell: Option<CellId>) -> Self {
+        Self {
+            bus,
+            operator,
+            cell,
+            app,
+            session: None,
+            seen_head: None,
+        }
     }
 
-    async fn main_loop(&mut self, terminal: &mut DefaultTerminal) -> Result<(), String> {
+    async fn call(&self, r: ApiRequest) -> Result<ApiReply, String> {
+        let answer = match &self.cell {
+            Some(cell) => {
+                let me = self.bus.me().station.clone();
+                self.bus
+                    .api_as(self.operator, Some(cell), r, &me, CALL_LIMIT)
+                    .await
+            }
+            None => self.bus.api(self.operator, r, CALL_LIMIT).await,
+        };
+        answer.map_err(|e| e.to_string())
+    }
+
+    async fn main_loop(&mut self, terminal: &mut DefaultTerminal) -> Result<Exit, String> {
         let mut shutdown = falc_node::Shutdown::new();
         let mut next_poll = Instant::now();
         let intent = self.app.request(ApiRequest::RecipeList);
@@ -97,7 +195,8 @@ impl Tui<'_> {
                     continue;
                 }
                 match self.app.key(k) {
-                    Some(Intent::Quit) => return Ok(()),
+                    Some(Intent::Quit) => return Ok(Exit::Quit),
+                    Some(Intent::Back) => return Ok(Exit::Back),
                     Some(i) => {
                         self.carry_out(i, terminal).await?;
                         terminal
@@ -118,7 +217,7 @@ impl Tui<'_> {
             }
             tokio::select! {
                 _ = tokio::time::sleep(Duration::from_millis(25)) => {}
-                _ = shutdown.requested() => return Ok(()),
+                _ = shutdown.requested() => return Ok(Exit::Quit),
             }
         }
     }
@@ -158,7 +257,7 @@ impl Tui<'_> {
         terminal: &mut DefaultTerminal,
     ) -> Result<(), String> {
         match intent {
-            Intent::Quit => {}
+            Intent::Quit | Intent::Back => {}
             Intent::Call(r) => {
                 let answer = self.call(r).await;
                 self.app.answered(answer);

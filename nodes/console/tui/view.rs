@@ -5,8 +5,10 @@
 //! bright white on red.
 
 use super::app::{App, Command, Layer, Pick};
+use super::plant::PlantApp;
 use crate::clock::time_of_day;
-use falc_model::ids::{Place, PlcStation};
+use falc_model::console::CellStatus;
+use falc_model::ids::{printable, Place, PlcStation};
 use falc_model::mms::vmd::{PhysicalStatus, RecipeState};
 use falc_model::topology::StationKind;
 use falc_plc::map::{Input, Inputs, LINES};
@@ -62,14 +64,28 @@ impl Look {
             Self::Off => "NO CONNECTION",
         }
     }
+
+    /// The word in a plant overview's line (where space is short).
+    fn short(self) -> &'static str {
+        match self {
+            Self::Off => "OFF",
+            other => other.word(),
+        }
+    }
 }
 
 /// How station `i` (of [`App::stations`]) looks.
 pub fn look(app: &App, name: &falc_model::ids::StationName) -> Look {
-    let Some(s) = &app.status else {
-        return Look::Off;
-    };
-    if app.is_cell(name) && s.alarm.is_some() {
+    match &app.status {
+        Some(s) => look_in(s, name, app.is_cell(name)),
+        None => Look::Off,
+    }
+}
+
+/// How station `name` looks in a cell's status `s` (`is_cell`: it is the
+/// cell controller, which shows the list's alarm).
+fn look_in(s: &CellStatus, name: &falc_model::ids::StationName, is_cell: bool) -> Look {
+    if is_cell && s.alarm.is_some() {
         return Look::Alarm;
     }
     if s.alarms
@@ -117,6 +133,118 @@ pub fn draw(f: &mut Frame, app: &App) {
         Layer::Recipe => recipe(f, app, main),
     }
     bottom_line(f, app, bottom);
+}
+
+/// Draws the plant overview: a line per cell, the chosen one marked.
+pub fn draw_plant(f: &mut Frame, app: &PlantApp) {
+    let area = f.area();
+    f.render_widget(Block::new().style(NORMAL), area);
+    let [top, bar, main, bottom] = Layout::vertical([
+        Constraint::Length(1),
+        Constraint::Length(1),
+        Constraint::Min(3),
+        Constraint::Length(1),
+    ])
+    .areas(area);
+    let top_text = format!(
+        " FALC plant {} │ {} cells │ {} ({:?})",
+        app.plant,
+        app.cells.len(),
+        app.user,
+        app.role
+    );
+    f.render_widget(Paragraph::new(top_text).style(ACTIVE), top);
+    f.render_widget(
+        Paragraph::new(" ↑↓ choose a cell · Enter its screens (Esc back here) · q quit").style(DIM),
+        bar,
+    );
+    let mut lines = vec![Line::styled(
+        format!(
+            "   {:<8}{:<12}{:<8}{:<19}{:<22}stations (OFF: no status)",
+            "cell", "mode", "list", "running order", "alarm"
+        ),
+        DIM,
+    )];
+    for (i, cell) in app.cells.iter().enumerate() {
+        let status = app
+            .status
+            .as_ref()
+            .and_then(|p| p.cells.iter().find(|(c, _)| c == cell))
+            .map(|(_, s)| s);
+        let chosen = i == app.cursor;
+        let style = if chosen { ACTIVE } else { NORMAL };
+        let mark = if chosen { " ▶ " } else { "   " };
+        let Some(s) = status else {
+            lines.push(Line::styled(
+                format!("{mark}{:<8}(no status yet)", cell.as_str()),
+                style,
+            ));
+            continue;
+        };
+        let running = s.running.as_ref().map_or("-".to_string(), |o| {
+            format!("order {} {}", o.id, printable(&o.recipe))
+        });
+        let alarm = match (&s.alarm, s.cell_associated) {
+            (Some(a), _) => printable(a).into_owned(),
+            (None, false) => "NOT associated".to_string(),
+            (None, true) if s.question.is_some() => "QUESTION waiting".to_string(),
+            (None, true) => "-".to_string(),
+        };
+        let mut spans = vec![Span::styled(
+            format!(
+                "{mark}{:<8}{:<12}{:<8}{:<19}{:<22}",
+                clip(cell.as_str(), 7),
+                s.mode.as_str().to_uppercase(),
+                s.list.as_str(),
+                clip(&running, 18),
+                clip(&alarm, 21)
+            ),
+            if s.alarm.is_some() && !chosen {
+                ALARM
+            } else {
+                style
+            },
+        )];
+        for v in &s.stations {
+            let is_cell = app.is_controller(cell, &v.name);
+            let look = look_in(s, &v.name, is_cell);
+            spans.push(Span::styled(
+                format!("{} {}", v.name, look.short()),
+                look.style(),
+            ));
+            spans.push(Span::styled(" ", NORMAL));
+        }
+        lines.push(Line::from(spans));
+    }
+    f.render_widget(
+        Paragraph::new(lines).block(Block::new().borders(Borders::TOP).title(" cells ")),
+        main,
+    );
+    let [text, lamp] =
+        Layout::horizontal([Constraint::Min(10), Constraint::Length(9)]).areas(bottom);
+    if let Some(e) = &app.unreachable {
+        f.render_widget(
+            Paragraph::new(format!(" {}", first_line(e))).style(ALARM),
+            text,
+        );
+    }
+    let (word, style) = if app.alarms() > 0 {
+        (" ALARM ", ALARM)
+    } else {
+        ("  ---  ", DIM)
+    };
+    f.render_widget(Paragraph::new(word).style(style), lamp);
+}
+
+/// At most `n` characters of `text` (an ellipsis marks the cut).
+fn clip(text: &str, n: usize) -> String {
+    if text.chars().count() <= n {
+        text.to_string()
+    } else {
+        let mut s: String = text.chars().take(n.saturating_sub(1)).collect();
+        s.push('…');
+        s
+    }
 }
 
 fn top_line(app: &App) -> Line<'static> {
@@ -175,6 +303,9 @@ fn layer_bar(app: &App) -> Line<'static> {
     spans.extend(item(Layer::Messages, f2, app.unread() || question));
     spans.extend(item(Layer::Commands, " F3 commands ".into(), false));
     spans.extend(item(Layer::Recipe, " F4 recipe ".into(), false));
+    if app.in_plant {
+        spans.push(Span::styled(" Esc plant ·", DIM));
+    }
     spans.push(Span::styled(" q quit", DIM));
     Line::from(spans)
 }
