@@ -20,7 +20,7 @@ use falc_model::ids::{CellId, StationName};
 use falc_model::plant::Plant;
 use falc_model::topology::Topology;
 use plant::{PlantApp, PlantIntent};
-use ratatui::crossterm::event::{self, Event, KeyEventKind};
+use ratatui::crossterm::event::{self, Event, KeyEvent, KeyEventKind};
 use ratatui::DefaultTerminal;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -96,13 +96,9 @@ async fn plant_loop(
                 .map_err(|e| format!("cannot draw: {e}"))?;
             dirty = false;
         }
-        while event::poll(Duration::ZERO).map_err(|e| format!("terminal: {e}"))? {
-            let ev = event::read().map_err(|e| format!("terminal: {e}"))?;
+        while let Some(ev) = next_event()? {
             dirty = true;
-            let Event::Key(k) = ev else { continue };
-            if k.kind != KeyEventKind::Press {
-                continue;
-            }
+            let Some(k) = ev else { continue };
             match app.key(k) {
                 Some(PlantIntent::Quit) => return Ok(()),
                 Some(PlantIntent::Open(cell)) => {
@@ -133,6 +129,18 @@ async fn plant_loop(
             _ = tokio::time::sleep(Duration::from_millis(25)) => {}
             _ = shutdown.requested() => return Ok(()),
         }
+    }
+}
+
+/// The next terminal event waiting, if any: `Some(Some(key))` for a key
+/// pressed, `Some(None)` for anything else (a resize: redraw).
+fn next_event() -> Result<Option<Option<KeyEvent>>, String> {
+    if !event::poll(Duration::ZERO).map_err(|e| format!("terminal: {e}"))? {
+        return Ok(None);
+    }
+    match event::read().map_err(|e| format!("terminal: {e}"))? {
+        Event::Key(k) if k.kind == KeyEventKind::Press => Ok(Some(Some(k))),
+        _ => Ok(Some(None)),
     }
 }
 
@@ -187,13 +195,9 @@ impl<'a> Tui<'a> {
                     .map_err(|e| format!("cannot draw: {e}"))?;
                 dirty = false;
             }
-            while event::poll(Duration::ZERO).map_err(|e| format!("terminal: {e}"))? {
-                let ev = event::read().map_err(|e| format!("terminal: {e}"))?;
+            while let Some(ev) = next_event()? {
                 dirty = true;
-                let Event::Key(k) = ev else { continue };
-                if k.kind != KeyEventKind::Press {
-                    continue;
-                }
+                let Some(k) = ev else { continue };
                 match self.app.key(k) {
                     Some(Intent::Quit) => return Ok(Exit::Quit),
                     Some(Intent::Back) => return Ok(Exit::Back),

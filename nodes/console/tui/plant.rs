@@ -128,30 +128,6 @@ mod tests {
     use falc_model::console::CellStatus;
     use ratatui::crossterm::event::KeyEvent;
 
-    const PLANT: &str = r#"
-plant = "plant"
-router = "tcp/127.0.0.1:7440"
-[operator]
-name = "operator"
-[[console]]
-name = "console"
-role = "operator"
-[[cell]]
-cell = "falc1"
-router = "tcp/127.0.0.1:7441"
-[[cell.station]]
-name = "cell"
-kind = "cell"
-commander = "operator"
-[[cell]]
-cell = "falc2"
-router = "tcp/127.0.0.1:7442"
-[[cell.station]]
-name = "cell"
-kind = "cell"
-commander = "operator"
-"#;
-
     fn key(code: KeyCode) -> KeyEvent {
         KeyEvent::new(code, KeyModifiers::NONE)
     }
@@ -162,20 +138,23 @@ commander = "operator"
 
     #[test]
     fn the_cursor_chooses_a_cell_and_enter_opens_it() {
-        let plant = Plant::parse(PLANT, "test").expect("plant");
+        let plant = Plant::parse(include_str!("../../../launch/factory.toml"), "factory.toml")
+            .expect("the shipped plant");
         let user = StationName::new("console").expect("name");
         let mut app = PlantApp::new(&plant, user);
         assert_eq!(app.role, Role::Operator);
-        assert_eq!(app.cells, vec![id("falc1"), id("falc2")]);
+        assert_eq!(app.cells, vec![id("falc1"), id("falc2"), id("falc3")]);
+        assert!(app.is_controller(&id("falc2"), &StationName::new("cell").expect("name")));
         assert_eq!(app.key(key(KeyCode::Down)), None);
         assert_eq!(
             app.key(key(KeyCode::Enter)),
             Some(PlantIntent::Open(id("falc2")))
         );
         app.key(key(KeyCode::Down));
+        app.key(key(KeyCode::Down));
         assert_eq!(app.cursor, 0, "round");
         app.key(key(KeyCode::Up));
-        assert_eq!(app.cursor, 1);
+        assert_eq!(app.cursor, 2);
         // A status of fewer cells keeps the cursor on one of them.
         let alarmed = CellStatus {
             alarm: Some("no connection with station cell".into()),
