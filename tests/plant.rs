@@ -654,4 +654,9 @@ fn three_cells_run_nine_orders_through_an_estop_in_one_and_a_cut_uplink_of_anoth
             && says("ended at cell while the connection was lost"),
         "{journal:#?}"
     );
+    // What the cell showed while cut off is not lost: shown once back.
+    assert!(
+        says("einde dikke plaat droog") && says("shown late"),
+        "{journal:#?}"
+    );
 }

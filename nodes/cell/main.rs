@@ -73,13 +73,11 @@ impl Lanes {
             lane::spawn(self.replies.clone(), move |cmd: Command| {
                 let bus = bus.clone();
                 async move {
-                    let result = bus
-                        .request(&cmd.to, &cmd.request, cmd.limit)
-                        .await
-                        .map_err(|e| e.to_string());
+                    let result = bus.request(&cmd.to, &cmd.request, cmd.limit).await;
                     Reply {
                         awaiting: cmd.awaiting,
-                        result,
+                        unanswered: result.as_ref().is_err_and(|e| e.unanswered()),
+                        result: result.map_err(|e| e.to_string()),
                     }
                 }
             })

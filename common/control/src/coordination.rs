@@ -13,6 +13,7 @@
 
 use crate::controller::{Controller, Device};
 use falc_model::alarm::{AlarmClass, Cause};
+use falc_model::console::MAX_OUTPUT_LINES;
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
@@ -26,6 +27,9 @@ use std::time::Duration;
 pub const ANSWER_LIMIT: Duration = Duration::from_secs(24 * 3600);
 /// How long a workstation may take to confirm a request.
 pub const CONFIRM_LIMIT: Duration = Duration::from_secs(10);
+/// At most this many output lines the operator could not be shown (the
+/// connection lost) are kept, to show once it is back; more are counted.
+pub const MAX_UNSHOWN: usize = 1000;
 
 /// What a confirm means to the cell: which request it answers.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -34,8 +38,12 @@ pub enum Awaiting {
     Started(StationName),
     /// The operator's answer to an `input`.
     Answer,
-    /// The operator showing an `output`.
-    Shown,
+    /// The operator showing an `output` (its lines, kept if they could
+    /// not be shown).
+    Shown(Vec<String>),
+    /// The operator, back, showing lines it could not be shown before
+    /// (kept again if they still cannot be shown).
+    ShownLate(Vec<String>),
     /// Anything else (Stop, Reset): only a refusal matters; what it was.
     Other(String),
 }
@@ -60,6 +68,9 @@ pub struct Reply {
     pub awaiting: Awaiting,
     /// The response, or the error as text.
     pub result: Result<Response, String>,
+    /// No answer came (unreachable, time-out): the peer may not have seen
+    /// the request at all.
+    pub unanswered: bool,
 }
 
 /// The workstations below and the operator above.
@@ -73,6 +84,11 @@ pub struct Stations {
     /// Outputs the operator has not confirmed yet: the recipe's end waits
     /// for them, so its last line is journalled under its own order.
     showing: usize,
+    /// Output lines the operator could not be shown (the connection was
+    /// lost), shown once the commander associates again.
+    unshown: VecDeque<String>,
+    /// How many more were not kept ([`MAX_UNSHOWN`]).
+    unshown_dropped: usize,
     commands: VecDeque<Command>,
     /// Confirms known without asking anybody (no operator to ask).
     local: VecDeque<Reply>,
@@ -84,6 +100,43 @@ impl Stations {
         Self {
             operator,
             ..Self::default()
+        }
+    }
+
+    /// Keeps output lines the operator could not be shown.
+    fn keep_unshown(&mut self, lines: Vec<String>) {
+        for line in lines {
+            if self.unshown.len() < MAX_UNSHOWN {
+                self.unshown.push_back(line);
+            } else {
+                self.unshown_dropped += 1;
+            }
+        }
+    }
+
+    /// Shows the operator, back, what it could not be shown: the lines as
+    /// they came, under a first line that says so, in outputs of at most
+    /// [`MAX_OUTPUT_LINES`] lines.
+    fn show_unshown(&mut self) {
+        let Some(op) = self.operator.clone() else {
+            return;
+        };
+        if self.unshown.is_empty() && self.unshown_dropped == 0 {
+            return;
+        }
+        let mut lines: Vec<String> = std::mem::take(&mut self.unshown).into();
+        let dropped = std::mem::take(&mut self.unshown_dropped);
+        if dropped > 0 {
+            lines.push(format!("({dropped} more lines were not kept)"));
+        }
+        let header = "(shown late: the connection with the operator was lost)".to_string();
+        for chunk in lines.chunks(MAX_OUTPUT_LINES - 1) {
+            let mut out = vec![header.clone()];
+            out.extend(chunk.iter().cloned());
+            let req = Request::Output { lines: out.clone() };
+            // Not counted in `showing`: no recipe's end waits for these.
+            let kept = out.into_iter().skip(1).collect();
+            self.request(op.clone(), req, CONFIRM_LIMIT, Awaiting::ShownLate(kept));
         }
     }
 
@@ -179,6 +232,7 @@ pub fn route(request: &Request, workstations: &[StationName]) -> Route {
 /// refused Start takes the recipe's failure path (reported as a warning);
 /// no answer from the operator is a communication alarm.
 pub fn handle_reply(cell: &mut Controller<Stations>, now: Duration, reply: Reply) {
+    let unanswered = reply.unanswered;
     match (reply.awaiting, reply.result) {
         (Awaiting::Started(st), Ok(_)) => cell.feed(now, vec![Event::Started(st)]),
         (Awaiting::Started(st), Err(e)) => {
@@ -200,12 +254,24 @@ pub fn handle_reply(cell: &mut Controller<Stations>, now: Duration, reply: Reply
             AlarmClass::Communication,
             format!("no answer from the operator: {e}"),
         )),
-        (Awaiting::Shown, r) => {
+        (Awaiting::Shown(lines), r) => {
             cell.device.showing = cell.device.showing.saturating_sub(1);
-            if let Err(e) = r {
-                tracing::warn!("output to the operator refused: {e}");
+            match r {
+                // Kept to show once the operator is back.
+                Err(e) if unanswered => {
+                    tracing::warn!("output not shown: {e}; kept to show once the operator is back");
+                    cell.device.keep_unshown(lines);
+                }
+                Err(e) => tracing::warn!("output to the operator refused: {e}"),
+                Ok(_) => {}
             }
         }
+        (Awaiting::ShownLate(lines), Err(e)) if unanswered => {
+            tracing::warn!("output not shown again: {e}; kept");
+            cell.device.keep_unshown(lines);
+        }
+        (Awaiting::ShownLate(_), Err(e)) => tracing::warn!("late output refused: {e}"),
+        (Awaiting::ShownLate(_), Ok(_)) => {}
         (Awaiting::Other(what), Err(e)) => tracing::warn!("{what} refused: {e}"),
         (Awaiting::Other(_), Ok(_)) => {}
     }
@@ -248,9 +314,12 @@ impl Device for Stations {
             }
             Action::Output(text) => {
                 if let Some(op) = self.operator.clone() {
-                    let req = Request::Output { lines: vec![text] };
+                    let lines = vec![text];
+                    let req = Request::Output {
+                        lines: lines.clone(),
+                    };
                     self.showing += 1;
-                    self.request(op, req, CONFIRM_LIMIT, Awaiting::Shown);
+                    self.request(op, req, CONFIRM_LIMIT, Awaiting::Shown(lines));
                 }
             }
             Action::Input(prompt) => match self.operator.clone() {
@@ -264,6 +333,7 @@ impl Device for Stations {
                 None => self.local.push_back(Reply {
                     awaiting: Awaiting::Answer,
                     result: Err("this cell has no operator".into()),
+                    unanswered: false,
                 }),
             },
             other => tracing::warn!("a cell recipe cannot {other:?}"),
@@ -299,6 +369,7 @@ impl Device for Stations {
 
     fn associated(&mut self) {
         self.lost.clear();
+        self.show_unshown();
     }
 }
 
@@ -390,7 +461,30 @@ mod tests {
         result: Result<Response, String>,
     ) {
         let awaiting = cmd.awaiting.clone();
-        handle_reply(c, now, Reply { awaiting, result });
+        handle_reply(
+            c,
+            now,
+            Reply {
+                awaiting,
+                result,
+                unanswered: false,
+            },
+        );
+    }
+
+    /// … or no answer comes at all: the peer is not reachable.
+    fn no_reply(c: &mut Controller<Stations>, now: Duration, cmd: &Command) {
+        let awaiting = cmd.awaiting.clone();
+        let result = Err(format!("no reply from {}", cmd.to));
+        handle_reply(
+            c,
+            now,
+            Reply {
+                awaiting,
+                result,
+                unanswered: true,
+            },
+        );
     }
 
     fn job_done(station: &str, program: &str) -> Unconfirmed {
@@ -560,12 +654,7 @@ mod tests {
         let events = c.device.unconfirmed(&job_done("transport", "STORE"));
         c.feed(secs(30), events);
         let cmds = settle(&mut c, secs(30));
-        refused(
-            &mut c,
-            secs(30),
-            &cmds[0],
-            "no reply: the operator is not reachable",
-        );
+        no_reply(&mut c, secs(30), &cmds[0]);
         settle(&mut c, secs(30));
         assert!(!c.is_running());
         assert_eq!(job_events(&outputs(&mut c)), vec![JobEvent::Done]);
@@ -579,7 +668,21 @@ mod tests {
         };
         let a = attributes(&mut c);
         assert_eq!((a.state, a.last_end), (PiState::Idle, Some(JobEvent::Done)));
+        // Back: what it could not be shown is shown now, said late.
         c.handle_associated();
+        let cmds = settle(&mut c, secs(32));
+        assert_eq!(
+            cmds.iter().map(|c| &c.request).collect::<Vec<_>>(),
+            vec![&Request::Output {
+                lines: vec![
+                    "(shown late: the connection with the operator was lost)".into(),
+                    "einde".into()
+                ]
+            }]
+        );
+        reply(&mut c, secs(32), &cmds[0], Response::Done);
+        c.handle_associated();
+        assert!(settle(&mut c, secs(33)).is_empty(), "shown once");
         start(&mut c).unwrap();
         assert_eq!(attributes(&mut c).last_end, None);
     }
