@@ -28,7 +28,7 @@ use falc_model::console::{
 };
 use falc_model::ids::{CellId, ObjectName, StationName};
 use falc_model::mms::domain::content_hash;
-use falc_model::mms::error::ServiceError;
+use falc_model::mms::error::{ErrorClass, ServiceError};
 use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::program::PiState;
 use falc_model::mms::vmd::VmdStatus;
@@ -1335,7 +1335,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             Err(e) => {
                 // The cell does not know the program invocation: it was
                 // restarted.
-                if e.class.to_string().starts_with("definition") {
+                if matches!(e.class, ErrorClass::Definition(_)) {
                     self.run_unknown(now, &e.description);
                 } else {
                     // The link broke again: asked at the next association.
