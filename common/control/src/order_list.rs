@@ -1427,6 +1427,11 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             if back && self.is_workstation(&station) {
                 self.jobs.push_back(Job::Rejoin(station.clone()));
             }
+            // The cell is back on the bus: associated again at once (and
+            // asked how its order ended), not at the next retry.
+            if back && station == self.cell && !self.associated && self.jobs.is_empty() {
+                self.jobs.push_back(Job::Connect);
+            }
         } else {
             self.present.remove(&station);
             if self.is_workstation(&station) && self.running.is_none() {
@@ -2514,6 +2519,20 @@ mod tests {
             .filter(|e| e.text.ends_with(") started"))
             .count();
         assert_eq!(starts, 2, "each order started once");
+    }
+
+    #[test]
+    fn a_cell_back_on_the_bus_is_associated_at_once() {
+        let mut r = Rig::new();
+        r.add(1);
+        assert!(r.start().is_ok());
+        r.list.handle_presence(r.now, st("cell"), true);
+        r.outputs();
+        r.list.handle_abort(r.now, "lease expired");
+        r.list.handle_presence(r.now, st("cell"), false);
+        r.outputs();
+        r.list.handle_presence(r.now, st("cell"), true);
+        assert_eq!(call(&r.outputs()), Some(CellCall::Associate));
     }
 
     #[test]
