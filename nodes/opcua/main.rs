@@ -187,26 +187,44 @@ async fn run(cli: Cli) -> Result<(), String> {
     let period = Duration::from_millis(cli.poll_ms.max(10));
     loop {
         // A look waits for the operator (up to 2 s a call when it is gone):
-        // a stop is heard meanwhile too.
-        let mut look = tokio::select! {
-            look = poller.look(&bus, &operator) => look,
+        // a stop is heard meanwhile too. What the status says is written
+        // at once (the orders and journal it held before), the order list
+        // and journal after, when the journal moved: a change of state is
+        // not held back by two more calls.
+        let moved = tokio::select! {
+            moved = poller.status(&bus, &operator) => moved,
             _ = shutdown.requested() => break,
         };
-        look.last_refusal = running
-            .last_refusal
-            .lock()
-            .map(|s| s.clone())
-            .unwrap_or_default();
-        let alarms = look
-            .status
-            .as_ref()
-            .map(|s| s.alarms.clone())
-            .unwrap_or_default();
-        let changes = mirror.update(space::values(&stations, &look), &alarms);
-        if !running.set(&changes.values) {
-            mirror.forget_values();
+        let mut write = |look: space::Look| {
+            let alarms = look
+                .status
+                .as_ref()
+                .map(|s| s.alarms.clone())
+                .unwrap_or_default();
+            let changes = mirror.update(space::values(&stations, &look), &alarms);
+            if !running.set(&changes.values) {
+                mirror.forget_values();
+            }
+            running.raise(&changes.events);
+            mirror.written(std::time::Instant::now(), &changes.values);
+        };
+        let last_refusal = || {
+            running
+                .last_refusal
+                .lock()
+                .map(|s| s.clone())
+                .unwrap_or_default()
+        };
+        write(poller.look(last_refusal()));
+        if moved {
+            let lists = tokio::select! {
+                lists = poller.lists(&bus, &operator) => lists,
+                _ = shutdown.requested() => break,
+            };
+            if lists {
+                write(poller.look(last_refusal()));
+            }
         }
-        running.raise(&changes.events);
         if !ready {
             ready = true;
             say(&format!(
@@ -214,7 +232,6 @@ async fn run(cli: Cli) -> Result<(), String> {
                 cli.user
             ));
         }
-        mirror.written(std::time::Instant::now(), &changes.values);
         // Until the next look: write again what was written when it is due
         // (space::REFRESH).
         let next = loop {
@@ -253,6 +270,7 @@ async fn run(cli: Cli) -> Result<(), String> {
 /// Looks at the cell through the operator API: the status every time, the
 /// order list and the newest journal entries when the journal moved.
 struct Poller {
+    status: Option<falc_model::console::CellStatus>,
     journal_head: Option<i64>,
     orders: Vec<Order>,
     journal: Vec<Entry>,
@@ -263,6 +281,7 @@ struct Poller {
 impl Poller {
     fn new(keep: i64) -> Self {
         Self {
+            status: None,
             journal_head: None,
             orders: Vec::new(),
             journal: Vec::new(),
@@ -294,33 +313,58 @@ impl Poller {
         }
     }
 
-    async fn look(&mut self, bus: &Bus, operator: &StationName) -> space::Look {
+    /// Asks for the status; whether the journal moved since the order
+    /// list and journal were last fetched ([`Self::lists`]).
+    async fn status(&mut self, bus: &Bus, operator: &StationName) -> bool {
         let Some(ApiReply::Status(status)) = self.call(bus, operator, ApiRequest::Status).await
         else {
+            self.status = None;
             self.journal_head = None;
-            return space::Look::default();
+            return false;
         };
-        if self.journal_head != Some(status.journal_head) {
-            let orders = self.call(bus, operator, ApiRequest::OrderList).await;
-            let after = (status.journal_head - self.keep).max(0);
-            let journal = self
-                .call(bus, operator, ApiRequest::Journal { order: None, after })
-                .await;
-            if let (Some(ApiReply::Orders(o)), Some(ApiReply::Entries(mut j))) = (orders, journal) {
-                let skip = j
-                    .len()
-                    .saturating_sub(usize::try_from(self.keep).unwrap_or(usize::MAX));
-                j.drain(..skip);
-                self.orders = o;
-                self.journal = j;
-                self.journal_head = Some(status.journal_head);
-            }
-        }
-        space::Look {
-            status: Some(status),
-            orders: self.orders.clone(),
-            journal: self.journal.clone(),
-            last_refusal: String::new(),
+        let moved = self.journal_head != Some(status.journal_head);
+        self.status = Some(status);
+        moved
+    }
+
+    /// Asks for the order list and the newest journal entries; whether
+    /// both came.
+    async fn lists(&mut self, bus: &Bus, operator: &StationName) -> bool {
+        let Some(head) = self.status.as_ref().map(|s| s.journal_head) else {
+            return false;
+        };
+        let orders = self.call(bus, operator, ApiRequest::OrderList).await;
+        let after = (head - self.keep).max(0);
+        let journal = self
+            .call(bus, operator, ApiRequest::Journal { order: None, after })
+            .await;
+        let (Some(ApiReply::Orders(o)), Some(ApiReply::Entries(mut j))) = (orders, journal) else {
+            return false;
+        };
+        let skip = j
+            .len()
+            .saturating_sub(usize::try_from(self.keep).unwrap_or(usize::MAX));
+        j.drain(..skip);
+        self.orders = o;
+        self.journal = j;
+        self.journal_head = Some(head);
+        true
+    }
+
+    /// What the gateway serves now: the last status with the order list
+    /// and journal last fetched (none while the operator is away).
+    fn look(&self, last_refusal: String) -> space::Look {
+        match &self.status {
+            Some(status) => space::Look {
+                status: Some(status.clone()),
+                orders: self.orders.clone(),
+                journal: self.journal.clone(),
+                last_refusal,
+            },
+            None => space::Look {
+                last_refusal,
+                ..space::Look::default()
+            },
         }
     }
 }
