@@ -378,9 +378,20 @@ impl TestPlant {
     /// Answers every cell's question with `ja` until `nodes`' robot starts
     /// its program (its twin receives `G`): that cell's order is mid-weld.
     pub fn until_welding(&self, nodes: &mut CellNodes) {
-        let end = std::time::Instant::now() + Duration::from_secs(60);
-        while nodes.rcm.wait_line("rx G", Duration::ZERO).is_none() {
-            assert!(std::time::Instant::now() < end, "the weld never started");
+        self.answer_until(Duration::from_secs(60), "the weld", || {
+            nodes.rcm.wait_line("rx G", Duration::ZERO).is_some()
+        });
+    }
+
+    /// Answers every cell's question with `ja` until `done` holds
+    /// (checked every 20 ms), or panics after `within` naming `what`.
+    pub fn answer_until(&self, within: Duration, what: &str, mut done: impl FnMut() -> bool) {
+        let end = std::time::Instant::now() + within;
+        while !done() {
+            assert!(
+                std::time::Instant::now() < end,
+                "{what} not within {within:?}"
+            );
             for (cell, s) in self.status().cells {
                 if s.question.is_some() {
                     self.falc_as("console", Some(cell.as_str()), &["answer", "ja"]);

@@ -131,12 +131,12 @@ impl Stations {
         }
         let header = "(shown late: the connection with the operator was lost)".to_string();
         for chunk in lines.chunks(MAX_OUTPUT_LINES - 1) {
-            let mut out = vec![header.clone()];
-            out.extend(chunk.iter().cloned());
-            let req = Request::Output { lines: out.clone() };
+            let lines = std::iter::once(header.clone())
+                .chain(chunk.iter().cloned())
+                .collect();
             // Not counted in `showing`: no recipe's end waits for these.
-            let kept = out.into_iter().skip(1).collect();
-            self.request(op.clone(), req, CONFIRM_LIMIT, Awaiting::ShownLate(kept));
+            let kept = Awaiting::ShownLate(chunk.to_vec());
+            self.request(op.clone(), Request::Output { lines }, CONFIRM_LIMIT, kept);
         }
     }
 

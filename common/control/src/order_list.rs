@@ -208,6 +208,20 @@ enum Busy {
     },
 }
 
+/// Why the running order's run is not followed now: it went on at the
+/// cell while this node could not hear it. Once the cell is associated
+/// again it is asked how the run stands ([`CellCall::Ask`]) before
+/// anything else.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Away {
+    /// The cell was cut off while it ran, or this node started while it
+    /// ran.
+    Running,
+    /// Its Start was sent but never confirmed: the cell may never have
+    /// begun it (then it is queued again).
+    StartUnconfirmed,
+}
+
 /// What waits for an order's Start to be confirmed
 /// ([`OrderList::can_hold`]).
 #[derive(Debug)]
@@ -245,15 +259,8 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     /// until it is acknowledged (the next write then tells).
     db_alarm: Option<i64>,
     running: Option<Order>,
-    /// The running order's run went on at the cell while this node could
-    /// not hear it (the cell was cut off, or this node started while it
-    /// ran): once the cell is associated again it is asked how the run
-    /// stands ([`CellCall::Ask`]) before anything else.
-    away: bool,
-    /// With `away`: the running order's Start was sent but never
-    /// confirmed, so the cell may not have started it (then it is queued
-    /// again).
-    start_unconfirmed: bool,
+    /// Set while the running order's run is not followed ([`Away`]).
+    away: Option<Away>,
     question: Option<Question>,
     shutdown_pending: bool,
     statuses: BTreeMap<StationName, VmdStatus>,
@@ -281,9 +288,6 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     out: VecDeque<Output>,
     /// The status as last told by [`Output::Changed`].
     told: Option<CellStatus>,
-    /// While a request for this cell of a plant is handled: the journal
-    /// entries it reads are this cell's ([`Self::handle_cell_api`]).
-    entries_of: Option<String>,
 }
 
 /// How an order was placed, for its journal line (`, priority 5, for
@@ -344,8 +348,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             alarms,
             db_alarm: None,
             running: None,
-            away: false,
-            start_unconfirmed: false,
+            away: None,
             question: None,
             shutdown_pending: false,
             statuses: BTreeMap::new(),
@@ -359,7 +362,6 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             next_try: Duration::ZERO,
             out: VecDeque::new(),
             told: None,
-            entries_of: None,
         }
     }
 
@@ -368,7 +370,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// on, so it is asked how the run stands once it is associated.
     pub fn adopting(mut self, order: Order) -> Self {
         self.running = Some(order);
-        self.away = true;
+        self.away = Some(Away::Running);
         self
     }
 
@@ -615,6 +617,18 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.say(format!("EVENT order-ended id={} state={state}", order.id));
     }
 
+    /// Order `id`, which never ran after all, put back as it was
+    /// (`result`). If that write failed it stays `running` in the records:
+    /// interrupted at a restart, never run twice; failed (`why`) once the
+    /// records can be written again.
+    fn undone(&mut self, id: i64, result: Result<(), R::Error>, why: &str) {
+        if let Err(e) = result {
+            self.unwritten_ends
+                .push((id, OrderState::Failed, why.to_string()));
+            self.db_failed(&e);
+        }
+    }
+
     /// Answers the waiting question with `why` (its order no longer runs).
     fn refuse_question(&mut self, why: &str) {
         if let Some(q) = self.question.take() {
@@ -696,14 +710,14 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             self.call(CellCall::Associate, Busy::Associating { start });
             return;
         }
-        if self.away {
+        if self.away.is_some() {
             if let Some(order) = &self.running {
                 match ObjectName::new(&order.recipe) {
                     Ok(name) => return self.call(CellCall::Ask { name }, Busy::Asking { start }),
                     Err(e) => tracing::error!("order {}'s recipe: {e}", order.id),
                 }
             }
-            self.away = false;
+            self.away = None;
         }
         // A recipe in use is not replaced under the running order: what
         // changed is delivered once it ended.
@@ -775,7 +789,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             return self.reply(ticket, Err(text.into()));
         }
         if let Some(order) = &self.running {
-            if self.away {
+            if self.away.is_some() {
                 let text = format!(
                     "order {} ({}) ran on {} when the connection was lost, and how it ended \
                      is not known yet: {} is asked once it is reachable again (falc status)",
@@ -1124,14 +1138,24 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         );
     }
 
-    /// The outcome of the call to the cell that is out.
+    /// The outcome of the call to the cell that is out, when only success
+    /// or failure matters ([`Self::handle_cell_answer`] with the answer).
     pub fn handle_cell_reply(&mut self, now: Duration, result: Result<(), ServiceError>) {
-        let unanswered = result.as_ref().is_err_and(ServiceError::unanswered);
-        let result = result.map_err(|e| e.description);
+        self.handle_cell_answer(now, result.map(|()| Response::Done));
+    }
+
+    /// The answer to the call to the cell that is out.
+    pub fn handle_cell_answer(&mut self, now: Duration, result: Result<Response, ServiceError>) {
         let Some(busy) = self.busy.take() else {
             tracing::warn!("a reply from the cell that nothing waits for: {result:?}");
             return;
         };
+        if let Busy::Asking { start } = busy {
+            self.asked(now, start, result);
+            return self.pump(now);
+        }
+        let unanswered = result.as_ref().is_err_and(ServiceError::unanswered);
+        let result = result.map(|_| ()).map_err(|e| e.description);
         match busy {
             Busy::Associating { start } => match result {
                 Ok(()) => {
@@ -1216,8 +1240,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                             ..order
                         };
                         self.running = Some(order.clone());
-                        self.away = true;
-                        self.start_unconfirmed = true;
+                        self.away = Some(Away::StartUnconfirmed);
                         self.associated = false;
                         self.problem = Some(text.clone());
                         let line = format!(
@@ -1239,14 +1262,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                             ),
                             None => self.db.requeue(order.id),
                         };
-                        if let Err(e) = undone {
-                            // Stays `running` in the records: interrupted at
-                            // a restart, never run twice; failed once the
-                            // records can be written again.
-                            self.unwritten_ends
-                                .push((order.id, OrderState::Failed, why.clone()));
-                            self.db_failed(&e);
-                        }
+                        self.undone(order.id, undone, &why);
                         Err(why)
                     }
                 };
@@ -1269,18 +1285,8 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 self.reply(by.ticket, result.map(|()| ApiReply::Done(done)));
             }
             Busy::Halting { order } => self.halted(now, order, result),
-            // Answered through `handle_cell_answer`; a bare reply says
-            // nothing of the run.
-            Busy::Asking { start } => {
-                match result {
-                    Ok(()) => self.run_unknown(now, "the cell answered without its attributes"),
-                    Err(text) => {
-                        self.associated = false;
-                        self.problem = Some(text);
-                    }
-                }
-                self.connect(start, false);
-            }
+            // Answered above (`asked`), with the whole answer.
+            Busy::Asking { .. } => {}
         }
         self.pump(now);
     }
@@ -1301,7 +1307,8 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.forget_question();
         let id = self.running_id();
         if let Some(order) = &self.running {
-            self.away = true;
+            // (A start not confirmed stays so.)
+            self.away.get_or_insert(Away::Running);
             let line = format!(
                 "order {} ({}): the connection with {} was lost while it ran; the cell runs it \
                  on, and is asked how it ended once it is back",
@@ -1314,15 +1321,14 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.pump(now);
     }
 
-    /// The answer of the cell to [`CellCall::Ask`] (the other calls are
-    /// answered through [`Self::handle_cell_reply`], which this also takes).
-    pub fn handle_cell_answer(&mut self, now: Duration, result: Result<Response, ServiceError>) {
-        let Some(Busy::Asking { .. }) = &self.busy else {
-            return self.handle_cell_reply(now, result.map(|_| ()));
-        };
-        let Some(Busy::Asking { start }) = self.busy.take() else {
-            return;
-        };
+    /// The cell's answer to [`CellCall::Ask`]; then the connection goes on
+    /// (`start`: the operator's start it was made for).
+    fn asked(
+        &mut self,
+        now: Duration,
+        start: Option<Caller>,
+        result: Result<Response, ServiceError>,
+    ) {
         match result {
             Ok(Response::PiAttributes(a)) => self.learned(now, a.state, a.last_end),
             // The cell was lost again meanwhile: asked at the next
@@ -1345,13 +1351,11 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             }
         }
         self.connect(start, false);
-        self.pump(now);
     }
 
     /// What the cell said of the run of the order that was away.
     fn learned(&mut self, now: Duration, state: PiState, end: Option<JobEvent>) {
-        self.away = false;
-        let unconfirmed = std::mem::take(&mut self.start_unconfirmed);
+        let unconfirmed = self.away.take() == Some(Away::StartUnconfirmed);
         let Some(order) = self.running.clone() else {
             return;
         };
@@ -1364,11 +1368,8 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                     "order {} ({}) never began at {cell}: queued again",
                     order.id, order.recipe
                 );
-                if let Err(e) = self.db.requeue(order.id) {
-                    self.unwritten_ends
-                        .push((order.id, OrderState::Failed, line.clone()));
-                    self.db_failed(&e);
-                }
+                let requeued = self.db.requeue(order.id);
+                self.undone(order.id, requeued, &line);
                 self.journal_mine(EntryKind::Order, Some(order.id), &line);
             }
             (PiState::Starting | PiState::Running | PiState::Resuming, _) => {
@@ -1399,8 +1400,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// restarted while the connection was lost): the order ends
     /// `interrupted` (never run again by itself: `falc restart N`).
     fn run_unknown(&mut self, now: Duration, why: &str) {
-        self.away = false;
-        self.start_unconfirmed = false;
+        self.away = None;
         let Some(order) = self.running.take() else {
             return;
         };
@@ -1690,9 +1690,8 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         user: &StationName,
         request: ApiRequest,
     ) {
-        self.entries_of = Some(self.cell().to_string());
-        self.handle_api(now, ticket, user, request);
-        self.entries_of = None;
+        let cell = self.cell().to_string();
+        self.api_call(now, ticket, user, request, Some(&cell));
     }
 
     /// One operator API request from console user `user`, answered through
@@ -1705,18 +1704,31 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         user: &StationName,
         request: ApiRequest,
     ) {
-        if let Some(result) = self.api(ticket, user, request) {
+        self.api_call(now, ticket, user, request, None);
+    }
+
+    fn api_call(
+        &mut self,
+        now: Duration,
+        ticket: Ticket,
+        user: &StationName,
+        request: ApiRequest,
+        entries_of: Option<&str>,
+    ) {
+        if let Some(result) = self.api(ticket, user, request, entries_of) {
             self.reply(ticket, result);
         }
         self.pump(now);
     }
 
-    /// The answer now, or None when a job answers it later.
+    /// The answer now, or None when a job answers it later; the journal
+    /// and messages it reads are cell `entries_of`'s (None: all).
     fn api(
         &mut self,
         ticket: Ticket,
         user: &StationName,
         request: ApiRequest,
+        entries_of: Option<&str>,
     ) -> Option<ApiResult> {
         let who = user.as_str();
         let caller = || Caller {
@@ -1747,12 +1759,12 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 .map_err(db),
             ApiRequest::Messages { after } => self
                 .db
-                .entries(after, None, true, self.entries_of.as_deref(), PAGE)
+                .entries(after, None, true, entries_of, PAGE)
                 .map(ApiReply::Entries)
                 .map_err(db),
             ApiRequest::Journal { order, after } => self
                 .db
-                .entries(after, order, false, self.entries_of.as_deref(), PAGE)
+                .entries(after, order, false, entries_of, PAGE)
                 .map(ApiReply::Entries)
                 .map_err(db),
             ApiRequest::OrderAdd {

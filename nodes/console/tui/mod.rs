@@ -16,7 +16,7 @@ use crate::edit::Session;
 use app::{App, Intent, Pick};
 use falc_bus::Bus;
 use falc_model::console::{ApiReply, ApiRequest};
-use falc_model::ids::{CellId, StationName};
+use falc_model::ids::StationName;
 use falc_model::plant::Plant;
 use falc_model::topology::Topology;
 use plant::{PlantApp, PlantIntent};
@@ -61,7 +61,7 @@ pub async fn run(
     };
     let outcome = match screens {
         Screens::Cell(topology) => {
-            let mut tui = Tui::new(bus, operator, App::new(topology, user), None);
+            let mut tui = Tui::new(bus.clone(), operator, App::new(topology, user));
             tui.main_loop(&mut terminal).await.map(|_| ())
         }
         Screens::Plant(p) => plant_loop(bus, operator, &p, user, &mut terminal).await,
@@ -105,7 +105,8 @@ async fn plant_loop(
                     let Some(c) = plant.cell(&cell) else { continue };
                     let mut screens = App::new(c.topology().clone(), user.clone());
                     screens.in_plant = true;
-                    let mut tui = Tui::new(bus, operator, screens, Some(cell));
+                    let for_cell = bus.clone().for_cell(Some(cell));
+                    let mut tui = Tui::new(for_cell, operator, screens);
                     match tui.main_loop(terminal).await? {
                         Exit::Quit => return Ok(()),
                         Exit::Back => terminal.clear().map_err(|e| format!("terminal: {e}"))?,
@@ -145,10 +146,9 @@ fn next_event() -> Result<Option<Option<KeyEvent>>, String> {
 }
 
 struct Tui<'a> {
-    bus: &'a Bus,
+    /// The bus (for a cell of a plant, one whose every call names it).
+    bus: Bus,
     operator: &'a StationName,
-    /// The cell of a plant these screens are for (each call names it).
-    cell: Option<CellId>,
     app: App,
     /// A recipe edit whose text the checker refused (kept to edit again).
     session: Option<Session>,
@@ -157,11 +157,10 @@ struct Tui<'a> {
 }
 
 impl<'a> Tui<'a> {
-    fn new(bus: &'a Bus, operator: &'a StationName, app: App, cell: Option<CellId>) -> Self {
+    fn new(bus: Bus, operator: &'a StationName, app: App) -> Self {
         Self {
             bus,
             operator,
-            cell,
             app,
             session: None,
             seen_head: None,
@@ -169,16 +168,10 @@ impl<'a> Tui<'a> {
     }
 
     async fn call(&self, r: ApiRequest) -> Result<ApiReply, String> {
-        let answer = match &self.cell {
-            Some(cell) => {
-                let me = self.bus.me().station.clone();
-                self.bus
-                    .api_as(self.operator, Some(cell), r, &me, CALL_LIMIT)
-                    .await
-            }
-            None => self.bus.api(self.operator, r, CALL_LIMIT).await,
-        };
-        answer.map_err(|e| e.to_string())
+        self.bus
+            .api(self.operator, r, CALL_LIMIT)
+            .await
+            .map_err(|e| e.to_string())
     }
 
     async fn main_loop(&mut self, terminal: &mut DefaultTerminal) -> Result<Exit, String> {
@@ -270,7 +263,7 @@ impl<'a> Tui<'a> {
                 if let Some(old) = self.session.take() {
                     old.discard();
                 }
-                match Session::open(self.bus, self.operator, &file).await {
+                match Session::open(&self.bus, self.operator, &file).await {
                     Ok(s) => self.edit(s, terminal).await?,
                     Err(e) => self.app.said = Some((false, e.to_string())),
                 }
@@ -318,7 +311,7 @@ impl<'a> Tui<'a> {
                 ));
                 session.discard();
             }
-            Ok(Some(text)) => match session.save(self.bus, self.operator, text).await {
+            Ok(Some(text)) => match session.save(&self.bus, self.operator, text).await {
                 Ok(said) => {
                     self.app.said = Some((true, said));
                     // The new list (a new recipe appears in the pickers).
