@@ -137,8 +137,9 @@ fn the_launcher_stops_the_cell_when_a_node_dies() {
 }
 
 /// `falc-launch` with a plant file: the factory router, per cell its
-/// router, twins, workstations and cell controller, then the operator;
-/// two orders run, one on each cell; Ctrl-C stops every node.
+/// router, twins, workstations and cell controller, then the operator and
+/// the OPC UA gateway of the plant; two orders run, one on each cell;
+/// Ctrl-C stops every node.
 #[test]
 fn the_launched_plant_runs_an_order_on_each_cell_and_ctrl_c_stops_every_node() {
     use crate::support::copy_recipes;
@@ -161,15 +162,20 @@ fn the_launched_plant_runs_an_order_on_each_cell_and_ctrl_c_stops_every_node() {
         .arg(recipes)
         .arg("--bin-dir")
         .arg(bin_dir)
-        .args(["--plc-listen", "127.0.0.1:0", "--time-scale", "50"]);
+        .args(["--plc-listen", "127.0.0.1:0", "--time-scale", "50"])
+        .args([
+            "--opcua",
+            &format!("127.0.0.1:{}", crate::support::free_port()),
+        ]);
     let mut launcher = Proc::spawn("falc-launch", cmd);
     launcher.expect_line("falc-launch: plant ready in", Duration::from_secs(90));
     let nodes = nodes(launcher.pid());
     assert_eq!(
         nodes.len(),
-        1 + 2 * 6 + 1,
-        "factory router; per cell a router, 2 twins, 2 workstations, a cell; the operator"
+        1 + 2 * 6 + 2,
+        "factory router; per cell a router, 2 twins, 2 workstations, a cell; the operator, the gateway"
     );
+    launcher.expect_line("EVENT ready opc.tcp://", Duration::ZERO);
     launcher.expect_line("[falc2/transport] EVENT ready", Duration::ZERO);
     let falc = |cell: Option<&str>, args: &[&str]| falc_in(dir.path(), "factory.toml", cell, args);
     falc(None, &["order", "add", "dikdroog", "--count", "2"]);

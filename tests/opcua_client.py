@@ -17,6 +17,10 @@ asserts on them.
   opcua_client.py order URL CREDENTIALS_DIR WORK_DIR
       one order through the methods (AddOrder dikdroog, Start, Answer "ja")
       to done and the state back to Idle.
+  opcua_client.py plant URL CREDENTIALS_DIR WORK_DIR PLANT CELL OTHER
+      a plant's gateway: browse the plant object FALC and cell CELL's
+      object FALC.CELL; one order through CELL's own methods to done, cell
+      OTHER's state watched meanwhile; the plant's orders with their cells.
   opcua_client.py watch URL CREDENTIALS_DIR WORK_DIR NODE...
       prints every data change of the nodes (FALC.* ids) with the time it
       arrived, until a line (or the end) on stdin.
@@ -153,51 +157,82 @@ async def admit(url, creds: Path, work: Path):
     return refused, len(rejected)
 
 
-WATCHED = ["FALC.PackMLState", "FALC.Question", "FALC.Orders.Ids", "FALC.Orders.States",
-           "FALC.CellRecipeState", "FALC.Stations.welding.RobotState"]
+WATCHED = ["PackMLState", "Question", "Orders.Ids", "Orders.States",
+           "CellRecipeState", "Stations.welding.RobotState"]
 
 
-async def subscribe(c, ns, falc):
-    """Subscribes to the WATCHED values and the cell's events; returns the
-    changes and the values seen so far (the first of each)."""
+async def subscribe(c, ns, falc, root="FALC", more=()):
+    """Subscribes to the WATCHED values of cell object `root` (and the
+    nodes `more`) and the cell's events; returns the changes and the values
+    seen so far (the first of each)."""
     changes = Changes()
     sub = await c.create_subscription(50, changes)
     # Sampling interval 0: every value the gateway writes. With asyncua's
     # default (50 ms) a state shorter than that (Held, when a question is
     # asked and answered within 50 ms at time scale 50) is sampled away.
+    ids = [f"{root}.{i}" for i in WATCHED] + list(more)
     await sub.subscribe_data_change(
-        [c.get_node(ua.NodeId(i, ns)) for i in WATCHED], sampling_interval=0.0
+        [c.get_node(ua.NodeId(i, ns)) for i in ids], sampling_interval=0.0
     )
     await sub.subscribe_events(falc)
     seen = {}
-    await changes.until(seen, lambda s: all(i in s for i in WATCHED), 10)
+    await changes.until(seen, lambda s: all(i in s for i in ids), 10)
     return changes, seen
 
 
-async def run_order(falc, ns, changes, seen):
+async def run_order(falc, ns, changes, seen, root="FALC"):
     """AddOrder dikdroog, Start, Answer "ja" to the question when it is
-    notified, until the order is done and the state back to Idle."""
+    notified, until the order is done and the state back to Idle: through
+    the methods of cell object `root`."""
+    k = lambda n: f"{root}.{n}"
     order = await falc.call_method(f"{ns}:AddOrder", "dikdroog")
     say(step="added", order=order)
     await falc.call_method(f"{ns}:Start")
-    asked = await changes.until(seen, lambda s: any(q for q in s.get("FALC.Question", [])), 120)
-    question = next((q for q in seen.get("FALC.Question", []) if q), None)
+    asked = await changes.until(seen, lambda s: any(q for q in s.get(k("Question"), [])), 120)
+    question = next((q for q in seen.get(k("Question"), []) if q), None)
     say(step="question", asked=asked, question=question)
     answered = await falc.call_method(f"{ns}:Answer", "ja")
     say(step="answered", reply=answered)
 
     def done(s):
-        ids = s.get("FALC.Orders.Ids", [[]])[-1]
-        states = s.get("FALC.Orders.States", [[]])[-1]
+        ids = s.get(k("Orders.Ids"), [[]])[-1]
+        states = s.get(k("Orders.States"), [[]])[-1]
         mine = dict(zip(ids, states)).get(int(order))
-        return mine == "done" and s.get("FALC.PackMLState", [""])[-1] == "Idle"
+        return mine == "done" and s.get(k("PackMLState"), [""])[-1] == "Idle"
 
     ended = await changes.until(seen, done, 180)
-    ids = seen.get("FALC.Orders.Ids", [[]])[-1]
-    states = seen.get("FALC.Orders.States", [[]])[-1]
+    ids = seen.get(k("Orders.Ids"), [[]])[-1]
+    states = seen.get(k("Orders.States"), [[]])[-1]
     say(step="ended", ended=ended, order_state=dict(zip(map(str, ids), states)).get(str(order)),
-        states=seen.get("FALC.PackMLState", []),
-        recipe_states=sorted(set(seen.get("FALC.CellRecipeState", []))))
+        states=seen.get(k("PackMLState"), []),
+        recipe_states=sorted(set(seen.get(k("CellRecipeState"), []))))
+    return order
+
+
+async def plant(url, creds: Path, work: Path, name, cell, other):
+    """A plant's gateway: the plant object and a cell's, one order through
+    the cell's own methods while the other cell is watched."""
+    pw = users(creds)
+    await admit(url, creds, work)
+    c = await connect(url, work, "console", pw["console"])
+    ns = await c.get_namespace_index(f"urn:falc:{name}")
+    falc = await c.nodes.objects.get_child([f"{ns}:FALC"])
+    plant_names = sorted([(await n.read_browse_name()).Name for n in await falc.get_children()])
+    mine = await falc.get_child([f"{ns}:{cell}"])
+    cell_names = sorted([(await n.read_browse_name()).Name for n in await mine.get_children()])
+    node = lambda i: c.get_node(ua.NodeId(i, ns))
+    say(step="browse", plant=plant_names, cell=cell_names,
+        cells=await node("FALC.Cells").read_value())
+    root = f"FALC.{cell}"
+    theirs = f"FALC.{other}.PackMLState"
+    changes, seen = await subscribe(c, ns, mine, root, [theirs])
+    say(step="subscribed", first={k: str(v[-1]) for k, v in seen.items()})
+    order = await run_order(mine, ns, changes, seen, root)
+    say(step="plant", other_states=seen.get(theirs, []),
+        ids=await node("FALC.Orders.Ids").read_value(),
+        cells=await node("FALC.Orders.Cells").read_value(),
+        order=order)
+    await c.disconnect()
 
 
 async def order(url, creds: Path, work: Path):
@@ -402,6 +437,8 @@ def main():
         asyncio.run(by_certificate(url, creds, work))
     elif what == "throttle":
         asyncio.run(throttle(url, creds, work, float(sys.argv[5])))
+    elif what == "plant":
+        asyncio.run(plant(url, creds, work, *sys.argv[5:8]))
     elif what == "watch":
         asyncio.run(watch(url, creds, work, sys.argv[5:]))
     else:

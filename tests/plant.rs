@@ -461,6 +461,112 @@ fn an_emergency_stop_in_one_cell_stops_that_cell_only_and_its_way_back_is_its_ow
     plant.assert_each_started_once(&orders);
 }
 
+/// The OPC UA gateway of a plant, driven by the independent client
+/// (`tests/opcua_client.py plant`): the plant object `FALC` with its cells
+/// and every order, and one object per cell with its own PackML state and
+/// methods. An order added and started through cell 2's object runs on
+/// cell 2 to done, while cell 1's object stays Idle.
+#[test]
+fn the_opcua_gateway_serves_the_plant_and_each_cell_with_its_own_state_and_methods() {
+    use crate::support::opcua::{client_of, step};
+    use crate::support::{free_port, Proc};
+    use falc_model::console::OrderState;
+    let plant = TestPlant::start_text(&crate::support::plant::whole_plant());
+    let _one = plant.start_cell_nodes("falc1", "100");
+    let _two = plant.start_cell_nodes("falc2", "100");
+    let _operator = plant.start_operator();
+    let listen = format!("127.0.0.1:{}", free_port());
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_falc-opcua"));
+    cmd.arg("--topology")
+        .arg(&plant.path)
+        .arg("--credentials-dir")
+        .arg(plant.credentials_dir())
+        .args(["--listen", &listen]);
+    let mut gateway = Proc::spawn("opcua", cmd);
+    gateway.expect_line("EVENT ready", Duration::from_secs(30));
+    let mut c = client_of(
+        "plant",
+        &format!("opc.tcp://{listen}/"),
+        &plant.credentials_dir(),
+        &plant.dir.path().join("opcua-client"),
+        &["plant", "falc2", "falc1"],
+    );
+    let t = Duration::from_secs(60);
+    let names = |v: &serde_json::Value| -> Vec<String> {
+        v.as_array()
+            .unwrap_or_else(|| panic!("not an array: {v}"))
+            .iter()
+            .filter_map(|s| s.as_str().map(str::to_string))
+            .collect()
+    };
+    let b = step(&mut c, "browse", t);
+    let (of_plant, of_cell) = (names(&b["plant"]), names(&b["cell"]));
+    for n in [
+        "falc1",
+        "falc2",
+        "Cells",
+        "Orders",
+        "OperatorReachable",
+        "AddOrder",
+        "Start",
+    ] {
+        assert!(of_plant.iter().any(|x| x == n), "{n} in {of_plant:?}");
+    }
+    for n in [
+        "PackMLState",
+        "Stations",
+        "Orders",
+        "Journal",
+        "Alarms",
+        "AddOrder",
+        "Start",
+        "Answer",
+    ] {
+        assert!(of_cell.iter().any(|x| x == n), "{n} in {of_cell:?}");
+    }
+    assert_eq!(names(&b["cells"]), ["falc1", "falc2"]);
+    let s = step(&mut c, "subscribed", t);
+    assert_eq!(s["first"]["FALC.falc2.PackMLState"], "Idle", "{s}");
+    assert_eq!(s["first"]["FALC.falc1.PackMLState"], "Idle", "{s}");
+    let added = step(&mut c, "added", t);
+    let order: i64 = added["order"]
+        .as_str()
+        .and_then(|o| o.parse().ok())
+        .unwrap_or_else(|| panic!("order id: {added}"));
+    let q = step(&mut c, "question", Duration::from_secs(120));
+    assert_eq!(q["asked"], true, "{q}");
+    step(&mut c, "answered", t);
+    let e = step(&mut c, "ended", Duration::from_secs(180));
+    assert_eq!(e["order_state"], "done", "{e}");
+    let states = names(&e["states"]);
+    assert!(states.iter().any(|s| s == "Execute"), "{states:?}");
+    assert_eq!(
+        states.last().map(String::as_str),
+        Some("Idle"),
+        "{states:?}"
+    );
+    let p = step(&mut c, "plant", t);
+    let other = names(&p["other_states"]);
+    assert!(
+        !other.is_empty() && other.iter().all(|s| s == "Idle"),
+        "cell 1 stays Idle while cell 2 works: {other:?}"
+    );
+    assert_eq!(p["ids"], serde_json::json!([order]), "{p}");
+    assert_eq!(names(&p["cells"]), ["falc2"], "{p}");
+    // The operator's view agrees: the order ran on cell 2 once.
+    let orders = plant.orders();
+    assert_eq!(orders.len(), 1, "{orders:#?}");
+    assert_eq!(
+        (
+            orders[0].state,
+            orders[0].cell.as_deref(),
+            orders[0].wanted.as_deref()
+        ),
+        (OrderState::Done, Some("falc2"), Some("falc2"))
+    );
+    plant.assert_each_started_once(&orders);
+}
+
 /// The plant's cells as `plant.status()` shows them: cell `cell`'s.
 fn cell_status(plant: &TestPlant, cell: &str) -> falc_model::console::CellStatus {
     plant

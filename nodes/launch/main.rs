@@ -58,7 +58,8 @@ struct Cli {
     #[arg(long)]
     plc_listen: Option<String>,
     /// Also start the OPC UA gateway (`falc-opcua`, console user `opcua`),
-    /// listening at this host:port (`127.0.0.1:4840`).
+    /// listening at this host:port (`127.0.0.1:4840`); in a plant it
+    /// serves the plant and each of its cells.
     #[arg(long)]
     opcua: Option<String>,
 }
@@ -280,24 +281,31 @@ async fn start_cell(cli: &Cli, cell: &mut Cell) -> Result<Duration> {
     let mut plc_taken = false;
     start_stations(cli, cell, &topology, "", &args, &mut plc_taken).await?;
     start_operator(cli, cell, &args("operator"), 1).await?;
-    if let Some(listen) = &cli.opcua {
-        let id = cell.spawn(
-            "opcua",
-            "falc-opcua",
-            &[
-                "--topology".into(),
-                cli.topology.display().to_string(),
-                "--credentials-dir".into(),
-                cli.credentials_dir.display().to_string(),
-                "--router".into(),
-                router.clone(),
-                "--listen".into(),
-                listen.clone(),
-            ],
-        )?;
-        cell.wait_for(id, "EVENT ready", LIMIT).await?;
-    }
+    start_opcua(cli, cell, Some(&router)).await?;
     Ok(t0.elapsed())
+}
+
+/// Starts the OPC UA gateway when `--opcua` asks for it (for the cell, or
+/// the plant and each of its cells), logging in at `router` (None: the
+/// topology's).
+async fn start_opcua(cli: &Cli, cell: &mut Cell, router: Option<&str>) -> Result<()> {
+    let Some(listen) = &cli.opcua else {
+        return Ok(());
+    };
+    let mut args = vec![
+        "--topology".to_string(),
+        cli.topology.display().to_string(),
+        "--credentials-dir".into(),
+        cli.credentials_dir.display().to_string(),
+        "--listen".into(),
+        listen.clone(),
+    ];
+    if let Some(router) = router {
+        args.extend(["--router".to_string(), router.to_string()]);
+    }
+    let id = cell.spawn("opcua", "falc-opcua", &args)?;
+    cell.wait_for(id, "EVENT ready", LIMIT).await?;
+    Ok(())
 }
 
 /// How long a node may take to say it is ready.
@@ -309,8 +317,8 @@ const LIMIT: Duration = Duration::from_secs(30);
 /// of every cell.
 async fn start_plant(cli: &Cli, cell: &mut Cell, plant: &Plant) -> Result<Duration> {
     let t0 = Instant::now();
-    if cli.opcua.is_some() || cli.router.is_some() {
-        bail!("--opcua and --router take one cell's topology, not a plant's");
+    if cli.router.is_some() {
+        bail!("--router takes one cell's topology, not a plant's");
     }
     let plant_args = |more: &[&str]| -> Vec<String> {
         let mut v = vec![
@@ -360,6 +368,7 @@ async fn start_plant(cli: &Cli, cell: &mut Cell, plant: &Plant) -> Result<Durati
         cli.credentials_dir.display().to_string(),
     ];
     start_operator(cli, cell, &args, plant.cells().len()).await?;
+    start_opcua(cli, cell, None).await?;
     Ok(t0.elapsed())
 }
 

@@ -1,12 +1,13 @@
-//! `falc-opcua`: the cell on OPC UA (IEC 62541) for a plant's SCADA, MES
-//! and historians. A client of the operator API like the console, as its
-//! own console user (`opcua`, role operator in `launch/cell.toml`, so the
-//! router's ACL bounds everything it does); it looks at the cell every
-//! `--poll-ms` and at once after a method call, and serves what it saw as
-//! an address space whose subscribers are notified of each change
-//! (`space` computes it, `server` serves it, `users` says who may do what
-//! and `throttle` slows and locks failed logins,
-//! `packml` maps the cell onto PackML states).
+//! `falc-opcua`: the cell, or the plant and each of its cells, on OPC UA
+//! (IEC 62541) for a plant's SCADA, MES and historians. A client of the
+//! operator API like the console, as its own console user (`opcua`, role
+//! operator in `launch/cell.toml` and `launch/factory.toml`, so the
+//! router's ACL bounds everything it does); it looks as soon as the
+//! operator says something changed, after a method call, and every
+//! `--poll-ms`, and serves what it saw as an address space whose
+//! subscribers are notified of each change (`space` computes it, `server`
+//! serves it, `users` says who may do what and `throttle` slows and locks
+//! failed logins, `packml` maps a cell onto PackML states).
 
 mod packml;
 mod server;
@@ -17,9 +18,12 @@ mod users;
 use clap::Parser;
 use falc_bus::operator_service::CallError;
 use falc_bus::Bus;
-use falc_model::console::{ApiReply, ApiRequest, Entry, Order};
+use falc_model::console::{ApiReply, ApiRequest, CellStatus, Entry, Order};
 use falc_model::ids::StationName;
+use falc_model::plant::Layout;
+use falc_model::topology::Topology;
 use falc_node::{say, NodeArgs, Shutdown};
+use space::{Part, Scope};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -29,7 +33,7 @@ use std::time::Duration;
 #[command(
     name = "falc-opcua",
     version,
-    about = "FALC OPC UA gateway: the cell's state, stations, orders, journal and alarms, and its methods, for any OPC UA client"
+    about = "FALC OPC UA gateway: the cell's (or each cell of a plant's) state, stations, orders, journal and alarms, and its methods, for any OPC UA client"
 )]
 struct Cli {
     #[command(flatten)]
@@ -116,8 +120,31 @@ enum Next {
     Stop,
 }
 
+/// A topology's stations, as the address space lays them out.
+fn stations_of(t: &Topology) -> Vec<(StationName, falc_model::topology::StationKind)> {
+    t.stations()
+        .iter()
+        .map(|s| (s.name.clone(), s.kind))
+        .collect()
+}
+
 async fn run(cli: Cli) -> Result<(), String> {
-    let topology = cli.node.topology().map_err(|e| e.to_string())?;
+    // A cell's topology, or a plant's: the gateway logs in where a console
+    // does, and serves the one cell or the plant with each of its cells.
+    let layout = Layout::load(&cli.node.topology).map_err(|e| e.to_string())?;
+    let topology = cli.node.console_topology().map_err(|e| e.to_string())?;
+    let (what, scopes) = match &layout {
+        Layout::Cell(t) => ("cell", Scope::one_cell(stations_of(t))),
+        Layout::Plant(p) => (
+            "plant",
+            Scope::plant(
+                p.cells()
+                    .iter()
+                    .map(|c| (c.id().clone(), stations_of(c.topology())))
+                    .collect(),
+            ),
+        ),
+    };
     let me = topology.console(&cli.user).ok_or_else(|| {
         format!(
             "`{}` is not a console user of {}: add a [[console]] stanza for the gateway (role operator)",
@@ -140,11 +167,6 @@ async fn run(cli: Cli) -> Result<(), String> {
         .map_err(|e| e.to_string())?;
     let bus = Bus::open(settings).await.map_err(|e| e.to_string())?;
     let operator = topology.root().name.clone();
-    let stations: Vec<_> = topology
-        .stations()
-        .iter()
-        .map(|s| (s.name.clone(), s.kind))
-        .collect();
     let endpoint = server::Endpoint {
         host: host.clone(),
         port,
@@ -156,8 +178,8 @@ async fn run(cli: Cli) -> Result<(), String> {
     };
     let (opcua_server, running) = server::build(
         &endpoint,
-        topology.cell().as_str(),
-        stations.clone(),
+        (what, topology.cell().as_str()),
+        scopes.clone(),
         Arc::new(users),
         bus.clone(),
         operator.clone(),
@@ -181,54 +203,56 @@ async fn run(cli: Cli) -> Result<(), String> {
         .await
         .map_err(|e| e.to_string())?;
     let mut shutdown = Shutdown::new();
-    let mut mirror = space::Mirror::default();
-    let mut poller = Poller::new(cli.journal_entries);
+    let mut mirrors: Vec<space::Mirror> = scopes.iter().map(|_| space::Mirror::default()).collect();
+    let mut poller = Poller::new(scopes.clone(), cli.journal_entries);
     let mut ready = false;
     let period = Duration::from_millis(cli.poll_ms.max(10));
     loop {
         // A look waits for the operator (up to 2 s a call when it is gone):
         // a stop is heard meanwhile too. What the status says is written
         // at once (the orders and journal it held before), the order list
-        // and journal after, when the journal moved: a change of state is
-        // not held back by two more calls.
+        // and journals after, when the journal moved: a change of state is
+        // not held back by more calls.
         let moved = tokio::select! {
             moved = poller.status(&bus, &operator) => moved,
             _ = shutdown.requested() => break,
         };
-        let mut write = |look: space::Look| {
-            let alarms = look
-                .status
-                .as_ref()
-                .map(|s| s.alarms.clone())
-                .unwrap_or_default();
-            let changes = mirror.update(space::values(&stations, &look), &alarms);
-            if !running.set(&changes.values) {
-                mirror.forget_values();
-            }
-            running.raise(&changes.events);
-            mirror.written(std::time::Instant::now(), &changes.values);
-        };
-        let last_refusal = || {
-            running
-                .last_refusal
+        let mut write = |poller: &Poller| {
+            let refusals = running
+                .last_refusals
                 .lock()
                 .map(|s| s.clone())
-                .unwrap_or_default()
+                .unwrap_or_default();
+            for (at, (scope, mirror)) in scopes.iter().zip(mirrors.iter_mut()).enumerate() {
+                let look = poller.look(at, refusals.get(at).cloned().unwrap_or_default());
+                let alarms = look
+                    .status
+                    .as_ref()
+                    .map(|s| s.alarms.clone())
+                    .unwrap_or_default();
+                let changes = mirror.update(space::values(scope, &look), &alarms);
+                if !running.set(&changes.values) {
+                    mirror.forget_values();
+                }
+                running.raise(&scope.root, &changes.events);
+                mirror.written(std::time::Instant::now(), &changes.values);
+            }
         };
-        write(poller.look(last_refusal()));
+        write(&poller);
         if moved {
             let lists = tokio::select! {
                 lists = poller.lists(&bus, &operator) => lists,
                 _ = shutdown.requested() => break,
             };
             if lists {
-                write(poller.look(last_refusal()));
+                write(&poller);
             }
         }
         if !ready {
             ready = true;
             say(&format!(
-                "EVENT ready opc.tcp://{host}:{port}/ (falc-opcua, console user {})",
+                "EVENT ready opc.tcp://{host}:{port}/ (falc-opcua, {what} {}, console user {})",
+                topology.cell(),
                 cli.user
             ));
         }
@@ -236,7 +260,7 @@ async fn run(cli: Cli) -> Result<(), String> {
         // (space::REFRESH).
         let next = loop {
             let due = async {
-                match mirror.next_refresh() {
+                match mirrors.iter().filter_map(space::Mirror::next_refresh).min() {
                     Some(at) => tokio::time::sleep_until(at.into()).await,
                     None => std::future::pending().await,
                 }
@@ -245,7 +269,10 @@ async fn run(cli: Cli) -> Result<(), String> {
                 _ = tokio::time::sleep(period) => break Next::Look,
                 _ = running.poked.notified() => break Next::Look,
                 _ = due => {
-                    running.set(&mirror.refresh(std::time::Instant::now()));
+                    let now = std::time::Instant::now();
+                    for mirror in &mut mirrors {
+                        running.set(&mirror.refresh(now));
+                    }
                 }
                 _ = shutdown.requested() => break Next::Stop,
                 ended = &mut serving => {
@@ -267,24 +294,33 @@ async fn run(cli: Cli) -> Result<(), String> {
     Ok(())
 }
 
-/// Looks at the cell through the operator API: the status every time, the
-/// order list and the newest journal entries when the journal moved.
+/// Looks at the cell, or the plant, through the operator API: the status
+/// every time, the order list and each object's newest journal entries
+/// when the journal moved.
 struct Poller {
-    status: Option<falc_model::console::CellStatus>,
+    scopes: Vec<Scope>,
+    /// Each scope's status (None: the operator did not answer).
+    statuses: Option<Vec<Option<CellStatus>>>,
+    /// The journal's head as the last status said.
+    head: Option<i64>,
+    /// The journal's head when the lists were last fetched.
     journal_head: Option<i64>,
     orders: Vec<Order>,
-    journal: Vec<Entry>,
+    /// Each scope's newest journal entries.
+    journals: Vec<Vec<Entry>>,
     keep: i64,
     unreachable_said: bool,
 }
 
 impl Poller {
-    fn new(keep: i64) -> Self {
+    fn new(scopes: Vec<Scope>, keep: i64) -> Self {
         Self {
-            status: None,
+            journals: vec![Vec::new(); scopes.len()],
+            scopes,
+            statuses: None,
+            head: None,
             journal_head: None,
             orders: Vec::new(),
-            journal: Vec::new(),
             keep: keep.max(1),
             unreachable_said: false,
         }
@@ -313,52 +349,96 @@ impl Poller {
         }
     }
 
-    /// Asks for the status; whether the journal moved since the order
-    /// list and journal were last fetched ([`Self::lists`]).
+    /// Asks for the status (of the one cell, or every cell of the plant
+    /// in one call); whether the journal moved since the order list and
+    /// journals were last fetched ([`Self::lists`]).
     async fn status(&mut self, bus: &Bus, operator: &StationName) -> bool {
-        let Some(ApiReply::Status(status)) = self.call(bus, operator, ApiRequest::Status).await
-        else {
-            self.status = None;
-            self.journal_head = None;
-            return false;
+        let reply = self.call(bus, operator, ApiRequest::Status).await;
+        let head = match &reply {
+            Some(ApiReply::Status(s)) => s.journal_head,
+            Some(ApiReply::Plant(p)) => p
+                .cells
+                .iter()
+                .map(|(_, s)| s.journal_head)
+                .max()
+                .unwrap_or(0),
+            _ => {
+                self.statuses = None;
+                self.head = None;
+                self.journal_head = None;
+                return false;
+            }
         };
-        let moved = self.journal_head != Some(status.journal_head);
-        self.status = Some(status);
+        // One cell's status answers for the one cell (or a plant's one
+        // cell); a plant's holds each cell's.
+        let of_cell = |id: Option<&falc_model::ids::CellId>| match (&reply, id) {
+            (Some(ApiReply::Status(s)), _) => Some(s.clone()),
+            (Some(ApiReply::Plant(p)), Some(id)) => p
+                .cells
+                .iter()
+                .find(|(c, _)| c == id)
+                .map(|(_, s)| s.clone()),
+            _ => None,
+        };
+        let statuses = self
+            .scopes
+            .iter()
+            .map(|scope| match &scope.part {
+                Part::Cell { id, .. } => of_cell(id.as_ref()),
+                // The plant's: only that the operator answered.
+                Part::Plant { .. } => Some(CellStatus {
+                    journal_head: head,
+                    ..CellStatus::default()
+                }),
+            })
+            .collect();
+        let moved = self.journal_head != Some(head);
+        self.head = Some(head);
+        self.statuses = Some(statuses);
         moved
     }
-
-    /// Asks for the order list and the newest journal entries; whether
-    /// both came.
+    /// Asks for the order list and each object's newest journal entries;
+    /// whether all came.
     async fn lists(&mut self, bus: &Bus, operator: &StationName) -> bool {
-        let Some(head) = self.status.as_ref().map(|s| s.journal_head) else {
+        let Some(head) = self.head else {
             return false;
         };
-        let orders = self.call(bus, operator, ApiRequest::OrderList).await;
-        let after = (head - self.keep).max(0);
-        let journal = self
-            .call(bus, operator, ApiRequest::Journal { order: None, after })
-            .await;
-        let (Some(ApiReply::Orders(o)), Some(ApiReply::Entries(mut j))) = (orders, journal) else {
+        let Some(ApiReply::Orders(orders)) = self.call(bus, operator, ApiRequest::OrderList).await
+        else {
             return false;
         };
-        let skip = j
-            .len()
-            .saturating_sub(usize::try_from(self.keep).unwrap_or(usize::MAX));
-        j.drain(..skip);
-        self.orders = o;
-        self.journal = j;
+        // A cell's newest entries lie among the plant's newest `keep` per
+        // object.
+        let keep = usize::try_from(self.keep).unwrap_or(usize::MAX);
+        let span = self
+            .keep
+            .saturating_mul(i64::try_from(self.scopes.len()).unwrap_or(1));
+        let after = head.saturating_sub(span).max(0);
+        let mut journals = Vec::with_capacity(self.scopes.len());
+        for at in 0..self.scopes.len() {
+            let of = bus.clone().for_cell(self.scopes[at].cell().cloned());
+            let request = ApiRequest::Journal { order: None, after };
+            let Some(ApiReply::Entries(mut j)) = self.call(&of, operator, request).await else {
+                return false;
+            };
+            j.drain(..j.len().saturating_sub(keep));
+            journals.push(j);
+        }
+        self.orders = orders;
+        self.journals = journals;
         self.journal_head = Some(head);
         true
     }
 
-    /// What the gateway serves now: the last status with the order list
-    /// and journal last fetched (none while the operator is away).
-    fn look(&self, last_refusal: String) -> space::Look {
-        match &self.status {
+    /// What the gateway serves now on scope `at`'s object: the last status
+    /// with the order list and journal last fetched (none while the
+    /// operator is away).
+    fn look(&self, at: usize, last_refusal: String) -> space::Look {
+        match self.statuses.as_ref().and_then(|s| s.get(at)?.clone()) {
             Some(status) => space::Look {
-                status: Some(status.clone()),
+                status: Some(status),
                 orders: self.orders.clone(),
-                journal: self.journal.clone(),
+                journal: self.journals.get(at).cloned().unwrap_or_default(),
                 last_refusal,
             },
             None => space::Look {

@@ -1,9 +1,10 @@
 //! The OPC UA server of the gateway (async-opcua): endpoints and security,
 //! the address space laid out by `space`, values written and alarm events
-//! raised as the poll loop hands them over, and the cell's methods carried
-//! out as operator API calls in the calling user's role.
+//! raised as the look loop hands them over, and each object's methods
+//! (the one cell's, or the plant's and each of its cells') carried out as
+//! operator API calls for that cell, in the calling user's role.
 
-use crate::space::{self, Arg, ArgType, Method, Value};
+use crate::space::{self, Arg, ArgType, Method, Scope, Value};
 use crate::users::Users;
 use async_trait::async_trait;
 use falc_bus::credentials;
@@ -11,7 +12,6 @@ use falc_bus::operator_service::{CallError, CALL_LIMIT};
 use falc_bus::Bus;
 use falc_model::console::{ApiReply, ApiRequest};
 use falc_model::ids::StationName;
-use falc_model::topology::StationKind;
 use opcua::server::address_space::{
     AddressSpace, EventNotifier, MethodBuilder, NodeType, ObjectBuilder, VariableBuilder,
 };
@@ -53,13 +53,17 @@ pub struct Endpoint {
 /// The gateway's node manager: its address space and the methods.
 pub struct Nodes {
     namespace: NamespaceMetadata,
-    stations: Vec<(StationName, StationKind)>,
+    scopes: Vec<Scope>,
     users: Arc<Users>,
     bus: Bus,
     operator: StationName,
     poked: Arc<Notify>,
-    last_refusal: Arc<std::sync::Mutex<String>>,
+    last_refusals: LastRefusals,
 }
+
+/// Why the operator refused the last method call on each scope's object
+/// (in the order of the scopes).
+pub type LastRefusals = Arc<std::sync::Mutex<Vec<String>>>;
 
 /// The node manager as the server holds it.
 pub type NodeManager = InMemoryNodeManager<Nodes>;
@@ -109,7 +113,7 @@ impl Nodes {
     fn build(&self, ns: u16, space_: &mut AddressSpace) {
         // Browse names in the gateway's namespace (`2:FALC`).
         let qn = |name: &str| QualifiedName::new(ns, name);
-        for o in space::layout(&self.stations) {
+        for o in space::layout(&self.scopes) {
             let id = node(ns, &o.id);
             let parent = o
                 .parent
@@ -120,7 +124,9 @@ impl Nodes {
             } else {
                 let b = ObjectBuilder::new(&id, qn(&o.name), o.name.as_str())
                     .has_type_definition(ObjectTypeId::BaseObjectType);
-                let b = if o.parent.is_none() {
+                // Each cell object (and the plant's) is where its alarm
+                // events come from.
+                let b = if self.scopes.iter().any(|scope| scope.root == o.id) {
                     b.organized_by(parent)
                         .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
                 } else {
@@ -129,8 +135,16 @@ impl Nodes {
                 b.insert(space_);
             }
         }
-        for (id, v) in space::values(&self.stations, &space::Look::default()) {
-            let (parent, name) = id.rsplit_once('.').unwrap_or((space::ROOT, &id));
+        for scope in &self.scopes {
+            self.build_scope(ns, scope, space_);
+        }
+    }
+
+    /// One scope's variables and methods.
+    fn build_scope(&self, ns: u16, scope: &Scope, space_: &mut AddressSpace) {
+        let qn = |name: &str| QualifiedName::new(ns, name);
+        for (id, v) in space::values(scope, &space::Look::default()) {
+            let (parent, name) = id.rsplit_once('.').unwrap_or((&scope.root, &id));
             let (dt, rank) = data_type(&v);
             let b = VariableBuilder::new(&node(ns, &id), qn(name), name)
                 .data_type(dt)
@@ -145,9 +159,10 @@ impl Nodes {
             };
             b.insert(space_);
         }
-        let root = node(ns, space::ROOT);
+        let root = node(ns, &scope.root);
         for m in Method::ALL {
-            let id = node(ns, &m.id());
+            let id_text = scope.method_id(m);
+            let id = node(ns, &id_text);
             let mut b = MethodBuilder::new(&id, qn(m.name()), m.name())
                 .component_of(root.clone())
                 .executable(true)
@@ -164,29 +179,34 @@ impl Nodes {
                 })
                 .collect();
             if !inputs.is_empty() {
-                b = b.input_args(space_, &node(ns, &format!("{}.In", m.id())), &inputs);
+                b = b.input_args(space_, &node(ns, &format!("{id_text}.In")), &inputs);
             }
             b = b.output_args(
                 space_,
-                &node(ns, &format!("{}.Out", m.id())),
+                &node(ns, &format!("{id_text}.Out")),
                 &[("Result", DataTypeId::String).into()],
             );
             b.insert(space_);
         }
     }
 
-    /// Carries out one method call as `token`'s user: the answer in words,
-    /// or the status code that refuses it.
+    /// Carries out one method call on scope `at`'s object as `token`'s
+    /// user: the answer in words, or the status code that refuses it.
     async fn call_one(
         &self,
         token: &opcua::server::authenticator::UserToken,
+        at: usize,
         method: Method,
         args: &[Variant],
     ) -> Result<String, StatusCode> {
+        let Some(scope) = self.scopes.get(at) else {
+            return Err(StatusCode::BadMethodInvalid);
+        };
+        let what = scope.method_id(method);
         if let Err(why) = self.users.may(token, method.call()) {
-            tracing::warn!("OPC UA {}: {why}", method.name());
+            tracing::warn!("OPC UA {what}: {why}");
             // Every refusal is the last one, this one too.
-            self.refused(why.to_string());
+            self.refused(at, why.to_string());
             return Err(StatusCode::BadUserAccessDenied);
         }
         let args: Vec<Arg> = args
@@ -201,14 +221,17 @@ impl Nodes {
                 other => Arg::Other(format!("{:?}", other.type_id())),
             })
             .collect();
-        let request = method.request(&args).map_err(|why| {
-            tracing::warn!("OPC UA {}: {why}", method.name());
-            self.refused(why);
+        let request = scope.request(method, &args).map_err(|why| {
+            tracing::warn!("OPC UA {what}: {why}");
+            self.refused(at, why);
             StatusCode::BadInvalidArgument
         })?;
-        tracing::info!(user = token.0, "OPC UA {}: {request:?}", method.name());
+        tracing::info!(user = token.0, "OPC UA {what}: {request:?}");
+        // A cell's object calls for its cell, as `falc --cell` does.
         let result = self
             .bus
+            .clone()
+            .for_cell(scope.cell().cloned())
             .api(&self.operator, request.clone(), CALL_LIMIT)
             .await;
         self.poked.notify_one();
@@ -217,8 +240,8 @@ impl Nodes {
             Ok(ApiReply::Done(text)) => Ok(text),
             Ok(other) => Ok(format!("{other:?}")),
             Err(CallError::Refused(why)) => {
-                tracing::warn!(user = token.0, "OPC UA {}: refused: {why}", method.name());
-                self.refused(why);
+                tracing::warn!(user = token.0, "OPC UA {what}: refused: {why}");
+                self.refused(at, why);
                 Err(match request {
                     ApiRequest::OrderAdd { .. } | ApiRequest::OrderRemove { .. } => {
                         StatusCode::BadInvalidArgument
@@ -227,18 +250,28 @@ impl Nodes {
                 })
             }
             Err(CallError::NoReply(why)) => {
-                tracing::warn!("OPC UA {}: {why}", method.name());
-                self.refused(why);
+                tracing::warn!("OPC UA {what}: {why}");
+                self.refused(at, why);
                 Err(StatusCode::BadCommunicationError)
             }
         }
     }
 
-    fn refused(&self, why: String) {
-        if let Ok(mut last) = self.last_refusal.lock() {
-            *last = why;
+    fn refused(&self, at: usize, why: String) {
+        if let Ok(mut last) = self.last_refusals.lock() {
+            if let Some(slot) = last.get_mut(at) {
+                *slot = why;
+            }
         }
         self.poked.notify_one();
+    }
+
+    /// The object and method of method node `id`.
+    fn method(&self, id: &NodeId) -> Option<(usize, Method)> {
+        self.scopes
+            .iter()
+            .enumerate()
+            .find_map(|(at, scope)| Some((at, scope.method(id)?)))
     }
 }
 
@@ -263,21 +296,22 @@ impl InMemoryNodeManagerImpl for Nodes {
         methods: &mut [&mut &mut MethodCall],
     ) -> Result<(), StatusCode> {
         for call in methods {
-            let Some(m) = Method::of(call.method_id()) else {
+            let Some((at, m)) = self.method(call.method_id()) else {
                 call.set_status(StatusCode::BadMethodInvalid);
                 continue;
             };
             let args = call.arguments().to_vec();
-            let result = self.call_one(&context.token, m, &args).await;
+            let result = self.call_one(&context.token, at, m, &args).await;
             if result.is_err() {
                 // `LastRefusal` says why before the method returns, so a
                 // client reading it at once reads this refusal's words.
                 let why = self
-                    .last_refusal
+                    .last_refusals
                     .lock()
-                    .map(|w| w.clone())
+                    .ok()
+                    .and_then(|w| w.get(at).cloned())
                     .unwrap_or_default();
-                let id = format!("{}.LastRefusal", space::ROOT);
+                let id = self.scopes[at].id("LastRefusal");
                 let ns = self.namespace.namespace_index;
                 if !write_values(
                     space_,
@@ -356,8 +390,8 @@ pub struct Running {
     pub ns: u16,
     /// Notified after each method call, so its effect shows at once.
     pub poked: Arc<Notify>,
-    /// The operator's refusal of the last method call.
-    pub last_refusal: Arc<std::sync::Mutex<String>>,
+    /// The operator's refusal of the last method call on each object.
+    pub last_refusals: LastRefusals,
 }
 
 impl Running {
@@ -386,10 +420,10 @@ impl Running {
         )
     }
 
-    /// Raises alarm events on the cell object (and the Server object, where
-    /// clients listening to everything subscribe).
-    pub fn raise(&self, events: &[space::AlarmEvent]) {
-        let root = node(self.ns, space::ROOT);
+    /// Raises alarm events on the cell object `root` (and the Server
+    /// object, where clients listening to everything subscribe).
+    pub fn raise(&self, root: &str, events: &[space::AlarmEvent]) {
+        let root = node(self.ns, root);
         let server = NodeId::from(ObjectId::Server);
         let made: Vec<_> = events
             .iter()
@@ -415,19 +449,20 @@ impl Running {
     }
 }
 
-/// Builds the server: endpoints, users, the node manager.
+/// Builds the server of cell or plant `name` (`what`: "cell", "plant"):
+/// endpoints, users, the node manager serving `scopes`.
 pub fn build(
     endpoint: &Endpoint,
-    cell: &str,
-    stations: Vec<(StationName, StationKind)>,
+    (what, name): (&str, &str),
+    scopes: Vec<Scope>,
     users: Arc<Users>,
     bus: Bus,
     operator: StationName,
 ) -> Result<(Server, Running), String> {
-    let uri = format!("urn:falc:{cell}");
+    let uri = format!("urn:falc:{name}");
     let poked = Arc::new(Notify::new());
-    let last_refusal = Arc::new(std::sync::Mutex::new(String::new()));
-    let (poked2, refusal2) = (poked.clone(), last_refusal.clone());
+    let last_refusals = Arc::new(std::sync::Mutex::new(vec![String::new(); scopes.len()]));
+    let (poked2, refusal2) = (poked.clone(), last_refusals.clone());
     let users2 = users.clone();
     let namespace_uri = uri.clone();
     let manager = InMemoryNodeManagerBuilder::new(
@@ -444,19 +479,19 @@ pub fn build(
                     namespace_index: index,
                     ..Default::default()
                 },
-                stations,
+                scopes,
                 users: users2,
                 bus,
                 operator,
                 poked: poked2,
-                last_refusal: refusal2,
+                last_refusals: refusal2,
             }
         },
     );
     let path = "/";
     let mut builder = ServerBuilder::new()
-        .application_name(format!("FALC cell {cell}"))
-        .application_uri(format!("urn:falc:{cell}:opcua"))
+        .application_name(format!("FALC {what} {name}"))
+        .application_uri(format!("urn:falc:{name}:opcua"))
         .product_uri("urn:falc:opcua")
         .build_info(BuildInfo {
             product_uri: "urn:falc:opcua".into(),
@@ -543,7 +578,7 @@ pub fn build(
             nodes,
             ns,
             poked,
-            last_refusal,
+            last_refusals,
         },
     ))
 }

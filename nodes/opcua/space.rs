@@ -1,9 +1,11 @@
 //! The gateway's address space, and what fills it, without I/O: the node
-//! of every value and method ([`Method`], [`layout`]), the values of one
-//! look at the cell ([`values`]: status, order list, journal), and the
-//! [`Mirror`] that turns successive looks into the changes to publish and
-//! the alarm events to raise. The server side (`server.rs`) only writes
-//! what this module computes.
+//! of every value and method ([`Scope`], [`Method`], [`layout`]), the
+//! values of one look at a cell or the plant ([`values`]: status, order
+//! list, journal), and the [`Mirror`] that turns successive looks into the
+//! changes to publish and the alarm events to raise. The server side
+//! (`server.rs`) only writes what this module computes.
+//!
+//! One cell (a plant of one):
 //!
 //! ```text
 //! Objects/FALC                      the cell (PackML state, mode, order …)
@@ -13,11 +15,22 @@
 //! Objects/FALC/Alarms               Ids, Texts (every listed alarm)
 //! Objects/FALC/Stations/<station>   Connected, Kind, Program, RecipeState, … per kind
 //! ```
+//!
+//! A plant of several cells: the plant object, and under it one object
+//! per cell laid out as the one cell above, each with its own PackML
+//! state, methods and alarm events:
+//!
+//! ```text
+//! Objects/FALC                      the plant (OperatorReachable, Cells, Queued, LastRefusal)
+//! Objects/FALC/<methods>            the same six, as `falc` without --cell does them
+//! Objects/FALC/Orders               Ids, Recipes, States, Results, Cells (every order)
+//! Objects/FALC/<cell>               cell <cell>, as Objects/FALC of one cell
+//! ```
 
 use crate::packml;
 use falc_model::alarm::{Alarm, AlarmClass};
-use falc_model::console::{ApiRequest, Call, CellStatus, Entry, Order};
-use falc_model::ids::StationName;
+use falc_model::console::{ApiRequest, Call, CellStatus, Entry, Order, OrderState};
+use falc_model::ids::{CellId, StationName};
 use falc_model::mms::vmd::VmdStatus;
 use falc_model::topology::StationKind;
 use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
@@ -25,6 +38,117 @@ use std::time::{Duration, Instant};
 
 /// The prefix of every node id of the gateway's namespace.
 pub const ROOT: &str = "FALC";
+
+/// One object of the address space with the methods on it: a cell (the
+/// one cell, or one of a plant's), or the plant above several cells.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Scope {
+    /// Its node id, the prefix of every node under it (`FALC`,
+    /// `FALC.falc2`).
+    pub root: String,
+    /// What it is.
+    pub part: Part,
+}
+
+/// What a [`Scope`] is.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Part {
+    /// A cell and its stations; `id` names it in a plant of several (None:
+    /// the one cell, whose calls name no cell).
+    Cell {
+        /// The cell of a plant.
+        id: Option<CellId>,
+        /// Its stations.
+        stations: Vec<(StationName, StationKind)>,
+    },
+    /// The plant above these cells.
+    Plant {
+        /// Its cells, in the plant file's order.
+        cells: Vec<CellId>,
+    },
+}
+
+impl Scope {
+    /// The one cell of a single-cell topology: everything under `FALC`.
+    pub fn one_cell(stations: Vec<(StationName, StationKind)>) -> Vec<Scope> {
+        vec![Scope {
+            root: ROOT.into(),
+            part: Part::Cell { id: None, stations },
+        }]
+    }
+
+    /// A plant of several cells: the plant (`FALC`) first, then each cell
+    /// under it (`FALC.<cell>`).
+    pub fn plant(cells: Vec<(CellId, Vec<(StationName, StationKind)>)>) -> Vec<Scope> {
+        let mut out = vec![Scope {
+            root: ROOT.into(),
+            part: Part::Plant {
+                cells: cells.iter().map(|(c, _)| c.clone()).collect(),
+            },
+        }];
+        for (id, stations) in cells {
+            out.push(Scope {
+                root: format!("{ROOT}.{id}"),
+                part: Part::Cell {
+                    id: Some(id),
+                    stations,
+                },
+            });
+        }
+        out
+    }
+
+    /// The cell its operator API calls are for (None: the plant, or the
+    /// one cell).
+    pub fn cell(&self) -> Option<&CellId> {
+        match &self.part {
+            Part::Cell { id, .. } => id.as_ref(),
+            Part::Plant { .. } => None,
+        }
+    }
+
+    /// The node id of `name` under it.
+    pub fn id(&self, name: &str) -> String {
+        format!("{}.{name}", self.root)
+    }
+
+    /// Its browse name (`FALC`, `falc2`).
+    pub fn name(&self) -> &str {
+        self.root.rsplit('.').next().unwrap_or(&self.root)
+    }
+
+    /// The object it belongs to (None: the Objects folder).
+    fn parent(&self) -> Option<&str> {
+        self.root.rsplit_once('.').map(|(p, _)| p)
+    }
+
+    /// Its method whose node id is `id` (in any namespace: the ids are
+    /// the gateway's own).
+    pub fn method(&self, id: &opcua::types::NodeId) -> Option<Method> {
+        match &id.identifier {
+            opcua::types::Identifier::String(s) => Method::ALL
+                .into_iter()
+                .find(|m| s.as_ref() == self.method_id(*m)),
+            _ => None,
+        }
+    }
+
+    /// The request its method `m` makes for these arguments, or what is
+    /// wrong with them: a cell's `AddOrder` adds an order for that cell
+    /// only (`falc order add --cell`).
+    pub fn request(&self, m: Method, args: &[Arg]) -> Result<ApiRequest, String> {
+        let mut request = m.request(args)?;
+        if let (ApiRequest::OrderAdd { placement, .. }, Some(cell)) = (&mut request, self.cell()) {
+            placement.cell = Some(cell.clone());
+        }
+        Ok(request)
+    }
+
+    /// The node id of its method `m`.
+    pub fn method_id(&self, m: Method) -> String {
+        self.id(m.name())
+    }
+}
 
 /// A value of the address space, with its OPC UA type.
 #[derive(Debug, Clone, PartialEq)]
@@ -62,38 +186,43 @@ pub struct Object {
     pub folder: bool,
 }
 
-/// The objects of the address space for these stations, parents first.
-pub fn layout(stations: &[(StationName, StationKind)]) -> Vec<Object> {
+/// The objects of the address space for these scopes, parents first.
+pub fn layout(scopes: &[Scope]) -> Vec<Object> {
     let object = |id: String, name: &str, parent: Option<&str>, folder: bool| Object {
         id,
         name: name.to_string(),
         parent: parent.map(str::to_string),
         folder,
     };
-    let mut out = vec![
-        object(ROOT.into(), ROOT, None, false),
-        object(format!("{ROOT}.Orders"), "Orders", Some(ROOT), true),
-        object(format!("{ROOT}.Journal"), "Journal", Some(ROOT), true),
-        object(format!("{ROOT}.Alarms"), "Alarms", Some(ROOT), true),
-        object(format!("{ROOT}.Stations"), "Stations", Some(ROOT), true),
-    ];
-    let stations_id = format!("{ROOT}.Stations");
-    for (name, _) in stations {
-        out.push(object(
-            station_id(name),
-            name.as_str(),
-            Some(&stations_id),
-            false,
-        ));
+    let mut out = Vec::new();
+    for scope in scopes {
+        let root = scope.root.as_str();
+        out.push(object(root.into(), scope.name(), scope.parent(), false));
+        out.push(object(scope.id("Orders"), "Orders", Some(root), true));
+        let Part::Cell { stations, .. } = &scope.part else {
+            continue;
+        };
+        for folder in ["Journal", "Alarms", "Stations"] {
+            out.push(object(scope.id(folder), folder, Some(root), true));
+        }
+        let stations_id = scope.id("Stations");
+        for (name, _) in stations {
+            out.push(object(
+                station_id(scope, name),
+                name.as_str(),
+                Some(&stations_id),
+                false,
+            ));
+        }
     }
     out
 }
 
-fn station_id(name: &StationName) -> String {
-    format!("{ROOT}.Stations.{name}")
+fn station_id(scope: &Scope, name: &StationName) -> String {
+    scope.id(&format!("Stations.{name}"))
 }
 
-/// A method of the cell object: the operator API call it makes.
+/// A method of a cell or plant object: the operator API call it makes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Method {
     /// `AddOrder(Recipe: String) → OrderId: Int64`.
@@ -153,17 +282,15 @@ impl Method {
         }
     }
 
-    /// Its node id.
-    pub fn id(self) -> String {
-        format!("{ROOT}.{}", self.name())
-    }
-
-    /// The method whose node id is `id` (in any namespace: the ids are the
-    /// gateway's own).
+    /// The method whose node id is `id` under any object (in any
+    /// namespace: the ids are the gateway's own): what its name says.
     pub fn of(id: &opcua::types::NodeId) -> Option<Self> {
         match &id.identifier {
             opcua::types::Identifier::String(s) => {
-                Self::ALL.into_iter().find(|m| s.as_ref() == m.id())
+                let (root, name) = s.as_ref().rsplit_once('.')?;
+                (root == ROOT || root.starts_with(&format!("{ROOT}.")))
+                    .then(|| Self::ALL.into_iter().find(|m| m.name() == name))
+                    .flatten()
             }
             _ => None,
         }
@@ -233,22 +360,98 @@ impl Method {
     }
 }
 
-/// One look at the cell: what the operator answered (None: not reached).
+/// One look at a cell or the plant: what the operator answered (None:
+/// not reached; the plant's status is only there or not).
 #[derive(Debug, Clone, Default)]
 pub struct Look {
-    /// `status`.
+    /// `status` (of this cell).
     pub status: Option<CellStatus>,
-    /// `order-list`.
+    /// `order-list`: every order of the plant (a cell of a plant of
+    /// several serves those it runs or ran, or that were added for it).
     pub orders: Vec<Order>,
-    /// The newest journal entries, oldest first.
+    /// The newest journal entries (of this cell), oldest first.
     pub journal: Vec<Entry>,
-    /// Why the operator refused the last method call through this gateway.
+    /// Why the operator refused the last method call on this object.
     pub last_refusal: String,
 }
 
-/// Every value of the address space for this look: node id and value. The
-/// set of ids depends only on `stations`, never on the look.
-pub fn values(stations: &[(StationName, StationKind)], look: &Look) -> Vec<(String, Value)> {
+/// Every value of `scope`'s part of the address space for this look: node
+/// id and value. The set of ids depends only on the scope, never on the
+/// look.
+pub fn values(scope: &Scope, look: &Look) -> Vec<(String, Value)> {
+    match &scope.part {
+        Part::Cell { id, stations } => cell_values(scope, id.as_ref(), stations, look),
+        Part::Plant { cells } => plant_values(scope, cells, look),
+    }
+}
+
+/// The plant object's values: reachable, its cells, the queued orders and
+/// every order.
+fn plant_values(scope: &Scope, cells: &[CellId], look: &Look) -> Vec<(String, Value)> {
+    let r = |n: &str| scope.id(n);
+    let queued = look
+        .orders
+        .iter()
+        .filter(|o| o.state == OrderState::Queued)
+        .count();
+    let mut out = vec![
+        (r("OperatorReachable"), Value::Bool(look.status.is_some())),
+        (
+            r("Cells"),
+            Value::Texts(cells.iter().map(ToString::to_string).collect()),
+        ),
+        (
+            r("Queued"),
+            Value::Int32(i32::try_from(queued).unwrap_or(i32::MAX)),
+        ),
+        (r("LastRefusal"), Value::Text(look.last_refusal.clone())),
+    ];
+    let orders: Vec<&Order> = look.orders.iter().collect();
+    order_values(scope, &orders, &mut |id, v| out.push((id, v)));
+    out.push((
+        r("Orders.Cells"),
+        Value::Texts(
+            orders
+                .iter()
+                .map(|o| o.cell.clone().or(o.wanted.clone()).unwrap_or_default())
+                .collect(),
+        ),
+    ));
+    out
+}
+
+/// The `Orders` folder's values of these orders.
+fn order_values(scope: &Scope, o: &[&Order], put: &mut dyn FnMut(String, Value)) {
+    let r = |n: &str| scope.id(n);
+    put(
+        r("Orders.Ids"),
+        Value::Int64s(o.iter().map(|o| o.id).collect()),
+    );
+    put(
+        r("Orders.Recipes"),
+        Value::Texts(o.iter().map(|o| o.recipe.clone()).collect()),
+    );
+    put(
+        r("Orders.States"),
+        Value::Texts(o.iter().map(|o| o.state.to_string()).collect()),
+    );
+    put(
+        r("Orders.Results"),
+        Value::Texts(
+            o.iter()
+                .map(|o| o.result.clone().unwrap_or_default())
+                .collect(),
+        ),
+    );
+}
+
+/// A cell object's values (`cell`: which cell of a plant of several).
+fn cell_values(
+    scope: &Scope,
+    cell: Option<&CellId>,
+    stations: &[(StationName, StationKind)],
+    look: &Look,
+) -> Vec<(String, Value)> {
     let mut out: Vec<(String, Value)> = Vec::new();
     let mut put = |id: String, v: Value| out.push((id, v));
     let s = look.status.as_ref();
@@ -269,7 +472,7 @@ pub fn values(stations: &[(StationName, StationKind)], look: &Look) -> Vec<(Stri
         .and_then(|(n, _)| s?.stations.iter().find(|v| &v.name == n))
         .and_then(|v| v.status.as_ref()?.program.clone());
     let text = |t: Option<&String>| text_of(t, String::clone);
-    let r = |n: &str| format!("{ROOT}.{n}");
+    let r = |n: &str| scope.id(n);
     put(r("OperatorReachable"), Value::Bool(s.is_some()));
     put(r("PackMLState"), Value::Text(state.name().into()));
     put(r("PackMLStateCode"), Value::Int32(state.code()));
@@ -301,27 +504,15 @@ pub fn values(stations: &[(StationName, StationKind)], look: &Look) -> Vec<(Stri
     );
     put(r("LastRefusal"), Value::Text(look.last_refusal.clone()));
 
-    let o = &look.orders;
-    put(
-        r("Orders.Ids"),
-        Value::Int64s(o.iter().map(|o| o.id).collect()),
-    );
-    put(
-        r("Orders.Recipes"),
-        Value::Texts(o.iter().map(|o| o.recipe.clone()).collect()),
-    );
-    put(
-        r("Orders.States"),
-        Value::Texts(o.iter().map(|o| o.state.to_string()).collect()),
-    );
-    put(
-        r("Orders.Results"),
-        Value::Texts(
-            o.iter()
-                .map(|o| o.result.clone().unwrap_or_default())
-                .collect(),
-        ),
-    );
+    // A cell of a plant serves the orders it runs or ran, or that wait
+    // for it.
+    let mine = |o: &&Order| {
+        cell.map_or(true, |c| {
+            o.cell.as_deref().or(o.wanted.as_deref()) == Some(c.as_str())
+        })
+    };
+    let orders: Vec<&Order> = look.orders.iter().filter(mine).collect();
+    order_values(scope, &orders, &mut put);
 
     let j = &look.journal;
     put(
@@ -358,7 +549,7 @@ pub fn values(stations: &[(StationName, StationKind)], look: &Look) -> Vec<(Stri
     for (name, kind) in stations {
         let view = s.and_then(|s| s.stations.iter().find(|v| &v.name == name));
         let vmd = view.and_then(|v| v.status.as_ref());
-        let id = |n: &str| format!("{}.{n}", station_id(name));
+        let id = |n: &str| format!("{}.{n}", station_id(scope, name));
         put(
             id("Connected"),
             Value::Bool(view.is_some_and(|v| v.connected)),
@@ -601,7 +792,7 @@ impl Mirror {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use falc_model::console::{ListState, OrderState, StationView};
+    use falc_model::console::{ListState, StationView};
     use falc_model::mms::vmd::{ProgramState, RobotStatusDetail, RobotVmdState};
 
     #[test]
@@ -639,6 +830,11 @@ mod tests {
             (st("welding"), StationKind::Welding),
             (st("transport"), StationKind::Transport),
         ]
+    }
+
+    /// The one cell's scope.
+    fn one() -> Scope {
+        Scope::one_cell(stations()).remove(0)
     }
 
     fn alarm(id: i64) -> Alarm {
@@ -726,7 +922,7 @@ mod tests {
             status: Some(status()),
             ..Look::default()
         };
-        let v = values(&stations(), &look);
+        let v = values(&one(), &look);
         assert_eq!(get(&v, "FALC.PackMLState"), &Value::Text("Held".into()));
         assert_eq!(get(&v, "FALC.PackMLStateCode"), &Value::Int32(11));
         assert_eq!(get(&v, "FALC.RunningOrder"), &Value::Int64(7));
@@ -751,7 +947,7 @@ mod tests {
         };
         assert_eq!(lit.len(), 2, "{lit:?}");
         // The same ids whether or not the operator answered.
-        let empty = values(&stations(), &Look::default());
+        let empty = values(&one(), &Look::default());
         let ids = |v: &[(String, Value)]| v.iter().map(|(i, _)| i.clone()).collect::<Vec<_>>();
         assert_eq!(ids(&v), ids(&empty));
         assert_eq!(get(&empty, "FALC.OperatorReachable"), &Value::Bool(false));
@@ -760,7 +956,10 @@ mod tests {
             &Value::Text("Stopped".into())
         );
         // Every id under an object of the layout.
-        let objects: Vec<String> = layout(&stations()).into_iter().map(|o| o.id).collect();
+        let objects: Vec<String> = layout(&Scope::one_cell(stations()))
+            .into_iter()
+            .map(|o| o.id)
+            .collect();
         for id in ids(&v) {
             let parent = id.rsplit_once('.').map(|(p, _)| p).unwrap_or_default();
             assert!(objects.iter().any(|o| o == parent), "{id}");
@@ -774,15 +973,15 @@ mod tests {
             status: Some(status()),
             ..Look::default()
         };
-        let first = m.update(values(&stations(), &look), &[alarm(1)]);
+        let first = m.update(values(&one(), &look), &[alarm(1)]);
         assert!(first.values.len() > 30);
         assert!(first.events.is_empty(), "alarms listed before are no news");
-        let again = m.update(values(&stations(), &look), &[alarm(1)]);
+        let again = m.update(values(&one(), &look), &[alarm(1)]);
         assert_eq!(again, Changes::default());
         // Values that could not be written are all passed on again, and
         // no alarm is news for it.
         m.forget_values();
-        let again = m.update(values(&stations(), &look), &[alarm(1)]);
+        let again = m.update(values(&one(), &look), &[alarm(1)]);
         assert_eq!(again.values.len(), first.values.len());
         assert!(again.events.is_empty());
         let mut s = status();
@@ -793,7 +992,7 @@ mod tests {
         };
         let mut acked = alarm(1);
         acked.acked = Some(("console".into(), 5));
-        let c = m.update(values(&stations(), &look), &[acked, alarm(2)]);
+        let c = m.update(values(&one(), &look), &[acked, alarm(2)]);
         let ids: Vec<&str> = c.values.iter().map(|(i, _)| i.as_str()).collect();
         assert!(
             ids.contains(&"FALC.Question") && ids.contains(&"FALC.PackMLState"),
@@ -806,7 +1005,7 @@ mod tests {
         assert!(c.events[1].message.starts_with("alarm raised: #2 welding"));
         assert_eq!(c.events[1].severity, 800);
         // Both leave the list: #1 (acknowledged) by clearing, #2 at once.
-        let c = m.update(values(&stations(), &look), &[]);
+        let c = m.update(values(&one(), &look), &[]);
         let texts: Vec<&str> = c.events.iter().map(|e| e.message.as_str()).collect();
         assert_eq!(texts.len(), 2, "{texts:?}");
         assert!(texts[0].starts_with("alarm cleared: #1"), "{texts:?}");
@@ -844,14 +1043,121 @@ mod tests {
             .request(&[Text("ja\nnee".into())])
             .expect_err("limits");
         assert!(e.contains("control character"), "{e}");
+        let one = one();
         for m in Method::ALL {
-            let id = opcua::types::NodeId::new(2, m.id());
-            assert_eq!(Method::of(&id), Some(m));
+            let id = opcua::types::NodeId::new(2, one.method_id(m));
+            assert_eq!((one.method(&id), Method::of(&id)), (Some(m), Some(m)));
         }
         assert_eq!(Method::of(&opcua::types::NodeId::new(0, 2253u32)), None);
         assert_eq!(
             Method::Start.call().role(),
             falc_model::topology::Role::Operator
         );
+    }
+
+    fn order(id: i64, cell: Option<&str>, wanted: Option<&str>, state: OrderState) -> Order {
+        Order {
+            id,
+            cell: cell.map(str::to_string),
+            wanted: wanted.map(str::to_string),
+            state,
+            ..status().running.expect("an order")
+        }
+    }
+
+    #[test]
+    fn a_plant_has_its_object_and_one_object_per_cell_with_its_own_methods() {
+        let cell = |c: &str| CellId::new(c).expect("valid");
+        let scopes = Scope::plant(vec![
+            (cell("falc1"), stations()),
+            (cell("falc2"), stations()),
+        ]);
+        let roots: Vec<&str> = scopes.iter().map(|s| s.root.as_str()).collect();
+        assert_eq!(roots, ["FALC", "FALC.falc1", "FALC.falc2"]);
+        let objects = layout(&scopes);
+        let parent = |id: &str| {
+            objects
+                .iter()
+                .find(|o| o.id == id)
+                .unwrap_or_else(|| panic!("{id}"))
+                .parent
+                .clone()
+        };
+        assert_eq!(parent("FALC"), None);
+        assert_eq!(parent("FALC.falc2"), Some("FALC".into()));
+        assert_eq!(
+            parent("FALC.falc2.Stations.welding"),
+            Some("FALC.falc2.Stations".into())
+        );
+        // Each cell's methods are its own: one cell's id is no other's.
+        let start2 = opcua::types::NodeId::new(2, scopes[2].method_id(Method::Start));
+        assert_eq!(scopes[2].method(&start2), Some(Method::Start));
+        assert_eq!(scopes[1].method(&start2), None);
+        assert_eq!(scopes[0].method(&start2), None);
+        assert_eq!(scopes[2].cell().map(CellId::as_str), Some("falc2"));
+        // A cell's AddOrder is for that cell; the plant's for any.
+        let add = [Arg::Text("dikdroog".into())];
+        let placed = |r: Result<ApiRequest, String>| match r {
+            Ok(ApiRequest::OrderAdd { placement, .. }) => placement.cell,
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(
+            placed(scopes[2].request(Method::AddOrder, &add)),
+            Some(cell("falc2"))
+        );
+        assert_eq!(placed(scopes[0].request(Method::AddOrder, &add)), None);
+        assert_eq!(scopes[0].cell(), None);
+        // A cell serves the orders it runs or ran, or that wait for it;
+        // the plant every order, with its cell.
+        let look = Look {
+            status: Some(status()),
+            orders: vec![
+                order(1, Some("falc1"), None, OrderState::Done),
+                order(2, Some("falc2"), None, OrderState::Running),
+                order(3, None, Some("falc2"), OrderState::Queued),
+                order(4, None, None, OrderState::Queued),
+            ],
+            ..Look::default()
+        };
+        let two = values(&scopes[2], &look);
+        assert_eq!(
+            get(&two, "FALC.falc2.Orders.Ids"),
+            &Value::Int64s(vec![2, 3])
+        );
+        assert_eq!(
+            get(&two, "FALC.falc2.PackMLState"),
+            &Value::Text("Held".into())
+        );
+        let plant = values(&scopes[0], &look);
+        assert_eq!(
+            get(&plant, "FALC.Orders.Ids"),
+            &Value::Int64s(vec![1, 2, 3, 4])
+        );
+        assert_eq!(
+            get(&plant, "FALC.Orders.Cells"),
+            &Value::Texts(vec![
+                "falc1".into(),
+                "falc2".into(),
+                "falc2".into(),
+                String::new()
+            ])
+        );
+        assert_eq!(get(&plant, "FALC.Queued"), &Value::Int32(2));
+        assert_eq!(
+            get(&plant, "FALC.Cells"),
+            &Value::Texts(vec!["falc1".into(), "falc2".into()])
+        );
+        assert_eq!(get(&plant, "FALC.OperatorReachable"), &Value::Bool(true));
+        // Every value under an object of the layout, and no id twice.
+        let mut all: Vec<String> = Vec::new();
+        for scope in &scopes {
+            all.extend(values(scope, &look).into_iter().map(|(id, _)| id));
+        }
+        for id in &all {
+            let parent = id.rsplit_once('.').map(|(p, _)| p).unwrap_or_default();
+            assert!(objects.iter().any(|o| o.id == parent), "{id}");
+        }
+        let unique: BTreeSet<&String> = all.iter().collect();
+        assert_eq!(unique.len(), all.len());
     }
 }

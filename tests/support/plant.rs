@@ -10,15 +10,17 @@ use std::path::PathBuf;
 use std::process::Command;
 use std::time::Duration;
 
-/// A plant file: the operator and two console users, then each cell of
-/// `cells` (its id and its workstations, under its cell controller), the
-/// routers' endpoints left as `FACTORY` and `ROUTER<n>`.
+/// A plant file: the operator and three console users (the OPC UA
+/// gateway's too), then each cell of `cells` (its id and its workstations,
+/// under its cell controller), the routers' endpoints left as `FACTORY`
+/// and `ROUTER<n>`.
 pub fn plant_text(cells: &[(&str, &[&str])]) -> String {
     let mut text = String::from(
         "plant = \"plant\"\nrouter = \"FACTORY\"\nlease_ms = 1000\n\
          [operator]\nname = \"operator\"\n\
          [[console]]\nname = \"console\"\nrole = \"operator\"\n\
-         [[console]]\nname = \"observer\"\nrole = \"observer\"\n",
+         [[console]]\nname = \"observer\"\nrole = \"observer\"\n\
+         [[console]]\nname = \"opcua\"\nrole = \"operator\"\n",
     );
     for (n, (cell, workstations)) in cells.iter().enumerate() {
         text.push_str(&format!(
