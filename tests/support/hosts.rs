@@ -4,8 +4,10 @@
 //! veth link of its own, addresses in 10.77.0.0/24 inside those namespaces
 //! only. Links can be cut and mended from the router's side, the bridge's
 //! traffic captured, and the router's firewall rules applied in its
-//! namespace. Everything is removed on drop (deleting a namespace deletes
-//! its links and rules). Needs root.
+//! namespace. A plant the same way ([`Hosts::create_named`]): the factory's
+//! namespace holds the bridge, each cell a namespace of its own on it.
+//! Everything is removed on drop (deleting a namespace deletes its links
+//! and rules). Needs root.
 
 use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -28,6 +30,11 @@ pub const ROUTER_ADDRESS: &str = "10.77.0.1";
 /// The namespaces of one test.
 pub struct Hosts {
     prefix: String,
+    /// The hosts; the first holds the bridge.
+    names: Vec<String>,
+    /// The bridge's network (`10.77.0`): the first host is `.1`, the
+    /// others `.11`, `.12` …
+    net: String,
 }
 
 fn ip(args: &[&str]) -> Result<(), String> {
@@ -50,27 +57,29 @@ impl Hosts {
     /// Creates the namespaces and links, or says why it cannot (not root,
     /// no `ip`).
     pub fn create() -> Result<Hosts, String> {
+        Self::create_named(&HOSTS, "10.77.0")
+    }
+
+    /// Namespaces for `names` on network `net` (`10.78.0`), the first
+    /// holding the bridge at `<net>.1`, the others at `<net>.11`, `.12` …;
+    /// or why they cannot be made.
+    pub fn create_named(names: &[&str], net: &str) -> Result<Hosts, String> {
         let hosts = Hosts {
             prefix: format!("falc{}", std::process::id()),
+            names: names.iter().map(|n| n.to_string()).collect(),
+            net: net.to_string(),
         };
         // Hosts drops (and deletes what exists) if any step fails.
-        for h in HOSTS {
+        for h in names {
             ip(&["netns", "add", &hosts.ns(h)])?;
             ip(&["-n", &hosts.ns(h), "link", "set", "lo", "up"])?;
         }
-        let r = hosts.ns("router");
+        let r = hosts.ns(names[0]);
+        let bridge = format!("{}/24", hosts.address(names[0]));
         ip(&["-n", &r, "link", "add", "br0", "type", "bridge"])?;
-        ip(&[
-            "-n",
-            &r,
-            "addr",
-            "add",
-            &format!("{ROUTER_ADDRESS}/24"),
-            "dev",
-            "br0",
-        ])?;
+        ip(&["-n", &r, "addr", "add", &bridge, "dev", "br0"])?;
         ip(&["-n", &r, "link", "set", "br0", "up"])?;
-        for h in HOSTS.iter().skip(1) {
+        for h in names.iter().skip(1) {
             let ns = hosts.ns(h);
             let port = Self::port_of(h);
             ip(&[
@@ -78,7 +87,7 @@ impl Hosts {
                 "netns", &r,
             ])?;
             ip(&["-n", &r, "link", "set", &port, "master", "br0", "up"])?;
-            let address = format!("{}/24", address_of(h));
+            let address = format!("{}/24", hosts.address(h));
             ip(&["-n", &ns, "addr", "add", &address, "dev", "eth0"])?;
             ip(&["-n", &ns, "link", "set", "eth0", "up"])?;
         }
@@ -153,8 +162,16 @@ impl Hosts {
         self.set_port(host, "up");
     }
 
+    /// The address of `host` on the bridge.
+    pub fn address(&self, host: &str) -> String {
+        match self.names.iter().position(|h| h == host) {
+            Some(0) | None => format!("{}.1", self.net),
+            Some(i) => format!("{}.{}", self.net, 10 + i),
+        }
+    }
+
     fn set_port(&self, host: &str, state: &str) {
-        let router = self.ns("router");
+        let router = self.ns(&self.names[0]);
         let port = Self::port_of(host);
         if let Err(e) = ip(&["-n", &router, "link", "set", &port, state]) {
             panic!("{host}'s link {state}: {e}");
@@ -373,7 +390,7 @@ fn enter(path: &str) -> Result<(), String> {
 
 impl Drop for Hosts {
     fn drop(&mut self) {
-        for h in HOSTS {
+        for h in &self.names {
             let _ = ip(&["netns", "del", &self.ns(h)]);
         }
     }

@@ -10,7 +10,6 @@ pub mod hosts;
 pub mod noise;
 pub mod opcua;
 pub mod plant;
-pub mod relay;
 pub mod rig;
 pub mod stats;
 
@@ -412,6 +411,19 @@ impl LaunchedCell {
         run_falc(&self.falc_args(user), args)
     }
 
+    /// Bus settings for a session of console user `user` from this
+    /// process.
+    pub fn settings(&self, user: &str) -> BusSettings {
+        let topology = Topology::load(&self.dir.path().join("cell.toml")).expect("topology");
+        let endpoint = topology.router().to_string();
+        settings_in(
+            &topology,
+            &endpoint,
+            &self.dir.path().join("credentials"),
+            user,
+        )
+    }
+
     /// The arguments that make `falc` talk to this cell as `user`.
     pub fn falc_args(&self, user: &str) -> Vec<String> {
         vec![
@@ -422,6 +434,30 @@ impl LaunchedCell {
             "--user".into(),
             user.into(),
         ]
+    }
+}
+
+/// Bus settings for a session of `station` of `topology` from this
+/// process, at router `endpoint`, its credentials in `credentials_dir`.
+pub fn settings_in(
+    topology: &Topology,
+    endpoint: &str,
+    credentials_dir: &std::path::Path,
+    station: &str,
+) -> BusSettings {
+    let me = StationName::new(station).expect("valid station");
+    let creds = credentials::load(&credentials_dir.join(format!("{station}.toml")))
+        .expect("credentials written by the router");
+    let tls = certificates::is_secure(endpoint)
+        .then(|| certificates::TlsFiles::of(credentials_dir, station));
+    BusSettings {
+        keys: KeySpace::new(topology.cell().clone()),
+        me,
+        endpoint: endpoint.to_string(),
+        lease: topology.lease(),
+        credentials: Some(creds),
+        tls,
+        connect_timeout: Duration::ZERO,
     }
 }
 
@@ -638,20 +674,12 @@ impl TestCell {
 
     /// Bus settings for a session of `station` from this process.
     pub fn settings(&self, station: &str) -> BusSettings {
-        let me = StationName::new(station).expect("valid station");
-        let creds = credentials::load(&self.credentials_dir().join(format!("{station}.toml")))
-            .expect("credentials written by the router");
-        let tls = certificates::is_secure(&self.endpoint)
-            .then(|| certificates::TlsFiles::of(&self.credentials_dir(), station));
-        BusSettings {
-            keys: KeySpace::new(self.topology.cell().clone()),
-            me,
-            endpoint: self.endpoint.clone(),
-            lease: self.topology.lease(),
-            credentials: Some(creds),
-            tls,
-            connect_timeout: Duration::ZERO,
-        }
+        settings_in(
+            &self.topology,
+            &self.endpoint,
+            &self.credentials_dir(),
+            station,
+        )
     }
 
     /// Sends `count` malformed operator API calls (`status`, a payload

@@ -1,6 +1,9 @@
 //! A plant under test: a plant file with free ports, the factory router
-//! and one router per cell (real `falc-router` processes), killed on drop.
+//! and one router per cell (real `falc-router` processes), killed on drop;
+//! on one network, or each cell on a network of its own
+//! ([`TestPlant::start_in_namespaces`]).
 
+use super::hosts::Hosts;
 use super::{free_port, Proc};
 use falc_bus::{credentials, Bus, BusError, BusSettings};
 use falc_model::ids::{CellId, StationName};
@@ -71,6 +74,9 @@ pub struct TestPlant {
     pub path: PathBuf,
     /// The cell routers, then the factory router (dropped in that order).
     pub routers: Vec<Proc>,
+    /// The namespaces when each cell is on its own network (removed last,
+    /// after every process of the plant stopped).
+    pub hosts: Option<Hosts>,
 }
 
 impl TestPlant {
@@ -92,16 +98,44 @@ impl TestPlant {
     /// The plant file `plant` (from [`plant_text`]) with free ports, and
     /// every router started.
     pub fn start_text(plant: &str) -> TestPlant {
+        Self::start_on(&with_free_ports(plant), None)
+    }
+
+    /// The plant file `plant` (from [`plant_text`]) with each cell on a
+    /// network of its own: a namespace for the factory (its router, the
+    /// operator, the consoles) holding a bridge, and one per cell (its
+    /// router, its nodes and twins) joined to that bridge by a veth link
+    /// ([`Hosts::create_named`]), every router started; or why the
+    /// namespaces cannot be made (not root).
+    pub fn start_in_namespaces(plant: &str) -> Result<TestPlant, String> {
+        let cells = plant.matches("router = \"ROUTER").count();
+        let mut names = vec!["factory".to_string()];
+        names.extend((1..=cells).map(|n| format!("falc{n}")));
+        let names: Vec<&str> = names.iter().map(String::as_str).collect();
+        let hosts = Hosts::create_named(&names, "10.78.0")?;
+        // Each cell's router on its own network's loopback; the factory
+        // router on the bridge, where the cell routers reach it.
+        let mut text = plant.replace(
+            "\"FACTORY\"",
+            &format!("\"tcp/{}:7440\"", hosts.address("factory")),
+        );
+        for n in 1..=cells {
+            text = text.replace(&format!("\"ROUTER{n}\""), "\"tcp/127.0.0.1:7441\"");
+        }
+        Ok(Self::start_on(&text, Some(hosts)))
+    }
+
+    fn start_on(text: &str, hosts: Option<Hosts>) -> TestPlant {
         let dir = tempfile::tempdir().expect("tempdir");
-        let text = with_free_ports(plant);
         let path = dir.path().join("factory.toml");
-        std::fs::write(&path, &text).expect("write plant");
-        let plant = Plant::parse(&text, "test").expect("valid plant");
+        std::fs::write(&path, text).expect("write plant");
+        let plant = Plant::parse(text, "test").expect("valid plant");
         let mut tp = TestPlant {
             dir,
             plant,
             path,
             routers: Vec::new(),
+            hosts,
         };
         let factory = tp.router(None);
         let cells: Vec<CellId> = tp.plant.cells().iter().map(|c| c.id().clone()).collect();
@@ -116,7 +150,10 @@ impl TestPlant {
     /// Starts the factory router (None) or a cell's, and waits until it
     /// is ready.
     pub fn router(&self, cell: Option<&CellId>) -> Proc {
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-router"));
+        let mut cmd = self.command(
+            cell.map_or("factory", CellId::as_str),
+            env!("CARGO_BIN_EXE_falc-router"),
+        );
         cmd.arg("--plant")
             .arg(&self.path)
             .arg("--credentials-dir")
@@ -129,6 +166,15 @@ impl TestPlant {
         let mut p = Proc::spawn_logged(&name, cmd);
         p.expect_line("falc-router ready", Duration::from_secs(20));
         p
+    }
+
+    /// `bin` to be run on the network of cell `host` (or `factory`), or
+    /// here when the plant is on one network.
+    pub fn command(&self, host: &str, bin: &str) -> Command {
+        match &self.hosts {
+            Some(h) => h.command(host, bin),
+            None => Command::new(bin),
+        }
     }
 
     pub fn credentials_dir(&self) -> PathBuf {
@@ -208,7 +254,7 @@ pub struct CellNodes {
 impl TestPlant {
     /// Node binary `bin` as `station` of cell `cell` (with `args`), ready.
     pub fn node(&self, cell: &str, bin: &str, station: &str, args: &[&str]) -> Proc {
-        let mut cmd = Command::new(bin);
+        let mut cmd = self.command(cell, bin);
         cmd.args(["--station", station, "--cell", cell])
             .args(args)
             .arg("--topology")
@@ -223,12 +269,17 @@ impl TestPlant {
     /// Cell `cell`'s twins (the robot at `rcm_scale`), workstations and
     /// cell controller.
     pub fn start_cell_nodes(&self, cell: &str, rcm_scale: &str) -> CellNodes {
-        let (rcm, rcm_path) = super::twin(
+        let twin = |bin: &str, args: &[&str], announces: &str| {
+            let mut cmd = self.command(cell, bin);
+            cmd.args(args);
+            super::twin_from(cmd, bin, announces)
+        };
+        let (rcm, rcm_path) = twin(
             env!("CARGO_BIN_EXE_falc-rcm-sim"),
             &["--time-scale", rcm_scale],
             "serial port: ",
         );
-        let (plc, plc_address) = super::twin(
+        let (plc, plc_address) = twin(
             env!("CARGO_BIN_EXE_falc-plc-sim"),
             &["--listen", "127.0.0.1:0", "--time-scale", "20"],
             "listening on ",
@@ -271,7 +322,7 @@ impl TestPlant {
     /// The operator process, just spawned.
     pub fn spawn_operator(&self) -> Proc {
         let recipes = super::copy_recipes(self.dir.path());
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-operator"));
+        let mut cmd = self.command("factory", env!("CARGO_BIN_EXE_falc-operator"));
         cmd.arg("--recipes")
             .arg(&recipes)
             .arg("--db")
@@ -297,7 +348,11 @@ impl TestPlant {
         if let Some(c) = cell {
             all.extend(["--cell".to_string(), c.to_string()]);
         }
-        super::run_falc(&all, args)
+        super::run_falc_with(
+            self.command("factory", env!("CARGO_BIN_EXE_falc")),
+            &all,
+            args,
+        )
     }
 
     /// `falc ARGS` as `console`; must succeed; its output.

@@ -344,6 +344,7 @@ commander = "cell"
 [[cell]]
 cell = "falc2"
 router = "tcp/127.0.0.1:7448"
+uplink = "tcp/10.1.0.1:7446"
 [[cell.station]]
 name = "cell"
 kind = "cell"
@@ -371,6 +372,10 @@ commander = "cell"
             .cell(&CellId::new("falc2").expect("id"))
             .expect("falc2");
         assert_eq!(c2.topology().router(), "tcp/127.0.0.1:7448");
+        // Its router reaches the factory router at its own address; cell 1
+        // at the plant's.
+        assert_eq!(c2.uplink(), Some("tcp/10.1.0.1:7446"));
+        assert_eq!(plant.cells()[0].uplink(), None);
         assert_eq!(c2.topology().root().name.as_str(), "operator");
         let names: Vec<&str> = c2
             .topology()
