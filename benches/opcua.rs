@@ -172,9 +172,15 @@ fn main() {
     let (ua50, w50) = (median(&by_ua), median(&by_watch));
     let (name, ua_tail) = tail(&by_ua);
     let (_, w_tail) = tail(&by_watch);
+    let build = if cfg!(debug_assertions) {
+        "debug"
+    } else {
+        "release"
+    };
     println!(
-        "station status change (falc mode → the transport station's mode), n={CHANGES}, debug build, time scale 50"
+        "station status change (falc mode → the transport station's mode), n={CHANGES}, {build} build, time scale 50"
     );
+    println!("from `falc mode`'s start (the command's own start-up included):");
     println!("  OPC UA data-change notification (falc-opcua, on the operator's `changed`, publish 20 ms): p50 {ua50:.1} ms, {name} {ua_tail:.1} ms");
     println!("  falc status --watch (on the operator's `changed`):                        p50 {w50:.1} ms, {name} {w_tail:.1} ms");
     println!("  ratio OPC UA / watch (p50): {:.2}", ua50 / w50);

@@ -383,6 +383,69 @@ fn two_cells_work_through_one_order_list_in_parallel() {
     plant.assert_each_started_once(&orders);
 }
 
+/// A plant on the secure transport: every router on QUIC with mutual TLS
+/// (one certificate authority for the plant, a certificate beside every
+/// password, each cell's in its own directory). Both cells run an order;
+/// cell 1's welding station, with its own certificate and password, logs
+/// in neither at cell 2's router nor at the factory router.
+#[test]
+fn a_plant_on_the_secure_transport_runs_an_order_on_each_cell_and_keeps_cells_apart() {
+    use crate::support::plant::whole_plant;
+    use falc_model::console::OrderState;
+    let plant = TestPlant::start_secure(&whole_plant());
+    assert!(
+        plant.plant.router().starts_with("quic/"),
+        "{}",
+        plant.plant.router()
+    );
+    let creds = plant.credentials_dir();
+    for file in [
+        "ca.crt",
+        "operator.crt",
+        "router-falc2.crt",
+        "falc2/ca.crt",
+        "falc2/welding.crt",
+        "falc2/router.crt",
+    ] {
+        assert!(creds.join(file).exists(), "{file}");
+    }
+    let _one = plant.start_cell_nodes("falc1", "100");
+    let _two = plant.start_cell_nodes("falc2", "100");
+    let _operator = plant.start_operator();
+    plant.falc(None, &["order", "add", "dikdroog", "--count", "2"]);
+    let out = plant.falc(None, &["start"]);
+    assert!(
+        out.contains("falc1: order") && out.contains("falc2: order"),
+        "{out}"
+    );
+    plant.work_list("ja", Duration::from_secs(120));
+    let orders = plant.orders();
+    assert!(
+        orders.iter().all(|o| o.state == OrderState::Done),
+        "{orders:#?}"
+    );
+    let cells: std::collections::BTreeSet<_> =
+        orders.iter().filter_map(|o| o.cell.clone()).collect();
+    assert_eq!(cells.len(), 2, "one order on each cell: {orders:#?}");
+    plant.assert_each_started_once(&orders);
+    let rt = tokio::runtime::Runtime::new().expect("runtime");
+    rt.block_on(async {
+        let foreign = plant
+            .station_at("falc1", "welding", &plant.cell_router("falc2"), "falc2")
+            .await;
+        assert!(foreign.is_err(), "cell 1's welding at cell 2's router");
+        let up = plant
+            .station_at("falc1", "welding", plant.plant.router(), "falc1")
+            .await;
+        assert!(up.is_err(), "cell 1's welding at the factory router");
+        // Its own router takes it.
+        let own = plant
+            .station_at("falc1", "welding", &plant.cell_router("falc1"), "falc1")
+            .await;
+        assert!(own.is_ok(), "{:?}", own.err());
+    });
+}
+
 /// A robot's emergency stop in cell 2 mid-weld stops cell 2's list only:
 /// cell 1 runs on and takes the next order; the failed order is not run
 /// again. Cell 2's way back is its own: the stop released, its carriers

@@ -125,6 +125,12 @@ impl TestPlant {
         Ok(Self::start_on(&text, Some(hosts)))
     }
 
+    /// The plant file `plant` with free ports on the secure transport
+    /// (every router on `quic/`), every router started.
+    pub fn start_secure(plant: &str) -> TestPlant {
+        Self::start_on(&with_free_ports(plant).replace("\"tcp/", "\"quic/"), None)
+    }
+
     fn start_on(text: &str, hosts: Option<Hosts>) -> TestPlant {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("factory.toml");
@@ -199,15 +205,18 @@ impl TestPlant {
     /// to the credentials directory) at the router `endpoint`, in the key
     /// space of `keys` (a cell's, or the plant's).
     pub fn settings(&self, user: &str, creds: &str, endpoint: &str, keys: &str) -> BusSettings {
-        let credentials = credentials::load(&self.credentials_dir().join(creds))
-            .expect("credentials written by the router");
+        let path = self.credentials_dir().join(creds);
+        let credentials = credentials::load(&path).expect("credentials written by the router");
+        // On the secure transport the certificate beside the password.
+        let tls = falc_bus::certificates::is_secure(endpoint)
+            .then(|| falc_bus::certificates::TlsFiles::beside(&path));
         BusSettings {
             keys: KeySpace::new(CellId::new(keys).expect("valid id")),
             me: StationName::new(user).expect("valid user"),
             endpoint: endpoint.to_string(),
             lease: self.plant.lease(),
             credentials: Some(credentials),
-            tls: None,
+            tls,
             connect_timeout: Duration::ZERO,
         }
     }

@@ -348,10 +348,16 @@ fn section(secure: bool, entries: Vec<(Subject, Vec<Rule>)>) -> Value {
         };
         subject["id"] = json!(format!("{name}/subject"));
         if secure {
-            if let Subject::User(name) = &who {
+            match &who {
                 // The certificate and the password must both be this user's:
                 // a stolen password alone, or a certificate alone, opens nothing.
-                subject["cert_common_names"] = json!([name]);
+                Subject::User(name) => subject["cert_common_names"] = json!([name]),
+                // The link up shows the factory router's server certificate,
+                // which no client can present (its key stays on the router
+                // PC, and a client certificate must be one for clients).
+                Subject::Uplink { .. } => {
+                    subject["cert_common_names"] = json!([crate::certificates::ROUTER_COMMON_NAME]);
+                }
             }
             subject["link_protocols"] = json!([crate::certificates::SECURE_PROTOCOL]);
         }
@@ -821,5 +827,21 @@ commander = "operator"
             "commander traffic of this cell only: {up:?}"
         );
         assert!(!up.iter().any(|k| k.contains("/welding/svc/")), "{up:?}");
+        // On the secure transport the link up must also show a router's
+        // server certificate.
+        let secure = Plant::parse(&PLANT.replace("tcp/", "quic/"), "p").expect("plant");
+        let v = cell_router_access_control(&secure, &secure.cells()[0]);
+        let uplink = v["subjects"]
+            .as_array()
+            .expect("subjects")
+            .iter()
+            .find(|s| s["id"] == "uplink/subject")
+            .expect("the link up")
+            .clone();
+        assert_eq!(
+            uplink["cert_common_names"],
+            json!([crate::certificates::ROUTER_COMMON_NAME])
+        );
+        assert_eq!(uplink["link_protocols"], json!(["quic"]));
     }
 }

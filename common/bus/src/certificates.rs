@@ -187,7 +187,13 @@ impl Authority {
     /// The client certificate of `user` (common name = user), created if
     /// it does not exist yet or the CA was made anew.
     pub fn ensure_client(&self, user: &str) -> Result<TlsFiles, CredentialsError> {
-        let files = TlsFiles::of(&self.dir, user);
+        self.ensure_client_in(&self.dir, user)
+    }
+
+    /// The same in directory `dir` (a plant's cell: its stations'
+    /// certificates beside their passwords, [`Authority::share`]).
+    pub fn ensure_client_in(&self, dir: &Path, user: &str) -> Result<TlsFiles, CredentialsError> {
+        let files = TlsFiles::of(dir, user);
         if !self.fresh && files.cert.exists() && files.key.exists() {
             files.check()?;
             return Ok(files);
@@ -202,7 +208,16 @@ impl Authority {
     /// topology's `router`; `localhost` and `127.0.0.1` are always added),
     /// issued afresh each time so it always names the topology's host.
     pub fn issue_router(&self, hosts: &[&str]) -> Result<TlsFiles, CredentialsError> {
-        let files = TlsFiles::of(&self.dir, ROUTER);
+        self.issue_router_in(&self.dir, hosts)
+    }
+
+    /// The same in directory `dir` (a plant's cell router's).
+    pub fn issue_router_in(
+        &self,
+        dir: &Path,
+        hosts: &[&str],
+    ) -> Result<TlsFiles, CredentialsError> {
+        let files = TlsFiles::of(dir, ROUTER);
         let mut params = leaf_params(ROUTER_COMMON_NAME);
         params.extended_key_usages = vec![ExtendedKeyUsagePurpose::ServerAuth];
         for &name in hosts.iter().chain(&["localhost", "127.0.0.1"]) {
@@ -220,6 +235,17 @@ impl Authority {
         }
         self.issue(params, &files)?;
         Ok(files)
+    }
+
+    /// Writes the CA's certificate into `dir` too (a plant's cell
+    /// directory: its PCs check the routers against it).
+    pub fn share(&self, dir: &Path) -> Result<(), CredentialsError> {
+        let (to, from) = (TlsFiles::of(dir, CA).ca, TlsFiles::of(&self.dir, CA).ca);
+        if to == from {
+            return Ok(());
+        }
+        // The file as written when the CA was made, byte for byte.
+        write_public(&to, &read(&from)?)
     }
 
     fn issue(&self, params: CertificateParams, files: &TlsFiles) -> Result<(), CredentialsError> {

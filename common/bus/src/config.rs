@@ -134,7 +134,15 @@ pub fn router(
         Place::CellInPlant {
             uplink,
             credentials,
+            uplink_tls,
         } => {
+            // On the secure transport the link up shows the cell router's
+            // own certificate (`router-<cell>`) to the factory router.
+            if let Some(up) = uplink_tls {
+                let link = &mut v["transport"]["link"]["tls"];
+                link["connect_certificate"] = json!(up.cert.display().to_string());
+                link["connect_private_key"] = json!(up.key.display().to_string());
+            }
             v["connect"] = json!({
                 "endpoints": [uplink],
                 "exit_on_failure": false,
@@ -171,6 +179,9 @@ pub enum Place<'a> {
         uplink: &'a str,
         /// The cell router's user at the factory router.
         credentials: &'a Credentials,
+        /// On the secure transport, the cell router's client certificate
+        /// at the factory router (its CA the router's own).
+        uplink_tls: Option<&'a TlsFiles>,
     },
 }
 
@@ -284,6 +295,7 @@ mod tests {
             Place::CellInPlant {
                 uplink: "tcp/127.0.0.1:7440",
                 credentials: &up,
+                uplink_tls: None,
             },
         )
         .expect("cell router config");
@@ -292,5 +304,30 @@ mod tests {
         assert_eq!(get("connect/exit_on_failure"), "false");
         assert_eq!(get("transport/auth/usrpwd/user"), r#""router-falc1""#);
         assert!(get("transport/auth/usrpwd/dictionary_file").contains("/tmp/dict"));
+        // On the secure transport: the cell's certificate for its
+        // stations, the cell router's own for its link up, one CA.
+        let dir = Path::new("/etc/falc/credentials");
+        let listen = TlsFiles::of(&dir.join("falc1"), crate::certificates::ROUTER);
+        let uplink = TlsFiles::of(dir, "router-falc1");
+        let cell = router(
+            "quic/10.0.1.1:7441",
+            Duration::from_secs(1),
+            Path::new("/tmp/dict"),
+            Some(&listen),
+            json!({ "enabled": true, "default_permission": "deny" }),
+            Place::CellInPlant {
+                uplink: "quic/10.0.0.1:7440",
+                credentials: &up,
+                uplink_tls: Some(&uplink),
+            },
+        )
+        .expect("secure cell router config");
+        let get = |key: &str| cell.get_json(key).expect(key);
+        let tls = "transport/link/tls";
+        assert!(get(&format!("{tls}/listen_certificate")).contains("falc1/router.crt"));
+        assert!(get(&format!("{tls}/connect_certificate")).contains("credentials/router-falc1.crt"));
+        assert!(get(&format!("{tls}/connect_private_key")).contains("credentials/router-falc1.key"));
+        assert!(get(&format!("{tls}/root_ca_certificate")).contains("falc1/ca.crt"));
+        assert_eq!(get("transport/link/protocols"), r#"["quic"]"#);
     }
 }
