@@ -1,6 +1,8 @@
 //! `falc-router firewall`: the nftables rules that make the router's port
 //! a conduit in the IEC 62443 sense. Only the cell's own PCs (the `host`
-//! of each station and console in the topology) reach the port, each
+//! of each station and console in the topology; in a plant, a cell
+//! router's own stations, or for the factory router the operator's, the
+//! consoles' and each cell router's `host`) reach the port, each
 //! opening at most [`NEW_FLOWS_PER_SECOND`] new flows a second; strangers
 //! are dropped and a sample of them logged with their address (the kernel
 //! log line starts with [`LOG_PREFIX`]), which is where a refused
@@ -14,6 +16,7 @@
 //! login back. No zenoh setting changes that; keeping strangers off the
 //! port does. Plain text out, no I/O: apply with `nft -f`.
 
+use falc_model::plant::{Plant, PlantCell};
 use falc_model::topology::Topology;
 use std::net::IpAddr;
 
@@ -43,8 +46,64 @@ pub enum FirewallError {
     NoHost(String),
 }
 
-/// The rules for a router listening on `endpoint` (`quic/…` or `tcp/…`).
+/// The rules for the router of a cell on its own, listening on
+/// `endpoint` (`quic/…` or `tcp/…`): its stations' and consoles' hosts.
 pub fn rules(topology: &Topology, endpoint: &str) -> Result<String, FirewallError> {
+    let hosts = topology.user_hosts().map(|(u, h)| (u.to_string(), h));
+    rules_for(&format!("cell {}", topology.cell()), hosts, endpoint)
+}
+
+/// The rules for a router of a plant listening on `endpoint`: the factory
+/// router's (`cell` None: the operator's, the consoles' and each cell
+/// router's hosts), or cell `cell`'s (its stations' hosts; its link up is
+/// a connection it opens, not one to its port).
+pub fn plant_rules(
+    plant: &Plant,
+    cell: Option<&PlantCell>,
+    endpoint: &str,
+) -> Result<String, FirewallError> {
+    match cell {
+        None => {
+            let hosts = plant
+                .factory()
+                .user_hosts()
+                .map(|(u, h)| (u.to_string(), h))
+                .chain(
+                    plant
+                        .cells()
+                        .iter()
+                        .map(|c| (c.router_user().to_string(), c.host())),
+                );
+            rules_for(
+                &format!("plant {}'s factory", plant.name()),
+                hosts,
+                endpoint,
+            )
+        }
+        Some(c) => {
+            let operator = &plant.operator().name;
+            let hosts = c
+                .topology()
+                .stations()
+                .iter()
+                .filter(|s| &s.name != operator)
+                .map(|s| (s.name.to_string(), s.host));
+            rules_for(
+                &format!("cell {} of plant {}", c.id(), plant.name()),
+                hosts,
+                endpoint,
+            )
+        }
+    }
+}
+
+/// The rules for a router of `what` listening on `endpoint`, admitting
+/// the hosts of these users.
+fn rules_for(
+    what: &str,
+    users: impl Iterator<Item = (String, Option<IpAddr>)>,
+    endpoint: &str,
+) -> Result<String, FirewallError> {
     let bad = || FirewallError::Endpoint(endpoint.to_string());
     let (protocol, address) = endpoint.split_once('/').ok_or_else(bad)?;
     let layer4 = match protocol {
@@ -60,9 +119,9 @@ pub fn rules(topology: &Topology, endpoint: &str) -> Result<String, FirewallErro
     let mut missing = Vec::new();
     let mut v4 = Vec::new();
     let mut v6 = Vec::new();
-    for (user, host) in topology.user_hosts() {
+    for (user, host) in users {
         match host {
-            None => missing.push(user.to_string()),
+            None => missing.push(user),
             Some(IpAddr::V4(a)) if !v4.contains(&a) => v4.push(a),
             Some(IpAddr::V6(a)) if !v6.contains(&a) => v6.push(a),
             Some(_) => {}
@@ -82,12 +141,11 @@ pub fn rules(topology: &Topology, endpoint: &str) -> Result<String, FirewallErro
         }
     };
     let mut out = format!(
-        "# falc-router firewall for cell {cell}, router on {endpoint}\n\
+        "# falc-router firewall for {what}, router on {endpoint}\n\
          # Generated from the topology; apply with: falc-router firewall | nft -f -\n\
          table inet {TABLE}\n\
          delete table inet {TABLE}\n\
          table inet {TABLE} {{\n",
-        cell = topology.cell(),
     );
     out += &set(
         "cell_hosts",
@@ -174,5 +232,57 @@ host = "fd00::9"
         let t = Topology::parse(TOPO, "t").expect("valid");
         assert!(rules(&t, "quic/10.0.0.1").is_err());
         assert!(rules(&t, "serial/ttyS0").is_err());
+    }
+
+    #[test]
+    fn a_plants_routers_admit_their_own_hosts_only() {
+        let text = r#"
+plant = "p"
+router = "quic/10.0.0.1:7440"
+[operator]
+name = "operator"
+host = "10.0.0.2"
+[[console]]
+name = "console"
+role = "operator"
+host = "10.0.0.3"
+[[cell]]
+cell = "falc1"
+router = "quic/10.0.1.1:7441"
+host = "10.0.0.11"
+[[cell.station]]
+name = "cell"
+kind = "cell"
+commander = "operator"
+host = "10.0.1.2"
+[[cell.station]]
+name = "welding"
+kind = "welding"
+commander = "cell"
+host = "10.0.1.3"
+"#;
+        let plant = Plant::parse(text, "p").expect("plant");
+        let factory = plant_rules(&plant, None, plant.router()).expect("factory rules");
+        assert!(
+            factory.contains("elements = { 10.0.0.2, 10.0.0.3, 10.0.0.11 }"),
+            "the operator, the console, cell 1's router: {factory}"
+        );
+        assert!(factory.contains("udp dport 7440"), "{factory}");
+        let cell = &plant.cells()[0];
+        let one = plant_rules(&plant, Some(cell), cell.topology().router()).expect("cell rules");
+        assert!(
+            one.contains("elements = { 10.0.1.2, 10.0.1.3 }"),
+            "cell 1's stations only, not the operator: {one}"
+        );
+        assert!(one.contains("cell falc1 of plant p"), "{one}");
+        // A cell router without a host would lock its link up out.
+        let e = plant_rules(
+            &Plant::parse(&text.replace("host = \"10.0.0.11\"\n", ""), "p").expect("plant"),
+            None,
+            plant.router(),
+        )
+        .expect_err("no host")
+        .to_string();
+        assert!(e.contains("router-falc1"), "{e}");
     }
 }

@@ -65,21 +65,31 @@ enum Command {
     Credentials,
     /// Copy what one PC needs into a new directory: the user's credentials,
     /// certificate and key, the cell CA's certificate (never its key) and
-    /// the topology.
+    /// the topology. With `--plant`: a factory user's (the operator, a
+    /// console, a cell router `router-<cell>` with its cell's files), or
+    /// with `--cell` a station's of that cell.
     Bundle {
         /// The station or console user the PC runs as.
         user: String,
+        /// With `--plant`: the cell of the station.
+        #[arg(long)]
+        cell: Option<CellId>,
         /// The directory to create (it must not exist yet).
         #[arg(long)]
         out: PathBuf,
     },
     /// Print the nftables rules that admit only the cell's hosts (the
     /// `host` of each station and console) to the router's port, each
-    /// rate-limited; apply with `falc-router firewall | nft -f -`.
+    /// rate-limited; apply with `falc-router firewall | nft -f -`. With
+    /// `--plant`: the factory router's (the operator's, the consoles' and
+    /// each cell router's hosts), or with `--cell` that cell router's.
     Firewall {
         /// The endpoint the router listens on; default the topology's `router`.
         #[arg(long)]
         listen: Option<String>,
+        /// With `--plant`: the rules of this cell's router.
+        #[arg(long)]
+        cell: Option<CellId>,
     },
     /// Print the generated access control (zenoh JSON).
     Acl {
@@ -134,26 +144,61 @@ fn bundle(
     }
     ensure_credentials(topology, dir)?;
     let to = out.join("credentials");
-    private_dir(&to)?;
     let files = certificates::TlsFiles::of(dir, user);
-    let name = |p: &Path| p.file_name().map(|n| n.to_os_string()).unwrap_or_default();
     let password = dir.join(format!("{user}.toml"));
-    let copies = [
-        (password.as_path(), to.join(name(&password)), true),
-        (&files.key, to.join(name(&files.key)), true),
-        (&files.cert, to.join(name(&files.cert)), false),
-        (&files.ca, to.join(name(&files.ca)), false),
-        (cli_topology, out.join("cell.toml"), false),
+    let copies = vec![
+        (password, true),
+        (files.key, true),
+        (files.cert, false),
+        (files.ca, false),
     ];
-    for (from, to, private) in copies {
-        let text = std::fs::read_to_string(from)
-            .with_context(|| format!("cannot read {}", from.display()))?;
-        if private {
-            credentials::write_private(&to, &text)?;
-        } else {
-            credentials::write_public(&to, &text)?;
+    let mut copies: Vec<BundleFile> = copies
+        .into_iter()
+        .map(|(from, private)| BundleFile::into_dir(from, &to, private))
+        .collect();
+    copies.push(BundleFile {
+        from: cli_topology.to_path_buf(),
+        to: out.join("cell.toml"),
+        private: false,
+    });
+    write_bundle(&copies)
+}
+
+/// One file of a bundle.
+pub struct BundleFile {
+    /// Where it is.
+    pub from: PathBuf,
+    /// Where it goes.
+    pub to: PathBuf,
+    /// Whether it is private (0600) or public (0644).
+    pub private: bool,
+}
+
+impl BundleFile {
+    /// `from` into directory `dir`, under its own name.
+    pub fn into_dir(from: PathBuf, dir: &Path, private: bool) -> Self {
+        let to = dir.join(from.file_name().unwrap_or_default());
+        Self { from, to, private }
+    }
+}
+
+/// Writes a bundle's files (their directories made private, 0700), each
+/// named as it is written.
+fn write_bundle(copies: &[BundleFile]) -> Result<()> {
+    for c in copies {
+        if let Some(parent) = c.to.parent() {
+            if c.private || !parent.exists() {
+                private_dir(parent)?;
+            }
         }
-        println!("{}", to.display());
+        let text = std::fs::read_to_string(&c.from)
+            .with_context(|| format!("cannot read {}", c.from.display()))?;
+        if c.private {
+            credentials::write_private(&c.to, &text)?;
+        } else {
+            credentials::write_public(&c.to, &text)?;
+        }
+        println!("{}", c.to.display());
     }
     Ok(())
 }
@@ -167,7 +212,7 @@ async fn main() -> Result<()> {
         cell: None,
     });
     if let Some(path) = &cli.plant {
-        return plant_main(&Plant::load(path)?, &cli.credentials_dir, command).await;
+        return plant_main(&Plant::load(path)?, path, &cli.credentials_dir, command).await;
     }
     if let Command::Run { cell: Some(id), .. } = &command {
         anyhow::bail!("`run --cell {id}` runs a cell router of a plant: give the plant (--plant)");
@@ -196,12 +241,20 @@ async fn main() -> Result<()> {
             }
             Ok(())
         }
-        Command::Firewall { listen } => {
+        Command::Firewall { listen, cell } => {
+            if let Some(id) = cell {
+                anyhow::bail!("`firewall --cell {id}` is for a cell router of a plant: give the plant (--plant)");
+            }
             let listen = listen.unwrap_or_else(|| topology.router().to_string());
             print!("{}", firewall::rules(&topology, &listen)?);
             Ok(())
         }
-        Command::Bundle { user, out } => {
+        Command::Bundle { user, out, cell } => {
+            if let Some(id) = cell {
+                anyhow::bail!(
+                    "`bundle --cell {id}` is for a station of a plant: give the plant (--plant)"
+                );
+            }
             bundle(&topology, &cli.topology, &cli.credentials_dir, &user, &out)
         }
         Command::Run {
@@ -211,7 +264,7 @@ async fn main() -> Result<()> {
 }
 
 /// `falc-router --plant FILE …`: the routers of a plant ([`plant`]).
-async fn plant_main(plant: &Plant, dir: &Path, command: Command) -> Result<()> {
+async fn plant_main(plant: &Plant, path: &Path, dir: &Path, command: Command) -> Result<()> {
     match command {
         Command::Run {
             listen,
@@ -261,8 +314,34 @@ async fn plant_main(plant: &Plant, dir: &Path, command: Command) -> Result<()> {
             }
             Ok(())
         }
-        Command::Bundle { .. } | Command::Firewall { .. } => {
-            anyhow::bail!("`bundle` and `firewall` take one cell's topology for now, not a plant")
+        Command::Firewall { listen, cell } => {
+            let cell = match &cell {
+                Some(id) => Some(
+                    plant
+                        .cell(id)
+                        .with_context(|| format!("the plant has no cell `{id}`"))?,
+                ),
+                None => None,
+            };
+            let listen = listen.unwrap_or_else(|| {
+                cell.map_or(plant.router(), |c| c.topology().router())
+                    .to_string()
+            });
+            print!("{}", firewall::plant_rules(plant, cell, &listen)?);
+            Ok(())
+        }
+        Command::Bundle { user, out, cell } => {
+            if out.exists() {
+                anyhow::bail!("{} exists already; give a new directory", out.display());
+            }
+            write_bundle(&plant::bundle(
+                plant,
+                path,
+                dir,
+                &user,
+                cell.as_ref(),
+                &out,
+            )?)
         }
     }
 }

@@ -16,7 +16,10 @@
 //! router's in `<dir>/<cell>/router.crt`; a cell router shows
 //! `router-<cell>.crt` on its link up. A certificate of the plant opens
 //! nothing by itself: every router asks for the password and the
-//! certificate of the same user, and admits only its own users.
+//! certificate of the same user, and admits only its own users. The PC
+//! that holds the CA's key (`ca.key`, the factory router's) issues every
+//! certificate (`falc-router --plant … credentials`); a router on a PC
+//! given only the CA's certificate uses the certificate it was given.
 //!
 //! What each router lets through is `falc_bus::acl::factory_access_control`
 //! and `cell_router_access_control`; which routers it admits besides
@@ -54,9 +57,10 @@ pub fn ensure_credentials(plant: &Plant, dir: &Path) -> Result<Vec<PathBuf>> {
     let secure = transport(plant)?;
     let mut files = Vec::new();
     crate::private_dir(dir)?;
-    let authority = secure
-        .then(|| Authority::ensure(dir, &format!("plant {}", plant.name())))
-        .transpose()?;
+    let authority = if secure { authority(plant, dir)? } else { None };
+    if let Some(ca) = &authority {
+        ca.ensure_router_in(dir, &router_hosts(plant, None)?)?;
+    }
     for user in factory_users(plant) {
         credentials::ensure(dir, &user)?;
         if let Some(ca) = &authority {
@@ -69,6 +73,7 @@ pub fn ensure_credentials(plant: &Plant, dir: &Path) -> Result<Vec<PathBuf>> {
         crate::private_dir(&cdir)?;
         if let Some(ca) = &authority {
             ca.share(&cdir)?;
+            ca.ensure_router_in(&cdir, &router_hosts(plant, Some(cell))?)?;
         }
         for st in cell_users(plant, cell.id()) {
             credentials::ensure(&cdir, &st)?;
@@ -81,30 +86,59 @@ pub fn ensure_credentials(plant: &Plant, dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-/// Issues a router's server certificate afresh at its start (so it names
-/// the hosts the plant file gives now): the factory router's (`cell`
-/// None), in the credentials directory, for the plant's router and every
-/// cell's link up; or cell `cell`'s, in its directory. Each router issues
-/// only its own: another's files are never rewritten under it.
-fn router_certificate(plant: &Plant, dir: &Path, cell: Option<&PlantCell>) -> Result<TlsFiles> {
-    let authority = Authority::ensure(dir, &format!("plant {}", plant.name()))?;
-    let (at, endpoints): (PathBuf, Vec<&str>) = match cell {
-        None => (
-            dir.to_path_buf(),
-            std::iter::once(plant.router())
-                .chain(plant.cells().iter().filter_map(|c| c.uplink()))
-                .collect(),
-        ),
-        Some(c) => (cell_dir(dir, c.id()), vec![c.topology().router()]),
+/// The plant's certificate authority when this PC holds its key, or none
+/// exists yet (made now); None on a PC given only the CA's certificate.
+fn authority(plant: &Plant, dir: &Path) -> Result<Option<Authority>> {
+    let files = TlsFiles::of(dir, certificates::CA);
+    if files.ca.exists() && !files.key.exists() {
+        return Ok(None);
+    }
+    Ok(Some(Authority::ensure(
+        dir,
+        &format!("plant {}", plant.name()),
+    )?))
+}
+
+/// The hosts a router's certificate names: the factory router's (`cell`
+/// None) the plant's router and every cell's link up; cell `cell`'s its
+/// router.
+fn router_hosts<'a>(plant: &'a Plant, cell: Option<&'a PlantCell>) -> Result<Vec<&'a str>> {
+    let endpoints: Vec<&str> = match cell {
+        None => std::iter::once(plant.router())
+            .chain(plant.cells().iter().filter_map(|c| c.uplink()))
+            .collect(),
+        Some(c) => vec![c.topology().router()],
     };
-    let hosts = endpoints
-        .iter()
+    endpoints
+        .into_iter()
         .map(|e| {
             certificates::endpoint_host(e)
                 .with_context(|| format!("router endpoint `{e}` names no host"))
         })
-        .collect::<Result<Vec<_>>>()?;
-    Ok(authority.issue_router_in(&at, &hosts)?)
+        .collect()
+}
+
+/// A router's server certificate at its start: issued afresh (so it
+/// names the hosts the plant file gives now) on the PC that holds the
+/// CA's key, else the one this PC was given. Each router issues only its
+/// own at its start: another's files are never rewritten under it.
+fn router_certificate(plant: &Plant, dir: &Path, cell: Option<&PlantCell>) -> Result<TlsFiles> {
+    let at = cell.map_or_else(|| dir.to_path_buf(), |c| cell_dir(dir, c.id()));
+    match authority(plant, dir)? {
+        Some(ca) => Ok(ca.issue_router_in(&at, &router_hosts(plant, cell)?)?),
+        None => {
+            let files = TlsFiles::of(&at, certificates::ROUTER);
+            files.check().with_context(|| {
+                format!(
+                    "this PC has the plant CA's certificate but not its key: copy {} and {} \
+                     as made on the factory router's PC (falc-router --plant … credentials)",
+                    files.cert.display(),
+                    files.key.display()
+                )
+            })?;
+            Ok(files)
+        }
+    }
 }
 
 /// The factory router's users: the operator, the console users and each
@@ -163,6 +197,88 @@ pub fn transport(plant: &Plant) -> Result<bool> {
         }
     }
     Ok(secure)
+}
+
+/// What one PC of the plant needs (`falc-router --plant F bundle USER
+/// --out OUT [--cell C]`), made on the PC that holds the plant's
+/// credentials: the user's password and, on the secure transport, its
+/// certificate, key and the CA's certificate (never its key), laid out as
+/// the nodes look for them under `OUT/credentials`, and the plant file as
+/// `OUT/factory.toml`. A cell router's PC (`router-<cell>`) also gets its
+/// cell's directory: the stations' passwords (its dictionary) and its
+/// server certificate.
+pub fn bundle(
+    plant: &Plant,
+    plant_file: &Path,
+    dir: &Path,
+    user: &str,
+    cell: Option<&CellId>,
+    out: &Path,
+) -> Result<Vec<crate::BundleFile>> {
+    use crate::BundleFile;
+    let secure = transport(plant)?;
+    ensure_credentials(plant, dir)?;
+    let to = out.join("credentials");
+    // A user's password, and on the secure transport its certificate,
+    // key and the CA's certificate, from `from` into `into`.
+    let user_files = |from: &Path, into: &Path, user: &str| {
+        let tls = TlsFiles::of(from, user);
+        let mut files = vec![BundleFile::into_dir(
+            from.join(format!("{user}.toml")),
+            into,
+            true,
+        )];
+        if secure {
+            files.push(BundleFile::into_dir(tls.key, into, true));
+            files.push(BundleFile::into_dir(tls.cert, into, false));
+            files.push(BundleFile::into_dir(tls.ca, into, false));
+        }
+        files
+    };
+    let mut copies = match cell {
+        Some(id) => {
+            if !cell_users(plant, id).iter().any(|u| u == user) {
+                anyhow::bail!("`{user}` is no station of cell `{id}` of the plant");
+            }
+            user_files(&cell_dir(dir, id), &cell_dir(&to, id), user)
+        }
+        None => {
+            if !factory_users(plant).iter().any(|u| u == user) {
+                anyhow::bail!(
+                    "`{user}` is neither the operator, a console nor a cell router of the plant \
+                     (a station's PC: give --cell)"
+                );
+            }
+            let mut files = user_files(dir, &to, user);
+            if let Some(c) = plant
+                .cells()
+                .iter()
+                .find(|c| c.router_user().as_str() == user)
+            {
+                let (from, into) = (cell_dir(dir, c.id()), cell_dir(&to, c.id()));
+                for st in cell_users(plant, c.id()) {
+                    files.push(BundleFile::into_dir(
+                        from.join(format!("{st}.toml")),
+                        &into,
+                        true,
+                    ));
+                }
+                if secure {
+                    let router = TlsFiles::of(&from, certificates::ROUTER);
+                    files.push(BundleFile::into_dir(router.key, &into, true));
+                    files.push(BundleFile::into_dir(router.cert, &into, false));
+                    files.push(BundleFile::into_dir(router.ca, &into, false));
+                }
+            }
+            files
+        }
+    };
+    copies.push(BundleFile {
+        from: plant_file.to_path_buf(),
+        to: out.join("factory.toml"),
+        private: false,
+    });
+    Ok(copies)
 }
 
 /// The factory router: listens on `listen` (default the plant's router),
@@ -293,7 +409,7 @@ mod tests {
         let creds = dir.path().join("credentials");
         let factory = factory(&plant, &creds, None).expect("factory router");
         let cell_id = CellId::new("falc1").expect("id");
-        let cell = cell(&plant, &cell_id, &creds, None).expect("cell router");
+        let one = cell(&plant, &cell_id, &creds, None).expect("cell router");
         for file in [
             "ca.crt",
             "router.crt",
@@ -315,7 +431,79 @@ mod tests {
             c.get_json(&format!("transport/link/tls/{key}")).expect(key)
         };
         assert!(tls(&factory.config, "listen_certificate").contains("credentials/router.crt"));
-        assert!(tls(&cell.config, "listen_certificate").contains("falc1/router.crt"));
-        assert!(tls(&cell.config, "connect_certificate").contains("router-falc1.crt"));
+        assert!(tls(&one.config, "listen_certificate").contains("falc1/router.crt"));
+        assert!(tls(&one.config, "connect_certificate").contains("router-falc1.crt"));
+        // A cell router's PC given the CA's certificate but not its key
+        // (what the factory PC made, copied): it runs on the certificate
+        // it was given, issuing nothing.
+        let given = std::fs::read(creds.join("falc1/router.crt")).expect("cert");
+        std::fs::remove_file(creds.join("ca.key")).expect("no CA key");
+        cell(&plant, &cell_id, &creds, None).expect("cell router on a PC without the CA key");
+        assert_eq!(
+            std::fs::read(creds.join("falc1/router.crt")).expect("cert"),
+            given
+        );
+        std::fs::remove_file(creds.join("falc1/router.key")).expect("no key");
+        let e = cell(&plant, &cell_id, &creds, None)
+            .err()
+            .expect("nothing to run on")
+            .to_string();
+        assert!(e.contains("not its key"), "{e}");
+    }
+
+    #[test]
+    fn a_bundle_holds_what_one_pc_of_the_plant_needs_and_never_the_ca_key() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let text =
+            "plant = \"p\"\nrouter = \"quic/10.0.0.1:7440\"\n[operator]\nname = \"operator\"\n\
+             [[cell]]\ncell = \"falc1\"\nrouter = \"quic/10.0.1.1:7441\"\n\
+             [[cell.station]]\nname = \"cell\"\nkind = \"cell\"\ncommander = \"operator\"\n\
+             [[cell.station]]\nname = \"welding\"\nkind = \"welding\"\ncommander = \"cell\"\n";
+        let plant = Plant::parse(text, "p").expect("plant");
+        let file = dir.path().join("factory.toml");
+        let creds = dir.path().join("credentials");
+        let out = dir.path().join("out");
+        let names = |copies: &[crate::BundleFile]| -> Vec<String> {
+            copies
+                .iter()
+                .map(|c| {
+                    c.to.strip_prefix(&out)
+                        .expect("under out")
+                        .display()
+                        .to_string()
+                })
+                .collect()
+        };
+        let id = CellId::new("falc1").expect("id");
+        let welding = bundle(&plant, &file, &creds, "welding", Some(&id), &out).expect("welding");
+        assert_eq!(
+            names(&welding),
+            [
+                "credentials/falc1/welding.toml",
+                "credentials/falc1/welding.key",
+                "credentials/falc1/welding.crt",
+                "credentials/falc1/ca.crt",
+                "factory.toml"
+            ]
+        );
+        let router = bundle(&plant, &file, &creds, "router-falc1", None, &out).expect("router");
+        let router = names(&router);
+        for f in [
+            "credentials/router-falc1.toml",
+            "credentials/router-falc1.key",
+            "credentials/falc1/cell.toml",
+            "credentials/falc1/welding.toml",
+            "credentials/falc1/router.key",
+            "credentials/falc1/router.crt",
+        ] {
+            assert!(router.iter().any(|n| n == f), "{f} in {router:?}");
+        }
+        assert!(welding.iter().all(|c| !c.from.ends_with("ca.key")));
+        assert!(router.iter().all(|n| !n.ends_with("ca.key")), "{router:?}");
+        let e = bundle(&plant, &file, &creds, "welding", None, &out)
+            .err()
+            .expect("a station needs its cell")
+            .to_string();
+        assert!(e.contains("give --cell"), "{e}");
     }
 }

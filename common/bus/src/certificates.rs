@@ -237,6 +237,22 @@ impl Authority {
         Ok(files)
     }
 
+    /// A router's server certificate in `dir` for `hosts`, issued if it
+    /// does not exist yet or the CA was made anew (a plant's routers: each
+    /// issues its own afresh at its start, [`Authority::issue_router_in`]).
+    pub fn ensure_router_in(
+        &self,
+        dir: &Path,
+        hosts: &[&str],
+    ) -> Result<TlsFiles, CredentialsError> {
+        let files = TlsFiles::of(dir, ROUTER);
+        if !self.fresh && files.cert.exists() && files.key.exists() {
+            files.check()?;
+            return Ok(files);
+        }
+        self.issue_router_in(dir, hosts)
+    }
+
     /// Writes the CA's certificate into `dir` too (a plant's cell
     /// directory: its PCs check the routers against it).
     pub fn share(&self, dir: &Path) -> Result<(), CredentialsError> {
