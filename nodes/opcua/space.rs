@@ -78,7 +78,9 @@ impl Scope {
     }
 
     /// A plant of several cells: the plant (`FALC`) first, then each cell
-    /// under it (`FALC.<cell>`).
+    /// under it (`FALC.<cell>`). A cell id is lower case and every name of
+    /// the plant object's own nodes is capitalised, so no cell's object is
+    /// one of them.
     pub fn plant(cells: Vec<(CellId, Vec<(StationName, StationKind)>)>) -> Vec<Scope> {
         let mut out = vec![Scope {
             root: ROOT.into(),
