@@ -231,7 +231,9 @@ async def plant(url, creds: Path, work: Path, name, cell, other):
     say(step="plant", other_states=seen.get(theirs, []),
         ids=await node("FALC.Orders.Ids").read_value(),
         cells=await node("FALC.Orders.Cells").read_value(),
-        order=order)
+        order=order,
+        journal=await node(f"{root}.Journal.Texts").read_value(),
+        other_journal=await node(f"FALC.{other}.Journal.Texts").read_value())
     await c.disconnect()
 
 

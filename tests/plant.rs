@@ -616,6 +616,17 @@ fn the_opcua_gateway_serves_the_plant_and_each_cell_with_its_own_state_and_metho
     );
     assert_eq!(p["ids"], serde_json::json!([order]), "{p}");
     assert_eq!(names(&p["cells"]), ["falc2"], "{p}");
+    // Each cell's journal is its own: cell 2's holds its order's end,
+    // cell 1's nothing of it.
+    let done = format!("order {order} (dikdroog) done");
+    assert!(
+        names(&p["journal"]).iter().any(|t| t.contains(&done)),
+        "{p}"
+    );
+    assert!(
+        !names(&p["other_journal"]).iter().any(|t| t.contains(&done)),
+        "{p}"
+    );
     // The operator's view agrees: the order ran on cell 2 once.
     let orders = plant.orders();
     assert_eq!(orders.len(), 1, "{orders:#?}");

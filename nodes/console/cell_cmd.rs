@@ -764,6 +764,7 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
             return all_entries(&bus, &operator, json, |after| ApiRequest::Journal {
                 order,
                 after,
+                last: None,
             })
             .await
         }

@@ -61,9 +61,10 @@ struct Cli {
     /// gateway was away).
     #[arg(long, default_value_t = 1000)]
     poll_ms: u64,
-    /// How many of the newest journal entries to serve.
-    #[arg(long, default_value_t = 20)]
-    journal_entries: i64,
+    /// How many of the newest journal entries to serve (of each cell's
+    /// and the plant's in a plant), 1 to 500.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u16).range(1..=500))]
+    journal_entries: u16,
     /// How long a user name stays locked after 10 failed logins, in
     /// seconds (failures 4 to 9 are answered after a growing delay).
     #[arg(long, default_value_t = 60)]
@@ -308,12 +309,12 @@ struct Poller {
     orders: Vec<Order>,
     /// Each scope's newest journal entries.
     journals: Vec<Vec<Entry>>,
-    keep: i64,
+    keep: u16,
     unreachable_said: bool,
 }
 
 impl Poller {
-    fn new(scopes: Vec<Scope>, keep: i64) -> Self {
+    fn new(scopes: Vec<Scope>, keep: u16) -> Self {
         Self {
             journals: vec![Vec::new(); scopes.len()],
             scopes,
@@ -407,21 +408,19 @@ impl Poller {
         else {
             return false;
         };
-        // A cell's newest entries lie among the plant's newest `keep` per
-        // object.
-        let keep = usize::try_from(self.keep).unwrap_or(usize::MAX);
-        let span = self
-            .keep
-            .saturating_mul(i64::try_from(self.scopes.len()).unwrap_or(1));
-        let after = head.saturating_sub(span).max(0);
+        // Each object's newest entries (a cell's own, the plant's or the
+        // one cell's all).
         let mut journals = Vec::with_capacity(self.scopes.len());
         for at in 0..self.scopes.len() {
             let of = bus.clone().for_cell(self.scopes[at].cell().cloned());
-            let request = ApiRequest::Journal { order: None, after };
-            let Some(ApiReply::Entries(mut j)) = self.call(&of, operator, request).await else {
+            let request = ApiRequest::Journal {
+                order: None,
+                after: 0,
+                last: Some(self.keep),
+            };
+            let Some(ApiReply::Entries(j)) = self.call(&of, operator, request).await else {
                 return false;
             };
-            j.drain(..j.len().saturating_sub(keep));
             journals.push(j);
         }
         self.orders = orders;

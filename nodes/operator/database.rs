@@ -642,6 +642,33 @@ impl Records for Database {
             .map_err(self.fail("cannot read the journal"))?;
         Ok(out)
     }
+
+    fn newest_entries(
+        &self,
+        after: i64,
+        order: Option<i64>,
+        cell: Option<&str>,
+        limit: usize,
+    ) -> Result<Vec<Entry>, Self::Error> {
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT id, at_ms, order_id, kind, who, text, cell FROM journal
+                 WHERE id > ?1 AND (?2 IS NULL OR order_id = ?2)
+                 AND (?4 IS NULL OR cell IS NULL OR cell = ?4)
+                 ORDER BY id DESC LIMIT ?3",
+            )
+            .map_err(self.fail("cannot read the journal"))?;
+        let limit = i64::try_from(limit).unwrap_or(i64::MAX);
+        let rows = st
+            .query_map(params![after, order, limit, cell], entry_of)
+            .map_err(self.fail("cannot read the journal"))?;
+        let mut out = rows
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(self.fail("cannot read the journal"))?;
+        out.reverse();
+        Ok(out)
+    }
 }
 
 /// `path` with `suffix` appended (`falc.db` → `falc.db-wal`).
@@ -798,6 +825,25 @@ mod tests {
             .expect("journal");
         assert_eq!(of_one.len(), 1);
         assert_eq!(of_one[0].cell.as_deref(), Some("falc1"));
+        // The newest of a cell's entries, oldest first, however many of
+        // another cell's came after them.
+        for i in 0..5 {
+            one.journal(EntryKind::Action, None, "ann", &format!("one {i}"))
+                .expect("journal");
+        }
+        for i in 0..50 {
+            two.journal(EntryKind::Action, None, "bob", &format!("two {i}"))
+                .expect("journal");
+        }
+        let newest = |db: &Database, cell: &str| -> Vec<String> {
+            db.newest_entries(0, None, Some(cell), 3)
+                .expect("journal")
+                .into_iter()
+                .map(|e| e.text)
+                .collect()
+        };
+        assert_eq!(newest(&one, "falc1"), ["one 2", "one 3", "one 4"]);
+        assert_eq!(newest(&two, "falc2"), ["two 47", "two 48", "two 49"]);
     }
 
     /// A file made before orders had a cell, a priority and a due time

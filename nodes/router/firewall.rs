@@ -41,7 +41,8 @@ pub enum FirewallError {
     /// Some users name no host: they would be locked out.
     #[error(
         "{0} name no host in the topology; give each station and console its PC's address \
-         (host = \"10.0.0.5\"), or they are locked out"
+         (host = \"10.0.0.5\"; a plant's cell router `router-<cell>`: in its [[cell]]), \
+         or they are locked out"
     )]
     NoHost(String),
 }
@@ -283,6 +284,6 @@ host = "10.0.1.3"
         )
         .expect_err("no host")
         .to_string();
-        assert!(e.contains("router-falc1"), "{e}");
+        assert!(e.contains("router-falc1") && e.contains("[[cell]]"), "{e}");
     }
 }

@@ -1762,9 +1762,22 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 .entries(after, None, true, entries_of, PAGE)
                 .map(ApiReply::Entries)
                 .map_err(db),
-            ApiRequest::Journal { order, after } => self
+            ApiRequest::Journal {
+                order,
+                after,
+                last: None,
+            } => self
                 .db
                 .entries(after, order, false, entries_of, PAGE)
+                .map(ApiReply::Entries)
+                .map_err(db),
+            ApiRequest::Journal {
+                order,
+                after,
+                last: Some(n),
+            } => self
+                .db
+                .newest_entries(after, order, entries_of, usize::from(n).min(PAGE))
                 .map(ApiReply::Entries)
                 .map_err(db),
             ApiRequest::OrderAdd {

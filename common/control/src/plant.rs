@@ -585,6 +585,7 @@ mod tests {
                 ApiRequest::Journal {
                     order: None,
                     after: 0,
+                    last: None,
                 },
             ) {
                 Ok(ApiReply::Entries(v)) => v.into_iter().map(|e| e.cell).collect(),

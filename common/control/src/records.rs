@@ -61,6 +61,15 @@ pub trait Records {
         cell: Option<&str>,
         limit: usize,
     ) -> Result<Vec<Entry>, Self::Error>;
+    /// The newest `limit` of the entries [`Records::entries`] would give
+    /// (all kinds), oldest first.
+    fn newest_entries(
+        &self,
+        after: i64,
+        order: Option<i64>,
+        cell: Option<&str>,
+        limit: usize,
+    ) -> Result<Vec<Entry>, Self::Error>;
     /// Records a new alarm, active.
     fn raise_alarm(
         &mut self,
@@ -255,6 +264,16 @@ pub mod memory {
                 .cloned()
                 .collect())
         }
+        fn newest_entries(
+            &self,
+            after: i64,
+            order: Option<i64>,
+            cell: Option<&str>,
+            limit: usize,
+        ) -> Result<Vec<Entry>, String> {
+            let all = self.entries(after, order, false, cell, usize::MAX)?;
+            Ok(all[all.len().saturating_sub(limit)..].to_vec())
+        }
         fn raise_alarm(
             &mut self,
             station: &str,
@@ -389,6 +408,15 @@ pub mod shared {
             self.all
                 .borrow()
                 .entries(after, order, messages_only, cell, limit)
+        }
+        fn newest_entries(
+            &self,
+            after: i64,
+            order: Option<i64>,
+            cell: Option<&str>,
+            limit: usize,
+        ) -> Result<Vec<Entry>, String> {
+            self.all.borrow().newest_entries(after, order, cell, limit)
         }
         fn raise_alarm(
             &mut self,

@@ -80,6 +80,10 @@ pub enum ApiRequest {
         order: Option<i64>,
         /// Only entries with a larger id.
         after: i64,
+        /// Only the newest this many of them (still oldest first; at most
+        /// a page); None: the oldest page of them.
+        #[serde(default)]
+        last: Option<u16>,
     },
     /// Adds `count` orders for a cell recipe, placed as `placement` says
     /// (by default at the end of the list, on any cell that has it).
