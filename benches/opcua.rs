@@ -70,11 +70,7 @@ fn operator_changes(cell: &LaunchedCell) -> mpsc::Receiver<(String, f64)> {
     let settings = cell.settings("observer");
     let (tx, rx) = mpsc::channel();
     std::thread::spawn(move || {
-        let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(1)
-            .enable_all()
-            .build()
-            .expect("runtime");
+        let rt = tokio::runtime::Runtime::new().expect("runtime");
         rt.block_on(async move {
             let bus = Bus::open(settings).await.expect("observer session");
             let operator = support::st("operator");

@@ -76,8 +76,7 @@ impl Lanes {
                     let result = bus.request(&cmd.to, &cmd.request, cmd.limit).await;
                     Reply {
                         awaiting: cmd.awaiting,
-                        unanswered: result.as_ref().is_err_and(|e| e.unanswered()),
-                        result: result.map_err(|e| e.to_string()),
+                        result,
                     }
                 }
             })

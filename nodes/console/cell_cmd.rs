@@ -709,7 +709,6 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
     let req = match cmd {
         CellCommand::Status { watch: true } => return watch(&bus, &operator, json).await,
         CellCommand::Tui => {
-            // In a plant the screens show the cell `--cell` names.
             // In a plant the plant overview first, or the cell `--cell`
             // names.
             let shown = match (Layout::load(&args.node.topology), &args.node.cell) {

@@ -300,7 +300,8 @@ async fn run(cli: Cli) -> Result<(), String> {
 /// when the journal moved.
 struct Poller {
     scopes: Vec<Scope>,
-    /// Each scope's status (None: the operator did not answer).
+    /// Each scope's status (None: the operator did not answer; the
+    /// plant's object has none).
     statuses: Option<Vec<Option<CellStatus>>>,
     /// The journal's head as the last status said.
     head: Option<i64>,
@@ -371,26 +372,19 @@ impl Poller {
             }
         };
         // One cell's status answers for the one cell (or a plant's one
-        // cell); a plant's holds each cell's.
-        let of_cell = |id: Option<&falc_model::ids::CellId>| match (&reply, id) {
-            (Some(ApiReply::Status(s)), _) => Some(s.clone()),
-            (Some(ApiReply::Plant(p)), Some(id)) => p
-                .cells
-                .iter()
-                .find(|(c, _)| c == id)
-                .map(|(_, s)| s.clone()),
-            _ => None,
-        };
+        // cell); a plant's holds each cell's; the plant's object has none.
         let statuses = self
             .scopes
             .iter()
-            .map(|scope| match &scope.part {
-                Part::Cell { id, .. } => of_cell(id.as_ref()),
-                // The plant's: only that the operator answered.
-                Part::Plant { .. } => Some(CellStatus {
-                    journal_head: head,
-                    ..CellStatus::default()
-                }),
+            .map(|scope| match (&scope.part, &reply) {
+                (Part::Plant { .. }, _) => None,
+                (Part::Cell { .. }, Some(ApiReply::Status(s))) => Some(s.clone()),
+                (Part::Cell { id: Some(id), .. }, Some(ApiReply::Plant(p))) => p
+                    .cells
+                    .iter()
+                    .find(|(c, _)| c == id)
+                    .map(|(_, s)| s.clone()),
+                _ => None,
             })
             .collect();
         let moved = self.journal_head != Some(head);
@@ -433,9 +427,10 @@ impl Poller {
     /// with the order list and journal last fetched (none while the
     /// operator is away).
     fn look(&self, at: usize, last_refusal: String) -> space::Look {
-        match self.statuses.as_ref().and_then(|s| s.get(at)?.clone()) {
-            Some(status) => space::Look {
-                status: Some(status),
+        match &self.statuses {
+            Some(statuses) => space::Look {
+                reachable: true,
+                status: statuses.get(at).cloned().flatten(),
                 orders: self.orders.clone(),
                 journal: self.journals.get(at).cloned().unwrap_or_default(),
                 last_refusal,

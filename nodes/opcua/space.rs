@@ -362,11 +362,12 @@ impl Method {
     }
 }
 
-/// One look at a cell or the plant: what the operator answered (None:
-/// not reached; the plant's status is only there or not).
+/// One look at a cell or the plant: what the operator answered.
 #[derive(Debug, Clone, Default)]
 pub struct Look {
-    /// `status` (of this cell).
+    /// Whether the operator answered.
+    pub reachable: bool,
+    /// `status` of this cell (None: the plant's object, or not reached).
     pub status: Option<CellStatus>,
     /// `order-list`: every order of the plant (a cell of a plant of
     /// several serves those it runs or ran, or that were added for it).
@@ -397,7 +398,7 @@ fn plant_values(scope: &Scope, cells: &[CellId], look: &Look) -> Vec<(String, Va
         .filter(|o| o.state == OrderState::Queued)
         .count();
     let mut out = vec![
-        (r("OperatorReachable"), Value::Bool(look.status.is_some())),
+        (r("OperatorReachable"), Value::Bool(look.reachable)),
         (
             r("Cells"),
             Value::Texts(cells.iter().map(ToString::to_string).collect()),
@@ -475,7 +476,7 @@ fn cell_values(
         .and_then(|v| v.status.as_ref()?.program.clone());
     let text = |t: Option<&String>| text_of(t, String::clone);
     let r = |n: &str| scope.id(n);
-    put(r("OperatorReachable"), Value::Bool(s.is_some()));
+    put(r("OperatorReachable"), Value::Bool(look.reachable));
     put(r("PackMLState"), Value::Text(state.name().into()));
     put(r("PackMLStateCode"), Value::Int32(state.code()));
     put(r("Mode"), Value::Text(mode.to_string()));
@@ -1112,6 +1113,7 @@ mod tests {
         // A cell serves the orders it runs or ran, or that wait for it;
         // the plant every order, with its cell.
         let look = Look {
+            reachable: true,
             status: Some(status()),
             orders: vec![
                 order(1, Some("falc1"), None, OrderState::Done),

@@ -4,7 +4,7 @@
 //! that was running when the node died as interrupted (never re-run by
 //! itself) and journals it.
 
-use falc_control::records::Records;
+use falc_control::records::{EntryQuery, Records};
 use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement};
 use rusqlite::{params, Connection, OptionalExtension, Row};
@@ -606,21 +606,12 @@ impl Records for Database {
         Ok(all.into_iter().filter(Alarm::listed).collect())
     }
 
-    /// Journal entries after id `after` (at most `limit`), optionally of one
-    /// order, optionally only messages.
-    fn entries(
-        &self,
-        after: i64,
-        order: Option<i64>,
-        messages_only: bool,
-        cell: Option<&str>,
-        limit: usize,
-    ) -> Result<Vec<Entry>, Self::Error> {
+    fn entries(&self, q: &EntryQuery) -> Result<Vec<Entry>, Self::Error> {
         // The kinds asked for, in SQL: a page is `limit` matching entries,
         // however many others the journal holds between them.
         let kinds: Vec<&str> = EntryKind::ALL
             .into_iter()
-            .filter(|k| !messages_only || k.is_message())
+            .filter(|k| !q.messages_only || k.is_message())
             .map(EntryKind::as_str)
             .collect();
         let mut st = self
@@ -629,44 +620,21 @@ impl Records for Database {
                 "SELECT id, at_ms, order_id, kind, who, text, cell FROM journal
                  WHERE id > ?1 AND (?2 IS NULL OR order_id = ?2) AND kind IN ('{}')
                  AND (?4 IS NULL OR cell IS NULL OR cell = ?4)
-                 ORDER BY id LIMIT ?3",
-                kinds.join("','")
+                 ORDER BY id {} LIMIT ?3",
+                kinds.join("','"),
+                if q.newest { "DESC" } else { "ASC" }
             ))
             .map_err(self.fail("cannot read the journal"))?;
-        let limit = i64::try_from(limit).unwrap_or(i64::MAX);
+        let limit = i64::try_from(q.limit).unwrap_or(i64::MAX);
         let rows = st
-            .query_map(params![after, order, limit, cell], entry_of)
-            .map_err(self.fail("cannot read the journal"))?;
-        let out = rows
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(self.fail("cannot read the journal"))?;
-        Ok(out)
-    }
-
-    fn newest_entries(
-        &self,
-        after: i64,
-        order: Option<i64>,
-        cell: Option<&str>,
-        limit: usize,
-    ) -> Result<Vec<Entry>, Self::Error> {
-        let mut st = self
-            .conn
-            .prepare(
-                "SELECT id, at_ms, order_id, kind, who, text, cell FROM journal
-                 WHERE id > ?1 AND (?2 IS NULL OR order_id = ?2)
-                 AND (?4 IS NULL OR cell IS NULL OR cell = ?4)
-                 ORDER BY id DESC LIMIT ?3",
-            )
-            .map_err(self.fail("cannot read the journal"))?;
-        let limit = i64::try_from(limit).unwrap_or(i64::MAX);
-        let rows = st
-            .query_map(params![after, order, limit, cell], entry_of)
+            .query_map(params![q.after, q.order, limit, q.cell], entry_of)
             .map_err(self.fail("cannot read the journal"))?;
         let mut out = rows
             .collect::<Result<Vec<_>, _>>()
             .map_err(self.fail("cannot read the journal"))?;
-        out.reverse();
+        if q.newest {
+            out.reverse();
+        }
         Ok(out)
     }
 }
@@ -810,18 +778,24 @@ mod tests {
             .expect("journal");
         assert_eq!(one.orders().expect("orders").len(), 1);
         assert_eq!(
-            two.entries(0, None, false, None, 10)
+            two.entries(&EntryQuery::page(0, 10))
                 .expect("journal")
                 .len(),
             1
         );
         // A cell's own journal: its entries and those of before cells.
         assert!(two
-            .entries(0, None, false, Some("falc2"), 10)
+            .entries(&EntryQuery {
+                cell: Some("falc2"),
+                ..EntryQuery::page(0, 10)
+            })
             .expect("journal")
             .is_empty());
         let of_one = one
-            .entries(0, None, false, Some("falc1"), 10)
+            .entries(&EntryQuery {
+                cell: Some("falc1"),
+                ..EntryQuery::page(0, 10)
+            })
             .expect("journal");
         assert_eq!(of_one.len(), 1);
         assert_eq!(of_one[0].cell.as_deref(), Some("falc1"));
@@ -836,11 +810,15 @@ mod tests {
                 .expect("journal");
         }
         let newest = |db: &Database, cell: &str| -> Vec<String> {
-            db.newest_entries(0, None, Some(cell), 3)
-                .expect("journal")
-                .into_iter()
-                .map(|e| e.text)
-                .collect()
+            db.entries(&EntryQuery {
+                cell: Some(cell),
+                newest: true,
+                ..EntryQuery::page(0, 3)
+            })
+            .expect("journal")
+            .into_iter()
+            .map(|e| e.text)
+            .collect()
         };
         assert_eq!(newest(&one, "falc1"), ["one 2", "one 3", "one 4"]);
         assert_eq!(newest(&two, "falc2"), ["two 47", "two 48", "two 49"]);
@@ -968,7 +946,12 @@ mod tests {
             .map(|o| o.state)
             .collect();
         assert_eq!(states, vec![OrderState::Interrupted, OrderState::Running]);
-        let j = s.entries(0, Some(b.id), false, None, 100).expect("entries");
+        let j = s
+            .entries(&EntryQuery {
+                order: Some(b.id),
+                ..EntryQuery::page(0, 100)
+            })
+            .expect("entries");
         assert!(
             j.iter()
                 .any(|e| e.text.contains("the cell is asked how it ended")),
@@ -1025,11 +1008,20 @@ mod tests {
         assert_eq!(orders[0].state, OrderState::Interrupted);
         assert_eq!(orders[1].state, OrderState::Queued);
         let j = s
-            .entries(0, Some(orders[0].id), false, None, 100)
+            .entries(&EntryQuery {
+                order: Some(orders[0].id),
+                ..EntryQuery::page(0, 100)
+            })
             .expect("entries");
         assert_eq!(j.len(), 2);
         assert!(j[1].text.contains("interrupted"), "{j:?}");
-        assert!(s.entries(0, None, true, None, 100).expect("m").is_empty());
+        assert!(s
+            .entries(&EntryQuery {
+                messages_only: true,
+                ..EntryQuery::page(0, 100)
+            })
+            .expect("m")
+            .is_empty());
         assert_eq!(
             s.remove_order(orders[1].id).expect("db").map(|o| o.recipe),
             Ok("dundroog".into())
@@ -1044,7 +1036,11 @@ mod tests {
             .journal(EntryKind::Message, Some(2), "cell", "einde")
             .expect("journal");
         assert_eq!(
-            s.entries(0, None, true, None, 1).expect("page"),
+            s.entries(&EntryQuery {
+                messages_only: true,
+                ..EntryQuery::page(0, 1)
+            })
+            .expect("page"),
             vec![m.clone()]
         );
         assert_eq!(s.journal_head().expect("head"), m.id);

@@ -194,8 +194,7 @@ impl Authority {
     /// certificates beside their passwords, [`Authority::share`]).
     pub fn ensure_client_in(&self, dir: &Path, user: &str) -> Result<TlsFiles, CredentialsError> {
         let files = TlsFiles::of(dir, user);
-        if !self.fresh && files.cert.exists() && files.key.exists() {
-            files.check()?;
+        if self.kept(&files)? {
             return Ok(files);
         }
         let mut params = leaf_params(user);
@@ -246,11 +245,20 @@ impl Authority {
         hosts: &[&str],
     ) -> Result<TlsFiles, CredentialsError> {
         let files = TlsFiles::of(dir, ROUTER);
-        if !self.fresh && files.cert.exists() && files.key.exists() {
-            files.check()?;
+        if self.kept(&files)? {
             return Ok(files);
         }
         self.issue_router_in(dir, hosts)
+    }
+
+    /// Whether `files` stay as they are: both there (the key private) and
+    /// issued by this CA, not one made anew since.
+    fn kept(&self, files: &TlsFiles) -> Result<bool, CredentialsError> {
+        if self.fresh || !files.cert.exists() || !files.key.exists() {
+            return Ok(false);
+        }
+        files.check()?;
+        Ok(true)
     }
 
     /// Writes the CA's certificate into `dir` too (a plant's cell

@@ -15,7 +15,7 @@ use crate::controller::{Controller, Device};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::console::MAX_OUTPUT_LINES;
 use falc_model::ids::{ObjectName, StationName};
-use falc_model::mms::error::ServiceError;
+use falc_model::mms::error::{DefinitionError, ErrorClass, ServiceError};
 use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
 use falc_recipe::check::Job;
@@ -38,12 +38,15 @@ pub enum Awaiting {
     Started(StationName),
     /// The operator's answer to an `input`.
     Answer,
-    /// The operator showing an `output` (its lines, kept if they could
-    /// not be shown).
-    Shown(Vec<String>),
-    /// The operator, back, showing lines it could not be shown before
-    /// (kept again if they still cannot be shown).
-    ShownLate(Vec<String>),
+    /// The operator showing an `output`: its lines, kept if no answer
+    /// came; `late` when they are lines it could not be shown before
+    /// (no recipe's end waits for those).
+    Shown {
+        /// The lines.
+        lines: Vec<String>,
+        /// Shown once the operator was back.
+        late: bool,
+    },
     /// Anything else (Stop, Reset): only a refusal matters; what it was.
     Other(String),
 }
@@ -66,11 +69,9 @@ pub struct Command {
 pub struct Reply {
     /// What it answers.
     pub awaiting: Awaiting,
-    /// The response, or the error as text.
-    pub result: Result<Response, String>,
-    /// No answer came (unreachable, time-out): the peer may not have seen
-    /// the request at all.
-    pub unanswered: bool,
+    /// The response, or why there is none (refused, or no answer came:
+    /// [`ServiceError::unanswered`]).
+    pub result: Result<Response, ServiceError>,
 }
 
 /// The workstations below and the operator above.
@@ -135,7 +136,10 @@ impl Stations {
                 .chain(chunk.iter().cloned())
                 .collect();
             // Not counted in `showing`: no recipe's end waits for these.
-            let kept = Awaiting::ShownLate(chunk.to_vec());
+            let kept = Awaiting::Shown {
+                lines: chunk.to_vec(),
+                late: true,
+            };
             self.request(op.clone(), Request::Output { lines }, CONFIRM_LIMIT, kept);
         }
     }
@@ -232,13 +236,12 @@ pub fn route(request: &Request, workstations: &[StationName]) -> Route {
 /// refused Start takes the recipe's failure path (reported as a warning);
 /// no answer from the operator is a communication alarm.
 pub fn handle_reply(cell: &mut Controller<Stations>, now: Duration, reply: Reply) {
-    let unanswered = reply.unanswered;
     match (reply.awaiting, reply.result) {
         (Awaiting::Started(st), Ok(_)) => cell.feed(now, vec![Event::Started(st)]),
         (Awaiting::Started(st), Err(e)) => {
             // The recipe takes its failure path; an alarm state there names this.
             cell.report(Severity::Warning, format!("start on {st} refused: {e}"));
-            cell.feed(now, vec![Event::StartFailed(st, e)]);
+            cell.feed(now, vec![Event::StartFailed(st, e.to_string())]);
         }
         (Awaiting::Answer, Ok(Response::Answer(a))) => cell.feed(now, vec![Event::Answer(a)]),
         (Awaiting::Answer, Ok(other)) => cell.fault(Cause::new(
@@ -254,11 +257,13 @@ pub fn handle_reply(cell: &mut Controller<Stations>, now: Duration, reply: Reply
             AlarmClass::Communication,
             format!("no answer from the operator: {e}"),
         )),
-        (Awaiting::Shown(lines), r) => {
-            cell.device.showing = cell.device.showing.saturating_sub(1);
+        (Awaiting::Shown { lines, late }, r) => {
+            if !late {
+                cell.device.showing = cell.device.showing.saturating_sub(1);
+            }
             match r {
                 // Kept to show once the operator is back.
-                Err(e) if unanswered => {
+                Err(e) if e.unanswered() => {
                     tracing::warn!("output not shown: {e}; kept to show once the operator is back");
                     cell.device.keep_unshown(lines);
                 }
@@ -266,12 +271,6 @@ pub fn handle_reply(cell: &mut Controller<Stations>, now: Duration, reply: Reply
                 Ok(_) => {}
             }
         }
-        (Awaiting::ShownLate(lines), Err(e)) if unanswered => {
-            tracing::warn!("output not shown again: {e}; kept");
-            cell.device.keep_unshown(lines);
-        }
-        (Awaiting::ShownLate(_), Err(e)) => tracing::warn!("late output refused: {e}"),
-        (Awaiting::ShownLate(_), Ok(_)) => {}
         (Awaiting::Other(what), Err(e)) => tracing::warn!("{what} refused: {e}"),
         (Awaiting::Other(_), Ok(_)) => {}
     }
@@ -319,7 +318,8 @@ impl Device for Stations {
                         lines: lines.clone(),
                     };
                     self.showing += 1;
-                    self.request(op, req, CONFIRM_LIMIT, Awaiting::Shown(lines));
+                    let kept = Awaiting::Shown { lines, late: false };
+                    self.request(op, req, CONFIRM_LIMIT, kept);
                 }
             }
             Action::Input(prompt) => match self.operator.clone() {
@@ -332,8 +332,10 @@ impl Device for Stations {
                 }
                 None => self.local.push_back(Reply {
                     awaiting: Awaiting::Answer,
-                    result: Err("this cell has no operator".into()),
-                    unanswered: false,
+                    result: Err(ServiceError::new(
+                        ErrorClass::Definition(DefinitionError::ObjectUndefined),
+                        "this cell has no operator",
+                    )),
                 }),
             },
             other => tracing::warn!("a cell recipe cannot {other:?}"),
@@ -383,6 +385,7 @@ mod tests {
     use crate::controller::testing::{job_events, load, outputs};
     use crate::controller::Output;
     use falc_model::mms::association::Role;
+    use falc_model::mms::error::{ServiceErrorCode, VmdStateError};
     use falc_model::mms::program::PiState;
     use falc_recipe::commands::RecipeKind;
 
@@ -449,42 +452,26 @@ mod tests {
         answer(c, now, cmd, Ok(r));
     }
 
-    /// … or the confirm does not come: refused, or no reply, with `why`.
-    fn refused(c: &mut Controller<Stations>, now: Duration, cmd: &Command, why: &str) {
-        answer(c, now, cmd, Err(why.to_string()));
+    /// … or the confirm does not come: refused with `error`, or no
+    /// answer ([`ServiceError::unanswered`]).
+    fn refused(c: &mut Controller<Stations>, now: Duration, cmd: &Command, error: ServiceError) {
+        answer(c, now, cmd, Err(error));
     }
 
     fn answer(
         c: &mut Controller<Stations>,
         now: Duration,
         cmd: &Command,
-        result: Result<Response, String>,
+        result: Result<Response, ServiceError>,
     ) {
         let awaiting = cmd.awaiting.clone();
-        handle_reply(
-            c,
-            now,
-            Reply {
-                awaiting,
-                result,
-                unanswered: false,
-            },
-        );
+        handle_reply(c, now, Reply { awaiting, result });
     }
 
     /// … or no answer comes at all: the peer is not reachable.
     fn no_reply(c: &mut Controller<Stations>, now: Duration, cmd: &Command) {
-        let awaiting = cmd.awaiting.clone();
-        let result = Err(format!("no reply from {}", cmd.to));
-        handle_reply(
-            c,
-            now,
-            Reply {
-                awaiting,
-                result,
-                unanswered: true,
-            },
-        );
+        let error = ServiceError::unreachable(format!("no reply from {}", cmd.to));
+        refused(c, now, cmd, error);
     }
 
     fn job_done(station: &str, program: &str) -> Unconfirmed {
@@ -583,7 +570,10 @@ mod tests {
             &mut c,
             secs(6),
             &store,
-            "vmd-state/vmd-state-conflict: emergency stop",
+            ServiceError::new(
+                ErrorClass::VmdState(VmdStateError::VmdStateConflict),
+                "emergency stop",
+            ),
         );
         settle(&mut c, secs(6));
         assert!(!c.is_running());
@@ -743,7 +733,7 @@ mod tests {
             &mut c,
             secs(2),
             &cmds[1],
-            "application-reference/application-unreachable",
+            ServiceError::unreachable("the operator is not reachable"),
         );
         settle(&mut c, secs(2));
         assert!(!c.is_running());
@@ -792,7 +782,11 @@ mod tests {
         c.handle_request(secs(2), &Request::Stop { name: name("test") })
             .unwrap();
         outputs(&mut c);
-        refused(&mut c, secs(2), &cmds[1], "the order was stopped");
+        let stopped = ServiceError::new(
+            ErrorClass::Service(ServiceErrorCode::ObjectStateConflict),
+            "the order was stopped",
+        );
+        refused(&mut c, secs(2), &cmds[1], stopped);
         settle(&mut c, secs(2));
         assert_eq!(outputs(&mut c), vec![], "no alarm: nothing failed");
     }

@@ -19,7 +19,7 @@
 
 use crate::alarm_list::{AlarmList, Raised};
 use crate::recipe_source::{Delivery, PutError, RecipeSet, RecipeSource};
-use crate::records::Records;
+use crate::records::{EntryQuery, Records};
 use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::console::{
     ApiReply, ApiRequest, ApiResult, CellStatus, EntryKind, ListState, Order, OrderState,
@@ -1759,25 +1759,21 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 .map_err(db),
             ApiRequest::Messages { after } => self
                 .db
-                .entries(after, None, true, entries_of, PAGE)
+                .entries(&EntryQuery {
+                    messages_only: true,
+                    cell: entries_of,
+                    ..EntryQuery::page(after, PAGE)
+                })
                 .map(ApiReply::Entries)
                 .map_err(db),
-            ApiRequest::Journal {
-                order,
-                after,
-                last: None,
-            } => self
+            ApiRequest::Journal { order, after, last } => self
                 .db
-                .entries(after, order, false, entries_of, PAGE)
-                .map(ApiReply::Entries)
-                .map_err(db),
-            ApiRequest::Journal {
-                order,
-                after,
-                last: Some(n),
-            } => self
-                .db
-                .newest_entries(after, order, entries_of, usize::from(n).min(PAGE))
+                .entries(&EntryQuery {
+                    order,
+                    cell: entries_of,
+                    newest: last.is_some(),
+                    ..EntryQuery::page(after, last.map_or(PAGE, |n| usize::from(n).min(PAGE)))
+                })
                 .map(ApiReply::Entries)
                 .map_err(db),
             ApiRequest::OrderAdd {
@@ -2710,7 +2706,7 @@ mod tests {
         let journal = r
             .list
             .records()
-            .entries(0, None, false, None, 100)
+            .entries(&EntryQuery::page(0, 100))
             .expect("journal");
         let started = journal
             .iter()

@@ -9,6 +9,51 @@ use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement};
 use std::fmt::Display;
 
+/// Which journal entries to read ([`Records::entries`]): those after
+/// `after` (of `order`; messages only; of cell `cell`, with those written
+/// before entries had a cell), oldest first, at most `limit` of them: the
+/// oldest, or the `newest`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct EntryQuery<'a> {
+    /// Only entries with a larger id.
+    pub after: i64,
+    /// Only this order's.
+    pub order: Option<i64>,
+    /// Only messages ([`EntryKind::is_message`]).
+    pub messages_only: bool,
+    /// Only this cell's (and those of before cells).
+    pub cell: Option<&'a str>,
+    /// At most this many.
+    pub limit: usize,
+    /// The newest `limit` rather than the oldest.
+    pub newest: bool,
+}
+
+impl EntryQuery<'_> {
+    /// The oldest `limit` entries after `after`, of every kind, order and
+    /// cell.
+    pub fn page(after: i64, limit: usize) -> Self {
+        Self {
+            after,
+            order: None,
+            messages_only: false,
+            cell: None,
+            limit,
+            newest: false,
+        }
+    }
+
+    /// Whether `e` is one of them (all but the limit).
+    pub fn matches(&self, e: &Entry) -> bool {
+        e.id > self.after
+            && self.order.map_or(true, |o| e.order == Some(o))
+            && (!self.messages_only || e.kind.is_message())
+            && self
+                .cell
+                .map_or(true, |c| e.cell.as_deref().map_or(true, |x| x == c))
+    }
+}
+
 /// The order list's durable records.
 pub trait Records {
     /// A failed read or write, saying of what.
@@ -50,26 +95,8 @@ pub trait Records {
         who: &str,
         text: &str,
     ) -> Result<Entry, Self::Error>;
-    /// Journal entries after `after` (of `order`, or messages only; of
-    /// cell `cell`, with those written before entries had a cell), at most
-    /// `limit`.
-    fn entries(
-        &self,
-        after: i64,
-        order: Option<i64>,
-        messages_only: bool,
-        cell: Option<&str>,
-        limit: usize,
-    ) -> Result<Vec<Entry>, Self::Error>;
-    /// The newest `limit` of the entries [`Records::entries`] would give
-    /// (all kinds), oldest first.
-    fn newest_entries(
-        &self,
-        after: i64,
-        order: Option<i64>,
-        cell: Option<&str>,
-        limit: usize,
-    ) -> Result<Vec<Entry>, Self::Error>;
+    /// The journal entries `query` asks for, oldest first.
+    fn entries(&self, query: &EntryQuery) -> Result<Vec<Entry>, Self::Error>;
     /// Records a new alarm, active.
     fn raise_alarm(
         &mut self,
@@ -246,33 +273,19 @@ pub mod memory {
             self.journal.push(e.clone());
             Ok(e)
         }
-        fn entries(
-            &self,
-            after: i64,
-            order: Option<i64>,
-            messages_only: bool,
-            cell: Option<&str>,
-            limit: usize,
-        ) -> Result<Vec<Entry>, String> {
-            Ok(self
+        fn entries(&self, query: &EntryQuery) -> Result<Vec<Entry>, String> {
+            let all: Vec<Entry> = self
                 .journal
                 .iter()
-                .filter(|e| e.id > after && order.map_or(true, |o| e.order == Some(o)))
-                .filter(|e| !messages_only || e.kind.is_message())
-                .filter(|e| cell.map_or(true, |c| e.cell.as_deref().map_or(true, |x| x == c)))
-                .take(limit)
+                .filter(|e| query.matches(e))
                 .cloned()
-                .collect())
-        }
-        fn newest_entries(
-            &self,
-            after: i64,
-            order: Option<i64>,
-            cell: Option<&str>,
-            limit: usize,
-        ) -> Result<Vec<Entry>, String> {
-            let all = self.entries(after, order, false, cell, usize::MAX)?;
-            Ok(all[all.len().saturating_sub(limit)..].to_vec())
+                .collect();
+            let (n, limit) = (all.len(), query.limit);
+            Ok(if query.newest {
+                all[n.saturating_sub(limit)..].to_vec()
+            } else {
+                all[..n.min(limit)].to_vec()
+            })
         }
         fn raise_alarm(
             &mut self,
@@ -397,26 +410,8 @@ pub mod shared {
             }
             Ok(e)
         }
-        fn entries(
-            &self,
-            after: i64,
-            order: Option<i64>,
-            messages_only: bool,
-            cell: Option<&str>,
-            limit: usize,
-        ) -> Result<Vec<Entry>, String> {
-            self.all
-                .borrow()
-                .entries(after, order, messages_only, cell, limit)
-        }
-        fn newest_entries(
-            &self,
-            after: i64,
-            order: Option<i64>,
-            cell: Option<&str>,
-            limit: usize,
-        ) -> Result<Vec<Entry>, String> {
-            self.all.borrow().newest_entries(after, order, cell, limit)
+        fn entries(&self, query: &EntryQuery) -> Result<Vec<Entry>, String> {
+            self.all.borrow().entries(query)
         }
         fn raise_alarm(
             &mut self,

@@ -119,11 +119,10 @@ async fn plant_loop(
         if Instant::now() >= next_poll {
             dirty = true;
             next_poll = Instant::now() + POLL;
-            let status = match bus.api(operator, ApiRequest::Status, CALL_LIMIT).await {
-                Ok(ApiReply::Plant(p)) => Ok(p),
-                Ok(other) => Err(format!("unexpected answer to status: {other:?}")),
-                Err(e) => Err(e.to_string()),
-            };
+            let status = bus
+                .api(operator, ApiRequest::Status, CALL_LIMIT)
+                .await
+                .map_err(|e| e.to_string());
             app.status(status);
         }
         tokio::select! {

@@ -5,7 +5,7 @@
 //! Esc there comes back here. The driver (`tui::run`) polls the status and
 //! draws it with `view::draw_plant`.
 
-use falc_model::console::{ListState, PlantStatus};
+use falc_model::console::{ApiReply, ListState, PlantStatus};
 use falc_model::ids::{CellId, StationName};
 use falc_model::plant::Plant;
 use falc_model::topology::{Role, StationKind};
@@ -32,6 +32,8 @@ pub struct PlantApp {
     pub cells: Vec<CellId>,
     /// Each cell's controller (the station of kind cell).
     controllers: Vec<(CellId, StationName)>,
+    /// The cell of a plant of one (which answers `status` as that cell).
+    only_cell: Option<CellId>,
     /// The last status, if any.
     pub status: Option<PlantStatus>,
     /// Why the operator node cannot be reached, if it cannot.
@@ -64,14 +66,30 @@ impl PlantApp {
                         .map(|s| (c.id().clone(), s.name.clone()))
                 })
                 .collect(),
+            only_cell: match plant.cells() {
+                [one] => Some(one.id().clone()),
+                _ => None,
+            },
             status: None,
             unreachable: None,
             cursor: 0,
         }
     }
 
-    /// A fresh status (or why there is none).
-    pub fn status(&mut self, status: Result<PlantStatus, String>) {
+    /// The operator's answer to `status` (or why there is none): the
+    /// plant's, or in a plant of one cell that cell's.
+    pub fn status(&mut self, answer: Result<ApiReply, String>) {
+        let status = match answer {
+            Ok(ApiReply::Plant(p)) => Ok(p),
+            Ok(ApiReply::Status(s)) => match &self.only_cell {
+                Some(cell) => Ok(PlantStatus {
+                    cells: vec![(cell.clone(), s)],
+                }),
+                None => Err("unexpected answer to status: one cell's, not the plant's".into()),
+            },
+            Ok(other) => Err(format!("unexpected answer to status: {other:?}")),
+            Err(e) => Err(e),
+        };
         match status {
             Ok(s) => {
                 self.cells = s.cells.iter().map(|(c, _)| c.clone()).collect();
@@ -160,10 +178,34 @@ mod tests {
             alarm: Some("no connection with station cell".into()),
             ..CellStatus::default()
         };
-        app.status(Ok(PlantStatus {
-            cells: vec![(id("falc1"), alarmed)],
-        }));
+        app.status(Ok(ApiReply::Plant(PlantStatus {
+            cells: vec![(id("falc1"), alarmed.clone())],
+        })));
         assert_eq!((app.cursor, app.alarms()), (0, 1));
+        // A plant of one cell answers `status` as that cell.
+        app.status(Ok(ApiReply::Status(alarmed)));
+        assert!(
+            app.unreachable.is_some(),
+            "three cells: not the plant's answer"
+        );
+        let one = Plant::parse(
+            &include_str!("../../../launch/factory.toml")
+                .split("[[cell]]")
+                .take(2)
+                .collect::<Vec<_>>()
+                .join("[[cell]]"),
+            "one cell",
+        )
+        .expect("a plant of one cell");
+        let mut single = PlantApp::new(&one, StationName::new("console").expect("name"));
+        single.status(Ok(ApiReply::Status(CellStatus::default())));
+        assert_eq!(single.unreachable, None);
+        assert_eq!(
+            single.status.as_ref().map(|s| s.cells.len()),
+            Some(1),
+            "{:?}",
+            single.status
+        );
         app.status(Err("no reply".into()));
         assert_eq!(app.unreachable.as_deref(), Some("no reply"));
         assert!(app.status.is_some(), "the last status stays shown");
