@@ -141,6 +141,31 @@ fn random_bytes_in_every_text_field_are_refused_by_name_or_stored_escaped() {
                 file: cell_file(),
                 text: "-1 | output x | | | 0\n".into(),
                 base: None,
+                message: String::new(),
+            },
+        ),
+        (
+            "engineer",
+            "RecipePut.message",
+            ApiRequest::RecipePut {
+                file: RecipeFile::new(st("cell"), "fuzz").expect("file"),
+                text: "-1 | output x | | | 0\n".into(),
+                base: None,
+                message: mark(),
+            },
+        ),
+        (
+            "console",
+            "RecipeHistory.file",
+            ApiRequest::RecipeHistory { file: cell_file() },
+        ),
+        (
+            "engineer",
+            "RecipeRollback.message",
+            ApiRequest::RecipeRollback {
+                file: RecipeFile::new(st("cell"), "dikdroog").expect("file"),
+                version: 1,
+                message: mark(),
             },
         ),
         (
@@ -150,6 +175,7 @@ fn random_bytes_in_every_text_field_are_refused_by_name_or_stored_escaped() {
                 file: RecipeFile::new(st("cell"), "fuzz").expect("file"),
                 text: mark(),
                 base: None,
+                message: String::new(),
             },
         ),
         (

@@ -1,5 +1,5 @@
 //! `falc status|order|start|stop|ack|alarms|answer|messages|journal|shutdown`,
-//! `falc mode|step|restart|manual`: the
+//! `falc mode|step|restart|manual|store`: the
 //! operator API from the command line. Human-readable output by default,
 //! one JSON document per answer with `--json` (for scripts). Exit status: 0
 //! done, 1 refused by the operator node or by the console itself (the
@@ -9,6 +9,7 @@
 
 use crate::clock::time_of_day_ms;
 use crate::edit;
+use crate::history::{self, VersionCommand};
 use crate::tui::Screens;
 use clap::{Args, Subcommand};
 use falc_bus::operator_service::CallError;
@@ -224,6 +225,9 @@ pub enum StoreCommand {
         /// Create a new recipe (else it must exist and is replaced).
         #[arg(long)]
         new: bool,
+        /// Why, for the version's record (`falc store history`).
+        #[arg(long, short, default_value = "")]
+        message: String,
     },
     /// Draw a store recipe's state diagram with Graphviz `dot`, the state
     /// it is in highlighted if its station runs it now.
@@ -248,6 +252,8 @@ pub enum StoreCommand {
         /// The file name in the store.
         file: String,
     },
+    #[command(flatten)]
+    Versions(VersionCommand),
 }
 
 /// `falc order …`.
@@ -281,6 +287,12 @@ pub enum OrderCommand {
     },
     /// Show the list.
     List,
+    /// What the records say of one order: its runs with the recipe
+    /// versions they ran (and what those start), its alarms, its journal.
+    Show {
+        /// The order id.
+        id: i64,
+    },
 }
 
 fn show_order(o: &Order) -> String {
@@ -310,7 +322,7 @@ fn show_order(o: &Order) -> String {
 
 /// One journal entry as a line: its text and its author escaped, so that
 /// neither a newline nor a terminal escape in them reaches the terminal.
-fn show_entry(e: &Entry) -> String {
+pub(crate) fn show_entry(e: &Entry) -> String {
     let order = e.order.map(|o| format!(" #{o}")).unwrap_or_default();
     format!(
         "{} {:<8}{order} {}: {}",
@@ -506,6 +518,11 @@ fn to_json(reply: &ApiReply) -> serde_json::Result<String> {
         ApiReply::Done(text) => serde_json::to_string(&serde_json::json!({ "done": text })),
         ApiReply::Recipes(r) => serde_json::to_string(r),
         ApiReply::Recipe(r) => serde_json::to_string(r),
+        ApiReply::Versions(v) => serde_json::to_string(v),
+        ApiReply::RecipeAt { version, text } => {
+            serde_json::to_string(&serde_json::json!({ "version": version, "text": text }))
+        }
+        ApiReply::OrderRecord(r) => serde_json::to_string(r),
     }
 }
 
@@ -533,6 +550,9 @@ fn print(reply: &ApiReply, json: bool) {
             )
         }),
         ApiReply::Recipe(r) => crate::out!("{}", r.text.trim_end_matches('\n')),
+        ApiReply::RecipeAt { text, .. } => crate::out!("{}", text.trim_end_matches('\n')),
+        ApiReply::Versions(v) => crate::out!("{}", history::show_versions(v)),
+        ApiReply::OrderRecord(r) => crate::out!("{}", history::show_record(r)),
     }
 }
 
@@ -558,7 +578,7 @@ impl StoreCommand {
     /// The recipe file it names, if any.
     fn file(&self) -> Option<Result<RecipeFile, String>> {
         match self {
-            Self::List => None,
+            Self::List | Self::Versions(_) => None,
             Self::Show { station, file }
             | Self::Put { station, file, .. }
             | Self::View { station, file, .. }
@@ -575,17 +595,25 @@ async fn store(
     json: bool,
     kinds: &StationKinds,
 ) -> ExitCode {
+    let cmd = match cmd {
+        StoreCommand::Versions(v) => return history::run(bus, operator, v, json).await,
+        other => other,
+    };
     let file = match cmd.file() {
         None => return once(bus, operator, ApiRequest::RecipeList, json).await,
         Some(Ok(f)) => f,
         Some(Err(e)) => return refuse(&e),
     };
     match cmd {
-        StoreCommand::List => once(bus, operator, ApiRequest::RecipeList, json).await,
+        StoreCommand::List | StoreCommand::Versions(_) => {
+            once(bus, operator, ApiRequest::RecipeList, json).await
+        }
         StoreCommand::Show { .. } => {
             once(bus, operator, ApiRequest::RecipeGet { file }, json).await
         }
-        StoreCommand::Put { path, new, .. } => {
+        StoreCommand::Put {
+            path, new, message, ..
+        } => {
             let text = match std::fs::read_to_string(&path) {
                 Ok(t) => t,
                 Err(e) => return refuse(&format!("{}: {e}", path.display())),
@@ -602,7 +630,12 @@ async fn store(
             once(
                 bus,
                 operator,
-                ApiRequest::RecipePut { file, text, base },
+                ApiRequest::RecipePut {
+                    file,
+                    text,
+                    base,
+                    message,
+                },
                 json,
             )
             .await
@@ -668,7 +701,7 @@ async fn view(
 }
 
 /// Says why and exits 1.
-fn refuse(why: &str) -> ExitCode {
+pub(crate) fn refuse(why: &str) -> ExitCode {
     eprintln!("falc: {}", printable(why));
     ExitCode::FAILURE
 }
@@ -685,7 +718,12 @@ pub fn fail(why: &CallError) -> ExitCode {
 }
 
 /// One call: printed, or the refusal on stderr.
-async fn once(bus: &Bus, operator: &StationName, req: ApiRequest, json: bool) -> ExitCode {
+pub(crate) async fn once(
+    bus: &Bus,
+    operator: &StationName,
+    req: ApiRequest,
+    json: bool,
+) -> ExitCode {
     match bus.api(operator, req, CALL_LIMIT).await {
         Ok(reply) => {
             print(&reply, json);
@@ -746,6 +784,7 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
         }
         CellCommand::Order(OrderCommand::Rm { id }) => ApiRequest::OrderRemove { id },
         CellCommand::Order(OrderCommand::List) => ApiRequest::OrderList,
+        CellCommand::Order(OrderCommand::Show { id }) => ApiRequest::OrderShow { id },
         CellCommand::Start => ApiRequest::Start,
         CellCommand::Stop => ApiRequest::Stop,
         CellCommand::Ack { id } => ApiRequest::Ack { id },

@@ -131,6 +131,7 @@ impl Session {
             file: self.file.clone(),
             text,
             base: self.base,
+            message: String::new(),
         };
         match bus
             .api(operator, request, CALL_LIMIT)

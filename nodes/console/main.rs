@@ -1,12 +1,15 @@
 //! `falc`: the operator's console. `recipe` (check, draw) works on files
 //! alone (`recipe_cmd`); every other command talks to the operator node
 //! through the operator API as a console user (`cell_cmd`), `falc tui`
-//! draws the operator's screens (`tui`), and `falc store edit` and the TUI
-//! edit store recipes in `$EDITOR` (`edit`).
+//! draws the operator's screens (`tui`), `falc store edit` and the TUI
+//! edit store recipes in `$EDITOR` (`edit`), and `falc store
+//! history|diff|rollback` and `falc order show` read recipe versions and
+//! an order's record (`history`).
 
 mod cell_cmd;
 mod clock;
 mod edit;
+mod history;
 mod recipe_cmd;
 mod tui;
 
@@ -28,11 +31,21 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Recipe tools: check, draw.
+    /// Recipe tools: check, draw; the store's versions.
     #[command(subcommand)]
-    Recipe(recipe_cmd::RecipeCommand),
+    Recipe(RecipeCommand),
     #[command(flatten)]
     Cell(cell_cmd::CellCommand),
+}
+
+/// `falc recipe …`: the file tools, and the store's versions (the same as
+/// `falc store history|diff|rollback`: these ask the operator).
+#[derive(Subcommand, Debug)]
+enum RecipeCommand {
+    #[command(flatten)]
+    Files(recipe_cmd::RecipeCommand),
+    #[command(flatten)]
+    Versions(history::VersionCommand),
 }
 
 /// `println!` that ends the program quietly when the reader of stdout has
@@ -70,17 +83,27 @@ fn main() -> ExitCode {
     falc_node::init_tracing();
     let cli = Cli::parse();
     match cli.command {
-        Command::Recipe(r) => recipe_cmd::run(r, &cli.console.node.topology),
-        Command::Cell(c) => match tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(1)
-            .enable_all()
-            .build()
-        {
-            Ok(rt) => rt.block_on(cell_cmd::run(c, cli.console)),
-            Err(e) => {
-                eprintln!("falc: cannot start the async runtime: {e}");
-                ExitCode::from(2)
-            }
-        },
+        // The store's versions, also under `falc recipe`: a console call.
+        Command::Recipe(RecipeCommand::Versions(v)) => on_runtime(
+            cell_cmd::CellCommand::Store(cell_cmd::StoreCommand::Versions(v)),
+            cli.console,
+        ),
+        Command::Recipe(RecipeCommand::Files(r)) => recipe_cmd::run(r, &cli.console.node.topology),
+        Command::Cell(c) => on_runtime(c, cli.console),
+    }
+}
+
+/// Runs an operator API command on a runtime of its own.
+fn on_runtime(c: cell_cmd::CellCommand, console: cell_cmd::ConsoleArgs) -> ExitCode {
+    match tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt.block_on(cell_cmd::run(c, console)),
+        Err(e) => {
+            eprintln!("falc: cannot start the async runtime: {e}");
+            ExitCode::from(2)
+        }
     }
 }

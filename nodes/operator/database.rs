@@ -1,12 +1,16 @@
 //! The operator's durable state in one SQLite file (WAL, synchronous FULL):
-//! the order list and the journal. Every change is one transaction, so a
+//! the order list, the journal, the alarms, every saved version of each
+//! recipe file (kept by triggers from being changed or removed) and the
+//! versions each run of an order used. Every change is one transaction, so a
 //! crash loses nothing that was confirmed; [`Database::recover`] marks an order
 //! that was running when the node died as interrupted (never re-run by
 //! itself) and journals it.
 
-use falc_control::records::{EntryQuery, Records};
+use falc_control::records::{EntryQuery, Records, RECORD_ENTRIES};
 use falc_model::alarm::{Alarm, AlarmClass};
-use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement};
+use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement, RecipeFile};
+use falc_model::ids::StationName;
+use falc_model::product::{OrderRecord, OrderRun, RecipeVersion, UsedRecipe, VersionHash};
 use rusqlite::{params, Connection, OptionalExtension, Row};
 use std::path::Path;
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -80,7 +84,64 @@ CREATE TABLE IF NOT EXISTS alarms (
     acked_ms INTEGER,
     cleared_ms INTEGER
 );
+CREATE TABLE IF NOT EXISTS recipe_versions (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    file TEXT NOT NULL,
+    version INTEGER NOT NULL,
+    hash TEXT NOT NULL,
+    author TEXT NOT NULL,
+    at_ms INTEGER NOT NULL,
+    message TEXT NOT NULL,
+    text TEXT NOT NULL,
+    UNIQUE (file, version)
+);
+CREATE TRIGGER IF NOT EXISTS recipe_versions_never_changed
+    BEFORE UPDATE ON recipe_versions
+    BEGIN SELECT RAISE(ABORT, 'a recipe version is never changed'); END;
+CREATE TRIGGER IF NOT EXISTS recipe_versions_never_removed
+    BEFORE DELETE ON recipe_versions
+    BEGIN SELECT RAISE(ABORT, 'a recipe version is never removed'); END;
+CREATE TABLE IF NOT EXISTS order_recipes (
+    order_id INTEGER NOT NULL,
+    started_ms INTEGER NOT NULL,
+    position INTEGER NOT NULL,
+    domain TEXT NOT NULL,
+    file TEXT NOT NULL,
+    version INTEGER NOT NULL,
+    hash TEXT NOT NULL,
+    starts TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS order_recipes_order ON order_recipes(order_id);
 ";
+
+const VERSION_COLUMNS: &str = "file, version, hash, author, at_ms, message";
+
+/// A value the file holds that this version cannot read, as a read error.
+fn unreadable(column: usize, why: String) -> rusqlite::Error {
+    rusqlite::Error::FromSqlConversionFailure(column, rusqlite::types::Type::Text, why.into())
+}
+
+/// `station/file.rcp` as stored.
+fn recipe_file_of(text: &str, column: usize) -> rusqlite::Result<RecipeFile> {
+    let (station, file) = text
+        .split_once('/')
+        .ok_or_else(|| unreadable(column, format!("recipe file {text:?} has no station")))?;
+    let station = StationName::new(station).map_err(|e| unreadable(column, e.to_string()))?;
+    RecipeFile::new(station, file).map_err(|e| unreadable(column, e))
+}
+
+fn version_of(row: &Row<'_>) -> rusqlite::Result<RecipeVersion> {
+    let file: String = row.get(0)?;
+    let hash: String = row.get(2)?;
+    Ok(RecipeVersion {
+        file: recipe_file_of(&file, 0)?,
+        version: row.get(1)?,
+        hash: VersionHash::try_from(hash).map_err(|e| unreadable(2, e))?,
+        author: row.get(3)?,
+        at_ms: row.get(4)?,
+        message: row.get(5)?,
+    })
+}
 
 /// Columns added since the first schema, each with its definition: a file
 /// made before gets them at open (`ALTER TABLE … ADD COLUMN`), its orders
@@ -473,29 +534,74 @@ impl Records for Database {
     }
 
     /// Marks an order running on `cell`; returns the start time it wrote (ms).
-    fn set_running(&mut self, id: i64, cell: &str) -> Result<i64, Self::Error> {
+    fn set_running(
+        &mut self,
+        id: i64,
+        cell: &str,
+        recipes: &[UsedRecipe],
+    ) -> Result<i64, Self::Error> {
         let started = now_ms();
-        self.conn
-            .execute(
-                "UPDATE orders SET state = 'running', started_ms = ?1, cell = ?2 WHERE id = ?3",
-                params![started, cell, id],
+        let path = self.path.clone();
+        let fail = move |source: rusqlite::Error| DatabaseError {
+            path,
+            what: "cannot mark an order running",
+            source: source.into(),
+        };
+        let tx = self.conn.transaction().map_err(fail.clone())?;
+        tx.execute(
+            "UPDATE orders SET state = 'running', started_ms = ?1, cell = ?2 WHERE id = ?3",
+            params![started, cell, id],
+        )
+        .map_err(fail.clone())?;
+        for (position, r) in recipes.iter().enumerate() {
+            let starts = serde_json::to_string(&r.starts).unwrap_or_else(|_| "[]".into());
+            tx.execute(
+                "INSERT INTO order_recipes (order_id, started_ms, position, domain, file, version, hash, starts) \
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                params![
+                    id,
+                    started,
+                    position as i64,
+                    r.domain,
+                    r.file.to_string(),
+                    r.version,
+                    r.hash.as_str(),
+                    starts
+                ],
             )
-            .map_err(self.fail("cannot mark an order running"))
-            .map(|_| started)
+            .map_err(fail.clone())?;
+        }
+        tx.commit().map_err(fail)?;
+        Ok(started)
     }
 
     /// Puts an order the cell refused to start back in the queue (it is
     /// marked running before the cell is asked, so that an order the cell
     /// may have started is never queued again; only a refusal undoes it).
     fn requeue(&mut self, id: i64) -> Result<(), Self::Error> {
+        // The run that never began goes with it.
         self.conn
+            .execute_batch("BEGIN IMMEDIATE")
+            .map_err(self.fail("cannot put an order back in the queue"))?;
+        let done = self
+            .conn
             .execute(
-                "UPDATE orders SET state = 'queued', started_ms = NULL, cell = NULL \
-                 WHERE id = ?1 AND state = 'running'",
+                "DELETE FROM order_recipes WHERE order_id = ?1 AND started_ms = \
+                 (SELECT started_ms FROM orders WHERE id = ?1 AND state = 'running')",
                 params![id],
             )
-            .map_err(self.fail("cannot put an order back in the queue"))
-            .map(|_| ())
+            .and_then(|_| {
+                self.conn.execute(
+                    "UPDATE orders SET state = 'queued', started_ms = NULL, cell = NULL \
+                     WHERE id = ?1 AND state = 'running'",
+                    params![id],
+                )
+            })
+            .and_then(|_| self.conn.execute_batch("COMMIT"));
+        if done.is_err() {
+            let _ = self.conn.execute_batch("ROLLBACK");
+        }
+        done.map_err(self.fail("cannot put an order back in the queue"))
     }
 
     /// Ends an order in `state` with `result` in words.
@@ -604,6 +710,150 @@ impl Records for Database {
         // The SQL above is a prefilter (history stays on disk); the rule
         // itself is `Alarm::listed`.
         Ok(all.into_iter().filter(Alarm::listed).collect())
+    }
+
+    fn add_version(
+        &mut self,
+        file: &RecipeFile,
+        text: &str,
+        who: &str,
+        message: &str,
+    ) -> Result<(RecipeVersion, bool), Self::Error> {
+        let hash = VersionHash::of(text.as_bytes());
+        let newest = self
+            .conn
+            .query_row(
+                &format!(
+                    "SELECT {VERSION_COLUMNS} FROM recipe_versions WHERE file = ?1 \
+                     ORDER BY version DESC LIMIT 1"
+                ),
+                params![file.to_string()],
+                version_of,
+            )
+            .optional()
+            .map_err(self.fail("cannot read the recipe versions"))?;
+        if let Some(v) = newest.as_ref().filter(|v| v.hash == hash) {
+            return Ok((v.clone(), false));
+        }
+        let v = RecipeVersion {
+            file: file.clone(),
+            version: newest.map_or(1, |v| v.version + 1),
+            hash,
+            author: who.to_string(),
+            at_ms: now_ms(),
+            message: message.to_string(),
+        };
+        self.conn
+            .execute(
+                "INSERT INTO recipe_versions (file, version, hash, author, at_ms, message, text) \
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+                params![
+                    file.to_string(),
+                    v.version,
+                    v.hash.as_str(),
+                    who,
+                    v.at_ms,
+                    message,
+                    text
+                ],
+            )
+            .map_err(self.fail("cannot keep a recipe version"))?;
+        Ok((v, true))
+    }
+
+    fn versions(&self, file: &RecipeFile) -> Result<Vec<RecipeVersion>, Self::Error> {
+        let mut st = self
+            .conn
+            .prepare(&format!(
+                "SELECT {VERSION_COLUMNS} FROM recipe_versions WHERE file = ?1 ORDER BY version"
+            ))
+            .map_err(self.fail("cannot read the recipe versions"))?;
+        let rows = st
+            .query_map(params![file.to_string()], version_of)
+            .map_err(self.fail("cannot read the recipe versions"))?;
+        rows.collect::<Result<Vec<_>, _>>()
+            .map_err(self.fail("cannot read the recipe versions"))
+    }
+
+    fn version(
+        &self,
+        file: &RecipeFile,
+        version: u32,
+    ) -> Result<Option<(RecipeVersion, String)>, Self::Error> {
+        self.conn
+            .query_row(
+                &format!(
+                    "SELECT {VERSION_COLUMNS}, text FROM recipe_versions \
+                     WHERE file = ?1 AND version = ?2"
+                ),
+                params![file.to_string(), version],
+                |row| Ok((version_of(row)?, row.get(6)?)),
+            )
+            .optional()
+            .map_err(self.fail("cannot read a recipe version"))
+    }
+
+    fn order_record(&self, id: i64) -> Result<Option<OrderRecord>, Self::Error> {
+        let Some(order) = self.order(id)? else {
+            return Ok(None);
+        };
+        let fail = || self.fail("cannot read an order's record");
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT started_ms, domain, file, version, hash, starts FROM order_recipes \
+                 WHERE order_id = ?1 ORDER BY started_ms, position",
+            )
+            .map_err(fail())?;
+        let rows = st
+            .query_map(params![id], |row| {
+                let file: String = row.get(2)?;
+                let hash: String = row.get(4)?;
+                let starts: String = row.get(5)?;
+                Ok((
+                    row.get::<_, i64>(0)?,
+                    UsedRecipe {
+                        domain: row.get(1)?,
+                        file: recipe_file_of(&file, 2)?,
+                        version: row.get(3)?,
+                        hash: VersionHash::try_from(hash).map_err(|e| unreadable(4, e))?,
+                        starts: serde_json::from_str(&starts)
+                            .map_err(|e| unreadable(5, e.to_string()))?,
+                    },
+                ))
+            })
+            .map_err(fail())?;
+        let mut runs: Vec<OrderRun> = Vec::new();
+        for row in rows {
+            let (started_ms, used) = row.map_err(fail())?;
+            match runs.last_mut() {
+                Some(run) if run.started_ms == started_ms => run.recipes.push(used),
+                _ => runs.push(OrderRun {
+                    started_ms,
+                    recipes: vec![used],
+                }),
+            }
+        }
+        let mut query = EntryQuery::page(0, RECORD_ENTRIES);
+        query.order = Some(id);
+        let entries = self.entries(&query)?;
+        let mut st = self
+            .conn
+            .prepare(&format!(
+                "SELECT {ALARM_COLUMNS} FROM alarms WHERE order_id = ?1 ORDER BY id"
+            ))
+            .map_err(fail())?;
+        let alarms = st
+            .query_map(params![id], alarm_of)
+            .map_err(fail())?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(fail())?;
+        Ok(Some(OrderRecord {
+            order,
+            runs,
+            entries,
+            alarms,
+        }))
     }
 
     fn entries(&self, q: &EntryQuery) -> Result<Vec<Entry>, Self::Error> {
@@ -726,7 +976,7 @@ mod tests {
                 .map(|o| o.id);
             assert_eq!(a, b, "round {round}, {cell}");
             if let Some(id) = a {
-                db.set_running(id, cell).expect("run");
+                db.set_running(id, cell, &[]).expect("run");
             }
         }
         let on = |id| db.order(id).expect("read").and_then(|o| o.cell);
@@ -849,7 +1099,7 @@ mod tests {
             (o.recipe.as_str(), o.priority, o.due_ms, o.wanted, o.cell),
             ("dikdroog", 0, None, None, None)
         );
-        db.set_running(o.id, "falc1").expect("run");
+        db.set_running(o.id, "falc1", &[]).expect("run");
         drop(db);
         let db = Database::open(&path, "falc1").expect("opened again");
         let o = db.order(o.id).expect("read").expect("there");
@@ -926,8 +1176,8 @@ mod tests {
         let mut s = Database::open(&path, "falc1").expect("open");
         let a = s.add_order("dikdroog", "ann", &ANY).expect("add");
         let b = s.add_order("dundroog", "ann", &ANY).expect("add");
-        s.set_running(a.id, "falc1").expect("run");
-        s.set_running(b.id, "falc1").expect("run");
+        s.set_running(a.id, "falc1", &[]).expect("run");
+        s.set_running(b.id, "falc1", &[]).expect("run");
         drop(s);
         let mut s = Database::open(&path, "falc1").expect("reopen");
         let r = s.recover(&["falc1"]).expect("recover");
@@ -960,18 +1210,101 @@ mod tests {
     }
 
     #[test]
+    fn recipe_versions_are_kept_never_changed_and_each_run_records_its_own() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("falc.db");
+        let mut s = Database::open(&path, "falc1").expect("open");
+        let file =
+            RecipeFile::new(StationName::new("welding").expect("v"), "droog_dik").expect("file");
+        let (v1, new) = s
+            .add_version(&file, "-1 | a | | | 0\n", "falc", "")
+            .expect("v1");
+        assert!(new && v1.version == 1);
+        // The same text again is no new version.
+        let (again, new) = s
+            .add_version(&file, "-1 | a | | | 0\n", "eva", "x")
+            .expect("v1");
+        assert!(!new && again == v1);
+        let (v2, _) = s
+            .add_version(&file, "-1 | b | | | 0\n", "eva", "thicker")
+            .expect("v2");
+        assert_eq!(
+            (v2.version, v2.author.as_str(), v2.message.as_str()),
+            (2, "eva", "thicker")
+        );
+        assert_ne!(v1.hash, v2.hash);
+        // Back to the first text: a third version, the first kept as it was.
+        let (v3, _) = s
+            .add_version(&file, "-1 | a | | | 0\n", "eva", "back")
+            .expect("v3");
+        assert_eq!((v3.version, &v3.hash), (3, &v1.hash));
+        assert_eq!(s.versions(&file).expect("list").len(), 3);
+        assert_eq!(
+            s.version(&file, 2)
+                .expect("read")
+                .map(|(v, t)| (v.version, t)),
+            Some((2, "-1 | b | | | 0\n".to_string()))
+        );
+        assert_eq!(s.version(&file, 9).expect("read"), None);
+        // Neither changed nor removed, even by hand.
+        for sql in [
+            "UPDATE recipe_versions SET text = 'x'",
+            "DELETE FROM recipe_versions",
+        ] {
+            let e = s.conn.execute(sql, []).expect_err("refused");
+            assert!(e.to_string().contains("never"), "{e}");
+        }
+        // Each run of an order keeps its versions; a run the cell refused
+        // goes with the requeue.
+        let used = |v: &RecipeVersion| UsedRecipe {
+            domain: "WELDING$DROOG_DIK".into(),
+            file: v.file.clone(),
+            version: v.version,
+            hash: v.hash.clone(),
+            starts: vec!["program 12".into()],
+        };
+        let o = s.add_order("dikdroog", "ann", &ANY).expect("add");
+        s.set_running(o.id, "falc1", &[used(&v1)]).expect("run");
+        s.requeue(o.id).expect("requeue");
+        assert!(s
+            .order_record(o.id)
+            .expect("read")
+            .expect("there")
+            .runs
+            .is_empty());
+        s.set_running(o.id, "falc1", &[used(&v2)]).expect("run");
+        s.end_order(o.id, OrderState::Failed, "alarm").expect("end");
+        std::thread::sleep(std::time::Duration::from_millis(2));
+        s.set_running(o.id, "falc1", &[used(&v3)])
+            .expect("run again");
+        s.journal(EntryKind::Order, Some(o.id), "falc", "order started")
+            .expect("j");
+        s.raise_alarm("welding", AlarmClass::Safety, "estop", Some(o.id))
+            .expect("alarm");
+        drop(s);
+        let s = Database::open(&path, "falc1").expect("reopen");
+        let r = s.order_record(o.id).expect("read").expect("there");
+        let versions: Vec<u32> = r.runs.iter().map(|run| run.recipes[0].version).collect();
+        assert_eq!(versions, vec![2, 3]);
+        assert_eq!(r.runs[0].recipes[0].starts, vec!["program 12".to_string()]);
+        assert_eq!(r.entries.len(), 1);
+        assert_eq!(r.alarms.len(), 1);
+        assert_eq!(s.order_record(999).expect("read"), None);
+    }
+
+    #[test]
     fn only_a_running_order_goes_back_to_the_queue() {
         let dir = tempfile::tempdir().expect("tempdir");
         let mut s = Database::open(&dir.path().join("falc.db"), "falc1").expect("open");
         let a = s.add_order("dikdroog", "ann", &ANY).expect("add");
-        s.set_running(a.id, "falc1").expect("run");
+        s.set_running(a.id, "falc1", &[]).expect("run");
         s.requeue(a.id).expect("requeue");
         let o = s.order(a.id).expect("read").expect("there");
         assert_eq!(
             (o.state, o.started_ms, o.cell),
             (OrderState::Queued, None, None)
         );
-        s.set_running(a.id, "falc1").expect("run");
+        s.set_running(a.id, "falc1", &[]).expect("run");
         s.end_order(a.id, OrderState::Done, "done").expect("end");
         s.requeue(a.id).expect("a no-op");
         let o = s.order(a.id).expect("read").expect("there");
@@ -990,7 +1323,7 @@ mod tests {
             let mut s = Database::open(&path, "falc1").expect("open");
             let a = s.add_order("dikdroog", "ann", &ANY).expect("add");
             let b = s.add_order("dundroog", "ann", &ANY).expect("add");
-            s.set_running(a.id, "falc1").expect("run");
+            s.set_running(a.id, "falc1", &[]).expect("run");
             s.journal(EntryKind::Order, Some(a.id), "operator", "started")
                 .expect("journal");
             assert_eq!(

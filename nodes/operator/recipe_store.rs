@@ -18,7 +18,7 @@ use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::domain::content_hash;
 use falc_model::topology::Topology;
-use falc_recipe::check::{check_set, Entry};
+use falc_recipe::check::{check_set, Command, Entry, Job, Program};
 use falc_recipe::commands::RecipeKind;
 use falc_recipe::files::{self, StationKinds};
 use std::path::{Path, PathBuf};
@@ -82,11 +82,21 @@ fn check_entries(
             }
         };
         let content = entry.text.clone().into_bytes();
+        let file = match file_of(origin) {
+            Ok(f) => f,
+            Err(e) => {
+                errors.push(format!("{origin}:1: {e}"));
+                continue;
+            }
+        };
+        let starts = starts_of(program);
         if program.kind == RecipeKind::Cell {
             cells.push(Delivery {
                 domain: name,
                 is_cell: true,
                 content,
+                file,
+                starts,
             });
         } else if !workstations.contains(&station) {
             errors.push(format!(
@@ -99,6 +109,8 @@ fn check_entries(
                     domain,
                     is_cell: false,
                     content,
+                    file,
+                    starts,
                 }),
                 Err(e) => errors.push(format!("{origin}:1: {e}")),
             }
@@ -130,6 +142,42 @@ fn check_entries(
     Ok(RecipeSet {
         deliveries: stations,
     })
+}
+
+/// The store's name of the recipe file at `origin` (`…/welding/droog_dik.rcp`
+/// is `welding/droog_dik.rcp`).
+fn file_of(origin: &str) -> Result<RecipeFile, String> {
+    let path = Path::new(origin);
+    let part = |p: Option<&std::ffi::OsStr>| p.and_then(|s| s.to_str()).map(str::to_string);
+    let station = part(path.parent().and_then(Path::file_name));
+    let name = part(path.file_name());
+    let (Some(station), Some(name)) = (station, name) else {
+        return Err("a recipe file must lie in its station's directory".into());
+    };
+    RecipeFile::new(
+        StationName::new(&station).map_err(|e| e.to_string())?,
+        &name,
+    )
+}
+
+/// What `program` starts one level down: each workstation recipe's
+/// domain (`WELDING$DROOG_DIK`), each robot program (`program 12`), once,
+/// in the order of its states.
+fn starts_of(program: &Program) -> Vec<String> {
+    let mut out: Vec<String> = Vec::new();
+    for state in program.states.values() {
+        let Command::Start { target, job, .. } = &state.command else {
+            continue;
+        };
+        let s = match job {
+            Job::Recipe(name) => format!("{}${name}", target.as_str().to_uppercase()),
+            Job::Program(p) => format!("program {}", p.number()),
+        };
+        if !out.contains(&s) {
+            out.push(s);
+        }
+    }
+    out
 }
 
 /// The stations whose directory may hold recipes: the cell and its

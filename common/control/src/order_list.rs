@@ -21,6 +21,7 @@ use crate::alarm_list::{AlarmList, Raised};
 use crate::recipe_source::{Delivery, PutError, RecipeSet, RecipeSource};
 use crate::records::{EntryQuery, Records};
 use falc_model::alarm::{Alarm, AlarmClass};
+use falc_model::console::RecipeFile;
 use falc_model::console::{
     ApiReply, ApiRequest, ApiResult, CellStatus, EntryKind, ListState, Order, OrderState,
     Placement, StationView, MAX_OUTPUT_CHARS, MAX_OUTPUT_LINES, MAX_QUEUED_ORDERS,
@@ -33,6 +34,7 @@ use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::program::PiState;
 use falc_model::mms::vmd::VmdStatus;
 use falc_model::mode::{CellMode, ModeSetting};
+use falc_model::product::{RecipeVersion, UsedRecipe};
 use falc_model::topology::Topology;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::time::Duration;
@@ -243,6 +245,8 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     recipes: RecipeSet,
     /// The content hash of each of `recipes`, in the same order.
     hashes: Vec<u64>,
+    /// The version of each of `recipes` (by domain), as the records keep it.
+    versions: BTreeMap<ObjectName, RecipeVersion>,
     /// Content hash of each domain delivered to the cell in this association.
     delivered: BTreeMap<ObjectName, u64>,
     associated: bool,
@@ -339,6 +343,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             db,
             source,
             hashes: hashes_of(&recipes),
+            versions: BTreeMap::new(),
             recipes,
             delivered: BTreeMap::new(),
             associated: false,
@@ -363,6 +368,68 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             out: VecDeque::new(),
             told: None,
         }
+        .versioned()
+    }
+
+    /// Keeps each recipe of the set as a version ([`Self::version_set`]).
+    fn versioned(mut self) -> Self {
+        self.version_set();
+        self
+    }
+
+    /// Keeps the text of each recipe of the set as its file's newest
+    /// version where it is not yet (a text changed in the store by hand
+    /// since the last save is a version of its own, by this node), and
+    /// journals each new one.
+    fn version_set(&mut self) {
+        let mut versions = BTreeMap::new();
+        for d in &self.recipes.deliveries.clone() {
+            let text = String::from_utf8_lossy(&d.content);
+            let me = self.me.to_string();
+            match self
+                .db
+                .add_version(&d.file, &text, &me, "found in the recipe store")
+            {
+                Ok((v, new)) => {
+                    if new {
+                        let line = format!(
+                            "recipe {} version {} ({}) found in the recipe store",
+                            v.file,
+                            v.version,
+                            v.hash.short()
+                        );
+                        self.journal_mine(EntryKind::System, None, &line);
+                    }
+                    versions.insert(d.domain.clone(), v);
+                }
+                Err(e) => return self.db_failed(&e),
+            }
+        }
+        self.versions = versions;
+    }
+
+    /// The recipe versions an order of cell recipe `recipe` runs: the
+    /// cell recipe, then each workstation recipe it starts.
+    fn used_by(&self, recipe: &str) -> Vec<UsedRecipe> {
+        let used = |domain: &str| {
+            let d = self.recipes.get(domain)?;
+            let v = self.versions.get(&d.domain)?;
+            Some(UsedRecipe {
+                domain: d.domain.to_string(),
+                file: d.file.clone(),
+                version: v.version,
+                hash: v.hash.clone(),
+                starts: d.starts.clone(),
+            })
+        };
+        let Ok(name) = ObjectName::new(recipe) else {
+            return Vec::new();
+        };
+        let Some(cell) = used(name.as_str()) else {
+            return Vec::new();
+        };
+        let below = cell.starts.iter().filter_map(|s| used(s));
+        std::iter::once(cell.clone()).chain(below).collect()
     }
 
     /// Takes over `order`, which was running on this cell when this node
@@ -805,6 +872,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             Ok(set) => {
                 self.hashes = hashes_of(&set);
                 self.recipes = set;
+                self.version_set();
             }
             Err(problems) => {
                 let text = format!(
@@ -922,7 +990,9 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 return self.reply(by.ticket, Err(text));
             }
         };
-        let started_ms = match self.db.set_running(id, self.topology.cell().as_str()) {
+        let used = self.used_by(&order.recipe);
+        let cell = self.topology.cell().as_str();
+        let started_ms = match self.db.set_running(id, cell, &used) {
             Ok(ms) => ms,
             Err(e) => {
                 let text = format!("order {id} not restarted: {e}");
@@ -1013,7 +1083,8 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 return Ok(None);
             };
             let name = ObjectName::new(&order.recipe).map_err(|e| e.to_string())?;
-            match self.db.set_running(order.id, cell) {
+            let used = self.used_by(&order.recipe);
+            match self.db.set_running(order.id, cell, &used) {
                 Ok(ms) => Ok(Some((
                     Order {
                         cell: Some(cell.to_string()),
@@ -1721,6 +1792,92 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.pump(now);
     }
 
+    /// Saves `text` as recipe `file` (checked with the whole set; only
+    /// over `base`) and keeps it as the file's newest version; `what` the
+    /// store did (`changed`, `created`, `rolled back to version 3`).
+    fn save_recipe(
+        &mut self,
+        who: &str,
+        file: &RecipeFile,
+        text: &str,
+        base: Option<u64>,
+        what: &str,
+        message: &str,
+    ) -> ApiResult {
+        match self.source.put(file, text, base) {
+            Ok(()) => {}
+            Err(PutError::Findings(f)) => {
+                return Err(format!(
+                    "recipe {file} NOT saved: the recipe set does not check clean with it:\n{}",
+                    f.join("\n")
+                ))
+            }
+            Err(PutError::Refused(why)) => return Err(format!("recipe {file} NOT saved: {why}")),
+        }
+        // Saved: a version that cannot be written stops the list (the
+        // next start keeps the text as a version found in the store).
+        let version = match self.db.add_version(file, text, who, message) {
+            Ok((v, _)) => v,
+            Err(e) => {
+                let text = format!("recipe {file} saved, but its version not kept: {e}");
+                self.db_failed(&e);
+                return Err(text);
+            }
+        };
+        let said = if message.is_empty() {
+            String::new()
+        } else {
+            format!(": {message}")
+        };
+        self.journal(
+            EntryKind::Action,
+            None,
+            who,
+            &format!(
+                "recipe {file} {what}: version {} ({}){said} (checked; the cell gets it at the next start)",
+                version.version,
+                version.hash.short()
+            ),
+        );
+        Ok(ApiReply::Done(format!(
+            "recipe {file} saved as version {} ({}): it checks clean; the cell gets it at the next start",
+            version.version,
+            version.hash.short()
+        )))
+    }
+
+    /// Saves version `version` of `file` again as its newest version,
+    /// checked like any save.
+    fn roll_back(
+        &mut self,
+        who: &str,
+        file: &RecipeFile,
+        version: u32,
+        message: &str,
+    ) -> ApiResult {
+        let (old, text) = match self.db.version(file, version) {
+            Ok(Some(v)) => v,
+            Ok(None) => {
+                return Err(format!(
+                    "recipe {file} has no version {version} (falc recipe history {file})"
+                ))
+            }
+            Err(e) => return Err(e.to_string()),
+        };
+        let now = self.source.get(file).ok();
+        if now.as_ref().is_some_and(|n| n.text == text) {
+            return Err(format!(
+                "recipe {file} is the text of version {version} already: nothing to roll back"
+            ));
+        }
+        let what = format!(
+            "rolled back to version {} ({})",
+            old.version,
+            old.hash.short()
+        );
+        self.save_recipe(who, file, &text, now.map(|n| n.hash), &what, message)
+    }
+
     /// The answer now, or None when a job answers it later; the journal
     /// and messages it reads are cell `entries_of`'s (None: all).
     fn api(
@@ -1816,27 +1973,44 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             }
             ApiRequest::RecipeList => self.source.list().map(ApiReply::Recipes),
             ApiRequest::RecipeGet { file } => self.source.get(&file).map(ApiReply::Recipe),
-            ApiRequest::RecipePut { file, text, base } => {
-                match self.source.put(&file, &text, base) {
-                    Ok(()) => {
-                        let what = if base.is_none() { "created" } else { "changed" };
-                        self.journal(
-                        EntryKind::Action,
-                        None,
-                        who,
-                        &format!("recipe {file} {what} (checked; the cell gets it at the next start)"),
-                    );
-                        Ok(ApiReply::Done(format!(
-                        "recipe {file} saved: it checks clean; the cell gets it at the next start"
-                    )))
-                    }
-                    Err(PutError::Findings(f)) => Err(format!(
-                        "recipe {file} NOT saved: the recipe set does not check clean with it:\n{}",
-                        f.join("\n")
-                    )),
-                    Err(PutError::Refused(why)) => Err(format!("recipe {file} NOT saved: {why}")),
-                }
+            ApiRequest::RecipePut {
+                file,
+                text,
+                base,
+                message,
+            } => {
+                let what = if base.is_none() { "created" } else { "changed" };
+                self.save_recipe(who, &file, &text, base, what, &message)
             }
+            ApiRequest::RecipeHistory { file } => match self.db.versions(&file) {
+                Ok(v) if v.is_empty() => Err(format!(
+                    "recipe {file} has no saved version (falc store list shows the recipes)"
+                )),
+                Ok(v) => Ok(ApiReply::Versions(v)),
+                Err(e) => Err(e.to_string()),
+            },
+            ApiRequest::RecipeVersion { file, version } => match self.db.version(&file, version) {
+                Ok(Some((version, text))) => Ok(ApiReply::RecipeAt { version, text }),
+                Ok(None) => Err(format!(
+                    "recipe {file} has no version {version} (falc recipe history {file})"
+                )),
+                Err(e) => Err(e.to_string()),
+            },
+            ApiRequest::RecipeRollback {
+                file,
+                version,
+                message,
+            } => self.roll_back(who, &file, version, &message),
+            ApiRequest::OrderShow { id } => match self.db.order_record(id) {
+                Ok(Some(mut record)) => {
+                    if let Some(o) = self.with_unwritten_ends(vec![record.order.clone()]).pop() {
+                        record.order = o;
+                    }
+                    Ok(ApiReply::OrderRecord(Box::new(record)))
+                }
+                Ok(None) => Err(format!("there is no order {id}")),
+                Err(e) => Err(e.to_string()),
+            },
             ApiRequest::Mode { mode, stations } => {
                 let request = match self.mode_request(mode, stations) {
                     Ok(r) => r,
@@ -2305,6 +2479,115 @@ mod tests {
         r.add(1);
         let (_, out) = r.api("console", ApiRequest::Start);
         assert_eq!(call(&out), Some(CellCall::Initiate));
+    }
+
+    #[test]
+    fn each_run_records_the_versions_it_ran_and_a_save_or_rollback_is_a_new_version() {
+        let mut r = Rig::new();
+        // At start-up the store's texts are kept as versions 1.
+        let welding = RecipeFile::new(st("welding"), "droog_dik").expect("file");
+        let cell = RecipeFile::new(st("cell"), "dikdroog").expect("file");
+        let kept = r.list.records().versions.clone();
+        assert_eq!(kept.len(), 2);
+        assert!(kept
+            .iter()
+            .all(|(v, _)| v.version == 1 && v.author == "operator"));
+        r.add(1);
+        assert!(r.start().is_ok());
+        r.job(JobEvent::Done);
+        // The engineer saves a new welding text, with a message.
+        let base = r.list.source.get(&welding).expect("get").hash;
+        let put = ApiRequest::RecipePut {
+            file: welding.clone(),
+            text: "thicker".into(),
+            base: Some(base),
+            message: "more current".into(),
+        };
+        let said = r.ask("engineer", put).expect("saved");
+        assert!(
+            matches!(&said, ApiReply::Done(t) if t.contains("version 2")),
+            "{said:?}"
+        );
+        let history = r.ask(
+            "console",
+            ApiRequest::RecipeHistory {
+                file: welding.clone(),
+            },
+        );
+        let Ok(ApiReply::Versions(v)) = history else {
+            panic!("{history:?}")
+        };
+        assert_eq!(
+            v.iter()
+                .map(|v| (v.version, v.author.as_str(), v.message.as_str()))
+                .collect::<Vec<_>>(),
+            vec![
+                (1, "operator", "found in the recipe store"),
+                (2, "engineer", "more current")
+            ]
+        );
+        // A save with a finding is no version.
+        let bad = ApiRequest::RecipePut {
+            file: welding.clone(),
+            text: "defect".into(),
+            base: Some(r.list.source.get(&welding).expect("get").hash),
+            message: String::new(),
+        };
+        assert!(r.ask("engineer", bad).is_err());
+        r.add(1);
+        assert!(r.start().is_ok());
+        r.job(JobEvent::Done);
+        // Roll back to 1: version 3 with version 1's text.
+        let back = ApiRequest::RecipeRollback {
+            file: welding.clone(),
+            version: 1,
+            message: "scrap rate".into(),
+        };
+        assert!(r.ask("engineer", back.clone()).is_ok());
+        let again = r.ask("engineer", back);
+        assert!(
+            matches!(&again, Err(e) if e.contains("nothing to roll back")),
+            "{again:?}"
+        );
+        r.add(1);
+        assert!(r.start().is_ok());
+        r.job(JobEvent::Done);
+        let used = |r: &mut Rig, id: i64| -> Vec<(String, u32)> {
+            let Ok(ApiReply::OrderRecord(rec)) = r.ask("console", ApiRequest::OrderShow { id })
+            else {
+                panic!("no record of order {id}")
+            };
+            assert_eq!(rec.runs.len(), 1);
+            rec.runs[0]
+                .recipes
+                .iter()
+                .map(|u| (u.file.to_string(), u.version))
+                .collect()
+        };
+        let c = cell.to_string();
+        let w = welding.to_string();
+        assert_eq!(used(&mut r, 1), vec![(c.clone(), 1), (w.clone(), 1)]);
+        assert_eq!(used(&mut r, 2), vec![(c.clone(), 1), (w.clone(), 2)]);
+        assert_eq!(used(&mut r, 3), vec![(c, 1), (w.clone(), 3)]);
+        let hashes: Vec<_> = r
+            .list
+            .records()
+            .runs
+            .iter()
+            .map(|(_, run)| run.recipes[1].hash.clone())
+            .collect();
+        assert_eq!(hashes[0], hashes[2], "the rollback's text is the first's");
+        assert_ne!(hashes[0], hashes[1]);
+        let text = r.ask(
+            "console",
+            ApiRequest::RecipeVersion {
+                file: welding,
+                version: 2,
+            },
+        );
+        assert!(matches!(text, Ok(ApiReply::RecipeAt { text, .. }) if text == "thicker"));
+        let none = r.ask("console", ApiRequest::OrderShow { id: 99 });
+        assert!(matches!(none, Err(e) if e.contains("no order 99")));
     }
 
     #[test]

@@ -211,7 +211,11 @@ impl<R: Records, S: RecipeSource> Plant<R, S> {
             | ApiRequest::OrderRemove { .. }
             | ApiRequest::RecipeList
             | ApiRequest::RecipeGet { .. }
-            | ApiRequest::RecipePut { .. } => Route::One(0),
+            | ApiRequest::RecipePut { .. }
+            | ApiRequest::RecipeHistory { .. }
+            | ApiRequest::RecipeVersion { .. }
+            | ApiRequest::RecipeRollback { .. }
+            | ApiRequest::OrderShow { .. } => Route::One(0),
             ApiRequest::OrderAdd {
                 recipe, placement, ..
             } => match &placement.cell {

@@ -15,6 +15,12 @@ pub struct Delivery {
     pub is_cell: bool,
     /// The recipe text.
     pub content: Vec<u8>,
+    /// The file it was read from (its versions are kept by file).
+    pub file: RecipeFile,
+    /// What it starts one level down: the domains of the workstation
+    /// recipes a cell recipe starts (`WELDING$DROOG_DIK`), the robot
+    /// programs of a welding recipe (`program 12`).
+    pub starts: Vec<String>,
 }
 
 /// A checked recipe set, workstation recipes first (the cell needs them
@@ -26,6 +32,11 @@ pub struct RecipeSet {
 }
 
 impl RecipeSet {
+    /// The delivery named `domain`.
+    pub fn get(&self, domain: &str) -> Option<&Delivery> {
+        self.deliveries.iter().find(|d| d.domain.as_str() == domain)
+    }
+
     /// The cell recipes' names (what an order may name).
     pub fn cell_recipes(&self) -> Vec<&ObjectName> {
         self.deliveries
@@ -65,9 +76,13 @@ pub trait RecipeSource {
 pub(crate) mod fake {
     use super::*;
 
+    /// `broken` makes the set fail its check; a text put replaces the
+    /// content of the delivery of its file (a text saying `defect` has a
+    /// finding).
     #[derive(Default)]
     pub(crate) struct Source {
         pub(crate) broken: bool,
+        pub(crate) saved: std::cell::RefCell<Vec<(RecipeFile, String)>>,
     }
 
     /// The set the fake delivers.
@@ -76,6 +91,17 @@ pub(crate) mod fake {
             domain: ObjectName::new(domain).unwrap_or_else(|e| panic!("{e}")),
             is_cell,
             content: domain.as_bytes().to_vec(),
+            file: RecipeFile::new(
+                falc_model::ids::StationName::new(if is_cell { "cell" } else { "welding" })
+                    .unwrap_or_else(|e| panic!("{e}")),
+                &domain.to_lowercase().replace("welding$", ""),
+            )
+            .unwrap_or_else(|e| panic!("{e}")),
+            starts: if is_cell {
+                vec!["WELDING$DROOG_DIK".into()]
+            } else {
+                vec!["program 1".into()]
+            },
         };
         RecipeSet {
             deliveries: vec![d("WELDING$DROOG_DIK", false), d("DIKDROOG", true)],
@@ -85,19 +111,47 @@ pub(crate) mod fake {
     impl RecipeSource for Source {
         fn load(&self) -> Result<RecipeSet, Vec<String>> {
             if self.broken {
-                Err(vec!["cell/dikdroog.rcp:3: unknown state 9".into()])
-            } else {
-                Ok(set())
+                return Err(vec!["cell/dikdroog.rcp:3: unknown state 9".into()]);
             }
+            let mut set = set();
+            for d in &mut set.deliveries {
+                if let Some((_, text)) =
+                    self.saved.borrow().iter().rev().find(|(f, _)| *f == d.file)
+                {
+                    d.content = text.clone().into_bytes();
+                }
+            }
+            Ok(set)
         }
         fn list(&self) -> Result<Vec<RecipeInfo>, String> {
             Ok(Vec::new())
         }
         fn get(&self, file: &RecipeFile) -> Result<RecipeText, String> {
-            Err(format!("no {file}"))
+            let set = self.load().map_err(|e| e.join("\n"))?;
+            let d = set
+                .deliveries
+                .iter()
+                .find(|d| &d.file == file)
+                .ok_or_else(|| format!("no {file}"))?;
+            let text = String::from_utf8_lossy(&d.content).into_owned();
+            Ok(RecipeText {
+                file: file.clone(),
+                hash: falc_model::mms::domain::content_hash(text.as_bytes()),
+                text,
+            })
         }
-        fn put(&self, _: &RecipeFile, _: &str, _: Option<u64>) -> Result<(), PutError> {
-            Err(PutError::Refused("read-only".into()))
+        fn put(&self, file: &RecipeFile, text: &str, base: Option<u64>) -> Result<(), PutError> {
+            let now = self.get(file).ok().map(|t| t.hash);
+            if now != base {
+                return Err(PutError::Refused(format!("{file} changed meanwhile")));
+            }
+            if text.contains("defect") {
+                return Err(PutError::Findings(vec![format!("{file}:1: defect")]));
+            }
+            self.saved
+                .borrow_mut()
+                .push((file.clone(), text.to_string()));
+            Ok(())
         }
     }
 }

@@ -1,12 +1,14 @@
 //! What the order list keeps durably, as the [`order_list`](crate::order_list)
-//! core sees it: the orders, the journal and the alarms. The operator node's
+//! core sees it: the orders, the journal, the alarms and every saved
+//! version of each recipe file with the versions each order ran. The operator node's
 //! SQLite file implements [`Records`]; unit tests use [`memory::Memory`].
 //! Each call is one write or read of local storage, with its own time stamp
 //! (ms since the Unix epoch) taken by the records; a failed write returns
 //! the error and changes nothing.
 
 use falc_model::alarm::{Alarm, AlarmClass};
-use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement};
+use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement, RecipeFile};
+use falc_model::product::{OrderRecord, RecipeVersion, UsedRecipe};
 use std::fmt::Display;
 
 /// Which journal entries to read ([`Records::entries`]): those after
@@ -80,8 +82,14 @@ pub trait Records {
     fn queued(&self) -> Result<usize, Self::Error>;
     /// Removes a queued order; why not for any other.
     fn remove_order(&mut self, id: i64) -> Result<Result<Order, String>, Self::Error>;
-    /// Marks an order running on cell `cell`; when it started.
-    fn set_running(&mut self, id: i64, cell: &str) -> Result<i64, Self::Error>;
+    /// Marks an order running on cell `cell` with the recipe versions
+    /// `recipes` (kept as one more run of it); when it started.
+    fn set_running(
+        &mut self,
+        id: i64,
+        cell: &str,
+        recipes: &[UsedRecipe],
+    ) -> Result<i64, Self::Error>;
     /// Puts a running order back in the queue (the cell refused it), for
     /// any cell again unless it was added for one.
     fn requeue(&mut self, id: i64) -> Result<(), Self::Error>;
@@ -111,7 +119,32 @@ pub trait Records {
     fn clear_alarm(&mut self, id: i64, at_ms: i64) -> Result<(), Self::Error>;
     /// The alarms still listed (not both acknowledged and cleared).
     fn listed_alarms(&self) -> Result<Vec<Alarm>, Self::Error>;
+    /// Keeps `text` as the newest version of `file`, saved by `who` with
+    /// `message`, unless it is the newest already: that version, and
+    /// whether it is new. Versions are never changed or removed.
+    fn add_version(
+        &mut self,
+        file: &RecipeFile,
+        text: &str,
+        who: &str,
+        message: &str,
+    ) -> Result<(RecipeVersion, bool), Self::Error>;
+    /// Every version of `file`, oldest first.
+    fn versions(&self, file: &RecipeFile) -> Result<Vec<RecipeVersion>, Self::Error>;
+    /// Version `version` of `file` with its text.
+    fn version(
+        &self,
+        file: &RecipeFile,
+        version: u32,
+    ) -> Result<Option<(RecipeVersion, String)>, Self::Error>;
+    /// What the records say of order `id` (its first [`RECORD_ENTRIES`]
+    /// journal entries); None if there is no such order.
+    fn order_record(&self, id: i64) -> Result<Option<OrderRecord>, Self::Error>;
 }
+
+/// At most this many journal entries go with an order's record (its
+/// whole journal stays readable page by page: `falc journal --order N`).
+pub const RECORD_ENTRIES: usize = 2000;
 
 /// In-memory records for unit tests of the cores.
 #[cfg(test)]
@@ -131,6 +164,10 @@ pub mod memory {
         pub alarms: Vec<Alarm>,
         /// The highest id of a removed order.
         removed: i64,
+        /// Every version kept, with its text.
+        pub versions: Vec<(RecipeVersion, String)>,
+        /// Each order's runs.
+        pub runs: Vec<(i64, falc_model::product::OrderRun)>,
         clock: std::cell::Cell<i64>,
     }
 
@@ -221,9 +258,19 @@ pub mod memory {
                 None => Ok(Err(format!("there is no order {id}"))),
             }
         }
-        fn set_running(&mut self, id: i64, cell: &str) -> Result<i64, String> {
+        fn set_running(
+            &mut self,
+            id: i64,
+            cell: &str,
+            recipes: &[UsedRecipe],
+        ) -> Result<i64, String> {
             self.write()?;
             let at = self.now_ms();
+            let run = falc_model::product::OrderRun {
+                started_ms: at,
+                recipes: recipes.to_vec(),
+            };
+            self.runs.push((id, run));
             if let Some(o) = self.order_mut(id) {
                 o.state = OrderState::Running;
                 o.started_ms = Some(at);
@@ -240,6 +287,10 @@ pub mod memory {
                 o.state = OrderState::Queued;
                 o.started_ms = None;
                 o.cell = None;
+                // The run that never began goes with it.
+                if let Some(i) = self.runs.iter().rposition(|(o, _)| *o == id) {
+                    self.runs.remove(i);
+                }
             }
             Ok(())
         }
@@ -325,6 +376,76 @@ pub mod memory {
         fn listed_alarms(&self) -> Result<Vec<Alarm>, String> {
             Ok(self.alarms.iter().filter(|a| a.listed()).cloned().collect())
         }
+        fn add_version(
+            &mut self,
+            file: &RecipeFile,
+            text: &str,
+            who: &str,
+            message: &str,
+        ) -> Result<(RecipeVersion, bool), String> {
+            let hash = falc_model::product::VersionHash::of(text.as_bytes());
+            let newest = self.versions.iter().rev().find(|(v, _)| &v.file == file);
+            if let Some((v, _)) = newest.filter(|(v, _)| v.hash == hash) {
+                return Ok((v.clone(), false));
+            }
+            self.write()?;
+            let v = RecipeVersion {
+                file: file.clone(),
+                version: newest.map_or(1, |(v, _)| v.version + 1),
+                hash,
+                author: who.into(),
+                at_ms: self.now_ms(),
+                message: message.into(),
+            };
+            self.versions.push((v.clone(), text.into()));
+            Ok((v, true))
+        }
+        fn versions(&self, file: &RecipeFile) -> Result<Vec<RecipeVersion>, String> {
+            Ok(self
+                .versions
+                .iter()
+                .filter(|(v, _)| &v.file == file)
+                .map(|(v, _)| v.clone())
+                .collect())
+        }
+        fn version(
+            &self,
+            file: &RecipeFile,
+            version: u32,
+        ) -> Result<Option<(RecipeVersion, String)>, String> {
+            Ok(self
+                .versions
+                .iter()
+                .find(|(v, _)| &v.file == file && v.version == version)
+                .cloned())
+        }
+        fn order_record(&self, id: i64) -> Result<Option<OrderRecord>, String> {
+            let Some(order) = self.orders.iter().find(|o| o.id == id).cloned() else {
+                return Ok(None);
+            };
+            Ok(Some(OrderRecord {
+                order,
+                runs: self
+                    .runs
+                    .iter()
+                    .filter(|(o, _)| *o == id)
+                    .map(|(_, r)| r.clone())
+                    .collect(),
+                entries: self
+                    .journal
+                    .iter()
+                    .filter(|e| e.order == Some(id))
+                    .take(RECORD_ENTRIES)
+                    .cloned()
+                    .collect(),
+                alarms: self
+                    .alarms
+                    .iter()
+                    .filter(|a| a.order == Some(id))
+                    .cloned()
+                    .collect(),
+            }))
+        }
     }
 }
 
@@ -386,8 +507,13 @@ pub mod shared {
         fn remove_order(&mut self, id: i64) -> Result<Result<Order, String>, String> {
             self.all.borrow_mut().remove_order(id)
         }
-        fn set_running(&mut self, id: i64, cell: &str) -> Result<i64, String> {
-            self.all.borrow_mut().set_running(id, cell)
+        fn set_running(
+            &mut self,
+            id: i64,
+            cell: &str,
+            recipes: &[UsedRecipe],
+        ) -> Result<i64, String> {
+            self.all.borrow_mut().set_running(id, cell, recipes)
         }
         fn requeue(&mut self, id: i64) -> Result<(), String> {
             self.all.borrow_mut().requeue(id)
@@ -443,6 +569,28 @@ pub mod shared {
                 .filter(|a| owners.get(&a.id) == Some(&self.cell))
                 .collect())
         }
+        fn add_version(
+            &mut self,
+            file: &RecipeFile,
+            text: &str,
+            who: &str,
+            message: &str,
+        ) -> Result<(RecipeVersion, bool), String> {
+            self.all.borrow_mut().add_version(file, text, who, message)
+        }
+        fn versions(&self, file: &RecipeFile) -> Result<Vec<RecipeVersion>, String> {
+            self.all.borrow().versions(file)
+        }
+        fn version(
+            &self,
+            file: &RecipeFile,
+            version: u32,
+        ) -> Result<Option<(RecipeVersion, String)>, String> {
+            self.all.borrow().version(file, version)
+        }
+        fn order_record(&self, id: i64) -> Result<Option<OrderRecord>, String> {
+            self.all.borrow().order_record(id)
+        }
     }
 }
 
@@ -488,11 +636,11 @@ mod tests {
             Some(urgent),
             "falc1 may not take falc2's"
         );
-        m.set_running(urgent, "falc1").expect("run");
+        m.set_running(urgent, "falc1", &[]).expect("run");
         assert_eq!(next(&m, "falc1"), Some(due_soon));
-        m.set_running(due_soon, "falc1").expect("run");
+        m.set_running(due_soon, "falc1", &[]).expect("run");
         assert_eq!(next(&m, "falc1"), Some(due_late));
-        m.set_running(due_late, "falc1").expect("run");
+        m.set_running(due_late, "falc1", &[]).expect("run");
         assert_eq!(next(&m, "falc1"), Some(plain));
         // A refused start: back in the queue, for any cell.
         m.requeue(urgent).expect("requeue");

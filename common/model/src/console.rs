@@ -8,6 +8,7 @@
 use crate::ids::{CellId, StationName};
 use crate::mms::vmd::VmdStatus;
 use crate::mode::{CellMode, ManualAction};
+use crate::product::{OrderRecord, RecipeVersion, MAX_VERSION_MESSAGE_CHARS};
 use crate::topology::Role;
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -50,6 +51,10 @@ calls! {
     RecipeList = "recipe-list", Observer;
     RecipeGet = "recipe-get", Observer;
     RecipePut = "recipe-put", Engineer;
+    RecipeHistory = "recipe-history", Observer;
+    RecipeVersion = "recipe-version", Observer;
+    RecipeRollback = "recipe-rollback", Engineer;
+    OrderShow = "order-show", Observer;
     Mode = "mode", Operator;
     Step = "step", Operator;
     Restart = "restart", Operator;
@@ -133,6 +138,39 @@ pub enum ApiRequest {
         /// The content hash of the text the edit started from (None for a
         /// new file): refused if the file changed meanwhile.
         base: Option<u64>,
+        /// Why, for the version's record (may be empty).
+        #[serde(default)]
+        message: String,
+    },
+    /// Every saved version of one recipe file, oldest first.
+    RecipeHistory {
+        /// Which file.
+        file: RecipeFile,
+    },
+    /// One saved version of a recipe file, with its text.
+    RecipeVersion {
+        /// Which file.
+        file: RecipeFile,
+        /// Its version number.
+        version: u32,
+    },
+    /// Saves an earlier version's text as the file's newest version:
+    /// checked with the whole set like a save; the cell gets it at the
+    /// next start.
+    RecipeRollback {
+        /// Which file.
+        file: RecipeFile,
+        /// The version whose text comes back.
+        version: u32,
+        /// Why, for the version's record (may be empty).
+        #[serde(default)]
+        message: String,
+    },
+    /// What the records say of one order: its runs with the recipe
+    /// versions, its journal and its alarms.
+    OrderShow {
+        /// The order id.
+        id: i64,
     },
     /// Sets the cell's mode (auto ↔ step also while an order runs).
     Mode {
@@ -341,6 +379,16 @@ impl ApiRequest {
                     placement.priority
                 ));
             }
+            Self::RecipePut { message, .. } | Self::RecipeRollback { message, .. }
+                if message.chars().count() > MAX_VERSION_MESSAGE_CHARS
+                    || message.chars().any(char::is_control) =>
+            {
+                return Err(format!(
+                    "version message \"{}\" is longer than {MAX_VERSION_MESSAGE_CHARS} characters \
+                     or holds a control character: refused",
+                    excerpt(message)
+                ));
+            }
             Self::RecipePut { file, text, .. } if text.len() > MAX_RECIPE_BYTES => {
                 return Err(format!(
                     "recipe {file} is {} bytes, more than the {MAX_RECIPE_BYTES} a recipe may have: refused",
@@ -378,6 +426,10 @@ impl ApiRequest {
             Self::RecipeList => Call::RecipeList,
             Self::RecipeGet { .. } => Call::RecipeGet,
             Self::RecipePut { .. } => Call::RecipePut,
+            Self::RecipeHistory { .. } => Call::RecipeHistory,
+            Self::RecipeVersion { .. } => Call::RecipeVersion,
+            Self::RecipeRollback { .. } => Call::RecipeRollback,
+            Self::OrderShow { .. } => Call::OrderShow,
             Self::Mode { .. } => Call::Mode,
             Self::Step { .. } => Call::Step,
             Self::Restart { .. } => Call::Restart,
@@ -677,6 +729,17 @@ pub enum ApiReply {
     Recipe(RecipeText),
     /// `status` of a plant of several cells: each cell at a glance.
     Plant(PlantStatus),
+    /// `recipe history`: every version of one file, oldest first.
+    Versions(Vec<RecipeVersion>),
+    /// `recipe version`: one version and its text.
+    RecipeAt {
+        /// The version.
+        version: RecipeVersion,
+        /// Its text.
+        text: String,
+    },
+    /// `order show`.
+    OrderRecord(Box<OrderRecord>),
 }
 
 /// A plant of several cells at a glance: each cell's status, in the
@@ -736,6 +799,13 @@ mod tests {
                     .expect("valid"),
                 text: huge.clone(),
                 base: None,
+                message: String::new(),
+            },
+            ApiRequest::RecipeRollback {
+                file: RecipeFile::new(StationName::new("cell").expect("valid"), "big.rcp")
+                    .expect("valid"),
+                version: 1,
+                message: huge.clone(),
             },
         ] {
             let e = r.check_limits().expect_err("refused");

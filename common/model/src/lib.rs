@@ -6,6 +6,7 @@
 //! - [`alarm`]: alarm classes, causes and the operator's alarm record;
 //! - [`mms`]: the MMS-equivalent service model, sans-I/O;
 //! - [`console`]: what a console asks the operator node and what it answers;
+//! - [`product`]: recipe versions and what the records keep of a product;
 //! - [`mode`]: the cell's operating modes and manual operations;
 //! - [`keys`]: every zenoh key of a cell, as data;
 //! - [`envelope`]: the payload format on the wire.
@@ -18,4 +19,5 @@ pub mod keys;
 pub mod mms;
 pub mod mode;
 pub mod plant;
+pub mod product;
 pub mod topology;

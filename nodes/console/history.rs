@@ -1,0 +1,295 @@
+//! `falc store history|diff|rollback` (also as `falc recipe …`) and `falc
+//! order show`: the saved versions of a store recipe, what changed between
+//! two, an earlier one saved again; and what the records say of one order
+//! (the recipe versions of each run, its journal, its alarms).
+
+use crate::cell_cmd::{fail, show_alarm, show_entry, CALL_LIMIT};
+use crate::clock::date_time;
+use clap::Subcommand;
+use falc_bus::Bus;
+use falc_model::console::{ApiReply, ApiRequest, RecipeFile};
+use falc_model::ids::{printable, StationName};
+use falc_model::product::{line_diff, OrderRecord, RecipeVersion};
+use std::process::ExitCode;
+
+/// Lines of context around each change in a diff.
+const CONTEXT: usize = 2;
+
+/// The versions of a store recipe.
+#[derive(Subcommand, Debug)]
+pub enum VersionCommand {
+    /// Every saved version of a store recipe: number, hash, author, time,
+    /// message.
+    History {
+        /// The station's directory (`cell`, `welding`, `transport`).
+        station: StationName,
+        /// The file (`droog_dik.rcp`; `.rcp` may be left out).
+        file: String,
+    },
+    /// What changed from version V1 to V2 (default: the newest), line by
+    /// line (`-` only in V1, `+` only in V2).
+    Diff {
+        /// The station's directory.
+        station: StationName,
+        /// The file.
+        file: String,
+        /// The earlier version.
+        v1: u32,
+        /// The later version (default: the newest).
+        v2: Option<u32>,
+    },
+    /// Save version V's text again as the newest version (engineer):
+    /// checked with the whole set like any save; the cell gets it at the
+    /// next start. History is never rewritten: the rollback is a version
+    /// of its own.
+    Rollback {
+        /// The station's directory.
+        station: StationName,
+        /// The file.
+        file: String,
+        /// The version whose text comes back.
+        version: u32,
+        /// Why, for the version's record.
+        #[arg(long, short, default_value = "")]
+        message: String,
+    },
+}
+
+impl VersionCommand {
+    fn file(&self) -> Result<RecipeFile, String> {
+        match self {
+            Self::History { station, file }
+            | Self::Diff { station, file, .. }
+            | Self::Rollback { station, file, .. } => RecipeFile::new(station.clone(), file),
+        }
+    }
+}
+
+/// Runs a version command against the operator's store.
+pub async fn run(bus: &Bus, operator: &StationName, cmd: VersionCommand, json: bool) -> ExitCode {
+    let file = match cmd.file() {
+        Ok(f) => f,
+        Err(e) => return crate::cell_cmd::refuse(&e),
+    };
+    let request = match cmd {
+        VersionCommand::History { .. } => ApiRequest::RecipeHistory { file },
+        VersionCommand::Rollback {
+            version, message, ..
+        } => ApiRequest::RecipeRollback {
+            file,
+            version,
+            message,
+        },
+        VersionCommand::Diff { v1, v2, .. } => {
+            return diff(bus, operator, file, v1, v2, json).await
+        }
+    };
+    crate::cell_cmd::once(bus, operator, request, json).await
+}
+
+/// Version `version` of `file` and its text.
+async fn fetch(
+    bus: &Bus,
+    operator: &StationName,
+    file: &RecipeFile,
+    version: u32,
+) -> Result<(RecipeVersion, String), ExitCode> {
+    let request = ApiRequest::RecipeVersion {
+        file: file.clone(),
+        version,
+    };
+    match bus.api(operator, request, CALL_LIMIT).await {
+        Ok(ApiReply::RecipeAt { version, text }) => Ok((version, text)),
+        Ok(other) => Err(crate::cell_cmd::refuse(&format!(
+            "unexpected answer to recipe-version: {other:?}"
+        ))),
+        Err(e) => Err(fail(&e)),
+    }
+}
+
+/// `diff`: both texts fetched, compared here.
+async fn diff(
+    bus: &Bus,
+    operator: &StationName,
+    file: RecipeFile,
+    v1: u32,
+    v2: Option<u32>,
+    json: bool,
+) -> ExitCode {
+    let v2 = match v2 {
+        Some(v) => v,
+        None => match bus
+            .api(
+                operator,
+                ApiRequest::RecipeHistory { file: file.clone() },
+                CALL_LIMIT,
+            )
+            .await
+        {
+            Ok(ApiReply::Versions(v)) => v.last().map_or(v1, |v| v.version),
+            Ok(other) => {
+                return crate::cell_cmd::refuse(&format!(
+                    "unexpected answer to recipe-history: {other:?}"
+                ))
+            }
+            Err(e) => return fail(&e),
+        },
+    };
+    let (a, b) = match (
+        fetch(bus, operator, &file, v1).await,
+        fetch(bus, operator, &file, v2).await,
+    ) {
+        (Ok(a), Ok(b)) => (a, b),
+        (Err(code), _) | (_, Err(code)) => return code,
+    };
+    let lines = line_diff(&a.1, &b.1);
+    if json {
+        let doc = serde_json::json!({
+            "from": a.0,
+            "to": b.0,
+            "lines": lines.iter().map(|(c, l)| format!("{c}{l}")).collect::<Vec<_>>(),
+        });
+        crate::out!("{doc}");
+        return ExitCode::SUCCESS;
+    }
+    crate::out!("--- {file} version {} ({})", a.0.version, a.0.hash.short());
+    crate::out!("+++ {file} version {} ({})", b.0.version, b.0.hash.short());
+    for line in hunks(&lines) {
+        crate::out!("{line}");
+    }
+    ExitCode::SUCCESS
+}
+
+/// The changed lines of a diff with [`CONTEXT`] lines around each, a
+/// `@@ line N` before each run (N: the line in the later text).
+fn hunks(lines: &[(char, &str)]) -> Vec<String> {
+    let near = |i: usize| {
+        let lo = i.saturating_sub(CONTEXT);
+        let hi = (i + CONTEXT + 1).min(lines.len());
+        lines[lo..hi].iter().any(|(c, _)| *c != ' ')
+    };
+    let mut out = Vec::new();
+    let mut line_new = 0;
+    let mut shown_last = false;
+    for (i, (c, l)) in lines.iter().enumerate() {
+        if *c != '-' {
+            line_new += 1;
+        }
+        if near(i) {
+            if !shown_last {
+                out.push(format!("@@ line {line_new}"));
+            }
+            out.push(format!("{c}{}", printable(l)));
+            shown_last = true;
+        } else {
+            shown_last = false;
+        }
+    }
+    if out.is_empty() {
+        out.push("(the same text)".into());
+    }
+    out
+}
+
+/// `history`: a version a line.
+pub fn show_versions(versions: &[RecipeVersion]) -> String {
+    versions
+        .iter()
+        .map(|v| {
+            let message = if v.message.is_empty() {
+                String::new()
+            } else {
+                format!("  {}", printable(&v.message))
+            };
+            format!(
+                "{:>3}  {}  {}  {:<10}{message}",
+                v.version,
+                v.hash.short(),
+                date_time(v.at_ms),
+                printable(&v.author)
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// `order show`: the order, each run with its recipe versions, the
+/// alarms, the journal.
+pub fn show_record(r: &OrderRecord) -> String {
+    let o = &r.order;
+    let mut out = vec![format!(
+        "order {}  {}  {}  added by {}",
+        o.id,
+        printable(&o.recipe),
+        o.state,
+        printable(&o.added_by)
+    )];
+    let when = |ms: Option<i64>| ms.map_or_else(|| "-".into(), date_time);
+    out.push(format!(
+        "  started {}  ended {}{}",
+        when(o.started_ms),
+        when(o.ended_ms),
+        o.cell
+            .as_deref()
+            .map(|c| format!("  on {}", printable(c)))
+            .unwrap_or_default()
+    ));
+    if let Some(result) = &o.result {
+        out.push(format!("  result: {}", printable(result)));
+    }
+    for (n, run) in r.runs.iter().enumerate() {
+        out.push(format!("run {} from {}:", n + 1, date_time(run.started_ms)));
+        for u in &run.recipes {
+            let starts = if u.starts.is_empty() {
+                String::new()
+            } else {
+                format!("  starts {}", printable(&u.starts.join(", ")))
+            };
+            out.push(format!(
+                "  {:<20} {:<26} version {:>3}  {}{starts}",
+                printable(&u.domain),
+                u.file.to_string(),
+                u.version,
+                u.hash.short()
+            ));
+        }
+    }
+    if r.runs.is_empty() {
+        out.push(
+            "no run recorded (not started, or started before recipe versions were kept)".into(),
+        );
+    }
+    if !r.alarms.is_empty() {
+        out.push("alarms:".into());
+        out.extend(r.alarms.iter().map(|a| format!("  {}", show_alarm(a))));
+    }
+    out.push("journal:".into());
+    out.extend(r.entries.iter().map(|e| format!("  {}", show_entry(e))));
+    out.join("\n")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_diff_shows_the_changes_with_their_context_only() {
+        let old: String = (1..=20).map(|i| format!("line {i}\n")).collect();
+        let new = old.replace("line 10\n", "line ten\n");
+        let lines = line_diff(&old, &new);
+        let shown = hunks(&lines);
+        assert_eq!(
+            shown,
+            vec![
+                "@@ line 8",
+                " line 8",
+                " line 9",
+                "-line 10",
+                "+line ten",
+                " line 11",
+                " line 12"
+            ]
+        );
+        assert_eq!(hunks(&line_diff(&old, &old)), vec!["(the same text)"]);
+    }
+}
