@@ -24,6 +24,7 @@ mod opcua;
 mod operator;
 mod plant;
 mod recipes;
+mod records;
 mod recovery;
 mod restart;
 mod roles;

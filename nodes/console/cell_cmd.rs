@@ -98,6 +98,10 @@ pub enum CellCommand {
     /// The operator's screens: F1 overview, F2 messages, F3 commands, F4
     /// recipe (keyboard only; q quits).
     Tui,
+    /// The ISO 22400-2 figures of a range: time elements, availability,
+    /// effectiveness, quality, OEE (in total and per shift), cycle times,
+    /// MTBF and MTTR per station, the alarm Pareto.
+    Figures(crate::figures::FiguresArgs),
     /// The operator's recipe store: list, show, save (engineers), edit.
     #[command(subcommand)]
     Store(StoreCommand),
@@ -523,6 +527,7 @@ fn to_json(reply: &ApiReply) -> serde_json::Result<String> {
             serde_json::to_string(&serde_json::json!({ "version": version, "text": text }))
         }
         ApiReply::OrderRecord(r) => serde_json::to_string(r),
+        ApiReply::Figures(f) => serde_json::to_string(f),
     }
 }
 
@@ -553,6 +558,7 @@ fn print(reply: &ApiReply, json: bool) {
         ApiReply::RecipeAt { text, .. } => crate::out!("{}", text.trim_end_matches('\n')),
         ApiReply::Versions(v) => crate::out!("{}", history::show_versions(v)),
         ApiReply::OrderRecord(r) => crate::out!("{}", history::show_record(r)),
+        ApiReply::Figures(f) => crate::out!("{}", crate::figures::show(f)),
     }
 }
 
@@ -807,6 +813,10 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
             .await
         }
         CellCommand::Shutdown => ApiRequest::Shutdown,
+        CellCommand::Figures(args) => match args.request(crate::clock::now_ms()) {
+            Ok(r) => r,
+            Err(e) => return refuse(&e),
+        },
         CellCommand::Mode { mode, stations } => ApiRequest::Mode { mode, stations },
         CellCommand::Step { station, to } => ApiRequest::Step { station, to },
         CellCommand::Restart { order, from } => ApiRequest::Restart { order, from },

@@ -6,6 +6,11 @@
 use jiff::tz::TimeZone;
 use jiff::Timestamp;
 
+/// Milliseconds since the Unix epoch, now.
+pub fn now_ms() -> i64 {
+    Timestamp::now().as_millisecond()
+}
+
 /// `HH:MM:SS` in local time.
 pub fn time_of_day(ms: i64) -> String {
     in_zone(ms, &TimeZone::system(), "%H:%M:%S")

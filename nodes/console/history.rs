@@ -246,7 +246,7 @@ pub fn show_record(r: &OrderRecord) -> String {
                 format!("  starts {}", printable(&u.starts.join(", ")))
             };
             out.push(format!(
-                "  {:<20} {:<26} version {:>3}  {}{starts}",
+                "  {:<22} {:<26} version {:>3}  {}{starts}",
                 printable(&u.domain),
                 u.file.to_string(),
                 u.version,

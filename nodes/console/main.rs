@@ -9,6 +9,7 @@
 mod cell_cmd;
 mod clock;
 mod edit;
+mod figures;
 mod history;
 mod recipe_cmd;
 mod tui;

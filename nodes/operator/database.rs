@@ -6,10 +6,12 @@
 //! that was running when the node died as interrupted (never re-run by
 //! itself) and journals it.
 
+use falc_control::figures::{AlarmSpan, FigureInputs, ModeChange, RunSpan};
 use falc_control::records::{EntryQuery, Records, RECORD_ENTRIES};
 use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement, RecipeFile};
 use falc_model::ids::StationName;
+use falc_model::mode::CellMode;
 use falc_model::product::{OrderRecord, OrderRun, RecipeVersion, UsedRecipe, VersionHash};
 use rusqlite::{params, Connection, OptionalExtension, Row};
 use std::path::Path;
@@ -112,6 +114,23 @@ CREATE TABLE IF NOT EXISTS order_recipes (
     starts TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS order_recipes_order ON order_recipes(order_id);
+CREATE TABLE IF NOT EXISTS order_runs (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    order_id INTEGER NOT NULL,
+    recipe TEXT NOT NULL,
+    cell TEXT NOT NULL,
+    started_ms INTEGER NOT NULL,
+    ended_ms INTEGER,
+    state TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS order_runs_order ON order_runs(order_id);
+CREATE INDEX IF NOT EXISTS order_runs_started ON order_runs(started_ms);
+CREATE TABLE IF NOT EXISTS modes (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    cell TEXT NOT NULL,
+    at_ms INTEGER NOT NULL,
+    mode TEXT NOT NULL
+);
 ";
 
 const VERSION_COLUMNS: &str = "file, version, hash, author, at_ms, message";
@@ -367,6 +386,13 @@ impl Database {
             )
             .and_then(|_| {
                 tx.execute(
+                    "UPDATE order_runs SET ended_ms = ?1, state = 'interrupted' \
+                     WHERE order_id = ?2 AND ended_ms IS NULL",
+                    params![now, o.id],
+                )
+            })
+            .and_then(|_| {
+                tx.execute(
                     "INSERT INTO journal (at_ms, order_id, kind, who, text) VALUES (?1, ?2, 'order', 'operator', ?3)",
                     params![
                         now,
@@ -553,6 +579,12 @@ impl Records for Database {
             params![started, cell, id],
         )
         .map_err(fail.clone())?;
+        tx.execute(
+            "INSERT INTO order_runs (order_id, recipe, cell, started_ms, state) \
+             SELECT id, recipe, ?2, ?3, 'running' FROM orders WHERE id = ?1",
+            params![id, cell, started],
+        )
+        .map_err(fail.clone())?;
         for (position, r) in recipes.iter().enumerate() {
             let starts = serde_json::to_string(&r.starts).unwrap_or_else(|_| "[]".into());
             tx.execute(
@@ -592,6 +624,12 @@ impl Records for Database {
             )
             .and_then(|_| {
                 self.conn.execute(
+                    "DELETE FROM order_runs WHERE order_id = ?1 AND ended_ms IS NULL",
+                    params![id],
+                )
+            })
+            .and_then(|_| {
+                self.conn.execute(
                     "UPDATE orders SET state = 'queued', started_ms = NULL, cell = NULL \
                      WHERE id = ?1 AND state = 'running'",
                     params![id],
@@ -606,13 +644,28 @@ impl Records for Database {
 
     /// Ends an order in `state` with `result` in words.
     fn end_order(&mut self, id: i64, state: OrderState, result: &str) -> Result<(), Self::Error> {
+        let at = now_ms();
         self.conn
+            .execute_batch("BEGIN IMMEDIATE")
+            .map_err(self.fail("cannot end an order"))?;
+        let done = self
+            .conn
             .execute(
                 "UPDATE orders SET state = ?1, ended_ms = ?2, result = ?3 WHERE id = ?4",
-                params![state.as_str(), now_ms(), result, id],
+                params![state.as_str(), at, result, id],
             )
-            .map_err(self.fail("cannot end an order"))
-            .map(|_| ())
+            .and_then(|_| {
+                self.conn.execute(
+                    "UPDATE order_runs SET ended_ms = ?1, state = ?2 \
+                     WHERE order_id = ?3 AND ended_ms IS NULL",
+                    params![at, state.as_str(), id],
+                )
+            })
+            .and_then(|_| self.conn.execute_batch("COMMIT"));
+        if done.is_err() {
+            let _ = self.conn.execute_batch("ROLLBACK");
+        }
+        done.map_err(self.fail("cannot end an order"))
     }
 
     /// Appends a journal entry.
@@ -854,6 +907,100 @@ impl Records for Database {
             entries,
             alarms,
         }))
+    }
+
+    fn record_mode(&mut self, mode: CellMode) -> Result<(), Self::Error> {
+        let newest: Option<String> = self
+            .conn
+            .query_row(
+                "SELECT mode FROM modes WHERE cell = ?1 ORDER BY id DESC LIMIT 1",
+                params![self.cell],
+                |r| r.get(0),
+            )
+            .optional()
+            .map_err(self.fail("cannot read the modes"))?;
+        if newest.as_deref() == Some(mode.as_str()) {
+            return Ok(());
+        }
+        self.conn
+            .execute(
+                "INSERT INTO modes (cell, at_ms, mode) VALUES (?1, ?2, ?3)",
+                params![self.cell, now_ms(), mode.as_str()],
+            )
+            .map_err(self.fail("cannot keep a mode change"))
+            .map(|_| ())
+    }
+
+    fn figure_inputs(&self, since: i64, until: i64) -> Result<FigureInputs, Self::Error> {
+        let fail = || self.fail("cannot read what the figures are computed from");
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT order_id, recipe, cell, started_ms, ended_ms, state FROM order_runs \
+                 WHERE started_ms < ?2 AND (ended_ms IS NULL OR ended_ms > ?1) ORDER BY started_ms",
+            )
+            .map_err(fail())?;
+        let runs = st
+            .query_map(params![since, until], |r| {
+                let state: String = r.get(5)?;
+                Ok(RunSpan {
+                    order: r.get(0)?,
+                    recipe: r.get(1)?,
+                    cell: r.get(2)?,
+                    start_ms: r.get(3)?,
+                    end_ms: r.get(4)?,
+                    state: OrderState::parse(&state).unwrap_or(OrderState::Interrupted),
+                })
+            })
+            .map_err(fail())?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(fail())?;
+        // An alarm written before alarms had a cell is of this one.
+        let mut st = self
+            .conn
+            .prepare(&format!(
+                "SELECT {ALARM_COLUMNS}, COALESCE(cell, ?3) FROM alarms WHERE raised_ms < ?2 \
+                 AND (cleared_ms IS NULL OR acked_ms IS NULL OR cleared_ms > ?1 OR acked_ms > ?1)"
+            ))
+            .map_err(fail())?;
+        let alarms = st
+            .query_map(params![since, until, self.cell], |r| {
+                Ok((alarm_of(r)?, r.get::<_, String>(9)?))
+            })
+            .map_err(fail())?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(fail())?
+            .into_iter()
+            .filter(|(a, _)| a.gone_ms().map_or(true, |g| g > since))
+            .map(|(a, cell)| AlarmSpan {
+                cell,
+                station: a.station.clone(),
+                class: a.class,
+                raised_ms: a.raised_ms,
+                gone_ms: a.gone_ms(),
+            })
+            .collect();
+        let mut st = self
+            .conn
+            .prepare("SELECT cell, at_ms, mode FROM modes WHERE at_ms < ?1 ORDER BY id")
+            .map_err(fail())?;
+        let modes = st
+            .query_map(params![until], |r| {
+                let mode: String = r.get(2)?;
+                Ok(ModeChange {
+                    cell: r.get(0)?,
+                    at_ms: r.get(1)?,
+                    mode: mode.parse::<CellMode>().map_err(|e| unreadable(2, e))?,
+                })
+            })
+            .map_err(fail())?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(fail())?;
+        Ok(FigureInputs {
+            runs,
+            alarms,
+            modes,
+        })
     }
 
     fn entries(&self, q: &EntryQuery) -> Result<Vec<Entry>, Self::Error> {
@@ -1290,6 +1437,57 @@ mod tests {
         assert_eq!(r.entries.len(), 1);
         assert_eq!(r.alarms.len(), 1);
         assert_eq!(s.order_record(999).expect("read"), None);
+    }
+
+    #[test]
+    fn the_figures_read_each_run_with_its_end_the_alarms_as_they_held_and_the_modes() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut s = Database::open(&dir.path().join("falc.db"), "falc1").expect("open");
+        let a = s.add_order("dikdroog", "ann", &ANY).expect("add");
+        let b = s.add_order("dunnat", "ann", &ANY).expect("add");
+        s.set_running(a.id, "falc1", &[]).expect("run");
+        s.end_order(a.id, OrderState::Stopped, "stopped")
+            .expect("end");
+        s.set_running(a.id, "falc1", &[]).expect("restart");
+        s.end_order(a.id, OrderState::Done, "done").expect("end");
+        s.set_running(b.id, "falc1", &[]).expect("run");
+        s.record_mode(CellMode::Step).expect("mode");
+        s.record_mode(CellMode::Step)
+            .expect("the same mode: no change");
+        s.record_mode(CellMode::Auto).expect("mode");
+        let alarm = s
+            .raise_alarm("welding", AlarmClass::Safety, "estop", Some(b.id))
+            .expect("alarm");
+        s.clear_alarm(alarm.id, now_ms()).expect("clear");
+        let i = s.figure_inputs(0, now_ms() + 1000).expect("read");
+        let runs: Vec<(i64, &str, OrderState, bool)> = i
+            .runs
+            .iter()
+            .map(|r| (r.order, r.recipe.as_str(), r.state, r.end_ms.is_some()))
+            .collect();
+        assert_eq!(
+            runs,
+            vec![
+                (a.id, "dikdroog", OrderState::Stopped, true),
+                (a.id, "dikdroog", OrderState::Done, true),
+                (b.id, "dunnat", OrderState::Running, false),
+            ]
+        );
+        let modes: Vec<CellMode> = i.modes.iter().map(|m| m.mode).collect();
+        assert_eq!(modes, vec![CellMode::Step, CellMode::Auto]);
+        // Cleared, not acknowledged: it still holds the cell.
+        assert_eq!(i.alarms.len(), 1);
+        assert_eq!(
+            (i.alarms[0].cell.as_str(), i.alarms[0].gone_ms),
+            ("falc1", None)
+        );
+        // A range after everything that ended holds only what still runs
+        // or holds.
+        let later = s
+            .figure_inputs(now_ms() + 500, now_ms() + 1000)
+            .expect("read");
+        assert_eq!(later.runs.len(), 1);
+        assert_eq!(later.alarms.len(), 1);
     }
 
     #[test]

@@ -11,12 +11,14 @@
 //! - [`order_list`]: the operator's order list worked through the cell,
 //!   with its [`alarm_list`], over its durable [`records`] and the
 //!   [`recipe_source`];
+//! - [`figures`]: the ISO 22400-2 figures from the records, on any range;
 //! - [`plant`]: the factory controller over several cells: one order list
 //!   per cell, the API's requests routed to the cells they concern.
 
 pub mod alarm_list;
 pub mod controller;
 pub mod coordination;
+pub mod figures;
 pub mod order_list;
 pub mod plant;
 pub mod recipe_source;

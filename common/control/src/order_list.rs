@@ -245,6 +245,8 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     recipes: RecipeSet,
     /// The content hash of each of `recipes`, in the same order.
     hashes: Vec<u64>,
+    /// The cell's mode as last kept in the records (for the figures).
+    recorded_mode: Option<CellMode>,
     /// The version of each of `recipes` (by domain), as the records keep it.
     versions: BTreeMap<ObjectName, RecipeVersion>,
     /// Content hash of each domain delivered to the cell in this association.
@@ -344,6 +346,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             source,
             hashes: hashes_of(&recipes),
             versions: BTreeMap::new(),
+            recorded_mode: None,
             recipes,
             delivered: BTreeMap::new(),
             associated: false,
@@ -1524,6 +1527,12 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     fn publication(&mut self, now: Duration, u: Unconfirmed) {
         match u {
             Unconfirmed::Status { station, status } => {
+                if station == self.cell && self.recorded_mode != Some(status.mode) {
+                    match self.db.record_mode(status.mode) {
+                        Ok(()) => self.recorded_mode = Some(status.mode),
+                        Err(e) => self.db_failed(&e),
+                    }
+                }
                 self.statuses.insert(station.clone(), status);
                 self.settle_alarms(&station);
             }
@@ -2001,6 +2010,20 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 version,
                 message,
             } => self.roll_back(who, &file, version, &message),
+            ApiRequest::Figures(query) => {
+                let now = self.db.now_ms();
+                let until = query.until_ms.unwrap_or(now);
+                match self.db.figure_inputs(query.since_ms, until) {
+                    Ok(inputs) => Ok(ApiReply::Figures(Box::new(crate::figures::compute(
+                        &inputs,
+                        self.topology.calendar(),
+                        &[self.topology.cell().as_str()],
+                        &query,
+                        now,
+                    )))),
+                    Err(e) => Err(e.to_string()),
+                }
+            }
             ApiRequest::OrderShow { id } => match self.db.order_record(id) {
                 Ok(Some(mut record)) => {
                     if let Some(o) = self.with_unwritten_ends(vec![record.order.clone()]).pop() {

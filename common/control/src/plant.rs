@@ -215,7 +215,8 @@ impl<R: Records, S: RecipeSource> Plant<R, S> {
             | ApiRequest::RecipeHistory { .. }
             | ApiRequest::RecipeVersion { .. }
             | ApiRequest::RecipeRollback { .. }
-            | ApiRequest::OrderShow { .. } => Route::One(0),
+            | ApiRequest::OrderShow { .. }
+            | ApiRequest::Figures(_) => Route::One(0),
             ApiRequest::OrderAdd {
                 recipe, placement, ..
             } => match &placement.cell {

@@ -6,8 +6,10 @@
 //! (ms since the Unix epoch) taken by the records; a failed write returns
 //! the error and changes nothing.
 
+use crate::figures::FigureInputs;
 use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement, RecipeFile};
+use falc_model::mode::CellMode;
 use falc_model::product::{OrderRecord, RecipeVersion, UsedRecipe};
 use std::fmt::Display;
 
@@ -140,6 +142,13 @@ pub trait Records {
     /// What the records say of order `id` (its first [`RECORD_ENTRIES`]
     /// journal entries); None if there is no such order.
     fn order_record(&self, id: i64) -> Result<Option<OrderRecord>, Self::Error>;
+    /// Keeps that this cell is in `mode` from now on, unless that is the
+    /// newest mode kept for it already.
+    fn record_mode(&mut self, mode: CellMode) -> Result<(), Self::Error>;
+    /// The runs and alarms that overlap `[since, until)` and every mode
+    /// change before `until`, of every cell: what the figures are
+    /// computed from.
+    fn figure_inputs(&self, since: i64, until: i64) -> Result<FigureInputs, Self::Error>;
 }
 
 /// At most this many journal entries go with an order's record (its
@@ -150,6 +159,10 @@ pub const RECORD_ENTRIES: usize = 2000;
 #[cfg(test)]
 pub mod memory {
     use super::*;
+
+    /// The cell of the alarms and modes kept in memory (the shipped
+    /// topology's).
+    pub const MEMORY_CELL: &str = "falc1";
 
     /// Records in memory; `failing` makes every write fail (a full disk).
     #[derive(Debug, Default)]
@@ -168,6 +181,10 @@ pub mod memory {
         pub versions: Vec<(RecipeVersion, String)>,
         /// Each order's runs.
         pub runs: Vec<(i64, falc_model::product::OrderRun)>,
+        /// Each run's span, as the figures read it.
+        pub spans: Vec<crate::figures::RunSpan>,
+        /// The mode changes kept.
+        pub modes: Vec<crate::figures::ModeChange>,
         clock: std::cell::Cell<i64>,
     }
 
@@ -271,6 +288,20 @@ pub mod memory {
                 recipes: recipes.to_vec(),
             };
             self.runs.push((id, run));
+            let recipe = self
+                .orders
+                .iter()
+                .find(|o| o.id == id)
+                .map(|o| o.recipe.clone())
+                .unwrap_or_default();
+            self.spans.push(crate::figures::RunSpan {
+                order: id,
+                recipe,
+                cell: cell.into(),
+                start_ms: at,
+                end_ms: None,
+                state: OrderState::Running,
+            });
             if let Some(o) = self.order_mut(id) {
                 o.state = OrderState::Running;
                 o.started_ms = Some(at);
@@ -291,12 +322,24 @@ pub mod memory {
                 if let Some(i) = self.runs.iter().rposition(|(o, _)| *o == id) {
                     self.runs.remove(i);
                 }
+                if let Some(i) = self.spans.iter().rposition(|s| s.order == id) {
+                    self.spans.remove(i);
+                }
             }
             Ok(())
         }
         fn end_order(&mut self, id: i64, state: OrderState, result: &str) -> Result<(), String> {
             self.write()?;
             let at = self.now_ms();
+            if let Some(s) = self
+                .spans
+                .iter_mut()
+                .rev()
+                .find(|s| s.order == id && s.end_ms.is_none())
+            {
+                s.end_ms = Some(at);
+                s.state = state;
+            }
             if let Some(o) = self.order_mut(id) {
                 o.state = state;
                 o.ended_ms = Some(at);
@@ -446,6 +489,49 @@ pub mod memory {
                     .collect(),
             }))
         }
+        fn record_mode(&mut self, mode: CellMode) -> Result<(), String> {
+            if self.modes.last().map(|m| m.mode) == Some(mode) {
+                return Ok(());
+            }
+            self.write()?;
+            let at_ms = self.now_ms();
+            self.modes.push(crate::figures::ModeChange {
+                cell: MEMORY_CELL.into(),
+                at_ms,
+                mode,
+            });
+            Ok(())
+        }
+        fn figure_inputs(&self, since: i64, until: i64) -> Result<FigureInputs, String> {
+            let overlaps =
+                |start: i64, end: Option<i64>| start < until && end.map_or(true, |e| e > since);
+            Ok(FigureInputs {
+                runs: self
+                    .spans
+                    .iter()
+                    .filter(|s| overlaps(s.start_ms, s.end_ms))
+                    .cloned()
+                    .collect(),
+                alarms: self
+                    .alarms
+                    .iter()
+                    .filter(|a| overlaps(a.raised_ms, a.gone_ms()))
+                    .map(|a| crate::figures::AlarmSpan {
+                        cell: MEMORY_CELL.into(),
+                        station: a.station.clone(),
+                        class: a.class,
+                        raised_ms: a.raised_ms,
+                        gone_ms: a.gone_ms(),
+                    })
+                    .collect(),
+                modes: self
+                    .modes
+                    .iter()
+                    .filter(|m| m.at_ms < until)
+                    .cloned()
+                    .collect(),
+            })
+        }
     }
 }
 
@@ -590,6 +676,12 @@ pub mod shared {
         }
         fn order_record(&self, id: i64) -> Result<Option<OrderRecord>, String> {
             self.all.borrow().order_record(id)
+        }
+        fn record_mode(&mut self, mode: CellMode) -> Result<(), String> {
+            self.all.borrow_mut().record_mode(mode)
+        }
+        fn figure_inputs(&self, since: i64, until: i64) -> Result<FigureInputs, String> {
+            self.all.borrow().figure_inputs(since, until)
         }
     }
 }

@@ -215,6 +215,17 @@ impl Alarm {
         !(self.acked.is_some() && self.cleared_ms.is_some())
     }
 
+    /// When it stopped holding the cell: its condition cleared and, if
+    /// it needs one, acknowledged. None while it holds.
+    pub fn gone_ms(&self) -> Option<i64> {
+        let cleared = self.cleared_ms?;
+        if !self.class.needs_ack() {
+            return Some(cleared);
+        }
+        let (_, acked) = self.acked.as_ref()?;
+        Some(cleared.max(*acked))
+    }
+
     /// One line: `#3 safety welding: RCM message 24: emergency stop`.
     pub fn line(&self) -> String {
         format!(
@@ -248,6 +259,7 @@ mod tests {
         assert!(a.blocks_start() && a.listed());
         a.cleared_ms = Some(5);
         assert_eq!(a.state(), AlarmState::Cleared);
+        assert_eq!(a.gone_ms(), None, "cleared, not yet acknowledged");
         assert!(a.blocks_start(), "cleared is not acknowledged");
         a.acked = Some(("ann".into(), 6));
         assert!(!a.blocks_start() && !a.listed());

@@ -5,6 +5,7 @@
 //! name. The transport is in `bus::api`; the operator node owns the
 //! behaviour.
 
+use crate::figures::{FigureQuery, Figures};
 use crate::ids::{CellId, StationName};
 use crate::mms::vmd::VmdStatus;
 use crate::mode::{CellMode, ManualAction};
@@ -55,6 +56,7 @@ calls! {
     RecipeVersion = "recipe-version", Observer;
     RecipeRollback = "recipe-rollback", Engineer;
     OrderShow = "order-show", Observer;
+    Figures = "figures", Observer;
     Mode = "mode", Operator;
     Step = "step", Operator;
     Restart = "restart", Operator;
@@ -172,6 +174,8 @@ pub enum ApiRequest {
         /// The order id.
         id: i64,
     },
+    /// The ISO 22400-2 figures of a range.
+    Figures(FigureQuery),
     /// Sets the cell's mode (auto ↔ step also while an order runs).
     Mode {
         /// The mode.
@@ -338,6 +342,8 @@ pub struct Placement {
 }
 /// The longest cell recipe name an order may name, in characters.
 pub const MAX_RECIPE_NAME_CHARS: usize = 32;
+/// The most planned run times one `figures` request may set.
+pub const MAX_PLANNED_RECIPES: usize = 100;
 /// The largest recipe file, in bytes (the thesis' recipes are under 2 KiB).
 pub const MAX_RECIPE_BYTES: usize = 64 * 1024;
 
@@ -389,6 +395,15 @@ impl ApiRequest {
                     excerpt(message)
                 ));
             }
+            Self::Figures(q) if q.planned.len() > MAX_PLANNED_RECIPES => {
+                return Err(format!(
+                    "{} planned run times: give at most {MAX_PLANNED_RECIPES}",
+                    q.planned.len()
+                ));
+            }
+            Self::Figures(q) if q.until_ms.is_some_and(|u| u < q.since_ms) => {
+                return Err("the range ends before it begins".into());
+            }
             Self::RecipePut { file, text, .. } if text.len() > MAX_RECIPE_BYTES => {
                 return Err(format!(
                     "recipe {file} is {} bytes, more than the {MAX_RECIPE_BYTES} a recipe may have: refused",
@@ -430,6 +445,7 @@ impl ApiRequest {
             Self::RecipeVersion { .. } => Call::RecipeVersion,
             Self::RecipeRollback { .. } => Call::RecipeRollback,
             Self::OrderShow { .. } => Call::OrderShow,
+            Self::Figures(_) => Call::Figures,
             Self::Mode { .. } => Call::Mode,
             Self::Step { .. } => Call::Step,
             Self::Restart { .. } => Call::Restart,
@@ -740,6 +756,8 @@ pub enum ApiReply {
     },
     /// `order show`.
     OrderRecord(Box<OrderRecord>),
+    /// `figures`.
+    Figures(Box<Figures>),
 }
 
 /// A plant of several cells at a glance: each cell's status, in the

@@ -6,6 +6,7 @@
 //! - [`alarm`]: alarm classes, causes and the operator's alarm record;
 //! - [`mms`]: the MMS-equivalent service model, sans-I/O;
 //! - [`console`]: what a console asks the operator node and what it answers;
+//! - [`figures`]: the shift calendar and the ISO 22400-2 figures;
 //! - [`product`]: recipe versions and what the records keep of a product;
 //! - [`mode`]: the cell's operating modes and manual operations;
 //! - [`keys`]: every zenoh key of a cell, as data;
@@ -14,6 +15,7 @@
 pub mod alarm;
 pub mod console;
 pub mod envelope;
+pub mod figures;
 pub mod ids;
 pub mod keys;
 pub mod mms;

@@ -95,6 +95,12 @@ struct RawPlant {
     consoles: Vec<Console>,
     #[serde(rename = "cell", default)]
     cells: Vec<RawCell>,
+    /// Local time minus UTC for the shifts (`+01:00`; default UTC).
+    #[serde(default)]
+    utc_offset: Option<String>,
+    /// The plant's shift calendar, every cell's (none: always).
+    #[serde(rename = "shift", default)]
+    shifts: Vec<crate::figures::RawShift>,
 }
 
 /// One cell of the plant.
@@ -182,6 +188,8 @@ impl Plant {
                 lease_ms: raw.lease_ms,
                 stations: vec![operator.clone()],
                 consoles: raw.consoles,
+                utc_offset: raw.utc_offset.clone(),
+                shifts: raw.shifts.clone(),
             },
             origin,
         )?;
@@ -236,6 +244,8 @@ impl Plant {
                     // order list checks again; they log in at the factory
                     // router only.
                     consoles: factory.consoles().to_vec(),
+                    utc_offset: raw.utc_offset.clone(),
+                    shifts: raw.shifts.clone(),
                 },
                 &format!("{origin}, cell `{id}`"),
             )?;

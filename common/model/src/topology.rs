@@ -7,6 +7,7 @@
 //! complete at load time: a topology that loads is a tree with exactly one
 //! root, unique names and known commanders.
 
+use crate::figures::{Calendar, RawShift};
 use crate::ids::{CellId, StationName};
 use serde::Deserialize;
 use std::collections::BTreeMap;
@@ -110,6 +111,12 @@ pub(crate) struct RawTopology {
     pub(crate) stations: Vec<Station>,
     #[serde(rename = "console", default)]
     pub(crate) consoles: Vec<Console>,
+    /// Local time minus UTC for the shifts (`+01:00`; default UTC).
+    #[serde(default)]
+    pub(crate) utc_offset: Option<String>,
+    /// The shift calendar (none: planned busy always).
+    #[serde(rename = "shift", default)]
+    pub(crate) shifts: Vec<RawShift>,
 }
 
 pub(crate) fn default_lease_ms() -> u64 {
@@ -125,6 +132,7 @@ pub struct Topology {
     stations: Vec<Station>,
     consoles: Vec<Console>,
     index: BTreeMap<StationName, usize>,
+    calendar: Calendar,
 }
 
 /// The link protocols a router endpoint may use: `tcp` on one machine or a
@@ -227,6 +235,7 @@ impl Topology {
             message,
         };
         check_router(&raw.router).map_err(fail)?;
+        let calendar = Calendar::new(raw.utc_offset.as_deref(), &raw.shifts).map_err(fail)?;
         if raw.lease_ms < 100 {
             return Err(fail(format!(
                 "lease_ms = {} is too short; use at least 100",
@@ -321,7 +330,13 @@ impl Topology {
             stations: raw.stations,
             consoles: raw.consoles,
             index,
+            calendar,
         })
+    }
+
+    /// The shift calendar the figures are planned against.
+    pub fn calendar(&self) -> &Calendar {
+        &self.calendar
     }
 
     /// The cell id (second key chunk).

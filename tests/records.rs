@@ -1,0 +1,265 @@
+//! What the cell made, with which recipe, and how well, end to end
+//! through the `falc` CLI: five orders (one ended by the robot's
+//! emergency stop, one after an engineer saved a new welding recipe, one
+//! after a rollback), each order's recipe versions from `falc order
+//! show`, the edit from `falc store diff`, and `falc figures` checked
+//! against what this test computes itself from the records.
+
+use crate::support::rig::{rig, Rig};
+use falc_model::alarm::AlarmClass;
+use falc_model::console::{Order, OrderState};
+use falc_model::figures::Figures;
+use falc_model::product::{OrderRecord, RecipeVersion};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+fn now_ms() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_millis() as i64)
+        .expect("clock")
+}
+
+/// `ms` as `YYYY-MM-DDTHH:MM+00:00` (whole minutes, as `falc figures`
+/// reads them).
+fn minute_text(ms: i64) -> String {
+    let text = falc_model::console::utc_text(ms);
+    format!("{}T{}+00:00", &text[..10], &text[11..16])
+}
+
+/// What `falc order show ID` says.
+fn show(rig: &Rig, id: i64) -> OrderRecord {
+    rig.reply(&["order", "show", &id.to_string()])
+}
+
+/// The welding recipe's version each run of an order ran.
+fn welding_versions(record: &OrderRecord) -> Vec<(u32, String)> {
+    record
+        .runs
+        .iter()
+        .map(|run| {
+            let w = run
+                .recipes
+                .iter()
+                .find(|u| u.domain == "WELDING$DROOG_DIK")
+                .unwrap_or_else(|| panic!("no welding recipe in {run:?}"));
+            (w.version, w.hash.to_string())
+        })
+        .collect()
+}
+
+#[test]
+fn five_orders_keep_their_recipe_versions_and_the_figures_match_the_records() {
+    let mut rig = rig("10");
+    // Whole minutes: the range the figures are asked for.
+    let since = now_ms() / 60_000 * 60_000;
+
+    // Orders 1 and 2: the robot's emergency stop mid-weld ends order 1;
+    // the way back runs order 2 to done.
+    rig.start_list_until_welding(&["dikdroog", "dikdroog"]);
+    rig.rcm.control("estop");
+    rig.operator().expect_line(
+        "EVENT order-ended id=1 state=failed",
+        Duration::from_secs(10),
+    );
+    rig.rcm.control("estop-clear");
+    rig.way_back();
+
+    // The engineer saves a new welding recipe: version 2.
+    let file = rig.recipes.join("welding/droog_dik.rcp");
+    let original = std::fs::read_to_string(&file).expect("read");
+    let edited = original.replace("wait rcm 170", "wait rcm 160");
+    assert_ne!(edited, original);
+    let local = rig.recipes.join("../droog_dik.edited.rcp");
+    std::fs::write(&local, &edited).expect("write");
+    let local = local.display().to_string();
+    let (code, out) = rig.cell.falc_as(
+        "engineer",
+        &[
+            "store",
+            "put",
+            "welding",
+            "droog_dik",
+            &local,
+            "-m",
+            "shorter wait",
+        ],
+    );
+    assert_eq!(code, 0, "{out}");
+    assert!(out.contains("version 2"), "{out}");
+    rig.next_order_done("dikdroog");
+
+    // Each order names the versions it ran: 1 and 2 the first welding
+    // recipe, 3 the edited one.
+    let v1 = welding_versions(&show(&rig, 2));
+    let v2 = welding_versions(&show(&rig, 3));
+    assert_eq!(welding_versions(&show(&rig, 1)), v1);
+    assert_eq!(v1.len(), 1, "one run: {v1:?}");
+    assert_eq!((v1[0].0, v2[0].0), (1, 2));
+    assert_ne!(v1[0].1, v2[0].1);
+    let record = show(&rig, 3);
+    let cell = &record.runs[0].recipes[0];
+    assert_eq!(cell.domain, "DIKDROOG");
+    assert!(
+        cell.starts.contains(&"WELDING$DROOG_DIK".to_string()),
+        "{cell:?}"
+    );
+    assert_eq!(
+        record.runs[0]
+            .recipes
+            .iter()
+            .find(|u| u.domain == "WELDING$DROOG_DIK")
+            .map(|u| u.starts.clone()),
+        Some(vec!["program 65".to_string()])
+    );
+    let text = rig.cell.falc(&["order", "show", "3"]);
+    println!("falc order show 3:\n{text}");
+    assert!(
+        text.contains("WELDING$DROOG_DIK") && text.contains("version   2"),
+        "{text}"
+    );
+    // The history and the diff show the edit, with who and why.
+    let history: Vec<RecipeVersion> = rig.reply(&["store", "history", "welding", "droog_dik"]);
+    assert_eq!(
+        history
+            .iter()
+            .map(|v| (v.version, v.author.as_str(), v.message.as_str()))
+            .collect::<Vec<_>>(),
+        vec![
+            (1, "operator", "found in the recipe store"),
+            (2, "engineer", "shorter wait")
+        ]
+    );
+    let diff = rig
+        .cell
+        .falc(&["recipe", "diff", "welding", "droog_dik", "1", "2"]);
+    assert!(
+        diff.contains("\n--2 | wait rcm 170")
+            && diff.contains("+-2 | wait rcm 160")
+            && diff.contains("--- welding/droog_dik.rcp version 1"),
+        "{diff}"
+    );
+    // The operator cannot roll back; the engineer can: version 3 holds
+    // version 1's text, and the next order runs it.
+    let (code, out) = rig.cell.falc_as(
+        "console",
+        &["store", "rollback", "welding", "droog_dik", "1"],
+    );
+    assert_ne!(code, 0, "{out}");
+    let (code, out) = rig.cell.falc_as(
+        "engineer",
+        &[
+            "recipe",
+            "rollback",
+            "welding",
+            "droog_dik",
+            "1",
+            "-m",
+            "back",
+        ],
+    );
+    assert_eq!(code, 0, "{out}");
+    assert_eq!(std::fs::read_to_string(&file).expect("read"), original);
+    rig.next_order_done("dikdroog");
+    let v3 = welding_versions(&show(&rig, 4));
+    assert_eq!(v3[0].0, 3);
+    assert_eq!(v3[0].1, v1[0].1, "the old text's hash");
+    rig.next_order_done("dikdroog");
+
+    // The figures of the range, and the same from the records.
+    let until = (now_ms() / 60_000 + 2) * 60_000;
+    let figures: Figures = rig.reply(&[
+        "figures",
+        "--since",
+        &minute_text(since),
+        "--until",
+        &minute_text(until),
+    ]);
+    assert_eq!(figures.cells.len(), 1, "{figures:?}");
+    let f = &figures.cells[0];
+    let orders: Vec<Order> = rig.orders();
+    assert_eq!(orders.len(), 5);
+    let states: Vec<OrderState> = orders.iter().map(|o| o.state).collect();
+    assert_eq!(
+        states,
+        vec![
+            OrderState::Failed,
+            OrderState::Done,
+            OrderState::Done,
+            OrderState::Done,
+            OrderState::Done
+        ]
+    );
+    let span = |o: &Order| (o.started_ms.expect("started"), o.ended_ms.expect("ended"));
+    let production: i64 = orders.iter().map(|o| span(o).1 - span(o).0).sum();
+    let t = &f.total.time;
+    assert_eq!(t.planned_busy_ms, until - since, "always planned: {t:?}");
+    assert_eq!(t.production_ms, production, "{t:?}");
+    assert_eq!((t.setup_ms, t.maintenance_ms), (0, 0));
+    // Down: the estop's alarm from its raise until it was gone, where no
+    // order ran.
+    let alarms: Vec<_> = (1..=5).flat_map(|id| show(&rig, id).alarms).collect();
+    let safety: Vec<_> = alarms
+        .iter()
+        .filter(|a| a.class == AlarmClass::Safety)
+        .collect();
+    assert_eq!(safety.len(), 1, "{alarms:#?}");
+    let (raised, gone) = (
+        safety[0].raised_ms,
+        safety[0].gone_ms().expect("acknowledged and cleared"),
+    );
+    let overlap: i64 = orders
+        .iter()
+        .map(|o| {
+            let (s, e) = span(o);
+            (e.min(gone) - s.max(raised)).max(0)
+        })
+        .sum();
+    let safety_down = t
+        .down_ms
+        .iter()
+        .find(|(c, _)| *c == AlarmClass::Safety)
+        .map_or(0, |(_, ms)| *ms);
+    assert_eq!(safety_down, gone - raised - overlap, "{t:?}");
+    assert_eq!(
+        t.production_ms + t.down_total_ms() + t.idle_ms,
+        t.planned_busy_ms
+    );
+    let q = &f.total.quantities;
+    assert_eq!((q.produced, q.good, q.failed), (5, 4, 1));
+    // The cycle time of the four done orders, and their median as the
+    // planned run time.
+    let mut done: Vec<i64> = orders
+        .iter()
+        .filter(|o| o.state == OrderState::Done)
+        .map(|o| span(o).1 - span(o).0)
+        .collect();
+    done.sort_unstable();
+    let ct = &f.cycle[0];
+    assert_eq!((ct.recipe.as_str(), ct.count), ("dikdroog", 4));
+    assert_eq!(ct.p50_ms, done[1], "nearest rank of 4: the 2nd");
+    assert_eq!(ct.p95_ms, done[3]);
+    assert_eq!(q.planned_run_ms, 5 * done[1]);
+    let availability = production as f64 / (until - since) as f64;
+    assert!((f.total.availability().expect("defined") - availability).abs() < 1e-12);
+    assert_eq!(f.total.quality(), Some(0.8));
+    let welding = f
+        .reliability
+        .iter()
+        .find(|r| r.station == "welding")
+        .expect("the robot's failure");
+    assert_eq!(welding.failures, 1);
+    assert_eq!(welding.mttr_ms, Some(gone - raised));
+    // The text says the same.
+    let text = rig.cell.falc(&[
+        "figures",
+        "--since",
+        &minute_text(since),
+        "--until",
+        &minute_text(until),
+    ]);
+    println!("falc figures:\n{text}\nfalc store diff:\n{diff}");
+    assert!(
+        text.contains("total") && text.contains("   4/5   ") && text.contains("80.0%"),
+        "{text}"
+    );
+}
