@@ -1083,7 +1083,6 @@ fn make_private(file: &Path) -> std::io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use falc_model::ids::CellId;
 
     const ANY: Placement = Placement {
         cell: None,
@@ -1105,7 +1104,8 @@ mod tests {
         };
         for _ in 0..60 {
             let placement = Placement {
-                cell: cells[(next() % 3) as usize].map(|c| CellId::new(c).expect("id")),
+                cell: cells[(next() % 3) as usize]
+                    .map(|c| falc_model::ids::CellId::new(c).expect("id")),
                 priority: (next() % 5) as i32 - 2,
                 due_ms: (next() % 2 == 0).then(|| next() % 4),
             };
