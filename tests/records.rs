@@ -258,6 +258,69 @@ fn five_orders_keep_their_recipe_versions_and_the_figures_match_the_records() {
         &minute_text(until),
     ]);
     println!("falc figures:\n{text}\nfalc store diff:\n{diff}");
+
+    // The operator again, now serving OpenMetrics: an independent parser
+    // reads it, and its counters are the records'.
+    drop(rig.operator.take());
+    let port = crate::support::free_port();
+    let addr = format!("127.0.0.1:{port}");
+    rig.start_operator_with(&["--metrics", &addr]);
+    let python = std::env::var("FALC_PYTHON").unwrap_or_else(|_| "python3".into());
+    let out = std::process::Command::new(python)
+        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/openmetrics.py"))
+        .arg(format!("http://{addr}/metrics"))
+        .output()
+        .expect("python");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let samples: Vec<serde_json::Value> = stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("a JSON line"))
+        .collect();
+    let value = |name: &str, labels: &[(&str, &str)]| -> f64 {
+        samples
+            .iter()
+            .find(|s| s["name"] == name && labels.iter().all(|(k, v)| s["labels"][*k] == *v))
+            .and_then(|s| s["value"].as_f64())
+            .unwrap_or_else(|| panic!("no {name} {labels:?} in {stdout}"))
+    };
+    let done = |result: &str| {
+        value(
+            "falc_orders_total",
+            &[("recipe", "dikdroog"), ("result", result)],
+        )
+    };
+    assert_eq!((done("done"), done("failed")), (4.0, 1.0));
+    assert_eq!(
+        value("falc_cycle_time_seconds_count", &[("recipe", "dikdroog")]),
+        4.0
+    );
+    let sum = value("falc_cycle_time_seconds_sum", &[("recipe", "dikdroog")]);
+    let records_sum: i64 = orders
+        .iter()
+        .filter(|o| o.state == OrderState::Done)
+        .map(|o| span(o).1 - span(o).0)
+        .sum();
+    assert!(
+        (sum - records_sum as f64 / 1000.0).abs() < 1e-6,
+        "{sum} {records_sum}"
+    );
+    assert_eq!(
+        value(
+            "falc_alarms_total",
+            &[("station", "welding"), ("class", "safety")]
+        ),
+        1.0
+    );
+    let execute = value("falc_packml_state_seconds_total", &[("state", "Execute")]);
+    assert!(
+        (execute - production as f64 / 1000.0).abs() < 1e-6,
+        "{execute} {production}"
+    );
     assert!(
         text.contains("total") && text.contains("   4/5   ") && text.contains("80.0%"),
         "{text}"

@@ -6,7 +6,8 @@
 //! SQLite WAL, a connection per cell), marks an order a crash interrupted,
 //! associates each cell (retrying every second while it cannot) and
 //! delivers the recipes; then it serves the operator API to consoles and
-//! operator communication (`input`, `output`) to each cell.
+//! operator communication (`input`, `output`) to each cell, and, with
+//! `--metrics`, OpenMetrics to the plant's monitoring (`metrics`).
 //!
 //! A thin driver: the behaviour is `falc_control::plant` over one
 //! `falc_control::order_list` per cell (sans-I/O); here are start-up, the
@@ -17,6 +18,7 @@
 //! under way.
 
 mod database;
+mod metrics;
 mod recipe_store;
 
 use anyhow::{Context, Result};
@@ -62,6 +64,11 @@ struct Cli {
     /// How many orders may wait in the order list; one more is refused.
     #[arg(long, default_value_t = falc_model::console::MAX_QUEUED_ORDERS)]
     max_queued_orders: usize,
+    /// Serve OpenMetrics for the plant's monitoring at
+    /// `http://HOST:PORT/metrics` (orders, cycle times, alarms, seconds
+    /// in each PackML state).
+    #[arg(long, value_name = "HOST:PORT")]
+    metrics: Option<std::net::SocketAddr>,
     #[command(flatten)]
     node: NodeArgs,
 }
@@ -372,6 +379,19 @@ async fn run(cli: Cli) -> Result<ExitCode> {
         dbs.push(db);
     }
     let mut adopted = recovered.map(|r| r.adopted).unwrap_or_default();
+    if let Some(addr) = cli.metrics {
+        let calendar = plans
+            .first()
+            .map(|p| p.topology.calendar().clone())
+            .unwrap_or_default();
+        let cells = cell_ids.iter().map(|c| c.to_string()).collect();
+        let source = metrics::Source::open(&cli.db, calendar, cells)?;
+        let listener = tokio::net::TcpListener::bind(addr)
+            .await
+            .with_context(|| format!("cannot serve the metrics at {addr}"))?;
+        tracing::info!("OpenMetrics at http://{addr}/metrics");
+        tokio::spawn(metrics::serve(listener, std::sync::Arc::new(source)));
+    }
     let plant_of_one = plans.len() == 1;
     let api_bus = Bus::open(api_settings)
         .await

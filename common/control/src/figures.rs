@@ -16,7 +16,7 @@ use falc_model::alarm::AlarmClass;
 use falc_model::console::OrderState;
 use falc_model::figures::{
     Calendar, CellFigures, CycleTime, FigureQuery, Figures, ParetoLine, Period, Quantities,
-    Reliability, RunBar, TimeElements,
+    Reliability, RunBar, RunCount, TimeElements,
 };
 use falc_model::mode::CellMode;
 use std::collections::{BTreeMap, BTreeSet};
@@ -405,8 +405,23 @@ fn cell_figures(
             state: r.state.as_str().to_string(),
         })
         .collect();
+    let mut ended: BTreeMap<(String, &str), u64> = BTreeMap::new();
+    for r in cell.runs.iter().filter(ended_in_range) {
+        *ended
+            .entry((r.recipe.to_lowercase(), r.state.as_str()))
+            .or_default() += 1;
+    }
+    let ended = ended
+        .into_iter()
+        .map(|((recipe, result), count)| RunCount {
+            recipe,
+            result: result.to_string(),
+            count,
+        })
+        .collect();
     CellFigures {
         cell: name.to_string(),
+        ended,
         total,
         periods,
         cycle,
@@ -656,6 +671,15 @@ mod tests {
         let c = &f.cells[0];
         let q = &c.total.quantities;
         assert_eq!((q.produced, q.good, q.stopped), (3, 3, 1));
+        let ended: Vec<(&str, &str, u64)> = c
+            .ended
+            .iter()
+            .map(|e| (e.recipe.as_str(), e.result.as_str(), e.count))
+            .collect();
+        assert_eq!(
+            ended,
+            vec![("dikdroog", "done", 3), ("dikdroog", "stopped", 1)]
+        );
         // Cycle time of the done runs: 20, 40, 30 min; PRI learned as the
         // median, 30 min: effectiveness 90 min of 160 min running (the
         // stopped run and the one still running count as production).

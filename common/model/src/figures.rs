@@ -363,11 +363,24 @@ pub struct RunBar {
     pub state: String,
 }
 
+/// How many runs of a recipe ended one way.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RunCount {
+    /// The recipe (lower case).
+    pub recipe: String,
+    /// How they ended (`done`, `failed`, `stopped`, `interrupted`).
+    pub result: String,
+    /// How many ended in the range.
+    pub count: u64,
+}
+
 /// One cell's figures.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct CellFigures {
     /// The cell.
     pub cell: String,
+    /// The runs that ended in the range, by recipe and result.
+    pub ended: Vec<RunCount>,
     /// The whole range.
     pub total: Period,
     /// Each shift (each day with no shift calendar).
