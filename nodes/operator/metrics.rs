@@ -27,7 +27,7 @@ use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::histogram::Histogram;
 use prometheus_client::registry::Registry;
-use std::path::PathBuf;
+use std::path::Path;
 use std::sync::atomic::AtomicU64;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -148,7 +148,7 @@ pub struct Source {
 
 impl Source {
     /// Opens its own connection to the records at `path`.
-    pub fn open(path: &PathBuf, calendar: Calendar, cells: Vec<String>) -> anyhow::Result<Self> {
+    pub fn open(path: &Path, calendar: Calendar, cells: Vec<String>) -> anyhow::Result<Self> {
         let first = cells.first().cloned().unwrap_or_default();
         Ok(Self {
             db: Mutex::new(Database::open(path, &first)?),
