@@ -259,6 +259,55 @@ fn five_orders_keep_their_recipe_versions_and_the_figures_match_the_records() {
     ]);
     println!("falc figures:\n{text}\nfalc store diff:\n{diff}");
 
+    // The report: four charts as inline SVG, opened in headless Chromium
+    // without a console message; its screenshot is kept for a person.
+    let page = rig.recipes.join("../report.html");
+    let page_arg = page.display().to_string();
+    let said = rig.cell.falc(&[
+        "report",
+        "--since",
+        &minute_text(since),
+        "--until",
+        &minute_text(until),
+        "--out",
+        &page_arg,
+    ]);
+    assert!(said.contains("report.html"), "{said}");
+    let html = std::fs::read_to_string(&page).expect("the report");
+    for id in [
+        "oee-falc1",
+        "cycle-falc1-dikdroog",
+        "pareto-falc1",
+        "gantt-falc1",
+    ] {
+        assert!(
+            html.contains(&format!("<figure id=\"{id}\"><svg")),
+            "no chart {id}"
+        );
+    }
+    let shot = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("records-report.png");
+    let _ = std::fs::remove_file(&shot);
+    let chromium = std::process::Command::new("chromium")
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--enable-logging=stderr",
+            "--v=0",
+            "--window-size=1000,2200",
+        ])
+        .arg(format!("--screenshot={}", shot.display()))
+        .arg(format!("file://{}", page.display()))
+        .output()
+        .expect("chromium: .ci/test installs it (apt-get install chromium)");
+    let log = String::from_utf8_lossy(&chromium.stderr);
+    assert!(chromium.status.success(), "{log}");
+    let console: Vec<&str> = log.lines().filter(|l| l.contains(":CONSOLE")).collect();
+    assert!(console.is_empty(), "the report said: {console:#?}");
+    let png = std::fs::metadata(&shot).expect("a screenshot").len();
+    assert!(png > 20_000, "a screenshot of {png} bytes");
+    println!("report screenshot: {} ({png} bytes)", shot.display());
+
     // The operator again, now serving OpenMetrics: an independent parser
     // reads it, and its counters are the records'.
     drop(rig.operator.take());

@@ -102,6 +102,16 @@ pub enum CellCommand {
     /// effectiveness, quality, OEE (in total and per shift), cycle times,
     /// MTBF and MTTR per station, the alarm Pareto.
     Figures(crate::figures::FiguresArgs),
+    /// The figures of a range as a self-contained HTML page with charts:
+    /// OEE and its factors per shift or day, cycle-time histograms, the
+    /// alarm Pareto, a Gantt chart of the last order runs.
+    Report {
+        #[command(flatten)]
+        figures: crate::figures::FiguresArgs,
+        /// Where to write the page.
+        #[arg(long, default_value = "report.html")]
+        out: std::path::PathBuf,
+    },
     /// The operator's recipe store: list, show, save (engineers), edit.
     #[command(subcommand)]
     Store(StoreCommand),
@@ -813,6 +823,9 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
             .await
         }
         CellCommand::Shutdown => ApiRequest::Shutdown,
+        CellCommand::Report { figures, out } => {
+            return report(&bus, &operator, &figures, &out).await
+        }
         CellCommand::Figures(args) => match args.request(crate::clock::now_ms()) {
             Ok(r) => r,
             Err(e) => return refuse(&e),
@@ -830,6 +843,35 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
         }
     };
     once(&bus, &operator, req, json).await
+}
+
+/// `falc report`: the figures asked for, drawn into one HTML page.
+async fn report(
+    bus: &Bus,
+    operator: &StationName,
+    args: &crate::figures::FiguresArgs,
+    out: &std::path::Path,
+) -> ExitCode {
+    let request = match args.request(crate::clock::now_ms()) {
+        Ok(r) => r,
+        Err(e) => return refuse(&e),
+    };
+    let figures = match bus.api(operator, request, CALL_LIMIT).await {
+        Ok(ApiReply::Figures(f)) => f,
+        Ok(other) => return refuse(&format!("unexpected answer to figures: {other:?}")),
+        Err(e) => return fail(&e),
+    };
+    let page = match crate::report::html(&figures) {
+        Ok(p) => p,
+        Err(e) => return refuse(&e),
+    };
+    match std::fs::write(out, page) {
+        Ok(()) => {
+            crate::out!("{}", out.display());
+            ExitCode::SUCCESS
+        }
+        Err(e) => refuse(&format!("cannot write {}: {e}", out.display())),
+    }
 }
 
 /// Every entry, page after page (the operator answers a page at a time).

@@ -4,7 +4,8 @@
 //! draws the operator's screens (`tui`), `falc store edit` and the TUI
 //! edit store recipes in `$EDITOR` (`edit`), and `falc store
 //! history|diff|rollback` and `falc order show` read recipe versions and
-//! an order's record (`history`).
+//! an order's record (`history`); `falc figures` prints the ISO 22400-2
+//! figures (`figures`) and `falc report` draws them into HTML (`report`).
 
 mod cell_cmd;
 mod clock;
@@ -12,6 +13,7 @@ mod edit;
 mod figures;
 mod history;
 mod recipe_cmd;
+mod report;
 mod tui;
 
 use clap::{Parser, Subcommand};
