@@ -111,6 +111,40 @@ fn five_orders_keep_their_recipe_versions_and_the_figures_match_the_records() {
             .map(|u| u.starts.clone()),
         Some(vec!["program 65".to_string()])
     );
+    // Each workstation job of order 3, with start, end and outcome: the
+    // conveyor moves and the weld.
+    let jobs: Vec<(&str, &str, &str)> = record
+        .jobs
+        .iter()
+        .map(|j| (j.station.as_str(), j.program.as_str(), j.outcome.as_str()))
+        .collect();
+    assert_eq!(
+        jobs,
+        vec![
+            ("transport", "STORE", "done"),
+            ("transport", "MOVE_TO_MAN", "done"),
+            ("transport", "UNSTORE", "done"),
+            ("welding", "DROOG_DIK", "done"),
+            ("transport", "UNLOAD", "done"),
+        ],
+        "{record:#?}"
+    );
+    assert!(
+        record
+            .jobs
+            .iter()
+            .all(|j| j.started_ms.is_some_and(|s| s <= j.ended_ms)),
+        "{record:#?}"
+    );
+    // The weld the emergency stop ended is kept with how it ended.
+    let first = show(&rig, 1);
+    assert!(
+        first
+            .jobs
+            .iter()
+            .any(|j| j.station == "welding" && j.outcome.starts_with("alarm")),
+        "{first:#?}"
+    );
     let text = rig.cell.falc(&["order", "show", "3"]);
     println!("falc order show 3:\n{text}");
     assert!(

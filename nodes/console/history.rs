@@ -259,6 +259,23 @@ pub fn show_record(r: &OrderRecord) -> String {
             "no run recorded (not started, or started before recipe versions were kept)".into(),
         );
     }
+    if !r.jobs.is_empty() {
+        out.push("workstation jobs:".into());
+        for j in &r.jobs {
+            let took = j
+                .started_ms
+                .map(|s| format!("{:.1} s", (j.ended_ms - s) as f64 / 1000.0))
+                .unwrap_or_else(|| "start not seen".into());
+            out.push(format!(
+                "  {:<10} {:<14} {}  {:>10}  {}",
+                printable(&j.station),
+                printable(&j.program),
+                crate::clock::time_of_day(j.ended_ms),
+                took,
+                printable(&j.outcome)
+            ));
+        }
+    }
     if !r.alarms.is_empty() {
         out.push("alarms:".into());
         out.extend(r.alarms.iter().map(|a| format!("  {}", show_alarm(a))));

@@ -12,7 +12,9 @@ use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement, RecipeFile};
 use falc_model::ids::StationName;
 use falc_model::mode::CellMode;
-use falc_model::product::{OrderRecord, OrderRun, RecipeVersion, UsedRecipe, VersionHash};
+use falc_model::product::{
+    JobRecord, OrderRecord, OrderRun, RecipeVersion, UsedRecipe, VersionHash,
+};
 use rusqlite::{params, Connection, OptionalExtension, Row};
 use std::path::Path;
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -125,6 +127,17 @@ CREATE TABLE IF NOT EXISTS order_runs (
 );
 CREATE INDEX IF NOT EXISTS order_runs_order ON order_runs(order_id);
 CREATE INDEX IF NOT EXISTS order_runs_started ON order_runs(started_ms);
+CREATE TABLE IF NOT EXISTS jobs (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    order_id INTEGER,
+    cell TEXT NOT NULL,
+    station TEXT NOT NULL,
+    program TEXT NOT NULL,
+    started_ms INTEGER,
+    ended_ms INTEGER NOT NULL,
+    outcome TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS jobs_order ON jobs(order_id);
 CREATE TABLE IF NOT EXISTS modes (
     id INTEGER PRIMARY KEY AUTOINCREMENT,
     cell TEXT NOT NULL,
@@ -901,12 +914,52 @@ impl Records for Database {
             .map_err(fail())?
             .collect::<Result<Vec<_>, _>>()
             .map_err(fail())?;
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT station, program, started_ms, ended_ms, outcome FROM jobs \
+                 WHERE order_id = ?1 ORDER BY id",
+            )
+            .map_err(fail())?;
+        let jobs = st
+            .query_map(params![id], |r| {
+                Ok(JobRecord {
+                    station: r.get(0)?,
+                    program: r.get(1)?,
+                    started_ms: r.get(2)?,
+                    ended_ms: r.get(3)?,
+                    outcome: r.get(4)?,
+                })
+            })
+            .map_err(fail())?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(fail())?;
         Ok(Some(OrderRecord {
             order,
             runs,
+            jobs,
             entries,
             alarms,
         }))
+    }
+
+    fn record_job(&mut self, order: Option<i64>, job: &JobRecord) -> Result<(), Self::Error> {
+        self.conn
+            .execute(
+                "INSERT INTO jobs (order_id, cell, station, program, started_ms, ended_ms, outcome) \
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+                params![
+                    order,
+                    self.cell,
+                    job.station,
+                    job.program,
+                    job.started_ms,
+                    job.ended_ms,
+                    job.outcome
+                ],
+            )
+            .map_err(self.fail("cannot keep a workstation's job"))
+            .map(|_| ())
     }
 
     fn record_mode(&mut self, mode: CellMode) -> Result<(), Self::Error> {

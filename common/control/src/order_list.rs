@@ -247,6 +247,9 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     hashes: Vec<u64>,
     /// The cell's mode as last kept in the records (for the figures).
     recorded_mode: Option<CellMode>,
+    /// Each workstation's job its status shows running: the program,
+    /// since when (ms since the Unix epoch), the order it is part of.
+    open_jobs: BTreeMap<StationName, (ObjectName, i64, Option<i64>)>,
     /// The version of each of `recipes` (by domain), as the records keep it.
     versions: BTreeMap<ObjectName, RecipeVersion>,
     /// Content hash of each domain delivered to the cell in this association.
@@ -347,6 +350,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             hashes: hashes_of(&recipes),
             versions: BTreeMap::new(),
             recorded_mode: None,
+            open_jobs: BTreeMap::new(),
             recipes,
             delivered: BTreeMap::new(),
             associated: false,
@@ -1533,6 +1537,16 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                         Err(e) => self.db_failed(&e),
                     }
                 }
+                if station != self.cell {
+                    if let Some(p) = &status.program {
+                        let known = self.open_jobs.get(&station).map(|(name, ..)| name);
+                        if known != Some(&p.name) {
+                            let job =
+                                (p.name.clone(), self.db.now_ms(), self.order_of_message(now));
+                            self.open_jobs.insert(station.clone(), job);
+                        }
+                    }
+                }
                 self.statuses.insert(station.clone(), status);
                 self.settle_alarms(&station);
             }
@@ -1582,7 +1596,48 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 }
                 self.job_event(now, order, &station, &program, event);
             }
-            Unconfirmed::Job { .. } => {}
+            Unconfirmed::Job {
+                station,
+                program,
+                event,
+            } => self.workstation_job(now, station, program, event),
+        }
+    }
+
+    /// A workstation's job event: an end is kept in the records with the
+    /// order it is part of (pauses are not).
+    fn workstation_job(
+        &mut self,
+        now: Duration,
+        station: StationName,
+        program: ObjectName,
+        event: JobEvent,
+    ) {
+        let outcome = match &event {
+            JobEvent::Paused | JobEvent::Resumed => return,
+            JobEvent::Done => "done".to_string(),
+            JobEvent::BadProduct => "bad product".to_string(),
+            JobEvent::FailedSafe => "failed safe".to_string(),
+            JobEvent::FailedDanger => "failed with danger".to_string(),
+            JobEvent::Alarm(cause) => format!("alarm: {cause}"),
+        };
+        let open = self
+            .open_jobs
+            .remove(&station)
+            .filter(|(name, ..)| *name == program);
+        let order = open
+            .as_ref()
+            .and_then(|(_, _, order)| *order)
+            .or(self.order_of_message(now));
+        let job = falc_model::product::JobRecord {
+            station: station.to_string(),
+            program: program.to_string(),
+            started_ms: open.map(|(_, at, _)| at),
+            ended_ms: self.db.now_ms(),
+            outcome,
+        };
+        if let Err(e) = self.db.record_job(order, &job) {
+            self.db_failed(&e);
         }
     }
 

@@ -10,7 +10,7 @@ use crate::figures::FigureInputs;
 use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement, RecipeFile};
 use falc_model::mode::CellMode;
-use falc_model::product::{OrderRecord, RecipeVersion, UsedRecipe};
+use falc_model::product::{JobRecord, OrderRecord, RecipeVersion, UsedRecipe};
 use std::fmt::Display;
 
 /// Which journal entries to read ([`Records::entries`]): those after
@@ -142,6 +142,8 @@ pub trait Records {
     /// What the records say of order `id` (its first [`RECORD_ENTRIES`]
     /// journal entries); None if there is no such order.
     fn order_record(&self, id: i64) -> Result<Option<OrderRecord>, Self::Error>;
+    /// Keeps a workstation's job that ended, as part of order `order`.
+    fn record_job(&mut self, order: Option<i64>, job: &JobRecord) -> Result<(), Self::Error>;
     /// Keeps that this cell is in `mode` from now on, unless that is the
     /// newest mode kept for it already.
     fn record_mode(&mut self, mode: CellMode) -> Result<(), Self::Error>;
@@ -185,6 +187,8 @@ pub mod memory {
         pub spans: Vec<crate::figures::RunSpan>,
         /// The mode changes kept.
         pub modes: Vec<crate::figures::ModeChange>,
+        /// The workstation jobs kept, with their order.
+        pub jobs: Vec<(Option<i64>, JobRecord)>,
         clock: std::cell::Cell<i64>,
     }
 
@@ -474,6 +478,12 @@ pub mod memory {
                     .filter(|(o, _)| *o == id)
                     .map(|(_, r)| r.clone())
                     .collect(),
+                jobs: self
+                    .jobs
+                    .iter()
+                    .filter(|(o, _)| *o == Some(id))
+                    .map(|(_, j)| j.clone())
+                    .collect(),
                 entries: self
                     .journal
                     .iter()
@@ -488,6 +498,11 @@ pub mod memory {
                     .cloned()
                     .collect(),
             }))
+        }
+        fn record_job(&mut self, order: Option<i64>, job: &JobRecord) -> Result<(), String> {
+            self.write()?;
+            self.jobs.push((order, job.clone()));
+            Ok(())
         }
         fn record_mode(&mut self, mode: CellMode) -> Result<(), String> {
             if self.modes.last().map(|m| m.mode) == Some(mode) {
@@ -676,6 +691,9 @@ pub mod shared {
         }
         fn order_record(&self, id: i64) -> Result<Option<OrderRecord>, String> {
             self.all.borrow().order_record(id)
+        }
+        fn record_job(&mut self, order: Option<i64>, job: &JobRecord) -> Result<(), String> {
+            self.all.borrow_mut().record_job(order, job)
         }
         fn record_mode(&mut self, mode: CellMode) -> Result<(), String> {
             self.all.borrow_mut().record_mode(mode)

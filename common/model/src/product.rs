@@ -111,15 +111,34 @@ pub struct OrderRun {
     pub recipes: Vec<UsedRecipe>,
 }
 
+/// One job of a workstation (a conveyor move at the transport, a weld at
+/// the welding station): when it started and ended, and how.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct JobRecord {
+    /// The workstation.
+    pub station: String,
+    /// Its program invocation (`STORE`, `DROOG_DIK`).
+    pub program: String,
+    /// When its station first showed it running (None: not seen).
+    pub started_ms: Option<i64>,
+    /// When it ended.
+    pub ended_ms: i64,
+    /// How (`done`, `bad product`, `failed safe`, `alarm: …`).
+    pub outcome: String,
+}
+
 /// What the records say of one order: the order, the recipe versions of
-/// each run, its journal (jobs, questions and answers with who gave
-/// them, reports) and the alarms raised during it.
+/// each run, each workstation job, its journal (questions and answers
+/// with who gave them, reports) and the alarms raised during it.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct OrderRecord {
     /// The order (its start, end and result).
     pub order: Order,
     /// Each run, first first.
     pub runs: Vec<OrderRun>,
+    /// Each workstation job of its runs, in the order they ended.
+    #[serde(default)]
+    pub jobs: Vec<JobRecord>,
     /// Its journal entries, oldest first.
     pub entries: Vec<Entry>,
     /// The alarms raised while it ran.
