@@ -293,6 +293,35 @@ fn five_orders_keep_their_recipe_versions_and_the_figures_match_the_records() {
     ]);
     println!("falc figures:\n{text}\nfalc store diff:\n{diff}");
 
+    // The records of the range as JSON and CSV.
+    let range = [
+        "--since",
+        &minute_text(since),
+        "--until",
+        &minute_text(until),
+    ];
+    let mut json_args = vec!["records", "export", "--format", "json"];
+    json_args.extend(range);
+    let exported: Vec<OrderRecord> =
+        serde_json::from_str(&rig.cell.falc(&json_args)).expect("JSON records");
+    assert_eq!(
+        exported.iter().map(|r| r.order.id).collect::<Vec<_>>(),
+        vec![1, 2, 3, 4, 5]
+    );
+    assert_eq!(exported[2], show(&rig, 3));
+    let mut csv_args = vec!["records", "export"];
+    csv_args.extend(range);
+    let csv = rig.cell.falc(&csv_args);
+    let rows: Vec<&str> = csv.lines().collect();
+    assert_eq!(rows.len(), 6, "{csv}");
+    assert!(rows[0].starts_with("order,recipe,cell,state"), "{csv}");
+    assert!(
+        rows[3].starts_with("3,dikdroog,falc1,done,")
+            && rows[3].contains("welding/droog_dik.rcp@2:")
+            && rows[3].contains("welding/DROOG_DIK:done:"),
+        "{csv}"
+    );
+
     // The report: four charts as inline SVG, opened in headless Chromium
     // without a console message; its screenshot is kept for a person.
     let page = rig.recipes.join("../report.html");

@@ -98,6 +98,9 @@ pub enum CellCommand {
     /// The operator's screens: F1 overview, F2 messages, F3 commands, F4
     /// recipe (keyboard only; q quits).
     Tui,
+    /// The product records: every order of a range as CSV or JSON.
+    #[command(subcommand)]
+    Records(history::RecordsCommand),
     /// The ISO 22400-2 figures of a range: time elements, availability,
     /// effectiveness, quality, OEE (in total and per shift), cycle times,
     /// MTBF and MTTR per station, the alarm Pareto.
@@ -823,6 +826,7 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
             .await
         }
         CellCommand::Shutdown => ApiRequest::Shutdown,
+        CellCommand::Records(cmd) => return history::export(&bus, &operator, cmd).await,
         CellCommand::Report { figures, out } => {
             return report(&bus, &operator, &figures, &out).await
         }

@@ -9,7 +9,7 @@ use falc_model::figures::{CellFigures, FigureQuery, Figures, Percent, Period};
 use falc_model::ids::printable;
 
 /// How far back `falc figures` looks by default: a week.
-const DEFAULT_RANGE_MS: i64 = 7 * 86_400_000;
+pub const DEFAULT_RANGE_MS: i64 = 7 * 86_400_000;
 
 /// `falc figures`' options.
 #[derive(clap::Args, Debug)]
@@ -29,7 +29,7 @@ pub struct FiguresArgs {
 }
 
 /// A day alone (`2026-11-23`) is its midnight.
-fn moment(text: &str) -> Result<i64, String> {
+pub fn moment(text: &str) -> Result<i64, String> {
     let t = text.trim();
     if t.len() == 10 && t.as_bytes().get(4) == Some(&b'-') {
         return parse_due(&format!("{t} 00:00"));

@@ -1,7 +1,9 @@
-//! `falc store history|diff|rollback` (also as `falc recipe …`) and `falc
-//! order show`: the saved versions of a store recipe, what changed between
-//! two, an earlier one saved again; and what the records say of one order
-//! (the recipe versions of each run, its journal, its alarms).
+//! `falc store history|diff|rollback` (also as `falc recipe …`), `falc
+//! order show` and `falc records export`: the saved versions of a store
+//! recipe, what changed between two, an earlier one saved again; what the
+//! records say of one order (the recipe versions of each run, each
+//! workstation job, its journal, its alarms), and of every order of a
+//! range as CSV or JSON.
 
 use crate::cell_cmd::{fail, show_alarm, show_entry, CALL_LIMIT};
 use crate::clock::date_time;
@@ -61,6 +63,160 @@ impl VersionCommand {
             Self::History { station, file }
             | Self::Diff { station, file, .. }
             | Self::Rollback { station, file, .. } => RecipeFile::new(station.clone(), file),
+        }
+    }
+}
+
+/// `falc records …`.
+#[derive(Subcommand, Debug)]
+pub enum RecordsCommand {
+    /// Every order that started in a range, with its recipe versions,
+    /// workstation jobs and alarms: JSON (one order record each, as `falc
+    /// --json order show`) or CSV (a row per order).
+    Export {
+        /// From (as `falc figures --since`; default: a week ago).
+        #[arg(long)]
+        since: Option<String>,
+        /// Until (default: now).
+        #[arg(long)]
+        until: Option<String>,
+        /// `csv` or `json`.
+        #[arg(long, default_value = "csv", value_parser = ["csv", "json"])]
+        format: String,
+        /// Where to write (default: standard output).
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+    },
+}
+
+/// A CSV field, quoted when it must be (RFC 4180).
+fn csv_field(text: &str) -> String {
+    if text.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", text.replace('"', "\"\""))
+    } else {
+        text.to_string()
+    }
+}
+
+/// The CSV header of [`csv_row`].
+const CSV_HEADER: &str =
+    "order,recipe,cell,state,started_utc,ended_utc,result,recipe_versions,jobs,alarms";
+
+/// One order record as a CSV row: its recipe versions as
+/// `file@version:hash` and its jobs as `station/program:outcome:seconds`,
+/// each list `;`-separated.
+fn csv_row(r: &OrderRecord) -> String {
+    let o = &r.order;
+    let utc = |ms: Option<i64>| ms.map(falc_model::console::utc_text).unwrap_or_default();
+    let versions: Vec<String> = r
+        .runs
+        .iter()
+        .flat_map(|run| &run.recipes)
+        .map(|u| format!("{}@{}:{}", u.file, u.version, u.hash.short()))
+        .collect();
+    let jobs: Vec<String> = r
+        .jobs
+        .iter()
+        .map(|j| {
+            let secs = j
+                .started_ms
+                .map(|s| format!("{:.1}", (j.ended_ms - s) as f64 / 1000.0))
+                .unwrap_or_default();
+            format!("{}/{}:{}:{secs}", j.station, j.program, j.outcome)
+        })
+        .collect();
+    let alarms: Vec<String> = r
+        .alarms
+        .iter()
+        .map(|a| format!("{} {}: {}", a.class, a.station, a.text))
+        .collect();
+    [
+        o.id.to_string(),
+        o.recipe.clone(),
+        o.cell.clone().unwrap_or_default(),
+        o.state.to_string(),
+        utc(o.started_ms),
+        utc(o.ended_ms),
+        o.result.clone().unwrap_or_default(),
+        versions.join(";"),
+        jobs.join(";"),
+        alarms.join(";"),
+    ]
+    .iter()
+    .map(|f| csv_field(f))
+    .collect::<Vec<_>>()
+    .join(",")
+}
+
+/// `falc records export`.
+pub async fn export(bus: &Bus, operator: &StationName, cmd: RecordsCommand) -> ExitCode {
+    let RecordsCommand::Export {
+        since,
+        until,
+        format,
+        out,
+    } = cmd;
+    let now = crate::clock::now_ms();
+    let range = (|| -> Result<(i64, i64), String> {
+        let until = until.as_deref().map(crate::figures::moment).transpose()?;
+        let until = until.unwrap_or(now);
+        let since = match since.as_deref() {
+            Some(s) => crate::figures::moment(s)?,
+            None => until - crate::figures::DEFAULT_RANGE_MS,
+        };
+        Ok((since, until))
+    })();
+    let (since, until) = match range {
+        Ok(r) => r,
+        Err(e) => return crate::cell_cmd::refuse(&e),
+    };
+    let orders = match bus.api(operator, ApiRequest::OrderList, CALL_LIMIT).await {
+        Ok(ApiReply::Orders(o)) => o,
+        Ok(other) => {
+            return crate::cell_cmd::refuse(&format!("unexpected answer to order-list: {other:?}"))
+        }
+        Err(e) => return fail(&e),
+    };
+    let mut records = Vec::new();
+    for o in orders
+        .iter()
+        .filter(|o| o.started_ms.is_some_and(|s| (since..until).contains(&s)))
+    {
+        match bus
+            .api(operator, ApiRequest::OrderShow { id: o.id }, CALL_LIMIT)
+            .await
+        {
+            Ok(ApiReply::OrderRecord(r)) => records.push(*r),
+            Ok(other) => {
+                return crate::cell_cmd::refuse(&format!(
+                    "unexpected answer to order-show: {other:?}"
+                ))
+            }
+            Err(e) => return fail(&e),
+        }
+    }
+    let text = if format == "json" {
+        match serde_json::to_string_pretty(&records) {
+            Ok(t) => t,
+            Err(e) => return crate::cell_cmd::refuse(&format!("cannot write JSON: {e}")),
+        }
+    } else {
+        std::iter::once(CSV_HEADER.to_string())
+            .chain(records.iter().map(csv_row))
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    match out {
+        Some(path) => match std::fs::write(&path, format!("{text}\n")) {
+            Ok(()) => {
+                crate::out!("{} orders to {}", records.len(), path.display());
+                ExitCode::SUCCESS
+            }
+            Err(e) => crate::cell_cmd::refuse(&format!("cannot write {}: {e}", path.display())),
+        },
+        None => {
+            crate::out!("{text}");
+            ExitCode::SUCCESS
         }
     }
 }
@@ -288,6 +444,13 @@ pub fn show_record(r: &OrderRecord) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_csv_field_is_quoted_only_when_it_must_be() {
+        assert_eq!(csv_field("plain"), "plain");
+        assert_eq!(csv_field("a,b"), "\"a,b\"");
+        assert_eq!(csv_field("say \"ja\"\nnow"), "\"say \"\"ja\"\"\nnow\"");
+    }
 
     #[test]
     fn a_diff_shows_the_changes_with_their_context_only() {
