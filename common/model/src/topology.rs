@@ -465,6 +465,30 @@ device = "/dev/ttyS0"
     }
 
     #[test]
+    fn a_shift_calendar_is_read_and_a_bad_shift_refused_with_its_name() {
+        assert!(Topology::parse(CELL, "cell.toml")
+            .expect("valid")
+            .calendar()
+            .always());
+        // The keys before the first table.
+        let with = |stanza: &str| format!("utc_offset = \"+01:00\"\n{CELL}{stanza}");
+        let t = Topology::parse(
+            &with("[[shift]]\nname = \"early\"\nstart = \"06:00\"\nend = \"14:00\"\n"),
+            "cell.toml",
+        )
+        .expect("valid");
+        let c = t.calendar();
+        assert_eq!((c.utc_offset_min, c.shifts.len()), (60, 1));
+        assert_eq!((c.shifts[0].start_min, c.shifts[0].length_min), (360, 480));
+        let e = Topology::parse(
+            &with("[[shift]]\nname = \"late\"\nstart = \"14:00\"\nend = \"26:00\"\n"),
+            "cell.toml",
+        )
+        .expect_err("refused");
+        assert!(e.to_string().contains("shift `late` end"), "{e}");
+    }
+
+    #[test]
     fn parses_the_tree() {
         let t = Topology::parse(CELL, "cell.toml").expect("valid");
         let cell = StationName::new("cell").expect("valid");
