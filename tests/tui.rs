@@ -213,7 +213,10 @@ fn an_engineer_edits_a_recipe_in_the_tui_checked_on_save() {
         .contains("waitplase"));
     // Edit again: mended, saved.
     tmux.keys(&["e"]);
-    tmux.wait_for(&["saved: it checks clean"], Duration::from_secs(10));
+    tmux.wait_for(
+        &["saved as version 2", "it checks clean"],
+        Duration::from_secs(10),
+    );
     assert!(std::fs::read_to_string(&store)
         .expect("read")
         .contains("Edited in the TUI."));

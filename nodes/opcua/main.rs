@@ -19,6 +19,7 @@ use clap::Parser;
 use falc_bus::operator_service::CallError;
 use falc_bus::Bus;
 use falc_model::console::{ApiReply, ApiRequest, CellStatus, Entry, Order};
+use falc_model::figures::{FigureQuery, Figures};
 use falc_model::ids::StationName;
 use falc_model::plant::Layout;
 use falc_model::topology::Topology;
@@ -28,6 +29,10 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::time::Duration;
+
+/// How old the figures behind the PackML Admin values may grow while the
+/// journal does not move (time in a state grows all the same).
+const FIGURES_AGE: Duration = Duration::from_secs(10);
 
 #[derive(Parser, Debug)]
 #[command(
@@ -240,6 +245,13 @@ async fn run(cli: Cli) -> Result<(), String> {
             }
         };
         write(&poller);
+        if !moved && poller.figures_stale() {
+            tokio::select! {
+                _ = poller.fetch_figures(&bus, &operator) => {}
+                _ = shutdown.requested() => break,
+            }
+            write(&poller);
+        }
         if moved {
             let lists = tokio::select! {
                 lists = poller.lists(&bus, &operator) => lists,
@@ -310,6 +322,9 @@ struct Poller {
     orders: Vec<Order>,
     /// Each scope's newest journal entries.
     journals: Vec<Vec<Entry>>,
+    /// Every cell's figures of all time (the PackML Admin values), when
+    /// last fetched.
+    figures: Option<(Figures, std::time::Instant)>,
     keep: u16,
     unreachable_said: bool,
 }
@@ -318,6 +333,7 @@ impl Poller {
     fn new(scopes: Vec<Scope>, keep: u16) -> Self {
         Self {
             journals: vec![Vec::new(); scopes.len()],
+            figures: None,
             scopes,
             statuses: None,
             head: None,
@@ -420,7 +436,24 @@ impl Poller {
         self.orders = orders;
         self.journals = journals;
         self.journal_head = Some(head);
+        self.fetch_figures(bus, operator).await;
         true
+    }
+
+    /// Asks for every cell's figures of all time (the Admin values): after
+    /// the journal moved, or [`FIGURES_AGE`] after the last time.
+    async fn fetch_figures(&mut self, bus: &Bus, operator: &StationName) {
+        let request = ApiRequest::Figures(FigureQuery::default());
+        if let Some(ApiReply::Figures(f)) = self.call(bus, operator, request).await {
+            self.figures = Some((*f, std::time::Instant::now()));
+        }
+    }
+
+    /// Whether the figures are older than [`FIGURES_AGE`].
+    fn figures_stale(&self) -> bool {
+        self.figures
+            .as_ref()
+            .map_or(true, |(_, at)| at.elapsed() > FIGURES_AGE)
     }
 
     /// What the gateway serves now on scope `at`'s object: the last status
@@ -434,6 +467,16 @@ impl Poller {
                 orders: self.orders.clone(),
                 journal: self.journals.get(at).cloned().unwrap_or_default(),
                 last_refusal,
+                figures: self.figures.as_ref().and_then(|(f, _)| {
+                    let scope = self.scopes.get(at)?;
+                    let Part::Cell { id, .. } = &scope.part else {
+                        return None;
+                    };
+                    f.cells
+                        .iter()
+                        .find(|c| id.as_ref().map_or(true, |id| c.cell == id.as_str()))
+                        .cloned()
+                }),
             },
             None => space::Look {
                 last_refusal,

@@ -13,6 +13,8 @@
 //! Objects/FALC/Orders               Ids, Recipes, States, Results
 //! Objects/FALC/Journal              Ids, Times, Kinds, Who, Texts (the last entries)
 //! Objects/FALC/Alarms               Ids, Texts (every listed alarm)
+//! Objects/FALC/Admin                PackML Admin: ProdProcessedCount, ProdDefectiveCount,
+//!                                   StopReason, StateCumulativeTime (ms) with StateNames
 //! Objects/FALC/Stations/<station>   Connected, Kind, Program, RecipeState, … per kind
 //! ```
 //!
@@ -30,6 +32,7 @@
 use crate::packml;
 use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::console::{ApiRequest, Call, CellStatus, Entry, Order, OrderState};
+use falc_model::figures::CellFigures;
 use falc_model::ids::{CellId, StationName};
 use falc_model::mms::vmd::VmdStatus;
 use falc_model::topology::StationKind;
@@ -204,7 +207,7 @@ pub fn layout(scopes: &[Scope]) -> Vec<Object> {
         let Part::Cell { stations, .. } = &scope.part else {
             continue;
         };
-        for folder in ["Journal", "Alarms", "Stations"] {
+        for folder in ["Journal", "Alarms", "Stations", "Admin"] {
             out.push(object(scope.id(folder), folder, Some(root), true));
         }
         let stations_id = scope.id("Stations");
@@ -376,6 +379,8 @@ pub struct Look {
     pub journal: Vec<Entry>,
     /// Why the operator refused the last method call on this object.
     pub last_refusal: String,
+    /// This cell's figures of all time (None: not known yet).
+    pub figures: Option<CellFigures>,
 }
 
 /// Every value of `scope`'s part of the address space for this look: node
@@ -448,6 +453,65 @@ fn order_values(scope: &Scope, o: &[&Order], put: &mut dyn FnMut(String, Value))
     );
 }
 
+/// The states of `Admin.StateCumulativeTime`, in its order.
+pub const ADMIN_STATES: [&str; 5] = ["Execute", "Aborted", "Idle", "Maintenance", "Step"];
+
+/// A cell's PackML Admin values: parts made and defective (orders ended
+/// done or failed, and failed), why it stopped last (the alarm holding
+/// it, else the end of the last order that did not end done), and the
+/// planned busy time spent in each state ([`ADMIN_STATES`], ms; from the
+/// figures: Execute an order runs, Aborted an alarm holds the cell, Idle
+/// the rest, and the time in maintenance and step mode).
+fn admin_values(
+    scope: &Scope,
+    orders: &[&Order],
+    status: Option<&CellStatus>,
+    figures: Option<&CellFigures>,
+    put: &mut dyn FnMut(String, Value),
+) {
+    let r = |n: &str| scope.id(n);
+    let count = |f: &dyn Fn(OrderState) -> bool| {
+        let n = orders.iter().filter(|o| f(o.state)).count();
+        Value::Int32(i32::try_from(n).unwrap_or(i32::MAX))
+    };
+    put(
+        r("Admin.ProdProcessedCount"),
+        count(&|s| matches!(s, OrderState::Done | OrderState::Failed)),
+    );
+    put(
+        r("Admin.ProdDefectiveCount"),
+        count(&|s| s == OrderState::Failed),
+    );
+    let last_stop = orders
+        .iter()
+        .filter(|o| o.ended_ms.is_some() && o.state != OrderState::Done)
+        .max_by_key(|o| (o.ended_ms, o.id))
+        .and_then(|o| o.result.clone());
+    let reason = status
+        .and_then(|s| s.alarm.clone())
+        .or(last_stop)
+        .unwrap_or_default();
+    put(r("Admin.StopReason"), Value::Text(reason));
+    let times = figures.map_or_else(
+        || vec![0; ADMIN_STATES.len()],
+        |f| {
+            let t = &f.total.time;
+            vec![
+                t.production_ms,
+                t.down_total_ms(),
+                t.idle_ms,
+                t.maintenance_ms,
+                t.setup_ms,
+            ]
+        },
+    );
+    put(r("Admin.StateCumulativeTime"), Value::Int64s(times));
+    put(
+        r("Admin.StateNames"),
+        Value::Texts(ADMIN_STATES.iter().map(|s| s.to_string()).collect()),
+    );
+}
+
 /// A cell object's values (`cell`: which cell of a plant of several).
 fn cell_values(
     scope: &Scope,
@@ -516,6 +580,7 @@ fn cell_values(
     };
     let orders: Vec<&Order> = look.orders.iter().filter(mine).collect();
     order_values(scope, &orders, &mut put);
+    admin_values(scope, &orders, s, look.figures.as_ref(), &mut put);
 
     let j = &look.journal;
     put(
@@ -1066,6 +1131,86 @@ mod tests {
             state,
             ..status().running.expect("an order")
         }
+    }
+
+    #[test]
+    fn the_packml_admin_values_count_the_cells_parts_and_say_why_it_stopped() {
+        let ended = |id, state, result: &str| Order {
+            ended_ms: Some(id),
+            result: Some(result.into()),
+            ..order(id, Some("falc1"), None, state)
+        };
+        let mut look = Look {
+            reachable: true,
+            status: Some(CellStatus {
+                alarm: None,
+                ..status()
+            }),
+            orders: vec![
+                ended(1, OrderState::Done, "done"),
+                ended(2, OrderState::Failed, "alarm: emergency stop"),
+                ended(3, OrderState::Done, "done"),
+                ended(4, OrderState::Stopped, "stopped by console"),
+                ended(5, OrderState::Done, "done"),
+            ],
+            ..Look::default()
+        };
+        let v = values(&one(), &look);
+        assert_eq!(get(&v, "FALC.Admin.ProdProcessedCount"), &Value::Int32(4));
+        assert_eq!(get(&v, "FALC.Admin.ProdDefectiveCount"), &Value::Int32(1));
+        assert_eq!(
+            get(&v, "FALC.Admin.StopReason"),
+            &Value::Text("stopped by console".into())
+        );
+        assert_eq!(
+            get(&v, "FALC.Admin.StateCumulativeTime"),
+            &Value::Int64s(vec![0; 5]),
+            "no figures yet"
+        );
+        // The figures' time elements, in the order of the names.
+        let query = falc_model::figures::FigureQuery {
+            since_ms: 0,
+            until_ms: Some(10_000),
+            planned: Vec::new(),
+        };
+        let inputs = falc_control::figures::FigureInputs {
+            runs: vec![falc_control::figures::RunSpan {
+                order: 1,
+                recipe: "dikdroog".into(),
+                cell: "falc1".into(),
+                start_ms: 1000,
+                end_ms: Some(4000),
+                state: OrderState::Done,
+            }],
+            ..Default::default()
+        };
+        let f = falc_control::figures::compute(
+            &inputs,
+            &falc_model::figures::Calendar::default(),
+            &["falc1"],
+            &query,
+            10_000,
+        );
+        look.figures = f.cells.into_iter().next();
+        let holding = "#3 safety welding: RCM message 24: emergency stop";
+        look.status = Some(CellStatus {
+            alarm: Some(holding.into()),
+            ..status()
+        });
+        let v = values(&one(), &look);
+        assert_eq!(
+            get(&v, "FALC.Admin.StateCumulativeTime"),
+            &Value::Int64s(vec![3000, 0, 7000, 0, 0])
+        );
+        assert_eq!(
+            get(&v, "FALC.Admin.StateNames"),
+            &Value::Texts(ADMIN_STATES.iter().map(|s| s.to_string()).collect())
+        );
+        // An alarm holding the cell is the reason now.
+        assert_eq!(
+            get(&v, "FALC.Admin.StopReason"),
+            &Value::Text(holding.into())
+        );
     }
 
     #[test]

@@ -9,9 +9,9 @@
 //! - `falc_cycle_time_seconds{cell,recipe}`: a histogram of the done runs;
 //! - `falc_alarms_total{cell,station,class}`;
 //! - `falc_packml_state_seconds_total{cell,state}`: Execute (an order
-//!   runs), Aborted (a safety alarm holds the cell), Held (another alarm
-//!   holds it), Idle; `falc_unit_mode_seconds_total{cell,mode}`: time in
-//!   maintenance and step mode, which the states leave out.
+//!   runs), Aborted (an alarm holds the cell), Idle, as the OPC UA
+//!   gateway names the states; `falc_unit_mode_seconds_total{cell,mode}`:
+//!   time in maintenance and step mode, which the states leave out.
 //!
 //! A tiny HTTP/1.1 server of its own: one request per connection, read
 //! within [`READ_LIMIT`] and at most [`MAX_REQUEST`] bytes; anything but
@@ -20,7 +20,6 @@
 use crate::database::Database;
 use falc_control::figures;
 use falc_control::records::Records;
-use falc_model::alarm::AlarmClass;
 use falc_model::figures::{Calendar, FigureQuery, Figures};
 use prometheus_client::encoding::text::encode;
 use prometheus_client::metrics::counter::Counter;
@@ -89,17 +88,10 @@ pub fn render(f: &Figures) -> Result<String, std::fmt::Error> {
                 .inc_by(l.count);
         }
         let t = &c.total.time;
-        let safety: i64 = t
-            .down_ms
-            .iter()
-            .filter(|(class, _)| *class == AlarmClass::Safety)
-            .map(|(_, ms)| ms)
-            .sum();
         let seconds = |ms: i64| ms as f64 / 1000.0;
         for (state, ms) in [
             ("Execute", t.production_ms),
-            ("Aborted", safety),
-            ("Held", t.down_total_ms() - safety),
+            ("Aborted", t.down_total_ms()),
             ("Idle", t.idle_ms),
         ] {
             states
@@ -126,7 +118,7 @@ pub fn render(f: &Figures) -> Result<String, std::fmt::Error> {
     registry.register("alarms", "Alarms raised, by station and class", alarms);
     registry.register(
         "packml_state_seconds",
-        "Planned busy time in each PackML state: Execute (an order runs), Aborted (a safety alarm holds the cell), Held (another alarm holds it), Idle",
+        "Planned busy time in each PackML state: Execute (an order runs), Aborted (an alarm holds the cell), Idle",
         states,
     );
     registry.register(
@@ -271,6 +263,7 @@ async fn answer(mut stream: TcpStream, source: Arc<Source>) -> Result<(), String
 mod tests {
     use super::*;
     use falc_control::figures::{AlarmSpan, FigureInputs, RunSpan};
+    use falc_model::alarm::AlarmClass;
     use falc_model::console::OrderState;
 
     #[test]

@@ -21,7 +21,13 @@ pub enum Layer {
     Commands,
     /// F4: a recipe's state table, the current state highlighted.
     Recipe,
+    /// F5: the figures of the last week (OEE and its factors per shift or
+    /// day, cycle times, the alarm Pareto).
+    Figures,
 }
+
+/// How far back F5 looks: a week.
+pub const FIGURES_RANGE_MS: i64 = 7 * 86_400_000;
 
 /// What the driver must do for the app.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -186,6 +192,10 @@ pub struct App {
     /// Whether these are one cell's screens of a plant (Esc goes back to
     /// the plant overview).
     pub in_plant: bool,
+    /// The figures F5 shows, when fetched.
+    pub figures: Option<falc_model::figures::Figures>,
+    /// Whether the journal moved since the figures were fetched.
+    figures_stale: bool,
     /// What the last call was (to route its answer).
     pending: Option<ApiRequest>,
     /// The station picked for a recipe edit or view.
@@ -228,6 +238,8 @@ impl App {
             last_entry: 0,
             pick_cursor: 0,
             in_plant: false,
+            figures: None,
+            figures_stale: true,
             pending: None,
             pending_station: None,
         }
@@ -289,6 +301,8 @@ impl App {
 
     /// The order list.
     pub fn orders(&mut self, orders: Vec<Order>) {
+        // The journal moved: what F5 shows is older than it.
+        self.figures_stale = true;
         self.orders = orders;
     }
 
@@ -334,6 +348,10 @@ impl App {
                     ));
                 }
                 self.orders = v;
+            }
+            (Some(ApiRequest::Figures(_)), Ok(ApiReply::Figures(f))) => {
+                self.figures = Some(*f);
+                self.figures_stale = false;
             }
             (Some(ApiRequest::RecipeGet { .. }), Ok(ApiReply::Recipe(r))) => {
                 self.viewed = Some(r);
@@ -384,6 +402,7 @@ impl App {
             KeyCode::F(2) => return self.show(Layer::Messages),
             KeyCode::F(3) => return self.show(Layer::Commands),
             KeyCode::F(4) => return self.show(Layer::Recipe),
+            KeyCode::F(5) => return self.show(Layer::Figures),
             _ => {}
         }
         if self.pick.is_some() {
@@ -410,11 +429,12 @@ impl App {
         match (self.layer, k.code) {
             (_, KeyCode::Char('q')) => Some(Intent::Quit),
             (_, KeyCode::Esc) if self.in_plant => Some(Intent::Back),
-            (_, KeyCode::Char(c @ '1'..='4')) => self.show(match c {
+            (_, KeyCode::Char(c @ '1'..='5')) => self.show(match c {
                 '1' => Layer::Overview,
                 '2' => Layer::Messages,
                 '3' => Layer::Commands,
-                _ => Layer::Recipe,
+                '4' => Layer::Recipe,
+                _ => Layer::Figures,
             }),
             (Layer::Messages, KeyCode::Left) => {
                 self.pane = (self.pane + self.panes.len().max(1) - 1) % self.panes.len().max(1);
@@ -462,6 +482,20 @@ impl App {
             }
             _ => None,
         }
+    }
+
+    /// The figures F5 should show and does not have yet, or that are
+    /// older than the journal: those of the week up to `now_ms`.
+    pub fn wanted_figures(&self, now_ms: i64) -> Option<ApiRequest> {
+        (self.layer == Layer::Figures && (self.figures.is_none() || self.figures_stale)).then(
+            || {
+                ApiRequest::Figures(falc_model::figures::FigureQuery {
+                    since_ms: now_ms - FIGURES_RANGE_MS,
+                    until_ms: None,
+                    planned: Vec::new(),
+                })
+            },
+        )
     }
 
     /// The recipe F4 should show and does not have yet: the one the

@@ -210,6 +210,10 @@ impl<'a> Tui<'a> {
                     let intent = self.app.request(r);
                     self.carry_out(intent, terminal).await?;
                 }
+                if let Some(r) = self.app.wanted_figures(crate::clock::now_ms()) {
+                    let intent = self.app.request(r);
+                    self.carry_out(intent, terminal).await?;
+                }
             }
             tokio::select! {
                 _ = tokio::time::sleep(Duration::from_millis(25)) => {}

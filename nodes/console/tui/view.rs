@@ -131,6 +131,7 @@ pub fn draw(f: &mut Frame, app: &App) {
         Layer::Messages => messages(f, app, main),
         Layer::Commands => commands(f, app, main),
         Layer::Recipe => recipe(f, app, main),
+        Layer::Figures => figures(f, app, main),
     }
     bottom_line(f, app, bottom);
 }
@@ -303,6 +304,7 @@ fn layer_bar(app: &App) -> Line<'static> {
     spans.extend(item(Layer::Messages, f2, app.unread() || question));
     spans.extend(item(Layer::Commands, " F3 commands ".into(), false));
     spans.extend(item(Layer::Recipe, " F4 recipe ".into(), false));
+    spans.extend(item(Layer::Figures, " F5 figures ".into(), false));
     if app.in_plant {
         spans.push(Span::styled(" Esc plant ·", DIM));
     }
@@ -789,6 +791,104 @@ fn commands(f: &mut Frame, app: &App, area: Rect) {
     );
 }
 
+/// F5: OEE and its factors per period as bars (the newest periods that
+/// fit), the totals, cycle times and the alarm Pareto.
+fn figures(f: &mut Frame, app: &App, area: Rect) {
+    use falc_model::figures::Percent;
+    use ratatui::widgets::{Bar, BarChart, BarGroup};
+    let Some(cell) = app.figures.as_ref().and_then(|f| f.cells.first()) else {
+        let p = Paragraph::new("asking the operator for the figures of the last week …")
+            .block(Block::default().borders(Borders::ALL).title(" figures "));
+        f.render_widget(p, area);
+        return;
+    };
+    let [chart, lists] =
+        Layout::vertical([Constraint::Percentage(55), Constraint::Min(6)]).areas(area);
+    // Each group four bars wide and a gap: as many periods as fit.
+    let fit = usize::from(chart.width.saturating_sub(2) / 19).max(1);
+    let skip = cell.periods.len().saturating_sub(fit);
+    let pct = |r: Option<f64>| r.map_or(0, |r| (r * 100.0).round().clamp(0.0, 999.0) as u64);
+    let mut bars = BarChart::default()
+        .block(
+            Block::default()
+                .borders(Borders::ALL)
+                .title(" OEE · availability · effectiveness · quality per period (%) "),
+        )
+        .bar_width(4)
+        .bar_gap(0)
+        .group_gap(3);
+    for p in &cell.periods[skip..] {
+        let bar = |label: &str, v: Option<f64>, color: Color| {
+            Bar::default()
+                .label(Line::from(label.to_string()))
+                .value(pct(v))
+                .style(Style::new().fg(color))
+        };
+        let label = p.label.get(5..).unwrap_or(&p.label).to_string();
+        bars = bars.data(BarGroup::default().label(Line::from(label)).bars(&[
+            bar("O", p.oee(), Color::Black),
+            bar("A", p.availability(), Color::Blue),
+            bar("E", p.effectiveness(), Color::Yellow),
+            bar("Q", p.quality(), Color::Green),
+        ]));
+    }
+    f.render_widget(bars, chart);
+    let [left, right] =
+        Layout::horizontal([Constraint::Percentage(50), Constraint::Percentage(50)]).areas(lists);
+    let t = &cell.total;
+    let mut lines = vec![
+        Line::from(format!(
+            "the week: OEE {}  availability {}",
+            Percent(t.oee()),
+            Percent(t.availability()),
+        )),
+        Line::from(format!(
+            "effectiveness {}  quality {}",
+            Percent(t.effectiveness()),
+            Percent(t.quality())
+        )),
+        Line::from(format!(
+            "made {}, good {}, failed {}, stopped {}",
+            t.quantities.produced, t.quantities.good, t.quantities.failed, t.quantities.stopped
+        )),
+        Line::from("cycle time        done      p50      p95"),
+    ];
+    for ct in &cell.cycle {
+        lines.push(Line::from(format!(
+            "  {:<14} {:>5} {:>7.1}s {:>7.1}s",
+            printable(&ct.recipe),
+            ct.count,
+            ct.p50_ms as f64 / 1000.0,
+            ct.p95_ms as f64 / 1000.0
+        )));
+    }
+    f.render_widget(
+        Paragraph::new(lines).block(Block::default().borders(Borders::ALL).title(" totals ")),
+        left,
+    );
+    let pareto: Vec<Line> = cell
+        .pareto
+        .iter()
+        .map(|l| {
+            Line::from(format!(
+                "{:<10} {:<13} {:>4}  {:>8.1} min",
+                printable(&l.station),
+                l.class.to_string(),
+                l.count,
+                l.ms as f64 / 60_000.0
+            ))
+        })
+        .collect();
+    f.render_widget(
+        Paragraph::new(pareto).block(
+            Block::default()
+                .borders(Borders::ALL)
+                .title(" alarms, most down time first "),
+        ),
+        right,
+    );
+}
+
 fn recipe(f: &mut Frame, app: &App, area: Rect) {
     let station = app
         .panes
@@ -899,5 +999,72 @@ mod tests {
         ] {
             assert!(screen.contains(title), "no box `{title}`:\n{screen}");
         }
+    }
+
+    #[test]
+    fn f5_draws_the_figures_fetched_and_asks_for_them_again_when_the_journal_moved() {
+        use falc_control::figures::{compute, FigureInputs, RunSpan};
+        use falc_model::console::{ApiReply, OrderState};
+        use falc_model::figures::{Calendar, FigureQuery};
+        use ratatui::crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
+        let topology = Topology::load(
+            &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("launch/cell.toml"),
+        )
+        .expect("shipped topology");
+        let mut app = App::new(topology, StationName::new("console").expect("valid"));
+        assert_eq!(app.wanted_figures(0), None, "only on F5");
+        app.key(KeyEvent::new(KeyCode::F(5), KeyModifiers::NONE));
+        let Some(r) = app.wanted_figures(1_000_000_000) else {
+            panic!("F5 asks for the figures")
+        };
+        let intent = app.request(r);
+        let runs = (0..4)
+            .map(|i| RunSpan {
+                order: i,
+                recipe: "dikdroog".into(),
+                cell: "falc1".into(),
+                start_ms: i * 100_000,
+                end_ms: Some(i * 100_000 + 60_000),
+                state: if i == 2 {
+                    OrderState::Failed
+                } else {
+                    OrderState::Done
+                },
+            })
+            .collect();
+        let query = FigureQuery {
+            since_ms: 0,
+            until_ms: Some(400_000),
+            planned: Vec::new(),
+        };
+        let inputs = FigureInputs {
+            runs,
+            ..Default::default()
+        };
+        let figures = compute(&inputs, &Calendar::default(), &["falc1"], &query, 400_000);
+        assert!(matches!(intent, super::super::app::Intent::Call(_)));
+        app.answered(Ok(ApiReply::Figures(Box::new(figures))));
+        assert_eq!(app.wanted_figures(1_000_000_000), None, "fetched");
+        let mut terminal = Terminal::new(TestBackend::new(120, 40)).expect("terminal");
+        terminal.draw(|f| draw(f, &app)).expect("drawn");
+        let screen: String = terminal
+            .backend()
+            .buffer()
+            .content()
+            .iter()
+            .map(|c| c.symbol())
+            .collect();
+        for text in [
+            "F5 figures",
+            "OEE · availability",
+            "quality 75.0%",
+            "made 4, good 3",
+            "dikdroog",
+        ] {
+            assert!(screen.contains(text), "no `{text}`:\n{screen}");
+        }
+        // The journal moved: asked again.
+        app.orders(Vec::new());
+        assert!(app.wanted_figures(1_000_000_000).is_some());
     }
 }
