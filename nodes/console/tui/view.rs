@@ -968,6 +968,17 @@ mod tests {
     use ratatui::backend::TestBackend;
     use ratatui::Terminal;
 
+    /// What a test terminal shows, as one string.
+    fn screen_of(terminal: &Terminal<TestBackend>) -> String {
+        terminal
+            .backend()
+            .buffer()
+            .content()
+            .iter()
+            .map(|c| c.symbol())
+            .collect()
+    }
+
     /// A cell grown by two stanzas: every workstation gets its box.
     #[test]
     fn the_overview_draws_a_box_for_every_workstation_of_the_topology() {
@@ -984,13 +995,7 @@ mod tests {
         terminal
             .draw(|f| overview(f, &app, f.area()))
             .expect("drawn");
-        let screen: String = terminal
-            .backend()
-            .buffer()
-            .content()
-            .iter()
-            .map(|c| c.symbol())
-            .collect();
+        let screen = screen_of(&terminal);
         for title in [
             "welding (robot)",
             "welding2 (robot)",
@@ -1047,13 +1052,7 @@ mod tests {
         assert_eq!(app.wanted_figures(1_000_000_000), None, "fetched");
         let mut terminal = Terminal::new(TestBackend::new(120, 40)).expect("terminal");
         terminal.draw(|f| draw(f, &app)).expect("drawn");
-        let screen: String = terminal
-            .backend()
-            .buffer()
-            .content()
-            .iter()
-            .map(|c| c.symbol())
-            .collect();
+        let screen = screen_of(&terminal);
         for text in [
             "F5 figures",
             "OEE · availability",
