@@ -1,6 +1,6 @@
 //! `falc-plc-sim`: the digital twin of the conveyor PLC, a Modbus TCP
 //! server (tokio-modbus) that honours FALC's I/O map (`falc_plc::map`)
-//! and moves two carriers over the conveyor map of `conveyor`, travel times
+//! and moves two carriers over the conveyor map of `falc_plc::conveyor`, travel times
 //! divided by `--time-scale`.
 //!
 //! On stdout: `falc-plc-sim listening on HOST:PORT`, then one line per
@@ -13,14 +13,12 @@
 //! `online`, `mute` (requests get no answer), `unmute`, `layout <spot>…`
 //! (carrier 1 first, e.g. `layout W2 W2`, `layout S3 W3`), `show`.
 
-mod conveyor;
-
 use anyhow::{Context as _, Result};
 use clap::Parser;
-use conveyor::{Control, Conveyor, Spot};
 use falc_model::ids::Place;
 use falc_node::plc_link::MapArgs;
 use falc_node::say;
+use falc_plc::conveyor::{Control, Conveyor, Spot};
 use falc_plc::map::{IoMap, COILS, INPUTS, LINES};
 use std::future::Future;
 use std::net::SocketAddr;

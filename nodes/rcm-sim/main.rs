@@ -16,14 +16,12 @@
 //! `unplug`, `replug`, `lose-end` (the next program end is never sent:
 //! the host must learn it from the status).
 
-mod robot;
-
 use anyhow::{Context, Result};
 use clap::Parser;
 use falc_dnc::procedure::{Link, LinkEvent, Priority, Timing};
+use falc_dnc::robot::{Control, Robot};
 use falc_dnc::telegram::{Mode, Telegram};
 use falc_node::say;
-use robot::{Control, Robot};
 use std::time::Duration;
 use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::time::Instant;

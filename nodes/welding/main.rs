@@ -6,15 +6,14 @@
 //!
 //! A thin driver: the recipe runtime is `falc_control::controller`
 //! (driven by `falc_node::controller_node`), the rules of the link live in
-//! `host` (DNC ↔ engine, and its supervision, which the runtime's clock
+//! `falc_dnc::host` (DNC ↔ engine, and its supervision, which the runtime's clock
 //! drives through `Device::poll_timeout`) and the 3964R procedure.
-
-mod host;
 
 use anyhow::{Context, Result};
 use clap::Parser;
 use falc_bus::station::Station;
 use falc_control::controller::Device;
+use falc_dnc::host::{Host, Out};
 use falc_dnc::procedure::{LinkEvent, Priority, Timing};
 use falc_dnc::telegram::Telegram;
 use falc_model::alarm::Cause;
@@ -27,7 +26,6 @@ use falc_node::{init_tracing, say, NodeArgs};
 use falc_recipe::check::Job;
 use falc_recipe::commands::RecipeKind;
 use falc_recipe::engine::{Action, Event};
-use host::{Host, Out};
 use std::collections::VecDeque;
 use std::time::Duration;
 

@@ -1,4 +1,7 @@
-//! The conveyor PLC's I/O map ([`map`]), sans-I/O. The Modbus TCP link to
-//! the PLC is `falc_node::plc_link`.
+//! The conveyor PLC's I/O map ([`map`]) and the conveyor's twin
+//! ([`conveyor`]: carriers, lines and inputs driven by coil writes on an
+//! injected clock), sans-I/O. The Modbus TCP link to the PLC is
+//! `falc_node::plc_link`; `falc-plc-sim` serves [`conveyor`] over Modbus TCP.
 
+pub mod conveyor;
 pub mod map;

@@ -32,8 +32,8 @@
 //! pressed again after the stop is cleared); a jammed line keeps running
 //! but its carrier does not move; a stuck sensor shows a fixed value.
 
+use crate::map::{Coil, Input, Inputs, COILS};
 use falc_model::ids::{Place, PlcStation};
-use falc_plc::map::{Coil, Input, Inputs, COILS};
 use falc_recipe::check::{Button, Signal};
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::fmt;

@@ -3,9 +3,9 @@
 //! and the RCM's acknowledgements, program ends and alarm messages into
 //! engine events and robot status (through the alarm table).
 
-use falc_dnc::alarms::{self, Effect};
-use falc_dnc::procedure::Timing;
-use falc_dnc::telegram::{EndResult, Mode, ProgramState, Telegram};
+use crate::alarms::{self, Effect};
+use crate::procedure::Timing;
+use crate::telegram::{EndResult, Mode, ProgramState, Telegram};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::RobotProgram;
 use falc_model::ids::StationName;
@@ -75,7 +75,7 @@ pub struct Host {
     /// not an orphan to stop, until it ends, is stopped, or a job starts.
     by_hand: bool,
     /// The job's select was sent again after a refusal noise can cause
-    /// ([`falc_dnc::telegram::AckError::may_be_noise`]).
+    /// ([`crate::telegram::AckError::may_be_noise`]).
     reselected: bool,
 }
 
@@ -485,9 +485,10 @@ impl Host {
 }
 
 #[cfg(test)]
+#[allow(clippy::indexing_slicing)]
 mod tests {
     use super::*;
-    use falc_dnc::telegram::AckError;
+    use crate::telegram::AckError;
     use falc_model::mms::vmd::RobotVmdState;
 
     fn rcm() -> StationName {

@@ -2,7 +2,7 @@
 //! the running program on an injected clock, and the faults a test or a
 //! person injects. Telegrams in, telegrams out.
 
-use falc_dnc::telegram::{AckError, EndResult, Mode, ProgramState, Telegram};
+use crate::telegram::{AckError, EndResult, Mode, ProgramState, Telegram};
 use falc_model::ids::RobotProgram;
 use std::collections::BTreeMap;
 use std::time::Duration;
@@ -247,6 +247,7 @@ impl Robot {
 }
 
 #[cfg(test)]
+#[allow(clippy::indexing_slicing)]
 mod tests {
     use super::*;
 
