@@ -5,8 +5,9 @@
 //! workstation job, its journal, its alarms), and of every order of a
 //! range as CSV or JSON.
 
-use crate::cell_cmd::{fail, show_alarm, show_entry, CALL_LIMIT};
+use crate::cell_cmd::{fail, CALL_LIMIT};
 use crate::clock::date_time;
+use crate::output::{show_alarm, show_entry};
 use clap::Subcommand;
 use falc_bus::Bus;
 use falc_model::console::{ApiReply, ApiRequest, RecipeFile};

@@ -1,6 +1,8 @@
 //! `falc`: the operator's console. `recipe` (check, draw) works on files
 //! alone (`recipe_cmd`); every other command talks to the operator node
-//! through the operator API as a console user (`cell_cmd`), `falc tui`
+//! through the operator API as a console user (`cell_cmd` carries them
+//! out, `commands` reads them, `output` prints the answers, `watch`
+//! follows), `falc tui`
 //! draws the operator's screens (`tui`), `falc store edit` and the TUI
 //! edit store recipes in `$EDITOR` (`edit`), and `falc store
 //! history|diff|rollback` and `falc order show` read recipe versions and
@@ -9,12 +11,15 @@
 
 mod cell_cmd;
 mod clock;
+mod commands;
 mod edit;
 mod figures;
 mod history;
+mod output;
 mod recipe_cmd;
 mod report;
 mod tui;
+mod watch;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -29,7 +34,7 @@ struct Cli {
     #[command(subcommand)]
     command: Command,
     #[command(flatten)]
-    console: cell_cmd::ConsoleArgs,
+    console: commands::ConsoleArgs,
 }
 
 #[derive(Subcommand, Debug)]
@@ -38,7 +43,7 @@ enum Command {
     #[command(subcommand)]
     Recipe(RecipeCommand),
     #[command(flatten)]
-    Cell(cell_cmd::CellCommand),
+    Cell(commands::CellCommand),
 }
 
 /// `falc recipe …`: the file tools, and the store's versions (the same as
@@ -88,7 +93,7 @@ fn main() -> ExitCode {
     match cli.command {
         // The store's versions, also under `falc recipe`: a console call.
         Command::Recipe(RecipeCommand::Versions(v)) => on_runtime(
-            cell_cmd::CellCommand::Store(cell_cmd::StoreCommand::Versions(v)),
+            commands::CellCommand::Store(commands::StoreCommand::Versions(v)),
             cli.console,
         ),
         Command::Recipe(RecipeCommand::Files(r)) => recipe_cmd::run(r, &cli.console.node.topology),
@@ -97,7 +102,7 @@ fn main() -> ExitCode {
 }
 
 /// Runs an operator API command on a runtime of its own.
-fn on_runtime(c: cell_cmd::CellCommand, console: cell_cmd::ConsoleArgs) -> ExitCode {
+fn on_runtime(c: commands::CellCommand, console: commands::ConsoleArgs) -> ExitCode {
     match tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
         .enable_all()

@@ -551,7 +551,7 @@ fn overview(f: &mut Frame, app: &App, area: Rect) {
                     Style::new()
                 };
                 notes.push(Line::styled(
-                    format!("  {}", crate::cell_cmd::show_alarm(a)),
+                    format!("  {}", crate::output::show_alarm(a)),
                     style,
                 ));
             }
