@@ -355,10 +355,20 @@ fn five_orders_keep_their_recipe_versions_and_the_figures_match_the_records() {
             "--headless",
             "--no-sandbox",
             "--disable-gpu",
+            // No network: nothing to look up, nothing refused.
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
             "--enable-logging=stderr",
             "--v=0",
             "--window-size=1000,2200",
         ])
+        .arg(format!(
+            "--user-data-dir={}",
+            rig.recipes.join("../chromium-profile").display()
+        ))
         .arg(format!("--screenshot={}", shot.display()))
         .arg(format!("file://{}", page.display()))
         .output()
