@@ -34,6 +34,11 @@ use std::time::Duration;
 /// journal does not move (time in a state grows all the same).
 const FIGURES_AGE: Duration = Duration::from_secs(10);
 
+/// The window of the PackML Admin state times: the last day (the
+/// operator computes them from its records; a window keeps that cost
+/// the same however long the records grow).
+const FIGURES_WINDOW_MS: i64 = 86_400_000;
+
 #[derive(Parser, Debug)]
 #[command(
     name = "falc-opcua",
@@ -322,7 +327,7 @@ struct Poller {
     orders: Vec<Order>,
     /// Each scope's newest journal entries.
     journals: Vec<Vec<Entry>>,
-    /// Every cell's figures of all time (the PackML Admin values), when
+    /// Every cell's figures of the last day (the PackML Admin values), when
     /// last fetched.
     figures: Option<(Figures, std::time::Instant)>,
     keep: u16,
@@ -440,10 +445,17 @@ impl Poller {
         true
     }
 
-    /// Asks for every cell's figures of all time (the Admin values): after
+    /// Asks for every cell's figures of the last day (the Admin values): after
     /// the journal moved, or [`FIGURES_AGE`] after the last time.
     async fn fetch_figures(&mut self, bus: &Bus, operator: &StationName) {
-        let request = ApiRequest::Figures(FigureQuery::default());
+        let now_ms = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX));
+        let request = ApiRequest::Figures(FigureQuery {
+            since_ms: (now_ms - FIGURES_WINDOW_MS).max(0),
+            until_ms: None,
+            planned: Vec::new(),
+        });
         if let Some(ApiReply::Figures(f)) = self.call(bus, operator, request).await {
             self.figures = Some((*f, std::time::Instant::now()));
         }

@@ -379,7 +379,7 @@ pub struct Look {
     pub journal: Vec<Entry>,
     /// Why the operator refused the last method call on this object.
     pub last_refusal: String,
-    /// This cell's figures of all time (None: not known yet).
+    /// This cell's figures of the last day (None: not known yet).
     pub figures: Option<CellFigures>,
 }
 
@@ -459,8 +459,8 @@ pub const ADMIN_STATES: [&str; 5] = ["Execute", "Aborted", "Idle", "Maintenance"
 /// A cell's PackML Admin values: parts made and defective (orders ended
 /// done or failed, and failed), why it stopped last (the alarm holding
 /// it, else the end of the last order that did not end done), and the
-/// planned busy time spent in each state ([`ADMIN_STATES`], ms; from the
-/// figures: Execute an order runs, Aborted an alarm holds the cell, Idle
+/// planned busy time spent in each state over the last day
+/// ([`ADMIN_STATES`], ms; from the figures: Execute an order runs, Aborted an alarm holds the cell, Idle
 /// the rest, and the time in maintenance and step mode).
 fn admin_values(
     scope: &Scope,

@@ -24,6 +24,20 @@ use std::collections::{BTreeMap, BTreeSet};
 /// How many of the newest runs go with a cell's figures (the Gantt chart).
 pub const RUN_BARS: usize = 50;
 
+/// At most this many run times per recipe go with an answer of the
+/// operator API (`CycleTime::runs_ms`, the histogram's; its count and
+/// percentiles are of every run).
+pub const ANSWERED_RUN_TIMES: usize = 5000;
+
+/// Keeps each recipe's newest [`ANSWERED_RUN_TIMES`] run times: an
+/// answer over a long range stays small.
+pub fn keep_newest_runs(f: &mut Figures) {
+    for ct in f.cells.iter_mut().flat_map(|c| c.cycle.iter_mut()) {
+        let excess = ct.runs_ms.len().saturating_sub(ANSWERED_RUN_TIMES);
+        ct.runs_ms.drain(..excess);
+    }
+}
+
 /// One run of an order, as the records keep it.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RunSpan {
@@ -99,8 +113,16 @@ fn length(v: &Set) -> i64 {
     v.iter().map(|(a, b)| b - a).sum()
 }
 
+/// The first interval of `y` that does not end before `x` begins: the
+/// set operations start there (a period's elements cost the log of the
+/// whole range's intervals, not their number).
+fn start_in(x: &Set, y: &Set) -> usize {
+    x.first()
+        .map_or(0, |first| y.partition_point(|s| s.1 <= first.0))
+}
+
 fn intersect(x: &Set, y: &Set) -> Set {
-    let (mut i, mut j, mut out) = (0, 0, Vec::new());
+    let (mut i, mut j, mut out) = (0, start_in(x, y), Vec::new());
     while i < x.len() && j < y.len() {
         let (a, b) = (x[i].0.max(y[j].0), x[i].1.min(y[j].1));
         if a < b {
@@ -117,7 +139,7 @@ fn intersect(x: &Set, y: &Set) -> Set {
 
 fn subtract(x: &Set, y: &Set) -> Set {
     let mut out = Vec::new();
-    let mut j = 0;
+    let mut j = start_in(x, y);
     for &(mut a, b) in x {
         while j < y.len() && y[j].1 <= a {
             j += 1;
@@ -158,6 +180,8 @@ struct Cell<'a> {
     down: Vec<(AlarmClass, Set)>,
     runs: Vec<&'a RunSpan>,
     alarms: Vec<&'a AlarmSpan>,
+    /// When its first mode change was kept.
+    first_mode: Option<i64>,
 }
 
 impl<'a> Cell<'a> {
@@ -200,6 +224,7 @@ impl<'a> Cell<'a> {
             })
             .collect();
         Self {
+            first_mode: changes.first().map(|m| m.at_ms),
             maintenance: normalize(maintenance),
             setup: normalize(setup),
             production: normalize(production),
@@ -233,13 +258,22 @@ impl<'a> Cell<'a> {
         }
     }
 
-    /// What the runs that ended within `[from, to)` produced.
-    fn quantities(&self, from: i64, to: i64, planned: &BTreeMap<String, i64>) -> Quantities {
-        let mut q = Quantities::default();
+    /// What the runs that ended within each of `spans` (disjoint, in time
+    /// order) produced, in one pass over the runs.
+    fn quantities(&self, spans: &[(i64, i64)], planned: &BTreeMap<String, i64>) -> Vec<Quantities> {
+        let mut out = vec![Quantities::default(); spans.len()];
         for r in &self.runs {
-            if !r.end_ms.is_some_and(|e| (from..to).contains(&e)) {
+            let Some(end) = r.end_ms else {
                 continue;
-            }
+            };
+            let i = spans.partition_point(|s| s.1 <= end);
+            let Some(q) = spans
+                .get(i)
+                .filter(|s| s.0 <= end)
+                .and_then(|_| out.get_mut(i))
+            else {
+                continue;
+            };
             match r.state {
                 OrderState::Done => q.good += 1,
                 OrderState::Failed => q.failed += 1,
@@ -251,7 +285,14 @@ impl<'a> Cell<'a> {
                 q.planned_run_ms += planned.get(&r.recipe.to_lowercase()).copied().unwrap_or(0);
             }
         }
-        q
+        out
+    }
+
+    /// When this cell's records begin (None: it has none).
+    fn first_record(&self) -> Option<i64> {
+        let runs = self.runs.iter().map(|r| r.start_ms);
+        let alarms = self.alarms.iter().map(|a| a.raised_ms);
+        runs.chain(alarms).chain(self.first_mode).min()
     }
 }
 
@@ -335,23 +376,32 @@ fn cell_figures(
         planned.entry(recipe.clone()).or_insert(*ms);
     }
     let busy_periods = calendar.periods(since, until);
-    let periods: Vec<Period> = busy_periods
+    let busy: Set = normalize(busy_periods.iter().map(|(a, b, _)| (*a, *b)).collect());
+    // A period is shown from the cell's first record on: before it the
+    // records say nothing (all time is thousands of empty days).
+    let first = cell.first_record().unwrap_or(until);
+    let shown: Vec<&(i64, i64, String)> = busy_periods.iter().filter(|p| p.1 > first).collect();
+    let spans: Vec<(i64, i64)> = shown.iter().map(|p| (p.0, p.1)).collect();
+    let periods: Vec<Period> = shown
         .iter()
-        .map(|(from, to, label)| Period {
+        .zip(cell.quantities(&spans, &planned))
+        .map(|((from, to, label), quantities)| Period {
             label: label.clone(),
             start_ms: *from,
             end_ms: *to,
             time: cell.time(&vec![(*from, *to)]),
-            quantities: cell.quantities(*from, *to, &planned),
+            quantities,
         })
         .collect();
-    let busy: Set = normalize(busy_periods.iter().map(|(a, b, _)| (*a, *b)).collect());
     let total = Period {
         label: "total".into(),
         start_ms: since,
         end_ms: until,
         time: cell.time(&busy),
-        quantities: cell.quantities(since, until, &planned),
+        quantities: cell
+            .quantities(&[(since, until)], &planned)
+            .pop()
+            .unwrap_or_default(),
     };
     // Per station: failures (not warnings) raised in the range.
     let raised = |a: &&&AlarmSpan| (since..until).contains(&a.raised_ms);
@@ -703,6 +753,53 @@ mod tests {
         let f = compute(&inputs, &two_shifts(), &[], &set, 0);
         assert_eq!(f.cells[0].total.quantities.planned_run_ms, 30 * M);
         assert!(f.cells[0].cycle[0].planned_set);
+    }
+
+    #[test]
+    fn all_time_shows_the_periods_from_the_first_record_and_plans_the_whole_range() {
+        let inputs = FigureInputs {
+            runs: vec![run(1, WED + 7 * H, Some(WED + 8 * H), OrderState::Done)],
+            ..Default::default()
+        };
+        // Since 1970, until the day after: one day of records.
+        let f = compute(
+            &inputs,
+            &Calendar::default(),
+            &[],
+            &query(0, WED + 2 * H * 24),
+            0,
+        );
+        let c = &f.cells[0];
+        let labels: Vec<&str> = c.periods.iter().map(|p| p.label.as_str()).collect();
+        assert_eq!(labels, vec!["2026-11-25", "2026-11-26"]);
+        assert_eq!(c.total.time.planned_busy_ms, WED + 2 * H * 24);
+        assert_eq!(c.periods[0].quantities.good, 1);
+        assert_eq!(c.total.quantities.good, 1);
+        partitions(&c.total.time);
+        // An answer keeps the newest run times only; count and p50 stay.
+        let many = FigureInputs {
+            runs: (0..ANSWERED_RUN_TIMES as i64 + 10)
+                .map(|i| run(i, i * 10, Some(i * 10 + 5), OrderState::Done))
+                .collect(),
+            ..Default::default()
+        };
+        let mut f = compute(&many, &Calendar::default(), &[], &query(0, H), 0);
+        keep_newest_runs(&mut f);
+        let ct = &f.cells[0].cycle[0];
+        assert_eq!(
+            (ct.runs_ms.len(), ct.count),
+            (ANSWERED_RUN_TIMES, ANSWERED_RUN_TIMES as u64 + 10)
+        );
+        // A cell with no record shows no period, its total still planned.
+        let none = compute(
+            &FigureInputs::default(),
+            &Calendar::default(),
+            &["falc1"],
+            &query(0, H),
+            0,
+        );
+        assert!(none.cells[0].periods.is_empty());
+        assert_eq!(none.cells[0].total.time.idle_ms, H);
     }
 
     #[test]

@@ -2069,13 +2069,17 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 let now = self.db.now_ms();
                 let until = query.until_ms.unwrap_or(now);
                 match self.db.figure_inputs(query.since_ms, until) {
-                    Ok(inputs) => Ok(ApiReply::Figures(Box::new(crate::figures::compute(
-                        &inputs,
-                        self.topology.calendar(),
-                        &[self.topology.cell().as_str()],
-                        &query,
-                        now,
-                    )))),
+                    Ok(inputs) => {
+                        let mut f = crate::figures::compute(
+                            &inputs,
+                            self.topology.calendar(),
+                            &[self.topology.cell().as_str()],
+                            &query,
+                            now,
+                        );
+                        crate::figures::keep_newest_runs(&mut f);
+                        Ok(ApiReply::Figures(Box::new(f)))
+                    }
                     Err(e) => Err(e.to_string()),
                 }
             }

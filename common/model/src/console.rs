@@ -342,6 +342,9 @@ pub struct Placement {
 }
 /// The longest cell recipe name an order may name, in characters.
 pub const MAX_RECIPE_NAME_CHARS: usize = 32;
+/// The latest time a `figures` range may reach: 2100-01-01 UTC (the
+/// calendar is laid out day by day over the range).
+pub const LATEST_FIGURES_MS: i64 = 4_102_444_800_000;
 /// The most planned run times one `figures` request may set.
 pub const MAX_PLANNED_RECIPES: usize = 100;
 /// The largest recipe file, in bytes (the thesis' recipes are under 2 KiB).
@@ -402,7 +405,16 @@ impl ApiRequest {
                 ));
             }
             Self::Figures(q) if q.until_ms.is_some_and(|u| u < q.since_ms) => {
-                return Err("the range ends before it begins".into());
+                return Err("the range ends before it begins: refused".into());
+            }
+            Self::Figures(q)
+                if !(0..=LATEST_FIGURES_MS).contains(&q.since_ms)
+                    || q.until_ms.is_some_and(|u| u > LATEST_FIGURES_MS) =>
+            {
+                return Err(
+                    "a range of figures lies between 1970 and 2100 (ms since the Unix epoch): refused"
+                        .into(),
+                );
             }
             Self::RecipePut { file, text, .. } if text.len() > MAX_RECIPE_BYTES => {
                 return Err(format!(
@@ -825,6 +837,16 @@ mod tests {
                 version: 1,
                 message: huge.clone(),
             },
+            ApiRequest::Figures(crate::figures::FigureQuery {
+                since_ms: i64::MIN,
+                until_ms: None,
+                planned: Vec::new(),
+            }),
+            ApiRequest::Figures(crate::figures::FigureQuery {
+                since_ms: 0,
+                until_ms: Some(i64::MAX),
+                planned: Vec::new(),
+            }),
         ] {
             let e = r.check_limits().expect_err("refused");
             assert!(e.len() < 200, "{} bytes: {}", e.len(), &e[..200]);
