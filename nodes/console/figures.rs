@@ -9,18 +9,37 @@ use falc_model::figures::{CellFigures, FigureQuery, Figures, Percent, Period};
 use falc_model::ids::printable;
 
 /// How far back `falc figures` looks by default: a week.
-pub const DEFAULT_RANGE_MS: i64 = 7 * 86_400_000;
+const DEFAULT_RANGE_MS: i64 = 7 * 86_400_000;
 
-/// `falc figures`' options.
+/// A range of the records (`falc figures`, `report`, `records export`).
 #[derive(clap::Args, Debug)]
-pub struct FiguresArgs {
+pub struct RangeArgs {
     /// From (`2026-11-23`, `2026-11-23 06:00`, with an offset, or in this
-    /// PC's time zone; default: a week ago).
+    /// PC's time zone; default: a week before until).
     #[arg(long)]
     since: Option<String>,
     /// Until (default: now).
     #[arg(long)]
     until: Option<String>,
+}
+
+impl RangeArgs {
+    /// From and until (None: now), ms since the Unix epoch.
+    pub fn range(&self, now_ms: i64) -> Result<(i64, Option<i64>), String> {
+        let until_ms = self.until.as_deref().map(moment).transpose()?;
+        let since_ms = match self.since.as_deref() {
+            Some(s) => moment(s)?,
+            None => until_ms.unwrap_or(now_ms) - DEFAULT_RANGE_MS,
+        };
+        Ok((since_ms, until_ms))
+    }
+}
+
+/// `falc figures`' options.
+#[derive(clap::Args, Debug)]
+pub struct FiguresArgs {
+    #[command(flatten)]
+    range: RangeArgs,
     /// A planned run time in seconds for a recipe (`dikdroog=300`;
     /// repeat for more); a recipe not named has the median of its done
     /// orders in the range.
@@ -29,7 +48,7 @@ pub struct FiguresArgs {
 }
 
 /// A day alone (`2026-11-23`) is its midnight.
-pub fn moment(text: &str) -> Result<i64, String> {
+fn moment(text: &str) -> Result<i64, String> {
     let t = text.trim();
     if t.len() == 10 && t.as_bytes().get(4) == Some(&b'-') {
         return parse_due(&format!("{t} 00:00"));
@@ -40,11 +59,7 @@ pub fn moment(text: &str) -> Result<i64, String> {
 impl FiguresArgs {
     /// The request, or why not.
     pub fn request(&self, now_ms: i64) -> Result<ApiRequest, String> {
-        let until_ms = self.until.as_deref().map(moment).transpose()?;
-        let since_ms = match self.since.as_deref() {
-            Some(s) => moment(s)?,
-            None => until_ms.unwrap_or(now_ms) - DEFAULT_RANGE_MS,
-        };
+        let (since_ms, until_ms) = self.range.range(now_ms)?;
         let mut planned = Vec::new();
         for p in &self.planned {
             let (recipe, secs) = p
@@ -193,8 +208,10 @@ mod tests {
     #[test]
     fn planned_run_times_and_ranges_are_read_or_refused_by_what_is_wrong() {
         let args = |planned: &[&str], since: Option<&str>| FiguresArgs {
-            since: since.map(String::from),
-            until: None,
+            range: RangeArgs {
+                since: since.map(String::from),
+                until: None,
+            },
             planned: planned.iter().map(|p| p.to_string()).collect(),
         };
         let Ok(ApiRequest::Figures(q)) = args(&["dikdroog=300"], None).request(1_000_000_000)

@@ -75,12 +75,8 @@ pub enum RecordsCommand {
     /// workstation jobs and alarms: JSON (one order record each, as `falc
     /// --json order show`) or CSV (a row per order).
     Export {
-        /// From (as `falc figures --since`; default: a week ago).
-        #[arg(long)]
-        since: Option<String>,
-        /// Until (default: now).
-        #[arg(long)]
-        until: Option<String>,
+        #[command(flatten)]
+        range: crate::figures::RangeArgs,
         /// `csv` or `json`.
         #[arg(long, default_value = "csv", value_parser = ["csv", "json"])]
         format: String,
@@ -151,24 +147,10 @@ fn csv_row(r: &OrderRecord) -> String {
 
 /// `falc records export`.
 pub async fn export(bus: &Bus, operator: &StationName, cmd: RecordsCommand) -> ExitCode {
-    let RecordsCommand::Export {
-        since,
-        until,
-        format,
-        out,
-    } = cmd;
+    let RecordsCommand::Export { range, format, out } = cmd;
     let now = crate::clock::now_ms();
-    let range = (|| -> Result<(i64, i64), String> {
-        let until = until.as_deref().map(crate::figures::moment).transpose()?;
-        let until = until.unwrap_or(now);
-        let since = match since.as_deref() {
-            Some(s) => crate::figures::moment(s)?,
-            None => until - crate::figures::DEFAULT_RANGE_MS,
-        };
-        Ok((since, until))
-    })();
-    let (since, until) = match range {
-        Ok(r) => r,
+    let (since, until) = match range.range(now) {
+        Ok((since, until)) => (since, until.unwrap_or(now)),
         Err(e) => return crate::cell_cmd::refuse(&e),
     };
     let orders = match bus.api(operator, ApiRequest::OrderList, CALL_LIMIT).await {
