@@ -338,6 +338,25 @@ impl Database {
         })
     }
 
+    /// Runs `f` in one transaction: all of it is written, or (an error,
+    /// saying `what` was being done) none of it.
+    fn in_transaction<T>(
+        &mut self,
+        what: &'static str,
+        f: impl FnOnce(&rusqlite::Transaction<'_>) -> rusqlite::Result<T>,
+    ) -> Result<T, DatabaseError> {
+        let path = self.path.clone();
+        let fail = |source: rusqlite::Error| DatabaseError {
+            path: path.clone(),
+            what,
+            source: source.into(),
+        };
+        let tx = self.conn.transaction().map_err(&fail)?;
+        let out = f(&tx).map_err(&fail)?;
+        tx.commit().map_err(&fail)?;
+        Ok(out)
+    }
+
     fn fail(&self, what: &'static str) -> impl FnOnce(rusqlite::Error) -> DatabaseError + '_ {
         move |source: rusqlite::Error| DatabaseError {
             path: self.path.clone(),
@@ -580,44 +599,35 @@ impl Records for Database {
         recipes: &[UsedRecipe],
     ) -> Result<i64, Self::Error> {
         let started = now_ms();
-        let path = self.path.clone();
-        let fail = move |source: rusqlite::Error| DatabaseError {
-            path,
-            what: "cannot mark an order running",
-            source: source.into(),
-        };
-        let tx = self.conn.transaction().map_err(fail.clone())?;
-        tx.execute(
-            "UPDATE orders SET state = 'running', started_ms = ?1, cell = ?2 WHERE id = ?3",
-            params![started, cell, id],
-        )
-        .map_err(fail.clone())?;
-        tx.execute(
-            "INSERT INTO order_runs (order_id, recipe, cell, started_ms, state) \
-             SELECT id, recipe, ?2, ?3, 'running' FROM orders WHERE id = ?1",
-            params![id, cell, started],
-        )
-        .map_err(fail.clone())?;
-        for (position, r) in recipes.iter().enumerate() {
-            let starts = serde_json::to_string(&r.starts).unwrap_or_else(|_| "[]".into());
+        self.in_transaction("cannot mark an order running", |tx| {
             tx.execute(
-                "INSERT INTO order_recipes (order_id, started_ms, position, domain, file, version, hash, starts) \
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
-                params![
-                    id,
-                    started,
-                    position as i64,
-                    r.domain,
-                    r.file.to_string(),
-                    r.version,
-                    r.hash.as_str(),
-                    starts
-                ],
-            )
-            .map_err(fail.clone())?;
-        }
-        tx.commit().map_err(fail)?;
-        Ok(started)
+                "UPDATE orders SET state = 'running', started_ms = ?1, cell = ?2 WHERE id = ?3",
+                params![started, cell, id],
+            )?;
+            tx.execute(
+                "INSERT INTO order_runs (order_id, recipe, cell, started_ms, state) \
+                 SELECT id, recipe, ?2, ?3, 'running' FROM orders WHERE id = ?1",
+                params![id, cell, started],
+            )?;
+            for (position, r) in recipes.iter().enumerate() {
+                let starts = serde_json::to_string(&r.starts).unwrap_or_else(|_| "[]".into());
+                tx.execute(
+                    "INSERT INTO order_recipes (order_id, started_ms, position, domain, file, version, hash, starts) \
+                     VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                    params![
+                        id,
+                        started,
+                        position as i64,
+                        r.domain,
+                        r.file.to_string(),
+                        r.version,
+                        r.hash.as_str(),
+                        starts
+                    ],
+                )?;
+            }
+            Ok(started)
+        })
     }
 
     /// Puts an order the cell refused to start back in the queue (it is
@@ -625,60 +635,40 @@ impl Records for Database {
     /// may have started is never queued again; only a refusal undoes it).
     fn requeue(&mut self, id: i64) -> Result<(), Self::Error> {
         // The run that never began goes with it.
-        self.conn
-            .execute_batch("BEGIN IMMEDIATE")
-            .map_err(self.fail("cannot put an order back in the queue"))?;
-        let done = self
-            .conn
-            .execute(
+        self.in_transaction("cannot put an order back in the queue", |tx| {
+            tx.execute(
                 "DELETE FROM order_recipes WHERE order_id = ?1 AND started_ms = \
                  (SELECT started_ms FROM orders WHERE id = ?1 AND state = 'running')",
                 params![id],
-            )
-            .and_then(|_| {
-                self.conn.execute(
-                    "DELETE FROM order_runs WHERE order_id = ?1 AND ended_ms IS NULL",
-                    params![id],
-                )
-            })
-            .and_then(|_| {
-                self.conn.execute(
-                    "UPDATE orders SET state = 'queued', started_ms = NULL, cell = NULL \
-                     WHERE id = ?1 AND state = 'running'",
-                    params![id],
-                )
-            })
-            .and_then(|_| self.conn.execute_batch("COMMIT"));
-        if done.is_err() {
-            let _ = self.conn.execute_batch("ROLLBACK");
-        }
-        done.map_err(self.fail("cannot put an order back in the queue"))
+            )?;
+            tx.execute(
+                "DELETE FROM order_runs WHERE order_id = ?1 AND ended_ms IS NULL",
+                params![id],
+            )?;
+            tx.execute(
+                "UPDATE orders SET state = 'queued', started_ms = NULL, cell = NULL \
+                 WHERE id = ?1 AND state = 'running'",
+                params![id],
+            )?;
+            Ok(())
+        })
     }
 
     /// Ends an order in `state` with `result` in words.
     fn end_order(&mut self, id: i64, state: OrderState, result: &str) -> Result<(), Self::Error> {
         let at = now_ms();
-        self.conn
-            .execute_batch("BEGIN IMMEDIATE")
-            .map_err(self.fail("cannot end an order"))?;
-        let done = self
-            .conn
-            .execute(
+        self.in_transaction("cannot end an order", |tx| {
+            tx.execute(
                 "UPDATE orders SET state = ?1, ended_ms = ?2, result = ?3 WHERE id = ?4",
                 params![state.as_str(), at, result, id],
-            )
-            .and_then(|_| {
-                self.conn.execute(
-                    "UPDATE order_runs SET ended_ms = ?1, state = ?2 \
-                     WHERE order_id = ?3 AND ended_ms IS NULL",
-                    params![at, state.as_str(), id],
-                )
-            })
-            .and_then(|_| self.conn.execute_batch("COMMIT"));
-        if done.is_err() {
-            let _ = self.conn.execute_batch("ROLLBACK");
-        }
-        done.map_err(self.fail("cannot end an order"))
+            )?;
+            tx.execute(
+                "UPDATE order_runs SET ended_ms = ?1, state = ?2 \
+                 WHERE order_id = ?3 AND ended_ms IS NULL",
+                params![at, state.as_str(), id],
+            )?;
+            Ok(())
+        })
     }
 
     /// Appends a journal entry.
