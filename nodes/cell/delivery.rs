@@ -11,6 +11,7 @@
 //! the commander's next indications until the deliveries are done.
 
 use falc_bus::{Bus, Responder};
+use falc_control::coordination::workstation_domain;
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::domain::content_hash;
 use falc_model::mms::error::ServiceError;
@@ -18,12 +19,6 @@ use falc_model::mms::vmd::Vmd;
 use falc_node::say;
 use std::collections::BTreeMap;
 use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
-
-/// `STATION$NAME` → the workstation and the recipe's name there.
-pub fn workstation_domain(domain: &ObjectName) -> Option<(StationName, ObjectName)> {
-    let (st, name) = domain.as_str().split_once('$')?;
-    Some((StationName::new(st).ok()?, ObjectName::new(name).ok()?))
-}
 
 /// What the delivery task is asked to do.
 enum Job {

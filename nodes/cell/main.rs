@@ -25,10 +25,10 @@ mod delivery;
 
 use anyhow::Result;
 use clap::Parser;
-use delivery::{workstation_domain, Delivered, Deliveries};
+use delivery::{Delivered, Deliveries};
 use falc_bus::station::{Station, StationEvent};
 use falc_bus::{Bus, Indication};
-use falc_control::coordination::{self, Command, Reply, Route, Stations};
+use falc_control::coordination::{self, workstation_domain, Command, Reply, Route, Stations};
 use falc_model::alarm::AlarmClass;
 use falc_model::ids::StationName;
 use falc_model::mms::error::ServiceError;

@@ -13,7 +13,7 @@
 //! whole set checks clean with it, and only if nobody changed it since the
 //! editor fetched it; the cell gets it at the next start.
 
-use falc_control::recipe_source::{Delivery, PutError, RecipeSet, RecipeSource};
+use falc_control::recipe_source::{checked_set, PutError, RecipeSet, RecipeSource};
 use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::domain::content_hash;
@@ -54,130 +54,7 @@ impl RecipeSource for RecipeDir {
 /// workstations. Returns the set, or every problem (`file:line: reason`).
 fn load(dir: &Path, topology: &Topology, cell: &StationName) -> Result<RecipeSet, Vec<String>> {
     let entries = files::load_in(&[PathBuf::from(dir)], None, &StationKinds::of(topology))?;
-    check_entries(&entries, topology, cell)
-}
-
-/// Checks a whole set of read recipes (see [`load`]).
-fn check_entries(
-    entries: &[Entry],
-    topology: &Topology,
-    cell: &StationName,
-) -> Result<RecipeSet, Vec<String>> {
-    let (programs, problems) = check_set(entries);
-    let mut errors: Vec<String> = problems.iter().map(ToString::to_string).collect();
-    let workstations = topology.subordinates_of(cell);
-    let mut cells = Vec::new();
-    let mut stations = Vec::new();
-    for (station, program) in &programs {
-        // The text that was checked, not the file read again.
-        let Some(entry) = entries.iter().find(|e| e.recipe.origin == program.origin) else {
-            continue;
-        };
-        let origin = &program.origin;
-        let name = match entry.name() {
-            Ok(n) => n,
-            Err(e) => {
-                errors.push(e);
-                continue;
-            }
-        };
-        let content = entry.text.clone().into_bytes();
-        let file = match file_of(origin) {
-            Ok(f) => f,
-            Err(e) => {
-                errors.push(format!("{origin}:1: {e}"));
-                continue;
-            }
-        };
-        let starts = starts_of(program);
-        if program.kind == RecipeKind::Cell {
-            cells.push(Delivery {
-                domain: name,
-                is_cell: true,
-                content,
-                file,
-                starts,
-            });
-        } else if !workstations.contains(&station) {
-            errors.push(format!(
-                "{origin}:1: station {station} is not a workstation of {cell} in the topology"
-            ));
-        } else {
-            let domain = format!("{}${name}", station.as_str().to_uppercase());
-            match ObjectName::new(&domain) {
-                Ok(domain) => stations.push(Delivery {
-                    domain,
-                    is_cell: false,
-                    content,
-                    file,
-                    starts,
-                }),
-                Err(e) => errors.push(format!("{origin}:1: {e}")),
-            }
-        }
-    }
-    if !errors.is_empty() {
-        return Err(errors);
-    }
-    // Across levels: a defect refuses the set like a checker problem;
-    // notes are allowed (`falc recipe verify` prints them with traces).
-    let report = falc_recipe::verify::verify(&programs);
-    let defects: Vec<String> = report
-        .defects()
-        .map(|f| format!("{f} (`falc recipe verify` shows the trace)"))
-        .collect();
-    tracing::info!(
-        states = report.states,
-        defects = defects.len(),
-        notes = report.findings.len() - defects.len(),
-        "recipes verified across levels"
-    );
-    for b in &report.bounded {
-        tracing::warn!("{b}");
-    }
-    if !defects.is_empty() {
-        return Err(defects);
-    }
-    stations.extend(cells);
-    Ok(RecipeSet {
-        deliveries: stations,
-    })
-}
-
-/// The store's name of the recipe file at `origin` (`…/welding/droog_dik.rcp`
-/// is `welding/droog_dik.rcp`).
-fn file_of(origin: &str) -> Result<RecipeFile, String> {
-    let path = Path::new(origin);
-    let part = |p: Option<&std::ffi::OsStr>| p.and_then(|s| s.to_str()).map(str::to_string);
-    let station = part(path.parent().and_then(Path::file_name));
-    let name = part(path.file_name());
-    let (Some(station), Some(name)) = (station, name) else {
-        return Err("a recipe file must lie in its station's directory".into());
-    };
-    RecipeFile::new(
-        StationName::new(&station).map_err(|e| e.to_string())?,
-        &name,
-    )
-}
-
-/// What `program` starts one level down: each workstation recipe's
-/// domain (`WELDING$DROOG_DIK`), each robot program (`program 12`), once,
-/// in the order of its states.
-fn starts_of(program: &Program) -> Vec<String> {
-    let mut out: Vec<String> = Vec::new();
-    for state in program.states.values() {
-        let Command::Start { target, job, .. } = &state.command else {
-            continue;
-        };
-        let s = match job {
-            Job::Recipe(name) => format!("{}${name}", target.as_str().to_uppercase()),
-            Job::Program(p) => format!("program {}", p.number()),
-        };
-        if !out.contains(&s) {
-            out.push(s);
-        }
-    }
-    out
+    checked_set(&entries, topology, cell)
 }
 
 /// The stations whose directory may hold recipes: the cell and its
@@ -278,7 +155,7 @@ fn put(
     entries.retain(|e| e.recipe.origin != origin);
     entries
         .push(files::entry_in(&path, None, &kinds, text.to_string()).map_err(PutError::Refused)?);
-    check_entries(&entries, topology, cell).map_err(PutError::Findings)?;
+    checked_set(&entries, topology, cell).map_err(PutError::Findings)?;
     write_atomically(&path, text.as_bytes())
         .map_err(|e| PutError::Refused(format!("cannot save recipe {file}: {e}")))
 }

@@ -18,9 +18,10 @@
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use falc_dnc::procedure::{Link, LinkEvent, Priority, Timing};
+use falc_dnc::procedure::Timing;
 use falc_dnc::robot::{Control, Robot};
-use falc_dnc::telegram::{Mode, Telegram};
+use falc_dnc::telegram::Mode;
+use falc_dnc::twin::RcmTwin;
 use falc_node::say;
 use std::time::Duration;
 use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
@@ -119,8 +120,7 @@ async fn main() -> Result<()> {
             (twin, Some(workstation), path)
         }
     };
-    let mut robot = Robot::new(mode, cli.time_scale);
-    let mut link = Link::new(Priority::High, Timing::default());
+    let mut twin = RcmTwin::new(Robot::new(mode, cli.time_scale), Timing::default());
     let byte_time = if cli.wire_baud > 0 {
         Duration::from_secs_f64(10.0 / f64::from(cli.wire_baud))
     } else {
@@ -132,41 +132,18 @@ async fn main() -> Result<()> {
     let mut stdin = BufReader::new(tokio::io::stdin()).lines();
     let mut stdin_open = true;
     let mut plugged = true;
-    // The chance of a bit flip per byte on the line (`flips`).
     let mut flips = 0.0_f64;
     let mut flipped_bytes = 0u64;
     let mut buf = [0u8; 256];
     loop {
-        while let Some(ev) = link.poll_event() {
-            match ev {
-                LinkEvent::Received(t) => match Telegram::decode(&t) {
-                    Ok(t) => {
-                        // One line per telegram received, for tests and people.
-                        say(&format!("rx {}", String::from_utf8_lossy(&t.encode())));
-                        for reply in robot.handle(now(), t) {
-                            link.send(now(), reply.encode());
-                        }
-                    }
-                    Err(e) => {
-                        tracing::warn!("undecodable telegram: {e}");
-                        link.send(
-                            now(),
-                            Telegram::Ack {
-                                of: t.first().copied().unwrap_or(b'?'),
-                                error: Some(falc_dnc::telegram::AckError::Malformed),
-                            }
-                            .encode(),
-                        );
-                    }
-                },
-                LinkEvent::Failed { telegram, error } => {
-                    tracing::warn!("telegram {} lost: {error}", telegram.escape_ascii())
-                }
-                LinkEvent::Sent(_) | LinkEvent::Refused(_) => {}
+        while let Some(note) = twin.poll_note() {
+            if note.starts_with("rx ") {
+                say(&note);
+            } else {
+                tracing::warn!("{note}");
             }
         }
-        // Then what the link has to send (events above may have queued more).
-        if let Some(bytes) = link.poll_transmit() {
+        if let Some(bytes) = twin.poll_transmit() {
             if plugged {
                 wire_delay(byte_time * bytes.len() as u32);
                 let bytes = flipped(bytes, flips, &mut flipped_bytes);
@@ -174,10 +151,8 @@ async fn main() -> Result<()> {
                 port.write_all(&bytes).await.context("pty write")?;
             }
         }
-        let deadline = [link.poll_timeout(), robot.poll_timeout()]
-            .into_iter()
-            .flatten()
-            .min()
+        let deadline = twin
+            .poll_timeout()
             .map_or(Instant::now() + Duration::from_secs(3600), |t| origin + t);
         tokio::select! {
             n = port.read(&mut buf) => {
@@ -185,16 +160,14 @@ async fn main() -> Result<()> {
                 tracing::debug!(bytes = %buf[..n].escape_ascii(), plugged, "from the line");
                 if plugged && n > 0 {
                     wire_delay(byte_time * n as u32);
-                    link.handle_bytes(now(), &flipped(buf[..n].to_vec(), flips, &mut flipped_bytes));
+                    twin.handle_bytes(now(), &flipped(buf[..n].to_vec(), flips, &mut flipped_bytes));
                 }
             }
             line = stdin.next_line(), if stdin_open => match line {
                 Ok(Some(line)) if line.trim().is_empty() => {}
                 Ok(Some(line)) => match parse_control(line.trim()) {
                     Ok(Line::Control(c)) => {
-                        for t in robot.control(now(), c) {
-                            link.send(now(), t.encode());
-                        }
+                        twin.control(now(), c);
                         say(&format!("ok {}", line.trim()));
                     }
                     Ok(Line::Noise(n)) => {
@@ -218,12 +191,7 @@ async fn main() -> Result<()> {
                 },
                 Ok(None) | Err(_) => stdin_open = false,
             },
-            _ = tokio::time::sleep_until(deadline) => {
-                link.handle_timeout(now());
-                for t in robot.handle_timeout(now()) {
-                    link.send(now(), t.encode());
-                }
-            }
+            _ = tokio::time::sleep_until(deadline) => twin.handle_timeout(now()),
         }
     }
 }

@@ -13,12 +13,9 @@
 //! (driven by `falc_node::controller_node`), the Modbus link
 //! `falc_node::plc_link`, the recipe ↔ I/O rules `plc`.
 
-mod plc;
-
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use falc_bus::station::Station;
-use falc_control::controller::Device;
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::StationName;
 use falc_model::mms::pdu::Severity;
@@ -26,8 +23,8 @@ use falc_model::topology::Topology;
 use falc_node::controller_node::ControllerNode;
 use falc_node::plc_link::{self, PlcArgs, PlcEvent, PlcSettings};
 use falc_node::{init_tracing, say, NodeArgs};
+use falc_plc::workstation::Plc;
 use falc_recipe::commands::RecipeKind;
-use plc::Plc;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -127,6 +124,18 @@ async fn io(mut settings: PlcSettings, watch: bool) -> Result<()> {
     }
 }
 
+/// Hands what the device asked of the link to its task.
+fn send_commands(
+    ws: &mut ControllerNode<Plc>,
+    link: &tokio::sync::mpsc::UnboundedSender<falc_plc::workstation::PlcCommand>,
+) {
+    while let Some(c) = ws.core.device.poll_command() {
+        if link.send(c).is_err() {
+            tracing::error!("the PLC link task is gone");
+        }
+    }
+}
+
 #[tokio::main]
 async fn main() -> Result<()> {
     init_tracing();
@@ -154,7 +163,7 @@ async fn main() -> Result<()> {
     let poll = plc_settings.poll;
     let station = Station::open(settings, &topology).await?;
     let mut link = plc_link::spawn(plc_settings);
-    let plc = Plc::new(address.clone(), link.commands.clone());
+    let plc = Plc::new(address.clone());
     let mut ws = ControllerNode::new(station, RecipeKind::Transport, Duration::from_secs(10), plc);
     ws.publish_status().await;
     say(&format!(
@@ -173,14 +182,13 @@ async fn main() -> Result<()> {
                     ws.core.device.connected(coils);
                 }
                 Some(PlcEvent::Inputs { inputs, commands_done }) => {
-                    let was_down = ws.core.device.unavailable();
-                    let (events, alarm) = ws.core.device.inputs(inputs, commands_done);
-                    ws.feed(events);
-                    if let Some(cause) = alarm {
+                    let reading = ws.core.device.reading(inputs, commands_done);
+                    ws.feed(reading.events);
+                    if let Some(cause) = reading.alarm {
                         ws.fault(cause).await;
-                    } else if was_down.is_some() && ws.core.device.unavailable().is_none() {
+                    } else if let Some(line) = reading.ready {
                         say("EVENT plc-ready");
-                        ws.report(Severity::Info, format!("conveyor PLC at {address} ready")).await;
+                        ws.report(Severity::Info, line).await;
                     }
                 }
                 Some(PlcEvent::Fault(why)) => {

@@ -31,11 +31,21 @@ pub const CONFIRM_LIMIT: Duration = Duration::from_secs(10);
 /// connection lost) are kept, to show once it is back; more are counted.
 pub const MAX_UNSHOWN: usize = 1000;
 
+/// `STATION$NAME` → the workstation and the recipe's name there: a domain
+/// the operator downloads to the cell under that name is the workstation's
+/// recipe, which the cell passes on.
+pub fn workstation_domain(domain: &ObjectName) -> Option<(StationName, ObjectName)> {
+    let (st, name) = domain.as_str().split_once('$')?;
+    Some((StationName::new(st).ok()?, ObjectName::new(name).ok()?))
+}
+
 /// What a confirm means to the cell: which request it answers.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Awaiting {
-    /// The Start of the recipe's job on this station.
-    Started(StationName),
+    /// The Start of the recipe's job on this station, by the recipe run
+    /// numbered so ([`Stations::run`]): the confirm of an earlier run's
+    /// Start (it timed out after a cut, say) is not this run's.
+    Started(StationName, u64),
     /// The operator's answer to an `input`.
     Answer,
     /// The operator showing an `output`: its lines, kept if no answer
@@ -93,6 +103,9 @@ pub struct Stations {
     commands: VecDeque<Command>,
     /// Confirms known without asking anybody (no operator to ask).
     local: VecDeque<Reply>,
+    /// The recipe run, counted up at each end: what a Start's confirm
+    /// belongs to.
+    pub run: u64,
 }
 
 impl Stations {
@@ -237,8 +250,13 @@ pub fn route(request: &Request, workstations: &[StationName]) -> Route {
 /// no answer from the operator is a communication alarm.
 pub fn handle_reply(cell: &mut Controller<Stations>, now: Duration, reply: Reply) {
     match (reply.awaiting, reply.result) {
-        (Awaiting::Started(st), Ok(_)) => cell.feed(now, vec![Event::Started(st)]),
-        (Awaiting::Started(st), Err(e)) => {
+        (Awaiting::Started(st, run), r) if run != cell.device.run => {
+            // Found by falc-sim: a Start lost in a cut timed out during the
+            // next order's run and failed it.
+            tracing::info!("the confirm of an earlier run's start on {st} came late: {r:?}");
+        }
+        (Awaiting::Started(st, _), Ok(_)) => cell.feed(now, vec![Event::Started(st)]),
+        (Awaiting::Started(st, _), Err(e)) => {
             // The recipe takes its failure path; an alarm state there names this.
             cell.report(Severity::Warning, format!("start on {st} refused: {e}"));
             cell.feed(now, vec![Event::StartFailed(st, e.to_string())]);
@@ -295,7 +313,7 @@ impl Device for Stations {
                     name,
                     argument: String::new(),
                 };
-                let awaiting = Awaiting::Started(target.clone());
+                let awaiting = Awaiting::Started(target.clone(), self.run);
                 self.request(target, req, CONFIRM_LIMIT, awaiting);
             }
             Action::Stop(target) => {
@@ -355,6 +373,7 @@ impl Device for Stations {
 
     fn finished(&mut self, _outcome: &Outcome) {
         self.started.clear();
+        self.run += 1;
     }
 
     fn status(&self, status: &mut VmdStatus) {

@@ -157,8 +157,9 @@ pub trait Records {
 /// whole journal stays readable page by page: `falc journal --order N`).
 pub const RECORD_ENTRIES: usize = 2000;
 
-/// In-memory records for unit tests of the cores.
-#[cfg(test)]
+/// In-memory records for unit tests of the cores and the whole-cell
+/// simulation (`falc-sim`): they keep what the SQLite file keeps, and a
+/// write fails while [`memory::Memory::failing`] is set (a full disk).
 pub mod memory {
     use super::*;
 
@@ -552,8 +553,8 @@ pub mod memory {
 
 /// The plant's records in memory, for unit tests of several cells'
 /// lists: one [`memory::Memory`] shared, each cell's view of it listing
-/// its own alarms, as each cell's connection to the SQLite file does.
-#[cfg(test)]
+/// its own alarms, as each cell's connection to the SQLite file does. The
+/// simulation reads the records through it while the order list writes.
 pub mod shared {
     use super::memory::Memory;
     use super::*;

@@ -81,6 +81,11 @@ impl Robot {
         }
     }
 
+    /// The program running (or paused) on the robot, if any.
+    pub fn running(&self) -> Option<RobotProgram> {
+        self.run.as_ref().map(|r| r.program)
+    }
+
     /// Ends the running program before its end.
     fn cut(&mut self) -> Option<Run> {
         let r = self.run.take();

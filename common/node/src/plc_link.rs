@@ -10,6 +10,7 @@
 //! coil write from one taken after.
 
 use falc_plc::map::{Coil, Inputs, IoMap, MapError, COILS, INPUTS};
+pub use falc_plc::workstation::{Pace, PlcCommand};
 use std::net::SocketAddr;
 use std::time::Duration;
 use tokio::sync::mpsc;
@@ -99,26 +100,6 @@ impl PlcArgs {
             timeout: Duration::from_millis(self.modbus_timeout_ms.max(1)),
         })
     }
-}
-
-/// What the link is asked to do.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum PlcCommand {
-    /// Write one coil.
-    Write(Coil, bool),
-    /// Write every coil of the map at once (offset order).
-    WriteAll([bool; COILS as usize]),
-    /// Poll at the busy or the idle period from now on (no Modbus request).
-    Pace(Pace),
-}
-
-/// How fast the link polls.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Pace {
-    /// A recipe runs: every `poll`.
-    Busy,
-    /// Nothing runs: every `idle_poll`.
-    Idle,
 }
 
 /// What the link reports.

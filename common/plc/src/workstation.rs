@@ -12,9 +12,10 @@
 //! states the same rule):
 //! - **on the first connection** of the process (a restart of the
 //!   workstation, perhaps mid-weld) the coils are read back and adopted:
-//!   what the PLC holds stays held (a workpiece stays clamped), nothing is
-//!   written but external control if it is off, until the commander says
-//!   otherwise (bumpless restart);
+//!   the station buttons the PLC holds stay held (a workpiece stays
+//!   clamped) until the commander says otherwise (bumpless restart); a
+//!   line button held is released (no job of this process runs a line);
+//!   nothing else is written but external control if it is off;
 //! - **on a reconnection** (the link came back) the node's own state
 //!   stands: each coil the PLC holds otherwise is written to it; where the
 //!   PLC does not read its coils back, every button is released and
@@ -31,19 +32,40 @@
 //! - **after `ack`** nothing is written: the operator sets the carriers
 //!   back by hand and the next job's `activate` presses afresh.
 //!
-//! Sans-I/O but for the command channel to the link task (an in-memory
-//! channel in the unit tests).
+//! Sans-I/O and poll-style: what the link must do comes out of
+//! [`Plc::poll_command`] (the transport node hands it to its Modbus task,
+//! the simulation to the twin's map); readings and the link's state come in
+//! through [`Plc::connected`], [`Plc::inputs`] and [`Plc::link_down`].
 
+use crate::map::{Coil, Input, Inputs, SignalName, COILS};
 use falc_control::controller::Device;
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
 use falc_model::mode::{CellMode, ManualAction};
-use falc_node::plc_link::{Pace, PlcCommand};
-use falc_plc::map::{Coil, Input, Inputs, SignalName, COILS};
 use falc_recipe::check::{Button, Signal};
 use falc_recipe::engine::{Action, Event, Outcome};
+use std::collections::VecDeque;
 use std::time::Duration;
-use tokio::sync::mpsc::UnboundedSender;
+
+/// What the link to the PLC is asked to do.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PlcCommand {
+    /// Write one coil.
+    Write(Coil, bool),
+    /// Write every coil of the map at once (offset order).
+    WriteAll([bool; COILS as usize]),
+    /// Poll at the busy or the idle period from now on (no Modbus request).
+    Pace(Pace),
+}
+
+/// How fast the link polls.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Pace {
+    /// A recipe runs: every `poll`.
+    Busy,
+    /// Nothing runs: every `idle_poll`.
+    Idle,
+}
 
 #[derive(Debug, Clone, Copy)]
 struct Watch {
@@ -54,10 +76,22 @@ struct Watch {
     after: u64,
 }
 
+/// What one reading of the inputs means ([`Plc::reading`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Reading {
+    /// For the running recipe.
+    pub events: Vec<Event>,
+    /// An emergency stop (safety) or the PLC out of ready (device).
+    pub alarm: Option<Cause>,
+    /// The PLC became usable again: the line to report.
+    pub ready: Option<String>,
+}
+
 /// The conveyor PLC behind its link.
 pub struct Plc {
     address: String,
-    commands: UnboundedSender<PlcCommand>,
+    /// Commands for the link, oldest first ([`Plc::poll_command`]).
+    commands: VecDeque<PlcCommand>,
     issued: u64,
     /// The link's fault, while it lasts.
     down: Option<String>,
@@ -79,11 +113,11 @@ pub struct Plc {
 }
 
 impl Plc {
-    /// A PLC at `address` (for messages), commanded through `commands`.
-    pub fn new(address: String, commands: UnboundedSender<PlcCommand>) -> Self {
+    /// A PLC at `address` (for messages), not connected yet.
+    pub fn new(address: String) -> Self {
         Self {
             address,
-            commands,
+            commands: VecDeque::new(),
             issued: 0,
             down: Some("not connected to the conveyor PLC yet".into()),
             inputs: None,
@@ -103,17 +137,19 @@ impl Plc {
             self.busy = busy;
             // Not counted in `issued`: a watch waits for writes, not for this.
             let pace = if busy { Pace::Busy } else { Pace::Idle };
-            if self.commands.send(PlcCommand::Pace(pace)).is_err() {
-                tracing::error!("the PLC link task is gone");
-            }
+            self.commands.push_back(PlcCommand::Pace(pace));
         }
     }
 
     fn send(&mut self, c: PlcCommand) {
         self.issued += 1;
-        if self.commands.send(c).is_err() {
-            tracing::error!("the PLC link task is gone");
-        }
+        self.commands.push_back(c);
+    }
+
+    /// The next command for the link, in the order issued: the driver
+    /// hands each to the link after every event.
+    pub fn poll_command(&mut self) -> Option<PlcCommand> {
+        self.commands.pop_front()
     }
 
     fn write(&mut self, b: Button, value: bool) {
@@ -157,6 +193,10 @@ impl Plc {
                     _ => None,
                 })
                 .collect();
+            // A line the dead process ran has no job now: released, so
+            // nothing moves unsupervised (found by falc-sim: a transport
+            // killed mid-move left its line running after the restart).
+            self.release_lines();
         } else {
             for coil in (0..COILS).filter_map(Coil::at) {
                 if let Coil::Button(b) = coil {
@@ -212,6 +252,21 @@ impl Plc {
         (events, alarm)
     }
 
+    /// A new reading as a driver takes it: [`Plc::inputs`], and the line
+    /// to report when the PLC became usable with it (linked, ready, no
+    /// emergency stop) after it was not.
+    pub fn reading(&mut self, inputs: Inputs, commands_done: u64) -> Reading {
+        let was_down = self.unavailable().is_some();
+        let (events, alarm) = self.inputs(inputs, commands_done);
+        let ready = (alarm.is_none() && was_down && self.unavailable().is_none())
+            .then(|| format!("conveyor PLC at {} ready", self.address));
+        Reading {
+            events,
+            alarm,
+            ready,
+        }
+    }
+
     fn watch_met(&self) -> bool {
         match (self.watch, self.inputs) {
             (Some(w), Some(i)) => self.inputs_after >= w.after && i.signal(w.signal) == w.level,
@@ -236,7 +291,7 @@ impl Plc {
     /// Releases every button and external control (the node stops).
     pub fn shutdown(&mut self) {
         if self.down.is_none() {
-            self.send(PlcCommand::WriteAll([false; falc_plc::map::COILS as usize]));
+            self.send(PlcCommand::WriteAll([false; COILS as usize]));
         }
     }
 
@@ -450,11 +505,8 @@ impl Device for Plc {
 mod tests {
     use super::*;
     use falc_model::ids::{Place, PlcStation};
-    use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver};
-
-    fn plc() -> (Plc, UnboundedReceiver<PlcCommand>) {
-        let (tx, rx) = unbounded_channel();
-        (Plc::new("plc:502".into(), tx), rx)
+    fn plc() -> Plc {
+        Plc::new("plc:502".into())
     }
 
     fn ready() -> Inputs {
@@ -463,8 +515,8 @@ mod tests {
         i
     }
 
-    fn drain(rx: &mut UnboundedReceiver<PlcCommand>) -> Vec<PlcCommand> {
-        std::iter::from_fn(|| rx.try_recv().ok()).collect()
+    fn drain(p: &mut Plc) -> Vec<PlcCommand> {
+        std::iter::from_fn(|| p.poll_command()).collect()
     }
 
     fn act(p: &mut Plc, now: u64, a: Action) -> Vec<Event> {
@@ -475,7 +527,7 @@ mod tests {
 
     #[test]
     fn a_maintainer_presses_buttons_and_runs_a_line_for_a_while() {
-        let (mut p, mut rx) = plc();
+        let mut p = plc();
         let press = |b: &str| ManualAction::Press(b.into());
         assert!(
             p.manual(Duration::ZERO, &press("A")).is_err(),
@@ -483,7 +535,7 @@ mod tests {
         );
         p.connected(None);
         p.inputs(ready(), 1);
-        drain(&mut rx);
+        drain(&mut p);
         assert_eq!(
             p.manual(Duration::ZERO, &press("3")).as_deref(),
             Ok("station button 3 pressed")
@@ -508,29 +560,29 @@ mod tests {
         let line_b = Coil::Button(Button::Line('B'));
         let station_3 = Coil::Button(Button::Station(PlcStation::of(3)));
         assert_eq!(
-            drain(&mut rx),
+            drain(&mut p),
             vec![
                 PlcCommand::Write(station_3, true),
                 PlcCommand::Write(line_b, true)
             ]
         );
         p.handle_timeout(Duration::from_secs(6), &mut Vec::new());
-        assert_eq!(drain(&mut rx), vec![PlcCommand::Write(line_b, false)]);
+        assert_eq!(drain(&mut p), vec![PlcCommand::Write(line_b, false)]);
         assert_eq!(p.poll_timeout(), None);
         // Leaving maintenance releases what a maintainer left pressed.
         p.mode_changed(CellMode::Auto);
-        assert_eq!(drain(&mut rx), vec![PlcCommand::Write(station_3, false)]);
+        assert_eq!(drain(&mut p), vec![PlcCommand::Write(station_3, false)]);
     }
 
     #[test]
     fn unavailable_until_connected_and_read_and_while_estop() {
-        let (mut p, mut rx) = plc();
+        let mut p = plc();
         assert!(p.unavailable().is_some());
         p.connected(None);
         let mut all = [false; 15];
         all[14] = true;
         assert_eq!(
-            drain(&mut rx),
+            drain(&mut p),
             vec![PlcCommand::WriteAll(all)],
             "buttons off, external control on"
         );
@@ -562,7 +614,7 @@ mod tests {
 
     #[test]
     fn a_watch_only_counts_readings_taken_after_its_own_writes() {
-        let (mut p, mut rx) = plc();
+        let mut p = plc();
         p.connected(None);
         p.inputs(ready(), 1);
         assert!(act(&mut p, 0, Action::Activate(Button::Line('D'))).is_empty());
@@ -581,14 +633,14 @@ mod tests {
         assert_eq!(p.inputs(running, 2).0, vec![]);
         assert_eq!(p.inputs(ready(), 2).0, vec![Event::InputReached]);
         assert_eq!(
-            drain(&mut rx).last(),
+            drain(&mut p).last(),
             Some(&PlcCommand::Write(Coil::Button(Button::Line('D')), true))
         );
     }
 
     #[test]
     fn a_met_watch_fires_at_once() {
-        let (mut p, _rx) = plc();
+        let mut p = plc();
         p.connected(None);
         let mut i = ready();
         i.set(Input::Signal(Signal::Place(Place::of(3))), true);
@@ -602,7 +654,7 @@ mod tests {
 
     #[test]
     fn an_alarm_releases_line_buttons_but_not_station_buttons() {
-        let (mut p, mut rx) = plc();
+        let mut p = plc();
         p.connected(None);
         p.inputs(ready(), 1);
         act(
@@ -611,10 +663,10 @@ mod tests {
             Action::Activate(Button::Station(PlcStation::of(3))),
         );
         act(&mut p, 0, Action::Activate(Button::Line('E')));
-        drain(&mut rx);
+        drain(&mut p);
         p.finished(&Outcome::Alarm(Cause::process("x")));
         assert_eq!(
-            drain(&mut rx),
+            drain(&mut p),
             vec![
                 PlcCommand::Pace(Pace::Idle),
                 PlcCommand::Write(Coil::Button(Button::Line('E')), false)
@@ -623,7 +675,7 @@ mod tests {
         // Done leaves everything as the recipe left it.
         act(&mut p, 0, Action::Activate(Button::Line('K')));
         assert_eq!(
-            drain(&mut rx),
+            drain(&mut p),
             vec![
                 PlcCommand::Pace(Pace::Busy),
                 PlcCommand::Write(Coil::Button(Button::Line('K')), true)
@@ -635,10 +687,10 @@ mod tests {
         p.inputs(ready(), p.issued());
         assert!(!p.settling());
         p.finished(&Outcome::Done);
-        assert_eq!(drain(&mut rx), vec![PlcCommand::Pace(Pace::Idle)]);
+        assert_eq!(drain(&mut p), vec![PlcCommand::Pace(Pace::Idle)]);
         // The commander lost: the station button goes too.
         p.lost(&falc_model::ids::StationName::new("cell").expect("valid"));
-        let released = drain(&mut rx);
+        let released = drain(&mut p);
         assert!(
             released.contains(&PlcCommand::Write(
                 Coil::Button(Button::Station(PlcStation::of(3))),
@@ -650,7 +702,7 @@ mod tests {
 
     #[test]
     fn activate_of_a_held_button_gives_a_rising_edge() {
-        let (mut p, mut rx) = plc();
+        let mut p = plc();
         p.connected(None);
         p.inputs(ready(), 1);
         act(
@@ -660,14 +712,14 @@ mod tests {
         );
         // An alarm keeps the station button; the next job presses it again.
         p.finished(&Outcome::Alarm(Cause::new(AlarmClass::Safety, "estop")));
-        drain(&mut rx);
+        drain(&mut p);
         act(
             &mut p,
             0,
             Action::Activate(Button::Station(PlcStation::of(3))),
         );
         assert_eq!(
-            drain(&mut rx),
+            drain(&mut p),
             vec![
                 PlcCommand::Pace(Pace::Busy),
                 PlcCommand::Write(Coil::Button(Button::Station(PlcStation::of(3))), false),
@@ -682,7 +734,7 @@ mod tests {
 
     #[test]
     fn timeouts_are_explained_from_the_inputs() {
-        let (mut p, _rx) = plc();
+        let mut p = plc();
         p.connected(None);
         p.inputs(ready(), 1);
         act(&mut p, 10, Action::Activate(Button::Line('E')));
@@ -711,8 +763,25 @@ mod tests {
     }
 
     #[test]
+    fn a_restarted_workstation_releases_a_line_it_finds_running() {
+        let mut p = plc();
+        let at = |c: Coil| usize::from(c.offset().expect("in the map"));
+        let station_3 = Coil::Button(Button::Station(PlcStation::of(3)));
+        let line_l = Coil::Button(Button::Line('L'));
+        // Killed mid-move: the PLC still runs line L and clamps station 3.
+        let mut held = [false; COILS as usize];
+        held[at(station_3)] = true;
+        held[at(line_l)] = true;
+        held[at(Coil::ExternalControl)] = true;
+        p.connected(Some(held));
+        assert_eq!(drain(&mut p), vec![PlcCommand::Write(line_l, false)]);
+        assert!(p.pressed.contains(&Button::Station(PlcStation::of(3))));
+        assert!(!p.pressed.contains(&Button::Line('L')));
+    }
+
+    #[test]
     fn a_restarted_workstation_adopts_the_coils_and_a_reconnected_one_restores_its_own() {
-        let (mut p, mut rx) = plc();
+        let mut p = plc();
         let at = |c: Coil| usize::from(c.offset().expect("in the map"));
         let station_3 = Coil::Button(Button::Station(PlcStation::of(3)));
         let line_e = Coil::Button(Button::Line('E'));
@@ -722,16 +791,16 @@ mod tests {
         held[at(Coil::ExternalControl)] = true;
         p.connected(Some(held));
         assert_eq!(
-            drain(&mut rx),
+            drain(&mut p),
             vec![],
             "nothing written: the workpiece stays clamped"
         );
         assert!(p.pressed.contains(&Button::Station(PlcStation::of(3))));
         // A fresh PLC (external control off): only that is written.
-        let (mut q, mut qx) = plc();
+        let mut q = plc();
         q.connected(Some([false; COILS as usize]));
         assert_eq!(
-            drain(&mut qx),
+            drain(&mut q),
             vec![PlcCommand::Write(Coil::ExternalControl, true)]
         );
         // The link comes back later: the node's own state stands, and only
@@ -740,7 +809,7 @@ mod tests {
         back[at(line_e)] = true;
         back[at(station_3)] = false;
         p.connected(Some(back));
-        let mut written = drain(&mut rx);
+        let mut written = drain(&mut p);
         written.sort_by_key(|c| format!("{c:?}"));
         assert_eq!(
             written,

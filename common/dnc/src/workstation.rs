@@ -1,0 +1,221 @@
+//! The welding workstation's device, sans-I/O and poll-style: the robot
+//! controller behind its DNC line as welding recipes see it. The engine's
+//! `start rcm N` and stops go to the [`Host`]; the telegrams it wants sent
+//! come out of [`Welding::poll_telegram`] (the welding node hands them to
+//! its 3964R task, the simulation to its in-memory line); what the link
+//! reports comes in through [`Welding::link_event`], [`Welding::opened`]
+//! and [`Welding::closed`]. Alarms no job owns (a lost line while idle, a
+//! program nobody started) go up through [`Device::poll_alarm`].
+
+use crate::host::{Host, Out};
+use crate::procedure::{LinkEvent, Timing};
+use crate::telegram::Telegram;
+use falc_control::controller::Device;
+use falc_model::alarm::Cause;
+use falc_model::mms::vmd::{PhysicalStatus, RobotStatusDetail, VmdStatus};
+use falc_model::mode::ManualAction;
+use falc_recipe::check::Job;
+use falc_recipe::engine::{Action, Event, Outcome};
+use std::collections::VecDeque;
+use std::time::Duration;
+
+/// The robot controller behind its DNC line, as welding recipes see it.
+pub struct Welding {
+    host: Host,
+    /// Whether the serial line is open (telegrams can go).
+    open: bool,
+    /// Telegrams for the line, oldest first ([`Welding::poll_telegram`]).
+    outbox: VecDeque<Telegram>,
+    /// The serial line's path, for messages.
+    line: String,
+    detail: Option<RobotStatusDetail>,
+    /// Alarms no job owns (a lost line while idle, a program found
+    /// running nobody's), not yet reported.
+    alarms: VecDeque<Cause>,
+}
+
+impl Welding {
+    /// The robot on serial line `line` (its path, for messages), whose
+    /// link runs with `timing`; the line is not open yet.
+    pub fn new(line: &str, timing: &Timing) -> Self {
+        Self {
+            host: Host::new(line, timing),
+            open: false,
+            outbox: VecDeque::new(),
+            line: line.to_string(),
+            detail: None,
+            alarms: VecDeque::new(),
+        }
+    }
+
+    /// The serial line's path.
+    pub fn line(&self) -> &str {
+        &self.line
+    }
+
+    /// Whether the serial line is open.
+    pub fn is_open(&self) -> bool {
+        self.open
+    }
+
+    /// The next telegram for the line, in order: the driver hands each to
+    /// the 3964R link after every event.
+    pub fn poll_telegram(&mut self) -> Option<Telegram> {
+        self.outbox.pop_front()
+    }
+
+    /// Queues `t` for the line; false (and the link's failure applied) if
+    /// the line is not open.
+    fn send(&mut self, t: Telegram, out: &mut Vec<Event>) -> bool {
+        let sent = self.open;
+        if sent {
+            self.outbox.push_back(t);
+        } else {
+            let why = format!(
+                "no connection with RCM on {}: the line is not open",
+                self.line
+            );
+            let outs = self.host.link_failed(why);
+            self.apply(outs, out);
+        }
+        sent
+    }
+
+    /// Carries out host outputs; engine events go to `out`.
+    fn apply(&mut self, outs: Vec<Out>, out: &mut Vec<Event>) {
+        for o in outs {
+            match o {
+                Out::Telegram(t) => {
+                    self.send(t, out);
+                }
+                Out::Engine(ev) => out.push(ev),
+                Out::Detail(d) => self.detail = Some(d),
+                Out::Info(text) => tracing::info!("{text}"),
+                Out::Alarm(text) => {
+                    tracing::warn!("{text}");
+                    self.alarms.push_back(text);
+                }
+            }
+        }
+    }
+
+    /// What the 3964R link reported: engine events for the running recipe.
+    pub fn link_event(&mut self, now: Duration, ev: LinkEvent) -> Vec<Event> {
+        let mut out = Vec::new();
+        match ev {
+            LinkEvent::Received(bytes) => match Telegram::decode(&bytes) {
+                Ok(t) => {
+                    tracing::debug!(?t, "from the RCM");
+                    let outs = self.host.telegram(now, t);
+                    self.apply(outs, &mut out);
+                }
+                Err(e) => tracing::warn!("undecodable telegram from the RCM: {e}"),
+            },
+            LinkEvent::Failed { telegram, error } => {
+                tracing::warn!(
+                    "telegram {} to the RCM given up: {error}",
+                    telegram.escape_ascii()
+                );
+                let why = format!("no connection with RCM on {}: {error}", self.line);
+                let outs = self.host.gave_up(&telegram, why);
+                self.apply(outs, &mut out);
+            }
+            LinkEvent::Refused(why) => tracing::debug!("block refused: {why}"),
+            LinkEvent::Sent(telegram) => self.host.sent(&telegram),
+        }
+        out
+    }
+
+    /// The line was (re)opened: initiate DNC and ask the robot's status.
+    pub fn opened(&mut self, now: Duration) {
+        self.open = true;
+        let mut out = Vec::new();
+        let outs = self.host.connected(now);
+        self.apply(outs, &mut out);
+    }
+
+    /// The line closed: engine events for the running recipe.
+    pub fn closed(&mut self) -> Vec<Event> {
+        self.open = false;
+        self.outbox.clear();
+        let why = format!("no connection with RCM on {}: the line closed", self.line);
+        tracing::warn!("{why}");
+        let mut out = Vec::new();
+        let outs = self.host.closed(why);
+        self.apply(outs, &mut out);
+        out
+    }
+}
+
+impl Device for Welding {
+    fn unavailable(&self) -> Option<String> {
+        None
+    }
+
+    fn act(&mut self, _now: Duration, action: Action, out: &mut Vec<Event>) {
+        match action {
+            Action::Start {
+                job: Job::Program(p),
+                ..
+            } => {
+                let outs = self.host.start(p);
+                self.apply(outs, out);
+            }
+            Action::Stop(_) => self.halt(out),
+            other => tracing::warn!("a welding recipe cannot {other:?}"),
+        }
+    }
+
+    fn manual(&mut self, _now: Duration, action: &ManualAction) -> Result<String, String> {
+        let (telegram, done) = self.host.manual(action)?;
+        // No recipe runs in maintenance: a link failure has no job to end.
+        let mut events = Vec::new();
+        if self.send(telegram, &mut events) {
+            Ok(done)
+        } else {
+            Err(format!("the DNC line {} is not open", self.line))
+        }
+    }
+
+    fn halt(&mut self, out: &mut Vec<Event>) {
+        let outs = self.host.stop();
+        self.apply(outs, out);
+    }
+
+    fn finished(&mut self, outcome: &Outcome) {
+        // A recipe that ended badly (its own time limit, say) while the
+        // robot still runs its program: the robot is stopped.
+        if *outcome != Outcome::Done && self.host.running().is_some() {
+            let mut out = Vec::new();
+            self.halt(&mut out);
+        }
+    }
+
+    fn explain_timeout(&self, now: Duration) -> Option<String> {
+        self.host.explain_timeout(now)
+    }
+
+    /// The supervision's clock (status requests, the silence limit).
+    fn poll_timeout(&self) -> Option<Duration> {
+        self.host.poll_timeout()
+    }
+
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Event>) {
+        let outs = self.host.handle_timeout(now);
+        self.apply(outs, out);
+    }
+
+    fn poll_alarm(&mut self) -> Option<Cause> {
+        self.alarms.pop_front()
+    }
+
+    fn status(&self, status: &mut VmdStatus) {
+        status.additional = self.detail;
+        // Inoperable while the line is closed or the RCM has not answered
+        // since it was (re)opened or went silent: an alarm about the link
+        // clears only once the robot answers again.
+        if !self.host.answered() {
+            status.physical = PhysicalStatus::Inoperable;
+        }
+    }
+}

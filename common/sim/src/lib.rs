@@ -1,0 +1,22 @@
+//! `falc-sim`: the whole cell in one process on one virtual clock, the way
+//! FoundationDB and TigerBeetle test themselves. It wires the very cores
+//! the nodes run (the operator's order list with records in memory, the
+//! cell controller, the welding and transport workstations with their
+//! devices, the robot controller's twin behind the 3964R procedure at both
+//! ends of a serial line, the conveyor's twin behind the I/O map) on an
+//! in-memory bus with latency, loss and cuts per link ([`bus`], [`world`]).
+//!
+//! A run ([`scenario`]) works through orders as an operator would,
+//! injects faults from a seed (a crashed workstation, the robot's
+//! emergency stop and limit switch, an unplugged or noisy serial line, a
+//! jammed carrier, a stuck sensor, a cut link, a full disk), takes the
+//! documented way back after each, and checks the invariants after every
+//! step. A broken invariant comes with the events that led there; the same
+//! seed replays it. No tokio, no zenoh, no sockets, no wall clock.
+
+pub mod bus;
+pub mod recipes;
+pub mod scenario;
+pub mod world;
+
+pub use scenario::{Config, Fault, Run, Summary, Violation};

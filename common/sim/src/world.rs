@@ -1,0 +1,1178 @@
+//! The whole cell wired together on one virtual clock: the operator's
+//! order list (records in memory), the cell controller, both workstations
+//! with their devices, the robot controller's twin behind a serial line
+//! with the 3964R procedure at both ends, and the conveyor's twin behind
+//! the I/O map. Every core is the one the nodes run; this module is their
+//! driver, as `falc_node` is on the real bus.
+//!
+//! [`World::step`] advances the clock to the next thing due and handles
+//! everything due then; what the cores put out is carried to where it
+//! goes at once (and arrives after the bus's latency).
+
+use crate::bus::{Arrival, Bus, Link, Msg, Node};
+use crate::recipes::Shipped;
+use falc_control::controller::{Controller, Output as CtlOutput};
+use falc_control::coordination::{self, workstation_domain, Awaiting, Reply, Route, Stations};
+use falc_control::order_list::{CellCall, OrderList, Output as ListOutput, Ticket};
+use falc_control::recipe_source::{Delivery, RecipeSource};
+use falc_control::records::memory::Memory;
+use falc_control::records::shared::{plant, Shared};
+use falc_dnc::procedure::{Link as DncLink, Priority, Timing};
+use falc_dnc::robot::Robot;
+use falc_dnc::telegram::Mode;
+use falc_dnc::twin::RcmTwin;
+use falc_dnc::workstation::Welding;
+use falc_model::console::{ApiRequest, ApiResult};
+use falc_model::ids::{ObjectName, StationName};
+use falc_model::mms::association::Role;
+use falc_model::mms::domain::download_steps;
+use falc_model::mms::error::ServiceError;
+use falc_model::mms::pdu::{Peer, Request, Response, Unconfirmed};
+use falc_model::mms::vmd::VmdStatus;
+use falc_model::topology::Topology;
+use falc_plc::conveyor::{Conveyor, Spot};
+use falc_plc::map::{Coil, Inputs, COILS};
+use falc_plc::workstation::{Pace, Plc, PlcCommand};
+use falc_recipe::commands::RecipeKind;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use std::cell::RefCell;
+use std::collections::{BTreeMap, VecDeque};
+use std::rc::Rc;
+use std::time::Duration;
+
+/// The shipped topology: operator, cell, welding, transport.
+const TOPOLOGY: &str = include_str!("../../../launch/cell.toml");
+/// How long a silent peer is still taken for present (the topology's lease).
+pub const LEASE: Duration = Duration::from_secs(1);
+/// How long the operator's calls to the cell may take.
+const CELL_LIMIT: Duration = Duration::from_secs(10);
+/// How long one byte chunk takes on the serial line.
+const WIRE: Duration = Duration::from_millis(2);
+/// The transport's poll periods (its defaults).
+const POLL_BUSY: Duration = Duration::from_millis(10);
+const POLL_IDLE: Duration = Duration::from_millis(100);
+/// Where carriers stand when an order may start.
+pub const HOME: [&str; 2] = ["W2", "W2"];
+/// At most this many lines of the trace are kept.
+const TRACE: usize = 400;
+
+/// A request out, waiting for its confirm.
+#[derive(Debug)]
+struct Pending {
+    to: Node,
+    deadline: Duration,
+    waiter: Waiter,
+}
+
+/// Who waits for a confirm.
+#[derive(Debug)]
+enum Waiter {
+    /// The order list's cell call.
+    List,
+    /// The cell's request to a station or its operator.
+    Cell(Awaiting),
+}
+
+/// A workstation's association with the cell, and its process.
+#[derive(Debug, Default, Clone, Copy)]
+struct Up {
+    /// Associated with its commander.
+    associated: bool,
+    /// Its process runs (not crashed).
+    running: bool,
+}
+
+/// The welding workstation: its controller and its end of the line.
+pub struct WeldingNode {
+    /// The recipe runtime around the robot.
+    pub ctl: Controller<Welding>,
+    link: DncLink,
+    status: Option<VmdStatus>,
+}
+
+/// The transport workstation: its controller and its Modbus poller.
+pub struct TransportNode {
+    /// The recipe runtime around the PLC.
+    pub ctl: Controller<Plc>,
+    pace: Pace,
+    next_poll: Duration,
+    done: u64,
+    last: Option<Inputs>,
+    wrote: bool,
+    status: Option<VmdStatus>,
+}
+
+fn welding_node(now: Duration, timing: Timing) -> WeldingNode {
+    let mut device = Welding::new("sim-serial", &timing);
+    device.opened(now);
+    WeldingNode {
+        ctl: Controller::new(RecipeKind::Welding, welding_confirm(&timing), device),
+        link: DncLink::new(Priority::Low, timing),
+        status: None,
+    }
+}
+
+/// As `falc-welding`: select + start, each failing after the dead-line
+/// limit, before the confirm limit.
+fn welding_confirm(timing: &Timing) -> Duration {
+    2 * timing.dead_line_after() + Duration::from_secs(6)
+}
+
+fn transport_node(now: Duration, coils: &[bool]) -> TransportNode {
+    let mut device = Plc::new("sim-plc:502".into());
+    let mut held = [false; COILS as usize];
+    for (h, c) in held.iter_mut().zip(coils) {
+        *h = *c;
+    }
+    device.connected(Some(held));
+    TransportNode {
+        ctl: Controller::new(RecipeKind::Transport, Duration::from_secs(10), device),
+        pace: Pace::Idle,
+        next_poll: now,
+        done: 0,
+        last: None,
+        wrote: true,
+        status: None,
+    }
+}
+
+fn station(n: Node) -> StationName {
+    // The four names are valid station names.
+    StationName::new(n.station()).unwrap_or_else(|e| unreachable!("{n}: {e}"))
+}
+
+fn peer(n: Node) -> Peer {
+    Peer {
+        station: station(n),
+        session: format!("sim-{n}"),
+    }
+}
+
+/// The whole cell.
+pub struct World {
+    /// Virtual time since the start.
+    pub now: Duration,
+    /// Events handled so far (invariants are checked after each).
+    pub steps: u64,
+    /// The seeded source of every random choice.
+    pub rng: StdRng,
+    /// The bus.
+    pub bus: Bus,
+    /// The records (durable: they survive an operator's restart).
+    pub records: Rc<RefCell<Memory>>,
+    /// The order list.
+    pub list: OrderList<Shared, Shipped>,
+    tickets: u64,
+    /// Console answers not taken yet.
+    replies: BTreeMap<Ticket, ApiResult>,
+    /// The cell's indications at the operator: ticket → request id.
+    indications: BTreeMap<Ticket, u64>,
+    /// The cell controller.
+    pub cell: Controller<Stations>,
+    cell_status: Option<VmdStatus>,
+    /// The operator–cell association.
+    cell_associated: bool,
+    /// The welding workstation.
+    pub welding: WeldingNode,
+    /// The transport workstation.
+    pub transport: TransportNode,
+    ups: BTreeMap<Node, Up>,
+    /// The robot controller's twin.
+    pub rcm: RcmTwin,
+    /// Bytes on the serial line: (arrival, towards the twin, bytes).
+    wire: VecDeque<(Duration, bool, Vec<u8>)>,
+    /// The serial line is plugged in.
+    pub plugged: bool,
+    /// The conveyor's twin.
+    pub conveyor: Conveyor,
+    timing: Timing,
+    pending: BTreeMap<u64, Pending>,
+    next_id: u64,
+    /// Abort indications due when a lease runs out: (when, node).
+    leases: Vec<(Duration, Node)>,
+    /// Cell-level Starts confirmed, per order id.
+    pub starts: BTreeMap<i64, u32>,
+    /// The last lines of what happened, for a broken invariant's report.
+    pub trace: VecDeque<String>,
+}
+
+impl World {
+    /// A cell at rest at time zero, the twins at `time_scale`, the bus
+    /// with `link` for every node; `seed` drives every random choice.
+    pub fn new(seed: u64, time_scale: f64, link: Link) -> Result<Self, String> {
+        let topology = Topology::parse(TOPOLOGY, "launch/cell.toml").map_err(|e| e.to_string())?;
+        let source = Shipped {
+            topology: topology.clone(),
+            cell: station(Node::Cell),
+        };
+        let set = source.load().map_err(|p| p.join("\n"))?;
+        let mut views = plant(&[topology.cell().as_str()]);
+        let view = views.pop().ok_or("no records")?;
+        let records = view.all.clone();
+        let list = OrderList::new(
+            station(Node::Operator),
+            station(Node::Cell),
+            topology.clone(),
+            view,
+            source,
+            set,
+        );
+        let timing = Timing::default();
+        let home: Vec<Spot> = HOME.iter().filter_map(|s| Spot::parse(s)).collect();
+        let conveyor = Conveyor::new(&home, time_scale)?;
+        let now = Duration::ZERO;
+        let transport = transport_node(now, conveyor.coils());
+        let cell = Controller::new(
+            RecipeKind::Cell,
+            Duration::from_secs(10),
+            Stations::new(Some(station(Node::Operator))),
+        )
+        .named(station(Node::Cell))
+        .runs_on_alone(true);
+        let up = Up {
+            associated: false,
+            running: true,
+        };
+        let mut w = Self {
+            now,
+            steps: 0,
+            rng: StdRng::seed_from_u64(seed),
+            bus: Bus::new(link),
+            records,
+            list,
+            tickets: 0,
+            replies: BTreeMap::new(),
+            indications: BTreeMap::new(),
+            cell,
+            cell_status: None,
+            cell_associated: false,
+            welding: welding_node(now, timing),
+            transport,
+            ups: [(Node::Welding, up), (Node::Transport, up), (Node::Cell, up)]
+                .into_iter()
+                .collect(),
+            rcm: RcmTwin::new(Robot::new(Mode::AutomaticExternal, time_scale), timing),
+            wire: VecDeque::new(),
+            plugged: true,
+            conveyor,
+            timing,
+            pending: BTreeMap::new(),
+            next_id: 0,
+            leases: Vec::new(),
+            starts: BTreeMap::new(),
+            trace: VecDeque::new(),
+        };
+        for n in [Node::Cell, Node::Welding, Node::Transport] {
+            w.list.handle_presence(now, station(n), true);
+        }
+        w.pump();
+        Ok(w)
+    }
+
+    /// Notes a line in the trace.
+    pub fn note(&mut self, line: impl Into<String>) {
+        if self.trace.len() == TRACE {
+            self.trace.pop_front();
+        }
+        let line = line.into();
+        self.trace.push_back(format!(
+            "{:>10.3} s #{:<7} {line}",
+            self.now.as_secs_f64(),
+            self.steps
+        ));
+    }
+
+    /// A console request as `user`; its answer comes later ([`Self::reply`]).
+    pub fn api(&mut self, user: &str, request: ApiRequest) -> Ticket {
+        self.tickets += 1;
+        let t = Ticket(self.tickets);
+        self.note(format!("console {user}: {request:?}"));
+        match StationName::new(user) {
+            Ok(u) => self.list.handle_api(self.now, t, &u, request),
+            Err(e) => {
+                self.replies.insert(t, Err(e.to_string()));
+            }
+        }
+        self.pump();
+        t
+    }
+
+    /// The answer to console request `t`, once it came.
+    pub fn reply(&mut self, t: Ticket) -> Option<ApiResult> {
+        self.replies.remove(&t)
+    }
+
+    /// Whether workstation `n`'s process runs.
+    pub fn is_running(&self, n: Node) -> bool {
+        self.ups.get(&n).is_some_and(|u| u.running)
+    }
+
+    /// When something is next due.
+    fn next_due(&self) -> Option<Duration> {
+        let mut t = [
+            self.bus.poll_timeout(),
+            self.list.poll_timeout(),
+            self.cell.poll_timeout(),
+            self.welding.ctl.poll_timeout(),
+            self.welding.link.poll_timeout(),
+            self.rcm.poll_timeout(),
+            self.wire.iter().map(|w| w.0).min(),
+            self.transport.ctl.poll_timeout(),
+            Some(self.transport.next_poll),
+            self.conveyor.poll_timeout(),
+            self.pending.values().map(|p| p.deadline).min(),
+            self.leases.iter().map(|l| l.0).min(),
+        ]
+        .into_iter()
+        .flatten()
+        .min();
+        if let Some(x) = &mut t {
+            *x = (*x).max(self.now);
+        }
+        t
+    }
+
+    /// Advances the clock to the next thing due, but not past `until`, and
+    /// handles everything due then.
+    pub fn step(&mut self, until: Duration) {
+        let next = self.next_due().map_or(until, |t| t.min(until));
+        self.now = next.max(self.now);
+        self.steps += 1;
+        let now = self.now;
+        // The bus.
+        while let Some(a) = self.bus.poll_delivery(now) {
+            self.arrive(a);
+        }
+        // Confirms that did not come in time.
+        let late: Vec<u64> = self
+            .pending
+            .iter()
+            .filter(|(_, p)| p.deadline <= now)
+            .map(|(id, _)| *id)
+            .collect();
+        for id in late {
+            if let Some(p) = self.pending.remove(&id) {
+                let e = ServiceError::timeout(format!("no confirm from {} in time", p.to));
+                self.confirm(p.waiter, Err(e));
+            }
+        }
+        // Leases.
+        let due: Vec<Node> = self
+            .leases
+            .iter()
+            .filter(|l| l.0 <= now)
+            .map(|l| l.1)
+            .collect();
+        self.leases.retain(|l| l.0 > now);
+        for n in due {
+            if self.bus.is_cut(n) {
+                self.lost(n);
+            }
+        }
+        // Clocks.
+        if self.list.poll_timeout().is_some_and(|t| t <= now) {
+            self.list.handle_timeout(now);
+        }
+        if self.cell.poll_timeout().is_some_and(|t| t <= now) {
+            self.cell.handle_timeout(now);
+        }
+        if self.welding.ctl.poll_timeout().is_some_and(|t| t <= now) {
+            self.welding.ctl.handle_timeout(now);
+        }
+        if self.welding.link.poll_timeout().is_some_and(|t| t <= now) {
+            self.welding.link.handle_timeout(now);
+        }
+        if self.rcm.poll_timeout().is_some_and(|t| t <= now) {
+            self.rcm.handle_timeout(now);
+        }
+        while let Some(i) = self.wire.iter().position(|w| w.0 <= now) {
+            let Some((_, to_twin, bytes)) = self.wire.remove(i) else {
+                break;
+            };
+            if !self.plugged {
+                continue;
+            }
+            if to_twin {
+                self.rcm.handle_bytes(now, &bytes);
+            } else if self.is_running(Node::Welding) {
+                self.welding.link.handle_bytes(now, &bytes);
+            }
+        }
+        if self.transport.ctl.poll_timeout().is_some_and(|t| t <= now) {
+            self.transport.ctl.handle_timeout(now);
+        }
+        if self.conveyor.poll_timeout().is_some_and(|t| t <= now) {
+            self.conveyor.handle_timeout(now);
+        }
+        if self.transport.next_poll <= now {
+            self.poll_plc();
+        }
+        self.pump();
+    }
+
+    /// The transport's Modbus poll: the inputs as the PLC has them, handed
+    /// on when they changed or after a write (as `falc_node::plc_link`).
+    fn poll_plc(&mut self) {
+        let now = self.now;
+        let t = &mut self.transport;
+        t.next_poll = now
+            + match t.pace {
+                Pace::Busy => POLL_BUSY,
+                Pace::Idle => POLL_IDLE,
+            };
+        if !self.ups.get(&Node::Transport).is_some_and(|u| u.running) {
+            return;
+        }
+        self.conveyor.handle_timeout(now);
+        let inputs = self.conveyor.inputs();
+        if t.wrote || t.last != Some(inputs) {
+            t.wrote = false;
+            t.last = Some(inputs);
+            let reading = t.ctl.device.reading(inputs, t.done);
+            t.ctl.feed(now, reading.events);
+            if let Some(cause) = reading.alarm {
+                t.ctl.fault(cause);
+            } else if let Some(line) = reading.ready {
+                t.ctl.report(falc_model::mms::pdu::Severity::Info, line);
+            }
+        }
+    }
+
+    /// Carries what every core put out to where it goes, until all are
+    /// quiet.
+    pub fn pump(&mut self) {
+        for _ in 0..64 {
+            let mut busy = self.pump_list();
+            busy |= self.pump_cell();
+            busy |= self.pump_welding();
+            busy |= self.pump_transport();
+            if !busy {
+                return;
+            }
+        }
+    }
+
+    fn request(
+        &mut self,
+        from: Node,
+        to: Node,
+        msg: impl FnOnce(u64) -> Msg,
+        limit: Duration,
+        waiter: Waiter,
+    ) {
+        self.next_id += 1;
+        let id = self.next_id;
+        let msg = msg(id);
+        self.pending.insert(
+            id,
+            Pending {
+                to,
+                deadline: self.now + limit,
+                waiter,
+            },
+        );
+        let now = self.now;
+        self.bus.send(now, from, to, msg, &mut self.rng);
+    }
+
+    fn respond(&mut self, from: Node, to: Node, id: u64, result: Result<Response, ServiceError>) {
+        let now = self.now;
+        self.bus
+            .send(now, from, to, Msg::Response { id, result }, &mut self.rng);
+    }
+
+    fn publish(&mut self, from: Node, u: Unconfirmed) {
+        let to: &[Node] = match from {
+            Node::Welding | Node::Transport => &[Node::Operator, Node::Cell],
+            Node::Cell => &[Node::Operator],
+            Node::Operator => &[],
+        };
+        let now = self.now;
+        for t in to {
+            self.bus
+                .send(now, from, *t, Msg::Publish(u.clone()), &mut self.rng);
+        }
+    }
+
+    fn pump_list(&mut self) -> bool {
+        let mut any = false;
+        while let Some(out) = self.list.poll_output() {
+            any = true;
+            match out {
+                ListOutput::Cell(call) => {
+                    let to = Node::Cell;
+                    match call {
+                        CellCall::Associate | CellCall::Initiate => {
+                            let request = Request::Initiate {
+                                calling: peer(Node::Operator),
+                            };
+                            self.request(
+                                Node::Operator,
+                                to,
+                                |id| Msg::Request { id, request },
+                                CELL_LIMIT,
+                                Waiter::List,
+                            );
+                        }
+                        CellCall::Deliver(d) => {
+                            let delivery = Box::new(d);
+                            self.request(
+                                Node::Operator,
+                                to,
+                                |id| Msg::Deliver { id, delivery },
+                                CELL_LIMIT * 4,
+                                Waiter::List,
+                            );
+                        }
+                        other => {
+                            let request = match other {
+                                CellCall::Start { name, argument } => {
+                                    Request::Start { name, argument }
+                                }
+                                CellCall::Stop { name } => Request::Stop { name },
+                                CellCall::Pass(r) => r,
+                                CellCall::Ask { name } => {
+                                    Request::GetProgramInvocationAttributes { name }
+                                }
+                                CellCall::Associate | CellCall::Initiate | CellCall::Deliver(_) => {
+                                    continue
+                                }
+                            };
+                            self.request(
+                                Node::Operator,
+                                to,
+                                |id| Msg::Request { id, request },
+                                CELL_LIMIT,
+                                Waiter::List,
+                            );
+                        }
+                    }
+                }
+                ListOutput::Reply { ticket, result } => {
+                    self.replies.insert(ticket, *result);
+                }
+                ListOutput::Respond { ticket, result } => {
+                    if let Some(id) = self.indications.remove(&ticket) {
+                        self.respond(Node::Operator, Node::Cell, id, result);
+                    }
+                }
+                ListOutput::Forget(ticket) => {
+                    self.indications.remove(&ticket);
+                }
+                ListOutput::Say(line) => self.note(format!("operator: {line}")),
+                ListOutput::Changed => {}
+            }
+        }
+        any
+    }
+
+    fn pump_cell(&mut self) -> bool {
+        let mut any = false;
+        if !self.is_running(Node::Cell) {
+            return false;
+        }
+        loop {
+            self.cell.settle(self.now);
+            let mut more = false;
+            while let Some(cmd) = self.cell.device.poll_command() {
+                more = true;
+                let to = match cmd.to.as_str() {
+                    "operator" => Node::Operator,
+                    "welding" => Node::Welding,
+                    "transport" => Node::Transport,
+                    _ => Node::Cell,
+                };
+                let request = cmd.request;
+                self.request(
+                    Node::Cell,
+                    to,
+                    |id| Msg::Request { id, request },
+                    cmd.limit,
+                    Waiter::Cell(cmd.awaiting),
+                );
+            }
+            while let Some(local) = self.cell.device.poll_local_reply() {
+                more = true;
+                coordination::handle_reply(&mut self.cell, self.now, local);
+            }
+            if !more {
+                break;
+            }
+            any = true;
+        }
+        while let Some(out) = self.cell.poll_output() {
+            any = true;
+            let u = unconfirmed(Node::Cell, out);
+            self.publish(Node::Cell, u);
+        }
+        let status = self.cell.status();
+        if self.cell_status.as_ref() != Some(&status) {
+            self.cell_status = Some(status.clone());
+            self.publish(
+                Node::Cell,
+                Unconfirmed::Status {
+                    station: station(Node::Cell),
+                    status,
+                },
+            );
+            any = true;
+        }
+        any
+    }
+
+    fn pump_welding(&mut self) -> bool {
+        if !self.is_running(Node::Welding) {
+            return false;
+        }
+        let mut any = false;
+        let now = self.now;
+        loop {
+            let mut more = false;
+            self.welding.ctl.settle(now);
+            while let Some(t) = self.welding.ctl.device.poll_telegram() {
+                more = true;
+                self.welding.link.send(now, t.encode());
+            }
+            while let Some(ev) = self.welding.link.poll_event() {
+                more = true;
+                let events = self.welding.ctl.device.link_event(now, ev);
+                self.welding.ctl.feed(now, events);
+            }
+            while let Some(bytes) = self.welding.link.poll_transmit() {
+                self.wire.push_back((now + WIRE, true, bytes));
+            }
+            if !more {
+                break;
+            }
+            any = true;
+        }
+        while let Some(bytes) = self.rcm.poll_transmit() {
+            self.wire.push_back((now + WIRE, false, bytes));
+        }
+        while let Some(note) = self.rcm.poll_note() {
+            // Each telegram received is too many lines for the trace.
+            if !note.starts_with("rx ") {
+                self.note(format!("rcm: {note}"));
+            }
+        }
+        while let Some(out) = self.welding.ctl.poll_output() {
+            any = true;
+            let u = unconfirmed(Node::Welding, out);
+            self.publish(Node::Welding, u);
+        }
+        let status = self.welding.ctl.status();
+        if self.welding.status.as_ref() != Some(&status) {
+            self.welding.status = Some(status.clone());
+            self.publish(
+                Node::Welding,
+                Unconfirmed::Status {
+                    station: station(Node::Welding),
+                    status,
+                },
+            );
+            any = true;
+        }
+        any
+    }
+
+    fn pump_transport(&mut self) -> bool {
+        if !self.is_running(Node::Transport) {
+            return false;
+        }
+        let mut any = false;
+        let now = self.now;
+        loop {
+            self.transport.ctl.settle(now);
+            let mut more = false;
+            while let Some(c) = self.transport.ctl.device.poll_command() {
+                more = true;
+                match c {
+                    PlcCommand::Write(coil, v) => {
+                        self.write_coil(coil, v);
+                        self.transport.done += 1;
+                        self.transport.wrote = true;
+                    }
+                    PlcCommand::WriteAll(values) => {
+                        for (o, v) in values.iter().enumerate() {
+                            if let Some(coil) = Coil::at(o as u16) {
+                                self.write_coil(coil, *v);
+                            }
+                        }
+                        self.transport.done += 1;
+                        self.transport.wrote = true;
+                    }
+                    PlcCommand::Pace(p) => {
+                        self.transport.pace = p;
+                        if p == Pace::Busy {
+                            self.transport.next_poll =
+                                self.transport.next_poll.min(now + POLL_BUSY);
+                        }
+                    }
+                }
+            }
+            if self.transport.wrote {
+                // The link reads right after a write.
+                self.transport.next_poll = self.transport.next_poll.min(now + POLL_BUSY);
+            }
+            if !more {
+                break;
+            }
+            any = true;
+        }
+        while let Some(note) = self.conveyor.poll_note() {
+            self.note(format!("plc: {note}"));
+        }
+        while let Some(out) = self.transport.ctl.poll_output() {
+            any = true;
+            let u = unconfirmed(Node::Transport, out);
+            self.publish(Node::Transport, u);
+        }
+        let status = self.transport.ctl.status();
+        if self.transport.status.as_ref() != Some(&status) {
+            self.transport.status = Some(status.clone());
+            self.publish(
+                Node::Transport,
+                Unconfirmed::Status {
+                    station: station(Node::Transport),
+                    status,
+                },
+            );
+            any = true;
+        }
+        any
+    }
+
+    fn write_coil(&mut self, coil: Coil, v: bool) {
+        if let Some(o) = coil.offset() {
+            let now = self.now;
+            self.conveyor.write_coil(now, o, v);
+        }
+    }
+
+    /// A message arrived.
+    fn arrive(&mut self, a: Arrival) {
+        let now = self.now;
+        match (a.to, a.msg) {
+            (_, Msg::Response { id, result }) => {
+                if let Some(p) = self.pending.remove(&id) {
+                    self.confirm(p.waiter, result);
+                }
+            }
+            (Node::Operator, Msg::Publish(u)) => self.list.handle_publication(now, u),
+            (Node::Cell, Msg::Publish(u)) => {
+                if self.is_running(Node::Cell) {
+                    let events = self.cell.device.unconfirmed(&u);
+                    self.cell.feed(now, events);
+                }
+            }
+            (_, Msg::Publish(_)) => {}
+            (Node::Operator, Msg::Request { id, request }) => {
+                self.tickets += 1;
+                let t = Ticket(self.tickets);
+                self.indications.insert(t, id);
+                self.list.handle_cell_request(now, t, request);
+            }
+            (Node::Cell, Msg::Request { id, request }) => {
+                let result = self.cell_indication(&request);
+                self.respond(Node::Cell, a.from, id, result);
+            }
+            (Node::Cell, Msg::Deliver { id, delivery }) => {
+                let result = self.cell_delivery(&delivery);
+                self.respond(Node::Cell, a.from, id, result);
+            }
+            (ws @ (Node::Welding | Node::Transport), Msg::Request { id, request }) => {
+                let result = self.workstation_indication(ws, &request);
+                self.respond(ws, a.from, id, result);
+            }
+            (to, msg) => self.note(format!("{to}: nobody serves {msg:?}")),
+        }
+    }
+
+    fn confirm(&mut self, waiter: Waiter, result: Result<Response, ServiceError>) {
+        let now = self.now;
+        match waiter {
+            Waiter::List => self.list.handle_cell_answer(now, result),
+            Waiter::Cell(awaiting) => {
+                if self.is_running(Node::Cell) {
+                    coordination::handle_reply(&mut self.cell, now, Reply { awaiting, result });
+                }
+            }
+        }
+    }
+
+    /// The cell answers its commander.
+    fn cell_indication(&mut self, request: &Request) -> Result<Response, ServiceError> {
+        let now = self.now;
+        if let Request::Initiate { .. } = request {
+            // The 1992 recursive scheme: the workstations first.
+            for ws in [Node::Welding, Node::Transport] {
+                self.associate(ws)?;
+            }
+            self.cell_associated = true;
+            self.cell.handle_associated();
+            self.cell_status = None;
+            return Ok(Response::Done);
+        }
+        if !self.cell_associated {
+            return Err(ServiceError::state_conflict(
+                "cell refused: no associated commander (Initiate first)",
+            ));
+        }
+        let subs = [station(Node::Welding), station(Node::Transport)];
+        match coordination::route(request, &subs) {
+            Route::Here => {}
+            Route::HereThenAll => {
+                self.cell.handle_request(now, request)?;
+                return self.pass_on(&[Node::Welding, Node::Transport], request);
+            }
+            Route::To(st) => {
+                let to = if st.as_str() == "welding" {
+                    Node::Welding
+                } else {
+                    Node::Transport
+                };
+                return self.pass_on(&[to], request);
+            }
+            Route::Refused(e) => return Err(e),
+        }
+        let result = self.cell.handle_request(now, request);
+        if let (Ok(_), Request::Start { argument, .. }) = (&result, request) {
+            if let Some(n) = argument
+                .strip_prefix("order ")
+                .and_then(|s| s.split_whitespace().next())
+                .and_then(|s| s.parse::<i64>().ok())
+            {
+                *self.starts.entry(n).or_default() += 1;
+                self.note(format!("cell: order {n} started"));
+            }
+        }
+        result
+    }
+
+    /// A mode, step or manual operation passed on: the first refusal.
+    fn pass_on(&mut self, to: &[Node], request: &Request) -> Result<Response, ServiceError> {
+        let mut refused = Vec::new();
+        for ws in to {
+            if !self.bus.reachable(Node::Cell, *ws) {
+                refused.push(format!("no connection with station {ws}"));
+                continue;
+            }
+            if let Err(e) = self.workstation_indication(*ws, request) {
+                refused.push(e.description);
+            }
+        }
+        if refused.is_empty() {
+            Ok(Response::Done)
+        } else {
+            Err(ServiceError::state_conflict(refused.join("; ")))
+        }
+    }
+
+    /// Associates workstation `ws` with the cell if it is not, and gives it
+    /// the recipes it lacks and the cell's mode.
+    fn associate(&mut self, ws: Node) -> Result<(), ServiceError> {
+        if !self.bus.reachable(Node::Cell, ws) || !self.is_running(ws) {
+            return Err(ServiceError::unreachable(format!(
+                "no connection with station {ws}"
+            )));
+        }
+        let up = self.ups.entry(ws).or_default();
+        if up.associated {
+            return Ok(());
+        }
+        up.associated = true;
+        match ws {
+            Node::Welding => {
+                self.welding.ctl.handle_associated();
+                self.welding.status = None;
+            }
+            _ => {
+                self.transport.ctl.handle_associated();
+                self.transport.status = None;
+            }
+        }
+        self.note(format!("{ws}: associated with the cell"));
+        // What the cell holds for it and it lacks (a restarted station
+        // comes back empty).
+        let todo: Vec<(ObjectName, Vec<u8>)> = self
+            .cell
+            .vmd()
+            .domains()
+            .filter_map(|d| {
+                let (st, name) = workstation_domain(d.name())?;
+                (st.as_str() == ws.station()).then(|| (name, d.content().to_vec()))
+            })
+            .collect();
+        for (name, content) in todo {
+            let has = match ws {
+                Node::Welding => self
+                    .welding
+                    .ctl
+                    .vmd()
+                    .domain(&name)
+                    .is_some_and(|d| d.content() == content.as_slice()),
+                _ => self
+                    .transport
+                    .ctl
+                    .vmd()
+                    .domain(&name)
+                    .is_some_and(|d| d.content() == content.as_slice()),
+            };
+            if !has {
+                self.deliver_to(ws, &name, &content, true)?;
+            }
+        }
+        let mode = Request::Mode(self.cell.mode().clone());
+        self.workstation_indication(ws, &mode)?;
+        Ok(())
+    }
+
+    /// A recipe delivered to the cell; a workstation's is passed on.
+    fn cell_delivery(&mut self, d: &Delivery) -> Result<Response, ServiceError> {
+        if !self.cell_associated {
+            return Err(ServiceError::state_conflict(
+                "cell refused: no associated commander (Initiate first)",
+            ));
+        }
+        self.deliver_to(Node::Cell, &d.domain, &d.content, d.is_cell)?;
+        if let Some((st, name)) = workstation_domain(&d.domain) {
+            let ws = if st.as_str() == "welding" {
+                Node::Welding
+            } else {
+                Node::Transport
+            };
+            let passed = if self.bus.reachable(Node::Cell, ws) && self.is_running(ws) {
+                self.deliver_to(ws, &name, &d.content, true)
+            } else {
+                Err(ServiceError::unreachable(format!(
+                    "no connection with station {ws}"
+                )))
+            };
+            if let Err(e) = passed {
+                self.cell.discard_domain(&d.domain);
+                return Err(e);
+            }
+        }
+        Ok(Response::Done)
+    }
+
+    /// The steps of a delivery at `to`, all or nothing.
+    fn deliver_to(
+        &mut self,
+        to: Node,
+        name: &ObjectName,
+        content: &[u8],
+        with_program: bool,
+    ) -> Result<(), ServiceError> {
+        let now = self.now;
+        let mut steps = vec![
+            Request::DeleteProgramInvocation { name: name.clone() },
+            Request::DeleteDomain {
+                domain: name.clone(),
+            },
+        ];
+        let first = steps.len();
+        steps.extend(download_steps(name, content));
+        if with_program {
+            steps.push(Request::CreateProgramInvocation {
+                name: name.clone(),
+                domains: vec![name.clone()],
+                reusable: true,
+            });
+        }
+        for (i, req) in steps.iter().enumerate() {
+            let r = match to {
+                Node::Cell => self.cell.handle_request(now, req),
+                Node::Welding => self.welding.ctl.handle_request(now, req),
+                Node::Transport => self.transport.ctl.handle_request(now, req),
+                Node::Operator => Err(ServiceError::undefined("the operator takes no recipe")),
+            };
+            if let Err(e) = r {
+                if i >= first {
+                    let del = Request::DeleteDomain {
+                        domain: name.clone(),
+                    };
+                    let _ = match to {
+                        Node::Cell => self.cell.handle_request(now, &del),
+                        Node::Welding => self.welding.ctl.handle_request(now, &del),
+                        _ => self.transport.ctl.handle_request(now, &del),
+                    };
+                    return Err(ServiceError::state_conflict(format!(
+                        "recipe {name} on {to}: {}",
+                        e.description
+                    )));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn workstation_indication(
+        &mut self,
+        ws: Node,
+        request: &Request,
+    ) -> Result<Response, ServiceError> {
+        if !self.ups.get(&ws).is_some_and(|u| u.associated) {
+            return Err(ServiceError::state_conflict(format!(
+                "{ws} refused: no associated commander (Initiate first)"
+            )));
+        }
+        let now = self.now;
+        match ws {
+            Node::Welding => self.welding.ctl.handle_request(now, request),
+            _ => self.transport.ctl.handle_request(now, request),
+        }
+    }
+
+    /// `n`'s link to the router is cut (or joined again).
+    pub fn cut(&mut self, n: Node, cut: bool) {
+        self.bus.set_cut(n, cut);
+        self.note(format!("bus: {n} {}", if cut { "cut off" } else { "back" }));
+        if cut {
+            let at = self.now + LEASE;
+            self.leases.push((at, n));
+        } else {
+            self.back(n);
+        }
+        self.pump();
+    }
+
+    /// The operator sees `n` (and, for the operator, everyone) again.
+    fn back(&mut self, n: Node) {
+        let now = self.now;
+        let seen: Vec<Node> = match n {
+            Node::Operator => vec![Node::Cell, Node::Welding, Node::Transport],
+            other => vec![other],
+        };
+        for s in seen {
+            if self.bus.reachable(Node::Operator, s) && self.is_running(s) {
+                self.list.handle_presence(now, station(s), true);
+            }
+        }
+    }
+
+    /// `n`'s associations ended (its lease ran out, or it crashed).
+    fn lost(&mut self, n: Node) {
+        let now = self.now;
+        self.note(format!("bus: {n} lost"));
+        let op = station(Node::Operator);
+        let cell = station(Node::Cell);
+        match n {
+            Node::Operator | Node::Cell => {
+                if self.cell_associated {
+                    self.cell_associated = false;
+                    self.list
+                        .handle_abort(now, &format!("no connection with {n}"));
+                    if self.is_running(Node::Cell) {
+                        self.cell.handle_abort(&op, Role::Commander);
+                    }
+                }
+                if n == Node::Cell {
+                    self.list.handle_presence(now, cell.clone(), false);
+                    for ws in [Node::Welding, Node::Transport] {
+                        self.drop_workstation(ws);
+                    }
+                } else {
+                    for s in [Node::Cell, Node::Welding, Node::Transport] {
+                        self.list.handle_presence(now, station(s), false);
+                    }
+                }
+            }
+            ws => {
+                self.list.handle_presence(now, station(ws), false);
+                self.drop_workstation(ws);
+            }
+        }
+    }
+
+    fn drop_workstation(&mut self, ws: Node) {
+        let up = self.ups.entry(ws).or_default();
+        if !up.associated {
+            return;
+        }
+        up.associated = false;
+        let (cell, name) = (station(Node::Cell), station(ws));
+        if self.is_running(Node::Cell) {
+            self.cell.handle_abort(&name, Role::Subordinate);
+        }
+        if self.is_running(ws) {
+            match ws {
+                Node::Welding => self.welding.ctl.handle_abort(&cell, Role::Commander),
+                _ => self.transport.ctl.handle_abort(&cell, Role::Commander),
+            }
+        }
+    }
+
+    /// Random bytes on the serial line, towards both ends.
+    pub fn noise(&mut self, bytes: Vec<u8>) {
+        let at = self.now + WIRE;
+        self.note(format!("serial: {} bytes of noise", bytes.len()));
+        self.wire.push_back((at, true, bytes.clone()));
+        self.wire.push_back((at, false, bytes));
+    }
+
+    /// Workstation `ws`'s process dies: only the twins' state survives.
+    pub fn crash(&mut self, ws: Node) {
+        self.note(format!("{ws}: process killed"));
+        if let Some(u) = self.ups.get_mut(&ws) {
+            u.running = false;
+        }
+        let now = self.now;
+        // Its liveliness token goes with its session: seen at once.
+        self.list.handle_presence(now, station(ws), false);
+        let up = self.ups.entry(ws).or_default();
+        if up.associated {
+            up.associated = false;
+            let name = station(ws);
+            self.cell.handle_abort(&name, Role::Subordinate);
+        }
+        self.pump();
+    }
+
+    /// Workstation `ws` starts again, empty.
+    pub fn restart(&mut self, ws: Node) {
+        let now = self.now;
+        self.note(format!("{ws}: process started again"));
+        match ws {
+            Node::Welding => {
+                self.welding = welding_node(now, self.timing);
+                self.wire.retain(|w| w.1);
+            }
+            _ => self.transport = transport_node(now, self.conveyor.coils()),
+        }
+        if let Some(u) = self.ups.get_mut(&ws) {
+            u.running = true;
+            u.associated = false;
+        }
+        if self.bus.reachable(Node::Operator, ws) {
+            self.list.handle_presence(now, station(ws), true);
+        }
+        self.pump();
+    }
+}
+
+/// What a controller put out, as the bus carries it.
+fn unconfirmed(from: Node, out: CtlOutput) -> Unconfirmed {
+    match out {
+        CtlOutput::Report { severity, text } => Unconfirmed::Report {
+            station: station(from),
+            severity,
+            text,
+        },
+        CtlOutput::Job { program, event } => Unconfirmed::Job {
+            station: station(from),
+            program,
+            event,
+        },
+    }
+}
+
+/// Random choices the faults take, in one place.
+pub fn pick<T: Copy>(rng: &mut StdRng, from: &[T]) -> Option<T> {
+    if from.is_empty() {
+        None
+    } else {
+        from.get(rng.gen_range(0..from.len())).copied()
+    }
+}
