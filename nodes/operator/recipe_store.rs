@@ -15,11 +15,9 @@
 
 use falc_control::recipe_source::{checked_set, PutError, RecipeSet, RecipeSource};
 use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
-use falc_model::ids::{ObjectName, StationName};
+use falc_model::ids::StationName;
 use falc_model::mms::domain::content_hash;
 use falc_model::topology::Topology;
-use falc_recipe::check::{check_set, Command, Entry, Job, Program};
-use falc_recipe::commands::RecipeKind;
 use falc_recipe::files::{self, StationKinds};
 use std::path::{Path, PathBuf};
 

@@ -203,10 +203,13 @@ async fn main() -> Result<()> {
             _ = tokio::time::sleep_until(deadline) => ws.on_timeout(),
             _ = shutdown.requested() => break,
         }
-        ws.settle().await;
+        ws.settle_core();
+        send_commands(&mut ws, &link.commands);
+        ws.publish().await;
     }
     // Leave the conveyor as a person expects: no button held by FALC.
     ws.core.device.shutdown();
+    send_commands(&mut ws, &link.commands);
     let issued = ws.core.device.issued();
     let _ = tokio::time::timeout(Duration::from_millis(500), async {
         while let Some(ev) = link.events.recv().await {

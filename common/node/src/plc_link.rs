@@ -9,7 +9,7 @@
 //! its read began, so a reader can tell a reading taken before its own last
 //! coil write from one taken after.
 
-use falc_plc::map::{Coil, Inputs, IoMap, MapError, COILS, INPUTS};
+use falc_plc::map::{Inputs, IoMap, MapError, COILS, INPUTS};
 pub use falc_plc::workstation::{Pace, PlcCommand};
 use std::net::SocketAddr;
 use std::time::Duration;
