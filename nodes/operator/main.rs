@@ -27,7 +27,7 @@ use database::Database;
 use falc_bus::operator_service::ApiResponder;
 use falc_bus::station::{self, Station, StationEvent};
 use falc_bus::{Bus, BusEvent, Declaration, Presence, Responder};
-use falc_control::order_list::{CellCall, OrderList, Output, Ticket};
+use falc_control::order_list::{CellCall, OrderList, Output, Ticket, CELL_LIMIT};
 use falc_control::plant::{Plant, PlantOutput};
 use falc_control::recipe_source::{Delivery, RecipeSet, RecipeSource};
 use falc_model::console::EntryKind;
@@ -72,9 +72,6 @@ struct Cli {
     #[command(flatten)]
     node: NodeArgs,
 }
-
-/// How long a Start, Stop or Initiate of the cell may take.
-const CELL_LIMIT: Duration = Duration::from_secs(10);
 
 /// What the cell lane sends.
 enum LaneJob {
@@ -188,19 +185,12 @@ impl Operator {
         match out {
             Output::Cell(call) => {
                 let job = match call {
+                    // The root's Initiate: of the cell and what it needs.
                     CellCall::Associate => LaneJob::Initiates(cell.station.initiates_due()),
-                    CellCall::Initiate => LaneJob::Request(Request::Initiate {
-                        calling: cell.station.bus().me().clone(),
-                    }),
-                    CellCall::Deliver(d) => LaneJob::Deliver(d),
-                    CellCall::Start { name, argument } => {
-                        LaneJob::Request(Request::Start { name, argument })
-                    }
-                    CellCall::Stop { name } => LaneJob::Request(Request::Stop { name }),
-                    CellCall::Pass(request) => LaneJob::Request(request),
-                    CellCall::Ask { name } => {
-                        LaneJob::Request(Request::GetProgramInvocationAttributes { name })
-                    }
+                    call => match call.request(cell.station.bus().me()) {
+                        Ok(request) => LaneJob::Request(request),
+                        Err(delivery) => LaneJob::Deliver(*delivery),
+                    },
                 };
                 if cell.lane.send(job).is_err() {
                     tracing::error!("the cell lane stopped");

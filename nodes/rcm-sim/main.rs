@@ -21,7 +21,7 @@ use clap::Parser;
 use falc_dnc::procedure::Timing;
 use falc_dnc::robot::{Control, Robot};
 use falc_dnc::telegram::Mode;
-use falc_dnc::twin::RcmTwin;
+use falc_dnc::twin::{Note, RcmTwin};
 use falc_node::say;
 use std::time::Duration;
 use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
@@ -132,15 +132,16 @@ async fn main() -> Result<()> {
     let mut stdin = BufReader::new(tokio::io::stdin()).lines();
     let mut stdin_open = true;
     let mut plugged = true;
+    // The chance of a bit flip per byte on the line (`flips`).
     let mut flips = 0.0_f64;
     let mut flipped_bytes = 0u64;
     let mut buf = [0u8; 256];
     loop {
         while let Some(note) = twin.poll_note() {
-            if note.starts_with("rx ") {
-                say(&note);
-            } else {
-                tracing::warn!("{note}");
+            match note {
+                // One line per telegram received, for tests and people.
+                Note::Received(t) => say(&format!("rx {}", String::from_utf8_lossy(&t.encode()))),
+                Note::Trouble(why) => tracing::warn!("{why}"),
             }
         }
         if let Some(bytes) = twin.poll_transmit() {

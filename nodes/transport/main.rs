@@ -11,7 +11,8 @@
 //!
 //! A thin driver: the recipe runtime is `falc_control::controller`
 //! (driven by `falc_node::controller_node`), the Modbus link
-//! `falc_node::plc_link`, the recipe ↔ I/O rules `plc`.
+//! `falc_node::plc_link`, the recipe ↔ I/O rules `falc_plc::workstation`
+//! (poll-style: this loop hands its commands to the link's task).
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
@@ -23,7 +24,7 @@ use falc_model::topology::Topology;
 use falc_node::controller_node::ControllerNode;
 use falc_node::plc_link::{self, PlcArgs, PlcEvent, PlcSettings};
 use falc_node::{init_tracing, say, NodeArgs};
-use falc_plc::workstation::Plc;
+use falc_plc::workstation::{Plc, PlcCommand};
 use falc_recipe::commands::RecipeKind;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -127,7 +128,7 @@ async fn io(mut settings: PlcSettings, watch: bool) -> Result<()> {
 /// Hands what the device asked of the link to its task.
 fn send_commands(
     ws: &mut ControllerNode<Plc>,
-    link: &tokio::sync::mpsc::UnboundedSender<falc_plc::workstation::PlcCommand>,
+    link: &tokio::sync::mpsc::UnboundedSender<PlcCommand>,
 ) {
     while let Some(c) = ws.core.device.poll_command() {
         if link.send(c).is_err() {

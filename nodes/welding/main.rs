@@ -5,16 +5,18 @@
 //! alarm, paused, bad product, failed) go up as unsolicited status.
 //!
 //! A thin driver: the recipe runtime is `falc_control::controller`
-//! (driven by `falc_node::controller_node`), the rules of the link live in
-//! `falc_dnc::workstation` (the device, poll-style) and `falc_dnc::host` (DNC ↔ engine, and its supervision, which the runtime's clock
-//! drives through `Device::poll_timeout`) and the 3964R procedure.
+//! (driven by `falc_node::controller_node`); the device is
+//! `falc_dnc::workstation` (poll-style: this loop hands its telegrams to
+//! the 3964R task of `falc_node::dnc_link`), the rules of the link
+//! `falc_dnc::host` (DNC ↔ engine, and its supervision, which the
+//! runtime's clock drives through `Device::poll_timeout`).
 
 use anyhow::{Context, Result};
 use clap::Parser;
 use falc_bus::station::Station;
 use falc_control::controller::Device;
 use falc_dnc::procedure::{Priority, Timing};
-use falc_dnc::workstation::Welding;
+use falc_dnc::workstation::{self, Welding};
 use falc_model::ids::StationName;
 use falc_node::controller_node::ControllerNode;
 use falc_node::dnc_link;
@@ -79,11 +81,8 @@ async fn main() -> Result<()> {
         }
     };
     let robot = Welding::new(&line.path, &timing);
-    // select + start: 2 telegrams, each failing after 6 × 2 s on a dead
-    // line, so the link's own, clearer failure arrives before the confirm
-    // limit.
-    let confirm_limit = 2 * timing.dead_line_after() + Duration::from_secs(6);
-    let mut ws = ControllerNode::new(station, RecipeKind::Welding, confirm_limit, robot);
+    let limit = workstation::confirm_limit(&timing);
+    let mut ws = ControllerNode::new(station, RecipeKind::Welding, limit, robot);
     if dnc.is_some() {
         let now = ws.now();
         ws.core.device.opened(now);

@@ -105,7 +105,7 @@ pub struct Stations {
     local: VecDeque<Reply>,
     /// The recipe run, counted up at each end: what a Start's confirm
     /// belongs to.
-    pub run: u64,
+    run: u64,
 }
 
 impl Stations {
@@ -609,6 +609,33 @@ mod tests {
                 ..
             }
         )));
+    }
+
+    #[test]
+    fn a_late_confirm_of_an_earlier_runs_start_is_not_this_runs() {
+        // Found by falc-sim: a Start lost in a cut timed out during the
+        // next order's run and failed it.
+        let mut c = cell();
+        let first = up_to_the_transport_job(&mut c);
+        c.handle_abort(&st("transport"), Role::Subordinate);
+        settle(&mut c, secs(6));
+        assert!(!c.is_running());
+        outputs(&mut c);
+        c.handle_associated();
+        let second = up_to_the_transport_job(&mut c);
+        no_reply(&mut c, secs(16), &first);
+        settle(&mut c, secs(16));
+        assert!(c.is_running(), "the earlier run's confirm ends nothing");
+        assert!(
+            !outputs(&mut c)
+                .iter()
+                .any(|o| matches!(o, Output::Report { text, .. } if text.contains("refused"))),
+            "and is not reported as this run's"
+        );
+        // This run's own refusal still takes the failure path.
+        no_reply(&mut c, secs(17), &second);
+        settle(&mut c, secs(17));
+        assert!(!c.is_running());
     }
 
     #[test]

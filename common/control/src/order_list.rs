@@ -30,7 +30,7 @@ use falc_model::console::{
 use falc_model::ids::{CellId, ObjectName, StationName};
 use falc_model::mms::domain::content_hash;
 use falc_model::mms::error::{ErrorClass, ServiceError};
-use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
+use falc_model::mms::pdu::{JobEvent, Peer, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::program::PiState;
 use falc_model::mms::vmd::VmdStatus;
 use falc_model::mode::{CellMode, ModeSetting};
@@ -93,6 +93,28 @@ pub enum CellCall {
         /// The cell recipe.
         name: ObjectName,
     },
+}
+
+/// How long a call to the cell may take (a delivery: each of its steps).
+pub const CELL_LIMIT: Duration = Duration::from_secs(10);
+
+impl CellCall {
+    /// The request this call is on the bus, `calling` being the operator's
+    /// own peer: an Associate and an Initiate are both Initiates; a
+    /// delivery is a sequence of requests
+    /// (`falc_model::mms::domain::download_steps`), handed back as it is.
+    pub fn request(self, calling: &Peer) -> Result<Request, Box<Delivery>> {
+        Ok(match self {
+            CellCall::Associate | CellCall::Initiate => Request::Initiate {
+                calling: calling.clone(),
+            },
+            CellCall::Deliver(d) => return Err(Box::new(d)),
+            CellCall::Start { name, argument } => Request::Start { name, argument },
+            CellCall::Stop { name } => Request::Stop { name },
+            CellCall::Pass(request) => request,
+            CellCall::Ask { name } => Request::GetProgramInvocationAttributes { name },
+        })
+    }
 }
 
 /// What the node must do.
@@ -2266,10 +2288,13 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             return Ok(ApiReply::Done("no alarm to acknowledge".into()));
         }
         if let Some(s) = self.db_alarm.filter(|s| acked.iter().any(|a| a.id == *s)) {
-            // Acknowledged: the next write tells whether the records work
-            // again (it raises a new alarm if not).
+            // Acknowledged: the order ends held back are written now, not
+            // at the next start (there may be none: the list was done), and
+            // that write tells whether the records work again (it raises a
+            // new alarm if not).
             self.db_alarm = None;
             let _ = self.alarms.clear_where(&mut self.db, |a| a.id == s);
+            let _ = self.write_held_ends();
         }
         if let Some(e) = error {
             self.db_failed(&e);
@@ -2827,6 +2852,39 @@ mod tests {
             let n = texts.iter().filter(|t| **t == line).count();
             assert_eq!(n, 1, "order {id} started once");
         }
+    }
+
+    #[test]
+    fn the_last_orders_held_end_is_written_at_the_ack_without_a_start() {
+        // Found by falc-sim: the list's last order halted by a full disk
+        // stayed `running` in the records, since only a start wrote it.
+        let mut r = Rig::new();
+        r.add(1);
+        assert!(r.start().is_ok());
+        r.list.records().failing = true;
+        r.publish(Unconfirmed::Report {
+            station: st("welding"),
+            severity: Severity::Info,
+            text: "seam 1 done".into(),
+        });
+        let out = r.answer(Ok(()));
+        assert!(said(&out, "EVENT order-halted id=1"));
+        assert_eq!(r.order(1).state, OrderState::Running);
+        // Still full: the ack is taken, the end stays held, a new alarm.
+        assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+        assert_eq!(r.order(1).state, OrderState::Running);
+        assert_eq!(r.status().list, ListState::Alarm);
+        // Room again: the ack writes it.
+        r.list.records().failing = false;
+        assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+        assert_eq!(r.order(1).state, OrderState::Failed);
+        let late = r.list.records().texts();
+        assert_eq!(
+            late.iter().filter(|t| t.contains("(written late)")).count(),
+            1,
+            "{late:?}"
+        );
+        assert_eq!(r.status().list, ListState::Idle);
     }
 
     /// The cell answers the [`CellCall::Ask`] that is out with attributes

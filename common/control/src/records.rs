@@ -191,15 +191,21 @@ pub mod memory {
         /// The workstation jobs kept, with their order.
         pub jobs: Vec<(Option<i64>, JobRecord)>,
         clock: std::cell::Cell<i64>,
+        refused: std::cell::Cell<u64>,
     }
 
     impl Memory {
         fn write(&self) -> Result<(), String> {
             if self.failing {
+                self.refused.set(self.refused.get() + 1);
                 Err("disk full".into())
             } else {
                 Ok(())
             }
+        }
+        /// How many writes were refused so far.
+        pub fn refused(&self) -> u64 {
+            self.refused.get()
         }
         fn order_mut(&mut self, id: i64) -> Option<&mut Order> {
             self.orders.iter_mut().find(|o| o.id == id)

@@ -149,6 +149,16 @@ impl Host {
         Ok(done)
     }
 
+    /// Whether the serial line is open (telegrams can go).
+    pub fn is_open(&self) -> bool {
+        self.open
+    }
+
+    /// The serial line, for messages.
+    pub fn line(&self) -> &str {
+        &self.line
+    }
+
     /// Whether the line is open and the RCM answered since it was
     /// (re)opened or last went silent.
     pub fn answered(&self) -> bool {

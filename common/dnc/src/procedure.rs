@@ -427,11 +427,15 @@ impl Link {
                 ),
             },
             State::Backoff { .. } => {
-                if b == STX {
+                if b == STX && self.priority == Priority::Low {
                     // The partner wants to send: take its telegram first.
                     self.begin_receive(now);
                 } else {
-                    // Not quiet yet: wait again from this byte.
+                    // The end with priority keeps its turn (3964R's
+                    // initialisation conflict): were both to yield, both
+                    // would receive, refuse and yield again for ever.
+                    // Either way the line is not quiet yet: wait again
+                    // from this byte.
                     self.state = State::Backoff {
                         until: now + 2 * self.timing.char_delay,
                     };
@@ -774,6 +778,35 @@ mod tests {
                 rcm.handle_bytes(*now, &a);
                 ws.handle_bytes(*now, &b);
             }
+        }
+
+        #[test]
+        fn noise_that_makes_both_ends_receive_at_once_does_not_lock_the_line() {
+            // Found by falc-sim (seed 5): an STX in noise reached both ends
+            // at once; each answered DLE, took the other's DLE for data,
+            // refused with NAK and sent its own STX, backed off on the NAK
+            // and yielded to the other's STX, every round the same:
+            // both ends received forever and nothing was sent.
+            let mut ws = Link::new(Priority::Low, Timing::default());
+            let mut rcm = Link::new(Priority::High, Timing::default());
+            let mut now = Duration::ZERO;
+            ws.handle_bytes(now, &[STX]);
+            rcm.handle_bytes(now, &[STX]);
+            ws.send(now, b"Q".to_vec());
+            rcm.send(now, b"E066O".to_vec());
+            exchange(&mut ws, &mut rcm, &mut now);
+            let received = |l: &mut Link| -> Vec<Vec<u8>> {
+                events(l)
+                    .into_iter()
+                    .filter_map(|e| match e {
+                        LinkEvent::Received(t) => Some(t),
+                        _ => None,
+                    })
+                    .collect()
+            };
+            assert_eq!(received(&mut rcm), vec![b"Q".to_vec()]);
+            assert_eq!(received(&mut ws), vec![b"E066O".to_vec()]);
+            assert!(now < Duration::from_secs(10), "took {now:?}");
         }
 
         proptest! {

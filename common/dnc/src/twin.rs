@@ -3,7 +3,7 @@
 //! the line in ([`RcmTwin::handle_bytes`]), bytes to the line out
 //! ([`RcmTwin::poll_transmit`]), faults injected with
 //! [`RcmTwin::control`], and what a person watching the twin reads
-//! ([`RcmTwin::poll_note`]: each telegram received, each one lost).
+//! ([`RcmTwin::poll_note`]: each telegram received, and what went wrong).
 //! `falc-rcm-sim` drives it on a serial port, `falc-sim` on an in-memory
 //! line.
 
@@ -13,13 +13,22 @@ use crate::telegram::{AckError, Telegram};
 use std::collections::VecDeque;
 use std::time::Duration;
 
+/// What the twin tells the person watching it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Note {
+    /// A telegram came from the host.
+    Received(Telegram),
+    /// Something went wrong on the line (a telegram undecodable or lost).
+    Trouble(String),
+}
+
 /// The robot controller and its end of the link.
 #[derive(Debug)]
 pub struct RcmTwin {
     /// The robot (its mode, programs, faults).
     pub robot: Robot,
     link: Link,
-    notes: VecDeque<String>,
+    notes: VecDeque<Note>,
 }
 
 impl RcmTwin {
@@ -67,8 +76,8 @@ impl RcmTwin {
         }
     }
 
-    /// The next line for the twin's log.
-    pub fn poll_note(&mut self) -> Option<String> {
+    /// The next note for the twin's log.
+    pub fn poll_note(&mut self) -> Option<Note> {
         self.notes.pop_front()
     }
 
@@ -77,14 +86,14 @@ impl RcmTwin {
             match ev {
                 LinkEvent::Received(bytes) => match Telegram::decode(&bytes) {
                     Ok(t) => {
-                        self.notes
-                            .push_back(format!("rx {}", String::from_utf8_lossy(&t.encode())));
+                        self.notes.push_back(Note::Received(t.clone()));
                         for reply in self.robot.handle(now, t) {
                             self.link.send(now, reply.encode());
                         }
                     }
                     Err(e) => {
-                        self.notes.push_back(format!("undecodable telegram: {e}"));
+                        self.notes
+                            .push_back(Note::Trouble(format!("undecodable telegram: {e}")));
                         let of = bytes.first().copied().unwrap_or(b'?');
                         let nak = Telegram::Ack {
                             of,
@@ -93,9 +102,8 @@ impl RcmTwin {
                         self.link.send(now, nak.encode());
                     }
                 },
-                LinkEvent::Failed { telegram, error } => self.notes.push_back(format!(
-                    "telegram {} lost: {error}",
-                    telegram.escape_ascii()
+                LinkEvent::Failed { telegram, error } => self.notes.push_back(Note::Trouble(
+                    format!("telegram {} lost: {error}", telegram.escape_ascii()),
                 )),
                 LinkEvent::Sent(_) | LinkEvent::Refused(_) => {}
             }
@@ -123,8 +131,11 @@ mod tests {
                 host.handle_bytes(now, &b);
             }
         }
-        let note = twin.poll_note().unwrap_or_default();
-        assert!(note.starts_with("undecodable telegram"), "{note}");
+        let note = twin.poll_note();
+        assert!(
+            matches!(&note, Some(Note::Trouble(t)) if t.starts_with("undecodable telegram")),
+            "{note:?}"
+        );
         let mut got = Vec::new();
         while let Some(ev) = host.poll_event() {
             if let LinkEvent::Received(b) = ev {

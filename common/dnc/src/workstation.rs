@@ -19,15 +19,19 @@ use falc_recipe::engine::{Action, Event, Outcome};
 use std::collections::VecDeque;
 use std::time::Duration;
 
+/// How long a welding recipe's `start` waits for the robot's confirm:
+/// select and start are two telegrams, each given up after the dead-line
+/// limit on a dead line, so the link's own, clearer failure comes first.
+pub fn confirm_limit(timing: &Timing) -> Duration {
+    2 * timing.dead_line_after() + Duration::from_secs(6)
+}
+
 /// The robot controller behind its DNC line, as welding recipes see it.
 pub struct Welding {
+    /// The rules of the link; it knows whether the line is open.
     host: Host,
-    /// Whether the serial line is open (telegrams can go).
-    open: bool,
     /// Telegrams for the line, oldest first ([`Welding::poll_telegram`]).
     outbox: VecDeque<Telegram>,
-    /// The serial line's path, for messages.
-    line: String,
     detail: Option<RobotStatusDetail>,
     /// Alarms no job owns (a lost line while idle, a program found
     /// running nobody's), not yet reported.
@@ -40,22 +44,15 @@ impl Welding {
     pub fn new(line: &str, timing: &Timing) -> Self {
         Self {
             host: Host::new(line, timing),
-            open: false,
             outbox: VecDeque::new(),
-            line: line.to_string(),
             detail: None,
             alarms: VecDeque::new(),
         }
     }
 
-    /// The serial line's path.
-    pub fn line(&self) -> &str {
-        &self.line
-    }
-
-    /// Whether the serial line is open.
-    pub fn is_open(&self) -> bool {
-        self.open
+    /// The robot program a job of ours runs, as far as the host knows.
+    pub fn program(&self) -> Option<falc_model::ids::RobotProgram> {
+        self.host.running()
     }
 
     /// The next telegram for the line, in order: the driver hands each to
@@ -67,13 +64,13 @@ impl Welding {
     /// Queues `t` for the line; false (and the link's failure applied) if
     /// the line is not open.
     fn send(&mut self, t: Telegram, out: &mut Vec<Event>) -> bool {
-        let sent = self.open;
+        let sent = self.host.is_open();
         if sent {
             self.outbox.push_back(t);
         } else {
             let why = format!(
                 "no connection with RCM on {}: the line is not open",
-                self.line
+                self.host.line()
             );
             let outs = self.host.link_failed(why);
             self.apply(outs, out);
@@ -116,7 +113,7 @@ impl Welding {
                     "telegram {} to the RCM given up: {error}",
                     telegram.escape_ascii()
                 );
-                let why = format!("no connection with RCM on {}: {error}", self.line);
+                let why = format!("no connection with RCM on {}: {error}", self.host.line());
                 let outs = self.host.gave_up(&telegram, why);
                 self.apply(outs, &mut out);
             }
@@ -128,7 +125,6 @@ impl Welding {
 
     /// The line was (re)opened: initiate DNC and ask the robot's status.
     pub fn opened(&mut self, now: Duration) {
-        self.open = true;
         let mut out = Vec::new();
         let outs = self.host.connected(now);
         self.apply(outs, &mut out);
@@ -136,9 +132,11 @@ impl Welding {
 
     /// The line closed: engine events for the running recipe.
     pub fn closed(&mut self) -> Vec<Event> {
-        self.open = false;
         self.outbox.clear();
-        let why = format!("no connection with RCM on {}: the line closed", self.line);
+        let why = format!(
+            "no connection with RCM on {}: the line closed",
+            self.host.line()
+        );
         tracing::warn!("{why}");
         let mut out = Vec::new();
         let outs = self.host.closed(why);
@@ -173,7 +171,7 @@ impl Device for Welding {
         if self.send(telegram, &mut events) {
             Ok(done)
         } else {
-            Err(format!("the DNC line {} is not open", self.line))
+            Err(format!("the DNC line {} is not open", self.host.line()))
         }
     }
 

@@ -10,7 +10,7 @@
 //! coil write from one taken after.
 
 use falc_plc::map::{Inputs, IoMap, MapError, COILS, INPUTS};
-pub use falc_plc::workstation::{Pace, PlcCommand};
+use falc_plc::workstation::{Pace, PlcCommand};
 use std::net::SocketAddr;
 use std::time::Duration;
 use tokio::sync::mpsc;
@@ -49,11 +49,11 @@ pub struct PlcArgs {
     #[arg(long, default_value_t = 1)]
     pub unit: u8,
     /// Poll period of the discrete inputs while a recipe runs, in ms.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, default_value_t = falc_plc::workstation::POLL_MS)]
     pub poll_ms: u64,
     /// Poll period while no recipe runs, in ms (an idle cell costs little;
     /// an emergency stop or a lost PLC is still seen within this).
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = falc_plc::workstation::IDLE_POLL_MS)]
     pub idle_poll_ms: u64,
     /// How long one Modbus request may take, in ms.
     #[arg(long, default_value_t = 500)]

@@ -35,7 +35,7 @@
 //! Sans-I/O and poll-style: what the link must do comes out of
 //! [`Plc::poll_command`] (the transport node hands it to its Modbus task,
 //! the simulation to the twin's map); readings and the link's state come in
-//! through [`Plc::connected`], [`Plc::inputs`] and [`Plc::link_down`].
+//! through [`Plc::connected`], [`Plc::reading`] and [`Plc::link_down`].
 
 use crate::map::{Coil, Input, Inputs, SignalName, COILS};
 use falc_control::controller::Device;
@@ -57,6 +57,12 @@ pub enum PlcCommand {
     /// Poll at the busy or the idle period from now on (no Modbus request).
     Pace(Pace),
 }
+
+/// The link's poll period while a recipe runs, in ms (its default).
+pub const POLL_MS: u64 = 10;
+/// … and while none runs: an idle cell costs little, an emergency stop or
+/// a lost PLC is still seen within this.
+pub const IDLE_POLL_MS: u64 = 100;
 
 /// How fast the link polls.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -218,10 +224,10 @@ impl Plc {
         self.inputs = None;
     }
 
-    /// A new reading. Returns what it means for the running recipe, and an
+    /// A new reading ([`Plc::reading`]). Returns what it means for the running recipe, and an
     /// alarm if the PLC went into emergency stop (safety) or out of ready
     /// (device).
-    pub fn inputs(&mut self, inputs: Inputs, commands_done: u64) -> (Vec<Event>, Option<Cause>) {
+    fn inputs(&mut self, inputs: Inputs, commands_done: u64) -> (Vec<Event>, Option<Cause>) {
         let before = self.inputs.replace(inputs);
         self.inputs_after = commands_done;
         let mut events = Vec::new();
@@ -762,18 +768,22 @@ mod tests {
         assert_eq!(p.explain_timeout(Duration::from_secs(70)), None);
     }
 
+    /// The coils as a PLC holding `on` reads them back.
+    fn holding(on: &[Coil]) -> [bool; COILS as usize] {
+        let mut held = [false; COILS as usize];
+        for c in on {
+            held[usize::from(c.offset().expect("in the map"))] = true;
+        }
+        held
+    }
+
     #[test]
     fn a_restarted_workstation_releases_a_line_it_finds_running() {
         let mut p = plc();
-        let at = |c: Coil| usize::from(c.offset().expect("in the map"));
         let station_3 = Coil::Button(Button::Station(PlcStation::of(3)));
         let line_l = Coil::Button(Button::Line('L'));
         // Killed mid-move: the PLC still runs line L and clamps station 3.
-        let mut held = [false; COILS as usize];
-        held[at(station_3)] = true;
-        held[at(line_l)] = true;
-        held[at(Coil::ExternalControl)] = true;
-        p.connected(Some(held));
+        p.connected(Some(holding(&[station_3, line_l, Coil::ExternalControl])));
         assert_eq!(drain(&mut p), vec![PlcCommand::Write(line_l, false)]);
         assert!(p.pressed.contains(&Button::Station(PlcStation::of(3))));
         assert!(!p.pressed.contains(&Button::Line('L')));
@@ -786,9 +796,7 @@ mod tests {
         let station_3 = Coil::Button(Button::Station(PlcStation::of(3)));
         let line_e = Coil::Button(Button::Line('E'));
         // A restart mid-weld: the PLC holds station 3 and external control.
-        let mut held = [false; COILS as usize];
-        held[at(station_3)] = true;
-        held[at(Coil::ExternalControl)] = true;
+        let held = holding(&[station_3, Coil::ExternalControl]);
         p.connected(Some(held));
         assert_eq!(
             drain(&mut p),

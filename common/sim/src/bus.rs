@@ -31,6 +31,11 @@ impl Node {
     /// Every node.
     pub const ALL: [Node; 4] = [Node::Operator, Node::Cell, Node::Welding, Node::Transport];
 
+    /// The node that is station `name` of the shipped topology.
+    pub fn of(name: &falc_model::ids::StationName) -> Option<Node> {
+        Node::ALL.into_iter().find(|n| n.station() == name.as_str())
+    }
+
     /// Its station name in the shipped topology.
     pub fn station(self) -> &'static str {
         match self {

@@ -5,14 +5,15 @@
 //! step. The same seed gives the same run.
 
 use crate::bus::{Link, Node};
-use crate::world::{pick, World, HOME};
+use crate::world::{World, HOME};
 use falc_control::controller::Device;
 use falc_control::order_list::Ticket;
 use falc_control::records::memory::Memory;
 use falc_dnc::robot::Control as Rcm;
 use falc_model::alarm::Alarm;
-use falc_model::console::{ApiRequest, EntryKind, ListState, OrderState};
+use falc_model::console::{ApiRequest, EntryKind, ListState, Order, OrderState};
 use falc_model::ids::Place;
+use falc_model::mms::vmd::PhysicalStatus;
 use falc_plc::conveyor::{Control as Plc, Spot};
 use falc_plc::map::{Coil, LINES};
 use rand::seq::SliceRandom;
@@ -70,6 +71,15 @@ impl Fault {
             Fault::Stuck => "stuck",
             Fault::Partition => "partition",
             Fault::DiskFull => "disk-full",
+        }
+    }
+
+    /// How long it lasts before the operator clears its cause, in ms: a
+    /// cable or a link stays out until somebody finds it.
+    fn lasts(self) -> std::ops::Range<u64> {
+        match self {
+            Fault::Unplug | Fault::Partition | Fault::Crash => 2_000..20_000,
+            _ => 2_000..8_000,
         }
     }
 
@@ -220,6 +230,13 @@ const STUCK: Duration = Duration::from_secs(1800);
 const ORPHAN: Duration = Duration::from_secs(20);
 /// A line button held with no transport job for longer than this.
 const HELD: Duration = Duration::from_secs(2);
+/// An unplugged serial line is seen within this while a program of a job
+/// runs (a status request unanswered for its limit, 6.9 s, after at most
+/// one status period).
+const SILENT: Duration = Duration::from_secs(10);
+/// A failed write stops the running order at the cell within this (the
+/// list halts it); a full disk is only known at the next write.
+const BEHIND: Duration = Duration::from_secs(2);
 
 /// One run.
 pub struct Run {
@@ -252,13 +269,29 @@ pub struct Run {
     ends: BTreeMap<i64, u32>,
     last_end: Duration,
     orphan_since: Option<Duration>,
+    /// Since when the line is unplugged under a weld, unseen.
+    silent_since: Option<Duration>,
+    /// Since when an order runs at the cell after a write failed.
+    behind_since: Option<Duration>,
+    /// Writes refused before the disk last filled.
+    refused: u64,
     held_since: Option<Duration>,
     answered: Option<String>,
 }
 
 impl Run {
-    /// A run of `cfg` on a fresh cell.
+    /// A run of `cfg` on a fresh cell; a configuration that cannot run is
+    /// refused, saying why.
     pub fn new(cfg: Config) -> Result<Self, String> {
+        if cfg.recipes.is_empty() {
+            return Err("no cell recipe to order".into());
+        }
+        if !(0.0..=1.0).contains(&cfg.fault_rate) {
+            return Err(format!("a fault rate of {} (0 to 1)", cfg.fault_rate));
+        }
+        if !(cfg.time_scale.is_finite() && cfg.time_scale > 0.0) {
+            return Err(format!("a time scale of {} (above 0)", cfg.time_scale));
+        }
         let world = World::new(cfg.seed, cfg.time_scale, Link::default())?;
         Ok(Self {
             world,
@@ -279,6 +312,9 @@ impl Run {
             ends: BTreeMap::new(),
             last_end: Duration::ZERO,
             orphan_since: None,
+            behind_since: None,
+            silent_since: None,
+            refused: 0,
             held_since: None,
             answered: None,
         })
@@ -343,12 +379,7 @@ impl Run {
         self.added >= self.cfg.orders
             && self.active.is_none()
             && self.console.is_none()
-            && self.world.records.borrow().orders.iter().all(|o| {
-                matches!(
-                    o.state,
-                    OrderState::Done | OrderState::Failed | OrderState::Stopped
-                )
-            })
+            && self.world.records.borrow().orders.iter().all(is_ended)
             && self
                 .world
                 .list
@@ -402,16 +433,16 @@ impl Run {
         if let Some(o) = &s.running {
             if self.planned_for != Some(o.id) && self.active.is_none() && self.fault_at.is_none() {
                 self.planned_for = Some(o.id);
-                if !self.cfg.faults.is_empty()
-                    && self.world.rng.gen_bool(self.cfg.fault_rate.clamp(0.0, 1.0))
-                {
+                if !self.cfg.faults.is_empty() && self.world.rng.gen_bool(self.cfg.fault_rate) {
                     let delay = self.world.rng.gen_range(0..20_000u64);
                     self.fault_at = Some(self.world.now + Duration::from_millis(delay));
                 }
             }
         }
         if self.added < self.cfg.orders && s.queued < 2 {
-            let recipe = self.cfg.recipes[self.added % self.cfg.recipes.len()].clone();
+            // Not empty (Run::new).
+            let turn = self.added % self.cfg.recipes.len().max(1);
+            let recipe = self.cfg.recipes.get(turn).cloned().unwrap_or_default();
             self.added += 1;
             self.adding = true;
             self.console = Some(self.world.api("console", ApiRequest::order_add(&recipe)));
@@ -457,7 +488,7 @@ impl Run {
         let w = &mut self.world;
         let mut a = Active {
             fault,
-            clear_at: now + Duration::from_millis(w.rng.gen_range(2_000..8_000)),
+            clear_at: now + Duration::from_millis(w.rng.gen_range(fault.lasts())),
             node: None,
             line: None,
             place: None,
@@ -465,8 +496,9 @@ impl Run {
         w.note(format!("FAULT {fault}"));
         match fault {
             Fault::Crash => {
-                let n =
-                    pick(&mut w.rng, &[Node::Welding, Node::Transport]).unwrap_or(Node::Welding);
+                let n = *[Node::Welding, Node::Transport]
+                    .choose(&mut w.rng)
+                    .unwrap_or(&Node::Welding);
                 a.node = Some(n);
                 w.crash(n);
             }
@@ -480,7 +512,7 @@ impl Run {
                 a.clear_at = now;
             }
             Fault::Jam => {
-                let l = pick(&mut w.rng, &LINES).unwrap_or('A');
+                let l = *LINES.choose(&mut w.rng).unwrap_or(&'A');
                 a.line = Some(l);
                 w.conveyor.control(now, Plc::Jam(l));
             }
@@ -491,7 +523,7 @@ impl Run {
                 w.conveyor.control(now, Plc::Stuck(p, v));
             }
             Fault::Partition => {
-                let n = pick(&mut w.rng, &Node::ALL).unwrap_or(Node::Welding);
+                let n = *Node::ALL.choose(&mut w.rng).unwrap_or(&Node::Welding);
                 a.node = Some(n);
                 w.cut(n, true);
             }
@@ -547,13 +579,7 @@ impl Run {
         self.checked = rec.journal.len();
         // Every alarm is listed until acknowledged and cleared.
         let unlisted = unlisted_alarm(&rec, &self.world);
-        let all_ended = self.added >= self.cfg.orders
-            && rec.orders.iter().all(|o| {
-                matches!(
-                    o.state,
-                    OrderState::Done | OrderState::Failed | OrderState::Stopped
-                )
-            });
+        let all_ended = self.added >= self.cfg.orders && rec.orders.iter().all(is_ended);
         let done_ids: Vec<i64> = rec
             .orders
             .iter()
@@ -614,27 +640,40 @@ impl Run {
                 .and_then(|o| self.world.conveyor.coils().get(usize::from(o)).copied())
                 .unwrap_or(false)
         });
-        match (idle, held) {
-            (true, Some(l)) => {
-                let since = *self.held_since.get_or_insert(now);
-                if now.saturating_sub(since) > HELD {
-                    return Err(
-                        self.violation(format!("line button {l} held with no transport job"))
-                    );
-                }
-            }
-            _ => self.held_since = None,
+        if let (true, Some(l)) = (
+            lasting(&mut self.held_since, idle && held.is_some(), now) > HELD,
+            held,
+        ) {
+            return Err(self.violation(format!("line button {l} held with no transport job")));
         }
         // No robot program runs without a job that owns it.
         let orphan = self.world.rcm.robot.running().is_some()
             && !(self.world.is_running(Node::Welding) && self.world.welding.ctl.is_running());
-        if orphan {
-            let since = *self.orphan_since.get_or_insert(now);
-            if now.saturating_sub(since) > ORPHAN {
-                return Err(self.violation("a robot program runs with no job owning it".into()));
-            }
-        } else {
-            self.orphan_since = None;
+        if lasting(&mut self.orphan_since, orphan, now) > ORPHAN {
+            return Err(self.violation("a robot program runs with no job owning it".into()));
+        }
+        // A dead serial line is seen while a program of a job runs.
+        let unseen = !self.world.plugged
+            && self.world.is_running(Node::Welding)
+            && self.world.welding.ctl.device.program().is_some()
+            && self.world.welding.ctl.status().physical != PhysicalStatus::Inoperable;
+        if lasting(&mut self.silent_since, unseen, now) > SILENT {
+            return Err(self.violation(format!(
+                "the serial line is unplugged under a running program and the welding station has not seen it in {} s",
+                SILENT.as_secs()
+            )));
+        }
+        // A write that fails stops the cell: no order runs on with the
+        // journal behind.
+        let refused = self.world.records.borrow().refused();
+        let behind = refused > self.refused && self.world.cell.is_running();
+        if !self.world.records.borrow().failing {
+            self.refused = refused;
+        }
+        if lasting(&mut self.behind_since, behind, now) > BEHIND {
+            return Err(self.violation(
+                "an order runs at the cell while the records cannot be written".into(),
+            ));
         }
         // The order list returns to production after the way back.
         if let Some((since, _, _)) = self.production_since {
@@ -650,6 +689,24 @@ impl Run {
         }
         Ok(())
     }
+}
+
+/// How long a condition has held: `since` keeps when it began.
+fn lasting(since: &mut Option<Duration>, holds: bool, now: Duration) -> Duration {
+    if holds {
+        now.saturating_sub(*since.get_or_insert(now))
+    } else {
+        *since = None;
+        Duration::ZERO
+    }
+}
+
+/// Whether `o` ended (done, failed or stopped).
+fn is_ended(o: &Order) -> bool {
+    matches!(
+        o.state,
+        OrderState::Done | OrderState::Failed | OrderState::Stopped
+    )
 }
 
 /// The order an end entry ends (`order 3 (dikdroog) done: …`, `order 3

@@ -11,31 +11,31 @@
 
 use crate::bus::{Arrival, Bus, Link, Msg, Node};
 use crate::recipes::Shipped;
-use falc_control::controller::{Controller, Output as CtlOutput};
+use falc_control::controller::{Controller, Device, Output as CtlOutput};
 use falc_control::coordination::{self, workstation_domain, Awaiting, Reply, Route, Stations};
-use falc_control::order_list::{CellCall, OrderList, Output as ListOutput, Ticket};
+use falc_control::order_list::{OrderList, Output as ListOutput, Ticket, CELL_LIMIT};
 use falc_control::recipe_source::{Delivery, RecipeSource};
 use falc_control::records::memory::Memory;
 use falc_control::records::shared::{plant, Shared};
 use falc_dnc::procedure::{Link as DncLink, Priority, Timing};
 use falc_dnc::robot::Robot;
 use falc_dnc::telegram::Mode;
-use falc_dnc::twin::RcmTwin;
-use falc_dnc::workstation::Welding;
+use falc_dnc::twin::{Note, RcmTwin};
+use falc_dnc::workstation::{self, Welding};
 use falc_model::console::{ApiRequest, ApiResult};
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::association::Role;
 use falc_model::mms::domain::download_steps;
 use falc_model::mms::error::ServiceError;
-use falc_model::mms::pdu::{Peer, Request, Response, Unconfirmed};
-use falc_model::mms::vmd::VmdStatus;
+use falc_model::mms::pdu::{Peer, Request, Response, Severity, Unconfirmed};
+use falc_model::mms::vmd::{Vmd, VmdStatus};
 use falc_model::topology::Topology;
 use falc_plc::conveyor::{Conveyor, Spot};
 use falc_plc::map::{Coil, Inputs, COILS};
-use falc_plc::workstation::{Pace, Plc, PlcCommand};
+use falc_plc::workstation::{Pace, Plc, PlcCommand, IDLE_POLL_MS, POLL_MS};
 use falc_recipe::commands::RecipeKind;
 use rand::rngs::StdRng;
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use std::cell::RefCell;
 use std::collections::{BTreeMap, VecDeque};
 use std::rc::Rc;
@@ -43,15 +43,11 @@ use std::time::Duration;
 
 /// The shipped topology: operator, cell, welding, transport.
 const TOPOLOGY: &str = include_str!("../../../launch/cell.toml");
-/// How long a silent peer is still taken for present (the topology's lease).
-pub const LEASE: Duration = Duration::from_secs(1);
-/// How long the operator's calls to the cell may take.
-const CELL_LIMIT: Duration = Duration::from_secs(10);
 /// How long one byte chunk takes on the serial line.
 const WIRE: Duration = Duration::from_millis(2);
-/// The transport's poll periods (its defaults).
-const POLL_BUSY: Duration = Duration::from_millis(10);
-const POLL_IDLE: Duration = Duration::from_millis(100);
+/// The transport's poll periods (the link's defaults).
+const POLL_BUSY: Duration = Duration::from_millis(POLL_MS);
+const POLL_IDLE: Duration = Duration::from_millis(IDLE_POLL_MS);
 /// Where carriers stand when an order may start.
 pub const HOME: [&str; 2] = ["W2", "W2"];
 /// At most this many lines of the trace are kept.
@@ -75,12 +71,21 @@ enum Waiter {
 }
 
 /// A workstation's association with the cell, and its process.
-#[derive(Debug, Default, Clone, Copy)]
+#[derive(Debug, Clone, Copy)]
 struct Up {
     /// Associated with its commander.
     associated: bool,
     /// Its process runs (not crashed).
     running: bool,
+}
+
+impl Default for Up {
+    fn default() -> Self {
+        Self {
+            associated: false,
+            running: true,
+        }
+    }
 }
 
 /// The welding workstation: its controller and its end of the line.
@@ -107,16 +112,14 @@ fn welding_node(now: Duration, timing: Timing) -> WeldingNode {
     let mut device = Welding::new("sim-serial", &timing);
     device.opened(now);
     WeldingNode {
-        ctl: Controller::new(RecipeKind::Welding, welding_confirm(&timing), device),
+        ctl: Controller::new(
+            RecipeKind::Welding,
+            workstation::confirm_limit(&timing),
+            device,
+        ),
         link: DncLink::new(Priority::Low, timing),
         status: None,
     }
-}
-
-/// As `falc-welding`: select + start, each failing after the dead-line
-/// limit, before the confirm limit.
-fn welding_confirm(timing: &Timing) -> Duration {
-    2 * timing.dead_line_after() + Duration::from_secs(6)
 }
 
 fn transport_node(now: Duration, coils: &[bool]) -> TransportNode {
@@ -140,6 +143,43 @@ fn transport_node(now: Duration, coils: &[bool]) -> TransportNode {
 fn station(n: Node) -> StationName {
     // The four names are valid station names.
     StationName::new(n.station()).unwrap_or_else(|e| unreachable!("{n}: {e}"))
+}
+
+/// What a station not associated with its commander answers.
+fn not_associated(n: Node) -> ServiceError {
+    ServiceError::state_conflict(format!(
+        "{n} refused: no associated commander (Initiate first)"
+    ))
+}
+
+/// What a controller put out since it was last asked, as the bus carries
+/// it: its reports and job events, and its status if it changed.
+fn outputs<D: Device>(
+    ctl: &mut Controller<D>,
+    last: &mut Option<VmdStatus>,
+    from: Node,
+) -> Vec<Unconfirmed> {
+    let station = station(from);
+    let mut out: Vec<Unconfirmed> = std::iter::from_fn(|| ctl.poll_output())
+        .map(|o| match o {
+            CtlOutput::Report { severity, text } => Unconfirmed::Report {
+                station: station.clone(),
+                severity,
+                text,
+            },
+            CtlOutput::Job { program, event } => Unconfirmed::Job {
+                station: station.clone(),
+                program,
+                event,
+            },
+        })
+        .collect();
+    let status = ctl.status();
+    if last.as_ref() != Some(&status) {
+        *last = Some(status.clone());
+        out.push(Unconfirmed::Status { station, status });
+    }
+    out
 }
 
 fn peer(n: Node) -> Peer {
@@ -173,10 +213,13 @@ pub struct World {
     cell_status: Option<VmdStatus>,
     /// The operator–cell association.
     cell_associated: bool,
+    /// How long a silent peer is still taken for present (the topology's).
+    lease: Duration,
     /// The welding workstation.
     pub welding: WeldingNode,
     /// The transport workstation.
     pub transport: TransportNode,
+    /// The workstations' associations and processes.
     ups: BTreeMap<Node, Up>,
     /// The robot controller's twin.
     pub rcm: RcmTwin,
@@ -230,10 +273,6 @@ impl World {
         )
         .named(station(Node::Cell))
         .runs_on_alone(true);
-        let up = Up {
-            associated: false,
-            running: true,
-        };
         let mut w = Self {
             now,
             steps: 0,
@@ -247,10 +286,12 @@ impl World {
             cell,
             cell_status: None,
             cell_associated: false,
+            lease: topology.lease(),
             welding: welding_node(now, timing),
             transport,
-            ups: [(Node::Welding, up), (Node::Transport, up), (Node::Cell, up)]
+            ups: [Node::Welding, Node::Transport]
                 .into_iter()
+                .map(|n| (n, Up::default()))
                 .collect(),
             rcm: RcmTwin::new(Robot::new(Mode::AutomaticExternal, time_scale), timing),
             wire: VecDeque::new(),
@@ -303,9 +344,14 @@ impl World {
         self.replies.remove(&t)
     }
 
-    /// Whether workstation `n`'s process runs.
+    /// Whether `n`'s process runs (only a workstation's crashes).
     pub fn is_running(&self, n: Node) -> bool {
-        self.ups.get(&n).is_some_and(|u| u.running)
+        self.ups.get(&n).map_or(true, |u| u.running)
+    }
+
+    /// Whether workstation `n` is associated with the cell.
+    fn is_associated(&self, n: Node) -> bool {
+        self.ups.get(&n).is_some_and(|u| u.associated)
     }
 
     /// When something is next due.
@@ -415,13 +461,14 @@ impl World {
     /// on when they changed or after a write (as `falc_node::plc_link`).
     fn poll_plc(&mut self) {
         let now = self.now;
+        let running = self.is_running(Node::Transport);
         let t = &mut self.transport;
         t.next_poll = now
             + match t.pace {
                 Pace::Busy => POLL_BUSY,
                 Pace::Idle => POLL_IDLE,
             };
-        if !self.ups.get(&Node::Transport).is_some_and(|u| u.running) {
+        if !running {
             return;
         }
         self.conveyor.handle_timeout(now);
@@ -434,7 +481,7 @@ impl World {
             if let Some(cause) = reading.alarm {
                 t.ctl.fault(cause);
             } else if let Some(line) = reading.ready {
-                t.ctl.report(falc_model::mms::pdu::Severity::Info, line);
+                t.ctl.report(Severity::Info, line);
             }
         }
     }
@@ -501,53 +548,17 @@ impl World {
             any = true;
             match out {
                 ListOutput::Cell(call) => {
-                    let to = Node::Cell;
-                    match call {
-                        CellCall::Associate | CellCall::Initiate => {
-                            let request = Request::Initiate {
-                                calling: peer(Node::Operator),
-                            };
-                            self.request(
-                                Node::Operator,
-                                to,
-                                |id| Msg::Request { id, request },
-                                CELL_LIMIT,
-                                Waiter::List,
-                            );
+                    let (msg, limit): (Box<dyn FnOnce(u64) -> Msg>, _) = match call
+                        .request(&peer(Node::Operator))
+                    {
+                        Ok(request) => (Box::new(|id| Msg::Request { id, request }), CELL_LIMIT),
+                        // One exchange here, a request per step on the
+                        // real bus: as long as its steps may take.
+                        Err(delivery) => {
+                            (Box::new(|id| Msg::Deliver { id, delivery }), CELL_LIMIT * 4)
                         }
-                        CellCall::Deliver(d) => {
-                            let delivery = Box::new(d);
-                            self.request(
-                                Node::Operator,
-                                to,
-                                |id| Msg::Deliver { id, delivery },
-                                CELL_LIMIT * 4,
-                                Waiter::List,
-                            );
-                        }
-                        other => {
-                            let request = match other {
-                                CellCall::Start { name, argument } => {
-                                    Request::Start { name, argument }
-                                }
-                                CellCall::Stop { name } => Request::Stop { name },
-                                CellCall::Pass(r) => r,
-                                CellCall::Ask { name } => {
-                                    Request::GetProgramInvocationAttributes { name }
-                                }
-                                CellCall::Associate | CellCall::Initiate | CellCall::Deliver(_) => {
-                                    continue
-                                }
-                            };
-                            self.request(
-                                Node::Operator,
-                                to,
-                                |id| Msg::Request { id, request },
-                                CELL_LIMIT,
-                                Waiter::List,
-                            );
-                        }
-                    }
+                    };
+                    self.request(Node::Operator, Node::Cell, msg, limit, Waiter::List);
                 }
                 ListOutput::Reply { ticket, result } => {
                     self.replies.insert(ticket, *result);
@@ -569,19 +580,14 @@ impl World {
 
     fn pump_cell(&mut self) -> bool {
         let mut any = false;
-        if !self.is_running(Node::Cell) {
-            return false;
-        }
         loop {
             self.cell.settle(self.now);
             let mut more = false;
             while let Some(cmd) = self.cell.device.poll_command() {
                 more = true;
-                let to = match cmd.to.as_str() {
-                    "operator" => Node::Operator,
-                    "welding" => Node::Welding,
-                    "transport" => Node::Transport,
-                    _ => Node::Cell,
+                let Some(to) = Node::of(&cmd.to) else {
+                    self.note(format!("cell: no station {} in the simulation", cmd.to));
+                    continue;
                 };
                 let request = cmd.request;
                 self.request(
@@ -601,22 +607,9 @@ impl World {
             }
             any = true;
         }
-        while let Some(out) = self.cell.poll_output() {
+        for u in outputs(&mut self.cell, &mut self.cell_status, Node::Cell) {
             any = true;
-            let u = unconfirmed(Node::Cell, out);
             self.publish(Node::Cell, u);
-        }
-        let status = self.cell.status();
-        if self.cell_status.as_ref() != Some(&status) {
-            self.cell_status = Some(status.clone());
-            self.publish(
-                Node::Cell,
-                Unconfirmed::Status {
-                    station: station(Node::Cell),
-                    status,
-                },
-            );
-            any = true;
         }
         any
     }
@@ -652,26 +645,14 @@ impl World {
         }
         while let Some(note) = self.rcm.poll_note() {
             // Each telegram received is too many lines for the trace.
-            if !note.starts_with("rx ") {
-                self.note(format!("rcm: {note}"));
+            if let Note::Trouble(why) = note {
+                self.note(format!("rcm: {why}"));
             }
         }
-        while let Some(out) = self.welding.ctl.poll_output() {
+        let w = &mut self.welding;
+        for u in outputs(&mut w.ctl, &mut w.status, Node::Welding) {
             any = true;
-            let u = unconfirmed(Node::Welding, out);
             self.publish(Node::Welding, u);
-        }
-        let status = self.welding.ctl.status();
-        if self.welding.status.as_ref() != Some(&status) {
-            self.welding.status = Some(status.clone());
-            self.publish(
-                Node::Welding,
-                Unconfirmed::Status {
-                    station: station(Node::Welding),
-                    status,
-                },
-            );
-            any = true;
         }
         any
     }
@@ -723,22 +704,10 @@ impl World {
         while let Some(note) = self.conveyor.poll_note() {
             self.note(format!("plc: {note}"));
         }
-        while let Some(out) = self.transport.ctl.poll_output() {
+        let t = &mut self.transport;
+        for u in outputs(&mut t.ctl, &mut t.status, Node::Transport) {
             any = true;
-            let u = unconfirmed(Node::Transport, out);
             self.publish(Node::Transport, u);
-        }
-        let status = self.transport.ctl.status();
-        if self.transport.status.as_ref() != Some(&status) {
-            self.transport.status = Some(status.clone());
-            self.publish(
-                Node::Transport,
-                Unconfirmed::Status {
-                    station: station(Node::Transport),
-                    status,
-                },
-            );
-            any = true;
         }
         any
     }
@@ -761,10 +730,8 @@ impl World {
             }
             (Node::Operator, Msg::Publish(u)) => self.list.handle_publication(now, u),
             (Node::Cell, Msg::Publish(u)) => {
-                if self.is_running(Node::Cell) {
-                    let events = self.cell.device.unconfirmed(&u);
-                    self.cell.feed(now, events);
-                }
+                let events = self.cell.device.unconfirmed(&u);
+                self.cell.feed(now, events);
             }
             (_, Msg::Publish(_)) => {}
             (Node::Operator, Msg::Request { id, request }) => {
@@ -781,6 +748,8 @@ impl World {
                 let result = self.cell_delivery(&delivery);
                 self.respond(Node::Cell, a.from, id, result);
             }
+            // A dead process answers nothing: the request runs out of time.
+            (ws, Msg::Request { .. }) if !self.is_running(ws) => {}
             (ws @ (Node::Welding | Node::Transport), Msg::Request { id, request }) => {
                 let result = self.workstation_indication(ws, &request);
                 self.respond(ws, a.from, id, result);
@@ -794,9 +763,7 @@ impl World {
         match waiter {
             Waiter::List => self.list.handle_cell_answer(now, result),
             Waiter::Cell(awaiting) => {
-                if self.is_running(Node::Cell) {
-                    coordination::handle_reply(&mut self.cell, now, Reply { awaiting, result });
-                }
+                coordination::handle_reply(&mut self.cell, now, Reply { awaiting, result });
             }
         }
     }
@@ -815,9 +782,7 @@ impl World {
             return Ok(Response::Done);
         }
         if !self.cell_associated {
-            return Err(ServiceError::state_conflict(
-                "cell refused: no associated commander (Initiate first)",
-            ));
+            return Err(not_associated(Node::Cell));
         }
         let subs = [station(Node::Welding), station(Node::Transport)];
         match coordination::route(request, &subs) {
@@ -826,14 +791,10 @@ impl World {
                 self.cell.handle_request(now, request)?;
                 return self.pass_on(&[Node::Welding, Node::Transport], request);
             }
-            Route::To(st) => {
-                let to = if st.as_str() == "welding" {
-                    Node::Welding
-                } else {
-                    Node::Transport
-                };
-                return self.pass_on(&[to], request);
-            }
+            Route::To(st) => match Node::of(&st) {
+                Some(to) => return self.pass_on(&[to], request),
+                None => return Err(ServiceError::undefined(format!("no station {st}"))),
+            },
             Route::Refused(e) => return Err(e),
         }
         let result = self.cell.handle_request(now, request);
@@ -882,6 +843,7 @@ impl World {
             return Ok(());
         }
         up.associated = true;
+        // Associated: its status is published again.
         match ws {
             Node::Welding => {
                 self.welding.ctl.handle_associated();
@@ -905,20 +867,10 @@ impl World {
             })
             .collect();
         for (name, content) in todo {
-            let has = match ws {
-                Node::Welding => self
-                    .welding
-                    .ctl
-                    .vmd()
-                    .domain(&name)
-                    .is_some_and(|d| d.content() == content.as_slice()),
-                _ => self
-                    .transport
-                    .ctl
-                    .vmd()
-                    .domain(&name)
-                    .is_some_and(|d| d.content() == content.as_slice()),
-            };
+            let has = self
+                .vmd(ws)
+                .domain(&name)
+                .is_some_and(|d| d.content() == content.as_slice());
             if !has {
                 self.deliver_to(ws, &name, &content, true)?;
             }
@@ -931,23 +883,17 @@ impl World {
     /// A recipe delivered to the cell; a workstation's is passed on.
     fn cell_delivery(&mut self, d: &Delivery) -> Result<Response, ServiceError> {
         if !self.cell_associated {
-            return Err(ServiceError::state_conflict(
-                "cell refused: no associated commander (Initiate first)",
-            ));
+            return Err(not_associated(Node::Cell));
         }
         self.deliver_to(Node::Cell, &d.domain, &d.content, d.is_cell)?;
         if let Some((st, name)) = workstation_domain(&d.domain) {
-            let ws = if st.as_str() == "welding" {
-                Node::Welding
-            } else {
-                Node::Transport
-            };
-            let passed = if self.bus.reachable(Node::Cell, ws) && self.is_running(ws) {
-                self.deliver_to(ws, &name, &d.content, true)
-            } else {
-                Err(ServiceError::unreachable(format!(
-                    "no connection with station {ws}"
-                )))
+            let passed = match Node::of(&st) {
+                Some(ws) if self.bus.reachable(Node::Cell, ws) && self.is_running(ws) => {
+                    self.deliver_to(ws, &name, &d.content, true)
+                }
+                _ => Err(ServiceError::unreachable(format!(
+                    "no connection with station {st}"
+                ))),
             };
             if let Err(e) = passed {
                 self.cell.discard_domain(&d.domain);
@@ -965,7 +911,6 @@ impl World {
         content: &[u8],
         with_program: bool,
     ) -> Result<(), ServiceError> {
-        let now = self.now;
         let mut steps = vec![
             Request::DeleteProgramInvocation { name: name.clone() },
             Request::DeleteDomain {
@@ -982,22 +927,13 @@ impl World {
             });
         }
         for (i, req) in steps.iter().enumerate() {
-            let r = match to {
-                Node::Cell => self.cell.handle_request(now, req),
-                Node::Welding => self.welding.ctl.handle_request(now, req),
-                Node::Transport => self.transport.ctl.handle_request(now, req),
-                Node::Operator => Err(ServiceError::undefined("the operator takes no recipe")),
-            };
-            if let Err(e) = r {
+            if let Err(e) = self.handle_at(to, req) {
+                // What was there before may be absent.
                 if i >= first {
                     let del = Request::DeleteDomain {
                         domain: name.clone(),
                     };
-                    let _ = match to {
-                        Node::Cell => self.cell.handle_request(now, &del),
-                        Node::Welding => self.welding.ctl.handle_request(now, &del),
-                        _ => self.transport.ctl.handle_request(now, &del),
-                    };
+                    let _ = self.handle_at(to, &del);
                     return Err(ServiceError::state_conflict(format!(
                         "recipe {name} on {to}: {}",
                         e.description
@@ -1013,15 +949,31 @@ impl World {
         ws: Node,
         request: &Request,
     ) -> Result<Response, ServiceError> {
-        if !self.ups.get(&ws).is_some_and(|u| u.associated) {
-            return Err(ServiceError::state_conflict(format!(
-                "{ws} refused: no associated commander (Initiate first)"
-            )));
+        if !self.is_associated(ws) {
+            return Err(not_associated(ws));
         }
+        self.handle_at(ws, request)
+    }
+
+    /// `request` handled by `at`'s controller.
+    fn handle_at(&mut self, at: Node, request: &Request) -> Result<Response, ServiceError> {
         let now = self.now;
-        match ws {
+        match at {
+            Node::Cell => self.cell.handle_request(now, request),
             Node::Welding => self.welding.ctl.handle_request(now, request),
-            _ => self.transport.ctl.handle_request(now, request),
+            Node::Transport => self.transport.ctl.handle_request(now, request),
+            Node::Operator => Err(ServiceError::undefined(
+                "the operator serves no such request",
+            )),
+        }
+    }
+
+    /// A workstation's (or the cell's) object store.
+    fn vmd(&self, n: Node) -> &Vmd {
+        match n {
+            Node::Welding => self.welding.ctl.vmd(),
+            Node::Transport => self.transport.ctl.vmd(),
+            _ => self.cell.vmd(),
         }
     }
 
@@ -1030,7 +982,7 @@ impl World {
         self.bus.set_cut(n, cut);
         self.note(format!("bus: {n} {}", if cut { "cut off" } else { "back" }));
         if cut {
-            let at = self.now + LEASE;
+            let at = self.now + self.lease;
             self.leases.push((at, n));
         } else {
             self.back(n);
@@ -1052,10 +1004,29 @@ impl World {
         }
     }
 
+    /// The router closed `n`'s session: the requests routed to it end
+    /// with no reply at once, as zenoh's router finalizes a closed face's
+    /// pending queries (`finalize_pending_queries`).
+    fn finalize(&mut self, n: Node) {
+        let ids: Vec<u64> = self
+            .pending
+            .iter()
+            .filter(|(_, p)| p.to == n)
+            .map(|(id, _)| *id)
+            .collect();
+        for id in ids {
+            if let Some(p) = self.pending.remove(&id) {
+                let e = ServiceError::unreachable(format!("no reply from {n}: its session closed"));
+                self.confirm(p.waiter, Err(e));
+            }
+        }
+    }
+
     /// `n`'s associations ended (its lease ran out, or it crashed).
     fn lost(&mut self, n: Node) {
         let now = self.now;
         self.note(format!("bus: {n} lost"));
+        self.finalize(n);
         let op = station(Node::Operator);
         let cell = station(Node::Cell);
         match n {
@@ -1064,9 +1035,7 @@ impl World {
                     self.cell_associated = false;
                     self.list
                         .handle_abort(now, &format!("no connection with {n}"));
-                    if self.is_running(Node::Cell) {
-                        self.cell.handle_abort(&op, Role::Commander);
-                    }
+                    self.cell.handle_abort(&op, Role::Commander);
                 }
                 if n == Node::Cell {
                     self.list.handle_presence(now, cell.clone(), false);
@@ -1093,9 +1062,7 @@ impl World {
         }
         up.associated = false;
         let (cell, name) = (station(Node::Cell), station(ws));
-        if self.is_running(Node::Cell) {
-            self.cell.handle_abort(&name, Role::Subordinate);
-        }
+        self.cell.handle_abort(&name, Role::Subordinate);
         if self.is_running(ws) {
             match ws {
                 Node::Welding => self.welding.ctl.handle_abort(&cell, Role::Commander),
@@ -1115,18 +1082,12 @@ impl World {
     /// Workstation `ws`'s process dies: only the twins' state survives.
     pub fn crash(&mut self, ws: Node) {
         self.note(format!("{ws}: process killed"));
-        if let Some(u) = self.ups.get_mut(&ws) {
-            u.running = false;
-        }
+        self.ups.entry(ws).or_default().running = false;
         let now = self.now;
         // Its liveliness token goes with its session: seen at once.
         self.list.handle_presence(now, station(ws), false);
-        let up = self.ups.entry(ws).or_default();
-        if up.associated {
-            up.associated = false;
-            let name = station(ws);
-            self.cell.handle_abort(&name, Role::Subordinate);
-        }
+        self.finalize(ws);
+        self.drop_workstation(ws);
         self.pump();
     }
 
@@ -1141,38 +1102,10 @@ impl World {
             }
             _ => self.transport = transport_node(now, self.conveyor.coils()),
         }
-        if let Some(u) = self.ups.get_mut(&ws) {
-            u.running = true;
-            u.associated = false;
-        }
+        self.ups.insert(ws, Up::default());
         if self.bus.reachable(Node::Operator, ws) {
             self.list.handle_presence(now, station(ws), true);
         }
         self.pump();
-    }
-}
-
-/// What a controller put out, as the bus carries it.
-fn unconfirmed(from: Node, out: CtlOutput) -> Unconfirmed {
-    match out {
-        CtlOutput::Report { severity, text } => Unconfirmed::Report {
-            station: station(from),
-            severity,
-            text,
-        },
-        CtlOutput::Job { program, event } => Unconfirmed::Job {
-            station: station(from),
-            program,
-            event,
-        },
-    }
-}
-
-/// Random choices the faults take, in one place.
-pub fn pick<T: Copy>(rng: &mut StdRng, from: &[T]) -> Option<T> {
-    if from.is_empty() {
-        None
-    } else {
-        from.get(rng.gen_range(0..from.len())).copied()
     }
 }

@@ -26,8 +26,7 @@ fn ten_orders_without_faults_all_end_done() {
 
 /// The acceptance run: 1,000 orders with every kind of fault at least 50
 /// times, each followed by the way back; the invariants hold after every
-/// step. (Seeds 5 and 8 of the command line still find a question whose
-/// answer is lost in a cut: see docs/simulation.md.)
+/// step.
 #[test]
 fn a_thousand_orders_with_every_fault_keep_the_invariants() {
     let s = run(Config {
