@@ -236,12 +236,18 @@ impl AlarmList {
         let mut error = None;
         let mut changed = Vec::new();
         for a in self.listed.iter_mut().filter(|a| which(a)) {
-            set(a, at);
             if a.id < UNSTORED_ALARM_IDS {
                 if let Err(e) = write(db, a.id, at) {
+                    // Not written, not changed here either: the list and
+                    // the records agree, and the change is made at the next
+                    // chance (the next settle, the next ack). Found by
+                    // falc-sim: a clear the full disk refused left the alarm
+                    // open in the records for good, gone from the list.
                     error.get_or_insert(e);
+                    continue;
                 }
             }
+            set(a, at);
             changed.push(a.clone());
         }
         self.listed.retain(Alarm::listed);
@@ -260,6 +266,36 @@ mod tests {
             physical,
             ..VmdStatus::default()
         }
+    }
+
+    #[test]
+    fn a_change_the_records_refuse_is_not_made_in_the_list_either() {
+        let mut s = Memory::default();
+        let mut l = AlarmList::load(&s).expect("load");
+        let (r, _) = l.raise(
+            &mut s,
+            "welding",
+            AlarmClass::Communication,
+            "silent",
+            Some(1),
+        );
+        let Raised::New(a) = r else { panic!("{r:?}") };
+        let (acked, e) = l.ack(&mut s, None, "console").expect("listed");
+        assert!(e.is_none() && acked.len() == 1);
+        // The disk is full when the condition goes: not cleared anywhere.
+        s.failing = true;
+        let (cleared, e) = l.clear_where(&mut s, |x| x.id == a.id);
+        assert!(cleared.is_empty() && e.is_some());
+        assert!(
+            l.listed().iter().any(|x| x.id == a.id),
+            "listed as the records hold it"
+        );
+        // Room again: the next chance clears it in both.
+        s.failing = false;
+        let (cleared, e) = l.clear_where(&mut s, |x| x.id == a.id);
+        assert!(e.is_none() && cleared.len() == 1);
+        assert!(l.listed().is_empty());
+        assert!(!s.alarms.iter().any(Alarm::listed));
     }
 
     #[test]

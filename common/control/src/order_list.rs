@@ -1708,7 +1708,17 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                         let text = format!("order {} ({}) ended with {word}", id, order.recipe);
                         self.end(now, order, OrderState::Failed, word);
                         let me = self.me.to_string();
-                        self.raise(&me, Some(id), class, text);
+                        self.raise(&me, Some(id), class, text.clone());
+                        // An order's end is an event, not a condition that
+                        // holds: raised cleared, it leaves the list once
+                        // acknowledged (found by falc-sim: each one stayed
+                        // listed for good, the list grew with every order).
+                        let (_, error) = self.alarms.clear_where(&mut self.db, |a| {
+                            a.station == me && a.order == Some(id) && a.text == text
+                        });
+                        if let Some(e) = error {
+                            self.db_failed(&e);
+                        }
                     }
                 }
             }
@@ -2285,6 +2295,12 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     fn ack(&mut self, who: &str, id: Option<i64>) -> ApiResult {
         let (acked, error) = self.alarms.ack(&mut self.db, id, who)?;
         if acked.is_empty() {
+            if let Some(e) = error {
+                // Not one could be written: none is acknowledged.
+                let text = e.to_string();
+                self.db_failed(&e);
+                return Err(format!("not acknowledged: {text}"));
+            }
             return Ok(ApiReply::Done("no alarm to acknowledge".into()));
         }
         if let Some(s) = self.db_alarm.filter(|s| acked.iter().any(|a| a.id == *s)) {
@@ -2852,6 +2868,33 @@ mod tests {
             let n = texts.iter().filter(|t| **t == line).count();
             assert_eq!(n, 1, "order {id} started once");
         }
+    }
+
+    #[test]
+    fn an_order_ended_with_danger_leaves_the_alarm_list_once_acknowledged() {
+        let mut r = Rig::new();
+        r.add(2);
+        assert!(r.start().is_ok());
+        r.job(JobEvent::FailedDanger);
+        let s = r.status();
+        assert_eq!(s.list, ListState::Alarm);
+        let alarm = s
+            .alarms
+            .iter()
+            .find(|a| a.text.contains("ended with failed_danger"))
+            .cloned()
+            .unwrap_or_else(|| panic!("{:?}", s.alarms));
+        assert!(alarm.blocks_start(), "a safety alarm waits for its ack");
+        assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+        let s = r.status();
+        assert!(
+            !s.alarms.iter().any(|a| a.id == alarm.id),
+            "acknowledged, nothing left to clear: {:?}",
+            s.alarms
+        );
+        assert!(r.start().is_ok(), "the way back: ack, start");
+        r.job(JobEvent::Done);
+        assert_eq!(r.order(2).state, OrderState::Done);
     }
 
     #[test]

@@ -192,6 +192,9 @@ pub mod memory {
         pub jobs: Vec<(Option<i64>, JobRecord)>,
         clock: std::cell::Cell<i64>,
         refused: std::cell::Cell<u64>,
+        /// The ids of the orders not ended (queued or running): what the
+        /// queue is looked up in, so a long history costs nothing.
+        live: std::collections::BTreeSet<i64>,
     }
 
     impl Memory {
@@ -207,8 +210,21 @@ pub mod memory {
         pub fn refused(&self) -> u64 {
             self.refused.get()
         }
+        /// Orders are kept by ascending id (added so, removed in place).
         fn order_mut(&mut self, id: i64) -> Option<&mut Order> {
-            self.orders.iter_mut().find(|o| o.id == id)
+            let i = self.orders.binary_search_by_key(&id, |o| o.id).ok()?;
+            self.orders.get_mut(i)
+        }
+        fn order(&self, id: i64) -> Option<&Order> {
+            let i = self.orders.binary_search_by_key(&id, |o| o.id).ok()?;
+            self.orders.get(i)
+        }
+        /// The queued orders, by id.
+        fn queue(&self) -> impl Iterator<Item = &Order> {
+            self.live
+                .iter()
+                .filter_map(|id| self.order(*id))
+                .filter(|o| o.state == OrderState::Queued)
         }
         /// The journal's texts, in order.
         pub fn texts(&self) -> Vec<String> {
@@ -230,14 +246,7 @@ pub mod memory {
         ) -> Result<Order, String> {
             self.write()?;
             // Like AUTOINCREMENT: never an id a removed order had.
-            let id = self
-                .orders
-                .iter()
-                .map(|o| o.id)
-                .max()
-                .unwrap_or(0)
-                .max(self.removed)
-                + 1;
+            let id = self.orders.last().map_or(0, |o| o.id).max(self.removed) + 1;
             let o = Order {
                 id,
                 recipe: recipe.into(),
@@ -252,6 +261,7 @@ pub mod memory {
                 due_ms: placement.due_ms,
             };
             self.orders.push(o.clone());
+            self.live.insert(id);
             Ok(o)
         }
         fn orders(&self) -> Result<Vec<Order>, String> {
@@ -259,9 +269,8 @@ pub mod memory {
         }
         fn next_queued(&self, cell: &str) -> Result<Option<Order>, String> {
             Ok(self
-                .orders
-                .iter()
-                .filter(|o| o.state == OrderState::Queued && o.may_run_on(cell))
+                .queue()
+                .filter(|o| o.may_run_on(cell))
                 .min_by_key(|o| o.dispatch_key())
                 .cloned())
         }
@@ -269,17 +278,14 @@ pub mod memory {
             Ok(self.journal.len() as i64)
         }
         fn queued(&self) -> Result<usize, String> {
-            Ok(self
-                .orders
-                .iter()
-                .filter(|o| o.state == OrderState::Queued)
-                .count())
+            Ok(self.queue().count())
         }
         fn remove_order(&mut self, id: i64) -> Result<Result<Order, String>, String> {
             self.write()?;
             match self.orders.iter().position(|o| o.id == id) {
                 Some(i) if self.orders[i].state == OrderState::Queued => {
                     self.removed = self.removed.max(id);
+                    self.live.remove(&id);
                     Ok(Ok(self.orders.remove(i)))
                 }
                 Some(_) => Ok(Err(format!("order {id} is not queued"))),
@@ -299,12 +305,7 @@ pub mod memory {
                 recipes: recipes.to_vec(),
             };
             self.runs.push((id, run));
-            let recipe = self
-                .orders
-                .iter()
-                .find(|o| o.id == id)
-                .map(|o| o.recipe.clone())
-                .unwrap_or_default();
+            let recipe = self.order(id).map(|o| o.recipe.clone()).unwrap_or_default();
             self.spans.push(crate::figures::RunSpan {
                 order: id,
                 recipe,
@@ -317,6 +318,7 @@ pub mod memory {
                 o.state = OrderState::Running;
                 o.started_ms = Some(at);
                 o.cell = Some(cell.into());
+                self.live.insert(id);
             }
             Ok(at)
         }
@@ -355,6 +357,9 @@ pub mod memory {
                 o.state = state;
                 o.ended_ms = Some(at);
                 o.result = Some(result.into());
+            }
+            if !matches!(state, OrderState::Queued | OrderState::Running) {
+                self.live.remove(&id);
             }
             Ok(())
         }

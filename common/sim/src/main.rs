@@ -4,6 +4,7 @@
 
 use clap::Parser;
 use falc_sim::{Config, Fault, Run};
+use std::io::Write;
 use std::process::ExitCode;
 use std::time::Instant;
 
@@ -68,28 +69,35 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    match run.run() {
+    // Written with errors taken (a closed pipe ends the output, not the
+    // program with a panic).
+    let mut out = std::io::stdout().lock();
+    let written = match run.run() {
         Ok(s) => {
-            for l in &s.lines {
-                println!("{l}");
-            }
             let wall = started.elapsed().as_secs_f64();
-            println!("seed {}: {s}", cli.seed);
-            println!(
-                "{:.1} s of wall time: {:.0} orders per second, {:.0}× real time",
-                wall,
-                (s.done + s.failed) as f64 / wall.max(1e-9),
-                s.simulated.as_secs_f64() / wall.max(1e-9)
-            );
-            ExitCode::SUCCESS
+            let lines = s.lines.iter().try_for_each(|l| writeln!(out, "{l}"));
+            lines
+                .and_then(|()| writeln!(out, "seed {}: {s}", cli.seed))
+                .and_then(|()| {
+                    writeln!(
+                        out,
+                        "{:.1} s of wall time: {:.0} orders per second, {:.0}× real time",
+                        wall,
+                        (s.done + s.failed) as f64 / wall.max(1e-9),
+                        s.simulated.as_secs_f64() / wall.max(1e-9)
+                    )
+                })
+                .map(|()| ExitCode::SUCCESS)
         }
-        Err(v) => {
-            println!("seed {}: {v}", cli.seed);
-            println!(
-                "replay: cargo run -p falc-sim -- --seed {} --orders {} --faults {}",
-                cli.seed, cli.orders, cli.faults
-            );
-            ExitCode::FAILURE
-        }
-    }
+        Err(v) => writeln!(out, "seed {}: {v}", cli.seed)
+            .and_then(|()| {
+                writeln!(
+                    out,
+                    "replay: cargo run -p falc-sim -- --seed {} --orders {} --faults {}",
+                    cli.seed, cli.orders, cli.faults
+                )
+            })
+            .map(|()| ExitCode::FAILURE),
+    };
+    written.unwrap_or(ExitCode::FAILURE)
 }

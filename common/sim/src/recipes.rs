@@ -62,17 +62,28 @@ pub const SHIPPED: &[(&str, &str)] = &[
     ),
 ];
 
-/// The shipped recipes as a recipe store: read-only (a save is refused).
+/// The shipped recipes as a recipe store: read-only (a save is refused),
+/// so the set is checked and verified once, not at every start.
 #[derive(Debug, Clone)]
 pub struct Shipped {
     /// The cell's topology.
-    pub topology: Topology,
+    topology: Topology,
     /// The cell the set is for.
-    pub cell: StationName,
+    cell: StationName,
+    checked: std::cell::OnceCell<Result<RecipeSet, Vec<String>>>,
 }
 
-impl RecipeSource for Shipped {
-    fn load(&self) -> Result<RecipeSet, Vec<String>> {
+impl Shipped {
+    /// The shipped recipes for `cell` of `topology`.
+    pub fn new(topology: Topology, cell: StationName) -> Self {
+        Self {
+            topology,
+            cell,
+            checked: std::cell::OnceCell::new(),
+        }
+    }
+
+    fn check(&self) -> Result<RecipeSet, Vec<String>> {
         let kinds = StationKinds::of(&self.topology);
         let mut entries = Vec::new();
         for (file, text) in SHIPPED {
@@ -80,6 +91,12 @@ impl RecipeSource for Shipped {
             entries.push(entry_in(&path, None, &kinds, text.to_string()).map_err(|e| vec![e])?);
         }
         checked_set(&entries, &self.topology, &self.cell)
+    }
+}
+
+impl RecipeSource for Shipped {
+    fn load(&self) -> Result<RecipeSet, Vec<String>> {
+        self.checked.get_or_init(|| self.check()).clone()
     }
 
     fn list(&self) -> Result<Vec<RecipeInfo>, String> {

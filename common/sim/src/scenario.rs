@@ -8,7 +8,6 @@ use crate::bus::{Link, Node};
 use crate::world::{World, HOME};
 use falc_control::controller::Device;
 use falc_control::order_list::Ticket;
-use falc_control::records::memory::Memory;
 use falc_dnc::robot::Control as Rcm;
 use falc_model::alarm::Alarm;
 use falc_model::console::{ApiRequest, EntryKind, ListState, Order, OrderState};
@@ -271,6 +270,11 @@ pub struct Run {
     orphan_since: Option<Duration>,
     /// Since when the line is unplugged under a weld, unseen.
     silent_since: Option<Duration>,
+    /// The records' alarms not yet both acknowledged and cleared (their
+    /// index, and when first seen), and how many of the records' alarms
+    /// were looked at.
+    open_alarms: Vec<(usize, Duration)>,
+    alarms_seen: usize,
     /// Since when an order runs at the cell after a write failed.
     behind_since: Option<Duration>,
     /// Writes refused before the disk last filled.
@@ -313,6 +317,8 @@ impl Run {
             last_end: Duration::ZERO,
             orphan_since: None,
             behind_since: None,
+            open_alarms: Vec::new(),
+            alarms_seen: 0,
             silent_since: None,
             refused: 0,
             held_since: None,
@@ -563,31 +569,60 @@ impl Run {
     fn check(&mut self) -> Result<(), Box<Violation>> {
         let now = self.world.now;
         // No order runs twice.
-        if let Some((id, n)) = self.world.starts.iter().find(|(_, n)| **n > 1) {
+        if let Some((id, n)) = self.world.started_twice {
             return Err(self.violation(format!("order {id} was started {n} times at the cell")));
         }
         // Every order ends in the journal exactly once (entries so far).
         let rec = self.world.records.borrow();
-        let mut ended = Vec::new();
-        for e in rec.journal.iter().skip(self.checked) {
-            if e.kind == EntryKind::Order {
-                if let Some(id) = end_of(&e.text) {
-                    ended.push(id);
-                }
-            }
-        }
-        self.checked = rec.journal.len();
-        // Every alarm is listed until acknowledged and cleared.
-        let unlisted = unlisted_alarm(&rec, &self.world);
-        let all_ended = self.added >= self.cfg.orders && rec.orders.iter().all(is_ended);
-        let done_ids: Vec<i64> = rec
-            .orders
+        // Each order end entry since the last step, and whether it is done.
+        let ended: Vec<(i64, bool)> = rec
+            .journal
             .iter()
-            .filter(|o| o.state == OrderState::Done)
-            .map(|o| o.id)
+            .skip(self.checked)
+            .filter(|e| e.kind == EntryKind::Order)
+            .filter_map(|e| end_of(&e.text))
+            .map(|id| {
+                let done = rec
+                    .orders
+                    .iter()
+                    .rev()
+                    .find(|o| o.id == id)
+                    .is_some_and(|o| o.state == OrderState::Done);
+                (id, done)
+            })
             .collect();
+        self.checked = rec.journal.len();
+        // Every alarm is listed until acknowledged and cleared (the ones
+        // not yet both, kept from step to step: once both, for good).
+        self.open_alarms
+            .extend((self.alarms_seen..rec.alarms.len()).map(|i| (i, now)));
+        self.alarms_seen = rec.alarms.len();
+        self.open_alarms
+            .retain(|(i, _)| rec.alarms.get(*i).is_some_and(Alarm::listed));
+        let open: Vec<Alarm> = self
+            .open_alarms
+            .iter()
+            .filter_map(|(i, _)| rec.alarms.get(*i).cloned())
+            .collect();
+        // … and leaves it once its cause is gone and it was acknowledged:
+        // the way back acknowledges every alarm and clears every cause.
+        let stale = self
+            .open_alarms
+            .iter()
+            .find(|(_, since)| now.saturating_sub(*since) > STUCK)
+            .and_then(|(i, _)| rec.alarms.get(*i).cloned());
+        let all_ended = self.added >= self.cfg.orders && rec.orders.iter().all(is_ended);
         drop(rec);
-        for id in ended {
+        let unlisted = unlisted_alarm(open, &self.world);
+        if let Some(a) = stale.filter(|_| self.active.is_none()) {
+            return Err(self.violation(format!(
+                "alarm #{} ({}) is still listed {} s after it was raised",
+                a.id,
+                a.text,
+                STUCK.as_secs()
+            )));
+        }
+        for (id, done) in ended {
             let n = {
                 let n = self.ends.entry(id).or_default();
                 *n += 1;
@@ -599,7 +634,7 @@ impl Run {
             self.last_end = now;
             if let Some((_, faults, before)) = self.production_since {
                 if id > before {
-                    if !done_ids.contains(&id) && faults == self.injected && self.active.is_none() {
+                    if !done && faults == self.injected && self.active.is_none() {
                         return Err(self.violation(format!(
                             "order {id}, the first after the way back, did not end done though no fault came"
                         )));
@@ -725,17 +760,10 @@ fn end_of(text: &str) -> Option<i64> {
         .then_some(id)
 }
 
-/// An alarm the records hold as neither acknowledged nor cleared that the
-/// order list does not list.
-fn unlisted_alarm(rec: &Memory, world: &World) -> Option<Alarm> {
-    let open: Vec<&Alarm> = rec.alarms.iter().filter(|a| a.listed()).collect();
-    if open.is_empty() {
-        return None;
-    }
-    let listed = world.list.status().ok()?.alarms;
-    open.into_iter()
-        .find(|a| !listed.iter().any(|l| l.id == a.id))
-        .cloned()
+/// Of the alarms the records hold as not both acknowledged and cleared
+/// (`open`), one the order list does not list.
+fn unlisted_alarm(open: Vec<Alarm>, world: &World) -> Option<Alarm> {
+    open.into_iter().find(|a| !world.list.has_alarm(a.id))
 }
 
 #[cfg(test)]

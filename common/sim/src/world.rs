@@ -236,6 +236,8 @@ pub struct World {
     leases: Vec<(Duration, Node)>,
     /// Cell-level Starts confirmed, per order id.
     pub starts: BTreeMap<i64, u32>,
+    /// The first order started more than once, and how often.
+    pub started_twice: Option<(i64, u32)>,
     /// The last lines of what happened, for a broken invariant's report.
     pub trace: VecDeque<String>,
 }
@@ -245,10 +247,7 @@ impl World {
     /// with `link` for every node; `seed` drives every random choice.
     pub fn new(seed: u64, time_scale: f64, link: Link) -> Result<Self, String> {
         let topology = Topology::parse(TOPOLOGY, "launch/cell.toml").map_err(|e| e.to_string())?;
-        let source = Shipped {
-            topology: topology.clone(),
-            cell: station(Node::Cell),
-        };
+        let source = Shipped::new(topology.clone(), station(Node::Cell));
         let set = source.load().map_err(|p| p.join("\n"))?;
         let mut views = plant(&[topology.cell().as_str()]);
         let view = views.pop().ok_or("no records")?;
@@ -302,6 +301,7 @@ impl World {
             next_id: 0,
             leases: Vec::new(),
             starts: BTreeMap::new(),
+            started_twice: None,
             trace: VecDeque::new(),
         };
         for n in [Node::Cell, Node::Welding, Node::Transport] {
@@ -489,9 +489,11 @@ impl World {
     /// Carries what every core put out to where it goes, until all are
     /// quiet.
     pub fn pump(&mut self) {
+        // The order list's outputs all go on the bus: once is enough (and
+        // each empty poll of it compares its whole status).
+        self.pump_list();
         for _ in 0..64 {
-            let mut busy = self.pump_list();
-            busy |= self.pump_cell();
+            let mut busy = self.pump_cell();
             busy |= self.pump_welding();
             busy |= self.pump_transport();
             if !busy {
@@ -542,10 +544,8 @@ impl World {
         }
     }
 
-    fn pump_list(&mut self) -> bool {
-        let mut any = false;
+    fn pump_list(&mut self) {
         while let Some(out) = self.list.poll_output() {
-            any = true;
             match out {
                 ListOutput::Cell(call) => {
                     let (msg, limit): (Box<dyn FnOnce(u64) -> Msg>, _) = match call
@@ -575,7 +575,6 @@ impl World {
                 ListOutput::Changed => {}
             }
         }
-        any
     }
 
     fn pump_cell(&mut self) -> bool {
@@ -804,7 +803,11 @@ impl World {
                 .and_then(|s| s.split_whitespace().next())
                 .and_then(|s| s.parse::<i64>().ok())
             {
-                *self.starts.entry(n).or_default() += 1;
+                let count = self.starts.entry(n).or_default();
+                *count += 1;
+                if *count > 1 && self.started_twice.is_none() {
+                    self.started_twice = Some((n, *count));
+                }
                 self.note(format!("cell: order {n} started"));
             }
         }
