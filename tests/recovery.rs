@@ -30,6 +30,83 @@ fn robot_detail(rig: &Rig) -> Option<RobotStatusDetail> {
         .and_then(|s| s.additional)
 }
 
+/// The kinds of `entries` from the first order's start on (what comes
+/// before is the start-up, whose order the processes' timing decides).
+fn kinds_from_the_first_start(entries: &[EntryKind], texts: &[String]) -> Vec<EntryKind> {
+    let first = entries
+        .iter()
+        .zip(texts)
+        .position(|(k, t)| *k == EntryKind::Order && t.ends_with(" started"))
+        .unwrap_or(entries.len());
+    entries[first..].to_vec()
+}
+
+/// The simulation (`falc-sim`, one process on a virtual clock) and the
+/// whole cell (these processes, real time) take the same scenario alike:
+/// an emergency stop of the robot mid-weld, the cause cleared, carriers
+/// home, `ack`, `start`, the next order done. Both journals show the same
+/// sequence of entry kinds from the first order's start.
+#[test]
+fn the_simulation_and_the_whole_cell_journal_an_estop_mid_weld_alike() {
+    let mut rig = rig("20");
+    rig.start_list_until_welding(&["dikdroog", "dundroog"]);
+    rig.rcm.control("estop");
+    rig.operator().expect_line(
+        "EVENT order-ended id=1 state=failed",
+        Duration::from_secs(10),
+    );
+    // The way back as the simulated operator takes it: the stop released
+    // (the alarm clears), carriers home, ack, start.
+    rig.rcm.control("estop-clear");
+    rig.operator()
+        .expect_line("EVENT alarm-cleared", Duration::from_secs(10));
+    rig.way_back();
+    let journal = rig.journal(None);
+    assert_eq!(rig.orders()[1].state, OrderState::Done, "{journal:#?}");
+    let kinds: Vec<EntryKind> = journal.iter().map(|e| e.kind).collect();
+    let texts: Vec<String> = journal.iter().map(|e| e.text.clone()).collect();
+    let cell = kinds_from_the_first_start(&kinds, &texts);
+
+    let sim = falc_sim::Run::new(falc_sim::Config {
+        orders: 2,
+        recipes: vec!["dikdroog".into(), "dundroog".into()],
+        faults: vec![falc_sim::Fault::EStop],
+        fault_rate: 1.0,
+        at_weld: true,
+        fault_limit: Some(1),
+        keep_journal: true,
+        ..falc_sim::Config::default()
+    })
+    .and_then(|r| r.run().map_err(|v| v.to_string()))
+    .unwrap_or_else(|e| panic!("the simulation: {e}"));
+    assert_eq!((sim.done, sim.failed), (1, 1), "{sim}");
+    let texts: Vec<String> = sim
+        .lines
+        .iter()
+        .map(|l| {
+            l.split_once(": ")
+                .map_or(String::new(), |(_, t)| t.to_string())
+        })
+        .collect();
+    let simulated = kinds_from_the_first_start(&sim.kinds, &texts);
+    // Both orders with their questions, the stop's alarms and the ack.
+    for (kind, at_least) in [
+        (EntryKind::Order, 4),
+        (EntryKind::Question, 2),
+        (EntryKind::Alarm, 2),
+        (EntryKind::Action, 3),
+    ] {
+        let n = cell.iter().filter(|k| **k == kind).count();
+        assert!(n >= at_least, "{n} {kind:?} entries: {journal:#?}");
+    }
+    assert_eq!(
+        simulated,
+        cell,
+        "the simulation's journal:\n{}\nthe cell's:\n{journal:#?}",
+        sim.lines.join("\n")
+    );
+}
+
 /// Fault 1 of the alarm issue: the station-3 button held across the alarm
 /// gave the next `activate 3` no rising edge, and the next order failed
 /// after 30 s. Fault 5: the robot's status detail stayed "manual

@@ -111,6 +111,11 @@ pub struct Config {
     pub recipes: Vec<String>,
     /// Keep the journal's lines in the summary.
     pub keep_journal: bool,
+    /// A fault comes when the robot runs a job's program (mid-weld), not
+    /// at a random moment of the order.
+    pub at_weld: bool,
+    /// At most this many faults in the run.
+    pub fault_limit: Option<u32>,
 }
 
 impl Default for Config {
@@ -123,6 +128,8 @@ impl Default for Config {
             time_scale: 20.0,
             recipes: vec!["dikdroog".into(), "dundroog".into(), "pipdroog".into()],
             keep_journal: false,
+            at_weld: false,
+            fault_limit: None,
         }
     }
 }
@@ -436,11 +443,21 @@ impl Run {
             self.answered = None;
         }
         // Plan a fault for a running order.
+        let room = self.cfg.fault_limit.map_or(true, |l| self.injected < l);
+        let moment = !self.cfg.at_weld || self.world.welding.ctl.device.program().is_some();
         if let Some(o) = &s.running {
-            if self.planned_for != Some(o.id) && self.active.is_none() && self.fault_at.is_none() {
+            if self.planned_for != Some(o.id)
+                && self.active.is_none()
+                && self.fault_at.is_none()
+                && room
+                && moment
+            {
                 self.planned_for = Some(o.id);
                 if !self.cfg.faults.is_empty() && self.world.rng.gen_bool(self.cfg.fault_rate) {
-                    let delay = self.world.rng.gen_range(0..20_000u64);
+                    let delay = match self.cfg.at_weld {
+                        true => 0,
+                        false => self.world.rng.gen_range(0..20_000u64),
+                    };
                     self.fault_at = Some(self.world.now + Duration::from_millis(delay));
                 }
             }
