@@ -2898,6 +2898,38 @@ mod tests {
     }
 
     #[test]
+    fn an_ack_the_full_disk_refuses_is_not_taken_and_the_way_back_runs_the_next_order() {
+        let mut r = Rig::new();
+        r.add(2);
+        assert!(r.start().is_ok());
+        r.job(JobEvent::FailedDanger);
+        r.list.records().failing = true;
+        let refused = r.ask("console", ApiRequest::Ack { id: None });
+        assert!(
+            refused
+                .as_ref()
+                .is_err_and(|e| e.contains("not acknowledged")),
+            "{refused:?}"
+        );
+        let s = r.status();
+        assert!(
+            s.alarms
+                .iter()
+                .any(|a| a.text.contains("failed_danger") && a.acked.is_none()),
+            "not acknowledged in the list either: {:?}",
+            s.alarms
+        );
+        assert!(r.ask("console", ApiRequest::Start).is_err());
+        // Room again: ack (both alarms), start, the next order done.
+        r.list.records().failing = false;
+        assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+        assert!(r.status().alarms.is_empty(), "{:?}", r.status().alarms);
+        assert!(r.start().is_ok());
+        r.job(JobEvent::Done);
+        assert_eq!(r.order(2).state, OrderState::Done);
+    }
+
+    #[test]
     fn the_last_orders_held_end_is_written_at_the_ack_without_a_start() {
         // Found by falc-sim: the list's last order halted by a full disk
         // stayed `running` in the records, since only a start wrote it.
