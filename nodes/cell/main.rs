@@ -5,44 +5,33 @@
 //! alarm from a workstation ends the running recipe in alarm, stops the
 //! other workstations' program invocations and reports the cause up.
 //!
-//! Recipe delivery: a domain the operator downloads as `STATION$NAME` is a
-//! workstation's recipe: the cell passes it on to that workstation as
-//! domain `NAME` with its program invocation, and confirms the download
-//! only when the workstation has it (else the cell drops its copy too: a
-//! recipe is never half-applied). Unchanged content is not sent again.
-//!
-//! Modes, steps and manual operations: where each goes is
-//! `coordination::route`; what is passed on is answered with the
-//! workstations' confirms (`Cell::pass_on`).
+//! Recipe delivery, modes, steps and manual operations passed on to the
+//! workstations and answered with their confirms: the sans-I/O
+//! `falc_control::pass_on`, which holds the commander's further
+//! indications while a delivery runs.
 //!
 //! A thin driver: the recipe runtime is `falc_control::controller`, the
-//! coordination of the stations below `falc_control::coordination` (both
-//! sans-I/O), driven by `falc_node::controller_node`; here are the request
-//! lanes (one task per station) and the delivery task (`delivery`). Nothing
-//! in the loop waits on another station.
-
-mod delivery;
+//! coordination of the stations below `falc_control::coordination`, the
+//! pass-on `falc_control::pass_on` (all sans-I/O), driven by
+//! `falc_node::controller_node`; here are the request lanes (one task per
+//! station) and a task per request passed on. Nothing in the loop waits on
+//! another station.
 
 use anyhow::Result;
 use clap::Parser;
-use delivery::{Delivered, Deliveries};
 use falc_bus::station::{Station, StationEvent};
-use falc_bus::{Bus, Indication};
-use falc_control::coordination::{self, workstation_domain, Command, Reply, Route, Stations};
+use falc_bus::{Bus, Responder};
+use falc_control::coordination::{self, Command, Reply, Stations};
+use falc_control::pass_on::{PassOn, Todo, PASS_LIMIT};
 use falc_model::alarm::AlarmClass;
 use falc_model::ids::StationName;
 use falc_model::mms::error::ServiceError;
-use falc_model::mms::pdu::{Request, Response, Severity};
-use falc_model::mode::CellMode;
+use falc_model::mms::pdu::{Response, Severity};
 use falc_node::controller_node::ControllerNode;
 use falc_node::{init_tracing, lane, say, NodeArgs};
 use falc_recipe::commands::RecipeKind;
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::BTreeMap;
 use std::time::Duration;
-
-/// How long a workstation may take to confirm a mode, step or manual
-/// operation passed on.
-const PASS_LIMIT: Duration = Duration::from_secs(10);
 use tokio::sync::mpsc::{unbounded_channel, UnboundedSender};
 
 #[derive(Parser, Debug)]
@@ -87,168 +76,110 @@ impl Lanes {
     }
 }
 
-/// The cell: its controller, the lanes and the deliveries.
+/// What a workstation answered to what the pass-on asked.
+enum Came {
+    /// The confirm of a [`Todo::Ask`].
+    Confirm(u64, Result<Response, ServiceError>),
+    /// The outcome of a [`Todo::Deliver`].
+    Delivered(u64, Result<(), ServiceError>),
+}
+
+/// The cell: its controller, the lanes and the pass-on.
 struct Cell {
     ctl: ControllerNode<Stations>,
     lanes: Lanes,
-    deliveries: Deliveries,
-    subordinates: Vec<StationName>,
-    /// The commander's indications that came while a delivery was under
-    /// way: answered in order once it ended, as if the loop had waited.
-    held: VecDeque<Indication>,
+    pass: PassOn<Responder>,
+    came: UnboundedSender<Came>,
 }
 
 impl Cell {
-    /// Settles the controller, sends what its stations must be asked, then
-    /// publishes (requests first: they are on the critical path of the
-    /// recipe, the status put is not).
+    /// Settles the controller, sends what its stations must be asked,
+    /// carries out the pass-on's work, then publishes (requests first: they
+    /// are on the critical path of the recipe, the status put is not).
     async fn settle(&mut self) {
         loop {
             self.ctl.settle_core();
             while let Some(cmd) = self.ctl.core.device.poll_command() {
                 self.lanes.send(cmd);
             }
-            let Some(local) = self.ctl.core.device.poll_local_reply() else {
+            if let Some(local) = self.ctl.core.device.poll_local_reply() {
+                let now = self.ctl.now();
+                coordination::handle_reply(&mut self.ctl.core, now, local);
+                continue;
+            }
+            let mut more = false;
+            while let Some(here) = self.pass.poll_here() {
+                more = true;
+                let result = self.ctl.indication(&here.request).await;
+                self.pass.handled(here, result, self.ctl.core.vmd());
+            }
+            while let Some(todo) = self.pass.poll_todo() {
+                more = true;
+                self.carry_out(todo).await;
+            }
+            if !more {
                 break;
-            };
-            let now = self.ctl.now();
-            coordination::handle_reply(&mut self.ctl.core, now, local);
+            }
         }
         self.ctl.publish().await;
     }
 
-    /// Acts on what the station hands the cell: indications (a finished
-    /// download of `STATION$NAME` is passed on to that workstation before
-    /// it is confirmed), aborts (a lost workstation comes back empty) and
-    /// associations (a returned workstation gets its recipes again).
+    /// Carries out what the pass-on asks; what workstations answer comes
+    /// back as [`Came`].
+    async fn carry_out(&mut self, todo: Todo<Responder>) {
+        let bus = self.lanes.bus.clone();
+        let came = self.came.clone();
+        match todo {
+            Todo::Answer { ticket, result } => ticket.respond(result).await,
+            Todo::Ask { id, to, request } => {
+                tokio::spawn(async move {
+                    let result = bus.request(&to, &request, PASS_LIMIT).await;
+                    let _ = came.send(Came::Confirm(id, result));
+                });
+            }
+            Todo::Deliver {
+                id,
+                to,
+                name,
+                content,
+            } => {
+                tokio::spawn(async move {
+                    let result = bus.deliver(&to, &name, &content).await;
+                    let _ = came.send(Came::Delivered(id, result));
+                });
+            }
+            Todo::Delivered { to, name } => {
+                say(&format!("EVENT delivered station={to} recipe={name}"));
+            }
+            Todo::Discard(domain) => self.ctl.core.discard_domain(&domain),
+            Todo::Alarm(text) => {
+                self.ctl
+                    .report(Severity::Alarm(AlarmClass::Communication), text)
+                    .await;
+            }
+            Todo::Warn(text) => tracing::warn!("{text}"),
+        }
+    }
+
+    /// Acts on what the station hands the cell: indications go through the
+    /// pass-on; a lost workstation comes back empty, and returned ones get
+    /// their recipes and the cell's mode again.
     async fn on_station(&mut self, ev: StationEvent) {
         match ev {
-            StationEvent::Indication(ind) if self.deliveries.busy() => self.held.push_back(ind),
-            StationEvent::Indication(ind) => self.indication(ind).await,
+            StationEvent::Indication(ind) => {
+                self.pass.handle_indication(ind.responder, ind.request)
+            }
             other => {
                 let associated = matches!(other, StationEvent::Associated(_));
                 if let StationEvent::Abort(a) = &other {
-                    self.deliveries.forget(&a.peer.station);
+                    self.pass.handle_lost(&a.peer.station);
                 }
                 self.ctl.station_event(other).await;
                 if associated {
-                    self.deliveries.catch_up(self.ctl.core.vmd());
-                    if self.ctl.core.mode().mode != CellMode::Auto {
-                        for st in self.subordinates.clone() {
-                            self.mode_to(st);
-                        }
-                    }
+                    let mode = self.ctl.core.mode().clone();
+                    self.pass.handle_associated(self.ctl.core.vmd(), &mode);
                 }
             }
-        }
-    }
-
-    async fn indication(&mut self, ind: Indication) {
-        match coordination::route(&ind.request, &self.subordinates) {
-            Route::Here => {}
-            Route::HereThenAll => {
-                let result = self.ctl.indication(&ind.request).await;
-                if result.is_err() {
-                    return ind.responder.respond(result).await;
-                }
-                let to = self.subordinates.clone();
-                return self.pass_on(to, ind);
-            }
-            Route::To(st) => return self.pass_on(vec![st], ind),
-            Route::Refused(e) => return ind.responder.respond(Err(e)).await,
-        }
-        let result = self.ctl.indication(&ind.request).await;
-        if let (
-            Ok(_),
-            Request::TerminateDownloadSequence {
-                domain,
-                discard: None,
-            },
-        ) = (&result, &ind.request)
-        {
-            if let Some((st, name)) = workstation_domain(domain) {
-                if !self.subordinates.contains(&st) {
-                    self.ctl.core.discard_domain(domain);
-                    let e = ServiceError::undefined(format!(
-                        "recipe {domain}: {st} is not a workstation of this cell"
-                    ));
-                    ind.responder.respond(Err(e)).await;
-                    return;
-                }
-                let content = self
-                    .ctl
-                    .core
-                    .vmd()
-                    .domain(domain)
-                    .map(|d| d.content().to_vec())
-                    .unwrap_or_default();
-                // Answered when the workstation has it (`delivered`).
-                self.deliveries
-                    .pass_on(domain.clone(), st, name, content, ind.responder);
-                return;
-            }
-        }
-        ind.responder.respond(result).await;
-    }
-
-    /// Passes the commander's request on to workstations `to` (a mode to
-    /// every one, a step or a manual operation to the one it names) and
-    /// answers it with their confirms: the first refusal, named.
-    fn pass_on(&self, to: Vec<StationName>, ind: Indication) {
-        let bus = self.lanes.bus.clone();
-        tokio::spawn(async move {
-            let mut refused = Vec::new();
-            for st in to {
-                if let Err(e) = bus.request(&st, &ind.request, PASS_LIMIT).await {
-                    refused.push(e.description);
-                }
-            }
-            let result = match refused.is_empty() {
-                true => Ok(Response::Done),
-                false => Err(ServiceError::state_conflict(refused.join("; "))),
-            };
-            ind.responder.respond(result).await;
-        });
-    }
-
-    /// A workstation associated again: it gets the cell's mode.
-    fn mode_to(&self, st: StationName) {
-        let bus = self.lanes.bus.clone();
-        let mode = Request::Mode(self.ctl.core.mode().clone());
-        tokio::spawn(async move {
-            if let Err(e) = bus.request(&st, &mode, PASS_LIMIT).await {
-                tracing::warn!("the mode did not reach {st}: {e}");
-            }
-        });
-    }
-
-    /// A delivery ended: answer its download, then what was held back.
-    async fn delivered(&mut self, d: Delivered) {
-        self.deliveries.ended();
-        match d {
-            Delivered::PassedOn {
-                domain,
-                result,
-                responder,
-            } => {
-                if result.is_err() {
-                    self.ctl.core.discard_domain(&domain);
-                }
-                responder.respond(result.map(|()| Response::Done)).await;
-            }
-            Delivered::CaughtUp(failures) => {
-                for failure in failures {
-                    self.ctl
-                        .report(Severity::Alarm(AlarmClass::Communication), failure)
-                        .await;
-                }
-            }
-        }
-        while !self.deliveries.busy() {
-            let Some(ind) = self.held.pop_front() else {
-                break;
-            };
-            self.indication(ind).await;
         }
     }
 }
@@ -273,7 +204,7 @@ async fn main() -> Result<()> {
     }
     let (rtx, mut replies) = unbounded_channel();
     let stations = Stations::new(topology.commander_of(&cli.station).cloned());
-    let (deliveries, mut delivered) = Deliveries::spawn(bus.clone());
+    let (came, mut answers) = unbounded_channel();
     let mut cell = Cell {
         ctl: ControllerNode::new(station, RecipeKind::Cell, Duration::from_secs(10), stations),
         lanes: Lanes {
@@ -281,9 +212,8 @@ async fn main() -> Result<()> {
             replies: rtx,
             lanes: BTreeMap::new(),
         },
-        deliveries,
-        subordinates,
-        held: VecDeque::new(),
+        pass: PassOn::new(subordinates),
+        came,
     };
     cell.ctl.publish_status().await;
     say(&format!("EVENT ready station={}", cli.station));
@@ -304,8 +234,9 @@ async fn main() -> Result<()> {
                 }
                 None => break,
             },
-            d = delivered.recv() => match d {
-                Some(d) => cell.delivered(d).await,
+            c = answers.recv() => match c {
+                Some(Came::Confirm(id, result)) => cell.pass.handle_confirm(id, result),
+                Some(Came::Delivered(id, result)) => cell.pass.handle_delivered(id, result),
                 None => break,
             },
             u = publications.recv() => match u {

@@ -14,7 +14,6 @@
 use anyhow::{Context, Result};
 use clap::Parser;
 use falc_bus::station::Station;
-use falc_control::controller::Device;
 use falc_dnc::procedure::{Priority, Timing};
 use falc_dnc::workstation::{self, Welding};
 use falc_model::ids::StationName;

@@ -41,18 +41,43 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::Duration;
 
-/// A level's device, as its recipes see it.
+/// What happens to a level's device: the running recipe's actions, its
+/// end, the associations and the mode, and the clock
+/// ([`Device::handle`]).
+#[derive(Debug, PartialEq)]
+pub enum Happening<'a> {
+    /// A device action of the running recipe (`Start`, `Stop`,
+    /// `Activate`, `Reset`, `Watch`, `Unwatch`, `Output`, `Input`).
+    Act(Action),
+    /// The commander stopped or killed the recipe: stop the device.
+    Halt,
+    /// The recipe ended: leave the device safe.
+    Finished(&'a Outcome),
+    /// An association was lost (the commander, or a subordinate of a cell).
+    Lost(&'a StationName),
+    /// The commander associated (and with it every subordinate).
+    Associated,
+    /// The cell's mode changed (the device releases what a maintainer
+    /// left pressed when maintenance ends).
+    Mode(CellMode),
+    /// The clock reached [`Device::poll_timeout`].
+    Clock,
+}
+
+/// A level's device, as its recipes see it: what happens goes in through
+/// [`Device::handle`] with the time, what the device raises comes out
+/// through [`Device::poll_alarm`], and it is asked why it cannot start,
+/// whether it settles and what it adds to the status. Commands to the
+/// device's own link (a serial telegram, a coil write) leave through the
+/// device's own `poll_*`, which its driver calls.
 pub trait Device {
+    /// Something happened ([`Happening`]); events for the running recipe
+    /// that follow at once go into `out`.
+    fn handle(&mut self, now: Duration, what: Happening<'_>, out: &mut Vec<Event>);
     /// Why no recipe can start now (no link, emergency stop), if so.
     fn unavailable(&self) -> Option<String>;
-    /// Carries out a device action of the running recipe (`Start`, `Stop`,
-    /// `Activate`, `Reset`, `Watch`, `Unwatch`, `Output`, `Input`); events
-    /// that follow at once go into `out`.
-    fn act(&mut self, now: Duration, action: Action, out: &mut Vec<Event>);
-    /// The commander stopped or killed the recipe: stop the device.
-    fn halt(&mut self, out: &mut Vec<Event>);
-    /// The recipe ended: leave the device safe.
-    fn finished(&mut self, _outcome: &Outcome) {}
+    /// The device's part of the status (physical status, additional detail).
+    fn status(&self, status: &mut VmdStatus);
     /// Whether outputs the recipe issued are not carried out yet: a job
     /// that ended well is reported done only once they are (the commander
     /// must not start the next job while, say, a coil write is in flight).
@@ -64,30 +89,19 @@ pub trait Device {
     fn explain_timeout(&self, _now: Duration) -> Option<String> {
         None
     }
-    /// The device's part of the status (physical status, additional detail).
-    fn status(&self, status: &mut VmdStatus);
-    /// An association was lost (the commander, or a subordinate of a cell).
-    fn lost(&mut self, _station: &StationName) {}
-    /// The commander associated (and with it every subordinate).
-    fn associated(&mut self) {}
     /// When the device's own supervision next needs the clock (a status
     /// request due, a silence limit), if ever. The controller sleeps until
-    /// the earlier of this and the recipe's limit.
+    /// the earlier of this and the recipe's limit, then hands the device
+    /// [`Happening::Clock`].
     fn poll_timeout(&self) -> Option<Duration> {
         None
     }
-    /// The clock reached [`Device::poll_timeout`]; events for the running
-    /// recipe go into `out`.
-    fn handle_timeout(&mut self, _now: Duration, _out: &mut Vec<Event>) {}
     /// An alarm the device raised that no recipe step owns (a lost line
     /// while idle, a program found running that nobody started): reported
     /// once, when the controller settles.
     fn poll_alarm(&mut self) -> Option<Cause> {
         None
     }
-    /// The cell's mode changed (the device releases what a maintainer
-    /// left pressed when maintenance ends).
-    fn mode_changed(&mut self, _mode: CellMode) {}
     /// A manual operation (maintenance mode, no recipe running; the
     /// controller checked both): what was done, or why not.
     fn manual(&mut self, _now: Duration, action: &ManualAction) -> Result<String, String> {
@@ -220,7 +234,7 @@ impl<D: Device> Controller<D> {
     pub fn handle_timeout(&mut self, now: Duration) {
         if self.device.poll_timeout().is_some_and(|d| d <= now) {
             let mut out = Vec::new();
-            self.device.handle_timeout(now, &mut out);
+            self.device.handle(now, Happening::Clock, &mut out);
             self.feed(now, out);
         }
         let due = self
@@ -326,7 +340,7 @@ impl<D: Device> Controller<D> {
                 }
                 a => {
                     let mut out = Vec::new();
-                    self.device.act(now, a, &mut out);
+                    self.device.handle(now, Happening::Act(a), &mut out);
                     self.feed(now, out);
                 }
             }
@@ -356,7 +370,8 @@ impl<D: Device> Controller<D> {
         if let Some(outcome) = ended {
             // Only now, with the outcome known, is the job taken out.
             if let Some(r) = self.running.take() {
-                self.device.finished(&outcome);
+                self.device
+                    .handle(now, Happening::Finished(&outcome), &mut Vec::new());
                 let _ = self.vmd.complete(&r.name, PiCompletion::Finished);
                 let event = match outcome {
                     Outcome::Done => JobEvent::Done,
@@ -387,8 +402,9 @@ impl<D: Device> Controller<D> {
     /// subordinate of a cell): a running recipe ends in a communication
     /// alarm naming it; unless `peer` is the commander and this level runs
     /// on alone, when the recipe goes on and its end is kept.
-    pub fn handle_abort(&mut self, peer: &StationName, role: Role) {
-        self.device.lost(peer);
+    pub fn handle_abort(&mut self, now: Duration, peer: &StationName, role: Role) {
+        self.device
+            .handle(now, Happening::Lost(peer), &mut Vec::new());
         if role == Role::Commander && self.runs_on_alone {
             if let Some(r) = &self.running {
                 let text = format!(
@@ -409,8 +425,9 @@ impl<D: Device> Controller<D> {
     }
 
     /// The commander associated (and with it every subordinate).
-    pub fn handle_associated(&mut self) {
-        self.device.associated();
+    pub fn handle_associated(&mut self, now: Duration) {
+        self.device
+            .handle(now, Happening::Associated, &mut Vec::new());
     }
 
     /// Builds the engine for program invocation `name` from its domain.
@@ -501,12 +518,13 @@ impl<D: Device> Controller<D> {
                 // The device stops first: `finished` forgets what runs (a
                 // cell forgets which workstations its recipe started).
                 let mut out = Vec::new();
-                self.device.halt(&mut out);
+                self.device.handle(now, Happening::Halt, &mut out);
                 self.stopped = None;
                 if let Some(mut r) = self.running.take() {
                     let why = Cause::process(format!("{:?} by the commander", t.request));
                     r.engine.abort(why.clone());
-                    self.device.finished(&Outcome::Alarm(why));
+                    let end = Outcome::Alarm(why);
+                    self.device.handle(now, Happening::Finished(&end), &mut out);
                     if t.request == PiRequest::Stop {
                         // Kept for Resume (ISO 9506): it goes on there.
                         while r.engine.poll_action().is_some() {}
@@ -630,7 +648,8 @@ impl<D: Device> Controller<D> {
             }
         }
         if self.mode.mode != setting.mode {
-            self.device.mode_changed(setting.mode);
+            self.device
+                .handle(now, Happening::Mode(setting.mode), &mut Vec::new());
         }
         self.mode = setting.clone();
         let steps = self.mode.steps(&self.me);
@@ -825,17 +844,25 @@ mod tests {
     }
 
     impl Device for Fake {
+        fn handle(&mut self, now: Duration, what: Happening<'_>, _out: &mut Vec<Event>) {
+            match what {
+                Happening::Act(action) => self.acts.push(action),
+                Happening::Halt => self.halted += 1,
+                Happening::Finished(outcome) => self.finished.push(outcome.clone()),
+                Happening::Lost(station) => self.lost.push(station.clone()),
+                Happening::Clock => {
+                    self.supervised.push(now);
+                    self.supervise_at = None;
+                    self.alarms.push_back(Cause::new(
+                        AlarmClass::Communication,
+                        "status request unanswered".to_string(),
+                    ));
+                }
+                Happening::Associated | Happening::Mode(_) => {}
+            }
+        }
         fn unavailable(&self) -> Option<String> {
             self.down.clone()
-        }
-        fn act(&mut self, _now: Duration, action: Action, _out: &mut Vec<Event>) {
-            self.acts.push(action);
-        }
-        fn halt(&mut self, _out: &mut Vec<Event>) {
-            self.halted += 1;
-        }
-        fn finished(&mut self, outcome: &Outcome) {
-            self.finished.push(outcome.clone());
         }
         fn settling(&self) -> bool {
             self.settling
@@ -844,19 +871,8 @@ mod tests {
             Some("robot program 65 still runs".into())
         }
         fn status(&self, _status: &mut VmdStatus) {}
-        fn lost(&mut self, station: &StationName) {
-            self.lost.push(station.clone());
-        }
         fn poll_timeout(&self) -> Option<Duration> {
             self.supervise_at
-        }
-        fn handle_timeout(&mut self, now: Duration, _out: &mut Vec<Event>) {
-            self.supervised.push(now);
-            self.supervise_at = None;
-            self.alarms.push_back(Cause::new(
-                AlarmClass::Communication,
-                "status request unanswered".to_string(),
-            ));
         }
         fn poll_alarm(&mut self) -> Option<Cause> {
             self.alarms.pop_front()
@@ -1156,7 +1172,7 @@ mod tests {
         let mut c = loaded();
         start(&mut c, Duration::ZERO).unwrap();
         let cell = StationName::new("cell").unwrap();
-        c.handle_abort(&cell, Role::Commander);
+        c.handle_abort(Duration::ZERO, &cell, Role::Commander);
         c.settle(secs(1));
         assert!(!c.is_running());
         assert_eq!(c.device.lost, vec![cell.clone()]);
@@ -1171,7 +1187,7 @@ mod tests {
         }));
         assert_eq!(job_events(&outs), vec![JobEvent::Alarm(expected)]);
         // Lost while idle: the device hears of it, nothing is reported.
-        c.handle_abort(&cell, Role::Commander);
+        c.handle_abort(Duration::ZERO, &cell, Role::Commander);
         assert_eq!(outputs(&mut c), vec![]);
         assert_eq!(c.device.lost.len(), 2);
     }

@@ -11,7 +11,7 @@
 //! [`route`] says where a commander's request is answered: a mode here and
 //! then on every workstation, a step or manual operation on the one named.
 
-use crate::controller::{Controller, Device};
+use crate::controller::{Controller, Device, Happening};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::console::MAX_OUTPUT_LINES;
 use falc_model::ids::{ObjectName, StationName};
@@ -19,7 +19,7 @@ use falc_model::mms::error::{DefinitionError, ErrorClass, ServiceError};
 use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
 use falc_recipe::check::Job;
-use falc_recipe::engine::{Action, Event, JobEnd, Outcome};
+use falc_recipe::engine::{Action, Event, JobEnd};
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::time::Duration;
 
@@ -294,15 +294,9 @@ pub fn handle_reply(cell: &mut Controller<Stations>, now: Duration, reply: Reply
     }
 }
 
-impl Device for Stations {
-    fn unavailable(&self) -> Option<String> {
-        self.lost
-            .iter()
-            .next()
-            .map(|s| format!("no connection with station {}", s.as_str().to_uppercase()))
-    }
-
-    fn act(&mut self, _now: Duration, action: Action, _out: &mut Vec<Event>) {
+/// What the device does when something happens ([`Device::handle`]).
+impl Stations {
+    fn act(&mut self, action: Action) {
         match action {
             Action::Start {
                 target,
@@ -360,26 +354,16 @@ impl Device for Stations {
         }
     }
 
-    fn halt(&mut self, out: &mut Vec<Event>) {
+    fn halt(&mut self) {
         let running: Vec<StationName> = self.started.keys().cloned().collect();
         for st in running {
-            self.act(Duration::ZERO, Action::Stop(st), out);
+            self.act(Action::Stop(st));
         }
     }
 
-    fn settling(&self) -> bool {
-        self.showing > 0
-    }
-
-    fn finished(&mut self, _outcome: &Outcome) {
+    fn finished(&mut self) {
         self.started.clear();
         self.run += 1;
-    }
-
-    fn status(&self, status: &mut VmdStatus) {
-        if !self.lost.is_empty() {
-            status.physical = PhysicalStatus::PartiallyOperational;
-        }
     }
 
     fn lost(&mut self, station: &StationName) {
@@ -391,6 +375,36 @@ impl Device for Stations {
     fn associated(&mut self) {
         self.lost.clear();
         self.show_unshown();
+    }
+}
+
+impl Device for Stations {
+    fn handle(&mut self, _now: Duration, what: Happening<'_>, _out: &mut Vec<Event>) {
+        match what {
+            Happening::Act(action) => self.act(action),
+            Happening::Halt => self.halt(),
+            Happening::Finished(_) => self.finished(),
+            Happening::Lost(station) => self.lost(station),
+            Happening::Associated => self.associated(),
+            Happening::Mode(_) | Happening::Clock => {}
+        }
+    }
+
+    fn unavailable(&self) -> Option<String> {
+        self.lost
+            .iter()
+            .next()
+            .map(|s| format!("no connection with station {}", s.as_str().to_uppercase()))
+    }
+
+    fn settling(&self) -> bool {
+        self.showing > 0
+    }
+
+    fn status(&self, status: &mut VmdStatus) {
+        if !self.lost.is_empty() {
+            status.physical = PhysicalStatus::PartiallyOperational;
+        }
     }
 }
 
@@ -617,11 +631,11 @@ mod tests {
         // next order's run and failed it.
         let mut c = cell();
         let first = up_to_the_transport_job(&mut c);
-        c.handle_abort(&st("transport"), Role::Subordinate);
+        c.handle_abort(Duration::ZERO, &st("transport"), Role::Subordinate);
         settle(&mut c, secs(6));
         assert!(!c.is_running());
         outputs(&mut c);
-        c.handle_associated();
+        c.handle_associated(Duration::ZERO);
         let second = up_to_the_transport_job(&mut c);
         no_reply(&mut c, secs(16), &first);
         settle(&mut c, secs(16));
@@ -642,7 +656,7 @@ mod tests {
     fn a_lost_workstation_ends_the_recipe_and_refuses_starts_until_the_commander_associates() {
         let mut c = cell();
         transport_job_running(&mut c);
-        c.handle_abort(&st("transport"), Role::Subordinate);
+        c.handle_abort(Duration::ZERO, &st("transport"), Role::Subordinate);
         settle(&mut c, secs(7));
         assert!(!c.is_running());
         let outs = outputs(&mut c);
@@ -663,7 +677,7 @@ mod tests {
                 .contains("no connection with station TRANSPORT"),
             "{refused:?}"
         );
-        c.handle_associated();
+        c.handle_associated(Duration::ZERO);
         start(&mut c).unwrap();
         assert_eq!(
             settle(&mut c, secs(8)).len(),
@@ -676,7 +690,7 @@ mod tests {
     fn a_cell_cut_off_from_its_commander_runs_its_order_to_the_end_and_keeps_it() {
         let mut c = cell().runs_on_alone(true);
         transport_job_running(&mut c);
-        c.handle_abort(&st("operator"), Role::Commander);
+        c.handle_abort(Duration::ZERO, &st("operator"), Role::Commander);
         assert!(settle(&mut c, secs(7)).is_empty(), "nothing is stopped");
         assert!(c.is_running());
         let outs = outputs(&mut c);
@@ -705,7 +719,7 @@ mod tests {
         let a = attributes(&mut c);
         assert_eq!((a.state, a.last_end), (PiState::Idle, Some(JobEvent::Done)));
         // Back: what it could not be shown is shown now, said late.
-        c.handle_associated();
+        c.handle_associated(Duration::ZERO);
         let cmds = settle(&mut c, secs(32));
         assert_eq!(
             cmds.iter().map(|c| &c.request).collect::<Vec<_>>(),
@@ -717,7 +731,7 @@ mod tests {
             }]
         );
         reply(&mut c, secs(32), &cmds[0], Response::Done);
-        c.handle_associated();
+        c.handle_associated(Duration::ZERO);
         assert!(settle(&mut c, secs(33)).is_empty(), "shown once");
         start(&mut c).unwrap();
         assert_eq!(attributes(&mut c).last_end, None);
@@ -727,7 +741,7 @@ mod tests {
     fn a_cell_that_does_not_run_on_alone_ends_its_order_when_the_commander_is_lost() {
         let mut c = cell();
         transport_job_running(&mut c);
-        c.handle_abort(&st("operator"), Role::Commander);
+        c.handle_abort(Duration::ZERO, &st("operator"), Role::Commander);
         let cmds = settle(&mut c, secs(7));
         assert!(!c.is_running());
         assert!(cmds.iter().any(|c| c.request

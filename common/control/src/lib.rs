@@ -8,6 +8,8 @@
 //!   to the commander, one running recipe, its job events and reports;
 //! - [`coordination`]: the cell's device: its workstations below and the
 //!   operator above, requests out as commands, confirms and job events in;
+//! - [`pass_on`]: the cell's pass-on of modes, steps, manual operations
+//!   and workstation recipes to its workstations;
 //! - [`order_list`]: the operator's order list worked through the cell,
 //!   with its [`alarm_list`], over its durable [`records`] and the
 //!   [`recipe_source`];
@@ -20,6 +22,7 @@ pub mod controller;
 pub mod coordination;
 pub mod figures;
 pub mod order_list;
+pub mod pass_on;
 pub mod plant;
 pub mod recipe_source;
 pub mod records;

@@ -10,7 +10,7 @@
 use crate::host::{Host, Out};
 use crate::procedure::{LinkEvent, Timing};
 use crate::telegram::Telegram;
-use falc_control::controller::Device;
+use falc_control::controller::{Device, Happening};
 use falc_model::alarm::Cause;
 use falc_model::mms::vmd::{PhysicalStatus, RobotStatusDetail, VmdStatus};
 use falc_model::mode::ManualAction;
@@ -145,12 +145,9 @@ impl Welding {
     }
 }
 
-impl Device for Welding {
-    fn unavailable(&self) -> Option<String> {
-        None
-    }
-
-    fn act(&mut self, _now: Duration, action: Action, out: &mut Vec<Event>) {
+/// What the device does when something happens ([`Device::handle`]).
+impl Welding {
+    fn act(&mut self, action: Action, out: &mut Vec<Event>) {
         match action {
             Action::Start {
                 job: Job::Program(p),
@@ -164,18 +161,9 @@ impl Device for Welding {
         }
     }
 
-    fn manual(&mut self, _now: Duration, action: &ManualAction) -> Result<String, String> {
-        let (telegram, done) = self.host.manual(action)?;
-        // No recipe runs in maintenance: a link failure has no job to end.
-        let mut events = Vec::new();
-        if self.send(telegram, &mut events) {
-            Ok(done)
-        } else {
-            Err(format!("the DNC line {} is not open", self.host.line()))
-        }
-    }
-
-    fn halt(&mut self, out: &mut Vec<Event>) {
+    /// Stops the robot program (the commander stopped or killed the
+    /// recipe, or the driver shuts down).
+    pub fn halt(&mut self, out: &mut Vec<Event>) {
         let outs = self.host.stop();
         self.apply(outs, out);
     }
@@ -189,6 +177,38 @@ impl Device for Welding {
         }
     }
 
+    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Event>) {
+        let outs = self.host.handle_timeout(now);
+        self.apply(outs, out);
+    }
+}
+
+impl Device for Welding {
+    fn handle(&mut self, now: Duration, what: Happening<'_>, out: &mut Vec<Event>) {
+        match what {
+            Happening::Act(action) => self.act(action, out),
+            Happening::Halt => self.halt(out),
+            Happening::Finished(outcome) => self.finished(outcome),
+            Happening::Clock => self.handle_timeout(now, out),
+            Happening::Lost(_) | Happening::Associated | Happening::Mode(_) => {}
+        }
+    }
+
+    fn unavailable(&self) -> Option<String> {
+        None
+    }
+
+    fn manual(&mut self, _now: Duration, action: &ManualAction) -> Result<String, String> {
+        let (telegram, done) = self.host.manual(action)?;
+        // No recipe runs in maintenance: a link failure has no job to end.
+        let mut events = Vec::new();
+        if self.send(telegram, &mut events) {
+            Ok(done)
+        } else {
+            Err(format!("the DNC line {} is not open", self.host.line()))
+        }
+    }
+
     fn explain_timeout(&self, now: Duration) -> Option<String> {
         self.host.explain_timeout(now)
     }
@@ -196,11 +216,6 @@ impl Device for Welding {
     /// The supervision's clock (status requests, the silence limit).
     fn poll_timeout(&self) -> Option<Duration> {
         self.host.poll_timeout()
-    }
-
-    fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Event>) {
-        let outs = self.host.handle_timeout(now);
-        self.apply(outs, out);
     }
 
     fn poll_alarm(&mut self) -> Option<Cause> {

@@ -169,12 +169,14 @@ impl<D: Device> ControllerNode<D> {
             }
             StationEvent::Abort(a) => {
                 say(&format!("EVENT abort-indication peer={}", a.peer.station));
-                self.core.handle_abort(&a.peer.station, a.role);
+                let now = self.now();
+                self.core.handle_abort(now, &a.peer.station, a.role);
                 self.flush().await;
             }
             StationEvent::Associated(p) => {
                 say(&format!("EVENT associated commander={}", p.station));
-                self.core.handle_associated();
+                let now = self.now();
+                self.core.handle_associated(now);
                 self.publish_status().await;
                 self.station.republish_status().await;
             }

@@ -38,7 +38,7 @@
 //! through [`Plc::connected`], [`Plc::reading`] and [`Plc::link_down`].
 
 use crate::map::{Coil, Input, Inputs, SignalName, COILS};
-use falc_control::controller::Device;
+use falc_control::controller::{Device, Happening};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
 use falc_model::mode::{CellMode, ManualAction};
@@ -315,29 +315,8 @@ fn on_off(v: bool) -> &'static str {
     }
 }
 
-impl Device for Plc {
-    fn unavailable(&self) -> Option<String> {
-        if let Some(why) = &self.down {
-            return Some(why.clone());
-        }
-        let Some(i) = self.inputs else {
-            return Some(format!(
-                "no reading from the conveyor PLC at {} yet",
-                self.address
-            ));
-        };
-        if i.get(Input::EStop) {
-            return Some(format!(
-                "emergency stop on the conveyor PLC at {}",
-                self.address
-            ));
-        }
-        if !i.get(Input::Ready) {
-            return Some(format!("the conveyor PLC at {} is not ready", self.address));
-        }
-        None
-    }
-
+/// What the device does when something happens ([`Device::handle`]).
+impl Plc {
     fn act(&mut self, now: Duration, action: Action, out: &mut Vec<Event>) {
         self.pace(true);
         match action {
@@ -358,6 +337,80 @@ impl Device for Plc {
             Action::Unwatch => self.watch = None,
             other => tracing::warn!("a transport recipe cannot {other:?}"),
         }
+    }
+
+    fn mode_changed(&mut self, mode: CellMode) {
+        if mode != CellMode::Maintenance {
+            // What a maintainer left pressed is released as maintenance ends.
+            self.manual_line = None;
+            self.release(|_| true);
+        }
+    }
+
+    fn handle_timeout(&mut self, now: Duration) {
+        if let Some((l, until)) = self.manual_line {
+            if until <= now {
+                self.manual_line = None;
+                self.write(Button::Line(l), false);
+            }
+        }
+    }
+
+    fn halt(&mut self) {
+        self.watch = None;
+        self.release_lines();
+    }
+
+    fn lost(&mut self) {
+        // The commander is gone and with it the cell's whole job (the weld
+        // is stopped too): nothing holds a workpiece any more, every button
+        // is released, so the next commander starts from a known state.
+        self.release(|_| true);
+    }
+
+    fn finished(&mut self, outcome: &Outcome) {
+        self.watch = None;
+        self.pace(false);
+        if *outcome != Outcome::Done {
+            self.release_lines();
+        }
+        self.last_line = None;
+    }
+}
+
+impl Device for Plc {
+    fn handle(&mut self, now: Duration, what: Happening<'_>, out: &mut Vec<Event>) {
+        match what {
+            Happening::Act(action) => self.act(now, action, out),
+            Happening::Mode(mode) => self.mode_changed(mode),
+            Happening::Clock => self.handle_timeout(now),
+            Happening::Halt => self.halt(),
+            Happening::Lost(_) => self.lost(),
+            Happening::Finished(outcome) => self.finished(outcome),
+            Happening::Associated => {}
+        }
+    }
+
+    fn unavailable(&self) -> Option<String> {
+        if let Some(why) = &self.down {
+            return Some(why.clone());
+        }
+        let Some(i) = self.inputs else {
+            return Some(format!(
+                "no reading from the conveyor PLC at {} yet",
+                self.address
+            ));
+        };
+        if i.get(Input::EStop) {
+            return Some(format!(
+                "emergency stop on the conveyor PLC at {}",
+                self.address
+            ));
+        }
+        if !i.get(Input::Ready) {
+            return Some(format!("the conveyor PLC at {} is not ready", self.address));
+        }
+        None
     }
 
     fn manual(&mut self, now: Duration, action: &ManualAction) -> Result<String, String> {
@@ -401,52 +454,14 @@ impl Device for Plc {
         }
     }
 
-    fn mode_changed(&mut self, mode: CellMode) {
-        if mode != CellMode::Maintenance {
-            // What a maintainer left pressed is released as maintenance ends.
-            self.manual_line = None;
-            self.release(|_| true);
-        }
-    }
-
     fn poll_timeout(&self) -> Option<Duration> {
         self.manual_line.map(|(_, until)| until)
-    }
-
-    fn handle_timeout(&mut self, now: Duration, _out: &mut Vec<Event>) {
-        if let Some((l, until)) = self.manual_line {
-            if until <= now {
-                self.manual_line = None;
-                self.write(Button::Line(l), false);
-            }
-        }
-    }
-
-    fn halt(&mut self, _out: &mut Vec<Event>) {
-        self.watch = None;
-        self.release_lines();
     }
 
     fn settling(&self) -> bool {
         // Dropped commands count as carried out; a link that is down never
         // holds a job back (its fault is the alarm).
         self.down.is_none() && self.inputs_after < self.issued
-    }
-
-    fn lost(&mut self, _commander: &falc_model::ids::StationName) {
-        // The commander is gone and with it the cell's whole job (the weld
-        // is stopped too): nothing holds a workpiece any more, every button
-        // is released, so the next commander starts from a known state.
-        self.release(|_| true);
-    }
-
-    fn finished(&mut self, outcome: &Outcome) {
-        self.watch = None;
-        self.pace(false);
-        if *outcome != Outcome::Done {
-            self.release_lines();
-        }
-        self.last_line = None;
     }
 
     fn explain_timeout(&self, now: Duration) -> Option<String> {
@@ -527,7 +542,7 @@ mod tests {
 
     fn act(p: &mut Plc, now: u64, a: Action) -> Vec<Event> {
         let mut out = Vec::new();
-        p.act(Duration::from_secs(now), a, &mut out);
+        p.handle(Duration::from_secs(now), Happening::Act(a), &mut out);
         out
     }
 
@@ -572,11 +587,15 @@ mod tests {
                 PlcCommand::Write(line_b, true)
             ]
         );
-        p.handle_timeout(Duration::from_secs(6), &mut Vec::new());
+        p.handle(Duration::from_secs(6), Happening::Clock, &mut Vec::new());
         assert_eq!(drain(&mut p), vec![PlcCommand::Write(line_b, false)]);
         assert_eq!(p.poll_timeout(), None);
         // Leaving maintenance releases what a maintainer left pressed.
-        p.mode_changed(CellMode::Auto);
+        p.handle(
+            Duration::ZERO,
+            Happening::Mode(CellMode::Auto),
+            &mut Vec::new(),
+        );
         assert_eq!(drain(&mut p), vec![PlcCommand::Write(station_3, false)]);
     }
 
@@ -670,7 +689,11 @@ mod tests {
         );
         act(&mut p, 0, Action::Activate(Button::Line('E')));
         drain(&mut p);
-        p.finished(&Outcome::Alarm(Cause::process("x")));
+        p.handle(
+            Duration::ZERO,
+            Happening::Finished(&Outcome::Alarm(Cause::process("x"))),
+            &mut Vec::new(),
+        );
         assert_eq!(
             drain(&mut p),
             vec![
@@ -692,10 +715,15 @@ mod tests {
         assert!(p.settling(), "the write of K is in flight");
         p.inputs(ready(), p.issued());
         assert!(!p.settling());
-        p.finished(&Outcome::Done);
+        p.handle(
+            Duration::ZERO,
+            Happening::Finished(&Outcome::Done),
+            &mut Vec::new(),
+        );
         assert_eq!(drain(&mut p), vec![PlcCommand::Pace(Pace::Idle)]);
         // The commander lost: the station button goes too.
-        p.lost(&falc_model::ids::StationName::new("cell").expect("valid"));
+        let cell = falc_model::ids::StationName::new("cell").expect("valid");
+        p.handle(Duration::ZERO, Happening::Lost(&cell), &mut Vec::new());
         let released = drain(&mut p);
         assert!(
             released.contains(&PlcCommand::Write(
@@ -717,7 +745,11 @@ mod tests {
             Action::Activate(Button::Station(PlcStation::of(3))),
         );
         // An alarm keeps the station button; the next job presses it again.
-        p.finished(&Outcome::Alarm(Cause::new(AlarmClass::Safety, "estop")));
+        p.handle(
+            Duration::ZERO,
+            Happening::Finished(&Outcome::Alarm(Cause::new(AlarmClass::Safety, "estop"))),
+            &mut Vec::new(),
+        );
         drain(&mut p);
         act(
             &mut p,

@@ -12,8 +12,9 @@
 use crate::bus::{Arrival, Bus, Link, Msg, Node};
 use crate::recipes::Shipped;
 use falc_control::controller::{Controller, Device, Output as CtlOutput};
-use falc_control::coordination::{self, workstation_domain, Awaiting, Reply, Route, Stations};
+use falc_control::coordination::{self, Awaiting, Reply, Stations};
 use falc_control::order_list::{OrderList, Output as ListOutput, Ticket, CELL_LIMIT};
+use falc_control::pass_on::{PassOn, Todo};
 use falc_control::recipe_source::{Delivery, RecipeSource};
 use falc_control::records::memory::Memory;
 use falc_control::records::shared::{plant, Shared};
@@ -22,13 +23,14 @@ use falc_dnc::robot::Robot;
 use falc_dnc::telegram::Mode;
 use falc_dnc::twin::{Note, RcmTwin};
 use falc_dnc::workstation::{self, Welding};
+use falc_model::alarm::AlarmClass;
 use falc_model::console::{ApiRequest, ApiResult};
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::association::Role;
 use falc_model::mms::domain::download_steps;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Peer, Request, Response, Severity, Unconfirmed};
-use falc_model::mms::vmd::{Vmd, VmdStatus};
+use falc_model::mms::vmd::VmdStatus;
 use falc_model::topology::Topology;
 use falc_plc::conveyor::{Conveyor, Spot};
 use falc_plc::map::{Coil, Inputs, COILS};
@@ -210,6 +212,8 @@ pub struct World {
     indications: BTreeMap<Ticket, u64>,
     /// The cell controller.
     pub cell: Controller<Stations>,
+    /// The cell's pass-on; a ticket is the indication's sender and id.
+    pass: PassOn<(Node, u64)>,
     cell_status: Option<VmdStatus>,
     /// The operator–cell association.
     cell_associated: bool,
@@ -283,6 +287,7 @@ impl World {
             replies: BTreeMap::new(),
             indications: BTreeMap::new(),
             cell,
+            pass: PassOn::new(vec![station(Node::Welding), station(Node::Transport)]),
             cell_status: None,
             cell_associated: false,
             lease: topology.lease(),
@@ -601,6 +606,15 @@ impl World {
                 more = true;
                 coordination::handle_reply(&mut self.cell, self.now, local);
             }
+            while let Some(here) = self.pass.poll_here() {
+                more = true;
+                let result = self.cell_indication(&here.request);
+                self.pass.handled(here, result, self.cell.vmd());
+            }
+            while let Some(todo) = self.pass.poll_todo() {
+                more = true;
+                self.carry_out(todo);
+            }
             if !more {
                 break;
             }
@@ -740,13 +754,21 @@ impl World {
                 self.list.handle_cell_request(now, t, request);
             }
             (Node::Cell, Msg::Request { id, request }) => {
-                let result = self.cell_indication(&request);
-                self.respond(Node::Cell, a.from, id, result);
+                if let Request::Initiate { .. } = request {
+                    let result = self.cell_initiate();
+                    self.respond(Node::Cell, a.from, id, result);
+                } else if !self.cell_associated {
+                    self.respond(Node::Cell, a.from, id, Err(not_associated(Node::Cell)));
+                } else {
+                    self.pass.handle_indication((a.from, id), request);
+                }
             }
-            (Node::Cell, Msg::Deliver { id, delivery }) => {
-                let result = self.cell_delivery(&delivery);
-                self.respond(Node::Cell, a.from, id, result);
-            }
+            (Node::Cell, Msg::Deliver { id, delivery }) => match self.cell_delivery(&delivery) {
+                Ok(()) => self
+                    .pass
+                    .downloaded((a.from, id), &delivery.domain, self.cell.vmd()),
+                Err(e) => self.respond(Node::Cell, a.from, id, Err(e)),
+            },
             // A dead process answers nothing: the request runs out of time.
             (ws, Msg::Request { .. }) if !self.is_running(ws) => {}
             (ws @ (Node::Welding | Node::Transport), Msg::Request { id, request }) => {
@@ -767,35 +789,25 @@ impl World {
         }
     }
 
-    /// The cell answers its commander.
+    /// The commander's Initiate: the workstations first (the 1992
+    /// recursive scheme), then the cell; the pass-on gives them what they
+    /// lack.
+    fn cell_initiate(&mut self) -> Result<Response, ServiceError> {
+        for ws in [Node::Welding, Node::Transport] {
+            self.associate(ws)?;
+        }
+        self.cell_associated = true;
+        self.cell.handle_associated(self.now);
+        self.cell_status = None;
+        let mode = self.cell.mode().clone();
+        self.pass.handle_associated(self.cell.vmd(), &mode);
+        Ok(Response::Done)
+    }
+
+    /// The cell's controller answers its commander (what the pass-on
+    /// leaves to it).
     fn cell_indication(&mut self, request: &Request) -> Result<Response, ServiceError> {
         let now = self.now;
-        if let Request::Initiate { .. } = request {
-            // The 1992 recursive scheme: the workstations first.
-            for ws in [Node::Welding, Node::Transport] {
-                self.associate(ws)?;
-            }
-            self.cell_associated = true;
-            self.cell.handle_associated();
-            self.cell_status = None;
-            return Ok(Response::Done);
-        }
-        if !self.cell_associated {
-            return Err(not_associated(Node::Cell));
-        }
-        let subs = [station(Node::Welding), station(Node::Transport)];
-        match coordination::route(request, &subs) {
-            Route::Here => {}
-            Route::HereThenAll => {
-                self.cell.handle_request(now, request)?;
-                return self.pass_on(&[Node::Welding, Node::Transport], request);
-            }
-            Route::To(st) => match Node::of(&st) {
-                Some(to) => return self.pass_on(&[to], request),
-                None => return Err(ServiceError::undefined(format!("no station {st}"))),
-            },
-            Route::Refused(e) => return Err(e),
-        }
         let result = self.cell.handle_request(now, request);
         if let (Ok(_), Request::Start { argument, .. }) = (&result, request) {
             if let Some(n) = argument
@@ -814,22 +826,41 @@ impl World {
         result
     }
 
-    /// A mode, step or manual operation passed on: the first refusal.
-    fn pass_on(&mut self, to: &[Node], request: &Request) -> Result<Response, ServiceError> {
-        let mut refused = Vec::new();
-        for ws in to {
-            if !self.bus.reachable(Node::Cell, *ws) {
-                refused.push(format!("no connection with station {ws}"));
-                continue;
+    /// Carries out what the cell's pass-on asks, at once: a workstation
+    /// out of reach answers as the bus would.
+    fn carry_out(&mut self, todo: Todo<(Node, u64)>) {
+        let reach = |w: &Self, st: &StationName| match Node::of(st) {
+            Some(ws) if w.bus.reachable(Node::Cell, ws) && w.is_running(ws) => Ok(ws),
+            _ => Err(ServiceError::unreachable(format!(
+                "no connection with station {st}"
+            ))),
+        };
+        match todo {
+            Todo::Answer {
+                ticket: (to, id),
+                result,
+            } => self.respond(Node::Cell, to, id, result),
+            Todo::Ask { id, to, request } => {
+                let result =
+                    reach(self, &to).and_then(|ws| self.workstation_indication(ws, &request));
+                self.pass.handle_confirm(id, result);
             }
-            if let Err(e) = self.workstation_indication(*ws, request) {
-                refused.push(e.description);
+            Todo::Deliver {
+                id,
+                to,
+                name,
+                content,
+            } => {
+                let result =
+                    reach(self, &to).and_then(|ws| self.deliver_to(ws, &name, &content, true));
+                self.pass.handle_delivered(id, result);
             }
-        }
-        if refused.is_empty() {
-            Ok(Response::Done)
-        } else {
-            Err(ServiceError::state_conflict(refused.join("; ")))
+            Todo::Delivered { to, name } => self.note(format!("cell: {name} delivered to {to}")),
+            Todo::Discard(domain) => self.cell.discard_domain(&domain),
+            Todo::Alarm(text) => self
+                .cell
+                .report(Severity::Alarm(AlarmClass::Communication), text),
+            Todo::Warn(text) => self.note(format!("cell: {text}")),
         }
     }
 
@@ -849,61 +880,25 @@ impl World {
         // Associated: its status is published again.
         match ws {
             Node::Welding => {
-                self.welding.ctl.handle_associated();
+                self.welding.ctl.handle_associated(self.now);
                 self.welding.status = None;
             }
             _ => {
-                self.transport.ctl.handle_associated();
+                self.transport.ctl.handle_associated(self.now);
                 self.transport.status = None;
             }
         }
         self.note(format!("{ws}: associated with the cell"));
-        // What the cell holds for it and it lacks (a restarted station
-        // comes back empty).
-        let todo: Vec<(ObjectName, Vec<u8>)> = self
-            .cell
-            .vmd()
-            .domains()
-            .filter_map(|d| {
-                let (st, name) = workstation_domain(d.name())?;
-                (st.as_str() == ws.station()).then(|| (name, d.content().to_vec()))
-            })
-            .collect();
-        for (name, content) in todo {
-            let has = self
-                .vmd(ws)
-                .domain(&name)
-                .is_some_and(|d| d.content() == content.as_slice());
-            if !has {
-                self.deliver_to(ws, &name, &content, true)?;
-            }
-        }
-        let mode = Request::Mode(self.cell.mode().clone());
-        self.workstation_indication(ws, &mode)?;
         Ok(())
     }
 
-    /// A recipe delivered to the cell; a workstation's is passed on.
-    fn cell_delivery(&mut self, d: &Delivery) -> Result<Response, ServiceError> {
+    /// A recipe delivered to the cell's controller; the pass-on hands a
+    /// workstation's on.
+    fn cell_delivery(&mut self, d: &Delivery) -> Result<(), ServiceError> {
         if !self.cell_associated {
             return Err(not_associated(Node::Cell));
         }
-        self.deliver_to(Node::Cell, &d.domain, &d.content, d.is_cell)?;
-        if let Some((st, name)) = workstation_domain(&d.domain) {
-            let passed = match Node::of(&st) {
-                Some(ws) if self.bus.reachable(Node::Cell, ws) && self.is_running(ws) => {
-                    self.deliver_to(ws, &name, &d.content, true)
-                }
-                _ => Err(ServiceError::unreachable(format!(
-                    "no connection with station {st}"
-                ))),
-            };
-            if let Err(e) = passed {
-                self.cell.discard_domain(&d.domain);
-                return Err(e);
-            }
-        }
-        Ok(Response::Done)
+        self.deliver_to(Node::Cell, &d.domain, &d.content, d.is_cell)
     }
 
     /// The steps of a delivery at `to`, all or nothing.
@@ -971,15 +966,6 @@ impl World {
         }
     }
 
-    /// A workstation's (or the cell's) object store.
-    fn vmd(&self, n: Node) -> &Vmd {
-        match n {
-            Node::Welding => self.welding.ctl.vmd(),
-            Node::Transport => self.transport.ctl.vmd(),
-            _ => self.cell.vmd(),
-        }
-    }
-
     /// `n`'s link to the router is cut (or joined again).
     pub fn cut(&mut self, n: Node, cut: bool) {
         self.bus.set_cut(n, cut);
@@ -1038,7 +1024,7 @@ impl World {
                     self.cell_associated = false;
                     self.list
                         .handle_abort(now, &format!("no connection with {n}"));
-                    self.cell.handle_abort(&op, Role::Commander);
+                    self.cell.handle_abort(now, &op, Role::Commander);
                 }
                 if n == Node::Cell {
                     self.list.handle_presence(now, cell.clone(), false);
@@ -1065,11 +1051,18 @@ impl World {
         }
         up.associated = false;
         let (cell, name) = (station(Node::Cell), station(ws));
-        self.cell.handle_abort(&name, Role::Subordinate);
+        self.pass.handle_lost(&name);
+        self.cell.handle_abort(self.now, &name, Role::Subordinate);
         if self.is_running(ws) {
             match ws {
-                Node::Welding => self.welding.ctl.handle_abort(&cell, Role::Commander),
-                _ => self.transport.ctl.handle_abort(&cell, Role::Commander),
+                Node::Welding => self
+                    .welding
+                    .ctl
+                    .handle_abort(self.now, &cell, Role::Commander),
+                _ => self
+                    .transport
+                    .ctl
+                    .handle_abort(self.now, &cell, Role::Commander),
             }
         }
     }
