@@ -12,7 +12,8 @@
 use crate::commands::{CellCommand, ConsoleArgs, OrderCommand, StoreCommand};
 use crate::edit;
 use crate::history;
-use crate::output::{print, show_alarm};
+use crate::lines;
+use crate::output::print;
 use crate::tui::Screens;
 use crate::watch::{follow, watch};
 use falc_bus::operator_service::CallError;
@@ -61,8 +62,8 @@ async fn alarms(
     } else {
         for (cell, a) in &list {
             match cell {
-                Some(c) => crate::out!("{c:<8} {}", show_alarm(a)),
-                None => crate::out!("{}", show_alarm(a)),
+                Some(c) => crate::out!("{c:<8} {}", lines::alarm(a)),
+                None => crate::out!("{}", lines::alarm(a)),
             }
         }
     }

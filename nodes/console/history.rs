@@ -7,7 +7,8 @@
 
 use crate::cell_cmd::{fail, CALL_LIMIT};
 use crate::clock::date_time;
-use crate::output::{show_alarm, show_entry};
+use crate::lines;
+use crate::output::show_entry;
 use clap::Subcommand;
 use falc_bus::Bus;
 use falc_model::console::{ApiReply, ApiRequest, RecipeFile};
@@ -417,7 +418,7 @@ pub fn show_record(r: &OrderRecord) -> String {
     }
     if !r.alarms.is_empty() {
         out.push("alarms:".into());
-        out.extend(r.alarms.iter().map(|a| format!("  {}", show_alarm(a))));
+        out.extend(r.alarms.iter().map(|a| format!("  {}", lines::alarm(a))));
     }
     out.push("journal:".into());
     out.extend(r.entries.iter().map(|e| format!("  {}", show_entry(e))));

@@ -15,6 +15,7 @@ mod commands;
 mod edit;
 mod figures;
 mod history;
+mod lines;
 mod output;
 mod recipe_cmd;
 mod report;

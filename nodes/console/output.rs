@@ -5,7 +5,6 @@
 
 use crate::clock::time_of_day_ms;
 use crate::history;
-use falc_model::alarm::Alarm;
 use falc_model::console::{ApiReply, CellStatus, Entry, Order, PlantStatus};
 use falc_model::ids::printable;
 
@@ -44,26 +43,6 @@ pub(crate) fn show_entry(e: &Entry) -> String {
         e.kind.as_str(),
         printable(&e.who),
         printable(&e.text)
-    )
-}
-
-/// One alarm as `falc alarms` prints it: number, time, class, station,
-/// order, text, and its state (`active, needs ack`, `acknowledged by …`).
-pub(crate) fn show_alarm(a: &Alarm) -> String {
-    let order = a.order.map(|o| format!(" (order {o})")).unwrap_or_default();
-    let state = match &a.acked {
-        Some((who, at)) => format!("{} by {who} {}", a.state(), time_of_day_ms(*at)),
-        None if a.blocks_start() => format!("{}, needs ack", a.state()),
-        None => a.state().to_string(),
-    };
-    format!(
-        "#{:<3} {} {:<13} {:<10} {}{order}  [{}]",
-        a.id,
-        time_of_day_ms(a.raised_ms),
-        a.class.as_str(),
-        printable(&a.station),
-        printable(&a.text),
-        printable(&state)
     )
 }
 

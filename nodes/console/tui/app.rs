@@ -8,6 +8,7 @@ use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::ids::StationName;
 use falc_model::mode::{CellMode, HeldStep, ManualAction};
 use falc_model::topology::{Role, StationKind, Topology};
+use falc_recipe::syntax::parse;
 use ratatui::crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
 
 /// The layers of the 1992 interface, and the recipe view.
@@ -151,6 +152,49 @@ pub struct Pane {
     pub unread: usize,
 }
 
+/// A recipe as the F4 view shows it, read once when it came: its name
+/// and which state each line belongs to.
+#[derive(Debug, Clone)]
+pub struct Viewed {
+    /// The recipe as the store sent it.
+    pub recipe: RecipeText,
+    /// The program it names (its file's name when it names none).
+    pub program: String,
+    /// Per line of its text, the state it belongs to (none: a comment, a
+    /// blank or a line that does not parse).
+    pub states: Vec<Option<u16>>,
+}
+
+impl Viewed {
+    /// Reads `recipe`.
+    pub fn of(recipe: RecipeText) -> Self {
+        let parsed = parse(&recipe.text, &recipe.file.to_string());
+        let program = parsed.name.as_ref().map_or_else(
+            || recipe.file.file().trim_end_matches(".rcp").to_string(),
+            |(n, _)| n.as_str().to_string(),
+        );
+        let states = (1..=recipe.text.lines().count())
+            .map(|no| {
+                parsed
+                    .rows
+                    .iter()
+                    .find(|row| row.line == no)
+                    .map(|row| row.state.0)
+            })
+            .collect();
+        Self {
+            recipe,
+            program,
+            states,
+        }
+    }
+
+    /// Whether it is program `p`'s recipe.
+    pub fn is_program(&self, p: &str) -> bool {
+        self.program.eq_ignore_ascii_case(p)
+    }
+}
+
 /// The whole TUI state.
 pub struct App {
     /// Who uses it, and as what.
@@ -182,7 +226,7 @@ pub struct App {
     /// The recipe list, when fetched.
     pub recipes: Vec<RecipeInfo>,
     /// The recipe the F4 view shows when its station runs nothing.
-    pub viewed: Option<RecipeText>,
+    pub viewed: Option<Viewed>,
     /// The station whose running recipe F4 shows.
     pub view_station: usize,
     /// The last message id seen.
@@ -354,7 +398,7 @@ impl App {
                 self.figures_stale = false;
             }
             (Some(ApiRequest::RecipeGet { .. }), Ok(ApiReply::Recipe(r))) => {
-                self.viewed = Some(r);
+                self.viewed = Some(Viewed::of(r));
                 self.layer = Layer::Recipe;
             }
             (_, Ok(ApiReply::Done(text))) => self.said = Some((true, text)),
@@ -512,7 +556,7 @@ impl App {
                     .as_deref()
                     .is_some_and(|n| n.eq_ignore_ascii_case(program.0.as_str()))
         })?;
-        if self.viewed.as_ref().map(|v| &v.file) == Some(&info.file) {
+        if self.viewed.as_ref().map(|v| &v.recipe.file) == Some(&info.file) {
             return None;
         }
         Some(ApiRequest::RecipeGet {
@@ -759,6 +803,37 @@ mod tests {
         )
         .expect("shipped topology");
         App::new(t, StationName::new("console").expect("valid"))
+    }
+
+    #[test]
+    fn a_viewed_recipe_is_read_once_its_program_and_the_state_of_each_line() {
+        let text = std::fs::read_to_string(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes/welding/droog_dik.rcp"),
+        )
+        .expect("shipped recipe");
+        let welding = StationName::new("welding").expect("valid");
+        let v = Viewed::of(RecipeText {
+            file: RecipeFile::new(welding.clone(), "droog_dik.rcp").expect("valid"),
+            text: text.clone(),
+            hash: 0,
+        });
+        assert!(v.is_program("droog_dik"), "{}", v.program);
+        assert_eq!(v.states.len(), text.lines().count());
+        let line = |prefix: &str| {
+            let at = text.lines().position(|l| l.starts_with(prefix));
+            v.states[at.expect("in the recipe")]
+        };
+        assert_eq!(line("#DROOG_DIK"), None);
+        assert_eq!(line("-1 |"), Some(1));
+        assert_eq!(line("-3 |"), Some(3));
+        // No name line: the file's name is the program's.
+        let v = Viewed::of(RecipeText {
+            file: RecipeFile::new(welding, "home.rcp").expect("valid"),
+            text: "-1 | | | | 0".into(),
+            hash: 0,
+        });
+        assert!(v.is_program("HOME"));
+        assert_eq!(v.states, vec![Some(1)]);
     }
 
     fn key(c: KeyCode) -> KeyEvent {

@@ -13,7 +13,6 @@ use falc_model::mms::vmd::{PhysicalStatus, RecipeState};
 use falc_model::topology::StationKind;
 use falc_plc::map::{Input, Inputs, LINES};
 use falc_recipe::check::Signal;
-use falc_recipe::syntax::parse;
 use ratatui::layout::{Constraint, Layout, Rect};
 use ratatui::style::{Color, Modifier, Style};
 use ratatui::text::{Line, Span};
@@ -550,10 +549,7 @@ fn overview(f: &mut Frame, app: &App, area: Rect) {
                 } else {
                     Style::new()
                 };
-                notes.push(Line::styled(
-                    format!("  {}", crate::output::show_alarm(a)),
-                    style,
-                ));
+                notes.push(Line::styled(format!("  {}", crate::lines::alarm(a)), style));
             }
         }
         if !s.cell_associated {
@@ -906,36 +902,24 @@ fn recipe(f: &mut Frame, app: &App, area: Rect) {
         None => lines.push(Line::from(
             "no recipe to show: a station's running recipe appears here; F3 v views any",
         )),
-        Some(r) => {
+        Some(v) => {
             let current = running
                 .as_ref()
-                .filter(|(p, _)| {
-                    parse(&r.text, "")
-                        .name
-                        .map(|(n, _)| n.as_str().eq_ignore_ascii_case(p))
-                        .unwrap_or_else(|| {
-                            r.file
-                                .file()
-                                .trim_end_matches(".rcp")
-                                .eq_ignore_ascii_case(p)
-                        })
-                })
+                .filter(|(p, _)| v.is_program(p))
                 .map(|(_, s)| *s);
-            let parsed = parse(&r.text, &r.file.to_string());
             lines.push(Line::styled(
                 format!(
                     "{}{}",
-                    r.file,
+                    v.recipe.file,
                     current
                         .map(|s| format!("  (current state {s} highlighted)"))
                         .unwrap_or_default()
                 ),
                 BUSY,
             ));
-            for (no, text) in r.text.lines().enumerate() {
-                let row = parsed.rows.iter().find(|row| row.line == no + 1);
-                let style = match (row, current) {
-                    (Some(row), Some(c)) if row.state.0 == c => ACTIVE,
+            for (text, state) in v.recipe.text.lines().zip(&v.states) {
+                let style = match (state, current) {
+                    (Some(s), Some(c)) if *s == c => ACTIVE,
                     (Some(_), _) => NORMAL,
                     (None, _) => DIM,
                 };
