@@ -32,7 +32,7 @@ use falc_model::mms::domain::content_hash;
 use falc_model::mms::error::{ErrorClass, ServiceError};
 use falc_model::mms::pdu::{JobEvent, Peer, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::program::PiState;
-use falc_model::mms::vmd::VmdStatus;
+use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
 use falc_model::mode::{CellMode, ModeSetting};
 use falc_model::product::{RecipeVersion, UsedRecipe};
 use falc_model::topology::Topology;
@@ -277,6 +277,10 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     /// Content hash of each domain delivered to the cell in this association.
     delivered: BTreeMap<ObjectName, u64>,
     associated: bool,
+    /// The cell associated every workstation since the last Associate or
+    /// Initiate and none has left the bus since: a `start` needs no
+    /// Initiate ([`Self::association_stands`]).
+    whole: bool,
     problem: Option<String>,
     /// How many orders may wait in the list ([`MAX_QUEUED_ORDERS`] unless
     /// [`Self::with_max_queued`] says otherwise).
@@ -376,6 +380,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             recipes,
             delivered: BTreeMap::new(),
             associated: false,
+            whole: false,
             problem: None,
             max_queued: MAX_QUEUED_ORDERS,
             list: ListState::Idle,
@@ -839,8 +844,26 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             self.say(format!("EVENT cell-ready recipes={n}"));
         }
         if let Some(by) = start {
-            self.call(CellCall::Initiate, Busy::Initiating(by));
+            if self.association_stands() {
+                self.problem = None;
+                self.start_next(Some(by));
+            } else {
+                self.call(CellCall::Initiate, Busy::Initiating(by));
+            }
         }
+    }
+
+    /// Whether the cell's associations stand: it associated its
+    /// workstations, none left the bus since, and the cell's status does
+    /// not say it lost one. Else a `start` Initiates the cell again first
+    /// (the 1992 recursive scheme associates what was lost).
+    fn association_stands(&self) -> bool {
+        self.associated
+            && self.whole
+            && self
+                .statuses
+                .get(&self.cell)
+                .map_or(true, |s| s.physical == PhysicalStatus::Operational)
     }
 
     /// A connection failed: the last refusal is kept as `problem`.
@@ -852,6 +875,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 
     fn associated_now(&mut self) {
         self.associated = true;
+        self.whole = true;
         self.problem = None;
         self.delivered.clear();
         self.say(format!("EVENT associated station={}", self.cell));
@@ -1287,7 +1311,10 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 }
             },
             Busy::Rejoining(station) => match result {
-                Ok(()) => self.say(format!("EVENT rejoined station={station}")),
+                Ok(()) => {
+                    self.whole = true;
+                    self.say(format!("EVENT rejoined station={station}"));
+                }
                 Err(text) => {
                     tracing::warn!(
                         "{station} is back, but the cell could not associate it: {text}"
@@ -1297,6 +1324,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             },
             Busy::Initiating(by) => match result {
                 Ok(()) => {
+                    self.whole = true;
                     self.problem = None;
                     self.start_next(Some(by));
                 }
@@ -1534,6 +1562,9 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             }
         } else {
             self.present.remove(&station);
+            if station == self.cell || self.is_workstation(&station) {
+                self.whole = false;
+            }
             if self.is_workstation(&station) && self.running.is_none() {
                 let text = format!("no connection with station {station}");
                 self.raise(station.as_str(), None, AlarmClass::Communication, text);
@@ -2493,7 +2524,7 @@ mod tests {
             }
         }
 
-        /// `start` through association, delivery, Initiate and the
+        /// `start` through association, delivery, an Initiate if one is due, and the
         /// cell's Start; the start's answer.
         fn start(&mut self) -> ApiResult {
             let (t, mut out) = self.api("console", ApiRequest::Start);
@@ -2569,8 +2600,7 @@ mod tests {
         assert!(matches!(call(&out), Some(CellCall::Deliver(d)) if d.is_cell));
         let out = r.answer(Ok(()));
         assert!(said(&out, "EVENT cell-ready recipes=2"));
-        assert_eq!(call(&out), Some(CellCall::Initiate));
-        let out = r.answer(Ok(()));
+        // Just associated: no Initiate again.
         assert_eq!(
             call(&out),
             Some(CellCall::Start {
@@ -2598,10 +2628,38 @@ mod tests {
         assert!(said(&out, "EVENT list-done"));
         assert_eq!(r.order(1).state, OrderState::Done);
         assert_eq!(r.status().list, ListState::Idle);
-        // A second start: nothing to deliver again.
+        // A second start: nothing to deliver again, the association
+        // stands: the order starts.
         r.add(1);
         let (_, out) = r.api("console", ApiRequest::Start);
+        assert!(
+            matches!(call(&out), Some(CellCall::Start { .. })),
+            "{out:?}"
+        );
+        r.answer(Ok(()));
+        r.job(JobEvent::Done);
+        // A workstation left the bus and came back while an order ran (no
+        // rejoin then): the next start Initiates the cell first.
+        r.add(1);
+        let (_, out) = r.api("console", ApiRequest::Start);
+        assert!(matches!(call(&out), Some(CellCall::Start { .. })));
+        r.answer(Ok(()));
+        let now = r.now;
+        r.list.handle_presence(now, st("welding"), false);
+        r.list.handle_presence(now, st("welding"), true);
+        r.outputs();
+        r.job(JobEvent::Done);
+        r.add(1);
+        let (start, out) = r.api("console", ApiRequest::Start);
         assert_eq!(call(&out), Some(CellCall::Initiate));
+        let out = r.answer(Err("welding: not associated"));
+        assert!(matches!(reply(&out, start), Some(Err(_))), "{out:?}");
+        // Refused: the next start tries again; once it went through, the
+        // association stands.
+        let (_, out) = r.api("console", ApiRequest::Start);
+        assert_eq!(call(&out), Some(CellCall::Initiate));
+        let out = r.answer(Ok(()));
+        assert!(matches!(call(&out), Some(CellCall::Start { .. })));
     }
 
     #[test]
