@@ -1,0 +1,220 @@
+//! What the stations publish and their presence on the bus: statuses,
+//! reports journalled and raised as alarms, job events (an order's end),
+//! and a station lost or back.
+
+use super::*;
+
+impl<R: Records, S: RecipeSource> OrderList<R, S> {
+    /// A station came onto (`present`) or left the bus. A workstation lost
+    /// while no order runs (in any mode, a manual operation too) is a
+    /// communication alarm of its own; while an order runs the cell raises
+    /// it. Back on the bus, every alarm saying it cannot be reached clears.
+    pub fn handle_presence(&mut self, now: Duration, station: StationName, present: bool) {
+        if present {
+            let back = self.present.insert(station.clone());
+            let (cleared, error) = self.alarms.settle_reached(&mut self.db, station.as_str());
+            self.cleared(station.as_str(), cleared, error);
+            if back && self.is_workstation(&station) {
+                self.jobs.push_back(Job::Rejoin(station.clone()));
+            }
+            // The cell is back on the bus: associated again at once (and
+            // asked how its order ended), not at the next retry.
+            if back && station == self.cell && !self.associated && self.jobs.is_empty() {
+                self.jobs.push_back(Job::Connect);
+            }
+        } else {
+            self.present.remove(&station);
+            if station == self.cell || self.is_workstation(&station) {
+                self.whole = false;
+            }
+            if self.is_workstation(&station) && self.running.is_none() {
+                let text = format!("no connection with station {station}");
+                self.raise(station.as_str(), None, AlarmClass::Communication, text);
+            }
+        }
+        self.settle_alarms(&station);
+        self.pump(now);
+    }
+
+    /// A publication of a station.
+    pub fn handle_publication(&mut self, now: Duration, u: Unconfirmed) {
+        self.publication(now, u);
+        self.pump(now);
+    }
+
+    /// A publication of a station, without beginning the next job.
+    pub(super) fn publication(&mut self, now: Duration, u: Unconfirmed) {
+        match u {
+            Unconfirmed::Status { station, status } => {
+                if station == self.cell && self.recorded_mode != Some(status.mode) {
+                    match self.db.record_mode(status.mode) {
+                        Ok(()) => self.recorded_mode = Some(status.mode),
+                        Err(e) => self.db_failed(&e),
+                    }
+                }
+                if station != self.cell {
+                    if let Some(p) = &status.program {
+                        let known = self.open_jobs.get(&station).map(|(name, ..)| name);
+                        if known != Some(&p.name) {
+                            let job =
+                                (p.name.clone(), self.db.now_ms(), self.order_of_message(now));
+                            self.open_jobs.insert(station.clone(), job);
+                        }
+                    }
+                }
+                self.statuses.insert(station.clone(), status);
+                self.settle_alarms(&station);
+            }
+            Unconfirmed::Report { .. } if self.can_hold() => {
+                self.early.push(Early::Publication(u));
+            }
+            Unconfirmed::Report {
+                station,
+                severity,
+                text,
+            } => {
+                // Every station's reports, each under its own name (its
+                // message pane), with the order they belong to.
+                let order = self.order_of_message(now);
+                match severity {
+                    Severity::Alarm(class) => {
+                        self.raise_alarm(station.as_str(), class, &text, order);
+                        self.journal(EntryKind::Alarm, order, station.as_str(), &text);
+                    }
+                    Severity::Info | Severity::Warning => {
+                        self.journal(EntryKind::Report, order, station.as_str(), &text);
+                    }
+                }
+            }
+            Unconfirmed::Job {
+                station,
+                program,
+                event,
+            } if station == self.cell => {
+                if let Some(Busy::Starting { order, .. }) = &self.busy {
+                    if ObjectName::new(&order.recipe).ok().as_ref() == Some(&program)
+                        && self.can_hold()
+                    {
+                        self.early.push(Early::Publication(Unconfirmed::Job {
+                            station,
+                            program,
+                            event,
+                        }));
+                        return;
+                    }
+                }
+                let Some(order) = self.running.clone() else {
+                    return;
+                };
+                if ObjectName::new(&order.recipe).ok().as_ref() != Some(&program) {
+                    return;
+                }
+                self.job_event(now, order, &station, &program, event);
+            }
+            Unconfirmed::Job {
+                station,
+                program,
+                event,
+            } => self.workstation_job(now, station, program, event),
+        }
+    }
+
+    /// A workstation's job event: an end is kept in the records with the
+    /// order it is part of (pauses are not).
+    pub(super) fn workstation_job(
+        &mut self,
+        now: Duration,
+        station: StationName,
+        program: ObjectName,
+        event: JobEvent,
+    ) {
+        let outcome = match &event {
+            JobEvent::Paused | JobEvent::Resumed => return,
+            JobEvent::Done => "done".to_string(),
+            JobEvent::BadProduct => "bad product".to_string(),
+            JobEvent::FailedSafe => "failed safe".to_string(),
+            JobEvent::FailedDanger => "failed with danger".to_string(),
+            JobEvent::Alarm(cause) => format!("alarm: {cause}"),
+        };
+        let open = self
+            .open_jobs
+            .remove(&station)
+            .filter(|(name, ..)| *name == program);
+        let order = open
+            .as_ref()
+            .and_then(|(_, _, order)| *order)
+            .or(self.order_of_message(now));
+        let job = falc_model::product::JobRecord {
+            station: station.to_string(),
+            program: program.to_string(),
+            started_ms: open.map(|(_, at, _)| at),
+            ended_ms: self.db.now_ms(),
+            outcome,
+        };
+        if let Err(e) = self.db.record_job(order, &job) {
+            self.db_failed(&e);
+        }
+    }
+
+    /// A job event of the running order's program invocation.
+    pub(super) fn job_event(
+        &mut self,
+        now: Duration,
+        order: Order,
+        station: &StationName,
+        program: &ObjectName,
+        event: JobEvent,
+    ) {
+        match event {
+            JobEvent::Paused | JobEvent::Resumed => {
+                self.journal(
+                    EntryKind::Report,
+                    Some(order.id),
+                    station.as_str(),
+                    &format!("{program} {event:?}").to_lowercase(),
+                );
+            }
+            JobEvent::Done => {
+                self.running = None;
+                self.forget_question();
+                self.end(now, order, OrderState::Done, "done");
+                self.jobs.push_back(Job::Next);
+            }
+            failure => {
+                self.running = None;
+                self.forget_question();
+                let id = order.id;
+                match failure {
+                    JobEvent::Alarm(cause) => {
+                        self.end(now, order, OrderState::Failed, &format!("alarm: {cause}"));
+                        // The cell reported the same alarm (journalled as it
+                        // came): one alarm, whichever is first.
+                        let cell = self.cell.to_string();
+                        self.raise_alarm(&cell, cause.class, &cause.text, Some(id));
+                    }
+                    other => {
+                        let (word, class) = match other {
+                            JobEvent::BadProduct => ("bad_product", AlarmClass::Process),
+                            JobEvent::FailedSafe => ("failed_safe", AlarmClass::Process),
+                            _ => ("failed_danger", AlarmClass::Safety),
+                        };
+                        let text = format!("order {} ({}) ended with {word}", id, order.recipe);
+                        self.end(now, order, OrderState::Failed, word);
+                        let me = self.me.to_string();
+                        self.raise(&me, Some(id), class, text.clone());
+                        // An order's end is an event, not a condition that
+                        // holds: raised cleared, it leaves the list once
+                        // acknowledged (found by falc-sim: each one stayed
+                        // listed for good, the list grew with every order).
+                        let (_, error) = self.alarms.clear_where(&mut self.db, |a| {
+                            a.station == me && a.order == Some(id) && a.text == text
+                        });
+                        if let Some(e) = error {
+                            self.db_failed(&e);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}

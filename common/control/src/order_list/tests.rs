@@ -1,0 +1,1238 @@
+//! The order list on a virtual clock, with records in memory and a
+//! recipe source in memory; the test plays the cell (answering each
+//! [`CellCall`]) and the consoles.
+
+use super::*;
+use crate::recipe_source::fake::{set, Source};
+use crate::records::memory::Memory;
+use falc_model::alarm::Cause;
+
+/// The cell as shipped (console users `console`, an operator, and
+/// `observer`).
+const TOPOLOGY: &str = include_str!("../../../../launch/cell.toml");
+
+fn name(s: &str) -> ObjectName {
+    ObjectName::new(s).expect("a valid name")
+}
+
+fn st(s: &str) -> StationName {
+    StationName::new(s).expect("a valid station")
+}
+
+struct Rig {
+    list: OrderList<Memory, Source>,
+    now: Duration,
+    tickets: u64,
+}
+
+impl Rig {
+    fn new() -> Self {
+        let topology = Topology::parse(TOPOLOGY, "test").expect("topology");
+        let list = OrderList::new(
+            st("operator"),
+            st("cell"),
+            topology,
+            Memory::default(),
+            Source::default(),
+            set(),
+        );
+        Self {
+            list,
+            now: Duration::ZERO,
+            tickets: 0,
+        }
+    }
+
+    fn outputs(&mut self) -> Vec<Output> {
+        std::iter::from_fn(|| self.list.poll_output()).collect()
+    }
+
+    fn ticket(&mut self) -> Ticket {
+        self.tickets += 1;
+        Ticket(self.tickets)
+    }
+
+    /// Sends a console request; its ticket and what came out.
+    fn api(&mut self, user: &str, req: ApiRequest) -> (Ticket, Vec<Output>) {
+        let t = self.ticket();
+        self.list.handle_api(self.now, t, &st(user), req);
+        (t, self.outputs())
+    }
+
+    /// A console request answered at once.
+    fn ask(&mut self, user: &str, req: ApiRequest) -> ApiResult {
+        let (t, out) = self.api(user, req);
+        reply(&out, t).unwrap_or_else(|| panic!("no answer at once: {out:?}"))
+    }
+
+    fn status(&mut self) -> CellStatus {
+        match self.ask("console", ApiRequest::Status) {
+            Ok(ApiReply::Status(s)) => s,
+            other => panic!("{other:?}"),
+        }
+    }
+
+    /// The cell answers the call that is out (an error is a refusal).
+    fn answer(&mut self, result: Result<(), &str>) -> Vec<Output> {
+        let result = result.map_err(ServiceError::state_conflict);
+        self.list.handle_cell_reply(self.now, result);
+        self.outputs()
+    }
+
+    /// No answer comes to the call that is out.
+    fn no_reply(&mut self) -> Vec<Output> {
+        let e = ServiceError::unreachable("no reply from cell");
+        self.list.handle_cell_reply(self.now, Err(e));
+        self.outputs()
+    }
+
+    /// The cell answers the [`CellCall::Ask`] that is out, and every
+    /// call that follows (deliveries) with success.
+    fn tell(&mut self, answer: Result<Response, ServiceError>) -> Vec<Output> {
+        self.list.handle_cell_answer(self.now, answer);
+        let mut all = self.outputs();
+        let mut more = call(&all).is_some();
+        while more {
+            let out = self.answer(Ok(()));
+            more = call(&out).is_some();
+            all.extend(out);
+        }
+        all
+    }
+
+    /// The cell asks the operator `prompt`; the question's ticket.
+    fn question(&mut self, prompt: &str) -> Ticket {
+        let q = self.ticket();
+        let input = Request::Input {
+            prompt: prompt.into(),
+            timeout_s: None,
+        };
+        self.list.handle_cell_request(self.now, q, input);
+        self.outputs();
+        q
+    }
+
+    fn publish(&mut self, u: Unconfirmed) -> Vec<Output> {
+        self.list.handle_publication(self.now, u);
+        self.outputs()
+    }
+
+    fn job(&mut self, event: JobEvent) -> Vec<Output> {
+        self.publish(Unconfirmed::Job {
+            station: st("cell"),
+            program: name("dikdroog"),
+            event,
+        })
+    }
+
+    fn add(&mut self, n: usize) {
+        for _ in 0..n {
+            let r = self.ask("console", ApiRequest::order_add("dikdroog"));
+            assert!(matches!(r, Ok(ApiReply::Order(_))), "{r:?}");
+        }
+    }
+
+    /// `start` through association, delivery, an Initiate if one is due, and the
+    /// cell's Start; the start's answer.
+    fn start(&mut self) -> ApiResult {
+        let (t, mut out) = self.api("console", ApiRequest::Start);
+        loop {
+            if let Some(r) = reply(&out, t) {
+                return r;
+            }
+            assert!(
+                call(&out).is_some(),
+                "neither an answer nor a call: {out:?}"
+            );
+            out = self.answer(Ok(()));
+        }
+    }
+
+    /// `start` through association and delivery up to the cell's
+    /// Start, which is left out; the start's ticket.
+    fn start_until_the_cells_start(&mut self) -> Ticket {
+        let (t, mut out) = self.api("console", ApiRequest::Start);
+        while !matches!(call(&out), Some(CellCall::Start { .. })) {
+            out = self.answer(Ok(()));
+        }
+        t
+    }
+
+    fn order(&mut self, id: i64) -> Order {
+        let orders = self.list.records().orders.clone();
+        orders
+            .into_iter()
+            .find(|o| o.id == id)
+            .unwrap_or_else(|| panic!("no order {id}"))
+    }
+}
+
+fn reply(out: &[Output], ticket: Ticket) -> Option<ApiResult> {
+    out.iter().find_map(|o| match o {
+        Output::Reply { ticket: t, result } if *t == ticket => Some(*result.clone()),
+        _ => None,
+    })
+}
+
+fn call(out: &[Output]) -> Option<CellCall> {
+    out.iter().find_map(|o| match o {
+        Output::Cell(c) => Some(c.clone()),
+        _ => None,
+    })
+}
+
+fn said(out: &[Output], what: &str) -> bool {
+    out.iter()
+        .any(|o| matches!(o, Output::Say(l) if l.contains(what)))
+}
+
+#[test]
+fn a_start_associates_delivers_and_starts_and_status_is_answered_meanwhile() {
+    let mut r = Rig::new();
+    r.add(1);
+    let (start, out) = r.api("console", ApiRequest::Start);
+    assert_eq!(call(&out), Some(CellCall::Associate));
+    // The loop does not wait for the cell: status is answered now.
+    assert!(!r.status().cell_associated);
+    let out = r.answer(Ok(()));
+    assert!(said(&out, "EVENT associated station=cell"));
+    let Some(CellCall::Deliver(d)) = call(&out) else {
+        panic!("{out:?}")
+    };
+    assert_eq!(
+        d.domain,
+        name("WELDING$DROOG_DIK"),
+        "workstation recipes first"
+    );
+    let out = r.answer(Ok(()));
+    assert!(matches!(call(&out), Some(CellCall::Deliver(d)) if d.is_cell));
+    let out = r.answer(Ok(()));
+    assert!(said(&out, "EVENT cell-ready recipes=2"));
+    // Just associated: no Initiate again.
+    assert_eq!(
+        call(&out),
+        Some(CellCall::Start {
+            name: name("dikdroog"),
+            argument: "order 1".into()
+        })
+    );
+    assert_eq!(
+        r.order(1).state,
+        OrderState::Running,
+        "durably running before the cell is asked"
+    );
+    assert!(
+        reply(&out, start).is_none(),
+        "answered only when the cell confirmed"
+    );
+    let out = r.answer(Ok(()));
+    assert_eq!(
+        reply(&out, start),
+        Some(Ok(ApiReply::Done("order 1 (dikdroog) started".into())))
+    );
+    assert_eq!(r.status().list, ListState::Running);
+    let out = r.job(JobEvent::Done);
+    assert!(said(&out, "EVENT order-ended id=1 state=done"));
+    assert!(said(&out, "EVENT list-done"));
+    assert_eq!(r.order(1).state, OrderState::Done);
+    assert_eq!(r.status().list, ListState::Idle);
+    // A second start: nothing to deliver again, the association
+    // stands: the order starts.
+    r.add(1);
+    let (_, out) = r.api("console", ApiRequest::Start);
+    assert!(
+        matches!(call(&out), Some(CellCall::Start { .. })),
+        "{out:?}"
+    );
+    r.answer(Ok(()));
+    r.job(JobEvent::Done);
+    // A workstation left the bus and came back while an order ran (no
+    // rejoin then): the next start Initiates the cell first.
+    r.add(1);
+    let (_, out) = r.api("console", ApiRequest::Start);
+    assert!(matches!(call(&out), Some(CellCall::Start { .. })));
+    r.answer(Ok(()));
+    let now = r.now;
+    r.list.handle_presence(now, st("welding"), false);
+    r.list.handle_presence(now, st("welding"), true);
+    r.outputs();
+    r.job(JobEvent::Done);
+    r.add(1);
+    let (start, out) = r.api("console", ApiRequest::Start);
+    assert_eq!(call(&out), Some(CellCall::Initiate));
+    let out = r.answer(Err("welding: not associated"));
+    assert!(matches!(reply(&out, start), Some(Err(_))), "{out:?}");
+    // Refused: the next start tries again; once it went through, the
+    // association stands.
+    let (_, out) = r.api("console", ApiRequest::Start);
+    assert_eq!(call(&out), Some(CellCall::Initiate));
+    let out = r.answer(Ok(()));
+    assert!(matches!(call(&out), Some(CellCall::Start { .. })));
+}
+
+#[test]
+fn each_run_records_the_versions_it_ran_and_a_save_or_rollback_is_a_new_version() {
+    let mut r = Rig::new();
+    // At start-up the store's texts are kept as versions 1.
+    let welding = RecipeFile::new(st("welding"), "droog_dik").expect("file");
+    let cell = RecipeFile::new(st("cell"), "dikdroog").expect("file");
+    let kept = r.list.records().versions.clone();
+    assert_eq!(kept.len(), 2);
+    assert!(kept
+        .iter()
+        .all(|(v, _)| v.version == 1 && v.author == "operator"));
+    r.add(1);
+    assert!(r.start().is_ok());
+    r.job(JobEvent::Done);
+    // The engineer saves a new welding text, with a message.
+    let base = r.list.source.get(&welding).expect("get").hash;
+    let put = ApiRequest::RecipePut {
+        file: welding.clone(),
+        text: "thicker".into(),
+        base: Some(base),
+        message: "more current".into(),
+    };
+    let said = r.ask("engineer", put).expect("saved");
+    assert!(
+        matches!(&said, ApiReply::Done(t) if t.contains("version 2")),
+        "{said:?}"
+    );
+    let history = r.ask(
+        "console",
+        ApiRequest::RecipeHistory {
+            file: welding.clone(),
+        },
+    );
+    let Ok(ApiReply::Versions(v)) = history else {
+        panic!("{history:?}")
+    };
+    assert_eq!(
+        v.iter()
+            .map(|v| (v.version, v.author.as_str(), v.message.as_str()))
+            .collect::<Vec<_>>(),
+        vec![
+            (1, "operator", "found in the recipe store"),
+            (2, "engineer", "more current")
+        ]
+    );
+    // A save with a finding is no version.
+    let bad = ApiRequest::RecipePut {
+        file: welding.clone(),
+        text: "defect".into(),
+        base: Some(r.list.source.get(&welding).expect("get").hash),
+        message: String::new(),
+    };
+    assert!(r.ask("engineer", bad).is_err());
+    r.add(1);
+    assert!(r.start().is_ok());
+    r.job(JobEvent::Done);
+    // Roll back to 1: version 3 with version 1's text.
+    let back = ApiRequest::RecipeRollback {
+        file: welding.clone(),
+        version: 1,
+        message: "scrap rate".into(),
+    };
+    assert!(r.ask("engineer", back.clone()).is_ok());
+    let again = r.ask("engineer", back);
+    assert!(
+        matches!(&again, Err(e) if e.contains("nothing to roll back")),
+        "{again:?}"
+    );
+    r.add(1);
+    assert!(r.start().is_ok());
+    r.job(JobEvent::Done);
+    let used = |r: &mut Rig, id: i64| -> Vec<(String, u32)> {
+        let Ok(ApiReply::OrderRecord(rec)) = r.ask("console", ApiRequest::OrderShow { id }) else {
+            panic!("no record of order {id}")
+        };
+        assert_eq!(rec.runs.len(), 1);
+        rec.runs[0]
+            .recipes
+            .iter()
+            .map(|u| (u.file.to_string(), u.version))
+            .collect()
+    };
+    let c = cell.to_string();
+    let w = welding.to_string();
+    assert_eq!(used(&mut r, 1), vec![(c.clone(), 1), (w.clone(), 1)]);
+    assert_eq!(used(&mut r, 2), vec![(c.clone(), 1), (w.clone(), 2)]);
+    assert_eq!(used(&mut r, 3), vec![(c, 1), (w.clone(), 3)]);
+    let hashes: Vec<_> = r
+        .list
+        .records()
+        .runs
+        .iter()
+        .map(|(_, run)| run.recipes[1].hash.clone())
+        .collect();
+    assert_eq!(hashes[0], hashes[2], "the rollback's text is the first's");
+    assert_ne!(hashes[0], hashes[1]);
+    let text = r.ask(
+        "console",
+        ApiRequest::RecipeVersion {
+            file: welding,
+            version: 2,
+        },
+    );
+    assert!(matches!(text, Ok(ApiReply::RecipeAt { text, .. }) if text == "thicker"));
+    let none = r.ask("console", ApiRequest::OrderShow { id: 99 });
+    assert!(matches!(none, Err(e) if e.contains("no order 99")));
+}
+
+#[test]
+fn the_list_goes_on_and_a_start_the_cell_refuses_puts_the_order_back() {
+    let mut r = Rig::new();
+    r.add(2);
+    assert!(r.start().is_ok());
+    let out = r.job(JobEvent::Done);
+    assert!(matches!(call(&out), Some(CellCall::Start { argument, .. }) if argument == "order 2"));
+    let out = r.answer(Err("vmd-state/program invocation busy"));
+    assert!(said(&out, "EVENT alarm"), "{out:?}");
+    assert_eq!(
+        r.order(2).state,
+        OrderState::Queued,
+        "never lost, never run"
+    );
+    let s = r.status();
+    assert_eq!(s.list, ListState::Alarm);
+    assert!(s
+        .alarm
+        .is_some_and(|a| a.contains("order 2 (dikdroog) not started")));
+    // The way back: ack, start, done.
+    assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+    assert!(r.start().is_ok());
+    r.job(JobEvent::Done);
+    assert_eq!(r.order(2).state, OrderState::Done);
+}
+
+#[test]
+fn while_the_cell_is_away_it_is_tried_again_every_second() {
+    let mut r = Rig::new();
+    assert_eq!(r.list.poll_timeout(), Some(Duration::ZERO));
+    r.list.handle_timeout(r.now);
+    assert_eq!(call(&r.outputs()), Some(CellCall::Associate));
+    assert_eq!(r.list.poll_timeout(), None, "nothing while a call is out");
+    let out = r.answer(Err("no reply from cell"));
+    assert!(said(&out, "EVENT not-associated no reply from cell"));
+    assert_eq!(r.status().problem.as_deref(), Some("no reply from cell"));
+    assert_eq!(r.list.poll_timeout(), Some(RETRY));
+    r.now = Duration::from_millis(500);
+    r.list.handle_timeout(r.now);
+    assert!(call(&r.outputs()).is_none(), "not yet");
+    r.now = RETRY;
+    r.list.handle_timeout(r.now);
+    assert_eq!(call(&r.outputs()), Some(CellCall::Associate));
+    let out = r.answer(Err("no reply from cell"));
+    assert!(
+        !said(&out, "not-associated"),
+        "the same refusal is said once"
+    );
+    r.now = RETRY * 2;
+    r.list.handle_timeout(r.now);
+    r.outputs();
+    // Associated; a delivery the cell refuses is tried again too.
+    let out = r.answer(Ok(()));
+    assert!(matches!(call(&out), Some(CellCall::Deliver(_))));
+    r.answer(Err("disk full at the cell"));
+    assert!(r
+        .list
+        .records()
+        .texts()
+        .iter()
+        .any(|t| t == "disk full at the cell"));
+    assert_eq!(r.list.poll_timeout(), Some(RETRY * 3));
+    r.now = RETRY * 3;
+    r.list.handle_timeout(r.now);
+    assert!(matches!(call(&r.outputs()), Some(CellCall::Deliver(_))));
+    r.answer(Ok(()));
+    let out = r.answer(Ok(()));
+    assert!(said(&out, "EVENT cell-ready"));
+    assert_eq!(r.list.poll_timeout(), None, "all delivered");
+}
+
+#[test]
+fn a_change_of_status_is_told_once_and_a_look_is_no_change() {
+    let changed = |out: &[Output]| out.iter().filter(|o| matches!(o, Output::Changed)).count();
+    let mut r = Rig::new();
+    let _ = r.outputs();
+    // A station's status: told once, with the rest of what came out.
+    let status = VmdStatus {
+        logical: falc_model::mms::vmd::LogicalStatus::NoStateChangesAllowed,
+        ..VmdStatus::default()
+    };
+    let publish = |r: &mut Rig| {
+        r.publish(Unconfirmed::Status {
+            station: st("welding"),
+            status: status.clone(),
+        })
+    };
+    assert_eq!(changed(&publish(&mut r)), 1);
+    // The same status again, and a console's look: no change.
+    assert_eq!(changed(&publish(&mut r)), 0);
+    let (_, out) = r.api("console", ApiRequest::Status);
+    assert_eq!(changed(&out), 0, "{out:?}");
+    // A station gone and an order added: each a change.
+    r.list.handle_presence(r.now, st("welding"), false);
+    let _ = r.outputs();
+    r.list.handle_presence(r.now, st("welding"), true);
+    assert_eq!(changed(&r.outputs()), 1);
+    let (_, out) = r.api("console", ApiRequest::order_add("dikdroog"));
+    assert_eq!(changed(&out), 1, "{out:?}");
+}
+
+#[test]
+fn a_failed_write_halts_the_running_order_and_no_order_runs_twice() {
+    let mut r = Rig::new();
+    r.add(2);
+    assert!(r.start().is_ok());
+    let q = r.question("weld (ja/nee)?");
+    r.list.records().failing = true;
+    let out = r.publish(Unconfirmed::Report {
+        station: st("welding"),
+        severity: Severity::Info,
+        text: "seam 1 done".into(),
+    });
+    assert!(said(&out, "EVENT store-error disk full"));
+    let out: Vec<&Output> = out
+        .iter()
+        .filter(|o| !matches!(o, Output::Changed))
+        .collect();
+    assert!(
+        matches!(&out[..], [.., Output::Respond { ticket, result: Err(_) }, Output::Cell(CellCall::Stop { .. })] if *ticket == q),
+        "the question refused, the order stopped at the cell: {out:?}"
+    );
+    let out = r.answer(Ok(()));
+    assert!(said(&out, "EVENT order-halted id=1"));
+    assert_eq!(
+        r.order(1).state,
+        OrderState::Running,
+        "its end could not be written"
+    );
+    let s = r.status();
+    assert_eq!((s.list, s.running), (ListState::Alarm, None));
+    let refused = r.ask("console", ApiRequest::Start);
+    assert!(refused.is_err_and(|e| e.contains("cannot be written")));
+    // The disk is freed: ack, start; the held end is written first.
+    r.list.records().failing = false;
+    assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+    assert_eq!(
+        r.start(),
+        Ok(ApiReply::Done("order 2 (dikdroog) started".into()))
+    );
+    assert_eq!(r.order(1).state, OrderState::Failed);
+    assert!(r
+        .list
+        .records()
+        .texts()
+        .iter()
+        .any(|t| t.contains("(written late)")));
+    let texts = r.list.records().texts();
+    for id in [1, 2] {
+        let line = format!("order {id} (dikdroog) started");
+        let n = texts.iter().filter(|t| **t == line).count();
+        assert_eq!(n, 1, "order {id} started once");
+    }
+}
+
+#[test]
+fn an_order_ended_with_danger_leaves_the_alarm_list_once_acknowledged() {
+    let mut r = Rig::new();
+    r.add(2);
+    assert!(r.start().is_ok());
+    r.job(JobEvent::FailedDanger);
+    let s = r.status();
+    assert_eq!(s.list, ListState::Alarm);
+    let alarm = s
+        .alarms
+        .iter()
+        .find(|a| a.text.contains("ended with failed_danger"))
+        .cloned()
+        .unwrap_or_else(|| panic!("{:?}", s.alarms));
+    assert!(alarm.blocks_start(), "a safety alarm waits for its ack");
+    assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+    let s = r.status();
+    assert!(
+        !s.alarms.iter().any(|a| a.id == alarm.id),
+        "acknowledged, nothing left to clear: {:?}",
+        s.alarms
+    );
+    assert!(r.start().is_ok(), "the way back: ack, start");
+    r.job(JobEvent::Done);
+    assert_eq!(r.order(2).state, OrderState::Done);
+}
+
+#[test]
+fn an_ack_the_full_disk_refuses_is_not_taken_and_the_way_back_runs_the_next_order() {
+    let mut r = Rig::new();
+    r.add(2);
+    assert!(r.start().is_ok());
+    r.job(JobEvent::FailedDanger);
+    r.list.records().failing = true;
+    let refused = r.ask("console", ApiRequest::Ack { id: None });
+    assert!(
+        refused
+            .as_ref()
+            .is_err_and(|e| e.contains("not acknowledged")),
+        "{refused:?}"
+    );
+    let s = r.status();
+    assert!(
+        s.alarms
+            .iter()
+            .any(|a| a.text.contains("failed_danger") && a.acked.is_none()),
+        "not acknowledged in the list either: {:?}",
+        s.alarms
+    );
+    assert!(r.ask("console", ApiRequest::Start).is_err());
+    // Room again: ack (both alarms), start, the next order done.
+    r.list.records().failing = false;
+    assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+    assert!(r.status().alarms.is_empty(), "{:?}", r.status().alarms);
+    assert!(r.start().is_ok());
+    r.job(JobEvent::Done);
+    assert_eq!(r.order(2).state, OrderState::Done);
+}
+
+#[test]
+fn the_last_orders_held_end_is_written_at_the_ack_without_a_start() {
+    // Found by falc-sim: the list's last order halted by a full disk
+    // stayed `running` in the records, since only a start wrote it.
+    let mut r = Rig::new();
+    r.add(1);
+    assert!(r.start().is_ok());
+    r.list.records().failing = true;
+    r.publish(Unconfirmed::Report {
+        station: st("welding"),
+        severity: Severity::Info,
+        text: "seam 1 done".into(),
+    });
+    let out = r.answer(Ok(()));
+    assert!(said(&out, "EVENT order-halted id=1"));
+    assert_eq!(r.order(1).state, OrderState::Running);
+    // Still full: the ack is taken, the end stays held, a new alarm.
+    assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+    assert_eq!(r.order(1).state, OrderState::Running);
+    assert_eq!(r.status().list, ListState::Alarm);
+    // Room again: the ack writes it.
+    r.list.records().failing = false;
+    assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+    assert_eq!(r.order(1).state, OrderState::Failed);
+    let late = r.list.records().texts();
+    assert_eq!(
+        late.iter().filter(|t| t.contains("(written late)")).count(),
+        1,
+        "{late:?}"
+    );
+    assert_eq!(r.status().list, ListState::Idle);
+}
+
+/// The cell answers the [`CellCall::Ask`] that is out with attributes
+/// (`state`, `last_end`).
+fn attributes(state: PiState, last_end: Option<JobEvent>) -> Result<Response, ServiceError> {
+    Ok(Response::PiAttributes(falc_model::mms::pdu::PiAttributes {
+        state,
+        domains: vec![name("dikdroog")],
+        reusable: true,
+        deletable: true,
+        last_end,
+    }))
+}
+
+/// A cut: order 1 runs with a question waiting, the cell is lost.
+fn cut_mid_order(r: &mut Rig) {
+    r.add(2);
+    assert!(r.start().is_ok());
+    let q = r.question("ok?");
+    r.list.handle_abort(r.now, "lease expired");
+    let out = r.outputs();
+    assert!(out
+        .iter()
+        .any(|o| matches!(o, Output::Forget(t) if *t == q)));
+    assert!(!said(&out, "EVENT order-ended"), "{out:?}");
+    assert_eq!(r.order(1).state, OrderState::Running);
+    let s = r.status();
+    assert_eq!(s.list, ListState::Alarm);
+    assert_eq!(
+        s.problem.as_deref(),
+        Some("no connection with station cell")
+    );
+    // While the cell is away, the retry associates it, and then asks
+    // how the order's run stands before anything else.
+    r.now += RETRY;
+    r.list.handle_timeout(r.now);
+    assert_eq!(call(&r.outputs()), Some(CellCall::Associate));
+    let out = r.answer(Ok(()));
+    assert_eq!(
+        call(&out),
+        Some(CellCall::Ask {
+            name: name("dikdroog")
+        })
+    );
+    assert!(
+        r.status().alarms.iter().all(|a| a.cleared_ms.is_some()),
+        "the cell is back"
+    );
+}
+
+#[test]
+fn a_cut_off_cell_s_order_ends_as_the_cell_says_once_it_is_back() {
+    let mut r = Rig::new();
+    cut_mid_order(&mut r);
+    let out = r.tell(attributes(PiState::Idle, Some(JobEvent::Done)));
+    assert!(said(&out, "EVENT order-ended id=1 state=done"), "{out:?}");
+    assert_eq!(r.order(1).state, OrderState::Done);
+    assert_eq!(
+        r.order(2).state,
+        OrderState::Queued,
+        "the list waits for ack"
+    );
+    assert!(r.list.records().journal.iter().any(|e| e
+        .text
+        .contains("ended at cell while the connection was lost")));
+    // The way back: ack, start; the next order runs once.
+    assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+    assert!(r.start().is_ok());
+    r.job(JobEvent::Done);
+    assert_eq!(r.order(2).state, OrderState::Done);
+    let starts = r
+        .list
+        .records()
+        .journal
+        .iter()
+        .filter(|e| e.text.ends_with(") started"))
+        .count();
+    assert_eq!(starts, 2, "each order started once");
+}
+
+#[test]
+fn a_cell_back_on_the_bus_is_associated_at_once() {
+    let mut r = Rig::new();
+    r.add(1);
+    assert!(r.start().is_ok());
+    r.list.handle_presence(r.now, st("cell"), true);
+    r.outputs();
+    r.list.handle_abort(r.now, "lease expired");
+    r.list.handle_presence(r.now, st("cell"), false);
+    r.outputs();
+    r.list.handle_presence(r.now, st("cell"), true);
+    assert_eq!(call(&r.outputs()), Some(CellCall::Associate));
+}
+
+#[test]
+fn a_cut_off_cell_whose_order_still_runs_is_followed_again() {
+    let mut r = Rig::new();
+    cut_mid_order(&mut r);
+    let out = r.tell(attributes(PiState::Running, None));
+    assert!(said(&out, "EVENT order-followed id=1"), "{out:?}");
+    assert_eq!(r.order(1).state, OrderState::Running);
+    // A recipe in use is not delivered again under the running order.
+    r.now += RETRY;
+    r.list.handle_timeout(r.now);
+    assert_eq!(call(&r.outputs()), None);
+    r.job(JobEvent::Alarm(falc_model::alarm::Cause::process(
+        "robot estop",
+    )));
+    assert_eq!(r.order(1).state, OrderState::Failed);
+    assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+    assert!(r.start().is_ok());
+    r.job(JobEvent::Done);
+    assert_eq!(r.order(2).state, OrderState::Done);
+}
+
+#[test]
+fn a_cell_that_restarted_while_cut_off_kept_no_end_and_the_order_is_interrupted() {
+    let mut r = Rig::new();
+    cut_mid_order(&mut r);
+    let unknown = ServiceError::undefined("program invocation dikdroog is not defined");
+    let out = r.tell(Err(unknown));
+    assert!(
+        said(&out, "EVENT order-ended id=1 state=interrupted"),
+        "{out:?}"
+    );
+    // Recipes go to the restarted cell again, then the way back.
+    assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+    assert!(r.start().is_ok());
+    r.job(JobEvent::Done);
+    assert_eq!(r.order(2).state, OrderState::Done);
+    assert_eq!(r.order(1).state, OrderState::Interrupted);
+}
+
+#[test]
+fn a_start_that_was_never_confirmed_is_queued_again_only_if_the_cell_never_began_it() {
+    for began in [false, true] {
+        let mut r = Rig::new();
+        r.add(1);
+        let t = r.start_until_the_cells_start();
+        let out = r.no_reply();
+        assert!(reply(&out, t).is_some_and(|a| a.is_err()), "{out:?}");
+        assert_eq!(
+            r.order(1).state,
+            OrderState::Running,
+            "not queued again yet"
+        );
+        r.now += RETRY;
+        r.list.handle_timeout(r.now);
+        assert_eq!(call(&r.outputs()), Some(CellCall::Associate));
+        assert!(matches!(
+            call(&r.answer(Ok(()))),
+            Some(CellCall::Ask { .. })
+        ));
+        let answer = if began {
+            attributes(PiState::Idle, Some(JobEvent::Done))
+        } else {
+            attributes(PiState::Idle, None)
+        };
+        r.tell(answer);
+        let expected = if began {
+            OrderState::Done
+        } else {
+            OrderState::Queued
+        };
+        assert_eq!(r.order(1).state, expected, "began: {began}");
+    }
+}
+
+#[test]
+fn an_order_running_when_the_operator_stopped_is_adopted_and_asked_for() {
+    let mut r = Rig::new();
+    r.add(1);
+    assert!(r.start().is_ok());
+    let order = r.order(1);
+    let records = std::mem::take(r.list.records());
+    let topology = Topology::parse(TOPOLOGY, "test").expect("topology");
+    let mut list = OrderList::new(
+        st("operator"),
+        st("cell"),
+        topology,
+        records,
+        Source::default(),
+        set(),
+    )
+    .adopting(order);
+    list.handle_timeout(Duration::ZERO);
+    let out: Vec<Output> = std::iter::from_fn(|| list.poll_output()).collect();
+    assert_eq!(call(&out), Some(CellCall::Associate));
+    list.handle_cell_reply(Duration::ZERO, Ok(()));
+    let out: Vec<Output> = std::iter::from_fn(|| list.poll_output()).collect();
+    assert!(matches!(call(&out), Some(CellCall::Ask { .. })), "{out:?}");
+    list.handle_cell_answer(
+        Duration::ZERO,
+        attributes(PiState::Idle, Some(JobEvent::Done)),
+    );
+    let out: Vec<Output> = std::iter::from_fn(|| list.poll_output()).collect();
+    assert!(said(&out, "EVENT order-ended id=1 state=done"), "{out:?}");
+}
+
+#[test]
+fn a_job_event_before_the_start_is_confirmed_is_kept_for_it() {
+    let mut r = Rig::new();
+    r.add(1);
+    let t = r.start_until_the_cells_start();
+    let early = r.job(JobEvent::Alarm(Cause::new(
+        AlarmClass::Process,
+        "alarm in state 2",
+    )));
+    assert!(early.is_empty(), "{early:?}");
+    let out = r.answer(Ok(()));
+    assert!(reply(&out, t).is_some_and(|r| r.is_ok()));
+    assert!(said(&out, "EVENT order-ended id=1 state=failed"));
+    assert_eq!(r.order(1).state, OrderState::Failed);
+}
+
+#[test]
+fn messages_before_the_start_is_confirmed_are_journalled_after_it() {
+    let mut r = Rig::new();
+    r.add(1);
+    let t = r.start_until_the_cells_start();
+    // The cell runs the recipe before its Start confirm arrives: its
+    // first output, a step-mode report and a question come first.
+    let o = r.ticket();
+    let lines = vec!["lassen begint".to_string()];
+    r.list
+        .handle_cell_request(r.now, o, Request::Output { lines });
+    let answered = r.outputs();
+    assert!(
+        answered
+            .iter()
+            .any(|x| matches!(x, Output::Respond { ticket, result: Ok(_) } if *ticket == o)),
+        "the output is answered at once: {answered:?}"
+    );
+    r.publish(Unconfirmed::Report {
+        station: st("cell"),
+        severity: Severity::Info,
+        text: "state 1 waits".into(),
+    });
+    let q = r.question("verder?");
+    let out = r.answer(Ok(()));
+    assert!(reply(&out, t).is_some_and(|r| r.is_ok()));
+    let journal = r
+        .list
+        .records()
+        .entries(&EntryQuery::page(0, 100))
+        .expect("journal");
+    let started = journal
+        .iter()
+        .position(|e| e.text.contains("order 1 (dikdroog) started"))
+        .expect("the start is journalled");
+    for text in ["lassen begint", "state 1 waits", "verder?"] {
+        let at = journal
+            .iter()
+            .position(|e| e.text == text)
+            .unwrap_or_else(|| panic!("{text} not journalled: {journal:?}"));
+        assert!(at > started, "{text} before the start: {journal:?}");
+        assert_eq!(journal[at].order, Some(1), "{text} without its order");
+    }
+    // The question still waits for its answer.
+    let (a, out) = r.api("console", ApiRequest::Answer { text: "ja".into() });
+    assert!(reply(&out, a).is_some_and(|r| r.is_ok()), "{out:?}");
+    assert!(out
+        .iter()
+        .any(|x| matches!(x, Output::Respond { ticket, .. } if *ticket == q)));
+}
+
+#[test]
+fn stop_ends_the_order_and_roles_are_checked_again() {
+    let mut r = Rig::new();
+    r.add(1);
+    let refused = r.ask("observer", ApiRequest::Start);
+    assert!(refused.is_err_and(|e| e.contains("needs")));
+    assert!(r.ask("mallory", ApiRequest::Status).is_err());
+    assert!(r.start().is_ok());
+    let (t, out) = r.api("console", ApiRequest::Stop);
+    assert_eq!(
+        call(&out),
+        Some(CellCall::Stop {
+            name: name("dikdroog")
+        })
+    );
+    assert_eq!(r.status().running, None);
+    let out = r.answer(Err("no reply from cell"));
+    let Some(Ok(ApiReply::Done(text))) = reply(&out, t) else {
+        panic!("{out:?}")
+    };
+    assert!(text.contains("the cell did not confirm the stop"), "{text}");
+    assert_eq!(r.order(1).state, OrderState::Stopped);
+    // A late end of the stopped job changes nothing.
+    assert!(r.job(JobEvent::Done).is_empty());
+    assert_eq!(r.order(1).state, OrderState::Stopped);
+}
+
+#[test]
+fn a_stopped_order_resumes_at_the_cell_and_a_refused_restart_leaves_it_as_it_was() {
+    let mut r = Rig::new();
+    r.add(2);
+    assert!(r.start().is_ok());
+    let (_, _) = r.api("console", ApiRequest::Stop);
+    r.answer(Ok(()));
+    assert_eq!(r.order(1).state, OrderState::Stopped);
+    let restart = |order, from| ApiRequest::Restart { order, from };
+    // Without --from, a stopped order resumes where it stopped.
+    let (t, out) = r.api("console", restart(1, None));
+    assert_eq!(
+        call(&out),
+        Some(CellCall::Pass(Request::Resume {
+            name: name("dikdroog")
+        }))
+    );
+    assert_eq!(r.order(1).state, OrderState::Running);
+    // The cell refuses: back to stopped, never queued (it ran).
+    let out = r.answer(Err("Resume refused"));
+    assert!(reply(&out, t).is_some_and(|r| r.is_err()), "{out:?}");
+    assert_eq!(r.order(1).state, OrderState::Stopped);
+    assert_eq!(r.order(2).state, OrderState::Queued);
+    // From a state: the recipe must have it.
+    let e = r.ask("console", restart(1, Some(9))).unwrap_err();
+    assert!(e.contains("dikdroog has no state 9"), "{e}");
+    let e = r.ask("console", restart(2, None)).unwrap_err();
+    assert!(e.contains("order 2 is queued: falc start runs it"), "{e}");
+    let e = r.ask("console", restart(7, None)).unwrap_err();
+    assert!(e.contains("there is no order 7"), "{e}");
+    let e = r.ask("observer", restart(1, None)).unwrap_err();
+    assert!(e.contains("needs Operator"), "{e}");
+}
+
+#[test]
+fn modes_pass_to_the_cell_and_maintenance_waits_until_no_order_runs() {
+    let mut r = Rig::new();
+    r.add(1);
+    assert!(r.start().is_ok());
+    let mode = |mode, stations: Vec<&str>| ApiRequest::Mode {
+        mode,
+        stations: stations.into_iter().map(st).collect(),
+    };
+    let e = r
+        .ask("console", mode(CellMode::Maintenance, vec![]))
+        .unwrap_err();
+    assert!(e.contains("only when no order runs"), "{e}");
+    let e = r
+        .ask("console", mode(CellMode::Auto, vec!["welding"]))
+        .unwrap_err();
+    assert!(e.contains("only in step mode"), "{e}");
+    let e = r
+        .ask("console", mode(CellMode::Step, vec!["operator"]))
+        .unwrap_err();
+    assert!(e.contains("operator is not a workstation of cell"), "{e}");
+    let e = r
+        .ask("console", mode(CellMode::Step, vec!["welding"; 5000]))
+        .unwrap_err();
+    assert!(e.contains("welding is named more than once"), "{e}");
+    assert!(e.len() < 100, "{e}");
+    let (t, out) = r.api("console", mode(CellMode::Step, vec!["welding"]));
+    assert_eq!(
+        call(&out),
+        Some(CellCall::Pass(Request::Mode(ModeSetting {
+            mode: CellMode::Step,
+            stepping: vec![st("cell"), st("welding")],
+        })))
+    );
+    let out = r.answer(Ok(()));
+    let Some(Ok(ApiReply::Done(text))) = reply(&out, t) else {
+        panic!("{out:?}")
+    };
+    assert_eq!(text, "mode step (cell, welding)");
+    let journal = &r.list.records().journal;
+    assert!(journal
+        .iter()
+        .any(|e| e.who == "console" && e.text == "mode step (cell, welding)"));
+    // A manual operation is the maintainer's, passed on as it is.
+    let manual = ApiRequest::Manual {
+        station: st("transport"),
+        action: falc_model::mode::ManualAction::Press("A".into()),
+    };
+    let e = r.ask("console", manual.clone()).unwrap_err();
+    assert!(e.contains("needs Maintainer"), "{e}");
+    let (_, out) = r.api("maintainer", manual);
+    assert!(matches!(
+        call(&out),
+        Some(CellCall::Pass(Request::Manual { by, .. })) if by == "maintainer"
+    ));
+}
+
+#[test]
+fn a_defective_recipe_set_refuses_the_start_and_delivers_nothing() {
+    let mut r = Rig::new();
+    r.add(1);
+    r.list.source.broken = true;
+    let (t, out) = r.api("console", ApiRequest::Start);
+    assert!(call(&out).is_none(), "nothing delivered");
+    let e = reply(&out, t).and_then(|r| r.err()).unwrap_or_default();
+    assert!(e.contains("cell/dikdroog.rcp:3: unknown state 9"), "{e}");
+    assert_eq!(r.order(1).state, OrderState::Queued);
+}
+
+#[test]
+fn the_list_takes_at_most_its_limit_of_waiting_orders() {
+    let mut r = Rig::new();
+    r.list = std::mem::replace(&mut r.list, Rig::new().list).with_max_queued(2);
+    r.add(2);
+    let e = r
+        .ask("console", ApiRequest::order_add("dikdroog"))
+        .unwrap_err();
+    assert!(e.contains("holds 2 queued orders, its limit"), "{e}");
+    assert_eq!(r.list.db.orders().map(|o| o.len()), Ok(2));
+    // Removing one makes room.
+    assert!(r.ask("console", ApiRequest::OrderRemove { id: 1 }).is_ok());
+    r.add(1);
+}
+
+/// `order add` with a count, a priority, a due time and a cell: the
+/// orders added and journalled; the start takes the highest priority,
+/// then the one due first; a cell the list does not run on, and more
+/// than the limit holds, are refused with nothing added.
+#[test]
+fn placed_orders_run_by_priority_and_due_time_and_a_foreign_cell_is_refused() {
+    use falc_model::console::Placement;
+    use falc_model::ids::CellId;
+    let mut r = Rig::new();
+    r.list = std::mem::replace(&mut r.list, Rig::new().list).with_max_queued(6);
+    let add =
+        |priority: i32, due_ms: Option<i64>, cell: Option<&str>, count: u16| ApiRequest::OrderAdd {
+            recipe: "dikdroog".into(),
+            placement: Placement {
+                cell: cell.map(|c| CellId::new(c).expect("id")),
+                priority,
+                due_ms,
+            },
+            count,
+        };
+    let three = r.ask("console", add(0, None, None, 3));
+    assert!(
+        matches!(&three, Ok(ApiReply::Orders(v)) if v.iter().map(|o| o.id).eq(1..=3)),
+        "{three:?}"
+    );
+    let due = r.ask("console", add(0, Some(1_795_611_600_000), Some("falc1"), 1));
+    assert!(
+        matches!(&due, Ok(ApiReply::Order(o)) if o.id == 4),
+        "{due:?}"
+    );
+    let urgent = r.ask("console", add(5, None, None, 1));
+    assert!(
+        matches!(&urgent, Ok(ApiReply::Order(o)) if o.id == 5),
+        "{urgent:?}"
+    );
+    let texts = r.list.db.texts();
+    assert!(
+        texts
+            .iter()
+            .any(|t| t == "added order 4 (dikdroog, due 2026-11-25 13:00 UTC, for falc1)"),
+        "{texts:?}"
+    );
+    assert!(texts
+        .iter()
+        .any(|t| t == "added order 5 (dikdroog, priority 5)"));
+    let e = r
+        .ask("console", add(0, None, Some("falc2"), 1))
+        .unwrap_err();
+    assert!(e.contains("there is no cell falc2"), "{e}");
+    let e = r.ask("console", add(0, None, None, 2)).unwrap_err();
+    assert!(e.contains("2 more do not fit"), "{e}");
+    assert_eq!(
+        r.list.db.orders().map(|o| o.len()),
+        Ok(5),
+        "none of them added"
+    );
+    assert!(r.start().is_ok());
+    let running = r.status().running.map(|o| (o.id, o.cell));
+    assert_eq!(
+        running,
+        Some((5, Some("falc1".into()))),
+        "the urgent one first"
+    );
+    assert_eq!(r.order(4).state, OrderState::Queued);
+}
+
+#[test]
+fn a_manual_operation_with_a_huge_argument_is_refused_with_a_quote() {
+    use falc_model::mode::ManualAction;
+    let mut r = Rig::new();
+    let e = r
+        .ask(
+            "maintainer",
+            ApiRequest::Manual {
+                station: st("transport"),
+                action: ManualAction::Press("A".repeat(60_000)),
+            },
+        )
+        .unwrap_err();
+    assert!(e.contains("60000 characters") && e.len() < 200, "{e}");
+    assert!(
+        r.list.db.texts().iter().all(|t| t.len() < 200),
+        "nothing of it journalled"
+    );
+}
+
+#[test]
+fn a_workstation_lost_while_idle_is_an_alarm_that_clears_when_it_returns() {
+    let mut r = Rig::new();
+    r.list.handle_presence(r.now, st("welding"), true);
+    r.list.handle_presence(r.now, st("welding"), false);
+    let s = r.status();
+    let lost: Vec<_> = s
+        .alarms
+        .iter()
+        .filter(|a| a.station == "welding" && a.class == AlarmClass::Communication)
+        .collect();
+    assert_eq!(lost.len(), 1, "{:?}", s.alarms);
+    assert_eq!(lost[0].text, "no connection with station welding");
+    assert_eq!(s.list, ListState::Alarm, "start waits for the ack");
+    // The cell passing the same loss on, still listed: both clear when
+    // welding is back; a station named alike is not welding.
+    r.list.handle_publication(
+        r.now,
+        Unconfirmed::Report {
+            station: st("cell"),
+            severity: Severity::Alarm(AlarmClass::Communication),
+            text: "alarm in state 13: no connection with station WELDING".into(),
+        },
+    );
+    r.list.handle_presence(r.now, st("welding2"), true);
+    assert!(r.status().alarms.iter().all(|a| a.cleared_ms.is_none()));
+    r.list.handle_presence(r.now, st("welding"), true);
+    let s = r.status();
+    assert_eq!(s.alarms.len(), 2, "{:?}", s.alarms);
+    assert!(
+        s.alarms.iter().all(|a| a.cleared_ms.is_some()),
+        "{:?}",
+        s.alarms
+    );
+    assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+    assert!(r.status().alarms.is_empty(), "acknowledged and cleared");
+    // The cell is no workstation: its loss is the association's alarm.
+    r.list.handle_presence(r.now, st("cell"), false);
+    assert!(r.status().alarms.is_empty());
+}
+
+#[test]
+fn what_the_cell_shows_and_asks_is_bounded() {
+    let mut r = Rig::new();
+    r.add(1);
+    assert!(r.start().is_ok());
+    let output = |r: &mut Rig, lines: Vec<String>| {
+        let t = r.ticket();
+        r.list
+            .handle_cell_request(r.now, t, Request::Output { lines });
+        r.outputs().into_iter().find_map(|o| match o {
+            Output::Respond { ticket, result } if ticket == t => Some(result),
+            _ => None,
+        })
+    };
+    let many = output(&mut r, vec!["x".into(); MAX_OUTPUT_LINES + 1]);
+    assert!(
+        matches!(&many, Some(Err(e)) if e.to_string().contains("at most 100")),
+        "{many:?}"
+    );
+    let long = output(&mut r, vec!["y".repeat(MAX_OUTPUT_CHARS + 1)]);
+    let Some(Err(e)) = long else {
+        panic!("{long:?}")
+    };
+    assert!(e.to_string().len() < 300, "quoted short: {e}");
+    // 30 lines, then a question: it carries the newest 20, the
+    // journal all 30.
+    for i in 0..30 {
+        assert_eq!(
+            output(&mut r, vec![format!("line {i}")]),
+            Some(Ok(Response::Done))
+        );
+    }
+    r.question("ok?");
+    let q = r.status().question.expect("a question");
+    assert_eq!(q.lines().count(), QUESTION_WINDOW_LINES + 1, "{q}");
+    assert!(q.starts_with("line 10\n") && q.ends_with("ok?"), "{q}");
+    let journalled = r.list.db.texts();
+    assert!(
+        journalled.iter().any(|t| t.contains("line 0")),
+        "{journalled:?}"
+    );
+    let huge = r.ticket();
+    r.list.handle_cell_request(
+        r.now,
+        huge,
+        Request::Input {
+            prompt: "z".repeat(MAX_OUTPUT_CHARS + 1),
+            timeout_s: None,
+        },
+    );
+    assert!(r
+        .outputs()
+        .iter()
+        .any(|o| matches!(o, Output::Respond { ticket, result: Err(_) } if *ticket == huge)));
+    assert!(r.status().question.is_some_and(|q| q.ends_with("ok?")));
+}
+
+#[test]
+fn a_workstation_back_on_the_bus_is_associated_again_through_the_cell() {
+    let mut r = Rig::new();
+    r.add(1);
+    assert!(r.start().is_ok());
+    r.job(JobEvent::Done);
+    // Its first appearance (the cell associated): the cell is
+    // initiated again, harmlessly.
+    r.list.handle_presence(r.now, st("transport"), true);
+    assert_eq!(call(&r.outputs()), Some(CellCall::Initiate));
+    r.answer(Ok(()));
+    r.list.handle_presence(r.now, st("transport"), false);
+    r.list.handle_presence(r.now, st("transport"), true);
+    let out = r.outputs();
+    assert_eq!(call(&out), Some(CellCall::Initiate), "{out:?}");
+    let out = r.answer(Ok(()));
+    assert!(said(&out, "EVENT rejoined station=transport"), "{out:?}");
+}
