@@ -21,6 +21,7 @@ use crate::secure::strangers_are_refused;
 use crate::support::flood;
 use crate::support::hosts::{Hosts, ROUTER_ADDRESS};
 use crate::support::rig::{rig_hosts, Rig};
+use crate::support::wait::{holds, wait_until};
 use crate::support::TestCell;
 use falc_model::console::OrderState;
 use std::net::SocketAddr;
@@ -43,36 +44,25 @@ fn hosts_or_say_why() -> Option<Hosts> {
 /// took.
 fn alarm_of(rig: &Rig, station: &str, within: Duration) -> Duration {
     let begin = Instant::now();
-    loop {
+    wait_until(&format!("an alarm naming {station}"), within, || {
         let s = rig.status();
-        if s.alarms
+        let named = s
+            .alarms
             .iter()
-            .any(|a| a.acked.is_none() && a.text.contains(station))
-        {
-            return begin.elapsed();
-        }
-        assert!(
-            begin.elapsed() < within,
-            "no alarm naming {station} within {within:?}: {s:?}"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+            .any(|a| a.acked.is_none() && a.text.contains(station));
+        holds(named, || s)
+    });
+    begin.elapsed()
 }
 
 /// Waits until every station is on the bus again.
 fn all_back(rig: &Rig, within: Duration) -> Duration {
     let begin = Instant::now();
-    loop {
+    wait_until("every station rejoined", within, || {
         let s = rig.status();
-        if s.stations.iter().all(|v| v.connected) {
-            return begin.elapsed();
-        }
-        assert!(
-            begin.elapsed() < within,
-            "not every station rejoined within {within:?}: {s:?}"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+        holds(s.stations.iter().all(|v| v.connected), || s)
+    });
+    begin.elapsed()
 }
 
 /// The delay of a slow link within the lease (1 s).
@@ -220,6 +210,7 @@ fn the_cell_as_separate_hosts_on_the_secure_transport_runs_orders_and_rides_out_
         rig.until_welding();
         fault.begin(&rig, host);
         let noticed = alarm_of(&rig, host, Duration::from_secs(5));
+        // The fault lasts `lasting` s in all.
         std::thread::sleep(Duration::from_secs(lasting).saturating_sub(noticed));
         fault.end(&rig, host);
         let back = all_back(&rig, Duration::from_secs(30));

@@ -3,12 +3,13 @@
 //! the `falc` CLI, and the launcher stops every node on SIGINT, or on its
 //! own as soon as one node dies.
 
+use crate::support::wait::{holds, wait_until};
 use crate::support::{children, launcher, Proc};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 use std::path::Path;
 use std::process::Command;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 struct Launched {
     dir: tempfile::TempDir,
@@ -65,15 +66,14 @@ fn nodes_stop_when_the_launcher_is_killed() {
     let nodes = nodes(l.launcher.pid());
     assert_eq!(nodes.len(), 7);
     l.launcher.kill();
-    let end = Instant::now() + Duration::from_secs(10);
-    while nodes.iter().any(|&p| !gone(p)) {
-        assert!(
-            Instant::now() < end,
-            "nodes left running after SIGKILL of falc-launch: {:?}",
-            nodes.iter().filter(|&&p| !gone(p)).collect::<Vec<_>>()
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_until(
+        "no node left running after SIGKILL of falc-launch",
+        Duration::from_secs(10),
+        || {
+            let left: Vec<_> = nodes.iter().filter(|&&p| !gone(p)).collect();
+            holds(left.is_empty(), || left)
+        },
+    );
 }
 
 #[test]
@@ -90,18 +90,13 @@ fn the_launched_cell_runs_an_order_and_ctrl_c_stops_every_node() {
         .expect_line("[transport] EVENT ready", Duration::ZERO);
     l.falc(&["order", "add", "dikdroog"]);
     l.falc(&["start"]);
-    let end = Instant::now() + Duration::from_secs(60);
-    loop {
+    wait_until("the order done", Duration::from_secs(60), || {
         let status = l.falc(&["status"]);
         if status.contains("QUESTION") {
             l.falc(&["answer", "ja"]);
         }
-        if status.contains("list idle") {
-            break;
-        }
-        assert!(Instant::now() < end, "order not done: {status}");
-        std::thread::sleep(Duration::from_millis(100));
-    }
+        holds(status.contains("list idle"), || status)
+    });
     assert!(l.falc(&["order", "list"]).contains("done"));
     kill(Pid::from_raw(l.launcher.pid() as i32), Signal::SIGINT).expect("SIGINT");
     l.launcher
@@ -184,8 +179,7 @@ fn the_launched_plant_runs_an_order_on_each_cell_and_ctrl_c_stops_every_node() {
         out.contains("falc1: order") && out.contains("falc2: order"),
         "{out}"
     );
-    let end = Instant::now() + Duration::from_secs(90);
-    loop {
+    wait_until("both orders done", Duration::from_secs(90), || {
         let status = falc(None, &["status"]);
         for cell in ["falc1", "falc2"] {
             let line = status
@@ -196,12 +190,9 @@ fn the_launched_plant_runs_an_order_on_each_cell_and_ctrl_c_stops_every_node() {
                 falc(Some(cell), &["answer", "ja"]);
             }
         }
-        if status.lines().filter(|l| l.contains("list idle")).count() == 2 {
-            break;
-        }
-        assert!(Instant::now() < end, "orders not done: {status}");
-        std::thread::sleep(Duration::from_millis(100));
-    }
+        let idle = status.lines().filter(|l| l.contains("list idle")).count();
+        holds(idle == 2, || status)
+    });
     let list = falc(None, &["order", "list"]);
     assert_eq!(
         list.lines().filter(|l| l.ends_with("(done)")).count(),

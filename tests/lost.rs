@@ -8,26 +8,26 @@
 //! alarm clears when the station returns, not at the next start.
 
 use crate::support::rig::{rig, Rig};
+use crate::support::wait::{holds, wait_until};
 use falc_model::alarm::AlarmClass;
 use falc_model::console::OrderState;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Waits until `falc status` lists an alarm of `station` that `done`
 /// accepts; that alarm's text.
 fn alarm_of(rig: &Rig, station: &str, done: impl Fn(&falc_model::alarm::Alarm) -> bool) -> String {
-    let end = Instant::now() + Duration::from_secs(10);
-    loop {
-        let s = rig.status();
-        if let Some(a) = s.alarms.iter().find(|a| a.station == station && done(a)) {
-            return a.text.clone();
-        }
-        assert!(
-            Instant::now() < end,
-            "no such alarm of {station}: {:?}",
+    wait_until(
+        &format!("such an alarm of {station}"),
+        Duration::from_secs(10),
+        || {
+            let s = rig.status();
             s.alarms
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+                .iter()
+                .find(|a| a.station == station && done(a))
+                .map(|a| a.text.clone())
+                .ok_or(s.alarms)
+        },
+    )
 }
 
 #[test]
@@ -77,27 +77,18 @@ fn the_cells_no_connection_alarm_clears_when_the_station_returns() {
                 .to_lowercase()
                 .contains("no connection with station welding")
     };
-    let end = Instant::now() + Duration::from_secs(10);
-    while !rig.status().alarms.iter().any(&lost) {
-        assert!(Instant::now() < end, "{:?}", rig.status().alarms);
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_until("the welding's lost alarm", Duration::from_secs(10), || {
+        let alarms = rig.status().alarms;
+        holds(alarms.iter().any(lost), || alarms)
+    });
     rig.start_welding();
     // Cleared by the return itself, before any start.
-    let end = Instant::now() + Duration::from_secs(10);
-    loop {
-        let s = rig.status();
-        let named: Vec<_> = s.alarms.iter().filter(|a| lost(a)).collect();
-        if !named.is_empty() && named.iter().all(|a| a.cleared_ms.is_some()) {
-            break;
-        }
-        assert!(
-            Instant::now() < end,
-            "not cleared by the return: {:?}",
-            s.alarms
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_until("cleared by the return", Duration::from_secs(10), || {
+        let alarms = rig.status().alarms;
+        let named: Vec<_> = alarms.iter().filter(|a| lost(a)).collect();
+        let cleared = !named.is_empty() && named.iter().all(|a| a.cleared_ms.is_some());
+        holds(cleared, || alarms.clone())
+    });
     rig.way_back();
     let orders = rig.orders();
     assert_eq!(orders[0].state, OrderState::Failed, "{orders:?}");

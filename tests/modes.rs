@@ -7,9 +7,13 @@
 //! failed order restarted from a chosen state of its cell recipe.
 
 use crate::support::rig::{rig, Rig};
+use crate::support::wait::{holds, wait_until};
 use falc_model::console::{EntryKind, OrderState};
 use falc_model::mode::CellMode;
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+/// How long a step confirmed may take to show.
+const STEP: Duration = Duration::from_secs(10);
 
 /// The cell's mode, the state that waits for `falc step` on `station`
 /// (if one does), and the waiting question.
@@ -48,46 +52,47 @@ fn dikdroog_in_step_mode_is_confirmed_step_by_step_through_the_cli_to_done() {
     rig.cell.falc(&["start"]);
     let mut cell_steps = Vec::new();
     let mut transport_steps = 0;
-    let end = Instant::now() + Duration::from_secs(180);
-    loop {
-        let (mode, cell, question) = held_on(&rig, "cell");
-        let (_, transport, _) = held_on(&rig, "transport");
-        assert_eq!(mode, CellMode::Step);
-        if question.is_some() {
-            rig.cell.falc(&["answer", "ja"]);
-        } else if let Some(state) = transport {
-            // The transport's own recipe waits too: stepped by name.
-            rig.cell.falc(&["step", "--station", "transport"]);
-            transport_steps += 1;
-            while held_on(&rig, "transport").1 == Some(state) {
-                std::thread::sleep(Duration::from_millis(20));
+    wait_until(
+        "the order done step by step",
+        Duration::from_secs(180),
+        || {
+            let (mode, cell, question) = held_on(&rig, "cell");
+            let (_, transport, _) = held_on(&rig, "transport");
+            assert_eq!(mode, CellMode::Step);
+            if question.is_some() {
+                rig.cell.falc(&["answer", "ja"]);
+            } else if let Some(state) = transport {
+                // The transport's own recipe waits too: stepped by name.
+                rig.cell.falc(&["step", "--station", "transport"]);
+                transport_steps += 1;
+                wait_until("the transport's step taken", STEP, || {
+                    let held = held_on(&rig, "transport").1;
+                    holds(held != Some(state), || held)
+                });
+            } else if let Some(state) = cell {
+                let text = rig.cell.falc(&["status"]);
+                assert!(
+                    text.contains(&format!("STEP: cell DIKDROOG state {state} waits:")),
+                    "{text}"
+                );
+                cell_steps.push(state);
+                if state == 1 {
+                    // Past the greeting in one go: it waits again at state 9.
+                    rig.cell.falc(&["step", "--to", "9"]);
+                } else {
+                    rig.cell.falc(&["step"]);
+                }
+                // The next step shows once this one was taken.
+                wait_until("the cell's step taken", STEP, || {
+                    let held = held_on(&rig, "cell").1;
+                    holds(held != Some(state), || held)
+                });
+            } else if rig.orders()[0].state == OrderState::Done {
+                return Ok(());
             }
-        } else if let Some(state) = cell {
-            let text = rig.cell.falc(&["status"]);
-            assert!(
-                text.contains(&format!("STEP: cell DIKDROOG state {state} waits:")),
-                "{text}"
-            );
-            cell_steps.push(state);
-            if state == 1 {
-                // Past the greeting in one go: it waits again at state 9.
-                rig.cell.falc(&["step", "--to", "9"]);
-            } else {
-                rig.cell.falc(&["step"]);
-            }
-            // The next step shows once this one was taken.
-            while held_on(&rig, "cell").1 == Some(state) {
-                std::thread::sleep(Duration::from_millis(20));
-            }
-        } else if rig.orders()[0].state == OrderState::Done {
-            break;
-        }
-        assert!(
-            Instant::now() < end,
-            "not done; cell steps seen: {cell_steps:?}"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+            Err(format!("cell steps seen: {cell_steps:?}"))
+        },
+    );
     assert_eq!(
         cell_steps,
         vec![1, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 20],
@@ -269,11 +274,10 @@ fn a_stopped_order_resumes_where_it_stopped_and_the_recipe_starts_anew_after() {
     let rig = rig("10");
     rig.cell.falc(&["order", "add", "dikdroog"]);
     rig.cell.falc(&["start"]);
-    let end = Instant::now() + Duration::from_secs(30);
-    while rig.status().question.is_none() {
-        assert!(Instant::now() < end, "no question");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait_until("the question", Duration::from_secs(30), || {
+        let s = rig.status();
+        holds(s.question.is_some(), || s)
+    });
     let out = rig.cell.falc(&["stop"]);
     assert!(out.contains("order 1 stopped"), "{out}");
     assert_eq!(rig.orders()[0].state, OrderState::Stopped);

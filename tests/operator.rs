@@ -4,6 +4,7 @@
 //! file in the test's temp dir). Time-scaled twins.
 
 use crate::support::rig::{rig, Rig};
+use crate::support::wait::{holds, wait_until};
 use falc_model::console::{EntryKind, ListState, OrderState};
 use std::time::{Duration, Instant};
 
@@ -131,15 +132,10 @@ fn sigkill_of_a_workstation_mid_order_then_start_refused_until_it_returns() {
     // The workstation returns (empty); the operator puts the carriers back
     // where an order starts (by hand, as in 1992); ack + start resume.
     rig.start_transport();
-    let end = Instant::now() + Duration::from_secs(5);
-    while !connected(&rig).contains(&("transport".into(), true)) {
-        assert!(
-            Instant::now() < end,
-            "the transport is back: {:?}",
-            connected(&rig)
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_until("the transport back", Duration::from_secs(5), || {
+        let seen = connected(&rig);
+        holds(seen.contains(&("transport".into(), true)), || seen)
+    });
     rig.plc.control("layout W2 W2");
     rig.cell.falc(&["ack"]);
     let out = rig.cell.falc(&["start"]);
@@ -316,19 +312,20 @@ fn shutdown_waits_until_the_list_is_done() {
     assert_eq!(code, 1, "{text}");
     assert!(text.contains("shutting down"), "{text}");
     // Answer the questions until the operator stops by itself.
-    let end = Instant::now() + Duration::from_secs(60);
-    while rig
-        .operator()
-        .wait_line("EVENT stopped", Duration::ZERO)
-        .is_none()
-    {
-        assert!(Instant::now() < end, "the operator did not stop");
-        let (_, status) = rig.cell.falc_as("console", &["--json", "status"]);
-        if status.contains("\"question\":\"") {
-            rig.cell.falc_as("console", &["answer", "ja"]);
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_until(
+        "the operator stopped by itself",
+        Duration::from_secs(60),
+        || {
+            if let Some(line) = rig.operator().wait_line("EVENT stopped", Duration::ZERO) {
+                return Ok(line);
+            }
+            let (_, status) = rig.cell.falc_as("console", &["--json", "status"]);
+            if status.contains("\"question\":\"") {
+                rig.cell.falc_as("console", &["answer", "ja"]);
+            }
+            Err(status)
+        },
+    );
     // Both orders ran; the journal says who asked for the shut down.
     rig.operator = None;
     rig.start_operator();

@@ -7,6 +7,7 @@
 
 use crate::support::plant::TestPlant;
 use crate::support::st;
+use crate::support::wait::{wait_until_async, POLL};
 use falc_bus::{Bus, DEFAULT_DEADLINE};
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Request, Response};
@@ -26,17 +27,21 @@ async fn refused(bus: &Bus, station: &str, what: &str) {
     assert!(matches!(&r, Err(e) if is_unreachable(e)), "{what}: {r:?}");
 }
 
-/// Every sample `bus` receives on `key` within `wait`.
-async fn heard(bus: &Bus, key: &str, wait: Duration) -> usize {
-    let sub = bus
-        .session()
-        .declare_subscriber(key)
-        .await
-        .expect("subscriber");
+/// A probe's payload: a sample sent until the subscribers hear them, not
+/// counted by [`heard`].
+const PROBE: u8 = 255;
+
+/// Every sample but probes `sub` receives within `wait`.
+async fn heard(
+    sub: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
+    wait: Duration,
+) -> usize {
     let mut n = 0;
     let end = tokio::time::Instant::now() + wait;
-    while let Ok(Ok(_)) = tokio::time::timeout_at(end, sub.recv_async()).await {
-        n += 1;
+    while let Ok(Ok(s)) = tokio::time::timeout_at(end, sub.recv_async()).await {
+        if s.payload().to_bytes().as_ref() != [PROBE] {
+            n += 1;
+        }
     }
     n
 }
@@ -159,19 +164,36 @@ async fn the_hierarchy_holds_across_routers_and_no_cell_reaches_another() {
     // Cell 2's transport publishes; the operator hears it across the
     // routers, cell 1's welding does not.
     let op2 = plant.operator_in("falc2").await;
-    let foreign2 = foreign.clone();
-    let listen_op = tokio::spawn(async move {
-        heard(&op2, "falc/falc2/transport/status", Duration::from_secs(3)).await
-    });
-    let listen_foreign =
-        tokio::spawn(
-            async move { heard(&foreign2, "falc/falc2/**", Duration::from_secs(3)).await },
-        );
-    tokio::time::sleep(Duration::from_millis(500)).await;
+    let subscribe = |bus: &Bus, key: &'static str| {
+        let session = bus.session().clone();
+        async move { session.declare_subscriber(key).await.expect("subscriber") }
+    };
+    let op_sub = subscribe(&op2, "falc/falc2/transport/status").await;
+    let foreign_sub = subscribe(&foreign, "falc/falc2/**").await;
     let transport2 = plant
         .station_at("falc2", "transport", &router2, "falc2")
         .await
         .expect("transport logs in at its router");
+    // Probes until the operator hears one: the subscriptions went round
+    // the routers.
+    wait_until_async(
+        "the operator hears cell 2's transport",
+        Duration::from_secs(10),
+        || async {
+            transport2
+                .session()
+                .put("falc/falc2/transport/status", vec![PROBE])
+                .await
+                .expect("put");
+            match tokio::time::timeout(POLL, op_sub.recv_async()).await {
+                Ok(Ok(_)) => Ok(()),
+                other => Err(format!("{other:?}")),
+            }
+        },
+    )
+    .await;
+    let listen_op = tokio::spawn(heard(op_sub, Duration::from_secs(3)));
+    let listen_foreign = tokio::spawn(heard(foreign_sub, Duration::from_secs(3)));
     for i in 0..5 {
         transport2
             .session()
@@ -263,28 +285,51 @@ async fn a_session_claiming_the_factory_routers_id_is_closed() {
     let mut factory = plant.routers.pop().expect("the factory router");
     factory.kill();
     drop(factory);
-    tokio::time::sleep(plant.plant.lease() * 3).await;
-    let forged = forge().await;
-    let line = plant.routers[0]
-        .wait_line("closed", Duration::from_secs(5))
-        .expect("the cell router logs the forged session's close");
+    // Refused as a second transport of that id until the cell router
+    // noticed the cut; then admitted by zenoh and closed by FALC, named.
+    let forged = std::cell::RefCell::new(Vec::new());
+    let cell_router = std::cell::RefCell::new(&mut plant.routers[0]);
+    let line = wait_until_async(
+        "the cell router closes the forged session and names it",
+        plant.plant.lease() * 3 + Duration::from_secs(5),
+        || {
+            let (forged, cell_router) = (&forged, &cell_router);
+            async move {
+                let attempt = forge().await;
+                forged.borrow_mut().push(attempt);
+                let closed = cell_router.borrow_mut().wait_line("closed", POLL);
+                closed.ok_or("no close logged")
+            }
+        },
+    )
+    .await;
     assert!(line.contains(&id) && line.contains("as welding"), "{line}");
-    if let Ok(s) = forged {
-        let end = Instant::now() + Duration::from_secs(5);
-        while s.info().routers_zid().await.count() > 0 {
-            assert!(Instant::now() < end, "the forged session stays connected");
-            tokio::time::sleep(Duration::from_millis(100)).await;
-        }
+    for s in forged.into_inner().into_iter().flatten() {
+        wait_until_async(
+            "the forged session disconnected",
+            Duration::from_secs(5),
+            || async {
+                let routers = s.info().routers_zid().await.count();
+                if routers == 0 {
+                    Ok(())
+                } else {
+                    Err(routers)
+                }
+            },
+        )
+        .await;
         let _ = s.close().await;
     }
     // The real link comes back, and the operator commands the cell.
     plant.routers.push(plant.router(None));
     let op = plant.operator_in("falc1").await;
-    let end = Instant::now() + Duration::from_secs(15);
-    while !matches!(status(&op, "cell").await, Ok(Response::Status(_))) {
-        assert!(Instant::now() < end, "cell 1 not reached again");
-        tokio::time::sleep(Duration::from_millis(200)).await;
-    }
+    wait_until_async("cell 1 reached again", Duration::from_secs(15), || async {
+        match status(&op, "cell").await {
+            Ok(Response::Status(_)) => Ok(()),
+            other => Err(other),
+        }
+    })
+    .await;
 }
 
 /// The factory router stops and starts again: each cell router links up
@@ -302,22 +347,29 @@ async fn a_cell_router_links_up_again_by_itself() {
     let mut factory = plant.routers.pop().expect("the factory router");
     factory.kill();
     drop(factory);
-    tokio::time::sleep(Duration::from_secs(2)).await;
+    // Each cell router saw its link up close (its log says so).
+    for router in &mut plant.routers {
+        let closed = router.wait_line("link closed (the link up", plant.plant.lease() * 5);
+        assert!(
+            closed.is_some(),
+            "a cell router did not log its link up's end"
+        );
+    }
     let started = Instant::now();
     plant.routers.push(plant.router(None));
     for cell in ["falc1", "falc2"] {
         let op = plant.operator_in(cell).await;
-        let end = Instant::now() + Duration::from_secs(15);
-        loop {
-            match status(&op, "cell").await {
-                Ok(Response::Status(_)) => break,
-                r => assert!(
-                    Instant::now() < end,
-                    "{cell} not reached 15 s after the factory router came back: {r:?}"
-                ),
-            }
-            tokio::time::sleep(Duration::from_millis(200)).await;
-        }
+        wait_until_async(
+            &format!("{cell} reached after the factory router came back"),
+            Duration::from_secs(15),
+            || async {
+                match status(&op, "cell").await {
+                    Ok(Response::Status(_)) => Ok(()),
+                    other => Err(other),
+                }
+            },
+        )
+        .await;
         eprintln!(
             "{cell} reached {:?} after the factory router came back",
             started.elapsed()

@@ -6,6 +6,7 @@
 //! ran twice.
 
 use crate::support::rig::{rig, rig_with_db, Rig};
+use crate::support::wait::wait_until;
 use falc_model::console::{EntryKind, ListState, OrderState};
 use falc_model::mms::vmd::{RobotStatusDetail, RobotVmdState};
 use std::path::{Path, PathBuf};
@@ -400,15 +401,14 @@ fn until_status(
     what: &str,
     pred: impl Fn(&falc_model::console::CellStatus) -> bool,
 ) -> falc_model::console::CellStatus {
-    let end = std::time::Instant::now() + within;
-    loop {
+    wait_until(what, within, || {
         let s = rig.status();
         if pred(&s) {
-            return s;
+            Ok(s)
+        } else {
+            Err(Box::new(s))
         }
-        assert!(std::time::Instant::now() < end, "{what}: {s:#?}");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    })
 }
 
 /// Alarm management: an alarm raised while no order runs (the conveyor's

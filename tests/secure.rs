@@ -209,7 +209,8 @@ fn api_replies(cell: &TestCell, host: &str, mode: &str, certificate: bool) -> bo
             let Ok(session) = zenoh::open(cfg).await else {
                 return false;
             };
-            // Time for the router to refuse the transport, if it does.
+            // A window, not a wait: time for the router to refuse the
+            // transport, if it does (nothing to observe if it does not).
             tokio::time::sleep(Duration::from_millis(500)).await;
             let replies = session
                 .get(&key)

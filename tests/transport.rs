@@ -4,6 +4,7 @@
 //! them, and reads the job events; the twin's `show` tells where the
 //! carriers went.
 
+use crate::support::wait::{holds, wait_until_async};
 use crate::support::{twin, Commander, Proc, TestCell};
 use falc_model::ids::ObjectName;
 use falc_model::mms::pdu::{JobEvent, Request, Response};
@@ -73,18 +74,13 @@ impl Rig {
     /// Waits until the twin shows `want` (a line still running may take a
     /// carrier on after a recipe ended).
     async fn carriers_become(&mut self, want: &str) {
-        let end = tokio::time::Instant::now() + Duration::from_secs(10);
-        loop {
+        let want = format!("carriers: {want}");
+        wait_until_async(&want, Duration::from_secs(10), || {
             let now = self.carriers();
-            if now == format!("carriers: {want}") {
-                return;
-            }
-            assert!(
-                tokio::time::Instant::now() < end,
-                "carriers {now:?}, expected {want:?}"
-            );
-            tokio::time::sleep(Duration::from_millis(100)).await;
-        }
+            let want = &want;
+            async move { holds(&now == want, || now.clone()) }
+        })
+        .await;
     }
 
     /// After a fault cleared: the node says the PLC is ready again, and
@@ -406,18 +402,14 @@ async fn the_node_needs_nothing_but_the_documented_map() {
     commander.start("store").await;
     // The node takes external control and presses K …
     let k = coil(Coil::Button(Button::Line('K')));
-    let end = tokio::time::Instant::now() + Duration::from_secs(5);
-    loop {
+    wait_until_async("button K pressed", Duration::from_secs(5), || {
         let pressed = {
             let img = image.lock().expect("image");
             img.coils[k] && img.coils[coil(Coil::ExternalControl)]
         };
-        if pressed {
-            break;
-        }
-        assert!(tokio::time::Instant::now() < end, "button K never pressed");
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
+        async move { holds(pressed, || "not pressed") }
+    })
+    .await;
     // … and when place 3 reports occupied, releases it and is done.
     image.lock().expect("image").inputs
         [offset(Input::Signal(Signal::Place(falc_model::ids::Place::of(3))))] = true;
@@ -453,14 +445,11 @@ async fn stop_then_resume_of_a_transport_job_continues_at_its_state() {
     let mut rig = rig().await;
     rig.commander.load("park", PARK).await;
     rig.commander.start("park").await;
-    let end = tokio::time::Instant::now() + RUN;
-    while program_state(&rig).await != Some(("PARK".into(), 4)) {
-        assert!(
-            tokio::time::Instant::now() < end,
-            "PARK never reached state 4"
-        );
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
+    wait_until_async("PARK in state 4", RUN, || async {
+        let state = program_state(&rig).await;
+        holds(state == Some(("PARK".into(), 4)), || state.clone())
+    })
+    .await;
     assert_eq!(rig.carriers(), "carriers: 1@W3 2@W2");
     let name = ObjectName::new("park").expect("valid");
     let r = rig

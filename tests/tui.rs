@@ -5,9 +5,19 @@
 //! findings are shown, edited again and saved. tmux is required (`.ci/run`
 //! installs it).
 
+use crate::support::wait::wait_until;
 use crate::support::LaunchedCell;
 use std::process::Command;
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+/// A screen as text, shown as it looks when a wait fails.
+struct Screen(String);
+
+impl std::fmt::Debug for Screen {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "\n{}", self.0)
+    }
+}
 
 /// A tmux server of its own (its own socket), killed on drop.
 struct Tmux {
@@ -46,6 +56,8 @@ impl Tmux {
                 .status()
                 .expect("tmux send-keys");
             assert!(ok.success());
+            // A pace, not a wait: keys sent at once can reach the TUI as
+            // one escape sequence.
             std::thread::sleep(Duration::from_millis(100));
         }
     }
@@ -60,18 +72,14 @@ impl Tmux {
 
     /// Waits until the screen shows every one of `needles`; the screen.
     fn wait_for(&self, needles: &[&str], within: Duration) -> String {
-        let end = Instant::now() + within;
-        loop {
+        wait_until(&format!("the screen showing {needles:?}"), within, || {
             let s = self.screen();
             if needles.iter().all(|n| s.contains(n)) {
-                return s;
+                Ok(s)
+            } else {
+                Err(Screen(s))
             }
-            assert!(
-                Instant::now() < end,
-                "the screen never showed {needles:?}; it shows:\n{s}"
-            );
-            std::thread::sleep(Duration::from_millis(100));
-        }
+        })
     }
 }
 

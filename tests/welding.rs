@@ -96,6 +96,7 @@ async fn a_person_in_the_area_pauses_and_the_limit_freezes() {
     rig.start("short").await;
     rig.rcm.take_line("rx G", Duration::from_secs(10)); // the program runs
     rig.rcm.control("person-in");
+    // The fault's duration.
     tokio::time::sleep(Duration::from_secs(4)).await;
     rig.rcm.control("person-out");
     assert_eq!(
@@ -183,6 +184,9 @@ async fn a_silent_line_mid_weld_is_an_alarm_within_the_links_budget_and_the_orph
     rig.load("droog_dik", &droog_dik()).await;
     rig.start("droog_dik").await;
     rig.rcm.take_line("rx G", Duration::from_secs(10));
+    // A point in the scenario, not a wait: unplugged 0.3 s into the weld,
+    // mid status period (a status request's answer cut off would shorten
+    // the silence the test measures).
     tokio::time::sleep(Duration::from_millis(300)).await;
     rig.rcm.control("unplug");
     let silent = std::time::Instant::now();

@@ -14,6 +14,10 @@
 //!   whose remote is not a client is closed at once and logged, rate-limited
 //!   per address ([`falc_bus::log_limit::warn`]).
 //!
+//! A link between a plant's routers is logged when it opens (`router …
+//! linked`) and when it closes (`router … link closed`): a cell's link up
+//! lost is in its router's log.
+//!
 //! zenoh runs a new transport's event handlers while the transport's
 //! status lock is held, so the close waits until the transport is whole
 //! and the routing tables are told of its end as of any other. Between the
@@ -23,6 +27,8 @@
 use std::collections::BTreeSet;
 use std::sync::Arc;
 use zenoh::config::WhatAmI;
+use zenoh_link::Link;
+use zenoh_protocol::network::NetworkMessageMut;
 use zenoh_transport::{
     multicast::TransportMulticast, unicast::TransportUnicast, TransportEventHandler,
     TransportMulticastEventHandler, TransportPeer, TransportPeerEventHandler,
@@ -78,6 +84,28 @@ impl ClientsOnly {
     }
 }
 
+/// A link between routers of a plant, watched for its end: the log says
+/// when a cell's link up (or a cell router's link, at the factory router)
+/// closed, as it says when it linked.
+struct RouterLink {
+    zid: String,
+    what: String,
+}
+
+impl TransportPeerEventHandler for RouterLink {
+    fn handle_message(&self, _msg: NetworkMessageMut) -> zenoh::Result<()> {
+        Ok(())
+    }
+    fn new_link(&self, _link: Link) {}
+    fn del_link(&self, _link: Link) {}
+    fn closed(&self) {
+        tracing::info!("router {} link closed ({})", self.zid, self.what);
+    }
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
 impl TransportEventHandler for ClientsOnly {
     fn new_unicast(
         &self,
@@ -91,11 +119,12 @@ impl TransportEventHandler for ClientsOnly {
         let zid = peer.zid.to_string();
         if admitted(&self.admit, peer.whatami, user.as_deref(), &zid) {
             if peer.whatami == WhatAmI::Router {
-                tracing::info!(
-                    "router {zid} linked ({})",
-                    user.as_deref()
-                        .unwrap_or("the link up to the factory router")
-                );
+                let what = user
+                    .as_deref()
+                    .unwrap_or("the link up to the factory router")
+                    .to_string();
+                tracing::info!("router {zid} linked ({what})");
+                return Ok(Arc::new(RouterLink { zid, what }));
             }
             return Err("admitted: nothing to do".into());
         }

@@ -7,6 +7,7 @@
 //! few rounds) and `benches/chaos.rs` (as many as asked, with figures).
 
 use super::rig::Rig;
+use crate::support::wait::{holds, poll_until, POLL};
 use falc_model::console::{EntryKind, OrderState};
 use rand::Rng;
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -120,6 +121,7 @@ fn play(rig: &Rig, until: Instant) {
         } else if s.running.is_none() {
             return;
         }
+        // A pace: this plays the operator until `until`.
         std::thread::sleep(Duration::from_millis(20));
     }
 }
@@ -194,38 +196,29 @@ fn run(rig: &mut Rig, r: &mut Round) -> Result<(), String> {
         // The cell runs order A on without its operator; the operator,
         // back, adopts it and learns how it ends. Only then are the
         // carriers set back (not under a running order).
-        let end = Instant::now() + Duration::from_secs(120);
-        while rig
-            .orders()
-            .iter()
-            .any(|o| o.id == a && o.state == OrderState::Running)
-        {
-            if Instant::now() > end {
-                return Err(format!(
-                    "order {a} still running 120 s after the operator came back"
-                ));
+        poll_until(POLL, Duration::from_secs(120), || {
+            let running = rig
+                .orders()
+                .iter()
+                .any(|o| o.id == a && o.state == OrderState::Running);
+            if running {
+                play(rig, Instant::now() + Duration::from_millis(200));
             }
-            play(rig, Instant::now() + Duration::from_millis(200));
-            std::thread::sleep(Duration::from_millis(100));
-        }
+            holds(!running, || ())
+        })
+        .map_err(|_| format!("order {a} still running 120 s after the operator came back"))?;
     }
     // The documented way back: carriers to where an order starts, then
     // ack + start, repeated while the cell is reassociating.
     rig.plc.control("layout W2 W2");
     rig.cell.falc(&["order", "add", "dikdroog"]);
-    let end = Instant::now() + Duration::from_secs(30);
-    loop {
+    poll_until(Duration::from_millis(300), Duration::from_secs(30), || {
         rig.cell.falc(&["ack"]);
         r.starts += 1;
         let (code, out) = rig.cell.falc_as("console", &["start"]);
-        if code == 0 {
-            break;
-        }
-        if Instant::now() > end {
-            return Err(format!("start refused for 30 s: {out}"));
-        }
-        std::thread::sleep(Duration::from_millis(300));
-    }
+        holds(code == 0, || out)
+    })
+    .map_err(|out| format!("start refused for 30 s: {out}"))?;
     rig.work_list("ja", Duration::from_secs(90));
     let orders = rig.orders();
     let b = orders.last().ok_or("the order list is empty")?.clone();

@@ -12,6 +12,7 @@ pub mod opcua;
 pub mod plant;
 pub mod rig;
 pub mod stats;
+pub mod wait;
 
 use falc_bus::{certificates, credentials};
 use falc_bus::{Bus, BusError, BusSettings, DEFAULT_DEADLINE};
@@ -469,14 +470,12 @@ impl Drop for LaunchedCell {
             nix::unistd::Pid::from_raw(pid as i32),
             nix::sys::signal::Signal::SIGTERM,
         );
-        let end = Instant::now() + Duration::from_secs(10);
-        while Instant::now() < end && std::path::Path::new(&format!("/proc/{pid}/status")).exists()
-        {
-            if let Ok(Some(_)) = self.launcher.child.try_wait() {
-                break;
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
+        // Its own way out first; whatever is left is killed below.
+        let _ = wait::poll_until(wait::POLL, Duration::from_secs(10), || {
+            let exited = matches!(self.launcher.child.try_wait(), Ok(Some(_)))
+                || !std::path::Path::new(&format!("/proc/{pid}/status")).exists();
+            wait::holds(exited, || ())
+        });
         for (p, _) in nodes {
             let _ = nix::sys::signal::kill(
                 nix::unistd::Pid::from_raw(p as i32),

@@ -5,6 +5,7 @@
 
 use super::hosts::Hosts;
 use super::{free_port, Proc};
+use crate::support::wait::{holds, wait_until};
 use falc_bus::{credentials, Bus, BusError, BusSettings};
 use falc_model::ids::{CellId, StationName};
 use falc_model::keys::KeySpace;
@@ -410,9 +411,8 @@ impl TestPlant {
     /// queued or running, or `within` passed; the questions answered.
     pub fn work_list(&self, answer: &str, within: Duration) -> Vec<(String, String)> {
         use falc_model::console::OrderState;
-        let end = std::time::Instant::now() + within;
         let mut asked = Vec::new();
-        loop {
+        wait_until("the plant's list done", within, || {
             let status = self.status();
             for (cell, s) in &status.cells {
                 if let Some(q) = &s.question {
@@ -428,15 +428,9 @@ impl TestPlant {
                 .iter()
                 .any(|o| matches!(o.state, OrderState::Queued | OrderState::Running));
             let running = status.cells.iter().any(|(_, s)| s.running.is_some());
-            if !busy && !running {
-                return asked;
-            }
-            assert!(
-                std::time::Instant::now() < end,
-                "the plant's list not done within {within:?}: {status:#?}"
-            );
-            std::thread::sleep(Duration::from_millis(50));
-        }
+            holds(!busy && !running, || status)
+        });
+        asked
     }
 }
 
@@ -449,21 +443,20 @@ impl TestPlant {
         });
     }
 
-    /// Answers every cell's question with `ja` until `done` holds
-    /// (checked every 20 ms), or panics after `within` naming `what`.
+    /// Answers every cell's question with `ja` until `done` holds, or
+    /// panics after `within` naming `what`.
     pub fn answer_until(&self, within: Duration, what: &str, mut done: impl FnMut() -> bool) {
-        let end = std::time::Instant::now() + within;
-        while !done() {
-            assert!(
-                std::time::Instant::now() < end,
-                "{what} not within {within:?}"
-            );
-            for (cell, s) in self.status().cells {
+        wait_until(what, within, || {
+            if done() {
+                return Ok(());
+            }
+            let status = self.status();
+            for (cell, s) in &status.cells {
                 if s.question.is_some() {
                     self.falc_as("console", Some(cell.as_str()), &["answer", "ja"]);
                 }
             }
-            std::thread::sleep(Duration::from_millis(20));
-        }
+            Err(status)
+        });
     }
 }

@@ -5,9 +5,10 @@
 //! and started again one by one.
 
 use super::{Proc, TestCell};
+use crate::support::wait::{holds, wait_until};
 use falc_model::console::{CellStatus, Entry, EntryKind, ListState, Order};
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 pub struct Rig {
     pub cell: TestCell,
@@ -247,14 +248,16 @@ impl Rig {
     /// Answers questions with `ja` until the robot starts its program (the
     /// twin receives `G`): the order is mid-weld.
     pub fn until_welding(&mut self) {
-        let end = Instant::now() + Duration::from_secs(30);
-        while self.rcm.wait_line("rx G", Duration::ZERO).is_none() {
-            assert!(Instant::now() < end, "the weld never started");
-            if self.status().question.is_some() {
+        wait_until("the weld started", Duration::from_secs(30), || {
+            if let Some(line) = self.rcm.wait_line("rx G", Duration::ZERO) {
+                return Ok(line);
+            }
+            let s = self.status();
+            if s.question.is_some() {
                 self.cell.falc(&["answer", "ja"]);
             }
-            std::thread::sleep(Duration::from_millis(20));
-        }
+            Err(Box::new(s))
+        });
         // The running order says since when (`falc status --json`).
         let running = self.status().running;
         assert!(
@@ -338,23 +341,16 @@ impl Rig {
     /// Plays the operator through the CLI until the list stops running:
     /// answers every question with `answer`. Returns the questions seen.
     pub fn work_list(&self, answer: &str, within: Duration) -> Vec<String> {
-        let end = Instant::now() + within;
         let mut questions = Vec::new();
-        loop {
+        wait_until("the list ended", within, || {
             let s = self.status();
             if let Some(q) = &s.question {
                 questions.push(q.clone());
                 self.cell.falc(&["answer", answer]);
-                continue;
+                return Err(Box::new(s));
             }
-            if s.list != ListState::Running && s.running.is_none() {
-                return questions;
-            }
-            assert!(
-                Instant::now() < end,
-                "the list did not end within {within:?}: {s:?}"
-            );
-            std::thread::sleep(Duration::from_millis(50));
-        }
+            holds(s.list != ListState::Running && s.running.is_none(), || s)
+        });
+        questions
     }
 }
