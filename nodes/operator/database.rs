@@ -7,7 +7,10 @@
 //! itself) and journals it.
 
 use falc_control::figures::{AlarmSpan, FigureInputs, ModeChange, RunSpan};
-use falc_control::records::{EntryQuery, Records, RECORD_ENTRIES};
+use falc_control::records::{
+    adopted_text, interrupted_text, recovery, EntryQuery, Records, Recovered, INTERRUPTED_RESULT,
+    RECORD_ENTRIES,
+};
 use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement, RecipeFile};
 use falc_model::ids::StationName;
@@ -18,15 +21,6 @@ use falc_model::product::{
 use rusqlite::{params, Connection, OptionalExtension, Row};
 use std::path::Path;
 use std::time::{SystemTime, UNIX_EPOCH};
-
-/// What [`Database::recover`] found running.
-#[derive(Debug, Default)]
-pub struct Recovered {
-    /// One order per cell, still running, for the cell's list to adopt.
-    pub adopted: Vec<Order>,
-    /// The others, now interrupted.
-    pub interrupted: Vec<Order>,
-}
 
 /// A database failure, with the file and what was being done.
 #[derive(Debug, thiserror::Error)]
@@ -365,100 +359,6 @@ impl Database {
         }
     }
 
-    /// After a stop or crash: the orders still marked running. The newest
-    /// on each of `cells` is adopted (it stays running: a cell runs its
-    /// order on without the operator, and is asked how it ended once it is
-    /// associated), with a journal entry; every other becomes interrupted,
-    /// with a journal entry.
-    pub fn recover(&mut self, cells: &[&str]) -> Result<Recovered, DatabaseError> {
-        let mut running = self.orders_in(OrderState::Running)?;
-        running.sort_by_key(|o| std::cmp::Reverse(o.id));
-        let mut adopted: Vec<Order> = Vec::new();
-        let mut interrupted = Vec::new();
-        for o in running {
-            let cell = o.cell.as_deref().filter(|c| cells.contains(c));
-            let taken = cell.is_some_and(|c| adopted.iter().any(|a| a.cell.as_deref() == Some(c)));
-            if cell.is_some() && !taken {
-                adopted.push(o);
-            } else {
-                interrupted.push(o);
-            }
-        }
-        let now = now_ms();
-        let tx = self.conn.transaction().map_err(|source| DatabaseError {
-            path: self.path.clone(),
-            what: "cannot begin recovery",
-            source: source.into(),
-        })?;
-        for o in &adopted {
-            tx.execute(
-                "INSERT INTO journal (at_ms, order_id, kind, who, text) VALUES (?1, ?2, 'order', 'operator', ?3)",
-                params![
-                    now,
-                    o.id,
-                    format!(
-                        "order {} ({}) was running on {} when the operator node stopped: \
-                         the cell is asked how it ended",
-                        o.id,
-                        o.recipe,
-                        o.cell.as_deref().unwrap_or_default()
-                    )
-                ],
-            )
-            .map_err(|source| DatabaseError {
-                path: self.path.clone(),
-                what: "cannot journal an adopted order",
-                source: source.into(),
-            })?;
-        }
-        for o in &interrupted {
-            tx.execute(
-                "UPDATE orders SET state = 'interrupted', ended_ms = ?1, result = ?2 WHERE id = ?3",
-                params![now, "interrupted: the operator node stopped while it ran", o.id],
-            )
-            .and_then(|_| {
-                tx.execute(
-                    "UPDATE order_runs SET ended_ms = ?1, state = 'interrupted' \
-                     WHERE order_id = ?2 AND ended_ms IS NULL",
-                    params![now, o.id],
-                )
-            })
-            .and_then(|_| {
-                tx.execute(
-                    "INSERT INTO journal (at_ms, order_id, kind, who, text) VALUES (?1, ?2, 'order', 'operator', ?3)",
-                    params![
-                        now,
-                        o.id,
-                        format!(
-                            "order {} ({}) interrupted: the operator node stopped while it ran; not restarted",
-                            o.id, o.recipe
-                        )
-                    ],
-                )
-            })
-            .map_err(|source| DatabaseError {
-                path: self.path.clone(),
-                what: "cannot mark an order interrupted",
-                source: source.into(),
-            })?;
-        }
-        tx.commit().map_err(|source| DatabaseError {
-            path: self.path.clone(),
-            what: "cannot commit recovery",
-            source: source.into(),
-        })?;
-        Ok(Recovered {
-            adopted,
-            interrupted: interrupted
-                .into_iter()
-                .map(|o| Order {
-                    state: OrderState::Interrupted,
-                    ..o
-                })
-                .collect(),
-        })
-    }
-
     /// One order.
     pub fn order(&self, id: i64) -> Result<Option<Order>, DatabaseError> {
         self.conn
@@ -489,6 +389,63 @@ impl Database {
 
 impl Records for Database {
     type Error = DatabaseError;
+
+    /// After a stop or crash: the orders still marked running. The newest
+    /// on each of `cells` is adopted (it stays running: a cell runs its
+    /// order on without the operator, and is asked how it ended once it is
+    /// associated), with a journal entry; every other becomes interrupted,
+    /// with a journal entry.
+    fn recover(&mut self, cells: &[&str]) -> Result<Recovered, DatabaseError> {
+        let running = self.orders_in(OrderState::Running)?;
+        let recovered = recovery(running, cells);
+        let now = now_ms();
+        let tx = self.conn.transaction().map_err(|source| DatabaseError {
+            path: self.path.clone(),
+            what: "cannot begin recovery",
+            source: source.into(),
+        })?;
+        for o in &recovered.adopted {
+            tx.execute(
+                "INSERT INTO journal (at_ms, order_id, kind, who, text) VALUES (?1, ?2, 'order', 'operator', ?3)",
+                params![now, o.id, adopted_text(o)],
+            )
+            .map_err(|source| DatabaseError {
+                path: self.path.clone(),
+                what: "cannot journal an adopted order",
+                source: source.into(),
+            })?;
+        }
+        for o in &recovered.interrupted {
+            tx.execute(
+                "UPDATE orders SET state = 'interrupted', ended_ms = ?1, result = ?2 WHERE id = ?3",
+                params![now, INTERRUPTED_RESULT, o.id],
+            )
+            .and_then(|_| {
+                tx.execute(
+                    "UPDATE order_runs SET ended_ms = ?1, state = 'interrupted' \
+                     WHERE order_id = ?2 AND ended_ms IS NULL",
+                    params![now, o.id],
+                )
+            })
+            .and_then(|_| {
+                tx.execute(
+                    "INSERT INTO journal (at_ms, order_id, kind, who, text) VALUES (?1, ?2, 'order', 'operator', ?3)",
+                    params![now, o.id, interrupted_text(o)],
+                )
+            })
+            .map_err(|source| DatabaseError {
+                path: self.path.clone(),
+                what: "cannot mark an order interrupted",
+                source: source.into(),
+            })?;
+        }
+        tx.commit().map_err(|source| DatabaseError {
+            path: self.path.clone(),
+            what: "cannot commit recovery",
+            source: source.into(),
+        })?;
+        Ok(recovered)
+    }
 
     fn now_ms(&self) -> i64 {
         now_ms()

@@ -30,6 +30,7 @@ use falc_bus::{Bus, BusEvent, Declaration, Presence, Responder};
 use falc_control::order_list::{CellCall, OrderList, Output, Ticket, CELL_LIMIT};
 use falc_control::plant::{Plant, PlantOutput};
 use falc_control::recipe_source::{Delivery, RecipeSet, RecipeSource};
+use falc_control::records::Records;
 use falc_model::console::EntryKind;
 use falc_model::ids::StationName;
 use falc_model::keys::KeySpace;

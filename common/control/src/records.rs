@@ -151,6 +151,80 @@ pub trait Records {
     /// change before `until`, of every cell: what the figures are
     /// computed from.
     fn figure_inputs(&self, since: i64, until: i64) -> Result<FigureInputs, Self::Error>;
+
+    /// An operator node starting again: the orders its records hold as
+    /// running are adopted or interrupted as [`recovery`] says, and
+    /// journalled so. The SQLite records do it in one transaction.
+    fn recover(&mut self, cells: &[&str]) -> Result<Recovered, Self::Error> {
+        let running = self
+            .orders()?
+            .into_iter()
+            .filter(|o| o.state == OrderState::Running)
+            .collect();
+        let r = recovery(running, cells);
+        for o in &r.adopted {
+            self.journal(EntryKind::Order, Some(o.id), "operator", &adopted_text(o))?;
+        }
+        for o in &r.interrupted {
+            self.end_order(o.id, OrderState::Interrupted, INTERRUPTED_RESULT)?;
+            let text = interrupted_text(o);
+            self.journal(EntryKind::Order, Some(o.id), "operator", &text)?;
+        }
+        Ok(r)
+    }
+}
+
+/// What an operator node starting again does with the orders its records
+/// hold as running ([`Records::recover`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Recovered {
+    /// One order per cell, still running, for the cell's list to adopt.
+    pub adopted: Vec<Order>,
+    /// The others, now interrupted.
+    pub interrupted: Vec<Order>,
+}
+
+/// The result an interrupted order keeps.
+pub const INTERRUPTED_RESULT: &str = "interrupted: the operator node stopped while it ran";
+
+/// Which of the `running` orders the lists of `cells` adopt: the newest of
+/// each cell, which the cell is asked about; every other (an older one, or
+/// one of a cell not served) is interrupted, never run again by itself.
+pub fn recovery(mut running: Vec<Order>, cells: &[&str]) -> Recovered {
+    running.sort_by_key(|o| std::cmp::Reverse(o.id));
+    let mut r = Recovered::default();
+    for o in running {
+        let cell = o.cell.as_deref().filter(|c| cells.contains(c));
+        let taken = cell.is_some_and(|c| r.adopted.iter().any(|a| a.cell.as_deref() == Some(c)));
+        if cell.is_some() && !taken {
+            r.adopted.push(o);
+        } else {
+            r.interrupted.push(Order {
+                state: OrderState::Interrupted,
+                ..o
+            });
+        }
+    }
+    r
+}
+
+/// The journal line of an adopted order.
+pub fn adopted_text(o: &Order) -> String {
+    format!(
+        "order {} ({}) was running on {} when the operator node stopped: the cell is asked \
+         how it ended",
+        o.id,
+        o.recipe,
+        o.cell.as_deref().unwrap_or_default()
+    )
+}
+
+/// The journal line of an interrupted order.
+pub fn interrupted_text(o: &Order) -> String {
+    format!(
+        "order {} ({}) interrupted: the operator node stopped while it ran; not restarted",
+        o.id, o.recipe
+    )
 }
 
 /// At most this many journal entries go with an order's record (its
@@ -574,7 +648,10 @@ pub mod shared {
     use std::collections::BTreeMap;
     use std::rc::Rc;
 
-    /// One cell's view of the shared records.
+    /// One cell's view of the shared records; a clone is a second handle
+    /// on the same records (an operator node started again opens the same
+    /// file).
+    #[derive(Clone)]
     pub struct Shared {
         /// The plant's records.
         pub all: Rc<RefCell<Memory>>,
@@ -722,6 +799,51 @@ mod tests {
     use super::Records;
     use falc_model::console::Placement;
     use falc_model::ids::CellId;
+
+    #[test]
+    fn a_restarted_operator_adopts_the_newest_running_order_of_its_cell_and_interrupts_the_rest() {
+        use falc_model::console::{EntryKind, OrderState};
+        let mut m = Memory::default();
+        let p = Placement::default();
+        let ids: Vec<i64> = (0..3)
+            .map(|_| m.add_order("dikdroog", "ann", &p).expect("added").id)
+            .collect();
+        m.set_running(ids[0], "falc1", &[]).expect("running");
+        m.set_running(ids[1], "falc1", &[]).expect("running");
+        let r = m.recover(&["falc1"]).expect("recovered");
+        assert_eq!(
+            r.adopted.iter().map(|o| o.id).collect::<Vec<_>>(),
+            vec![ids[1]]
+        );
+        assert_eq!(
+            r.interrupted.iter().map(|o| o.id).collect::<Vec<_>>(),
+            vec![ids[0]]
+        );
+        let states: Vec<OrderState> = m.orders.iter().map(|o| o.state).collect();
+        assert_eq!(
+            states,
+            vec![
+                OrderState::Interrupted,
+                OrderState::Running,
+                OrderState::Queued
+            ]
+        );
+        let lines: Vec<&str> = m
+            .journal
+            .iter()
+            .filter(|e| e.kind == EntryKind::Order)
+            .map(|e| e.text.as_str())
+            .collect();
+        assert!(
+            lines.iter().any(|l| l.contains("was running on falc1")),
+            "{lines:?}"
+        );
+        assert!(lines.iter().any(|l| l.contains("interrupted")), "{lines:?}");
+        // A full disk: the recovery fails, and says so.
+        m.failing = true;
+        m.set_running(ids[2], "falc1", &[]).ok();
+        assert!(m.recover(&["falc1"]).is_err());
+    }
 
     #[test]
     fn the_fake_never_reuses_an_order_id() {

@@ -7,7 +7,7 @@
 //! in-memory bus with latency, loss and cuts per link ([`bus`], [`world`]).
 //!
 //! A run ([`scenario`]) works through orders as an operator would,
-//! injects faults from a seed (a crashed workstation, the robot's
+//! injects faults from a seed (a crashed process, the robot's
 //! emergency stop and limit switch, an unplugged or noisy serial line, a
 //! jammed carrier, a stuck sensor, a cut link, a full disk), takes the
 //! documented way back after each, and checks the invariants after every

@@ -83,6 +83,11 @@ impl Shipped {
         }
     }
 
+    /// The cell's topology.
+    pub fn topology(&self) -> &Topology {
+        &self.topology
+    }
+
     fn check(&self) -> Result<RecipeSet, Vec<String>> {
         let kinds = StationKinds::of(&self.topology);
         let mut entries = Vec::new();

@@ -24,7 +24,8 @@ use std::time::Duration;
 /// A kind of fault the simulation injects.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Fault {
-    /// A workstation's process is killed and started again.
+    /// A process (operator, cell or workstation) is killed and started
+    /// again.
     Crash,
     /// The robot's emergency stop.
     EStop,
@@ -519,9 +520,7 @@ impl Run {
         w.note(format!("FAULT {fault}"));
         match fault {
             Fault::Crash => {
-                let n = *[Node::Welding, Node::Transport]
-                    .choose(&mut w.rng)
-                    .unwrap_or(&Node::Welding);
+                let n = *Node::ALL.choose(&mut w.rng).unwrap_or(&Node::Welding);
                 a.node = Some(n);
                 w.crash(n);
             }
@@ -753,11 +752,12 @@ fn lasting(since: &mut Option<Duration>, holds: bool, now: Duration) -> Duration
     }
 }
 
-/// Whether `o` ended (done, failed or stopped).
+/// Whether `o` ended (done, failed, stopped, or interrupted: its cell
+/// kept no end of its run).
 fn is_ended(o: &Order) -> bool {
     matches!(
         o.state,
-        OrderState::Done | OrderState::Failed | OrderState::Stopped
+        OrderState::Done | OrderState::Failed | OrderState::Stopped | OrderState::Interrupted
     )
 }
 
@@ -771,7 +771,7 @@ fn end_of(text: &str) -> Option<i64> {
         Some(r) => r.split_once(") ")?.1,
         None => rest,
     };
-    ["done:", "failed:", "stopped:"]
+    ["done:", "failed:", "stopped:", "interrupted:"]
         .iter()
         .any(|w| rest.starts_with(w))
         .then_some(id)
@@ -791,6 +791,10 @@ mod tests {
     fn end_entries_are_told_from_others() {
         assert_eq!(end_of("order 3 (dikdroog) done: einde"), Some(3));
         assert_eq!(end_of("order 12 failed: halted (written late)"), Some(12));
+        assert_eq!(
+            end_of("order 98 (dundroog) interrupted: the cell kept no end"),
+            Some(98)
+        );
         assert_eq!(end_of("order 3 (dikdroog) started"), None);
         assert_eq!(end_of("order 3 (dikdroog) not started: no"), None);
     }

@@ -15,9 +15,10 @@ use falc_control::controller::{Controller, Device, Output as CtlOutput};
 use falc_control::coordination::{self, Awaiting, Reply, Stations};
 use falc_control::order_list::{OrderList, Output as ListOutput, Ticket, CELL_LIMIT};
 use falc_control::pass_on::{PassOn, Todo};
-use falc_control::recipe_source::{Delivery, RecipeSource};
+use falc_control::recipe_source::{Delivery, RecipeSet, RecipeSource};
 use falc_control::records::memory::Memory;
 use falc_control::records::shared::{plant, Shared};
+use falc_control::records::Records;
 use falc_dnc::procedure::{Link as DncLink, Priority, Timing};
 use falc_dnc::robot::Robot;
 use falc_dnc::telegram::Mode;
@@ -110,6 +111,34 @@ pub struct TransportNode {
     status: Option<VmdStatus>,
 }
 
+/// The operator's order list as `falc-operator` starts it.
+fn order_list(view: Shared, source: Shipped, set: RecipeSet) -> OrderList<Shared, Shipped> {
+    OrderList::new(
+        station(Node::Operator),
+        station(Node::Cell),
+        source.topology().clone(),
+        view,
+        source,
+        set,
+    )
+}
+
+/// The cell controller as `falc-cell` starts it.
+fn cell_controller() -> Controller<Stations> {
+    Controller::new(
+        RecipeKind::Cell,
+        Duration::from_secs(10),
+        Stations::new(Some(station(Node::Operator))),
+    )
+    .named(station(Node::Cell))
+    .runs_on_alone(true)
+}
+
+/// The cell's pass-on, empty.
+fn cell_pass_on() -> PassOn<(Node, u64)> {
+    PassOn::new(vec![station(Node::Welding), station(Node::Transport)])
+}
+
 fn welding_node(now: Duration, timing: Timing) -> WeldingNode {
     let mut device = Welding::new("sim-serial", &timing);
     device.opened(now);
@@ -148,6 +177,9 @@ fn station(n: Node) -> StationName {
 }
 
 /// What a station not associated with its commander answers.
+/// What a console hears while the operator's process is down.
+const NO_OPERATOR: &str = "no connection with the operator";
+
 fn not_associated(n: Node) -> ServiceError {
     ServiceError::state_conflict(format!(
         "{n} refused: no associated commander (Initiate first)"
@@ -205,6 +237,12 @@ pub struct World {
     pub records: Rc<RefCell<Memory>>,
     /// The order list.
     pub list: OrderList<Shared, Shipped>,
+    /// A second handle on the records and the recipe store, for an
+    /// operator started again.
+    durable: (Shared, Shipped),
+    /// Console requests up to this ticket that were not answered when the
+    /// operator died are refused (its API went with it).
+    lost_before: u64,
     tickets: u64,
     /// Console answers not taken yet.
     replies: BTreeMap<Ticket, ApiResult>,
@@ -256,26 +294,14 @@ impl World {
         let mut views = plant(&[topology.cell().as_str()]);
         let view = views.pop().ok_or("no records")?;
         let records = view.all.clone();
-        let list = OrderList::new(
-            station(Node::Operator),
-            station(Node::Cell),
-            topology.clone(),
-            view,
-            source,
-            set,
-        );
+        let durable = (view.clone(), source.clone());
+        let list = order_list(view, source, set);
         let timing = Timing::default();
         let home: Vec<Spot> = HOME.iter().filter_map(|s| Spot::parse(s)).collect();
         let conveyor = Conveyor::new(&home, time_scale)?;
         let now = Duration::ZERO;
         let transport = transport_node(now, conveyor.coils());
-        let cell = Controller::new(
-            RecipeKind::Cell,
-            Duration::from_secs(10),
-            Stations::new(Some(station(Node::Operator))),
-        )
-        .named(station(Node::Cell))
-        .runs_on_alone(true);
+        let cell = cell_controller();
         let mut w = Self {
             now,
             steps: 0,
@@ -283,20 +309,19 @@ impl World {
             bus: Bus::new(link),
             records,
             list,
+            durable,
+            lost_before: 0,
             tickets: 0,
             replies: BTreeMap::new(),
             indications: BTreeMap::new(),
             cell,
-            pass: PassOn::new(vec![station(Node::Welding), station(Node::Transport)]),
+            pass: cell_pass_on(),
             cell_status: None,
             cell_associated: false,
             lease: topology.lease(),
             welding: welding_node(now, timing),
             transport,
-            ups: [Node::Welding, Node::Transport]
-                .into_iter()
-                .map(|n| (n, Up::default()))
-                .collect(),
+            ups: Node::ALL.into_iter().map(|n| (n, Up::default())).collect(),
             rcm: RcmTwin::new(Robot::new(Mode::AutomaticExternal, time_scale), timing),
             wire: VecDeque::new(),
             plugged: true,
@@ -335,6 +360,9 @@ impl World {
         let t = Ticket(self.tickets);
         self.note(format!("console {user}: {request:?}"));
         match StationName::new(user) {
+            Ok(_) if !self.is_running(Node::Operator) => {
+                self.replies.insert(t, Err(NO_OPERATOR.into()));
+            }
             Ok(u) => self.list.handle_api(self.now, t, &u, request),
             Err(e) => {
                 self.replies.insert(t, Err(e.to_string()));
@@ -346,10 +374,12 @@ impl World {
 
     /// The answer to console request `t`, once it came.
     pub fn reply(&mut self, t: Ticket) -> Option<ApiResult> {
-        self.replies.remove(&t)
+        self.replies
+            .remove(&t)
+            .or_else(|| (t.0 <= self.lost_before).then(|| Err(NO_OPERATOR.into())))
     }
 
-    /// Whether `n`'s process runs (only a workstation's crashes).
+    /// Whether `n`'s process runs.
     pub fn is_running(&self, n: Node) -> bool {
         self.ups.get(&n).map_or(true, |u| u.running)
     }
@@ -363,8 +393,12 @@ impl World {
     fn next_due(&self) -> Option<Duration> {
         let mut t = [
             self.bus.poll_timeout(),
-            self.list.poll_timeout(),
-            self.cell.poll_timeout(),
+            self.list
+                .poll_timeout()
+                .filter(|_| self.is_running(Node::Operator)),
+            self.cell
+                .poll_timeout()
+                .filter(|_| self.is_running(Node::Cell)),
             self.welding.ctl.poll_timeout(),
             self.welding.link.poll_timeout(),
             self.rcm.poll_timeout(),
@@ -422,10 +456,10 @@ impl World {
             }
         }
         // Clocks.
-        if self.list.poll_timeout().is_some_and(|t| t <= now) {
+        if self.is_running(Node::Operator) && self.list.poll_timeout().is_some_and(|t| t <= now) {
             self.list.handle_timeout(now);
         }
-        if self.cell.poll_timeout().is_some_and(|t| t <= now) {
+        if self.is_running(Node::Cell) && self.cell.poll_timeout().is_some_and(|t| t <= now) {
             self.cell.handle_timeout(now);
         }
         if self.welding.ctl.poll_timeout().is_some_and(|t| t <= now) {
@@ -550,6 +584,9 @@ impl World {
     }
 
     fn pump_list(&mut self) {
+        if !self.is_running(Node::Operator) {
+            return;
+        }
         while let Some(out) = self.list.poll_output() {
             match out {
                 ListOutput::Cell(call) => {
@@ -583,6 +620,9 @@ impl World {
     }
 
     fn pump_cell(&mut self) -> bool {
+        if !self.is_running(Node::Cell) {
+            return false;
+        }
         let mut any = false;
         loop {
             self.cell.settle(self.now);
@@ -741,6 +781,15 @@ impl World {
                     self.confirm(p.waiter, result);
                 }
             }
+            // A dead process's queryables went with its session: the
+            // router ends a query to it at once, with no reply.
+            (to, Msg::Request { id, .. } | Msg::Deliver { id, .. }) if !self.is_running(to) => {
+                if let Some(p) = self.pending.remove(&id) {
+                    let e = ServiceError::unreachable(format!("no reply from {to}"));
+                    self.confirm(p.waiter, Err(e));
+                }
+            }
+            (to, _) if !self.is_running(to) => {}
             (Node::Operator, Msg::Publish(u)) => self.list.handle_publication(now, u),
             (Node::Cell, Msg::Publish(u)) => {
                 let events = self.cell.device.unconfirmed(&u);
@@ -769,8 +818,6 @@ impl World {
                     .downloaded((a.from, id), &delivery.domain, self.cell.vmd()),
                 Err(e) => self.respond(Node::Cell, a.from, id, Err(e)),
             },
-            // A dead process answers nothing: the request runs out of time.
-            (ws, Msg::Request { .. }) if !self.is_running(ws) => {}
             (ws @ (Node::Welding | Node::Transport), Msg::Request { id, request }) => {
                 let result = self.workstation_indication(ws, &request);
                 self.respond(ws, a.from, id, result);
@@ -1075,32 +1122,109 @@ impl World {
         self.wire.push_back((at, false, bytes));
     }
 
-    /// Workstation `ws`'s process dies: only the twins' state survives.
-    pub fn crash(&mut self, ws: Node) {
-        self.note(format!("{ws}: process killed"));
-        self.ups.entry(ws).or_default().running = false;
+    /// Node `n`'s process dies (a workstation or the cell): only the
+    /// twins' state survives.
+    pub fn crash(&mut self, n: Node) {
+        self.note(format!("{n}: process killed"));
+        self.ups.entry(n).or_default().running = false;
         let now = self.now;
+        if n == Node::Operator {
+            // Its requests out, its indications and its API go with it;
+            // the router ends the cell's queries to it; the cell runs its
+            // order on alone.
+            self.pending
+                .retain(|_, p| !matches!(p.waiter, Waiter::List));
+            self.indications.clear();
+            self.lost_before = self.tickets;
+            self.finalize(Node::Operator);
+            if self.cell_associated {
+                self.cell_associated = false;
+                if self.is_running(Node::Cell) {
+                    self.cell
+                        .handle_abort(now, &station(Node::Operator), Role::Commander);
+                }
+            }
+            self.pump();
+            return;
+        }
         // Its liveliness token goes with its session: seen at once.
-        self.list.handle_presence(now, station(ws), false);
-        self.finalize(ws);
-        self.drop_workstation(ws);
+        self.list.handle_presence(now, station(n), false);
+        if n == Node::Cell {
+            // Its requests out die with it.
+            self.pending
+                .retain(|_, p| !matches!(p.waiter, Waiter::Cell(_)));
+            self.lost(Node::Cell);
+        } else {
+            self.finalize(n);
+            self.drop_workstation(n);
+        }
         self.pump();
     }
 
-    /// Workstation `ws` starts again, empty.
-    pub fn restart(&mut self, ws: Node) {
+    /// Node `n` starts again: empty, but for the operator's records.
+    pub fn restart(&mut self, n: Node) {
         let now = self.now;
-        self.note(format!("{ws}: process started again"));
-        match ws {
+        self.note(format!("{n}: process started again"));
+        match n {
             Node::Welding => {
                 self.welding = welding_node(now, self.timing);
                 self.wire.retain(|w| w.1);
             }
-            _ => self.transport = transport_node(now, self.conveyor.coils()),
+            Node::Cell => {
+                self.cell = cell_controller();
+                self.pass = cell_pass_on();
+                self.cell_status = None;
+                self.cell_associated = false;
+            }
+            Node::Operator => {
+                self.restart_operator();
+                return;
+            }
+            Node::Transport => self.transport = transport_node(now, self.conveyor.coils()),
         }
-        self.ups.insert(ws, Up::default());
-        if self.bus.reachable(Node::Operator, ws) {
-            self.list.handle_presence(now, station(ws), true);
+        self.ups.insert(n, Up::default());
+        if self.bus.reachable(Node::Operator, n) {
+            self.list.handle_presence(now, station(n), true);
+        }
+        self.pump();
+    }
+
+    /// The operator starts again on its records: the order they hold as
+    /// running is adopted (the cell is asked how it ended), as
+    /// `falc-operator` does at start.
+    fn restart_operator(&mut self) {
+        let now = self.now;
+        let (mut view, source) = self.durable.clone();
+        let recovered = match view.recover(&[source.topology().cell().as_str()]) {
+            Ok(r) => r,
+            Err(e) => {
+                // The real node exits and is started again; here it
+                // starts with nothing adopted, and says so.
+                self.note(format!("operator: cannot recover: {e}"));
+                Default::default()
+            }
+        };
+        let set = match source.load() {
+            Ok(set) => set,
+            Err(problems) => {
+                self.note(format!(
+                    "operator: recipes refused: {}",
+                    problems.join("; ")
+                ));
+                return;
+            }
+        };
+        let mut list = order_list(view, source, set);
+        if let Some(o) = recovered.adopted.into_iter().next() {
+            self.note(format!("operator: adopted order {}", o.id));
+            list = list.adopting(o);
+        }
+        self.list = list;
+        self.ups.insert(Node::Operator, Up::default());
+        for s in [Node::Cell, Node::Welding, Node::Transport] {
+            if self.bus.reachable(Node::Operator, s) && self.is_running(s) {
+                self.list.handle_presence(now, station(s), true);
+            }
         }
         self.pump();
     }
