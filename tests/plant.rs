@@ -287,17 +287,18 @@ async fn a_session_claiming_the_factory_routers_id_is_closed() {
     drop(factory);
     // Refused as a second transport of that id until the cell router
     // noticed the cut; then admitted by zenoh and closed by FALC, named.
+    let closed_line = format!("(zenoh id {id}) closed");
     let forged = std::cell::RefCell::new(Vec::new());
     let cell_router = std::cell::RefCell::new(&mut plant.routers[0]);
     let line = wait_until_async(
         "the cell router closes the forged session and names it",
         plant.plant.lease() * 3 + Duration::from_secs(5),
         || {
-            let (forged, cell_router) = (&forged, &cell_router);
+            let (forged, cell_router, closed_line) = (&forged, &cell_router, &closed_line);
             async move {
                 let attempt = forge().await;
                 forged.borrow_mut().push(attempt);
-                let closed = cell_router.borrow_mut().wait_line("closed", POLL);
+                let closed = cell_router.borrow_mut().wait_line(closed_line, POLL);
                 closed.ok_or("no close logged")
             }
         },
