@@ -396,8 +396,7 @@ impl Records for Database {
     /// associated), with a journal entry; every other becomes interrupted,
     /// with a journal entry.
     fn recover(&mut self, cells: &[&str]) -> Result<Recovered, DatabaseError> {
-        let running = self.orders_in(OrderState::Running)?;
-        let recovered = recovery(running, cells);
+        let recovered = recovery(self.running_orders()?, cells);
         let now = now_ms();
         let tx = self.conn.transaction().map_err(|source| DatabaseError {
             path: self.path.clone(),
@@ -481,6 +480,10 @@ impl Records for Database {
     }
 
     /// Every order, in list order.
+    fn running_orders(&self) -> Result<Vec<Order>, Self::Error> {
+        self.orders_in(OrderState::Running)
+    }
+
     fn orders(&self) -> Result<Vec<Order>, Self::Error> {
         let mut st = self
             .conn

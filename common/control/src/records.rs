@@ -152,16 +152,20 @@ pub trait Records {
     /// computed from.
     fn figure_inputs(&self, since: i64, until: i64) -> Result<FigureInputs, Self::Error>;
 
+    /// The orders marked running (of any cell).
+    fn running_orders(&self) -> Result<Vec<Order>, Self::Error> {
+        Ok(self
+            .orders()?
+            .into_iter()
+            .filter(|o| o.state == OrderState::Running)
+            .collect())
+    }
+
     /// An operator node starting again: the orders its records hold as
     /// running are adopted or interrupted as [`recovery`] says, and
     /// journalled so. The SQLite records do it in one transaction.
     fn recover(&mut self, cells: &[&str]) -> Result<Recovered, Self::Error> {
-        let running = self
-            .orders()?
-            .into_iter()
-            .filter(|o| o.state == OrderState::Running)
-            .collect();
-        let r = recovery(running, cells);
+        let r = recovery(self.running_orders()?, cells);
         for o in &r.adopted {
             self.journal(EntryKind::Order, Some(o.id), "operator", &adopted_text(o))?;
         }
@@ -340,6 +344,15 @@ pub mod memory {
         }
         fn orders(&self) -> Result<Vec<Order>, String> {
             Ok(self.orders.clone())
+        }
+        fn running_orders(&self) -> Result<Vec<Order>, String> {
+            Ok(self
+                .live
+                .iter()
+                .filter_map(|id| self.order(*id))
+                .filter(|o| o.state == OrderState::Running)
+                .cloned()
+                .collect())
         }
         fn next_queued(&self, cell: &str) -> Result<Option<Order>, String> {
             Ok(self
@@ -684,6 +697,9 @@ pub mod shared {
         }
         fn orders(&self) -> Result<Vec<Order>, String> {
             self.all.borrow().orders()
+        }
+        fn running_orders(&self) -> Result<Vec<Order>, String> {
+            self.all.borrow().running_orders()
         }
         fn next_queued(&self, cell: &str) -> Result<Option<Order>, String> {
             self.all.borrow().next_queued(cell)
