@@ -7,8 +7,9 @@
 
 use crate::support::rig::{rig, rig_with_db, Rig};
 use crate::support::wait::wait_until;
-use falc_model::console::{EntryKind, ListState, OrderState};
+use falc_model::console::{Entry, EntryKind, ListState, OrderState};
 use falc_model::mms::vmd::{RobotStatusDetail, RobotVmdState};
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -31,22 +32,47 @@ fn robot_detail(rig: &Rig) -> Option<RobotStatusDetail> {
         .and_then(|s| s.additional)
 }
 
-/// The kinds of `entries` from the first order's start on (what comes
-/// before is the start-up, whose order the processes' timing decides).
-fn kinds_from_the_first_start(entries: &[EntryKind], texts: &[String]) -> Vec<EntryKind> {
+/// `entries` from the first order's start on (what comes before is the
+/// start-up, whose order the processes' timing decides): the operator's,
+/// the cell's and the console's entry kinds in one sequence; and each
+/// workstation's lines of order `then` (the one after the way back) in a
+/// sequence of its own, but for carriers arriving. The two workstations
+/// run at once: how their lines interleave with each other and the cell's
+/// is timing, and so is how far they got when the fault came; what each
+/// does in an order run without a fault, and in which order, is not.
+fn from_the_first_start(
+    entries: &[Entry],
+    then: i64,
+) -> (Vec<EntryKind>, BTreeMap<String, Vec<String>>) {
     let first = entries
         .iter()
-        .zip(texts)
-        .position(|(k, t)| *k == EntryKind::Order && t.ends_with(" started"))
+        .position(|e| e.kind == EntryKind::Order && e.text.ends_with(" started"))
         .unwrap_or(entries.len());
-    entries[first..].to_vec()
+    let mut kinds = Vec::new();
+    let mut stations: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    for e in &entries[first..] {
+        if e.kind == EntryKind::Report && ["welding", "transport"].contains(&e.who.as_str()) {
+            // Carriers set home by hand arrive when the node next reads
+            // its inputs: before the order's start or after, as it falls.
+            if e.order == Some(then) && !e.text.starts_with("carrier arrived") {
+                stations
+                    .entry(e.who.clone())
+                    .or_default()
+                    .push(e.text.clone());
+            }
+        } else {
+            kinds.push(e.kind);
+        }
+    }
+    (kinds, stations)
 }
 
 /// The simulation (`falc-sim`, one process on a virtual clock) and the
 /// whole cell (these processes, real time) take the same scenario alike:
 /// an emergency stop of the robot mid-weld, the cause cleared, carriers
-/// home, `ack`, `start`, the next order done. Both journals show the same
-/// sequence of entry kinds from the first order's start.
+/// home, `ack`, `start`, the next order done. From the first order's start
+/// both journals show the same sequence of entry kinds, and each
+/// workstation the same lines ([`from_the_first_start`]).
 #[test]
 fn the_simulation_and_the_whole_cell_journal_an_estop_mid_weld_alike() {
     let mut rig = rig("20");
@@ -64,9 +90,7 @@ fn the_simulation_and_the_whole_cell_journal_an_estop_mid_weld_alike() {
     rig.way_back();
     let journal = rig.journal(None);
     assert_eq!(rig.orders()[1].state, OrderState::Done, "{journal:#?}");
-    let kinds: Vec<EntryKind> = journal.iter().map(|e| e.kind).collect();
-    let texts: Vec<String> = journal.iter().map(|e| e.text.clone()).collect();
-    let cell = kinds_from_the_first_start(&kinds, &texts);
+    let (cell, cell_stations) = from_the_first_start(&journal, 2);
 
     let sim = falc_sim::Run::new(falc_sim::Config {
         orders: 2,
@@ -81,15 +105,7 @@ fn the_simulation_and_the_whole_cell_journal_an_estop_mid_weld_alike() {
     .and_then(|r| r.run().map_err(|v| v.to_string()))
     .unwrap_or_else(|e| panic!("the simulation: {e}"));
     assert_eq!((sim.done, sim.failed), (1, 1), "{sim}");
-    let texts: Vec<String> = sim
-        .lines
-        .iter()
-        .map(|l| {
-            l.split_once(": ")
-                .map_or(String::new(), |(_, t)| t.to_string())
-        })
-        .collect();
-    let simulated = kinds_from_the_first_start(&sim.kinds, &texts);
+    let (simulated, simulated_stations) = from_the_first_start(&sim.entries, 2);
     // Both orders with their questions, the stop's alarms and the ack.
     for (kind, at_least) in [
         (EntryKind::Order, 4),
@@ -103,6 +119,18 @@ fn the_simulation_and_the_whole_cell_journal_an_estop_mid_weld_alike() {
     assert_eq!(
         simulated,
         cell,
+        "the simulation's journal:\n{}\nthe cell's:\n{journal:#?}",
+        sim.lines.join("\n")
+    );
+    // Each workstation said what it did in the order after the way back,
+    // alike.
+    assert_eq!(
+        simulated_stations.keys().collect::<Vec<_>>(),
+        ["transport", "welding"]
+    );
+    assert_eq!(
+        simulated_stations,
+        cell_stations,
         "the simulation's journal:\n{}\nthe cell's:\n{journal:#?}",
         sim.lines.join("\n")
     );

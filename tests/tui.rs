@@ -164,6 +164,34 @@ fn an_operator_runs_dikdroog_from_the_tui() {
     );
     assert!(!s.contains("ALARM"), "{s}");
 
+    // F2 → →: each workstation's pane tells what it did, job by job.
+    tmux.keys(&["F2", "Right"]);
+    tmux.wait_for(
+        &[
+            "messages of welding",
+            "job DROOG_DIK started",
+            "robot program 65 started",
+            "robot program 65 ended: complete",
+            "job DROOG_DIK ended: done",
+        ],
+        Duration::from_secs(10),
+    );
+    tmux.keys(&["Right"]);
+    tmux.wait_for(
+        &[
+            "messages of transport",
+            " runs",
+            "carrier arrived at W",
+            "ended: done",
+        ],
+        Duration::from_secs(10),
+    );
+    // The same from the command line, one station's.
+    let (code, welding) = cell.falc_as("console", &["messages", "--station", "welding"]);
+    assert_eq!(code, 0, "{welding}");
+    assert!(welding.contains("robot program 65 started"), "{welding}");
+    assert!(!welding.contains("carrier arrived"), "{welding}");
+
     // The journal has the answer by the TUI's user.
     let (code, journal) = cell.falc_as("console", &["journal", "--order", "1"]);
     assert_eq!(code, 0, "{journal}");

@@ -19,7 +19,7 @@ use crate::watch::{follow, watch};
 use falc_bus::operator_service::CallError;
 use falc_bus::Bus;
 use falc_model::alarm::Alarm;
-use falc_model::console::{ApiReply, ApiRequest, Placement, RecipeFile};
+use falc_model::console::{ApiReply, ApiRequest, Entry, Placement, RecipeFile};
 use falc_model::ids::printable;
 use falc_model::ids::CellId;
 use falc_model::ids::StationName;
@@ -260,7 +260,10 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
             };
             return crate::tui::run(&bus, &operator, shown, args.user.clone()).await;
         }
-        CellCommand::Messages { follow: true } => return follow(&bus, &operator, json).await,
+        CellCommand::Messages {
+            follow: true,
+            station,
+        } => return follow(&bus, &operator, json, station.as_ref()).await,
         CellCommand::Status { watch: false } => ApiRequest::Status,
         CellCommand::Order(OrderCommand::Add {
             recipe,
@@ -293,18 +296,28 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
             return alarms(&bus, &operator, station.as_ref(), json).await
         }
         CellCommand::Answer { text } => ApiRequest::Answer { text },
-        CellCommand::Messages { follow: false } => {
-            return all_entries(&bus, &operator, json, |after| ApiRequest::Messages {
+        CellCommand::Messages {
+            follow: false,
+            station,
+        } => {
+            let keep = |e: &Entry| station.as_ref().map_or(true, |s| e.who == s.as_str());
+            return all_entries(&bus, &operator, json, keep, |after| ApiRequest::Messages {
                 after,
             })
-            .await
+            .await;
         }
         CellCommand::Journal { order } => {
-            return all_entries(&bus, &operator, json, |after| ApiRequest::Journal {
-                order,
-                after,
-                last: None,
-            })
+            return all_entries(
+                &bus,
+                &operator,
+                json,
+                |_| true,
+                |after| ApiRequest::Journal {
+                    order,
+                    after,
+                    last: None,
+                },
+            )
             .await
         }
         CellCommand::Shutdown => ApiRequest::Shutdown,
@@ -365,11 +378,12 @@ async fn all_entries(
     bus: &Bus,
     operator: &StationName,
     json: bool,
+    keep: impl Fn(&Entry) -> bool,
     request: impl Fn(i64) -> ApiRequest,
 ) -> ExitCode {
     let mut all = Vec::new();
     loop {
-        let after = all.last().map_or(0, |e: &falc_model::console::Entry| e.id);
+        let after = all.last().map_or(0, |e: &Entry| e.id);
         match bus.api(operator, request(after), CALL_LIMIT).await {
             Ok(ApiReply::Entries(page)) if page.is_empty() => break,
             Ok(ApiReply::Entries(page)) => all.extend(page),
@@ -383,6 +397,7 @@ async fn all_entries(
             }
         }
     }
+    all.retain(|e| keep(e));
     print(&ApiReply::Entries(all), json);
     ExitCode::SUCCESS
 }

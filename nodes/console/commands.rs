@@ -61,6 +61,10 @@ pub enum CellCommand {
         /// Keep showing new messages, until Ctrl-C.
         #[arg(long)]
         follow: bool,
+        /// Only this station's messages (its pane of `falc tui`): a
+        /// workstation's jobs, robot programs, line runs and reports.
+        #[arg(long)]
+        station: Option<StationName>,
     },
     /// The journal: orders, alarms, messages, every operator action.
     Journal {

@@ -67,13 +67,21 @@ pub(crate) async fn watch(bus: &Bus, operator: &StationName, json: bool) -> Exit
     poll(bus, operator, None, |_| ApiRequest::Status, show).await
 }
 
-/// `messages --follow`: every new message, one per line.
-pub(crate) async fn follow(bus: &Bus, operator: &StationName, json: bool) -> ExitCode {
+/// `falc messages --follow`: new messages as they come, of `station`
+/// only if given.
+pub(crate) async fn follow(
+    bus: &Bus,
+    operator: &StationName,
+    json: bool,
+    station: Option<&StationName>,
+) -> ExitCode {
     let show = |after: &mut i64, reply: ApiReply| match reply {
         ApiReply::Entries(v) => {
             for e in v {
                 *after = (*after).max(e.id);
-                print(&ApiReply::Entries(vec![e]), json);
+                if station.map_or(true, |s| e.who == s.as_str()) {
+                    print(&ApiReply::Entries(vec![e]), json);
+                }
             }
         }
         other => print(&other, json),

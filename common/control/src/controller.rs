@@ -66,7 +66,7 @@ pub enum Happening<'a> {
 
 /// A level's device, as its recipes see it: what happens goes in through
 /// [`Device::handle`] with the time, what the device raises comes out
-/// through [`Device::poll_alarm`], and it is asked why it cannot start,
+/// through [`Device::poll_report`], and it is asked why it cannot start,
 /// whether it settles and what it adds to the status. Commands to the
 /// device's own link (a serial telegram, a coil write) leave through the
 /// device's own `poll_*`, which its driver calls.
@@ -96,10 +96,12 @@ pub trait Device {
     fn poll_timeout(&self) -> Option<Duration> {
         None
     }
-    /// An alarm the device raised that no recipe step owns (a lost line
-    /// while idle, a program found running that nobody started): reported
-    /// once, when the controller settles.
-    fn poll_alarm(&mut self) -> Option<Cause> {
+    /// What the device tells the operator, reported when the controller
+    /// settles, in order: what it does (a robot program started or ended,
+    /// the robot's information messages, a conveyor line run, a carrier
+    /// arriving), and alarms no recipe step owns (a lost line while idle,
+    /// a program found running that nobody started).
+    fn poll_report(&mut self) -> Option<(Severity, String)> {
         None
     }
     /// A manual operation (maintenance mode, no recipe running; the
@@ -393,8 +395,8 @@ impl<D: Device> Controller<D> {
                 });
             }
         }
-        while let Some(cause) = self.device.poll_alarm() {
-            self.report(Severity::Alarm(cause.class), cause.text);
+        while let Some((severity, text)) = self.device.poll_report() {
+            self.report(severity, text);
         }
     }
 
@@ -874,8 +876,9 @@ mod tests {
         fn poll_timeout(&self) -> Option<Duration> {
             self.supervise_at
         }
-        fn poll_alarm(&mut self) -> Option<Cause> {
-            self.alarms.pop_front()
+        fn poll_report(&mut self) -> Option<(Severity, String)> {
+            let c = self.alarms.pop_front()?;
+            Some((Severity::Alarm(c.class), c.text))
         }
         fn manual(&mut self, _now: Duration, action: &ManualAction) -> Result<String, String> {
             self.manual.push(action.clone());

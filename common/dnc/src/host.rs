@@ -382,7 +382,10 @@ impl Host {
                 self.pending = None;
                 self.running = Some(p);
                 self.asked = None;
-                vec![Out::Engine(Event::Started(rcm))]
+                vec![
+                    Out::Engine(Event::Started(rcm)),
+                    Out::Info(format!("robot program {} started", p.number())),
+                ]
             }
             (Telegram::Ack { of, error: Some(e) }, Some(step))
                 if of
@@ -407,13 +410,19 @@ impl Host {
             }
             (Telegram::Ack { .. }, _) => Vec::new(),
             (Telegram::ProgramEnd { result, .. }, _) => {
-                self.running = None;
+                let ended = self.running.take();
                 self.by_hand = false;
-                let end = match result {
-                    EndResult::Complete => JobEnd::Done,
-                    EndResult::WeldAborted => JobEnd::BadProduct,
+                let (end, word) = match result {
+                    EndResult::Complete => (JobEnd::Done, "complete"),
+                    EndResult::WeldAborted => (JobEnd::BadProduct, "weld aborted"),
                 };
                 let mut out = Vec::new();
+                if let Some(p) = ended {
+                    out.push(Out::Info(format!(
+                        "robot program {} ended: {word}",
+                        p.number()
+                    )));
+                }
                 if let Some(mode) = self.mode {
                     out.push(Out::Detail(alarms::status_detail(
                         ProgramState::Selected,
@@ -615,7 +624,10 @@ mod tests {
         );
         assert_eq!(
             h.telegram(s(0), ack(b'G')),
-            vec![Out::Engine(Event::Started(rcm()))]
+            vec![
+                Out::Engine(Event::Started(rcm())),
+                Out::Info("robot program 65 started".into())
+            ]
         );
         assert_eq!(h.running(), Some(p));
         let out = h.telegram(
@@ -626,6 +638,10 @@ mod tests {
             },
         );
         assert_eq!(ended(&out), Some(&JobEnd::Done));
+        assert!(
+            out.contains(&Out::Info("robot program 65 ended: complete".into())),
+            "{out:?}"
+        );
         assert_eq!(h.running(), None);
         assert_eq!(h.poll_timeout(), None, "nothing to supervise");
     }

@@ -5,13 +5,15 @@
 //! its 3964R task, the simulation to its in-memory line); what the link
 //! reports comes in through [`Welding::link_event`], [`Welding::opened`]
 //! and [`Welding::closed`]. Alarms no job owns (a lost line while idle, a
-//! program nobody started) go up through [`Device::poll_alarm`].
+//! program nobody started) go up through [`Device::poll_report`], with what
+//! the robot does: each program started and ended, its information
+//! messages.
 
 use crate::host::{Host, Out};
 use crate::procedure::{LinkEvent, Timing};
 use crate::telegram::Telegram;
 use falc_control::controller::{Device, Happening};
-use falc_model::alarm::Cause;
+use falc_model::mms::pdu::Severity;
 use falc_model::mms::vmd::{PhysicalStatus, RobotStatusDetail, VmdStatus};
 use falc_model::mode::ManualAction;
 use falc_recipe::check::Job;
@@ -33,9 +35,9 @@ pub struct Welding {
     /// Telegrams for the line, oldest first ([`Welding::poll_telegram`]).
     outbox: VecDeque<Telegram>,
     detail: Option<RobotStatusDetail>,
-    /// Alarms no job owns (a lost line while idle, a program found
-    /// running nobody's), not yet reported.
-    alarms: VecDeque<Cause>,
+    /// What the robot did and alarms no job owns (a lost line while idle,
+    /// a program found running nobody's), not yet reported.
+    reports: VecDeque<(Severity, String)>,
 }
 
 impl Welding {
@@ -46,7 +48,7 @@ impl Welding {
             host: Host::new(line, timing),
             outbox: VecDeque::new(),
             detail: None,
-            alarms: VecDeque::new(),
+            reports: VecDeque::new(),
         }
     }
 
@@ -87,10 +89,14 @@ impl Welding {
                 }
                 Out::Engine(ev) => out.push(ev),
                 Out::Detail(d) => self.detail = Some(d),
-                Out::Info(text) => tracing::info!("{text}"),
-                Out::Alarm(text) => {
-                    tracing::warn!("{text}");
-                    self.alarms.push_back(text);
+                Out::Info(text) => {
+                    tracing::info!("{text}");
+                    self.reports.push_back((Severity::Info, text));
+                }
+                Out::Alarm(cause) => {
+                    tracing::warn!("{cause}");
+                    self.reports
+                        .push_back((Severity::Alarm(cause.class), cause.text));
                 }
             }
         }
@@ -218,8 +224,8 @@ impl Device for Welding {
         self.host.poll_timeout()
     }
 
-    fn poll_alarm(&mut self) -> Option<Cause> {
-        self.alarms.pop_front()
+    fn poll_report(&mut self) -> Option<(Severity, String)> {
+        self.reports.pop_front()
     }
 
     fn status(&self, status: &mut VmdStatus) {

@@ -40,6 +40,8 @@
 use crate::map::{Coil, Input, Inputs, SignalName, COILS};
 use falc_control::controller::{Device, Happening};
 use falc_model::alarm::{AlarmClass, Cause};
+use falc_model::ids::Place;
+use falc_model::mms::pdu::Severity;
 use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
 use falc_model::mode::{CellMode, ManualAction};
 use falc_recipe::check::{Button, Signal};
@@ -116,6 +118,9 @@ pub struct Plc {
     busy: bool,
     /// A line a maintainer runs by hand, and when it is released.
     manual_line: Option<(char, Duration)>,
+    /// What the conveyor did (a line run, a carrier arriving), not yet
+    /// reported ([`Device::poll_report`]).
+    reports: VecDeque<(Severity, String)>,
 }
 
 impl Plc {
@@ -134,6 +139,7 @@ impl Plc {
             last_line: None,
             busy: false,
             manual_line: None,
+            reports: VecDeque::new(),
         }
     }
 
@@ -230,6 +236,17 @@ impl Plc {
     fn inputs(&mut self, inputs: Inputs, commands_done: u64) -> (Vec<Event>, Option<Cause>) {
         let before = self.inputs.replace(inputs);
         self.inputs_after = commands_done;
+        // A carrier arriving: a place sensor lighting (an edge, not every
+        // poll; not the first reading, which finds carriers standing).
+        if let Some(b) = before {
+            for p in Place::all() {
+                let s = Signal::Place(p);
+                if inputs.signal(s) && !b.signal(s) {
+                    self.reports
+                        .push_back((Severity::Info, format!("carrier arrived at W{p}")));
+                }
+            }
+        }
         let mut events = Vec::new();
         if self.watch_met() {
             self.watch = None;
@@ -320,7 +337,13 @@ impl Plc {
     fn act(&mut self, now: Duration, action: Action, out: &mut Vec<Event>) {
         self.pace(true);
         match action {
-            Action::Activate(b) => self.write(b, true),
+            Action::Activate(b) => {
+                if let Button::Line(l) = b {
+                    self.reports
+                        .push_back((Severity::Info, format!("line {l} runs")));
+                }
+                self.write(b, true)
+            }
             Action::Reset(b) => self.write(b, false),
             Action::Watch { signal, level } => {
                 self.watch = Some(Watch {
@@ -411,6 +434,10 @@ impl Device for Plc {
             return Some(format!("the conveyor PLC at {} is not ready", self.address));
         }
         None
+    }
+
+    fn poll_report(&mut self) -> Option<(Severity, String)> {
+        self.reports.pop_front()
     }
 
     fn manual(&mut self, now: Duration, action: &ManualAction) -> Result<String, String> {
@@ -544,6 +571,31 @@ mod tests {
         let mut out = Vec::new();
         p.handle(Duration::from_secs(now), Happening::Act(a), &mut out);
         out
+    }
+
+    #[test]
+    fn a_line_run_and_a_carrier_arriving_are_reported_once_not_every_poll() {
+        let mut p = plc();
+        p.reading(ready(), 0);
+        act(&mut p, 0, Action::Activate(Button::Line('K')));
+        let mut at_w3 = ready();
+        at_w3.set(Input::Signal(Signal::Place(Place::of(3))), true);
+        for n in 1..=5 {
+            p.reading(at_w3, n);
+        }
+        let reports: Vec<(Severity, String)> = std::iter::from_fn(|| p.poll_report()).collect();
+        assert_eq!(
+            reports,
+            vec![
+                (Severity::Info, "line K runs".to_string()),
+                (Severity::Info, "carrier arrived at W3".to_string()),
+            ]
+        );
+        // A restarted node's first reading finds carriers standing: no
+        // arrival.
+        let mut fresh = plc();
+        fresh.reading(at_w3, 0);
+        assert_eq!(fresh.poll_report(), None);
     }
 
     #[test]

@@ -10,7 +10,7 @@ use falc_control::controller::Device;
 use falc_control::order_list::Ticket;
 use falc_dnc::robot::Control as Rcm;
 use falc_model::alarm::Alarm;
-use falc_model::console::{ApiRequest, EntryKind, ListState, Order, OrderState};
+use falc_model::console::{ApiRequest, Entry, EntryKind, ListState, Order, OrderState};
 use falc_model::ids::Place;
 use falc_model::mms::vmd::PhysicalStatus;
 use falc_plc::conveyor::{Control as Plc, Spot};
@@ -186,6 +186,8 @@ pub struct Summary {
     pub kinds: Vec<EntryKind>,
     /// The journal's lines (`order kind who: text`), if kept.
     pub lines: Vec<String>,
+    /// The journal's entries, if kept (for comparing runs).
+    pub entries: Vec<Entry>,
 }
 
 impl fmt::Display for Summary {
@@ -379,6 +381,7 @@ impl Run {
                     format!("{order:>5} {:?} {}: {}", e.kind, e.who, e.text)
                 })
                 .collect();
+            self.summary.entries = rec.journal.clone();
         }
         self.summary.done = rec
             .orders

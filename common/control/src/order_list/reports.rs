@@ -52,6 +52,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                         Err(e) => self.db_failed(&e),
                     }
                 }
+                let mut started = None;
                 if station != self.cell {
                     if let Some(p) = &status.program {
                         let known = self.open_jobs.get(&station).map(|(name, ..)| name);
@@ -59,11 +60,24 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                             let job =
                                 (p.name.clone(), self.db.now_ms(), self.order_of_message(now));
                             self.open_jobs.insert(station.clone(), job);
+                            started = Some(format!("job {} started", p.name));
                         }
                     }
                 }
                 self.statuses.insert(station.clone(), status);
                 self.settle_alarms(&station);
+                if let Some(text) = started {
+                    // Journalled as the station's own report (its pane).
+                    let severity = Severity::Info;
+                    self.publication(
+                        now,
+                        Unconfirmed::Report {
+                            station,
+                            severity,
+                            text,
+                        },
+                    );
+                }
             }
             Unconfirmed::Report { .. } if self.can_hold() => {
                 self.early.push(Early::Publication(u));
@@ -120,7 +134,8 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     }
 
     /// A workstation's job event: an end is kept in the records with the
-    /// order it is part of (pauses are not).
+    /// order it is part of (pauses are not) and journalled under the
+    /// station, as its start was.
     pub(super) fn workstation_job(
         &mut self,
         now: Duration,
@@ -151,9 +166,19 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             ended_ms: self.db.now_ms(),
             outcome,
         };
+        let text = format!("job {program} ended: {}", job.outcome);
         if let Err(e) = self.db.record_job(order, &job) {
             self.db_failed(&e);
         }
+        let severity = Severity::Info;
+        self.publication(
+            now,
+            Unconfirmed::Report {
+                station,
+                severity,
+                text,
+            },
+        );
     }
 
     /// A job event of the running order's program invocation.

@@ -187,6 +187,52 @@ fn said(out: &[Output], what: &str) -> bool {
 }
 
 #[test]
+fn a_workstation_s_job_start_and_end_are_journalled_under_it_with_the_order() {
+    use falc_model::mms::vmd::ProgramState;
+    let mut r = Rig::new();
+    r.add(1);
+    assert!(r.start().is_ok());
+    let status = |program: Option<&str>| Unconfirmed::Status {
+        station: st("welding"),
+        status: VmdStatus {
+            program: program.map(|p| ProgramState {
+                name: name(p),
+                state: 1,
+            }),
+            ..VmdStatus::default()
+        },
+    };
+    r.publish(status(Some("droog_dik")));
+    // Told again (a status put on every change): one line.
+    r.publish(status(Some("droog_dik")));
+    r.publish(Unconfirmed::Job {
+        station: st("welding"),
+        program: name("droog_dik"),
+        event: JobEvent::BadProduct,
+    });
+    r.publish(status(None));
+    let lines: Vec<(String, Option<i64>, String)> = r
+        .list
+        .records()
+        .journal
+        .iter()
+        .filter(|e| e.kind == EntryKind::Report)
+        .map(|e| (e.who.clone(), e.order, e.text.clone()))
+        .collect();
+    assert_eq!(
+        lines,
+        vec![
+            ("welding".into(), Some(1), "job DROOG_DIK started".into()),
+            (
+                "welding".into(),
+                Some(1),
+                "job DROOG_DIK ended: bad product".into()
+            ),
+        ]
+    );
+}
+
+#[test]
 fn a_start_associates_delivers_and_starts_and_status_is_answered_meanwhile() {
     let mut r = Rig::new();
     r.add(1);
