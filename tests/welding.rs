@@ -57,6 +57,29 @@ impl Rig {
     }
 }
 
+/// Stopping, the workstation closes the DNC link (`C`) before it lets go of
+/// the line, a running program stopped first (`H`); started again, it
+/// initiates DNC again (`I`). The twin logs each.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stopping_workstation_closes_the_dnc_link_and_a_new_one_initiates_it_again() {
+    let mut rig = rig("10").await;
+    rig.rcm.take_line("rx I", Duration::from_secs(10));
+    rig.load("droog_dik", &droog_dik()).await;
+    rig.start("droog_dik").await;
+    rig.rcm.take_line("rx G", Duration::from_secs(10));
+    rig.welding.terminate();
+    rig.welding
+        .expect_line("EVENT stopped", Duration::from_secs(15));
+    rig.rcm.take_line("rx H", Duration::from_secs(5));
+    rig.rcm.take_line("rx C", Duration::from_secs(5));
+    let _again = rig.cell.start_node(
+        env!("CARGO_BIN_EXE_falc-welding"),
+        "welding",
+        &["--device", &rig.path],
+    );
+    rig.rcm.take_line("rx I", Duration::from_secs(10));
+}
+
 fn droog_dik() -> String {
     std::fs::read_to_string(concat!(
         env!("CARGO_MANIFEST_DIR"),

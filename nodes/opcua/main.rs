@@ -73,7 +73,7 @@ struct Cli {
     poll_ms: u64,
     /// How many of the newest journal entries to serve (of each cell's
     /// and the plant's in a plant), 1 to 500.
-    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u16).range(1..=500))]
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u16).range(1..=500))]
     journal_entries: u16,
     /// How long a user name stays locked after 10 failed logins, in
     /// seconds (failures 4 to 9 are answered after a growing delay).

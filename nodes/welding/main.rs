@@ -7,14 +7,15 @@
 //! A thin driver: the recipe runtime is `falc_control::controller`
 //! (driven by `falc_node::controller_node`); the device is
 //! `falc_dnc::workstation` (poll-style: this loop hands its telegrams to
-//! the 3964R task of `falc_node::dnc_link`), the rules of the link
+//! the 3964R task of `falc_node::dnc_link`; stopping, it closes the DNC
+//! link, `C`, before it lets go of the port), the rules of the link
 //! `falc_dnc::host` (DNC ↔ engine, and its supervision, which the
 //! runtime's clock drives through `Device::poll_timeout`).
 
 use anyhow::{Context, Result};
 use clap::Parser;
 use falc_bus::station::Station;
-use falc_dnc::procedure::{Priority, Timing};
+use falc_dnc::procedure::{LinkEvent, Priority, Timing};
 use falc_dnc::workstation::{self, Welding};
 use falc_model::ids::StationName;
 use falc_node::controller_node::ControllerNode;
@@ -128,7 +129,27 @@ async fn main() -> Result<()> {
     if ws.core.is_running() {
         let mut out = Vec::new();
         ws.core.device.halt(&mut out);
-        send_telegrams(&mut ws, &mut dnc);
+    }
+    // The DNC link closed (`C`) before the port is let go: the RCM knows
+    // nobody commands it (the twin says `rx C`).
+    ws.core.device.close();
+    send_telegrams(&mut ws, &mut dnc);
+    if let Some(events) = dnc_events.as_mut() {
+        let close = workstation::CLOSE.encode();
+        // At most the link's own budget for a telegram, retries included.
+        let went = tokio::time::timeout(timing.silent_after(), async {
+            while let Some(ev) = events.recv().await {
+                if matches!(&ev, LinkEvent::Sent(t) | LinkEvent::Failed { telegram: t, .. } if *t == close)
+                {
+                    return matches!(ev, LinkEvent::Sent(_));
+                }
+            }
+            false
+        })
+        .await;
+        if !matches!(went, Ok(true)) {
+            tracing::warn!("the DNC link's close (C) did not reach the RCM");
+        }
     }
     say("EVENT stopped");
     Ok(())

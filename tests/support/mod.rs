@@ -273,6 +273,14 @@ impl Proc {
         stdin.flush().expect("flushed");
     }
 
+    /// SIGTERM: the process stops its own way (it is reaped on drop).
+    pub fn terminate(&self) {
+        let _ = nix::sys::signal::kill(
+            nix::unistd::Pid::from_raw(self.child.id() as i32),
+            nix::sys::signal::Signal::SIGTERM,
+        );
+    }
+
     /// SIGKILL, and reap.
     pub fn kill(&mut self) {
         let _ = self.child.kill();

@@ -28,6 +28,10 @@ pub fn confirm_limit(timing: &Timing) -> Duration {
     2 * timing.dead_line_after() + Duration::from_secs(6)
 }
 
+/// The close telegram ([`Welding::close`]): a driver waits until the link
+/// sent it (or gave it up) before it lets go of the port.
+pub const CLOSE: Telegram = Telegram::CloseDnc;
+
 /// The robot controller behind its DNC line, as welding recipes see it.
 pub struct Welding {
     /// The rules of the link; it knows whether the line is open.
@@ -136,6 +140,21 @@ impl Welding {
         self.apply(outs, &mut out);
     }
 
+    /// The node stops, or closes the port on purpose: a program of a job
+    /// still running is stopped (`H`), then the DNC link is closed (`C`),
+    /// so the RCM knows nobody commands it until the next initiate (`I`,
+    /// sent when the line opens again: [`Self::opened`]). The driver sends
+    /// what [`Self::poll_telegram`] gives and waits until `C` went out
+    /// ([`CLOSE`]). Nothing is sent on a line that is not open.
+    pub fn close(&mut self) {
+        if self.host.running().is_some() {
+            self.halt(&mut Vec::new());
+        }
+        if self.host.is_open() {
+            self.outbox.push_back(Telegram::CloseDnc);
+        }
+    }
+
     /// The line closed: engine events for the running recipe.
     pub fn closed(&mut self) -> Vec<Event> {
         self.outbox.clear();
@@ -236,5 +255,60 @@ impl Device for Welding {
         if !self.host.answered() {
             status.physical = PhysicalStatus::Inoperable;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use falc_model::ids::RobotProgram;
+
+    fn drain(w: &mut Welding) -> Vec<Telegram> {
+        std::iter::from_fn(|| w.poll_telegram()).collect()
+    }
+
+    #[test]
+    fn closing_stops_a_running_program_then_closes_dnc_and_reopening_initiates_again() {
+        let timing = Timing::default();
+        let mut w = Welding::new("/dev/ttyS0", &timing);
+        w.opened(Duration::ZERO);
+        assert_eq!(
+            drain(&mut w),
+            vec![Telegram::InitiateDnc, Telegram::StatusRequest]
+        );
+        // Idle: only the close.
+        w.close();
+        assert_eq!(drain(&mut w), vec![CLOSE]);
+        // A job's program runs: stopped first.
+        let p = RobotProgram::of(65);
+        let mut out = Vec::new();
+        w.handle(
+            Duration::ZERO,
+            Happening::Act(Action::Start {
+                target: falc_model::ids::StationName::new("rcm").expect("valid"),
+                job: Job::Program(p),
+            }),
+            &mut out,
+        );
+        assert_eq!(drain(&mut w), vec![Telegram::SelectProgram(p)]);
+        for ack in [b'S', b'G'] {
+            let t = Telegram::Ack {
+                of: ack,
+                error: None,
+            };
+            w.link_event(Duration::ZERO, LinkEvent::Received(t.encode()));
+        }
+        drain(&mut w);
+        w.close();
+        assert_eq!(drain(&mut w), vec![Telegram::StopProgram, CLOSE]);
+        // A closed line gets nothing; opened again, it is initiated again.
+        w.closed();
+        w.close();
+        assert_eq!(drain(&mut w), vec![]);
+        w.opened(Duration::from_secs(1));
+        assert_eq!(
+            drain(&mut w),
+            vec![Telegram::InitiateDnc, Telegram::StatusRequest]
+        );
     }
 }
