@@ -330,31 +330,67 @@ fn falc_recipe_check_and_dot() {
     );
 }
 
+/// `falc recipe view` draws SVG in-process: on a machine without Graphviz
+/// (no `dot` on the PATH) every shipped recipe is drawn, each of its states
+/// in the picture with its command; PNG still needs Graphviz and says how
+/// to get it.
 #[test]
-fn falc_recipe_view_draws_with_graphviz_or_says_how_to_get_it() {
+fn falc_recipe_view_draws_svg_without_graphviz_with_every_state() {
     let tmp = tempfile::tempdir().expect("tempdir");
-    let out = tmp.path().join("droog_dik.svg");
-    let run = Process::new(env!("CARGO_BIN_EXE_falc"))
-        .args(["recipe", "view", "--current", "2", "--out"])
-        .arg(&out)
-        .arg("recipes/welding/droog_dik.rcp")
-        .current_dir(root())
-        .output()
-        .expect("falc runs");
-    let graphviz = Process::new("dot").arg("-V").output().is_ok();
-    if graphviz {
-        assert!(run.status.success(), "{run:?}");
+    let no_graphviz = tmp.path().join("bin");
+    std::fs::create_dir(&no_graphviz).expect("an empty PATH");
+    let view = |args: &[&str], file: &std::path::Path| {
+        Process::new(env!("CARGO_BIN_EXE_falc"))
+            .env("PATH", &no_graphviz)
+            .args(["recipe", "view"])
+            .args(args)
+            .arg(file)
+            .current_dir(root())
+            .output()
+            .expect("falc runs")
+    };
+    let entries = files::load(&[root().join("recipes")], None).expect("recipes load");
+    assert_eq!(entries.len(), 12);
+    for (i, entry) in entries.iter().enumerate() {
+        let file = std::path::Path::new(&entry.recipe.origin);
+        let out = tmp.path().join(format!("{i}.svg"));
+        let run = view(&["--out", &out.display().to_string()], file);
+        assert!(run.status.success(), "{}: {run:?}", file.display());
         let svg = std::fs::read_to_string(&out).expect("svg written");
         assert!(svg.contains("<svg"), "{svg}");
-    } else {
-        assert_eq!(run.status.code(), Some(1));
-        let err = String::from_utf8_lossy(&run.stderr);
-        assert!(
-            err.contains("install graphviz") && err.contains("falc recipe dot"),
-            "{err}"
-        );
-        assert!(!out.exists());
+        let program = falc_recipe::check::check(&entry.recipe, entry.kind).expect("checks");
+        let states: Vec<(u16, String)> = program
+            .states
+            .values()
+            .map(|st| (st.no.0, st.text.clone()))
+            .collect();
+        assert!(!states.is_empty());
+        for (no, text) in states {
+            assert!(
+                svg.contains(&format!(">{no}</tspan>")),
+                "{}: state {no} not drawn",
+                file.display()
+            );
+            let plain = !text.contains(['<', '>', '&', '\'', '"']);
+            if plain && !text.is_empty() {
+                assert!(
+                    svg.contains(&format!(">{text}</tspan>")),
+                    "{}: state {no}'s {text:?} not drawn",
+                    file.display()
+                );
+            }
+        }
     }
+    // PNG is Graphviz's: without it, how to get it.
+    let out = tmp.path().join("droog_dik.png");
+    let run = view(
+        &["--format", "png", "--out", &out.display().to_string()],
+        std::path::Path::new("recipes/welding/droog_dik.rcp"),
+    );
+    assert_eq!(run.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("install graphviz"), "{err}");
+    assert!(!out.exists());
 }
 
 /// `falc recipe verify`: the shipped set has no defect across levels (its

@@ -186,7 +186,7 @@ async fn view(
         Err(problems) => return refuse(&problems.join("\n")),
     };
     let out = out.unwrap_or_else(|| std::path::PathBuf::from(file.file()).with_extension(format));
-    match crate::recipe_cmd::graphviz(&dot, format, &out) {
+    match crate::recipe_cmd::draw(&dot, format, &out) {
         Ok(()) => {
             match current {
                 Some(s) => crate::out!(

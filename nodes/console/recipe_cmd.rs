@@ -52,7 +52,8 @@ pub enum RecipeCommand {
         /// The recipe file.
         file: PathBuf,
     },
-    /// Draw a recipe's state diagram to SVG or PNG with Graphviz `dot`
+    /// Draw a recipe's state diagram to SVG (no Graphviz needed) or PNG
+    /// (with Graphviz `dot`)
     /// (default: next to the recipe, `FILE.svg`).
     View {
         /// The kind (else the directory name tells).
@@ -117,6 +118,42 @@ pub fn dot_of_entry(
         &title,
         current.map(falc_recipe::syntax::StateNo),
     ))
+}
+
+/// Draws `dot` to `out`: SVG in this process (layout-rs: no Graphviz
+/// needed), PNG with Graphviz `dot`.
+pub fn draw(dot: &str, format: &str, out: &std::path::Path) -> Result<(), String> {
+    if format != "svg" {
+        return graphviz(dot, format, out);
+    }
+    let svg = svg_of(dot)?;
+    std::fs::write(out, svg).map_err(|e| format!("cannot write {}: {e}", out.display()))
+}
+
+/// `dot` laid out and drawn as SVG by layout-rs. A diagram it cannot draw
+/// is an error, never a crash: layout-rs 0.1.3 gives up by panicking in
+/// places, so the drawing runs under `catch_unwind`, with the panic's
+/// message kept off the terminal.
+pub fn svg_of(dot: &str) -> Result<String, String> {
+    use layout::backends::svg::SVGWriter;
+    use layout::gv::{DotParser, GraphBuilder};
+    let dot = dot.to_string();
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let drawn = std::panic::catch_unwind(move || {
+        let mut parser = DotParser::new(&dot);
+        let graph = parser
+            .process()
+            .map_err(|e| format!("the diagram cannot be read: {e}"))?;
+        let mut builder = GraphBuilder::new();
+        builder.visit_graph(&graph);
+        let mut visual = builder.get();
+        let mut svg = SVGWriter::new();
+        visual.do_it(false, false, false, &mut svg);
+        Ok(svg.finalize())
+    });
+    std::panic::set_hook(hook);
+    drawn.unwrap_or_else(|_| Err("the diagram could not be laid out (layout-rs gave up)".into()))
 }
 
 /// Runs Graphviz `dot -T<format> -o <out>` on `dot`.
@@ -186,7 +223,7 @@ pub fn run(cmd: RecipeCommand, topology: &std::path::Path) -> ExitCode {
                 }
             };
             let out = out.unwrap_or_else(|| file.with_extension(&format));
-            match graphviz(&dot, &format, &out) {
+            match draw(&dot, &format, &out) {
                 Ok(()) => {
                     crate::out!("{}", out.display());
                     ExitCode::SUCCESS
@@ -325,5 +362,26 @@ fn verify(paths: Vec<PathBuf>, limit: usize, dot: Option<usize>, kinds: &Station
         ExitCode::SUCCESS
     } else {
         ExitCode::FAILURE
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::svg_of;
+
+    #[test]
+    fn a_diagram_layout_rs_cannot_draw_is_an_error_not_a_crash() {
+        let svg = svg_of("digraph \"T\" {\n  s1 [label=\"1\\nstart rcm 65\"];\n  s1 -> s0;\n}\n")
+            .expect("drawn");
+        assert!(svg.contains(">start rcm 65</tspan>"), "{svg}");
+        for bad in [
+            "digraph {",
+            "",
+            "graph { a -> ",
+            "digraph { a [label=\"x\" }",
+        ] {
+            let e = svg_of(bad).expect_err(bad);
+            assert!(e.starts_with("the diagram"), "{bad:?}: {e}");
+        }
     }
 }
