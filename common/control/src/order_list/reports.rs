@@ -67,16 +67,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 self.statuses.insert(station.clone(), status);
                 self.settle_alarms(&station);
                 if let Some(text) = started {
-                    // Journalled as the station's own report (its pane).
-                    let severity = Severity::Info;
-                    self.publication(
-                        now,
-                        Unconfirmed::Report {
-                            station,
-                            severity,
-                            text,
-                        },
-                    );
+                    self.station_says(now, station, text);
                 }
             }
             Unconfirmed::Report { .. } if self.can_hold() => {
@@ -170,15 +161,19 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         if let Err(e) = self.db.record_job(order, &job) {
             self.db_failed(&e);
         }
+        self.station_says(now, station, text);
+    }
+
+    /// A line of what `station` did, journalled as its own report (its
+    /// pane), with the order it belongs to.
+    fn station_says(&mut self, now: Duration, station: StationName, text: String) {
         let severity = Severity::Info;
-        self.publication(
-            now,
-            Unconfirmed::Report {
-                station,
-                severity,
-                text,
-            },
-        );
+        let report = Unconfirmed::Report {
+            station,
+            severity,
+            text,
+        };
+        self.publication(now, report);
     }
 
     /// A job event of the running order's program invocation.
