@@ -16,7 +16,8 @@
 //!   Unchanged content is not sent again. A workstation that was lost
 //!   comes back empty: when the workstations are associated again, every
 //!   recipe one should hold is sent again, and each that cannot be is a
-//!   communication alarm.
+//!   communication alarm, and owed: sent again before the commander's next
+//!   indication is taken (the way back's `start`).
 //! - **Order.** Deliveries run one at a time in the order asked; while one
 //!   runs, the commander's further indications are held and taken in
 //!   order once it ended, as if the cell had waited (a Start must not
@@ -125,8 +126,8 @@ struct Job<T> {
     todo: VecDeque<Recipe>,
     /// The one under way, and its id.
     sending: Option<(u64, Recipe)>,
-    /// Why each failed recipe failed.
-    failed: Vec<ServiceError>,
+    /// Each recipe that failed, and why.
+    failed: Vec<(Recipe, ServiceError)>,
 }
 
 /// A request passed on, waiting for its workstations' confirms.
@@ -153,6 +154,10 @@ pub struct PassOn<T> {
     held: VecDeque<(T, Request)>,
     /// Indications for the cell's controller.
     here: VecDeque<Here<T>>,
+    /// Recipes a returned workstation could not be given (a communication
+    /// alarm said so): sent again before the commander's next indication
+    /// is taken, so the way back (`ack`, `start`) delivers them first.
+    owed: Vec<Recipe>,
     /// Requests passed on: id of the pass → the pass.
     passes: BTreeMap<u64, Pass<T>>,
     /// Confirm id → its pass.
@@ -170,16 +175,12 @@ impl<T> PassOn<T> {
             jobs: VecDeque::new(),
             held: VecDeque::new(),
             here: VecDeque::new(),
+            owed: Vec::new(),
             passes: BTreeMap::new(),
             asked: BTreeMap::new(),
             next_id: 0,
             out: VecDeque::new(),
         }
-    }
-
-    /// The cell's workstations.
-    pub fn workstations(&self) -> &[StationName] {
-        &self.workstations
     }
 
     /// Whether a delivery is under way (the commander's indications wait).
@@ -193,7 +194,19 @@ impl<T> PassOn<T> {
     }
 
     /// The commander's indication: held while a delivery runs, else routed.
+    /// Recipes owed to a workstation are sent first (the indication waits
+    /// for them).
     pub fn handle_indication(&mut self, ticket: T, request: Request) {
+        if !self.owed.is_empty() && !self.busy() {
+            let todo = std::mem::take(&mut self.owed).into();
+            self.jobs.push_back(Job {
+                download: None,
+                todo,
+                sending: None,
+                failed: Vec::new(),
+            });
+            self.next_delivery();
+        }
         if self.busy() || !self.held.is_empty() {
             self.held.push_back((ticket, request));
         } else {
@@ -387,9 +400,7 @@ impl<T> PassOn<T> {
                     name: r.name.clone(),
                     content: r.content.clone(),
                 });
-                if let Some(job) = self.jobs.front_mut() {
-                    job.sending = Some((id, r));
-                }
+                job.sending = Some((id, r));
                 return;
             }
             let Some(job) = self.jobs.pop_front() else {
@@ -399,16 +410,19 @@ impl<T> PassOn<T> {
                 Some((ticket, domain)) => {
                     let result = match job.failed.into_iter().next() {
                         None => Ok(Response::Done),
-                        Some(e) => {
+                        Some((_, e)) => {
                             self.out.push_back(Todo::Discard(domain));
                             Err(e)
                         }
                     };
                     self.out.push_back(Todo::Answer { ticket, result });
                 }
-                None => self
-                    .out
-                    .extend(job.failed.into_iter().map(|e| Todo::Alarm(e.description))),
+                None => {
+                    for (recipe, e) in job.failed {
+                        self.out.push_back(Todo::Alarm(e.description));
+                        self.owed.push(recipe);
+                    }
+                }
             }
         }
     }
@@ -437,7 +451,7 @@ impl<T> PassOn<T> {
             Err(e) => {
                 // What it holds now is not known.
                 self.holds.remove(&key);
-                job.failed.push(e);
+                job.failed.push((recipe, e));
             }
         }
         self.next_delivery();
@@ -785,6 +799,18 @@ mod tests {
             vec![Todo::Alarm("no confirm from welding".into())]
         );
         assert_eq!(answer_here(&mut p, &vmd), vec![5]);
+        // The way back: the next indication (the operator's start) waits
+        // until the owed recipe went out again.
+        p.handle_indication(6, Request::Status);
+        assert!(p.poll_here().is_none(), "taken before the owed recipe");
+        let out = todos(&mut p);
+        let (id, to, recipe) = delivery(&out).expect("the owed recipe again");
+        assert_eq!((to.as_str(), recipe.as_str()), ("welding", "WELD1"));
+        p.handle_delivered(id, Ok(()));
+        assert_eq!(answer_here(&mut p, &vmd), vec![6]);
+        // Given: nothing owed any more.
+        p.handle_indication(7, Request::Status);
+        assert_eq!(answer_here(&mut p, &vmd), vec![7]);
         // A mode refused by a returned workstation is a warning, no answer.
         p.handle_confirm(modes[0], Err(ServiceError::state_conflict("welding: busy")));
         p.handle_confirm(modes[1], Ok(Response::Done));
