@@ -126,12 +126,9 @@ async fn main() -> Result<()> {
         send_telegrams(&mut ws, &mut dnc);
         ws.publish().await;
     }
-    if ws.core.is_running() {
-        let mut out = Vec::new();
-        ws.core.device.halt(&mut out);
-    }
-    // The DNC link closed (`C`) before the port is let go: the RCM knows
-    // nobody commands it (the twin says `rx C`).
+    // A job's program stopped (`H`) and the DNC link closed (`C`) before
+    // the port is let go: the RCM knows nobody commands it (the twin says
+    // `rx C`).
     ws.core.device.close();
     send_telegrams(&mut ws, &mut dnc);
     if let Some(events) = dnc_events.as_mut() {

@@ -170,6 +170,12 @@ impl Host {
         self.running
     }
 
+    /// Whether a job of ours has a program selected, starting or running
+    /// on the robot (what [`Self::stop`] stops).
+    pub fn has_job(&self) -> bool {
+        self.running.is_some() || self.pending.is_some()
+    }
+
     /// The line was (re)opened (also at start-up): initiate DNC and ask
     /// the robot's status (thesis §5.2, appendix H), so a program that no
     /// job of ours owns is found and stopped.

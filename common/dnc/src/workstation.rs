@@ -140,14 +140,15 @@ impl Welding {
         self.apply(outs, &mut out);
     }
 
-    /// The node stops, or closes the port on purpose: a program of a job
-    /// still running is stopped (`H`), then the DNC link is closed (`C`),
+    /// The node stops, or closes the port on purpose: a job's program
+    /// selected, starting or running is stopped (`H`), then the DNC link is
+    /// closed (`C`),
     /// so the RCM knows nobody commands it until the next initiate (`I`,
     /// sent when the line opens again: [`Self::opened`]). The driver sends
     /// what [`Self::poll_telegram`] gives and waits until `C` went out
     /// ([`CLOSE`]). Nothing is sent on a line that is not open.
     pub fn close(&mut self) {
-        if self.host.running().is_some() {
+        if self.host.has_job() {
             self.halt(&mut Vec::new());
         }
         if self.host.is_open() {
@@ -187,8 +188,8 @@ impl Welding {
     }
 
     /// Stops the robot program (the commander stopped or killed the
-    /// recipe, or the driver shuts down).
-    pub fn halt(&mut self, out: &mut Vec<Event>) {
+    /// recipe, or the node closes the line).
+    fn halt(&mut self, out: &mut Vec<Event>) {
         let outs = self.host.stop();
         self.apply(outs, out);
     }
