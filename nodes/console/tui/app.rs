@@ -173,15 +173,12 @@ impl Viewed {
             || recipe.file.file().trim_end_matches(".rcp").to_string(),
             |(n, _)| n.as_str().to_string(),
         );
-        let states = (1..=recipe.text.lines().count())
-            .map(|no| {
-                parsed
-                    .rows
-                    .iter()
-                    .find(|row| row.line == no)
-                    .map(|row| row.state.0)
-            })
-            .collect();
+        let mut states = vec![None; recipe.text.lines().count()];
+        for row in &parsed.rows {
+            if let Some(s) = row.line.checked_sub(1).and_then(|i| states.get_mut(i)) {
+                *s = Some(row.state.0);
+            }
+        }
         Self {
             recipe,
             program,
