@@ -199,6 +199,7 @@ fn the_cell_as_separate_hosts_on_the_secure_transport_runs_orders_and_rides_out_
     for (host, fault, lasting) in [
         ("welding", Fault::Cut, 3),
         ("transport", Fault::Cut, 3),
+        ("welding", Fault::Cut, 10),
         ("welding", Fault::Cut, 30),
         ("welding", Fault::Delay(SPIKE), 5),
     ] {
@@ -208,12 +209,21 @@ fn the_cell_as_separate_hosts_on_the_secure_transport_runs_orders_and_rides_out_
         rig.rcm.forget("rx G");
         rig.cell.falc(&["start"]);
         rig.until_welding();
+        let journal_before = rig.status().journal_head;
+        let reported_before = reports_of(&mut rig, host).len();
         fault.begin(&rig, host);
         let noticed = alarm_of(&rig, host, Duration::from_secs(5));
         // The fault lasts `lasting` s in all.
         std::thread::sleep(Duration::from_secs(lasting).saturating_sub(noticed));
         fault.end(&rig, host);
+        let mended_ms = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_millis() as i64);
         let back = all_back(&rig, Duration::from_secs(30));
+        if matches!(fault, Fault::Cut) {
+            let since = (journal_before, reported_before);
+            no_report_lost(&mut rig, host, since, mended_ms, lasting);
+        }
         println!(
             "{host} {} for {lasting} s mid-order: alarm after {} ms, back {} ms after the link was mended",
             fault.name(),
@@ -232,6 +242,119 @@ fn the_cell_as_separate_hosts_on_the_secure_transport_runs_orders_and_rides_out_
             fault.name()
         );
     }
+}
+
+/// What `station`'s node published numbered so far, in the order it
+/// numbered it: (number, the text of a report; None for a job event) from
+/// its `EVENT report … no=N text=T` and `EVENT job … no=N` lines.
+fn reports_of(rig: &mut Rig, station: &str) -> Vec<(u64, Option<String>)> {
+    let node = match station {
+        "welding" => rig.welding.as_mut(),
+        _ => rig.transport.as_mut(),
+    };
+    let Some(node) = node else {
+        return Vec::new();
+    };
+    node.drain();
+    node.lines_containing(" no=")
+        .iter()
+        .filter_map(|l| {
+            if let Some(rest) = l.strip_prefix("EVENT report ") {
+                let (_, rest) = rest.split_once(" no=")?;
+                let (no, text) = rest.split_once(" text=")?;
+                Some((no.parse().ok()?, Some(text.to_string())))
+            } else if l.starts_with("EVENT job ") {
+                let (_, no) = l.rsplit_once(" no=")?;
+                Some((no.parse().ok()?, None))
+            } else {
+                None
+            }
+        })
+        .collect()
+}
+
+/// Every report `station` made from its `from`th on (those made while its
+/// link was cut among them) is in the journal under it after entry
+/// `head`, in the order it made them; those it made while cut are marked
+/// replayed and keep their own time (before the link was mended at
+/// `mended_ms`). The welding workstation's job is cut mid-weld: some of
+/// its reports must have been replayed.
+fn no_report_lost(
+    rig: &mut Rig,
+    station: &str,
+    (head, from): (i64, usize),
+    mended_ms: i64,
+    lasting: u64,
+) {
+    let published = reports_of(rig, station).split_off(from);
+    let numbers: Vec<u64> = published.iter().map(|(no, _)| *no).collect();
+    assert!(
+        numbers.windows(2).all(|w| w[1] == w[0] + 1),
+        "{station} numbered its reports and job events with gaps: {numbers:?}"
+    );
+    let made: Vec<(u64, String)> = published
+        .into_iter()
+        .filter_map(|(no, text)| Some((no, text?)))
+        .collect();
+    assert!(!made.is_empty(), "{station} reported nothing since the cut");
+    let filed = wait_until(
+        &format!("every report {station} made since the cut in the journal, in order"),
+        Duration::from_secs(20),
+        || {
+            let journal: Vec<_> = rig
+                .journal(None)
+                .into_iter()
+                .filter(|e| e.who == station && e.id > head)
+                .collect();
+            // Each report, in order, as a subsequence of the journal.
+            let mut at = 0;
+            let mut filed = Vec::new();
+            for (no, text) in &made {
+                let replayed = format!("{text} (replayed)");
+                match journal[at..]
+                    .iter()
+                    .position(|e| e.text == *text || e.text == replayed)
+                {
+                    Some(k) => {
+                        at += k + 1;
+                        filed.push((*no, journal[at - 1].clone()));
+                    }
+                    None => {
+                        return Err(format!(
+                            "report {no} ({text:?}) of {station} missing or out of order in {journal:#?}"
+                        ))
+                    }
+                }
+            }
+            Ok(filed)
+        },
+    );
+    let replayed: Vec<_> = filed
+        .iter()
+        .filter(|(_, e)| e.text.ends_with(" (replayed)"))
+        .collect();
+    assert!(
+        station != "welding" || !replayed.is_empty(),
+        "none of {station}'s reports was made while its link was cut: {filed:#?}"
+    );
+    for (no, e) in &replayed {
+        assert!(
+            e.at_ms < mended_ms,
+            "replayed report {no} is filed at {} ms, after the link was mended at {mended_ms} ms: not its own time",
+            e.at_ms
+        );
+    }
+    let operator = rig.operator();
+    operator.drain();
+    let line = operator
+        .lines_containing(&format!("EVENT replayed station={station}"))
+        .pop()
+        .unwrap_or_default();
+    println!(
+        "{station} cut for {lasting} s: {} reports made since, all in the journal in order, {} of them replayed ({line})",
+        filed.len(),
+        replayed.len()
+    );
 }
 
 /// How long a console on the operator's PC takes to log in (its session

@@ -243,7 +243,7 @@ async fn main() -> Result<()> {
                 Some(u) => {
                     // A workstation's reports reach the operator directly
                     // (it reads every station's reports), under its name.
-                    let events = cell.ctl.core.device.unconfirmed(&u);
+                    let events = cell.ctl.core.device.unconfirmed(&u.message);
                     cell.ctl.feed(events);
                 }
                 None => break,

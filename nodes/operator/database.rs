@@ -632,14 +632,14 @@ impl Records for Database {
     }
 
     /// Appends a journal entry.
-    fn journal(
+    fn journal_at(
         &mut self,
+        at_ms: i64,
         kind: EntryKind,
         order: Option<i64>,
         who: &str,
         text: &str,
     ) -> Result<Entry, Self::Error> {
-        let at_ms = now_ms();
         self.conn
             .execute(
                 "INSERT INTO journal (at_ms, order_id, kind, who, text, cell) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",

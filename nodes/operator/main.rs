@@ -26,7 +26,7 @@ use clap::Parser;
 use database::Database;
 use falc_bus::operator_service::ApiResponder;
 use falc_bus::station::{self, Station, StationEvent};
-use falc_bus::{Bus, BusEvent, Declaration, Presence, Responder};
+use falc_bus::{Bus, BusEvent, Declaration, Presence, Responder, DEFAULT_DEADLINE};
 use falc_control::order_list::{CellCall, OrderList, Output, Ticket, CELL_LIMIT};
 use falc_control::plant::{Plant, PlantOutput};
 use falc_control::recipe_source::{Delivery, RecipeSet, RecipeSource};
@@ -35,7 +35,8 @@ use falc_model::console::EntryKind;
 use falc_model::ids::StationName;
 use falc_model::keys::KeySpace;
 use falc_model::mms::error::ServiceError;
-use falc_model::mms::pdu::{Peer, Request, Response, Unconfirmed};
+use falc_model::mms::journal::{KeptReports, Publication};
+use falc_model::mms::pdu::{Peer, Request, Response};
 use falc_model::plant::Layout;
 use falc_model::topology::{StationKind, Topology};
 use falc_node::{init_tracing, lane, say, NodeArgs};
@@ -153,6 +154,8 @@ struct Operator {
     consoles: HashMap<Ticket, ApiResponder>,
     /// The cells' indications waiting for their answer.
     indications: HashMap<Ticket, Responder>,
+    /// Where the stations' kept reports come back, read after a cut.
+    kept: UnboundedSender<(usize, StationName, Result<KeptReports, String>)>,
 }
 
 impl Operator {
@@ -211,6 +214,17 @@ impl Operator {
             }
             Output::Say(line) => say(&line),
             Output::Changed => self.api_bus.publish_changed().await,
+            Output::ReadReports { station, after } => {
+                let bus = cell.station.bus().clone();
+                let tx = self.kept.clone();
+                tokio::spawn(async move {
+                    let answer = bus
+                        .read_reports(&station, after, DEFAULT_DEADLINE)
+                        .await
+                        .map_err(|e| e.to_string());
+                    let _ = tx.send((i, station, answer));
+                });
+            }
         }
     }
 
@@ -387,7 +401,8 @@ async fn run(cli: Cli) -> Result<ExitCode> {
     let api_bus = Bus::open(api_settings)
         .await
         .context("cannot join the network")?;
-    let (utx, mut publications) = unbounded_channel::<(usize, Unconfirmed)>();
+    let (utx, mut publications) = unbounded_channel::<(usize, Publication)>();
+    let (kept, mut kept_reports) = unbounded_channel();
     let (ptx, mut presence) = unbounded_channel::<(usize, Presence)>();
     let (ltx, mut lane_done) = unbounded_channel::<(usize, LaneDone)>();
     let mut cells = Vec::new();
@@ -449,6 +464,7 @@ async fn run(cli: Cli) -> Result<ExitCode> {
         next_ticket: 0,
         consoles: HashMap::new(),
         indications: HashMap::new(),
+        kept,
     };
     let who = me.to_string();
     if let Some(list) = op.plant.list(0) {
@@ -482,10 +498,16 @@ async fn run(cli: Cli) -> Result<ExitCode> {
                 let now = op.now();
                 op.plant.handle_api(now, ticket, &ind.user, ind.cell.as_ref(), ind.request);
             }
-            Some((i, u)) = publications.recv() => {
+            Some((i, p)) = publications.recv() => {
                 let now = op.now();
                 if let Some(list) = op.plant.list(i) {
-                    list.handle_publication(now, u);
+                    list.handle_heard(now, p.stamp, p.message);
+                }
+            }
+            Some((i, station, answer)) = kept_reports.recv() => {
+                let now = op.now();
+                if let Some(list) = op.plant.list(i) {
+                    list.handle_kept_reports(now, station, answer);
                 }
             }
             Some((i, p)) = presence.recv() => {

@@ -19,6 +19,7 @@ use falc_bus::{Bus, BusError, BusSettings, DEFAULT_DEADLINE};
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::keys::KeySpace;
 use falc_model::mms::error::ServiceError;
+use falc_model::mms::journal::Publication;
 use falc_model::mms::pdu::{JobEvent, Request, Response, Unconfirmed};
 use falc_model::topology::Topology;
 use std::io::Write;
@@ -227,6 +228,14 @@ impl Proc {
         }
     }
 
+    /// Takes in every line the process printed so far (for
+    /// [`Self::lines_containing`]).
+    pub fn drain(&mut self) {
+        while let Ok(l) = self.lines.try_recv() {
+            self.seen.push(l);
+        }
+    }
+
     /// The lines seen so far that contain `needle`.
     pub fn lines_containing(&self, needle: &str) -> Vec<String> {
         self.seen
@@ -251,9 +260,10 @@ impl Proc {
         line
     }
 
-    /// Forgets the lines seen so far that contain `needle`, so that the
-    /// next `expect_line` waits for a new one.
+    /// Forgets the lines printed so far that contain `needle` (those not
+    /// read yet too), so that the next `expect_line` waits for a new one.
     pub fn forget(&mut self, needle: &str) {
+        self.drain();
         self.seen.retain(|l| !l.contains(needle));
     }
 
@@ -756,7 +766,7 @@ pub fn st(s: &str) -> StationName {
 pub struct Commander {
     pub bus: Bus,
     station: StationName,
-    events: tokio::sync::mpsc::UnboundedReceiver<Unconfirmed>,
+    events: tokio::sync::mpsc::UnboundedReceiver<Publication>,
     _subs: Vec<falc_bus::Declaration>,
 }
 
@@ -861,7 +871,10 @@ impl Commander {
         let end = tokio::time::Instant::now() + within;
         loop {
             match tokio::time::timeout_at(end, self.events.recv()).await {
-                Ok(Some(Unconfirmed::Job { event, .. })) => return Some(event),
+                Ok(Some(Publication {
+                    message: Unconfirmed::Job { event, .. },
+                    ..
+                })) => return Some(event),
                 Ok(Some(_)) => continue,
                 Ok(None) => panic!("the subscription ended"),
                 Err(_) => return None,
@@ -882,7 +895,10 @@ impl Commander {
         let end = tokio::time::Instant::now() + within;
         loop {
             match tokio::time::timeout_at(end, self.events.recv()).await {
-                Ok(Some(Unconfirmed::Report { text, .. })) if text.contains(needle) => return text,
+                Ok(Some(Publication {
+                    message: Unconfirmed::Report { text, .. },
+                    ..
+                })) if text.contains(needle) => return text,
                 Ok(Some(_)) => continue,
                 other => panic!("no report with {needle:?} within {within:?}: {other:?}"),
             }

@@ -6,7 +6,8 @@
 //!   concretely, so that a wildcard query is never allowed);
 //! - publish its own `status` and `report` and hold its own liveliness token;
 //! - query its direct subordinates' services and read their `status` and
-//!   `report`; the operator (the root) reads every station's;
+//!   `report`, and the reports they kept (`reports`); the operator (the
+//!   root) reads every station's;
 //! - watch the liveliness tokens of its commander and its subordinates
 //!   (the operator: of every station);
 //! - a direct subordinate of the operator (the cell) may query the
@@ -113,7 +114,9 @@ pub fn hierarchy_rules(topology: &Topology, station: &StationName) -> Vec<Rule> 
     };
     let me = station;
     let mut out = Vec::new();
-    let own_svc = svc(me, &mut served_services(topology, me).into_iter());
+    let mut own_svc = svc(me, &mut served_services(topology, me).into_iter());
+    // The reports it kept, read again by whoever reads its reports.
+    own_svc.push(keys.reports(me));
     out.push(rule(
         format!("{me}/serve-in"),
         "ingress",
@@ -220,6 +223,19 @@ pub fn hierarchy_rules(topology: &Topology, station: &StationName) -> Vec<Rule> 
             read.clone(),
         ));
         out.push(rule(format!("{me}/read-out"), "egress", &["put"], read));
+        let kept: Vec<String> = readable.iter().map(|s| keys.reports(s)).collect();
+        out.push(rule(
+            format!("{me}/read-kept-in"),
+            "ingress",
+            &["query"],
+            kept.clone(),
+        ));
+        out.push(rule(
+            format!("{me}/read-kept-out"),
+            "egress",
+            &["reply", "declare_queryable"],
+            kept,
+        ));
     }
     out
 }
@@ -303,6 +319,9 @@ pub fn matrix(topology: &Topology) -> String {
                 }
                 if has("declare_subscriber", &keys.status(b)) {
                     v.push("read status/report");
+                }
+                if has("query", &keys.reports(b)) {
+                    v.push("read kept reports");
                 }
                 if has("declare_liveliness_subscriber", &keys.alive_any(b)) {
                     v.push("watch alive");
@@ -560,6 +579,18 @@ commander = "cell"
             "no commanding the commander"
         );
         assert!(!q("welding", "operator", "input"));
+        let kept = |who: &str, st: &str| {
+            allowed(
+                &t,
+                who,
+                "ingress",
+                "query",
+                &format!("falc/falc1/{st}/reports"),
+            )
+        };
+        assert!(kept("operator", "welding") && kept("operator", "cell"));
+        assert!(kept("cell", "welding") && kept("cell", "transport"));
+        assert!(!kept("welding", "transport") && !kept("welding", "cell"));
         let put = |who: &str, st: &str| {
             allowed(
                 &t,

@@ -8,7 +8,10 @@
 //!   it: zenoh cannot tell them apart) is `application-reference/
 //!   application-unreachable`; a malformed request is answered with an error
 //!   by the bus itself, and the server keeps serving.
-//! - unconfirmed services: [`Bus::publish`] (status, reports);
+//! - unconfirmed services: [`Bus::publish`] (status, reports); reports and
+//!   job events are numbered and kept ([`falc_model::mms::journal`]), and
+//!   [`Bus::keep_reports`] serves them again to a reader who missed some
+//!   ([`Bus::read_reports`]);
 //! - liveliness: every session holds a token `…/alive/<me>/<session>`;
 //!   [`Bus::watch`] reports a peer's lost token as [`BusEvent::PeerLost`].
 //!
@@ -33,6 +36,7 @@ use falc_model::envelope;
 use falc_model::ids::StationName;
 use falc_model::keys::KeySpace;
 use falc_model::mms::error::ServiceError;
+use falc_model::mms::journal::{KeptReports, Publication, ReportLog, ReportsAsked, Stamp};
 use falc_model::mms::pdu::{Peer, Request, Response, ServiceName, Unconfirmed};
 use falc_model::mms::vmd::VmdStatus;
 use std::sync::{Arc, Mutex, PoisonError};
@@ -197,6 +201,8 @@ pub struct Bus {
     /// The cell of a plant this console's operator API calls are for
     /// ([`Bus::for_cell`]); None: the plant, or the one cell.
     api_cell: Option<falc_model::ids::CellId>,
+    /// The reports and job events this node published, numbered.
+    kept: Arc<Mutex<ReportLog>>,
 }
 
 /// Keeps a declaration alive; dropping it undeclares.
@@ -230,12 +236,14 @@ impl Bus {
             .declare_token(&key)
             .await
             .map_err(declare_failed("liveliness token", &key))?;
+        let kept = Arc::new(Mutex::new(ReportLog::new(me.session.clone())));
         Ok(Self {
             session,
             keys: settings.keys,
             me,
             _token: std::sync::Arc::new(token),
             api_cell: None,
+            kept,
         })
     }
 
@@ -255,6 +263,7 @@ impl Bus {
             me: self.me.clone(),
             _token: std::sync::Arc::new(token),
             api_cell: None,
+            kept: Arc::new(Mutex::new(ReportLog::new(self.me.session.clone()))),
         })
     }
 
@@ -401,17 +410,82 @@ impl Bus {
         Ok(out)
     }
 
-    /// Publishes an unconfirmed service on this node's `status` or `report` key.
-    pub async fn publish(&self, message: &Unconfirmed) {
+    /// Publishes an unconfirmed service on this node's `status` or `report`
+    /// key; a report or job event is numbered and kept first (its stamp is
+    /// returned), so that it is not lost when the link is down now.
+    pub async fn publish(&self, message: &Unconfirmed) -> Option<Stamp> {
         let key = match message {
             Unconfirmed::Status { .. } | Unconfirmed::Job { .. } => {
                 self.keys.status(&self.me.station)
             }
             Unconfirmed::Report { .. } => self.keys.report(&self.me.station),
         };
-        if let Err(e) = self.session.put(&key, envelope::encode(message)).await {
+        let at_ms = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX));
+        let publication = self
+            .kept
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .publication(at_ms, message.clone());
+        if let Err(e) = self.session.put(&key, envelope::encode(&publication)).await {
             tracing::warn!(%key, "publication failed: {e}");
         }
+        publication.stamp
+    }
+
+    /// Serves the reports this node kept on its `reports` key, to a reader
+    /// who missed some (the operator after a cut): each query names the
+    /// last number the reader has; a malformed one is answered with an
+    /// error.
+    pub async fn keep_reports(&self) -> Result<Declaration, BusError> {
+        let key = self.keys.reports(&self.me.station);
+        let kept = self.kept.clone();
+        let q = self
+            .session
+            .declare_queryable(&key)
+            .callback(move |query| {
+                let asked = query
+                    .payload()
+                    .map(|p| envelope::decode::<ReportsAsked>(&p.to_bytes()));
+                match asked {
+                    Some(Ok(asked)) => {
+                        let answer = kept
+                            .lock()
+                            .unwrap_or_else(PoisonError::into_inner)
+                            .after(asked);
+                        let bytes = envelope::encode(&answer);
+                        if let Err(e) = query.reply(query.key_expr().clone(), bytes).wait() {
+                            tracing::warn!("kept reports not sent: {e}");
+                        }
+                    }
+                    other => {
+                        let text = match other {
+                            Some(Err(e)) => format!("malformed query on {}: {e}", query.key_expr()),
+                            _ => format!("query on {} carries no payload", query.key_expr()),
+                        };
+                        log_limit::warn(query.key_expr().as_str(), &text);
+                        reply_err_now(&query, &text);
+                    }
+                }
+            })
+            .await
+            .map_err(declare_failed("queryable", &key))?;
+        Ok(Declaration(Box::new(q)))
+    }
+
+    /// Reads the reports `station` kept after number `after` of its
+    /// current run.
+    pub async fn read_reports(
+        &self,
+        station: &StationName,
+        after: u64,
+        deadline: Duration,
+    ) -> Result<KeptReports, ServiceError> {
+        let key = self.keys.reports(station);
+        let what = format!("the reports station {station} kept");
+        let payload = envelope::encode(&ReportsAsked { after });
+        self.query(&key, payload, deadline, &what).await
     }
 
     /// Tells the consoles that watch that this operator's status changed
@@ -440,12 +514,13 @@ impl Bus {
         Ok(Declaration(Box::new(sub)))
     }
 
-    /// Subscribes to a station's `status` and `report`; decoded messages go
-    /// to `out`, malformed ones are logged and dropped.
+    /// Subscribes to a station's `status` and `report`; decoded messages
+    /// (with their numbers) go to `out`, malformed ones are logged and
+    /// dropped.
     pub async fn subscribe(
         &self,
         station: &StationName,
-        out: UnboundedSender<Unconfirmed>,
+        out: UnboundedSender<Publication>,
     ) -> Result<Vec<Declaration>, BusError> {
         let mut v = Vec::new();
         for key in [self.keys.status(station), self.keys.report(station)] {
@@ -455,7 +530,7 @@ impl Bus {
                 .session
                 .declare_subscriber(&key)
                 .callback(move |sample| {
-                    match envelope::decode::<Unconfirmed>(&sample.payload().to_bytes()) {
+                    match envelope::decode::<Publication>(&sample.payload().to_bytes()) {
                         Ok(m) => {
                             let _ = tx.send(m);
                         }

@@ -69,9 +69,13 @@ impl Station {
         .runs_on_alone(runs_on_alone);
         let (tx, rx) = unbounded_channel();
         let board = StatusBoard::default();
-        let served = bus
+        let mut served = bus
             .serve(&acl::served_services(topology, &me), &board, tx.clone())
             .await?;
+        // What it reports upward, kept for a reader who missed some.
+        if topology.commander_of(&me).is_some() {
+            served.push(bus.keep_reports().await?);
+        }
         bus.sync_with_router().await?;
         let initiate_limits = topology
             .subordinates_of(&me)

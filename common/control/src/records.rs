@@ -97,9 +97,22 @@ pub trait Records {
     fn requeue(&mut self, id: i64) -> Result<(), Self::Error>;
     /// Ends an order with `state` and `result`.
     fn end_order(&mut self, id: i64, state: OrderState, result: &str) -> Result<(), Self::Error>;
-    /// Appends a journal entry.
+    /// Appends a journal entry, made now.
     fn journal(
         &mut self,
+        kind: EntryKind,
+        order: Option<i64>,
+        who: &str,
+        text: &str,
+    ) -> Result<Entry, Self::Error> {
+        let at_ms = self.now_ms();
+        self.journal_at(at_ms, kind, order, who, text)
+    }
+    /// Appends a journal entry made at `at_ms` (a station's report filed
+    /// late, with its own time).
+    fn journal_at(
+        &mut self,
+        at_ms: i64,
         kind: EntryKind,
         order: Option<i64>,
         who: &str,
@@ -450,8 +463,9 @@ pub mod memory {
             }
             Ok(())
         }
-        fn journal(
+        fn journal_at(
             &mut self,
+            at_ms: i64,
             kind: EntryKind,
             order: Option<i64>,
             who: &str,
@@ -460,7 +474,7 @@ pub mod memory {
             self.write()?;
             let e = Entry {
                 id: self.journal.len() as i64 + 1,
-                at_ms: self.now_ms(),
+                at_ms,
                 order,
                 kind,
                 who: who.into(),
@@ -727,15 +741,16 @@ pub mod shared {
         fn end_order(&mut self, id: i64, state: OrderState, result: &str) -> Result<(), String> {
             self.all.borrow_mut().end_order(id, state, result)
         }
-        fn journal(
+        fn journal_at(
             &mut self,
+            at_ms: i64,
             kind: EntryKind,
             order: Option<i64>,
             who: &str,
             text: &str,
         ) -> Result<Entry, String> {
             let mut all = self.all.borrow_mut();
-            let mut e = all.journal(kind, order, who, text)?;
+            let mut e = all.journal_at(at_ms, kind, order, who, text)?;
             e.cell = Some(self.cell.clone());
             if let Some(last) = all.journal.last_mut() {
                 last.cell = e.cell.clone();

@@ -100,11 +100,11 @@ mod tests {
             decode::<Request>(b"FL\x07\x00"),
             Err(EnvelopeError::Version {
                 found: 7,
-                supported: 1
+                supported: PROTOCOL_VERSION
             })
         );
         assert!(matches!(
-            decode::<Request>(b"FL\x01\xff"),
+            decode::<Request>(b"FL\x02\xff"),
             Err(EnvelopeError::Body(_))
         ));
         let mut extra = encode(&Request::Status);
@@ -136,11 +136,13 @@ mod tests {
             let _ = decode::<Response>(&bytes);
             let _ = decode::<ServiceError>(&bytes);
             let _ = decode::<crate::mms::pdu::Unconfirmed>(&bytes);
+            let _ = decode::<crate::mms::journal::Publication>(&bytes);
+            let _ = decode::<crate::mms::journal::KeptReports>(&bytes);
         }
 
         #[test]
         fn never_panics_behind_a_valid_header(body in proptest::collection::vec(any::<u8>(), 0..256)) {
-            let mut bytes = b"FL\x01".to_vec();
+            let mut bytes = b"FL\x02".to_vec();
             bytes.extend(body);
             let _ = decode::<Request>(&bytes);
             let _ = decode::<Response>(&bytes);

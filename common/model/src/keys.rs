@@ -5,6 +5,7 @@
 //! | `falc/<cell>/<st>/svc/<service>` | queryable: confirmed service |
 //! | `falc/<cell>/<st>/status` | put: unsolicited status |
 //! | `falc/<cell>/<st>/report` | put: information reports |
+//! | `falc/<cell>/<st>/reports` | queryable: the reports it kept (read again after a cut) |
 //! | `falc/<cell>/alive/<st>/<session>` | liveliness token |
 //! | `falc/<cell>/<operator>/api/<call>` | queryable: operator API |
 //! | `falc/<cell>/<operator>/changed` | put: the operator's status changed (empty) |
@@ -45,6 +46,12 @@ impl KeySpace {
     /// `falc/<cell>/<st>/report`.
     pub fn report(&self, station: &StationName) -> String {
         format!("falc/{}/{station}/report", self.cell)
+    }
+
+    /// `falc/<cell>/<st>/reports`: the reports and job events a station
+    /// kept, for a reader who missed some ([`crate::mms::journal`]).
+    pub fn reports(&self, station: &StationName) -> String {
+        format!("falc/{}/{station}/reports", self.cell)
     }
 
     /// `falc/<cell>/alive/<st>/<session>`: one session's token.
@@ -97,6 +104,7 @@ mod tests {
             "falc/falc1/welding/svc/initiate-download-sequence"
         );
         assert_eq!(k.alive(&w, "ab12"), "falc/falc1/alive/welding/ab12");
+        assert_eq!(k.reports(&w), "falc/falc1/welding/reports");
         assert_eq!(k.alive_any(&w), "falc/falc1/alive/welding/*");
         let op = StationName::new("operator").expect("valid");
         let olga = StationName::new("olga").expect("valid");

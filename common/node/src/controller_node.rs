@@ -107,29 +107,37 @@ impl<D: Device> ControllerNode<D> {
         self.flush().await;
     }
 
-    /// Publishes what the core put out, in order.
+    /// Publishes what the core put out, in order, each report and job
+    /// event numbered (`no=` in its `EVENT` line).
     async fn flush(&mut self) {
         let me = self.station.bus().me().station.clone();
         while let Some(out) = self.core.poll_output() {
             let u = match out {
-                Output::Report { severity, text } => {
-                    say(&format!("EVENT report severity={severity:?} text={text}"));
-                    Unconfirmed::Report {
-                        station: me.clone(),
-                        severity,
-                        text,
-                    }
-                }
-                Output::Job { program, event } => {
-                    say(&format!("EVENT job program={program} event={event:?}"));
-                    Unconfirmed::Job {
-                        station: me.clone(),
-                        program,
-                        event,
-                    }
-                }
+                Output::Report { severity, text } => Unconfirmed::Report {
+                    station: me.clone(),
+                    severity,
+                    text,
+                },
+                Output::Job { program, event } => Unconfirmed::Job {
+                    station: me.clone(),
+                    program,
+                    event,
+                },
             };
-            self.station.bus().publish(&u).await;
+            let no = self.station.bus().publish(&u).await.map_or(0, |s| s.no);
+            match u {
+                Unconfirmed::Report { severity, text, .. } => {
+                    say(&format!(
+                        "EVENT report severity={severity:?} no={no} text={text}"
+                    ));
+                }
+                Unconfirmed::Job { program, event, .. } => {
+                    say(&format!(
+                        "EVENT job program={program} event={event:?} no={no}"
+                    ));
+                }
+                Unconfirmed::Status { .. } => {}
+            }
         }
     }
 

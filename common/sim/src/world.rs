@@ -615,6 +615,9 @@ impl World {
                 }
                 ListOutput::Say(line) => self.note(format!("operator: {line}")),
                 ListOutput::Changed => {}
+                // The simulation's publications carry no numbers (it hands
+                // them over unstamped), so the list never asks.
+                ListOutput::ReadReports { .. } => {}
             }
         }
     }

@@ -21,7 +21,7 @@
 //! every part uses. By concern: `lane` (the cell lane's sequencing: jobs,
 //! connection, starts, ends, stops, the cell's answers), `questions` (the
 //! cell's `input` and `output`), `reports` (what the stations publish and
-//! their presence), `restart` (restart planning, held order ends), `api`
+//! their presence), `replay` (reports read again after a cut), `restart` (restart planning, held order ends), `api`
 //! (the operator API's dispatch); `tests` drives it all on a virtual clock.
 
 use crate::alarm_list::{AlarmList, Raised};
@@ -150,6 +150,14 @@ pub enum Output {
     /// What `status` answers changed: tell the consoles that watch
     /// (a publication, so they need not ask again and again).
     Changed,
+    /// Read what `station` kept after its report number `after`: the
+    /// answer comes back through [`OrderList::handle_kept_reports`].
+    ReadReports {
+        /// Whose reports.
+        station: StationName,
+        /// The last number filed.
+        after: u64,
+    },
 }
 
 /// A question the cell asked, waiting for `answer`.
@@ -330,6 +338,11 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     out: VecDeque<Output>,
     /// The status as last told by [`Output::Changed`].
     told: Option<CellStatus>,
+    /// What the list has of each station's numbered reports.
+    heard: BTreeMap<StationName, replay::Heard>,
+    /// Filing a replayed report made at this time (ms since the Unix
+    /// epoch): its entries get that time and are marked.
+    replaying: Option<i64>,
 }
 
 /// How an order was placed, for its journal line (`, priority 5, for
@@ -408,6 +421,8 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             next_try: Duration::ZERO,
             out: VecDeque::new(),
             told: None,
+            heard: BTreeMap::new(),
+            replaying: None,
         }
         .versioned()
     }
@@ -507,12 +522,19 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     pub fn poll_timeout(&self) -> Option<Duration> {
         let idle = self.busy.is_none() && self.jobs.is_empty();
         let deliver = self.running.is_none() && self.undelivered().next().is_some();
-        (idle && (!self.associated || deliver)).then_some(self.next_try)
+        let retry = (idle && (!self.associated || deliver)).then_some(self.next_try);
+        match (retry, self.read_again_at()) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
     }
 
     /// The time of [`Self::poll_timeout`] has come: try the cell again.
     pub fn handle_timeout(&mut self, now: Duration) {
-        if self.poll_timeout().is_some_and(|t| t <= now) {
+        self.read_again(now);
+        let idle = self.busy.is_none() && self.jobs.is_empty();
+        let deliver = self.running.is_none() && self.undelivered().next().is_some();
+        if idle && (!self.associated || deliver) && self.next_try <= now {
             self.next_try = now + RETRY;
             self.jobs.push_back(Job::Connect);
             self.pump(now);
@@ -549,12 +571,19 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 
     /// Journals; a failure to write stops the list ([`Self::db_failed`]).
     pub fn journal(&mut self, kind: EntryKind, order: Option<i64>, who: &str, text: &str) {
-        match self.db.journal(kind, order, who, text) {
+        let written = match self.replaying {
+            None => self.db.journal(kind, order, who, text),
+            Some(at) => {
+                let text = format!("{text}{}", replay::REPLAYED);
+                self.db.journal_at(at, kind, order, who, &text)
+            }
+        };
+        match written {
             Ok(e) => self.say(format!(
                 "JOURNAL {} {} {who}: {}",
                 e.id,
                 kind.as_str(),
-                text.replace('\n', " / ")
+                e.text.replace('\n', " / ")
             )),
             Err(e) => self.db_failed(&e),
         }
@@ -751,6 +780,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 mod api;
 mod lane;
 mod questions;
+mod replay;
 mod reports;
 mod restart;
 #[cfg(test)]

@@ -12,6 +12,9 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     pub fn handle_presence(&mut self, now: Duration, station: StationName, present: bool) {
         if present {
             let back = self.present.insert(station.clone());
+            if back {
+                self.heard_back(&station);
+            }
             let (cleared, error) = self.alarms.settle_reached(&mut self.db, station.as_str());
             self.cleared(station.as_str(), cleared, error);
             if back && self.is_workstation(&station) {
@@ -70,27 +73,14 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                     self.station_says(now, station, text);
                 }
             }
-            Unconfirmed::Report { .. } if self.can_hold() => {
+            Unconfirmed::Report { .. } if self.can_hold() && self.replaying.is_none() => {
                 self.early.push(Early::Publication(u));
             }
             Unconfirmed::Report {
                 station,
                 severity,
                 text,
-            } => {
-                // Every station's reports, each under its own name (its
-                // message pane), with the order they belong to.
-                let order = self.order_of_message(now);
-                match severity {
-                    Severity::Alarm(class) => {
-                        self.raise_alarm(station.as_str(), class, &text, order);
-                        self.journal(EntryKind::Alarm, order, station.as_str(), &text);
-                    }
-                    Severity::Info | Severity::Warning => {
-                        self.journal(EntryKind::Report, order, station.as_str(), &text);
-                    }
-                }
-            }
+            } => self.station_report(now, station, severity, text),
             Unconfirmed::Job {
                 station,
                 program,
@@ -124,6 +114,27 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         }
     }
 
+    /// A station's report: every station's, each under its own name (its
+    /// message pane), with the order it belongs to; an alarm raised.
+    pub(super) fn station_report(
+        &mut self,
+        now: Duration,
+        station: StationName,
+        severity: Severity,
+        text: String,
+    ) {
+        let order = self.order_of_message(now);
+        match severity {
+            Severity::Alarm(class) => {
+                self.raise_alarm(station.as_str(), class, &text, order);
+                self.journal(EntryKind::Alarm, order, station.as_str(), &text);
+            }
+            Severity::Info | Severity::Warning => {
+                self.journal(EntryKind::Report, order, station.as_str(), &text);
+            }
+        }
+    }
+
     /// A workstation's job event: an end is kept in the records with the
     /// order it is part of (pauses are not) and journalled under the
     /// station, as its start was.
@@ -154,7 +165,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             station: station.to_string(),
             program: program.to_string(),
             started_ms: open.map(|(_, at, _)| at),
-            ended_ms: self.db.now_ms(),
+            ended_ms: self.replaying.unwrap_or_else(|| self.db.now_ms()),
             outcome,
         };
         let text = format!("job {program} ended: {}", job.outcome);

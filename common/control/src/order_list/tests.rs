@@ -1282,3 +1282,196 @@ fn a_workstation_back_on_the_bus_is_associated_again_through_the_cell() {
     let out = r.answer(Ok(()));
     assert!(said(&out, "EVENT rejoined station=transport"), "{out:?}");
 }
+
+/// A numbered report of `station` made at `at_ms`, in run `run`.
+fn numbered(station: &str, run: &str, no: u64, text: &str) -> (Stamp, Unconfirmed) {
+    let stamp = Stamp {
+        run: run.into(),
+        no,
+        at_ms: 1_000 + no as i64,
+    };
+    let u = Unconfirmed::Report {
+        station: st(station),
+        severity: Severity::Info,
+        text: text.into(),
+    };
+    (stamp, u)
+}
+
+fn reads(out: &[Output]) -> Vec<(StationName, u64)> {
+    out.iter()
+        .filter_map(|o| match o {
+            Output::ReadReports { station, after } => Some((station.clone(), *after)),
+            _ => None,
+        })
+        .collect()
+}
+
+impl Rig {
+    fn hear(&mut self, (stamp, u): (Stamp, Unconfirmed)) -> Vec<Output> {
+        self.list.handle_heard(self.now, Some(stamp), u);
+        self.outputs()
+    }
+
+    /// The station's journal lines, with their times.
+    fn lines_of(&mut self, station: &str) -> Vec<(i64, String)> {
+        self.list
+            .records()
+            .journal
+            .iter()
+            .filter(|e| e.who == station && e.kind == EntryKind::Report)
+            .filter(|e| !e.text.starts_with("alarm #"))
+            .map(|e| (e.at_ms, e.text.clone()))
+            .collect()
+    }
+}
+
+use falc_model::mms::journal::{KeptReports, Stamp};
+
+#[test]
+fn reports_missed_across_a_cut_are_read_back_filed_in_order_with_their_times_and_marked() {
+    let mut r = Rig::new();
+    r.list.handle_presence(r.now, st("welding"), true);
+    r.outputs();
+    for no in 1..=2 {
+        assert!(reads(&r.hear(numbered("welding", "a", no, &format!("r{no}")))).is_empty());
+    }
+    // The link is cut; 3 and 4 are made meanwhile and never heard.
+    r.list.handle_presence(r.now, st("welding"), false);
+    r.list.handle_presence(r.now, st("welding"), true);
+    let out = r.outputs();
+    assert_eq!(reads(&out), vec![(st("welding"), 2)], "{out:?}");
+    // 5 is heard live while the read is out: left to the read.
+    assert!(reads(&r.hear(numbered("welding", "a", 5, "r5"))).is_empty());
+    let kept = KeptReports {
+        run: "a".into(),
+        first: 1,
+        reports: (3..=4)
+            .map(|no| numbered("welding", "a", no, &format!("r{no}")))
+            .collect(),
+    };
+    r.list
+        .handle_kept_reports(r.now, st("welding"), Ok(kept.clone()));
+    // 5 came after the answer was made: read again from 4.
+    let out = r.outputs();
+    assert_eq!(reads(&out), vec![(st("welding"), 4)], "{out:?}");
+    let mut kept = kept;
+    kept.reports.push(numbered("welding", "a", 5, "r5"));
+    r.list.handle_kept_reports(r.now, st("welding"), Ok(kept));
+    assert!(reads(&r.outputs()).is_empty());
+    // A duplicate and the next live one.
+    r.hear(numbered("welding", "a", 4, "r4"));
+    r.hear(numbered("welding", "a", 6, "r6"));
+    let lines = r.lines_of("welding");
+    let texts: Vec<&str> = lines.iter().map(|(_, t)| t.as_str()).collect();
+    assert_eq!(
+        texts,
+        [
+            "r1",
+            "r2",
+            "r3 (replayed)",
+            "r4 (replayed)",
+            "r5 (replayed)",
+            "r6"
+        ]
+    );
+    // The replayed ones keep the station's time.
+    assert_eq!(lines[2].0, 1_003);
+    assert_eq!(lines[4].0, 1_005);
+}
+
+#[test]
+fn a_gap_in_the_numbers_is_read_back_and_what_fell_out_of_the_buffer_is_reported_lost() {
+    let mut r = Rig::new();
+    r.hear(numbered("transport", "a", 7, "first heard"));
+    // 8 .. 400 never heard: 401 says so.
+    let out = r.hear(numbered("transport", "a", 401, "r401"));
+    assert_eq!(reads(&out), vec![(st("transport"), 7)], "{out:?}");
+    let kept = KeptReports {
+        run: "a".into(),
+        first: 320,
+        reports: (320..=401)
+            .map(|no| numbered("transport", "a", no, &format!("r{no}")))
+            .collect(),
+    };
+    r.list.handle_kept_reports(r.now, st("transport"), Ok(kept));
+    let out = r.outputs();
+    assert!(
+        said(&out, "EVENT replayed station=transport reports=82 lost=312"),
+        "{out:?}"
+    );
+    let lines = r.lines_of("transport");
+    assert_eq!(lines[1].1, "312 reports lost while the link was down");
+    assert_eq!(lines[2].1, "r320 (replayed)");
+    assert_eq!(lines.last().map(|l| l.1.as_str()), Some("r401 (replayed)"));
+    assert_eq!(lines.len(), 2 + 82);
+}
+
+#[test]
+fn a_failed_read_is_tried_again_and_a_restarted_station_is_read_from_its_new_run() {
+    let mut r = Rig::new();
+    r.list.handle_presence(r.now, st("welding"), true);
+    r.outputs();
+    r.hear(numbered("welding", "a", 1, "old run"));
+    r.list.handle_presence(r.now, st("welding"), false);
+    r.list.handle_presence(r.now, st("welding"), true);
+    assert_eq!(reads(&r.outputs()), vec![(st("welding"), 1)]);
+    r.list
+        .handle_kept_reports(r.now, st("welding"), Err("no reply".into()));
+    r.now += Duration::from_millis(500);
+    r.list.handle_timeout(r.now);
+    assert!(reads(&r.outputs()).is_empty(), "read again too soon");
+    r.now += Duration::from_millis(500);
+    assert!(r.list.poll_timeout().is_some_and(|t| t <= r.now));
+    r.list.handle_timeout(r.now);
+    assert_eq!(reads(&r.outputs()), vec![(st("welding"), 1)]);
+    // The node started again meanwhile: its new run is filed from 1.
+    let kept = KeptReports {
+        run: "b".into(),
+        first: 1,
+        reports: vec![numbered("welding", "b", 1, "new run")],
+    };
+    r.list.handle_kept_reports(r.now, st("welding"), Ok(kept));
+    r.hear(numbered("welding", "b", 2, "live again"));
+    let texts: Vec<String> = r.lines_of("welding").into_iter().map(|l| l.1).collect();
+    assert_eq!(texts, ["old run", "new run (replayed)", "live again"]);
+}
+
+#[test]
+fn a_replayed_job_end_is_recorded_with_the_station_s_time() {
+    let mut r = Rig::new();
+    r.hear(numbered("welding", "a", 1, "hello"));
+    let kept = KeptReports {
+        run: "a".into(),
+        first: 1,
+        reports: vec![(
+            Stamp {
+                run: "a".into(),
+                no: 2,
+                at_ms: 4_242,
+            },
+            Unconfirmed::Job {
+                station: st("welding"),
+                program: name("DROOG_DIK"),
+                event: JobEvent::BadProduct,
+            },
+        )],
+    };
+    r.list.handle_presence(r.now, st("welding"), true);
+    r.outputs();
+    r.list.handle_kept_reports(r.now, st("welding"), Ok(kept));
+    let lines = r.lines_of("welding");
+    assert_eq!(
+        lines.last(),
+        Some(&(
+            4_242,
+            "job DROOG_DIK ended: bad product (replayed)".to_string()
+        ))
+    );
+    let jobs = r.list.records().jobs.clone();
+    assert_eq!(
+        jobs.last().map(|(_, j)| j.ended_ms),
+        Some(4_242),
+        "{jobs:?}"
+    );
+}

@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 use std::fmt;
 
 /// The version of this message set; the envelope carries it.
-pub const PROTOCOL_VERSION: u8 = 1;
+pub const PROTOCOL_VERSION: u8 = 2;
 
 macro_rules! services {
     ($($variant:ident => $key:literal),+ $(,)?) => {
@@ -427,6 +427,17 @@ pub enum Unconfirmed {
         /// What happened, for a person.
         text: String,
     },
+}
+
+impl Unconfirmed {
+    /// Who publishes it.
+    pub fn station(&self) -> &StationName {
+        match self {
+            Self::Status { station, .. }
+            | Self::Job { station, .. }
+            | Self::Report { station, .. } => station,
+        }
+    }
 }
 
 #[cfg(test)]

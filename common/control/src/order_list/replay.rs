@@ -1,0 +1,213 @@
+//! No report lost across a cut: the reader's half of the stations' kept
+//! reports ([`falc_model::mms::journal`]). Each station numbers its reports
+//! and job events; the list files them in number order. A station back on
+//! the bus, or a number that skips, makes the list read what the station
+//! kept after the last one it filed ([`Output::ReadReports`]); what comes
+//! back is filed in order with its own time and marked ` (replayed)`, and
+//! what fell out of the station's buffer is journalled as lost. While a
+//! read is out, live reports of that station are left to it (the station
+//! keeps them), so nothing is filed twice or out of order.
+
+use super::*;
+use falc_model::mms::journal::{KeptReports, Stamp};
+
+/// How long after a failed read the list reads again.
+const READ_AGAIN: Duration = Duration::from_secs(1);
+
+/// What a replayed entry's text ends with.
+pub const REPLAYED: &str = " (replayed)";
+
+/// What the list has of one station's numbered reports.
+#[derive(Debug)]
+pub(super) struct Heard {
+    /// The station's run the numbers are of.
+    run: String,
+    /// The last number filed.
+    last: u64,
+    /// The highest number heard (filed, or left to a read).
+    seen: u64,
+    reading: Reading,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Reading {
+    /// Nothing asked.
+    No,
+    /// A read is out.
+    Out,
+    /// A read failed: read again at this time.
+    Again(Duration),
+}
+
+impl<R: Records, S: RecipeSource> OrderList<R, S> {
+    /// A station's publication as heard on the bus, numbered or not.
+    pub fn handle_heard(&mut self, now: Duration, stamp: Option<Stamp>, u: Unconfirmed) {
+        match stamp {
+            None => self.publication(now, u),
+            Some(stamp) => self.numbered(now, stamp, u),
+        }
+        self.pump(now);
+    }
+
+    fn numbered(&mut self, now: Duration, stamp: Stamp, u: Unconfirmed) {
+        let station = u.station().clone();
+        // First heard: what came before is not this list's to ask for.
+        let h = self.heard.entry(station.clone()).or_insert_with(|| Heard {
+            run: stamp.run.clone(),
+            last: stamp.no.saturating_sub(1),
+            seen: 0,
+            reading: Reading::No,
+        });
+        if h.run != stamp.run {
+            // The station's node started again: its numbers start again.
+            *h = Heard {
+                run: stamp.run.clone(),
+                last: 0,
+                seen: 0,
+                reading: h.reading,
+            };
+        }
+        h.seen = h.seen.max(stamp.no);
+        if h.reading == Reading::Out || stamp.no <= h.last {
+            return;
+        }
+        if stamp.no == h.last + 1 {
+            h.last = stamp.no;
+            return self.publication(now, u);
+        }
+        self.read_kept(station);
+    }
+
+    /// Asks `station` for what it kept after the last report filed.
+    pub(super) fn read_kept(&mut self, station: StationName) {
+        let Some(h) = self.heard.get_mut(&station) else {
+            return;
+        };
+        h.reading = Reading::Out;
+        let after = h.last;
+        self.say(format!(
+            "EVENT read-reports station={station} after={after}"
+        ));
+        self.out.push_back(Output::ReadReports { station, after });
+    }
+
+    /// A station is back on the bus: what it reported while it could not
+    /// be heard is read, if it ever was heard.
+    pub(super) fn heard_back(&mut self, station: &StationName) {
+        if self
+            .heard
+            .get(station)
+            .is_some_and(|h| h.reading != Reading::Out)
+        {
+            self.read_kept(station.clone());
+        }
+    }
+
+    /// The answer to [`Output::ReadReports`]: what `station` kept, filed
+    /// in order, or why it could not be read (read again shortly while it
+    /// is on the bus, else when it is back).
+    pub fn handle_kept_reports(
+        &mut self,
+        now: Duration,
+        station: StationName,
+        answer: Result<KeptReports, String>,
+    ) {
+        let present = self.present.contains(&station);
+        let Some(h) = self.heard.get_mut(&station) else {
+            return;
+        };
+        let kept = match answer {
+            Ok(k) => k,
+            Err(e) => {
+                h.reading = if present {
+                    Reading::Again(now + READ_AGAIN)
+                } else {
+                    Reading::No
+                };
+                self.say(format!("EVENT read-reports-failed station={station}: {e}"));
+                return self.pump(now);
+            }
+        };
+        h.reading = Reading::No;
+        if kept.run != h.run {
+            // Started again since: its new run is read from the start.
+            h.run = kept.run.clone();
+            h.last = 0;
+            h.seen = 0;
+        }
+        let lost = kept.lost_after(h.last);
+        h.last = h.last.max(kept.first.saturating_sub(1));
+        if lost > 0 {
+            let text = format!("{lost} reports lost while the link was down");
+            let order = self.order_of_message(now);
+            self.journal(EntryKind::Report, order, station.as_str(), &text);
+        }
+        let mut filed = 0;
+        for (stamp, u) in kept.reports {
+            let Some(h) = self.heard.get_mut(&station) else {
+                break;
+            };
+            if stamp.no <= h.last || *u.station() != station {
+                continue;
+            }
+            h.last = stamp.no;
+            h.seen = h.seen.max(stamp.no);
+            filed += 1;
+            self.replayed(now, stamp.at_ms, u);
+        }
+        self.say(format!(
+            "EVENT replayed station={station} reports={filed} lost={lost}"
+        ));
+        // Heard while the read was out, made after it was answered.
+        if self.heard.get(&station).is_some_and(|h| h.seen > h.last) {
+            self.read_kept(station);
+        }
+        self.pump(now);
+    }
+
+    /// Files a report or job event that was read again, with its own time.
+    fn replayed(&mut self, now: Duration, at_ms: i64, u: Unconfirmed) {
+        self.replaying = Some(at_ms);
+        match u {
+            Unconfirmed::Report {
+                station,
+                severity,
+                text,
+            } => self.station_report(now, station, severity, text),
+            // How the cell's run of an order ended is asked for when the
+            // cell is associated again ([`Away`]), not taken from a replay.
+            Unconfirmed::Job { station, .. } if station == self.cell => {}
+            Unconfirmed::Job {
+                station,
+                program,
+                event,
+            } => self.workstation_job(now, station, program, event),
+            Unconfirmed::Status { .. } => {}
+        }
+        self.replaying = None;
+    }
+
+    /// When a failed read is tried again.
+    pub(super) fn read_again_at(&self) -> Option<Duration> {
+        self.heard
+            .values()
+            .filter_map(|h| match h.reading {
+                Reading::Again(at) => Some(at),
+                _ => None,
+            })
+            .min()
+    }
+
+    /// Reads again where a failed read's time has come.
+    pub(super) fn read_again(&mut self, now: Duration) {
+        let due: Vec<StationName> = self
+            .heard
+            .iter()
+            .filter(|(_, h)| matches!(h.reading, Reading::Again(at) if at <= now))
+            .map(|(s, _)| s.clone())
+            .collect();
+        for station in due {
+            self.read_kept(station);
+        }
+    }
+}
