@@ -31,6 +31,7 @@ mod roles;
 mod secure;
 mod services;
 mod stanzas;
+mod states;
 mod transport;
 mod tui;
 mod welding;

@@ -3,8 +3,11 @@
 //! CLI: dikdroog in step mode confirmed step by step; maintenance after a
 //! robot emergency stop (the router refuses a manual operation to anyone
 //! but the maintainer, the workstation refuses it outside maintenance
-//! mode, `home` puts the conveyor back, the next order runs in auto); a
-//! failed order restarted from a chosen state of its cell recipe.
+//! mode, `home` puts the conveyor back and runs the robot's reference run,
+//! the next order runs in auto); the start-up check: a robot not in
+//! automatic-external mode keeps `start` refused, naming it, until the
+//! maintainer sets AUE and runs `manual welding home`; a failed order
+//! restarted from a chosen state of its cell recipe.
 
 use crate::support::rig::{rig, Rig};
 use crate::support::wait::{holds, wait_until};
@@ -181,11 +184,18 @@ fn maintenance_brings_the_cell_home_after_a_robot_estop_and_the_next_order_runs_
     assert_eq!(out.0, 0, "{}", out.1);
     rig.plc
         .expect_line("coil button line B 0", Duration::from_secs(5));
+    // The robot's way home: its start-up check (AUE with DNC), then the
+    // reference run with program 10.
+    rig.rcm.forget("rx S010");
     let (code, text) = rig
         .cell
         .falc_as("maintainer", &["manual", "welding", "home"]);
-    assert_eq!(code, 1, "{text}");
-    assert!(text.contains("welding has no recipe home"), "{text}");
+    assert_eq!(code, 0, "{text}");
+    rig.welding
+        .as_mut()
+        .expect("welding node")
+        .expect_line("EVENT job program=HOME event=Done", Duration::from_secs(60));
+    rig.rcm.expect_line("rx S010", Duration::ZERO);
     let (code, text) = rig
         .cell
         .falc_as("maintainer", &["manual", "transport", "home"]);
@@ -225,6 +235,56 @@ fn maintenance_brings_the_cell_home_after_a_robot_estop_and_the_next_order_runs_
         (OrderState::Failed, OrderState::Done)
     );
     assert_eq!((starts(&rig, 1), starts(&rig, 2)), (1, 1));
+}
+
+#[test]
+fn a_robot_not_in_aue_keeps_start_refused_until_the_maintainer_sets_aue_and_runs_home() {
+    let mut rig = rig("20");
+    // The robot switched to manual at its panel; the workstation learns
+    // its mode when its line opens (a restarted node).
+    rig.rcm.control("mode manual");
+    if let Some(w) = rig.welding.as_mut() {
+        w.kill();
+    }
+    rig.start_welding();
+    wait_until("welding unready", Duration::from_secs(10), || {
+        let text = rig.cell.falc(&["status"]);
+        holds(text.contains("not ready: the robot on"), || text)
+    });
+    // Its restart was a lost connection: acknowledged.
+    rig.cell.falc(&["ack"]);
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    let (code, text) = rig.cell.falc_as("console", &["start"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(
+        text.contains("station welding is not ready")
+            && text.contains("manual mode")
+            && text.contains("falc manual welding home"),
+        "{text}"
+    );
+    assert_eq!(rig.orders()[0].state, OrderState::Queued, "nothing started");
+    println!("start refused: {}", text.trim());
+
+    // The way the refusal names: AUE at the panel, home in maintenance.
+    rig.cell.falc(&["mode", "maintenance"]);
+    rig.rcm.control("mode aue");
+    let (code, text) = rig
+        .cell
+        .falc_as("maintainer", &["manual", "welding", "home"]);
+    assert_eq!(code, 0, "{text}");
+    rig.welding
+        .as_mut()
+        .expect("welding node")
+        .expect_line("EVENT job program=HOME event=Done", Duration::from_secs(60));
+    rig.rcm.expect_line("rx S010", Duration::ZERO);
+    rig.operator().expect_line(
+        "EVENT recipe-state station=welding state=READY",
+        Duration::from_secs(10),
+    );
+    rig.cell.falc(&["mode", "auto"]);
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(120));
+    assert_eq!(rig.orders()[0].state, OrderState::Done);
 }
 
 #[test]

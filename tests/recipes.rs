@@ -34,7 +34,7 @@ fn every_shipped_recipe_checks_clean() {
     let count = |s: &str| programs.iter().filter(|(st, _)| st.as_str() == s).count();
     assert_eq!(
         (count("cell"), count("welding"), count("transport")),
-        (3, 3, 6)
+        (3, 4, 6)
     );
 }
 
@@ -156,7 +156,12 @@ fn trigger(e: &mut Engine, now: &mut Duration, c: &Option<Criterion>) {
             e.handle_timeout(*now);
         }
         Some(Criterion::Started) => e.handle(*now, Event::Started(target.expect("start"))),
-        Some(Criterion::Done) if matches!(st.command, Command::WaitInput { .. }) => {
+        Some(Criterion::Done)
+            if matches!(
+                st.command,
+                Command::WaitInput { .. } | Command::WaitReady { .. }
+            ) =>
+        {
             e.handle(*now, Event::InputReached)
         }
         Some(Criterion::Done) => e.handle(*now, ended(JobEnd::Done)),
@@ -273,7 +278,7 @@ fn falc_recipe_check_and_dot() {
     assert_eq!((code, out.as_str()), (0, ""));
     let (code, out) = falc(&["recipe", "list"]);
     assert_eq!(code, 0, "{out}");
-    assert_eq!(out.lines().count(), 12, "{out}");
+    assert_eq!(out.lines().count(), 13, "{out}");
     assert!(
         out.lines()
             .any(|l| l.starts_with("welding") && l.contains("DROOG_DIK") && l.contains("ok")),
@@ -350,7 +355,7 @@ fn falc_recipe_view_draws_svg_without_graphviz_with_every_state() {
             .expect("falc runs")
     };
     let entries = files::load(&[root().join("recipes")], None).expect("recipes load");
-    assert_eq!(entries.len(), 12);
+    assert_eq!(entries.len(), 13);
     for (i, entry) in entries.iter().enumerate() {
         let file = std::path::Path::new(&entry.recipe.origin);
         let out = tmp.path().join(format!("{i}.svg"));

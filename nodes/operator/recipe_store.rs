@@ -184,7 +184,7 @@ mod tests {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes");
         let cell = StationName::new("cell").expect("valid");
         let set = load(&dir, &topology(), &cell).expect("clean");
-        assert_eq!(set.deliveries.len(), 12);
+        assert_eq!(set.deliveries.len(), 13);
         let names: Vec<&str> = set.cell_recipes().iter().map(|n| n.as_str()).collect();
         assert_eq!(names.len(), 3, "{names:?}");
         assert!(set
@@ -192,7 +192,7 @@ mod tests {
             .iter()
             .any(|d| d.domain.as_str() == "WELDING$DROOG_DIK"));
         let first_cell = set.deliveries.iter().position(|d| d.is_cell);
-        assert_eq!(first_cell, Some(9));
+        assert_eq!(first_cell, Some(10));
     }
 
     /// A copy of the shipped recipe tree.
@@ -217,7 +217,7 @@ mod tests {
         let ws = |f: &str| RecipeFile::new(StationName::new("transport").expect("v"), f);
         let store = ws("store.rcp").expect("valid");
         let listed = list(tmp.path(), &t, &cell).expect("list");
-        assert_eq!(listed.len(), 12);
+        assert_eq!(listed.len(), 13);
         assert!(listed
             .iter()
             .any(|r| r.file == store && r.name.as_deref() == Some("STORE")));

@@ -76,6 +76,14 @@ pub trait Device {
     fn handle(&mut self, now: Duration, what: Happening<'_>, out: &mut Vec<Event>);
     /// Why no recipe can start now (no link, emergency stop), if so.
     fn unavailable(&self) -> Option<String>;
+    /// Why the station is not ready for its commander's work (published
+    /// in its status: the cell refuses a start while a workstation says
+    /// so): what [`Self::unavailable`] says, and what only the station's
+    /// own recipes may put right (a robot not in automatic-external mode,
+    /// which its `home` recipe checks again).
+    fn unready(&self) -> Option<String> {
+        self.unavailable()
+    }
     /// The device's part of the status (physical status, additional detail).
     fn status(&self, status: &mut VmdStatus);
     /// Whether outputs the recipe issued are not carried out yet: a job
@@ -169,6 +177,10 @@ pub struct Controller<D> {
     /// Whether a running recipe goes on when the commander is lost
     /// ([`Self::runs_on_alone`]).
     runs_on_alone: bool,
+    /// An alarm (a device fault, a run that did not end done) since the
+    /// last reset: the recipe state is ERROR until a run starts or the
+    /// commander resets a program invocation.
+    alarmed: bool,
     out: VecDeque<Output>,
 }
 
@@ -192,6 +204,7 @@ impl<D: Device> Controller<D> {
             confirm_limit,
             running: None,
             runs_on_alone: false,
+            alarmed: false,
             out: VecDeque::new(),
         }
     }
@@ -272,6 +285,7 @@ impl<D: Device> Controller<D> {
         if let Some(r) = &mut self.running {
             r.engine.abort(cause.clone());
         }
+        self.alarmed = true;
         self.report(Severity::Alarm(cause.class), cause.text);
     }
 
@@ -285,14 +299,33 @@ impl<D: Device> Controller<D> {
         self.out.pop_front()
     }
 
+    /// The recipe state this level is in (the local detail of its
+    /// status): EXECUTING while a recipe runs; ERROR after an alarm until
+    /// a run starts or a program invocation is reset; READY with a recipe
+    /// loaded that a Start would run now (the device available, not in
+    /// maintenance mode); LOADED with one loaded that could not start now;
+    /// else IDLE. WAIT_ACK and PENDING are the operator's to add: it keeps
+    /// the acknowledgements and the starts under way
+    /// (`order_list::OrderList::status`).
+    pub fn recipe_state(&self) -> RecipeState {
+        if self.running.is_some() {
+            RecipeState::Executing
+        } else if self.alarmed {
+            RecipeState::Error
+        } else if self.vmd.programs().next().is_none() {
+            RecipeState::Idle
+        } else if self.mode.mode != CellMode::Maintenance && self.device.unready().is_none() {
+            RecipeState::Ready
+        } else {
+            RecipeState::Loaded
+        }
+    }
+
     /// The status as it is now (the driver publishes it when it changed).
     pub fn status(&self) -> VmdStatus {
         let mut status = VmdStatus {
-            local_detail: if self.running.is_some() {
-                RecipeState::Executing
-            } else {
-                RecipeState::Idle
-            },
+            local_detail: self.recipe_state(),
+            unready: self.device.unready(),
             program: self.running.as_ref().map(|r| ProgramState {
                 name: r.name.clone(),
                 state: r.engine.state().0,
@@ -389,6 +422,7 @@ impl<D: Device> Controller<D> {
                 // Kept until the next Start: a commander that was away
                 // when it ended asks for it.
                 self.vmd.record_end(&r.name, event.clone());
+                self.alarmed |= event != JobEvent::Done;
                 self.out.push_back(Output::Job {
                     program: r.name,
                     event,
@@ -540,6 +574,7 @@ impl<D: Device> Controller<D> {
             }
             PiRequest::Reset => {
                 self.stopped = None;
+                self.alarmed = false;
                 PiCompletion::ResetDone
             }
             PiRequest::Delete => return result,
@@ -568,6 +603,8 @@ impl<D: Device> Controller<D> {
             let _ = self.vmd.complete(&t.name, PiCompletion::StartFailed);
             return Err(e);
         }
+        // A run began: the alarm before it is dealt with.
+        self.alarmed = false;
         Ok(if t.request == PiRequest::Start {
             PiCompletion::Started
         } else {
@@ -1131,7 +1168,47 @@ mod tests {
         assert_eq!(job_events(&outputs(&mut c)), vec![JobEvent::Done]);
         assert_eq!(c.device.finished, vec![Outcome::Done]);
         assert_eq!(c.poll_timeout(), None);
+        assert_eq!(c.status().local_detail, RecipeState::Ready);
+    }
+
+    #[test]
+    fn the_recipe_state_is_loaded_ready_executing_and_error_until_reset() {
+        let mut c = Controller::new(RecipeKind::Welding, secs(30), Fake::default());
         assert_eq!(c.status().local_detail, RecipeState::Idle);
+        load(&mut c, "droog_dik", DROOG_DIK);
+        assert_eq!(c.recipe_state(), RecipeState::Ready);
+        // Loaded, but a Start would be refused now.
+        c.device.down = Some("no link".into());
+        assert_eq!(c.recipe_state(), RecipeState::Loaded);
+        c.device.down = None;
+        c.handle_request(secs(0), &mode(CellMode::Maintenance, &[]))
+            .unwrap();
+        assert_eq!(c.recipe_state(), RecipeState::Loaded);
+        c.handle_request(secs(0), &mode(CellMode::Auto, &[]))
+            .unwrap();
+        start(&mut c, secs(1)).unwrap();
+        assert_eq!(c.status().local_detail, RecipeState::Executing);
+        // An alarm ends the run: ERROR until the next run starts.
+        c.fault(Cause::new(AlarmClass::Safety, "emergency stop".to_string()));
+        c.settle(secs(2));
+        assert!(!c.is_running());
+        assert_eq!(c.status().local_detail, RecipeState::Error);
+        start(&mut c, secs(3)).unwrap();
+        assert_eq!(c.recipe_state(), RecipeState::Executing);
+        c.feed(secs(4), vec![Event::Started(rcm())]);
+        c.feed(secs(5), vec![Event::Ended(rcm(), JobEnd::Done)]);
+        c.settle(secs(5));
+        assert_eq!(c.recipe_state(), RecipeState::Ready);
+        // A fault while idle, and a run that fails: each ERROR until a
+        // run starts.
+        c.fault(Cause::new(AlarmClass::Device, "line open".to_string()));
+        assert_eq!(c.recipe_state(), RecipeState::Error);
+        start(&mut c, secs(7)).unwrap();
+        assert_eq!(c.recipe_state(), RecipeState::Executing);
+        c.feed(secs(8), vec![Event::Started(rcm())]);
+        c.feed(secs(9), vec![Event::Ended(rcm(), JobEnd::BadProduct)]);
+        c.settle(secs(9));
+        assert_eq!(c.recipe_state(), RecipeState::Error);
     }
 
     #[test]

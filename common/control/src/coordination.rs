@@ -92,6 +92,9 @@ pub struct Stations {
     started: BTreeMap<StationName, ObjectName>,
     /// Stations whose association was lost since the commander associated.
     lost: BTreeSet<StationName>,
+    /// What each workstation's status last said keeps it from being
+    /// ready (the start-up check: a start is refused naming it).
+    unready: BTreeMap<StationName, String>,
     /// Outputs the operator has not confirmed yet: the recipe's end waits
     /// for them, so its last line is journalled under its own order.
     showing: usize,
@@ -179,7 +182,14 @@ impl Stations {
 
     /// A publication of a workstation: the engine events it means for the
     /// running recipe (only the job this recipe started there counts).
-    pub fn unconfirmed(&self, u: &Unconfirmed) -> Vec<Event> {
+    pub fn unconfirmed(&mut self, u: &Unconfirmed) -> Vec<Event> {
+        if let Unconfirmed::Status { station, status } = u {
+            match &status.unready {
+                Some(why) => self.unready.insert(station.clone(), why.clone()),
+                None => self.unready.remove(station),
+            };
+            return Vec::new();
+        }
         let Unconfirmed::Job {
             station,
             program,
@@ -391,10 +401,17 @@ impl Device for Stations {
     }
 
     fn unavailable(&self) -> Option<String> {
-        self.lost
+        let lost = self
+            .lost
             .iter()
             .next()
-            .map(|s| format!("no connection with station {}", s.as_str().to_uppercase()))
+            .map(|s| format!("no connection with station {}", s.as_str().to_uppercase()));
+        lost.or_else(|| {
+            self.unready
+                .iter()
+                .next()
+                .map(|(s, why)| format!("station {s} is not ready: {why}"))
+        })
     }
 
     fn settling(&self) -> bool {
@@ -861,5 +878,37 @@ mod tests {
         assert!(!c.is_running());
         assert!(outputs(&mut c).iter().any(|o| matches!(o,
             Output::Report { text, .. } if text.contains("this cell has no operator"))));
+    }
+
+    #[test]
+    fn a_start_is_refused_while_a_workstation_says_it_is_not_ready_naming_why() {
+        use falc_model::mms::vmd::{RecipeState, VmdStatus};
+        let mut c = cell();
+        assert_eq!(c.recipe_state(), RecipeState::Ready);
+        let status = |unready: Option<&str>| Unconfirmed::Status {
+            station: st("welding"),
+            status: VmdStatus {
+                unready: unready.map(str::to_string),
+                ..VmdStatus::default()
+            },
+        };
+        let why = "the robot on /dev/ttyS0 is in manual mode, not automatic-external (AUE)";
+        assert!(c.device.unconfirmed(&status(Some(why))).is_empty());
+        assert_eq!(c.recipe_state(), RecipeState::Loaded);
+        assert_eq!(
+            c.status().unready.as_deref(),
+            Some(format!("station welding is not ready: {why}").as_str())
+        );
+        let e = start(&mut c).expect_err("refused");
+        assert!(
+            e.description.contains("station welding is not ready")
+                && e.description.contains("manual mode"),
+            "{e:?}"
+        );
+        assert!(!c.is_running());
+        // Ready again: the start goes.
+        c.device.unconfirmed(&status(None));
+        assert_eq!(c.recipe_state(), RecipeState::Ready);
+        assert!(start(&mut c).is_ok());
     }
 }

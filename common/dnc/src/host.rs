@@ -165,6 +165,17 @@ impl Host {
         self.open && !self.probing
     }
 
+    /// The robot's mode as its last program status said, if one came.
+    pub fn mode(&self) -> Option<Mode> {
+        self.mode
+    }
+
+    /// Asks the robot's status now (its mode, its program), unless a
+    /// request is already in the link's hands.
+    pub fn ask_status(&mut self, now: Duration) -> Vec<Out> {
+        self.ask(now).into_iter().collect()
+    }
+
     /// The robot program a job of ours runs, if any.
     pub fn running(&self) -> Option<RobotProgram> {
         self.running

@@ -7,7 +7,16 @@
 //! and [`Welding::closed`]. Alarms no job owns (a lost line while idle, a
 //! program nobody started) go up through [`Device::poll_report`], with what
 //! the robot does: each program started and ended, its information
-//! messages.
+//! messages. A `waitready rcm` waits until the robot takes DNC commands
+//! (automatic-external mode, the link answering: [`Welding::readiness`]);
+//! a robot known to be in another mode, or a line that is not open, makes
+//! the workstation unavailable, so a Start is refused naming it.
+//!
+//! The host's link asks the robot's status at open and while a program
+//! runs, not while idle: a mode changed at the robot's panel is known at
+//! the next status (a `waitready`, `falc manual welding home`, asks one).
+
+use crate::telegram::Mode;
 
 use crate::host::{Host, Out};
 use crate::procedure::{LinkEvent, Timing};
@@ -42,6 +51,8 @@ pub struct Welding {
     /// What the robot did and alarms no job owns (a lost line while idle,
     /// a program found running nobody's), not yet reported.
     reports: VecDeque<(Severity, String)>,
+    /// A `waitready` waits until the robot is ready.
+    watching_ready: bool,
 }
 
 impl Welding {
@@ -53,6 +64,32 @@ impl Welding {
             outbox: VecDeque::new(),
             detail: None,
             reports: VecDeque::new(),
+            watching_ready: false,
+        }
+    }
+
+    /// Whether the robot takes DNC commands now: the line open, the RCM
+    /// answering, automatic-external mode; else what is missing.
+    pub fn readiness(&self) -> Result<(), String> {
+        let line = self.host.line();
+        if !self.host.is_open() {
+            return Err(format!("the DNC line {line} is not open"));
+        }
+        if !self.host.answered() {
+            return Err(format!("the RCM on {line} does not answer DNC"));
+        }
+        match self.host.mode() {
+            Some(Mode::AutomaticExternal) => Ok(()),
+            Some(other) => Err(not_aue(line, other)),
+            None => Err(format!("the RCM on {line} has not told its mode yet")),
+        }
+    }
+
+    /// A `waitready` that waits, told once the robot is ready.
+    fn ready_now(&mut self, out: &mut Vec<Event>) {
+        if self.watching_ready && self.readiness().is_ok() {
+            self.watching_ready = false;
+            out.push(Event::InputReached);
         }
     }
 
@@ -115,6 +152,7 @@ impl Welding {
                     tracing::debug!(?t, "from the RCM");
                     let outs = self.host.telegram(now, t);
                     self.apply(outs, &mut out);
+                    self.ready_now(&mut out);
                 }
                 Err(e) => tracing::warn!("undecodable telegram from the RCM: {e}"),
             },
@@ -173,7 +211,7 @@ impl Welding {
 
 /// What the device does when something happens ([`Device::handle`]).
 impl Welding {
-    fn act(&mut self, action: Action, out: &mut Vec<Event>) {
+    fn act(&mut self, now: Duration, action: Action, out: &mut Vec<Event>) {
         match action {
             Action::Start {
                 job: Job::Program(p),
@@ -183,6 +221,15 @@ impl Welding {
                 self.apply(outs, out);
             }
             Action::Stop(_) => self.halt(out),
+            // The mode is asked anew: it may have changed at the panel.
+            Action::WatchReady => {
+                self.watching_ready = true;
+                if self.host.is_open() {
+                    let outs = self.host.ask_status(now);
+                    self.apply(outs, out);
+                }
+            }
+            Action::Unwatch => self.watching_ready = false,
             other => tracing::warn!("a welding recipe cannot {other:?}"),
         }
     }
@@ -212,7 +259,7 @@ impl Welding {
 impl Device for Welding {
     fn handle(&mut self, now: Duration, what: Happening<'_>, out: &mut Vec<Event>) {
         match what {
-            Happening::Act(action) => self.act(action, out),
+            Happening::Act(action) => self.act(now, action, out),
             Happening::Halt => self.halt(out),
             Happening::Finished(outcome) => self.finished(outcome),
             Happening::Clock => self.handle_timeout(now, out),
@@ -220,8 +267,20 @@ impl Device for Welding {
         }
     }
 
+    /// A line that is not open: nothing can go to the robot.
     fn unavailable(&self) -> Option<String> {
-        None
+        (!self.host.is_open()).then(|| format!("the DNC line {} is not open", self.host.line()))
+    }
+
+    /// Also a robot whose last status said it is not in automatic-external
+    /// mode (its own recipes still run: `home` asks the mode anew; a
+    /// robot not heard yet is not refused here, its link supervision
+    /// speaks for it).
+    fn unready(&self) -> Option<String> {
+        self.unavailable().or_else(|| match self.host.mode() {
+            Some(m) if m != Mode::AutomaticExternal => Some(not_aue(self.host.line(), m)),
+            _ => None,
+        })
     }
 
     fn manual(&mut self, _now: Duration, action: &ManualAction) -> Result<String, String> {
@@ -257,6 +316,19 @@ impl Device for Welding {
             status.physical = PhysicalStatus::Inoperable;
         }
     }
+}
+
+/// Why a robot in mode `m` takes no DNC commands, and the way out.
+fn not_aue(line: &str, m: Mode) -> String {
+    let mode = match m {
+        Mode::Manual => "manual",
+        Mode::Automatic => "automatic",
+        Mode::AutomaticExternal => "automatic-external",
+    };
+    format!(
+        "the robot on {line} is in {mode} mode, not automatic-external (AUE) with DNC: \
+         set it to AUE, then falc manual welding home"
+    )
 }
 
 #[cfg(test)]
@@ -311,5 +383,66 @@ mod tests {
             drain(&mut w),
             vec![Telegram::InitiateDnc, Telegram::StatusRequest]
         );
+    }
+
+    fn status_of(mode: Mode) -> LinkEvent {
+        let t = Telegram::ProgramStatus {
+            program: None,
+            state: crate::telegram::ProgramState::Idle,
+            mode,
+        };
+        LinkEvent::Received(t.encode())
+    }
+
+    #[test]
+    fn a_robot_not_in_aue_is_unready_and_waitready_asks_its_mode_again_until_it_is() {
+        let timing = Timing::default();
+        let mut w = Welding::new("/dev/ttyS0", &timing);
+        assert_eq!(
+            w.unready().as_deref(),
+            Some("the DNC line /dev/ttyS0 is not open")
+        );
+        w.opened(Duration::ZERO);
+        drain(&mut w);
+        // Not heard yet: not refused (the link supervision speaks).
+        assert_eq!(w.unready(), None);
+        assert!(w.readiness().is_err());
+        w.link_event(Duration::ZERO, status_of(Mode::Manual));
+        let why = w.unready().expect("unready in manual mode");
+        assert!(why.contains("manual mode") && why.contains("AUE"), "{why}");
+        // Its own recipes still start (home checks the mode itself).
+        assert_eq!(w.unavailable(), None);
+        // waitready: the status is asked; manual still, nothing yet.
+        let mut out = Vec::new();
+        w.handle(secs(1), Happening::Act(Action::WatchReady), &mut out);
+        assert_eq!(drain(&mut w), vec![Telegram::StatusRequest]);
+        assert!(out.is_empty());
+        let out = w.link_event(secs(2), status_of(Mode::Manual));
+        assert!(out.is_empty(), "{out:?}");
+        // The maintainer set AUE at the panel: the next status says so.
+        let out = w.link_event(secs(3), status_of(Mode::AutomaticExternal));
+        assert_eq!(out, vec![Event::InputReached]);
+        assert_eq!((w.unready(), w.readiness()), (None, Ok(())));
+        // Told once.
+        let out = w.link_event(secs(4), status_of(Mode::AutomaticExternal));
+        assert!(out.is_empty());
+    }
+
+    #[test]
+    fn waitready_on_a_ready_robot_is_told_at_its_next_status_and_unwatch_ends_it() {
+        let timing = Timing::default();
+        let mut w = Welding::new("/dev/ttyS0", &timing);
+        w.opened(Duration::ZERO);
+        w.link_event(Duration::ZERO, status_of(Mode::AutomaticExternal));
+        drain(&mut w);
+        let mut out = Vec::new();
+        w.handle(secs(1), Happening::Act(Action::WatchReady), &mut out);
+        w.handle(secs(1), Happening::Act(Action::Unwatch), &mut out);
+        let out = w.link_event(secs(2), status_of(Mode::AutomaticExternal));
+        assert!(out.is_empty(), "no longer watched: {out:?}");
+    }
+
+    fn secs(s: u64) -> Duration {
+        Duration::from_secs(s)
     }
 }

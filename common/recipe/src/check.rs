@@ -86,6 +86,12 @@ pub enum Command {
         /// The limit.
         limit: Duration,
     },
+    /// Wait until the robot takes DNC commands: automatic-external mode,
+    /// the DNC link answering (the thesis' start-up check).
+    WaitReady {
+        /// The limit.
+        limit: Duration,
+    },
 }
 
 impl Command {
@@ -93,7 +99,11 @@ impl Command {
     pub fn waits(&self) -> bool {
         matches!(
             self,
-            Self::Start { .. } | Self::Wait { .. } | Self::Input(_) | Self::WaitInput { .. }
+            Self::Start { .. }
+                | Self::Wait { .. }
+                | Self::Input(_)
+                | Self::WaitInput { .. }
+                | Self::WaitReady { .. }
         )
     }
 }
@@ -284,6 +294,14 @@ fn build_command(spec: &CommandSpec, c: &CommandText) -> Result<Command, String>
                 signal,
                 level,
                 limit: seconds(a(2))?,
+            }
+        }
+        Handler::WaitReady => {
+            if !a(0).eq_ignore_ascii_case("rcm") {
+                return Err(format!("`waitready` waits for `rcm`, not `{}`", a(0)));
+            }
+            Command::WaitReady {
+                limit: seconds(a(1))?,
             }
         }
     })

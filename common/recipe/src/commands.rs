@@ -97,6 +97,9 @@ pub enum Handler {
     Reset,
     /// Wait for a PLC input to reach a level; done / timeout.
     WaitInput,
+    /// Wait until the robot is ready for DNC commands (automatic-external
+    /// mode, the DNC link answering); done / timeout.
+    WaitReady,
 }
 
 impl Handler {
@@ -104,7 +107,7 @@ impl Handler {
     pub fn waits(self) -> bool {
         matches!(
             self,
-            Self::Start | Self::Wait | Self::Input | Self::WaitInput
+            Self::Start | Self::Wait | Self::Input | Self::WaitInput | Self::WaitReady
         )
     }
 }
@@ -224,6 +227,13 @@ const WELDING: &[CommandSpec] = &[
         criteria: Criteria::Wait,
         handler: Handler::Wait,
         usage: "wait rcm [max_s]",
+    },
+    CommandSpec {
+        name: "waitready",
+        args: &[Arg::Rcm, Arg::Seconds],
+        criteria: Criteria::DoneOrTimeout,
+        handler: Handler::WaitReady,
+        usage: "waitready rcm <max_s>",
     },
 ];
 

@@ -64,7 +64,8 @@ pub enum Event {
     Resumed(StationName),
     /// The operator answered.
     Answer(String),
-    /// The watched PLC input reached its level.
+    /// What a state watches holds: the PLC input reached its level, or
+    /// the robot is ready (`waitready`).
     InputReached,
 }
 
@@ -97,6 +98,9 @@ pub enum Action {
         /// The level.
         level: bool,
     },
+    /// Watch the robot until it takes DNC commands (`waitready`): the
+    /// device says [`Event::InputReached`] once it does.
+    WatchReady,
     /// Stop watching.
     Unwatch,
     /// Report an alarm upward.
@@ -357,7 +361,7 @@ impl Engine {
                     Some(format!("{target} did not finish within its time limit"))
                 }
                 Phase::AwaitInput { .. } => {
-                    Some("the awaited input was not reached within its time limit".into())
+                    Some("what the state waited for did not come within its time limit".into())
                 }
                 _ => None,
             };
@@ -606,6 +610,13 @@ impl Engine {
                     limit,
                 } => {
                     self.actions.push_back(Action::Watch { signal, level });
+                    self.phase = Phase::AwaitInput {
+                        deadline: now + limit,
+                    };
+                    return;
+                }
+                Command::WaitReady { limit } => {
+                    self.actions.push_back(Action::WatchReady);
                     self.phase = Phase::AwaitInput {
                         deadline: now + limit,
                     };

@@ -737,7 +737,7 @@ impl Explorer<'_> {
                     ));
                 }
             }
-            Command::WaitInput { .. } => {
+            Command::WaitInput { .. } | Command::WaitReady { .. } => {
                 out.push((
                     Event::InputReached,
                     None,
@@ -940,7 +940,10 @@ impl Explorer<'_> {
                 | Command::Output(_)
                 | Command::Activate(_)
                 | Command::Reset(_) => next = unconditional,
-                Command::Input(_) | Command::WaitInput { .. } | Command::Start { .. } => {
+                Command::Input(_)
+                | Command::WaitInput { .. }
+                | Command::WaitReady { .. }
+                | Command::Start { .. } => {
                     return Node::Waiting {
                         at: next,
                         jobs,
@@ -1123,7 +1126,7 @@ pub fn longest(p: &Program) -> Option<Duration> {
         match c {
             Command::Start { limit, .. } => limit.unwrap_or(START_CONFIRM_LIMIT),
             Command::Wait { limit, .. } => limit.unwrap_or(Duration::ZERO),
-            Command::WaitInput { limit, .. } => *limit,
+            Command::WaitInput { limit, .. } | Command::WaitReady { limit } => *limit,
             _ => Duration::ZERO,
         }
     }

@@ -73,6 +73,18 @@ impl Look {
     }
 }
 
+/// Station `name`'s recipe state as the operator shows it, while it is
+/// on the bus.
+fn recipe_state(app: &App, name: &falc_model::ids::StationName) -> Option<RecipeState> {
+    app.status
+        .as_ref()?
+        .stations
+        .iter()
+        .find(|v| &v.name == name && v.connected)
+        .and_then(|v| v.status.as_ref())
+        .map(|v| v.local_detail)
+}
+
 /// How station `i` (of [`App::stations`]) looks.
 pub fn look(app: &App, name: &falc_model::ids::StationName) -> Look {
     match &app.status {
@@ -501,7 +513,13 @@ fn overview(f: &mut Frame, app: &App, area: Rect) {
     let mut spans = vec![Span::raw(" ")];
     for s in &stations {
         let l = look(app, s);
-        spans.push(Span::styled(format!(" {s} {} ", l.word()), l.style()));
+        // The thesis' recipe state beside the look (LOADED, READY,
+        // PENDING, WAIT_ACK …).
+        let recipe = recipe_state(app, s).map_or(String::new(), |r| format!("{r} "));
+        spans.push(Span::styled(
+            format!(" {s} {} {recipe}", l.word()),
+            l.style(),
+        ));
         spans.push(Span::raw("  "));
     }
     f.render_widget(

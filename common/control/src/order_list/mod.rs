@@ -39,7 +39,7 @@ use falc_model::mms::domain::content_hash;
 use falc_model::mms::error::{ErrorClass, ServiceError};
 use falc_model::mms::pdu::{JobEvent, Peer, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::program::PiState;
-use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
+use falc_model::mms::vmd::{PhysicalStatus, RecipeState, VmdStatus};
 use falc_model::mode::{CellMode, ModeSetting};
 use falc_model::product::{RecipeVersion, UsedRecipe};
 use falc_model::topology::Topology;
@@ -512,6 +512,21 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         let now = self.status().ok()?;
         if self.told.as_ref() == Some(&now) {
             return None;
+        }
+        // Each station's recipe state as it changes, for the log.
+        for v in &now.stations {
+            let state = |s: &CellStatus| {
+                s.stations
+                    .iter()
+                    .find(|w| w.name == v.name)
+                    .and_then(|w| w.status.as_ref())
+                    .map(|st| st.local_detail)
+            };
+            let after = v.status.as_ref().map(|st| st.local_detail);
+            if let Some(after) = after.filter(|a| self.told.as_ref().and_then(state) != Some(*a)) {
+                let line = format!("EVENT recipe-state station={} state={after}", v.name);
+                self.out.push_back(Output::Say(line));
+            }
         }
         self.told = Some(now);
         Some(Output::Changed)

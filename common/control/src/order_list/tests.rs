@@ -23,6 +23,8 @@ struct Rig {
     list: OrderList<Memory, Source>,
     now: Duration,
     tickets: u64,
+    /// Every line the list said, in order.
+    said: Vec<String>,
 }
 
 impl Rig {
@@ -40,11 +42,18 @@ impl Rig {
             list,
             now: Duration::ZERO,
             tickets: 0,
+            said: Vec::new(),
         }
     }
 
     fn outputs(&mut self) -> Vec<Output> {
-        std::iter::from_fn(|| self.list.poll_output()).collect()
+        let out: Vec<Output> = std::iter::from_fn(|| self.list.poll_output()).collect();
+        for o in &out {
+            if let Output::Say(l) = o {
+                self.said.push(l.clone());
+            }
+        }
+        out
     }
 
     fn ticket(&mut self) -> Ticket {
@@ -1473,5 +1482,72 @@ fn a_replayed_job_end_is_recorded_with_the_station_s_time() {
         jobs.last().map(|(_, j)| j.ended_ms),
         Some(4_242),
         "{jobs:?}"
+    );
+}
+
+#[test]
+fn the_recipe_state_shown_adds_pending_while_a_start_waits_and_wait_ack_until_the_ack() {
+    use falc_model::mms::vmd::RecipeState;
+    let mut r = Rig::new();
+    let cell_status = |state: RecipeState| Unconfirmed::Status {
+        station: st("cell"),
+        status: VmdStatus {
+            local_detail: state,
+            ..VmdStatus::default()
+        },
+    };
+    let shown = |r: &mut Rig| {
+        r.list
+            .status()
+            .expect("status")
+            .stations
+            .iter()
+            .find(|v| v.name == st("cell"))
+            .and_then(|v| v.status.as_ref())
+            .map(|s| s.local_detail)
+    };
+    r.publish(cell_status(RecipeState::Ready));
+    assert_eq!(shown(&mut r), Some(RecipeState::Ready));
+    r.add(2);
+    r.start_until_the_cells_start();
+    r.outputs();
+    assert_eq!(shown(&mut r), Some(RecipeState::Pending));
+    r.answer(Ok(()));
+    r.publish(cell_status(RecipeState::Executing));
+    assert_eq!(shown(&mut r), Some(RecipeState::Executing));
+    // The order ends in alarm (the job event first, as the cell publishes
+    // it): the cell is in ERROR, its alarm waits.
+    r.job(JobEvent::Alarm(Cause::new(
+        AlarmClass::Safety,
+        "emergency stop".to_string(),
+    )));
+    r.publish(cell_status(RecipeState::Error));
+    assert_eq!(shown(&mut r), Some(RecipeState::WaitAck));
+    assert!(r.ask("console", ApiRequest::Ack { id: None }).is_ok());
+    r.outputs();
+    assert_eq!(shown(&mut r), Some(RecipeState::Error));
+    // start: PENDING again until the cell runs it.
+    r.start_until_the_cells_start();
+    r.outputs();
+    assert_eq!(shown(&mut r), Some(RecipeState::Pending));
+    r.answer(Ok(()));
+    r.publish(cell_status(RecipeState::Executing));
+    let states: Vec<&str> = r
+        .said
+        .iter()
+        .filter(|l| l.starts_with("EVENT recipe-state station=cell "))
+        .filter_map(|l| l.rsplit_once("state=").map(|(_, s)| s))
+        .collect();
+    assert_eq!(
+        states,
+        [
+            "READY",
+            "PENDING",
+            "EXECUTING",
+            "WAIT_ACK",
+            "ERROR",
+            "PENDING",
+            "EXECUTING"
+        ]
     );
 }

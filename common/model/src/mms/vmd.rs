@@ -129,6 +129,11 @@ pub struct VmdStatus {
     /// step` before it is carried out.
     #[serde(default)]
     pub held: Option<HeldStep>,
+    /// Why the station is not ready for its commander's work, if so (no
+    /// DNC link, the robot not in automatic-external mode, an emergency
+    /// stop): the cell refuses a start while a workstation says so.
+    #[serde(default)]
+    pub unready: Option<String>,
 }
 
 /// A running program invocation and its recipe's current state.
@@ -151,6 +156,7 @@ impl Default for VmdStatus {
             inputs: Vec::new(),
             mode: CellMode::Auto,
             held: None,
+            unready: None,
         }
     }
 }
