@@ -572,3 +572,109 @@ fn a_silent_robot_line_mid_weld_is_an_alarm_and_ack_start_run_the_next_order() {
     );
     assert_eq!((starts(&rig, 1), starts(&rig, 2)), (1, 1));
 }
+
+/// Answers the cell's questions with `ja` until the conveyor twin says
+/// line `line` was pressed: a transport job is moving a carrier on it.
+fn until_line_runs(rig: &mut Rig, line: char) {
+    let needle = format!("coil button line {line} 1");
+    rig.plc.forget(&needle);
+    wait_until(
+        &format!("line {line} pressed"),
+        Duration::from_secs(30),
+        || {
+            if let Some(l) = rig.plc.wait_line(&needle, Duration::ZERO) {
+                return Ok(l);
+            }
+            let s = rig.status();
+            if s.question.is_some() {
+                rig.cell.falc(&["answer", "ja"]);
+            }
+            Err(Box::new(s))
+        },
+    );
+}
+
+/// Injects `control` on the conveyor twin while line `line` moves a
+/// carrier, and waits for the transport's alarm containing `needle`: its
+/// text, and how long after the injection the transport raised it.
+fn feedback_alarm(rig: &mut Rig, line: char, control: &str, needle: &str) -> (String, Duration) {
+    until_line_runs(rig, line);
+    let begin = std::time::Instant::now();
+    rig.plc.control(control);
+    let transport = rig.transport.as_mut().expect("transport node");
+    let line = transport.expect_line(needle, Duration::from_secs(5));
+    let took = begin.elapsed();
+    (line, took)
+}
+
+/// Issue 31, item 6, end to end: the conveyor twin's stuck sensors make
+/// feedback nobody asked for (W6 lights while line K moves a carrier to
+/// W3) and lost feedback (W3 goes dark while line E moves the other
+/// carrier to W5). Each is a device alarm raised by the transport at the
+/// first reading that shows it, naming the sensor; each order fails, and
+/// the way back (the sensor mended, carriers home, ack, start) runs the
+/// next order to done.
+#[test]
+fn unrequested_and_lost_feedback_are_device_alarms_naming_the_sensor_and_the_way_back_runs_on() {
+    let mut rig = rig("20");
+    rig.cell.falc(&["order", "add", "--count", "2", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    let (line, unrequested) = feedback_alarm(
+        &mut rig,
+        'K',
+        "stuck 6 1",
+        "unrequested feedback: sensor `place 6 occupied` (W6)",
+    );
+    assert!(line.contains("severity=Alarm(Device)"), "{line}");
+    rig.operator().expect_line(
+        "EVENT order-ended id=1 state=failed",
+        Duration::from_secs(10),
+    );
+    let s = rig.status();
+    let alarm = s
+        .alarms
+        .iter()
+        .find(|a| a.text.contains("unrequested feedback"))
+        .unwrap_or_else(|| panic!("no feedback alarm listed: {:#?}", s.alarms));
+    assert_eq!(
+        (alarm.station.as_str(), alarm.class),
+        ("transport", falc_model::alarm::AlarmClass::Device)
+    );
+    assert!(s.alarm.is_some(), "a device alarm holds the list back");
+    rig.plc.control("unstuck 6");
+    rig.way_back();
+    let orders = rig.orders();
+    assert_eq!(orders[1].state, OrderState::Done, "{orders:?}");
+
+    // Orders 3 and 4: lost feedback.
+    rig.cell.falc(&["order", "add", "--count", "2", "dikdroog"]);
+    rig.cell.falc(&["start"]);
+    let (line, lost) = feedback_alarm(
+        &mut rig,
+        'E',
+        "stuck 3 0",
+        "lost feedback: sensor `place 3 occupied` (W3)",
+    );
+    assert!(line.contains("severity=Alarm(Device)"), "{line}");
+    rig.operator().expect_line(
+        "EVENT order-ended id=3 state=failed",
+        Duration::from_secs(10),
+    );
+    rig.plc.control("unstuck 3");
+    rig.way_back();
+    let orders = rig.orders();
+    assert_eq!(
+        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
+        [
+            OrderState::Failed,
+            OrderState::Done,
+            OrderState::Failed,
+            OrderState::Done
+        ]
+    );
+    println!(
+        "feedback alarms at the transport {:.0} ms (unrequested, W6) and {:.0} ms (lost, W3) after the twin's sensor changed (the busy poll is 10 ms)",
+        unrequested.as_secs_f64() * 1e3,
+        lost.as_secs_f64() * 1e3
+    );
+}

@@ -39,14 +39,8 @@ use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::fmt;
 use std::time::Duration;
 
-/// A place on the conveyor or a station.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
-pub enum Spot {
-    /// Place W2–W6.
-    Place(Place),
-    /// Station 1–3.
-    Station(PlcStation),
-}
+pub use crate::map::Spot;
+use crate::map::{feed, ROUTES, W};
 
 impl Spot {
     fn capacity(self) -> usize {
@@ -85,7 +79,8 @@ struct Segment {
     seconds: f64,
 }
 
-const fn seg(line: char, from: Spot, to: Spot, seconds: f64) -> Segment {
+/// A line of the conveyor's routes ([`ROUTES`]) with its travel time.
+const fn seg((line, from, to): (char, Spot, Spot), seconds: f64) -> Segment {
     Segment {
         line,
         from,
@@ -94,41 +89,19 @@ const fn seg(line: char, from: Spot, to: Spot, seconds: f64) -> Segment {
     }
 }
 
-/// Place `Wn` (a constant of the layout).
-#[allow(non_snake_case)]
-const fn W(n: u8) -> Spot {
-    Spot::Place(Place::of(n))
-}
-
-/// Station `Sn` (a constant of the layout).
-#[allow(non_snake_case)]
-const fn S(n: u8) -> Spot {
-    Spot::Station(PlcStation::of(n))
-}
-
 const SEGMENTS: [Segment; 11] = [
-    seg('A', W(6), W(2), 8.0),
-    seg('B', W(2), W(6), 8.0),
-    seg('C', S(1), W(6), 4.0),
-    seg('D', W(4), W(2), 6.0),
-    seg('E', W(2), W(5), 10.0),
-    seg('F', S(3), W(4), 5.0),
-    seg('G', W(5), W(4), 4.0),
-    seg('H', W(3), W(5), 6.0),
-    seg('J', S(2), W(3), 4.0),
-    seg('K', W(2), W(3), 8.0),
-    seg('L', W(3), W(4), 5.0),
+    seg(ROUTES[0], 8.0),
+    seg(ROUTES[1], 8.0),
+    seg(ROUTES[2], 4.0),
+    seg(ROUTES[3], 6.0),
+    seg(ROUTES[4], 10.0),
+    seg(ROUTES[5], 5.0),
+    seg(ROUTES[6], 4.0),
+    seg(ROUTES[7], 6.0),
+    seg(ROUTES[8], 4.0),
+    seg(ROUTES[9], 8.0),
+    seg(ROUTES[10], 5.0),
 ];
-
-/// Station n's feed place.
-fn feed(station: PlcStation) -> Option<Spot> {
-    match station.number() {
-        1 => Some(W(6)),
-        2 => Some(W(3)),
-        3 => Some(W(5)),
-        _ => None,
-    }
-}
 
 const TRANSFER_S: f64 = 3.0;
 const RUN_EMPTY_S: f64 = 20.0;
@@ -647,6 +620,7 @@ impl Conveyor {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::map::S;
 
     fn ms(n: u64) -> Duration {
         Duration::from_millis(n)

@@ -22,6 +22,81 @@ pub const COILS: u16 = 15;
 /// Number of discrete inputs in the map.
 pub const INPUTS: u16 = 21;
 
+/// A place on the conveyor or a station: where a line begins and ends.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Spot {
+    /// Place W2–W6.
+    Place(Place),
+    /// Station 1–3.
+    Station(PlcStation),
+}
+
+/// Place `Wn` (a constant of the layout).
+#[allow(non_snake_case)]
+pub const fn W(n: u8) -> Spot {
+    Spot::Place(Place::of(n))
+}
+
+/// Station `Sn` (a constant of the layout).
+#[allow(non_snake_case)]
+pub const fn S(n: u8) -> Spot {
+    Spot::Station(PlcStation::of(n))
+}
+
+/// Where each line runs, as the conveyor is built (docs/plc.md): from a
+/// place or station to another, in [`LINES`] order. The transport
+/// supervises its place sensors by it ([`moves_towards`],
+/// [`moves_away`]); the twin moves its carriers by it.
+pub const ROUTES: [(char, Spot, Spot); 11] = [
+    ('A', W(6), W(2)),
+    ('B', W(2), W(6)),
+    ('C', S(1), W(6)),
+    ('D', W(4), W(2)),
+    ('E', W(2), W(5)),
+    ('F', S(3), W(4)),
+    ('G', W(5), W(4)),
+    ('H', W(3), W(5)),
+    ('J', S(2), W(3)),
+    ('K', W(2), W(3)),
+    ('L', W(3), W(4)),
+];
+
+/// The place a station's button takes its carrier from.
+pub fn feed(station: PlcStation) -> Option<Spot> {
+    match station.number() {
+        1 => Some(W(6)),
+        2 => Some(W(3)),
+        3 => Some(W(5)),
+        _ => None,
+    }
+}
+
+/// The lines that bring a carrier to `place`.
+pub fn moves_towards(place: Place) -> impl Iterator<Item = char> {
+    ROUTES
+        .iter()
+        .filter(move |(_, _, to)| *to == Spot::Place(place))
+        .map(|(l, ..)| *l)
+}
+
+/// The lines that take a carrier away from `place`.
+pub fn moves_away(place: Place) -> impl Iterator<Item = char> {
+    ROUTES
+        .iter()
+        .filter(move |(_, from, _)| *from == Spot::Place(place))
+        .map(|(l, ..)| *l)
+}
+
+/// Whether a feedback fault of each place's sensor (unrequested or lost)
+/// needs an acknowledgement before the next start: a device alarm that
+/// holds the list back (true), or a warning that does not (false; it is
+/// listed until someone acknowledges it). Every sensor of this conveyor
+/// needs one: a carrier where none should be, or gone, is never safe to
+/// run on unseen ([`crate::workstation::Plc::with_feedback_ack`] sets
+/// another choice).
+pub const FEEDBACK_NEEDS_ACK: [(u8, bool); 5] =
+    [(2, true), (3, true), (4, true), (5, true), (6, true)];
+
 /// A coil: a button FALC presses on the PLC.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Coil {

@@ -5,8 +5,18 @@
 //! ready); turns a rising emergency stop into an alarm; and, when a wait
 //! runs out, says what the inputs show (a line still running: a jammed
 //! carrier; a line that stopped without the place filling: a faulty
-//! sensor). It knows only the documented I/O map, never the conveyor's
-//! layout, so it works with any PLC that honours the map.
+//! sensor). It knows only the documented I/O map and the conveyor's
+//! routes in it (which line runs from where to where), so it works with
+//! any PLC and conveyor that honour the map.
+//!
+//! **Feedback supervision** while a job runs (a carrier set by hand
+//! between jobs, the way back after an alarm, is no fault): a place sensor
+//! that lights while no line runs towards its place is *unrequested
+//! feedback*; one that goes dark while no line runs away from its place
+//! and no station takes its carrier is *lost feedback*. Each is an alarm
+//! at once, in the reading that shows it, naming the sensor; the map says
+//! per sensor whether it needs an acknowledgement
+//! ([`crate::map::FEEDBACK_NEEDS_ACK`]).
 //!
 //! The buttons' state is defined at every step (docs/plc.md's wiring guide
 //! states the same rule):
@@ -37,7 +47,7 @@
 //! the simulation to the twin's map); readings and the link's state come in
 //! through [`Plc::connected`], [`Plc::reading`] and [`Plc::link_down`].
 
-use crate::map::{Coil, Input, Inputs, SignalName, COILS};
+use crate::map::{self, Coil, Input, Inputs, SignalName, Spot, COILS};
 use falc_control::controller::{Device, Happening};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::Place;
@@ -121,6 +131,14 @@ pub struct Plc {
     /// What the conveyor did (a line run, a carrier arriving), not yet
     /// reported ([`Device::poll_report`]).
     reports: VecDeque<(Severity, String)>,
+    /// Per place sensor, whether its feedback fault needs an
+    /// acknowledgement ([`map::FEEDBACK_NEEDS_ACK`]).
+    feedback_ack: Vec<(u8, bool)>,
+    /// Feedback is supervised between readings both taken after this
+    /// many commands: the running job's first write. What changed before
+    /// (carriers set by hand just before a start, seen late at the idle
+    /// pace) is the job's starting point, not a fault.
+    supervise_from: u64,
 }
 
 impl Plc {
@@ -140,13 +158,27 @@ impl Plc {
             busy: false,
             manual_line: None,
             reports: VecDeque::new(),
+            feedback_ack: map::FEEDBACK_NEEDS_ACK.to_vec(),
+            supervise_from: 0,
         }
+    }
+
+    /// The same with place `place`'s feedback fault needing an
+    /// acknowledgement or not (a warning, which does not hold the list
+    /// back).
+    pub fn with_feedback_ack(mut self, place: Place, needs_ack: bool) -> Self {
+        self.feedback_ack.retain(|(p, _)| *p != place.number());
+        self.feedback_ack.push((place.number(), needs_ack));
+        self
     }
 
     /// Polls fast while a recipe runs, slowly while the node is idle.
     fn pace(&mut self, busy: bool) {
         if self.busy != busy {
             self.busy = busy;
+            if busy {
+                self.supervise_from = self.issued + 1;
+            }
             // Not counted in `issued`: a watch waits for writes, not for this.
             let pace = if busy { Pace::Busy } else { Pace::Idle };
             self.commands.push_back(PlcCommand::Pace(pace));
@@ -235,15 +267,22 @@ impl Plc {
     /// (device).
     fn inputs(&mut self, inputs: Inputs, commands_done: u64) -> (Vec<Event>, Option<Cause>) {
         let before = self.inputs.replace(inputs);
-        self.inputs_after = commands_done;
+        let before_after = std::mem::replace(&mut self.inputs_after, commands_done);
+        let supervised = self.busy && before_after >= self.supervise_from;
         // A carrier arriving: a place sensor lighting (an edge, not every
         // poll; not the first reading, which finds carriers standing).
+        // While a job runs, each edge must have a cause.
+        let mut feedback = None;
         if let Some(b) = before {
             for p in Place::all() {
                 let s = Signal::Place(p);
-                if inputs.signal(s) && !b.signal(s) {
+                let (was, is) = (b.signal(s), inputs.signal(s));
+                if is && !was {
                     self.reports
                         .push_back((Severity::Info, format!("carrier arrived at W{p}")));
+                }
+                if was != is && supervised && feedback.is_none() {
+                    feedback = self.feedback_fault(p, is, &b, &inputs);
                 }
             }
         }
@@ -270,9 +309,58 @@ impl Plc {
                 ),
             ))
         } else {
-            None
+            feedback
         };
         (events, alarm)
+    }
+
+    /// A place sensor of `place` that changed to `lit` between readings
+    /// `before` and `now` while a job runs: a fault unless something moves
+    /// a carrier there (a line towards it lights it; a line away from it,
+    /// or a station this node presses that is fed from it, darkens it).
+    fn feedback_fault(
+        &self,
+        place: Place,
+        lit: bool,
+        before: &Inputs,
+        now: &Inputs,
+    ) -> Option<Cause> {
+        let runs = |l: char| before.signal(Signal::Line(l)) || now.signal(Signal::Line(l));
+        let sensor = format!("sensor `place {place} occupied` (W{place})");
+        let text = if lit {
+            if map::moves_towards(place).any(runs) {
+                return None;
+            }
+            format!(
+                "unrequested feedback: {sensor} lit while no line runs towards W{place} \
+                 (conveyor PLC at {})",
+                self.address
+            )
+        } else {
+            let taken = self.pressed.iter().any(|b| match b {
+                Button::Station(n) => map::feed(*n) == Some(Spot::Place(place)),
+                Button::Line(_) => false,
+            });
+            if taken || map::moves_away(place).any(runs) {
+                return None;
+            }
+            format!(
+                "lost feedback: {sensor} went dark while nothing moves its carrier \
+                 (conveyor PLC at {})",
+                self.address
+            )
+        };
+        let needs_ack = self
+            .feedback_ack
+            .iter()
+            .find(|(p, _)| *p == place.number())
+            .map_or(true, |(_, ack)| *ack);
+        let class = if needs_ack {
+            AlarmClass::Device
+        } else {
+            AlarmClass::Warning
+        };
+        Some(Cause::new(class, text))
     }
 
     /// A new reading as a driver takes it: [`Plc::inputs`], and the line
@@ -910,5 +998,99 @@ mod tests {
                 PlcCommand::Write(station_3, true)
             ]
         );
+    }
+
+    /// The readings of a job: `lit` places occupied, `running` lines.
+    fn showing(lit: &[u8], running: &[char]) -> Inputs {
+        let mut i = ready();
+        for p in lit {
+            i.set(Input::Signal(Signal::Place(Place::of(*p))), true);
+        }
+        for l in running {
+            i.set(Input::Signal(Signal::Line(*l)), true);
+        }
+        i
+    }
+
+    #[test]
+    fn feedback_nothing_asked_for_and_feedback_lost_while_a_job_runs_are_alarms_naming_the_sensor()
+    {
+        let mut p = plc().with_feedback_ack(Place::of(2), false);
+        p.connected(None);
+        // Between jobs a carrier set by hand is no fault.
+        p.inputs(showing(&[2], &[]), 1);
+        assert_eq!(p.inputs(showing(&[2, 4], &[]), 1).1, None);
+        assert_eq!(p.inputs(showing(&[2], &[]), 1).1, None);
+        // A job runs line K (W2 → W3): W3 lighting is asked for.
+        act(&mut p, 0, Action::Activate(Button::Line('K')));
+        assert_eq!(p.inputs(showing(&[2], &['K']), 2).1, None);
+        assert_eq!(p.inputs(showing(&[2, 3], &[]), 2).1, None);
+        // W6 lights: no line runs towards it (A, B, C).
+        let (_, alarm) = p.inputs(showing(&[2, 3, 6], &[]), 2);
+        let alarm = alarm.expect("unrequested feedback");
+        assert_eq!(alarm.class, AlarmClass::Device);
+        assert!(
+            alarm.text.starts_with(
+                "unrequested feedback: sensor `place 6 occupied` (W6) lit while no line runs towards W6"
+            ),
+            "{alarm:?}"
+        );
+        // W3 goes dark while line E (W2 → W5) runs: lost.
+        let (_, alarm) = p.inputs(showing(&[2, 6], &['E']), 2);
+        let alarm = alarm.expect("lost feedback");
+        assert!(
+            alarm.text.starts_with(
+                "lost feedback: sensor `place 3 occupied` (W3) went dark while nothing moves its carrier"
+            ),
+            "{alarm:?}"
+        );
+        // W2 dark as line E (W2 → W5) took its carrier: asked for.
+        assert_eq!(p.inputs(showing(&[6], &[]), 2).1, None);
+        // W2 lighting with no line towards it (A, D): its sensor is set to
+        // need no acknowledgement here, so it only warns.
+        let (_, alarm) = p.inputs(showing(&[2, 6], &[]), 2);
+        assert_eq!(alarm.map(|a| a.class), Some(AlarmClass::Warning));
+    }
+
+    #[test]
+    fn a_station_taking_its_carrier_and_a_line_taking_it_away_are_asked_for() {
+        let mut p = plc();
+        p.connected(None);
+        p.inputs(showing(&[3, 5], &[]), 1);
+        // Station 3 (fed from W5) takes the carrier at W5.
+        act(
+            &mut p,
+            0,
+            Action::Activate(Button::Station(PlcStation::of(3))),
+        );
+        assert_eq!(p.inputs(showing(&[3, 5], &[]), 2).1, None);
+        assert_eq!(p.inputs(showing(&[3], &[]), 2).1, None);
+        // Line L (W3 → W4) takes W3's carrier away and brings it to W4.
+        act(&mut p, 0, Action::Activate(Button::Line('L')));
+        assert_eq!(p.inputs(showing(&[], &['L']), 3).1, None);
+        assert_eq!(p.inputs(showing(&[4], &[]), 3).1, None);
+        // Once the job ended, nothing is supervised.
+        p.handle(
+            Duration::ZERO,
+            Happening::Finished(&Outcome::Done),
+            &mut Vec::new(),
+        );
+        assert_eq!(p.inputs(showing(&[2, 4], &[]), 3).1, None);
+    }
+
+    #[test]
+    fn carriers_set_by_hand_just_before_a_start_are_the_jobs_starting_point() {
+        let mut p = plc();
+        p.connected(None);
+        p.inputs(showing(&[3, 6], &[]), 1);
+        // Set home by hand (W2), then the job starts at once: the idle
+        // pace's next reading comes after the start, yet before the job's
+        // first write took effect. It is the job's starting point.
+        act(&mut p, 0, Action::Activate(Button::Line('K')));
+        assert_eq!(p.inputs(showing(&[2], &[]), 1).1, None);
+        assert_eq!(p.inputs(showing(&[2], &['K']), 2).1, None);
+        // From then on each change needs a cause.
+        let (_, alarm) = p.inputs(showing(&[2, 6], &['K']), 2);
+        assert!(alarm.is_some_and(|a| a.text.contains("(W6)")));
     }
 }
