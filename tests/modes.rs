@@ -15,6 +15,21 @@ use falc_model::console::{EntryKind, OrderState};
 use falc_model::mode::CellMode;
 use std::time::Duration;
 
+/// `falc --user maintainer manual welding home`, run to its end: the
+/// robot's reference run (program 10) went to the twin.
+fn welding_home(rig: &mut Rig) {
+    rig.rcm.forget("rx S010");
+    let (code, text) = rig
+        .cell
+        .falc_as("maintainer", &["manual", "welding", "home"]);
+    assert_eq!(code, 0, "{text}");
+    rig.welding
+        .as_mut()
+        .expect("welding node")
+        .expect_line("EVENT job program=HOME event=Done", Duration::from_secs(60));
+    rig.rcm.expect_line("rx S010", Duration::ZERO);
+}
+
 /// How long a step confirmed may take to show.
 const STEP: Duration = Duration::from_secs(10);
 
@@ -186,16 +201,7 @@ fn maintenance_brings_the_cell_home_after_a_robot_estop_and_the_next_order_runs_
         .expect_line("coil button line B 0", Duration::from_secs(5));
     // The robot's way home: its start-up check (AUE with DNC), then the
     // reference run with program 10.
-    rig.rcm.forget("rx S010");
-    let (code, text) = rig
-        .cell
-        .falc_as("maintainer", &["manual", "welding", "home"]);
-    assert_eq!(code, 0, "{text}");
-    rig.welding
-        .as_mut()
-        .expect("welding node")
-        .expect_line("EVENT job program=HOME event=Done", Duration::from_secs(60));
-    rig.rcm.expect_line("rx S010", Duration::ZERO);
+    welding_home(&mut rig);
     let (code, text) = rig
         .cell
         .falc_as("maintainer", &["manual", "transport", "home"]);
@@ -268,15 +274,7 @@ fn a_robot_not_in_aue_keeps_start_refused_until_the_maintainer_sets_aue_and_runs
     // The way the refusal names: AUE at the panel, home in maintenance.
     rig.cell.falc(&["mode", "maintenance"]);
     rig.rcm.control("mode aue");
-    let (code, text) = rig
-        .cell
-        .falc_as("maintainer", &["manual", "welding", "home"]);
-    assert_eq!(code, 0, "{text}");
-    rig.welding
-        .as_mut()
-        .expect("welding node")
-        .expect_line("EVENT job program=HOME event=Done", Duration::from_secs(60));
-    rig.rcm.expect_line("rx S010", Duration::ZERO);
+    welding_home(&mut rig);
     rig.operator().expect_line(
         "EVENT recipe-state station=welding state=READY",
         Duration::from_secs(10),

@@ -88,6 +88,14 @@ fn a_plant_client_browses_subscribes_and_runs_dikdroog_over_opcua() {
 
     let s = step(&mut c, "subscribed", t);
     assert_eq!(s["first"]["FALC.PackMLState"], "Idle", "{s}");
+    // The thesis' recipe state of each station, as falc status shows it.
+    let recipe = s["first"]["FALC.Stations.cell.RecipeStatus"]
+        .as_str()
+        .unwrap_or_default();
+    assert!(
+        ["IDLE", "LOADED", "READY"].contains(&recipe),
+        "the cell's RecipeStatus at rest: {s}"
+    );
 
     // An alarm: the robot's emergency stop, seen as an event.
     step(&mut c, "listening", t);

@@ -158,7 +158,8 @@ async def admit(url, creds: Path, work: Path):
 
 
 WATCHED = ["PackMLState", "Question", "Orders.Ids", "Orders.States",
-           "CellRecipeState", "Stations.welding.RobotState"]
+           "CellRecipeState", "Stations.welding.RobotState",
+           "Stations.cell.RecipeStatus"]
 
 
 async def subscribe(c, ns, falc, root="FALC", more=()):
