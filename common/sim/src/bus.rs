@@ -7,7 +7,8 @@
 
 use falc_control::recipe_source::Delivery;
 use falc_model::mms::error::ServiceError;
-use falc_model::mms::pdu::{Request, Response, Unconfirmed};
+use falc_model::mms::journal::{KeptReports, Publication};
+use falc_model::mms::pdu::{Request, Response};
 use rand::Rng;
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BinaryHeap};
@@ -79,8 +80,23 @@ pub enum Msg {
         /// The response or the refusal.
         result: Result<Response, ServiceError>,
     },
-    /// An unsolicited status, job event or report.
-    Publish(Unconfirmed),
+    /// An unsolicited status, job event or report (reports and job events
+    /// numbered by the station's kept reports).
+    Publish(Publication),
+    /// The operator reads what a station kept after number `after`.
+    ReadKept {
+        /// Names the answer.
+        id: u64,
+        /// The last number the operator filed.
+        after: u64,
+    },
+    /// What the station kept, the answer to [`Msg::ReadKept`] `id`.
+    Kept {
+        /// The read it answers.
+        id: u64,
+        /// The reports.
+        kept: KeptReports,
+    },
 }
 
 /// One node's link to the router.

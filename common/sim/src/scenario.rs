@@ -182,6 +182,9 @@ pub struct Summary {
     pub alarms: usize,
     /// Journal entries written.
     pub journal: usize,
+    /// Of those, reports read back from a station after a cut or a
+    /// crash (marked replayed), and lines saying some were lost.
+    pub replayed: usize,
     /// Every journal entry's kind, in order (for comparing runs).
     pub kinds: Vec<EntryKind>,
     /// The journal's lines (`order kind who: text`), if kept.
@@ -194,8 +197,8 @@ impl fmt::Display for Summary {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "orders: {} done, {} failed; {} alarms; {} journal entries",
-            self.done, self.failed, self.alarms, self.journal
+            "orders: {} done, {} failed; {} alarms; {} journal entries ({} replayed)",
+            self.done, self.failed, self.alarms, self.journal, self.replayed
         )?;
         let faults: Vec<String> = self
             .faults
@@ -366,11 +369,23 @@ impl Run {
                 break;
             }
         }
+        // Settled (reads of kept reports answered): every report of each
+        // running station's current run is in the journal.
+        let settle = self.world.now + Duration::from_secs(10);
+        self.world.step(settle);
+        if let Some(what) = self.world.unfiled().into_iter().next() {
+            return Err(self.violation(format!("reports not filed: {what}")));
+        }
         let rec = self.world.records.borrow();
         self.summary.steps = self.world.steps;
         self.summary.simulated = self.world.now;
         self.summary.alarms = rec.alarms.len();
         self.summary.journal = rec.journal.len();
+        self.summary.replayed = rec
+            .journal
+            .iter()
+            .filter(|e| e.text.ends_with(" (replayed)"))
+            .count();
         self.summary.kinds = rec.journal.iter().map(|e| e.kind).collect();
         if self.cfg.keep_journal {
             self.summary.lines = rec

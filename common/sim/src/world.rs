@@ -30,6 +30,7 @@ use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::association::Role;
 use falc_model::mms::domain::download_steps;
 use falc_model::mms::error::ServiceError;
+use falc_model::mms::journal::{Publication, ReportLog, ReportsAsked};
 use falc_model::mms::pdu::{Peer, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::vmd::VmdStatus;
 use falc_model::topology::Topology;
@@ -71,6 +72,8 @@ enum Waiter {
     List,
     /// The cell's request to a station or its operator.
     Cell(Awaiting),
+    /// The order list's read of what a station kept.
+    Kept(Node),
 }
 
 /// A workstation's association with the cell, and its process.
@@ -282,6 +285,11 @@ pub struct World {
     pub started_twice: Option<(i64, u32)>,
     /// The last lines of what happened, for a broken invariant's report.
     pub trace: VecDeque<String>,
+    /// Each station's kept reports: a process's own, a new run when it
+    /// starts again.
+    kept: BTreeMap<Node, ReportLog>,
+    /// Processes started so far (each a run of its own).
+    runs: u64,
 }
 
 impl World {
@@ -333,7 +341,12 @@ impl World {
             starts: BTreeMap::new(),
             started_twice: None,
             trace: VecDeque::new(),
+            kept: BTreeMap::new(),
+            runs: 0,
         };
+        for n in [Node::Cell, Node::Welding, Node::Transport] {
+            w.new_run(n);
+        }
         for n in [Node::Cell, Node::Welding, Node::Transport] {
             w.list.handle_presence(now, station(n), true);
         }
@@ -570,7 +583,46 @@ impl World {
             .send(now, from, to, Msg::Response { id, result }, &mut self.rng);
     }
 
+    /// The stations whose reports the order list has not all filed: each
+    /// running station's current run, as far as the list heard it, must be
+    /// filed up to its last report (what a cut kept read back).
+    pub fn unfiled(&self) -> Vec<String> {
+        if !self.is_running(Node::Operator) {
+            return Vec::new();
+        }
+        self.kept
+            .iter()
+            .filter(|(n, _)| self.is_running(**n))
+            .filter_map(|(n, log)| {
+                let (run, last, holes) = self.list.filed(&station(*n))?;
+                (run == log.run() && (last != log.last() || holes > 0)).then(|| {
+                    format!(
+                        "{n} made {} reports in run {run}; the list filed up to {last}, \
+                         {holes} of them never",
+                        log.last()
+                    )
+                })
+            })
+            .collect()
+    }
+
+    /// Node `n`'s process starts: its kept reports are a new run's.
+    fn new_run(&mut self, n: Node) {
+        self.runs += 1;
+        let run = format!("{n}-{}", self.runs);
+        self.kept.insert(n, ReportLog::new(run));
+    }
+
     fn publish(&mut self, from: Node, u: Unconfirmed) {
+        // Numbered and kept as the bus does (the virtual clock's ms).
+        let at_ms = i64::try_from(self.now.as_millis()).unwrap_or(i64::MAX);
+        let u = match self.kept.get_mut(&from) {
+            Some(log) => log.publication(at_ms, u),
+            None => Publication {
+                stamp: None,
+                message: u,
+            },
+        };
         let to: &[Node] = match from {
             Node::Welding | Node::Transport => &[Node::Operator, Node::Cell],
             Node::Cell => &[Node::Operator],
@@ -615,9 +667,12 @@ impl World {
                 }
                 ListOutput::Say(line) => self.note(format!("operator: {line}")),
                 ListOutput::Changed => {}
-                // The simulation's publications carry no numbers (it hands
-                // them over unstamped), so the list never asks.
-                ListOutput::ReadReports { .. } => {}
+                ListOutput::ReadReports { station, after } => {
+                    if let Some(to) = Node::of(&station) {
+                        let msg = move |id| Msg::ReadKept { id, after };
+                        self.request(Node::Operator, to, msg, CELL_LIMIT, Waiter::Kept(to));
+                    }
+                }
             }
         }
     }
@@ -786,16 +841,34 @@ impl World {
             }
             // A dead process's queryables went with its session: the
             // router ends a query to it at once, with no reply.
-            (to, Msg::Request { id, .. } | Msg::Deliver { id, .. }) if !self.is_running(to) => {
+            (to, Msg::Request { id, .. } | Msg::Deliver { id, .. } | Msg::ReadKept { id, .. })
+                if !self.is_running(to) =>
+            {
                 if let Some(p) = self.pending.remove(&id) {
                     let e = ServiceError::unreachable(format!("no reply from {to}"));
                     self.confirm(p.waiter, Err(e));
                 }
             }
             (to, _) if !self.is_running(to) => {}
-            (Node::Operator, Msg::Publish(u)) => self.list.handle_publication(now, u),
-            (Node::Cell, Msg::Publish(u)) => {
-                let events = self.cell.device.unconfirmed(&u);
+            (_, Msg::Kept { id, kept }) => {
+                if let Some(Pending {
+                    waiter: Waiter::Kept(n),
+                    ..
+                }) = self.pending.remove(&id)
+                {
+                    self.list.handle_kept_reports(now, station(n), Ok(kept));
+                }
+            }
+            (Node::Operator, Msg::Publish(p)) => self.list.handle_heard(now, p.stamp, p.message),
+            (to, Msg::ReadKept { id, after }) => {
+                if let Some(log) = self.kept.get(&to) {
+                    let kept = log.after(ReportsAsked { after });
+                    self.bus
+                        .send(now, to, a.from, Msg::Kept { id, kept }, &mut self.rng);
+                }
+            }
+            (Node::Cell, Msg::Publish(p)) => {
+                let events = self.cell.device.unconfirmed(&p.message);
                 self.cell.feed(now, events);
             }
             (_, Msg::Publish(_)) => {}
@@ -835,6 +908,10 @@ impl World {
             Waiter::List => self.list.handle_cell_answer(now, result),
             Waiter::Cell(awaiting) => {
                 coordination::handle_reply(&mut self.cell, now, Reply { awaiting, result });
+            }
+            Waiter::Kept(n) => {
+                let why = result.err().map_or_else(String::new, |e| e.to_string());
+                self.list.handle_kept_reports(now, station(n), Err(why));
             }
         }
     }
@@ -1136,7 +1213,7 @@ impl World {
             // the router ends the cell's queries to it; the cell runs its
             // order on alone.
             self.pending
-                .retain(|_, p| !matches!(p.waiter, Waiter::List));
+                .retain(|_, p| !matches!(p.waiter, Waiter::List | Waiter::Kept(_)));
             self.indications.clear();
             self.lost_before = self.tickets;
             self.finalize(Node::Operator);
@@ -1168,6 +1245,9 @@ impl World {
     pub fn restart(&mut self, n: Node) {
         let now = self.now;
         self.note(format!("{n}: process started again"));
+        if n != Node::Operator {
+            self.new_run(n);
+        }
         match n {
             Node::Welding => {
                 self.welding = welding_node(now, self.timing);

@@ -6,7 +6,10 @@
 //! back is filed in order with its own time and marked ` (replayed)`, and
 //! what fell out of the station's buffer is journalled as lost. While a
 //! read is out, live reports of that station are left to it (the station
-//! keeps them), so nothing is filed twice or out of order.
+//! keeps them), so nothing is filed twice or out of order. The cell's job
+//! events are the exception: they end orders, so each is taken as it
+//! comes and never from a read (a late one could end a later order of the
+//! same recipe; one lost in a cut is asked for when the cell is back).
 
 use super::*;
 use falc_model::mms::journal::{KeptReports, Stamp};
@@ -27,6 +30,30 @@ pub(super) struct Heard {
     /// The highest number heard (filed, or left to a read).
     seen: u64,
     reading: Reading,
+    /// Numbers up to this one came before the list heard the run.
+    base: u64,
+    /// Numbers after `base` accounted for: filed (live or read back),
+    /// taken as they came (the cell's job events), or reported lost.
+    count: u64,
+}
+
+impl Heard {
+    fn new(run: &str, base: u64, reading: Reading) -> Self {
+        Self {
+            run: run.to_string(),
+            last: base,
+            seen: 0,
+            reading,
+            base,
+            count: 0,
+        }
+    }
+
+    /// The next number in order was filed.
+    fn filed(&mut self, no: u64) {
+        self.last = no;
+        self.count += 1;
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -52,27 +79,33 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     fn numbered(&mut self, now: Duration, stamp: Stamp, u: Unconfirmed) {
         let station = u.station().clone();
         // First heard: what came before is not this list's to ask for.
-        let h = self.heard.entry(station.clone()).or_insert_with(|| Heard {
-            run: stamp.run.clone(),
-            last: stamp.no.saturating_sub(1),
-            seen: 0,
-            reading: Reading::No,
-        });
+        let h = self
+            .heard
+            .entry(station.clone())
+            .or_insert_with(|| Heard::new(&stamp.run, stamp.no.saturating_sub(1), Reading::No));
         if h.run != stamp.run {
             // The station's node started again: its numbers start again.
-            *h = Heard {
-                run: stamp.run.clone(),
-                last: 0,
-                seen: 0,
-                reading: h.reading,
-            };
+            *h = Heard::new(&stamp.run, 0, h.reading);
         }
         h.seen = h.seen.max(stamp.no);
+        // The cell's job events end orders: each is taken as it comes,
+        // never left to a read (a late replay of one could end a later
+        // order of the same recipe; one lost in a cut is asked for, Away).
+        if matches!(&u, Unconfirmed::Job { station, .. } if *station == self.cell) {
+            if h.reading != Reading::Out && stamp.no > h.last {
+                if stamp.no == h.last + 1 {
+                    h.filed(stamp.no);
+                } else {
+                    self.read_kept(station);
+                }
+            }
+            return self.publication(now, u);
+        }
         if h.reading == Reading::Out || stamp.no <= h.last {
             return;
         }
         if stamp.no == h.last + 1 {
-            h.last = stamp.no;
+            h.filed(stamp.no);
             return self.publication(now, u);
         }
         self.read_kept(station);
@@ -131,12 +164,11 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         h.reading = Reading::No;
         if kept.run != h.run {
             // Started again since: its new run is read from the start.
-            h.run = kept.run.clone();
-            h.last = 0;
-            h.seen = 0;
+            *h = Heard::new(&kept.run, 0, Reading::No);
         }
         let lost = kept.lost_after(h.last);
         h.last = h.last.max(kept.first.saturating_sub(1));
+        h.count += lost;
         if lost > 0 {
             let text = format!("{lost} reports lost while the link was down");
             let order = self.order_of_message(now);
@@ -150,7 +182,12 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             if stamp.no <= h.last || *u.station() != station {
                 continue;
             }
-            h.last = stamp.no;
+            if stamp.no != h.last + 1 {
+                // A station that skips its own numbers: what is missing
+                // is missing.
+                h.count += stamp.no - h.last - 1;
+            }
+            h.filed(stamp.no);
             h.seen = h.seen.max(stamp.no);
             filed += 1;
             self.replayed(now, stamp.at_ms, u);
@@ -158,6 +195,11 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.say(format!(
             "EVENT replayed station={station} reports={filed} lost={lost}"
         ));
+        // An alarm filed late whose condition is gone by now (the station
+        // back and operational) is cleared at once, not at its next status.
+        if filed > 0 {
+            self.settle_alarms(&station);
+        }
         // Heard while the read was out, made after it was answered.
         if self.heard.get(&station).is_some_and(|h| h.seen > h.last) {
             self.read_kept(station);
@@ -185,6 +227,17 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             Unconfirmed::Status { .. } => {}
         }
         self.replaying = None;
+    }
+
+    /// The run of `station` the list files, the last number it filed, and
+    /// how many numbers before that it never accounted for (filed, taken
+    /// as they came, or reported lost): 0 unless a report went missing.
+    /// None if it has not heard the station since it started.
+    pub fn filed(&self, station: &StationName) -> Option<(&str, u64, u64)> {
+        self.heard.get(station).map(|h| {
+            let holes = (h.last - h.base).saturating_sub(h.count);
+            (h.run.as_str(), h.last, holes)
+        })
     }
 
     /// When a failed read is tried again.

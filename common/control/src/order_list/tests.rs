@@ -1551,3 +1551,86 @@ fn the_recipe_state_shown_adds_pending_while_a_start_waits_and_wait_ack_until_th
         ]
     );
 }
+
+#[test]
+fn a_replayed_alarm_whose_condition_is_gone_is_cleared_at_once() {
+    let mut r = Rig::new();
+    r.list.handle_presence(r.now, st("welding"), true);
+    r.publish(Unconfirmed::Status {
+        station: st("welding"),
+        status: VmdStatus::default(),
+    });
+    r.hear(numbered("welding", "a", 1, "hello"));
+    r.list.handle_presence(r.now, st("welding"), false);
+    r.list.handle_presence(r.now, st("welding"), true);
+    r.outputs();
+    let alarm = Unconfirmed::Report {
+        station: st("welding"),
+        severity: Severity::Alarm(AlarmClass::Communication),
+        text: "no connection with station cell".into(),
+    };
+    let stamp = Stamp {
+        run: "a".into(),
+        no: 2,
+        at_ms: 77,
+    };
+    let kept = KeptReports {
+        run: "a".into(),
+        first: 1,
+        reports: vec![(stamp, alarm)],
+    };
+    r.list.handle_kept_reports(r.now, st("welding"), Ok(kept));
+    let out = r.outputs();
+    let listed = r.status().alarms;
+    let a = listed
+        .iter()
+        .find(|a| a.text == "no connection with station cell")
+        .unwrap_or_else(|| panic!("the replayed alarm is listed: {listed:?}"));
+    assert!(a.cleared_ms.is_some(), "{a:?}");
+    assert!(said(&out, "EVENT alarm-cleared"), "{out:?}");
+}
+
+#[test]
+fn the_cells_job_event_is_taken_as_it_comes_while_a_read_is_out_and_never_from_a_replay() {
+    let mut r = Rig::new();
+    r.add(2);
+    assert!(r.start().is_ok());
+    r.list.handle_presence(r.now, st("cell"), true);
+    r.outputs();
+    r.hear(numbered("cell", "c", 1, "dikke plaat droog"));
+    // The cell's link was cut and is back: a read goes out.
+    r.list.handle_presence(r.now, st("cell"), false);
+    r.list.handle_presence(r.now, st("cell"), true);
+    assert_eq!(reads(&r.outputs()), vec![(st("cell"), 1)]);
+    let done = |no| {
+        let stamp = Stamp {
+            run: "c".into(),
+            no,
+            at_ms: 5,
+        };
+        let u = Unconfirmed::Job {
+            station: st("cell"),
+            program: name("dikdroog"),
+            event: JobEvent::Done,
+        };
+        (stamp, u)
+    };
+    // The order's end comes live meanwhile: taken at once.
+    r.hear(done(3));
+    assert_eq!(r.order(1).state, OrderState::Done);
+    // The read brings 2 and the same end again: 2 is filed, the end is
+    // not taken twice (order 2 would end with it).
+    let kept = KeptReports {
+        run: "c".into(),
+        first: 1,
+        reports: vec![numbered("cell", "c", 2, "klaar"), done(3)],
+    };
+    r.list.handle_kept_reports(r.now, st("cell"), Ok(kept));
+    r.outputs();
+    assert!(r
+        .lines_of("cell")
+        .iter()
+        .any(|(_, t)| t == "klaar (replayed)"));
+    assert_ne!(r.order(2).state, OrderState::Done);
+    assert_eq!(r.list.filed(&st("cell")), Some(("c", 3, 0)));
+}

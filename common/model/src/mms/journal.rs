@@ -117,6 +117,16 @@ impl ReportLog {
         Publication { stamp, message }
     }
 
+    /// The run the numbers are of.
+    pub fn run(&self) -> &str {
+        &self.run
+    }
+
+    /// The number of the last report made (0: none yet).
+    pub fn last(&self) -> u64 {
+        self.next - 1
+    }
+
     /// The answer to a reader who has everything up to number `after`.
     pub fn after(&self, asked: ReportsAsked) -> KeptReports {
         let first = self.kept.front().map_or(self.next, |(s, _)| s.no);
