@@ -308,13 +308,18 @@ impl<D: Device> Controller<D> {
     /// the acknowledgements and the starts under way
     /// (`order_list::OrderList::status`).
     pub fn recipe_state(&self) -> RecipeState {
+        self.recipe_state_with(|| self.device.unready().is_some())
+    }
+
+    /// [`Self::recipe_state`], asking `unready` only when it matters.
+    fn recipe_state_with(&self, unready: impl FnOnce() -> bool) -> RecipeState {
         if self.running.is_some() {
             RecipeState::Executing
         } else if self.alarmed {
             RecipeState::Error
         } else if self.vmd.programs().next().is_none() {
             RecipeState::Idle
-        } else if self.mode.mode != CellMode::Maintenance && self.device.unready().is_none() {
+        } else if self.mode.mode != CellMode::Maintenance && !unready() {
             RecipeState::Ready
         } else {
             RecipeState::Loaded
@@ -323,9 +328,11 @@ impl<D: Device> Controller<D> {
 
     /// The status as it is now (the driver publishes it when it changed).
     pub fn status(&self) -> VmdStatus {
+        // Asked once: a device's reason is a formatted text.
+        let unready = self.device.unready();
         let mut status = VmdStatus {
-            local_detail: self.recipe_state(),
-            unready: self.device.unready(),
+            local_detail: self.recipe_state_with(|| unready.is_some()),
+            unready,
             program: self.running.as_ref().map(|r| ProgramState {
                 name: r.name.clone(),
                 state: r.engine.state().0,
