@@ -29,7 +29,7 @@ use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::association::Role;
 use falc_model::mms::error::{DefinitionError, ErrorClass, ServiceError};
-use falc_model::mms::pdu::{JobEvent, Request, Response, Severity};
+use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::program::{PiCompletion, PiRequest, PiState};
 use falc_model::mms::vmd::{Identity, ProgramState, RecipeState, Transition, Vmd, VmdStatus};
 use falc_model::mode::{CellMode, HeldStep, ManualAction, ModeSetting};
@@ -138,6 +138,24 @@ pub enum Output {
         /// What became of it.
         event: JobEvent,
     },
+}
+
+impl Output {
+    /// The publication it is, as `station` puts it on the bus.
+    pub fn publication(self, station: StationName) -> Unconfirmed {
+        match self {
+            Output::Report { severity, text } => Unconfirmed::Report {
+                station,
+                severity,
+                text,
+            },
+            Output::Job { program, event } => Unconfirmed::Job {
+                station,
+                program,
+                event,
+            },
+        }
+    }
 }
 
 struct Running {

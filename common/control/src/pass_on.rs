@@ -199,13 +199,7 @@ impl<T> PassOn<T> {
     pub fn handle_indication(&mut self, ticket: T, request: Request) {
         if !self.owed.is_empty() && !self.busy() {
             let todo = std::mem::take(&mut self.owed).into();
-            self.jobs.push_back(Job {
-                download: None,
-                todo,
-                sending: None,
-                failed: Vec::new(),
-            });
-            self.next_delivery();
+            self.deliver(None, todo);
         }
         if self.busy() || !self.held.is_empty() {
             self.held.push_back((ticket, request));
@@ -301,17 +295,12 @@ impl<T> PassOn<T> {
             .domain(domain)
             .map(|d| d.content().to_vec())
             .unwrap_or_default();
-        self.jobs.push_back(Job {
-            download: Some((ticket, domain.clone())),
-            todo: VecDeque::from([Recipe {
-                station,
-                name,
-                content,
-            }]),
-            sending: None,
-            failed: Vec::new(),
-        });
-        self.next_delivery();
+        let recipe = Recipe {
+            station,
+            name,
+            content,
+        };
+        self.deliver(Some((ticket, domain.clone())), VecDeque::from([recipe]));
     }
 
     /// Passes `request` on to workstations `to`.
@@ -375,6 +364,18 @@ impl<T> PassOn<T> {
                     .map(|r| Todo::Warn(format!("mode: {r}"))),
             ),
         }
+    }
+
+    /// Queues a delivery of `todo` (for the commander's `download`, or
+    /// none: recipes owed or caught up) and goes on with the deliveries.
+    fn deliver(&mut self, download: Option<(T, ObjectName)>, todo: VecDeque<Recipe>) {
+        self.jobs.push_back(Job {
+            download,
+            todo,
+            sending: None,
+            failed: Vec::new(),
+        });
+        self.next_delivery();
     }
 
     /// Sends the first job's next recipe its workstation lacks, or ends
@@ -479,13 +480,7 @@ impl<T> PassOn<T> {
             })
             .collect();
         if !todo.is_empty() {
-            self.jobs.push_back(Job {
-                download: None,
-                todo,
-                sending: None,
-                failed: Vec::new(),
-            });
-            self.next_delivery();
+            self.deliver(None, todo);
         }
         if mode.mode != CellMode::Auto {
             let to = self.workstations.clone();

@@ -11,7 +11,7 @@
 use crate::say;
 use falc_bus::station::{Station, StationEvent};
 use falc_bus::BusEvent;
-use falc_control::controller::{Controller, Device, Output};
+use falc_control::controller::{Controller, Device};
 use falc_model::alarm::Cause;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Request, Response, Severity, Unconfirmed};
@@ -112,18 +112,7 @@ impl<D: Device> ControllerNode<D> {
     async fn flush(&mut self) {
         let me = self.station.bus().me().station.clone();
         while let Some(out) = self.core.poll_output() {
-            let u = match out {
-                Output::Report { severity, text } => Unconfirmed::Report {
-                    station: me.clone(),
-                    severity,
-                    text,
-                },
-                Output::Job { program, event } => Unconfirmed::Job {
-                    station: me.clone(),
-                    program,
-                    event,
-                },
-            };
+            let u = out.publication(me.clone());
             let no = self.station.bus().publish(&u).await.map_or(0, |s| s.no);
             match u {
                 Unconfirmed::Report { severity, text, .. } => {

@@ -11,7 +11,7 @@
 
 use crate::bus::{Arrival, Bus, Link, Msg, Node};
 use crate::recipes::Shipped;
-use falc_control::controller::{Controller, Device, Output as CtlOutput};
+use falc_control::controller::{Controller, Device};
 use falc_control::coordination::{self, Awaiting, Reply, Stations};
 use falc_control::order_list::{OrderList, Output as ListOutput, Ticket, CELL_LIMIT};
 use falc_control::pass_on::{PassOn, Todo};
@@ -198,18 +198,7 @@ fn outputs<D: Device>(
 ) -> Vec<Unconfirmed> {
     let station = station(from);
     let mut out: Vec<Unconfirmed> = std::iter::from_fn(|| ctl.poll_output())
-        .map(|o| match o {
-            CtlOutput::Report { severity, text } => Unconfirmed::Report {
-                station: station.clone(),
-                severity,
-                text,
-            },
-            CtlOutput::Job { program, event } => Unconfirmed::Job {
-                station: station.clone(),
-                program,
-                event,
-            },
-        })
+        .map(|o| o.publication(station.clone()))
         .collect();
     let status = ctl.status();
     if last.as_ref() != Some(&status) {
