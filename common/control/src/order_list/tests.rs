@@ -1634,3 +1634,25 @@ fn the_cells_job_event_is_taken_as_it_comes_while_a_read_is_out_and_never_from_a
     assert_ne!(r.order(2).state, OrderState::Done);
     assert_eq!(r.list.filed(&st("cell")), Some(("c", 3, 0)));
 }
+
+#[test]
+fn numbers_at_the_end_of_their_range_from_a_station_crash_nothing() {
+    let mut r = Rig::new();
+    r.list.handle_presence(r.now, st("welding"), true);
+    r.outputs();
+    // A station (or a forged stamp) at the top of the range.
+    r.hear(numbered("welding", "a", u64::MAX - 1, "one"));
+    r.hear(numbered("welding", "a", u64::MAX, "two"));
+    r.hear(numbered("welding", "a", u64::MAX, "again"));
+    let kept = KeptReports {
+        run: "a".into(),
+        first: u64::MAX,
+        reports: vec![numbered("welding", "a", u64::MAX, "two")],
+    };
+    r.list.handle_presence(r.now, st("welding"), false);
+    r.list.handle_presence(r.now, st("welding"), true);
+    r.list.handle_kept_reports(r.now, st("welding"), Ok(kept));
+    let texts: Vec<String> = r.lines_of("welding").into_iter().map(|l| l.1).collect();
+    assert_eq!(texts, ["one", "two"]);
+    assert_eq!(r.list.filed(&st("welding")), Some(("a", u64::MAX, 0)));
+}
