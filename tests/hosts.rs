@@ -214,6 +214,8 @@ fn the_cell_as_separate_hosts_on_the_secure_transport_runs_orders_and_rides_out_
         rig.until_welding();
         let journal_before = rig.status().journal_head;
         let reported_before = reports_of(&mut rig, host).len();
+        rig.plc.forget("coil button station 3");
+        rig.rcm.forget("rx H");
         fault.begin(&rig, host);
         let noticed = alarm_of(&rig, host, Duration::from_secs(5));
         // The robot goes on reporting while its station is cut off: an
@@ -238,6 +240,17 @@ fn the_cell_as_separate_hosts_on_the_secure_transport_runs_orders_and_rides_out_
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_millis() as i64);
         let back = all_back(&rig, Duration::from_secs(30));
+        if host == "transport" {
+            // Its commander lost mid-weld, the transport cannot know whether
+            // the robot still welds: the clamp on station 3 holds (its safe
+            // state) while the cell has the robot halted.
+            rig.rcm.expect_line("rx H", Duration::from_secs(5));
+            assert_eq!(
+                rig.plc.wait_line("coil button station 3 0", Duration::ZERO),
+                None,
+                "the clamp let go while the transport's link was cut"
+            );
+        }
         if matches!(fault, Fault::Cut) {
             let since = (journal_before, reported_before);
             no_report_lost(&mut rig, host, since, mended_ms, lasting);

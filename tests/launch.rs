@@ -104,6 +104,13 @@ fn the_launched_cell_runs_an_order_and_ctrl_c_stops_every_node() {
     for pid in nodes {
         assert!(gone(pid), "node {pid} still runs");
     }
+    // Its standard input is still open (as a terminal's is): the launcher
+    // returns all the same, without waiting for a line.
+    wait_until(
+        "falc-launch returned after Ctrl-C with its stdin open",
+        Duration::from_secs(5),
+        || holds(!l.launcher.alive(), || "still running"),
+    );
 }
 
 #[test]

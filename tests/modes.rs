@@ -368,3 +368,89 @@ fn a_stopped_order_resumes_where_it_stopped_and_the_recipe_starts_anew_after() {
     assert_eq!(rig.orders()[1].state, OrderState::Done);
     assert_eq!(starts(&rig, 2), 1);
 }
+
+/// Every station's mode as its status says, the cell's first.
+fn modes(rig: &Rig) -> Vec<(String, Option<CellMode>)> {
+    rig.status()
+        .stations
+        .iter()
+        .map(|v| (v.name.to_string(), v.status.as_ref().map(|s| s.mode)))
+        .collect()
+}
+
+/// Waits until the cell and every workstation say they are in `mode`.
+fn all_in(rig: &Rig, mode: CellMode) {
+    wait_until("one mode everywhere", Duration::from_secs(10), || {
+        let m = modes(rig);
+        holds(m.iter().all(|(_, s)| *s == Some(mode)), || m)
+    });
+}
+
+/// Issue 41, finding 8: a mode change is all or nothing. With a robot
+/// program run by hand in maintenance, `mode auto` is refused by the
+/// welding workstation and taken back at the cell and the transport: all
+/// stay in maintenance, a start is refused, and no conveyor output moves
+/// while the program runs. The mirror case: the conveyor's `home` running,
+/// `mode auto` is refused by the transport and taken back at the cell and
+/// welding. The way back: each job by hand ended, `mode auto`, an order
+/// done.
+#[test]
+fn a_refused_mode_change_is_taken_back_everywhere_and_nothing_moves_under_a_hand_run_program() {
+    let mut rig = rig("20");
+    rig.cell.falc(&["mode", "maintenance"]);
+    all_in(&rig, CellMode::Maintenance);
+    rig.rcm.forget("rx G");
+    let (code, out) = rig
+        .cell
+        .falc_as("maintainer", &["manual", "welding", "run", "droog_dik"]);
+    assert_eq!(code, 0, "{out}");
+    rig.rcm.expect_line("rx G", Duration::from_secs(10));
+    rig.plc.forget("coil button");
+    let (code, out) = rig.cell.falc_as("console", &["mode", "auto"]);
+    assert_eq!(code, 1, "{out}");
+    assert!(
+        out.contains("DROOG_DIK") && out.contains("the mode stays maintenance"),
+        "{out}"
+    );
+    all_in(&rig, CellMode::Maintenance);
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    let (code, out) = rig.cell.falc_as("console", &["start"]);
+    assert_eq!(code, 1, "start refused in maintenance: {out}");
+    let welding = rig.welding.as_mut().expect("welding node");
+    welding.expect_line(
+        "EVENT job program=DROOG_DIK event=Done",
+        Duration::from_secs(30),
+    );
+    assert_eq!(
+        rig.plc.wait_line("coil button line", Duration::ZERO),
+        None,
+        "a conveyor line ran while the hand-run robot program ran"
+    );
+
+    // The mirror: the conveyor's home runs, auto is refused by the
+    // transport, welding and the cell stay in maintenance.
+    let (code, out) = rig
+        .cell
+        .falc_as("maintainer", &["manual", "transport", "home"]);
+    assert_eq!(code, 0, "{out}");
+    let (code, out) = rig.cell.falc_as("console", &["mode", "auto"]);
+    assert_eq!(code, 1, "{out}");
+    assert!(out.contains("the mode stays maintenance"), "{out}");
+    all_in(&rig, CellMode::Maintenance);
+    rig.transport.as_mut().expect("transport node").expect_line(
+        "EVENT job program=HOME event=Done",
+        Duration::from_secs(120),
+    );
+
+    // The way back: auto everywhere, an order done.
+    rig.cell.falc(&["mode", "auto"]);
+    all_in(&rig, CellMode::Auto);
+    rig.cell.falc(&["start"]);
+    rig.work_list("ja", Duration::from_secs(120));
+    let orders = rig.orders();
+    assert_eq!(
+        orders.last().map(|o| o.state),
+        Some(OrderState::Done),
+        "{orders:?}"
+    );
+}

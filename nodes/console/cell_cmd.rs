@@ -263,6 +263,7 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
         CellCommand::Messages {
             follow: true,
             station,
+            ..
         } => return follow(&bus, &operator, json, station.as_ref()).await,
         CellCommand::Status { watch: false } => ApiRequest::Status,
         CellCommand::Order(OrderCommand::Add {
@@ -299,10 +300,14 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
         CellCommand::Messages {
             follow: false,
             station,
+            last,
+            all,
         } => {
             let keep = |e: &Entry| station.as_ref().map_or(true, |s| e.who == s.as_str());
-            return all_entries(&bus, &operator, json, keep, |after| ApiRequest::Messages {
-                after,
+            // By default one page, the newest; --all reads page after page.
+            let last = (!all).then_some(last);
+            return all_entries(&bus, &operator, json, keep, |after| {
+                (after == 0 || last.is_none()).then_some(ApiRequest::Messages { after, last })
             })
             .await;
         }
@@ -312,10 +317,12 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
                 &operator,
                 json,
                 |_| true,
-                |after| ApiRequest::Journal {
-                    order,
-                    after,
-                    last: None,
+                |after| {
+                    Some(ApiRequest::Journal {
+                        order,
+                        after,
+                        last: None,
+                    })
                 },
             )
             .await
@@ -373,18 +380,20 @@ async fn report(
     }
 }
 
-/// Every entry, page after page (the operator answers a page at a time).
+/// Entries page after page (the operator answers a page at a time), as
+/// long as `request` gives the next page's request for the last id read.
 async fn all_entries(
     bus: &Bus,
     operator: &StationName,
     json: bool,
     keep: impl Fn(&Entry) -> bool,
-    request: impl Fn(i64) -> ApiRequest,
+    request: impl Fn(i64) -> Option<ApiRequest>,
 ) -> ExitCode {
     let mut all = Vec::new();
     loop {
         let after = all.last().map_or(0, |e: &Entry| e.id);
-        match bus.api(operator, request(after), CALL_LIMIT).await {
+        let Some(next) = request(after) else { break };
+        match bus.api(operator, next, CALL_LIMIT).await {
             Ok(ApiReply::Entries(page)) if page.is_empty() => break,
             Ok(ApiReply::Entries(page)) => all.extend(page),
             Ok(other) => {

@@ -57,6 +57,7 @@ pub enum CellCommand {
         text: String,
     },
     /// The messages: what the cell showed and asked, reports, alarms.
+    /// Messages: the newest 100 by default (`--last N`, `--all`).
     Messages {
         /// Keep showing new messages, until Ctrl-C.
         #[arg(long)]
@@ -65,6 +66,12 @@ pub enum CellCommand {
         /// workstation's jobs, robot programs, line runs and reports.
         #[arg(long)]
         station: Option<StationName>,
+        /// How many of the newest messages to show (at most 500).
+        #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u16).range(1..=500))]
+        last: u16,
+        /// Every message since the journal began, page by page.
+        #[arg(long, conflicts_with_all = ["last", "follow"])]
+        all: bool,
     },
     /// The journal: orders, alarms, messages, every operator action.
     Journal {

@@ -90,7 +90,7 @@ pub(crate) async fn follow(
         bus,
         operator,
         0,
-        |&after| ApiRequest::Messages { after },
+        |&after| ApiRequest::Messages { after, last: None },
         show,
     )
     .await

@@ -569,7 +569,7 @@ async fn run(cli: &Cli, cell: &mut Cell) -> ExitCode {
             return ExitCode::FAILURE;
         }
     }
-    let mut stdin = BufReader::new(tokio::io::stdin()).lines();
+    let mut stdin = stdin_lines();
     let mut stdin_open = true;
     loop {
         tokio::select! {
@@ -587,17 +587,41 @@ async fn run(cli: &Cli, cell: &mut Cell) -> ExitCode {
                     };
                 }
             },
-            line = stdin.next_line(), if stdin_open => match line {
-                Ok(Some(line)) => {
+            line = stdin.recv(), if stdin_open => match line {
+                Some(line) => {
                     let line = line.trim();
                     let (to, rest) = line.split_once(' ').unwrap_or((line, ""));
                     if !(to.starts_with("rcm") || to.starts_with("plc")) || !cell.control(to, rest).await {
                         say(&format!("falc-launch: `{line}`: type `rcm <control>` or `plc <control>` (`rcm-<station> …`, `plc-<station> …` for another station's twin)"));
                     }
                 }
-                _ => stdin_open = false,
+                None => stdin_open = false,
             },
             _ = shutdown.requested() => return ExitCode::SUCCESS,
         }
     }
+}
+
+/// The launcher's standard input, line by line, read on a thread of its
+/// own. Not tokio's `stdin()`: it reads on the runtime's blocking pool, and
+/// the runtime's shutdown waits for that read, so the launcher stopped by
+/// Ctrl-C would hang until Enter was pressed. A plain thread blocked in a
+/// read does not keep the process from ending when `main` returns.
+fn stdin_lines() -> UnboundedReceiver<String> {
+    let (tx, rx) = unbounded_channel();
+    let spawned = std::thread::Builder::new()
+        .name("stdin".into())
+        .spawn(move || {
+            use std::io::BufRead;
+            for line in std::io::stdin().lock().lines() {
+                let Ok(line) = line else { break };
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+    if let Err(e) = spawned {
+        tracing::warn!("no reader of standard input: {e}");
+    }
+    rx
 }

@@ -208,7 +208,9 @@ async fn main() -> Result<()> {
         send_commands(&mut ws, &link.commands);
         ws.publish().await;
     }
-    // Leave the conveyor as a person expects: no button held by FALC.
+    // Leave the conveyor safe (each output's safe state): no line running,
+    // a clamp still holding its workpiece, since this node cannot know
+    // whether the robot still welds.
     ws.core.device.shutdown();
     send_commands(&mut ws, &link.commands);
     let issued = ws.core.device.issued();

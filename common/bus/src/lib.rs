@@ -36,6 +36,7 @@ use falc_model::envelope;
 use falc_model::ids::StationName;
 use falc_model::keys::KeySpace;
 use falc_model::mms::error::ServiceError;
+use falc_model::mms::heard;
 use falc_model::mms::journal::{KeptReports, Publication, ReportLog, ReportsAsked, Stamp};
 use falc_model::mms::pdu::{Peer, Request, Response, ServiceName, Unconfirmed};
 use falc_model::mms::vmd::VmdStatus;
@@ -485,7 +486,11 @@ impl Bus {
         let key = self.keys.reports(station);
         let what = format!("the reports station {station} kept");
         let payload = envelope::encode(&ReportsAsked { after });
-        self.query(&key, payload, deadline, &what).await
+        let kept: KeptReports = self.query(&key, payload, deadline, &what).await?;
+        heard::take_kept(station, kept).map_err(|e| {
+            log_limit::warn(&key, &e.to_string());
+            ServiceError::malformed(format!("{what}: {e}"))
+        })
     }
 
     /// Tells the consoles that watch that this operator's status changed
@@ -516,7 +521,8 @@ impl Bus {
 
     /// Subscribes to a station's `status` and `report`; decoded messages
     /// (with their numbers) go to `out`, malformed ones are logged and
-    /// dropped.
+    /// dropped, and so is one whose payload names another station than
+    /// `station` (the key's); long texts are cut ([`heard`]).
     pub async fn subscribe(
         &self,
         station: &StationName,
@@ -526,14 +532,23 @@ impl Bus {
         for key in [self.keys.status(station), self.keys.report(station)] {
             let tx = out.clone();
             let k = key.clone();
+            let st = station.clone();
             let sub = self
                 .session
                 .declare_subscriber(&key)
                 .callback(move |sample| {
                     match envelope::decode::<Publication>(&sample.payload().to_bytes()) {
-                        Ok(m) => {
-                            let _ = tx.send(m);
-                        }
+                        // The sender is the station of the key, never the
+                        // name in the payload (`heard`).
+                        Ok(p) => match heard::take_publication(&st, p) {
+                            Ok((p, cut)) => {
+                                if let Some(cut) = cut {
+                                    log_limit::warn(k.as_str(), &format!("{cut} on {k}"));
+                                }
+                                let _ = tx.send(p);
+                            }
+                            Err(e) => log_limit::warn(k.as_str(), &format!("{e} on {k}")),
+                        },
                         Err(e) => log_limit::warn(
                             k.as_str(),
                             &format!("dropped a malformed publication on {k}: {e}"),
@@ -648,7 +663,7 @@ fn on_query(
             query.key_expr()
         )),
         Some(p) => match envelope::decode::<Request>(&p.to_bytes()) {
-            Ok(r) if r.service() == service => Ok(r),
+            Ok(r) if r.service() == service => r.check_limits().map(|()| r),
             Ok(r) => Err(format!(
                 "a {} request was sent to the {service} key {}",
                 r.service(),

@@ -422,6 +422,11 @@ impl<D: Device> Controller<D> {
                 });
             }
         }
+        // What the device reported comes before the job's end it caused
+        // ("robot program 65 ended" before "job DROOG_DIK ended").
+        while let Some((severity, text)) = self.device.poll_report() {
+            self.report(severity, text);
+        }
         let ended = self
             .running
             .as_ref()
@@ -1187,10 +1192,26 @@ mod tests {
         assert_eq!(c.status().program.map(|p| p.state), Some(2));
         // The wait's limit: 170 s from entering state 2.
         assert_eq!(c.poll_timeout(), Some(secs(172)));
+        // The device reports the robot's end with the event that ends the
+        // job: its report comes first (cause, then effect).
+        c.device.alarms.push_back(Cause::new(
+            AlarmClass::Process,
+            "robot program 65 ended: complete",
+        ));
         c.feed(secs(60), vec![Event::Ended(rcm(), JobEnd::Done)]);
         c.settle(secs(60));
         assert!(!c.is_running());
-        assert_eq!(job_events(&outputs(&mut c)), vec![JobEvent::Done]);
+        let outs = outputs(&mut c);
+        assert_eq!(job_events(&outs), vec![JobEvent::Done]);
+        let order: Vec<bool> = outs
+            .iter()
+            .map(|o| matches!(o, Output::Job { .. }))
+            .collect();
+        assert_eq!(
+            order,
+            [false, true],
+            "the report, then the job's end: {outs:?}"
+        );
         assert_eq!(c.device.finished, vec![Outcome::Done]);
         assert_eq!(c.poll_timeout(), None);
         assert_eq!(c.status().local_detail, RecipeState::Ready);

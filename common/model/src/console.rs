@@ -80,6 +80,10 @@ pub enum ApiRequest {
     Messages {
         /// Only entries with a larger id.
         after: i64,
+        /// Only the newest this many of them (still oldest first; at most
+        /// a page); None: the oldest page of them.
+        #[serde(default)]
+        last: Option<u16>,
     },
     /// The journal after an id, optionally of one order.
     Journal {
@@ -364,9 +368,10 @@ impl ApiRequest {
                         excerpt(text)
                     ));
                 }
-                if text.chars().any(char::is_control) {
+                if text.chars().any(crate::ids::unprintable) {
                     return Err(format!(
-                        "answer \"{}\" holds a control character (a line break?): refused",
+                        "answer \"{}\" holds a control character (a line break?) or a \
+                         bidirectional override: refused",
                         excerpt(text)
                     ));
                 }
@@ -382,7 +387,10 @@ impl ApiRequest {
                     "{count} orders at once: give 1 to {MAX_ORDERS_PER_ADD}"
                 ));
             }
-            Self::OrderAdd { placement, .. } if placement.priority.abs() > MAX_PRIORITY => {
+            // Not `abs()`: i32::MIN has none.
+            Self::OrderAdd { placement, .. }
+                if !(-MAX_PRIORITY..=MAX_PRIORITY).contains(&placement.priority) =>
+            {
                 return Err(format!(
                     "priority {} is outside -{MAX_PRIORITY} to {MAX_PRIORITY}",
                     placement.priority
@@ -390,7 +398,7 @@ impl ApiRequest {
             }
             Self::RecipePut { message, .. } | Self::RecipeRollback { message, .. }
                 if message.chars().count() > MAX_VERSION_MESSAGE_CHARS
-                    || message.chars().any(char::is_control) =>
+                    || message.chars().any(crate::ids::unprintable) =>
             {
                 return Err(format!(
                     "version message \"{}\" is longer than {MAX_VERSION_MESSAGE_CHARS} characters \
@@ -816,6 +824,24 @@ mod tests {
         assert!(add(MAX_ORDERS_PER_ADD + 1, 0).check_limits().is_err());
         let e = add(1, 100).check_limits().expect_err("too high");
         assert!(e.contains("priority 100"), "{e}");
+        // i32::MIN has no absolute value: refused, never journalled.
+        for p in [i32::MIN, i32::MIN + 1, -100, i32::MAX] {
+            let e = add(1, p).check_limits().expect_err("out of range");
+            assert!(e.contains(&format!("priority {p}")), "{e}");
+        }
+    }
+
+    #[test]
+    fn an_answer_with_a_bidirectional_override_is_refused() {
+        for text in ["ja\u{202e}", "\u{2066}nee", "ja\u{9b}"] {
+            let e = ApiRequest::Answer { text: text.into() }
+                .check_limits()
+                .expect_err("refused");
+            assert!(e.contains("bidirectional"), "{e}");
+        }
+        assert!(ApiRequest::Answer { text: "jä".into() }
+            .check_limits()
+            .is_ok());
     }
 
     #[test]

@@ -31,17 +31,30 @@ pub fn excerpt(text: &str) -> String {
     }
 }
 
-/// `text` with every control character escaped (`\u{1b}`, `\n`, …) and
+/// Whether `c` may not reach a terminal or a log as it is: a control
+/// character (ESC, CR, BEL, BS, the C1 controls) or a bidirectional
+/// formatting character (U+202E, the right-to-left override, and its
+/// kin), which reorders what a person reads.
+pub fn unprintable(c: char) -> bool {
+    c.is_control()
+        || matches!(
+            c,
+            '\u{061C}' | '\u{200E}' | '\u{200F}' | '\u{202A}'..='\u{202E}' | '\u{2066}'..='\u{2069}'
+        )
+}
+
+/// `text` with every control character (and bidirectional formatting
+/// character, [`unprintable`]) escaped (`\u{1b}`, `\n`, …) and
 /// everything else as it is: how a text someone else wrote (a journal
 /// entry, a recipe's output, a user name) is printed to a terminal or a
 /// log, so that it can neither drive the terminal nor forge a line.
 pub fn printable(text: &str) -> std::borrow::Cow<'_, str> {
-    if !text.chars().any(char::is_control) {
+    if !text.chars().any(unprintable) {
         return std::borrow::Cow::Borrowed(text);
     }
     let mut out = String::with_capacity(text.len() + 8);
     for c in text.chars() {
-        if c.is_control() {
+        if unprintable(c) {
             out.extend(c.escape_default());
         } else {
             out.push(c);
@@ -398,5 +411,9 @@ mod number_tests {
             "B\\n\\u{1b}]0;owned\\u{7}\\u{1b}[2J"
         );
         assert!(!printable("\r\t\u{0}").chars().any(char::is_control));
+        assert_eq!(
+            printable("ja\u{202e}nee\u{2066}\u{9b}2J"),
+            "ja\\u{202e}nee\\u{2066}\\u{9b}2J"
+        );
     }
 }

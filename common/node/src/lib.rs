@@ -217,7 +217,9 @@ fn log_filter() -> tracing_subscriber::EnvFilter {
 pub fn say(line: &str) {
     use std::io::Write;
     let mut out = std::io::stdout().lock();
-    let _ = writeln!(out, "{line}");
+    // Lines carry others' texts (a station's report, the cell's output, a
+    // question): one line each, no escape reaching a terminal or journald.
+    let _ = writeln!(out, "{}", falc_model::ids::printable(line));
     let _ = out.flush();
 }
 

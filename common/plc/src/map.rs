@@ -121,7 +121,30 @@ fn line_index(c: char) -> Option<u16> {
     LINES.iter().position(|l| *l == c).map(|i| i as u16)
 }
 
+/// What an output goes to when the workstation can no longer know whether
+/// acting on it is safe: its commander lost, the node stopped (SIGTERM, a
+/// crash and restart), a job halted or failed, maintenance ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SafeState {
+    /// Released: a conveyor line stops (nothing moves unsupervised).
+    Off,
+    /// Kept as it is: a station's clamp holds its workpiece, since the
+    /// robot may still weld it; only a command that comes after the robot
+    /// is known to have stopped (the next job's, a maintainer's) releases it.
+    Hold,
+}
+
 impl Coil {
+    /// This output's safe state ([`SafeState`]): a line button is
+    /// released; a station button (a clamp) holds; external control holds
+    /// too (off, the PLC's local panel would rule the clamps).
+    pub fn safe_state(self) -> SafeState {
+        match self {
+            Coil::Button(Button::Line(_)) => SafeState::Off,
+            Coil::Button(Button::Station(_)) | Coil::ExternalControl => SafeState::Hold,
+        }
+    }
+
     /// Offset from the coil base, or None for a button outside the map.
     pub fn offset(self) -> Option<u16> {
         match self {

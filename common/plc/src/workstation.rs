@@ -47,7 +47,7 @@
 //! the simulation to the twin's map); readings and the link's state come in
 //! through [`Plc::connected`], [`Plc::reading`] and [`Plc::link_down`].
 
-use crate::map::{self, Coil, Input, Inputs, SignalName, Spot, COILS};
+use crate::map::{self, Coil, Input, Inputs, SafeState, SignalName, Spot, COILS};
 use falc_control::controller::{Device, Happening};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::Place;
@@ -240,7 +240,7 @@ impl Plc {
             // A line the dead process ran has no job now: released, so
             // nothing moves unsupervised (found by falc-sim: a transport
             // killed mid-move left its line running after the restart).
-            self.release_lines();
+            self.go_safe();
         } else {
             for coil in (0..COILS).filter_map(Coil::at) {
                 if let Coil::Button(b) = coil {
@@ -385,10 +385,11 @@ impl Plc {
         }
     }
 
-    /// Releases every line button this node holds (station buttons hold a
-    /// workpiece on its station and stay as they are).
-    fn release_lines(&mut self) {
-        self.release(|b| matches!(b, Button::Line(_)));
+    /// Brings every button this node holds to its safe state
+    /// ([`Coil::safe_state`]): the lines stop, the clamps hold their
+    /// workpiece (the robot may still weld it).
+    fn go_safe(&mut self) {
+        self.release(|b| Coil::Button(*b).safe_state() == SafeState::Off);
     }
 
     /// Releases the buttons this node holds that `which` selects.
@@ -399,10 +400,25 @@ impl Plc {
         }
     }
 
-    /// Releases every button and external control (the node stops).
+    /// The node stops: every output to its safe state in one write, what
+    /// this node does not know to be pressed released (the lines stop; a
+    /// clamp it holds stays, and so does external control, so that the
+    /// PLC's panel does not take the clamps over).
     pub fn shutdown(&mut self) {
         if self.down.is_none() {
-            self.send(PlcCommand::WriteAll([false; COILS as usize]));
+            let mut all = [false; COILS as usize];
+            for (o, v) in (0..COILS).zip(all.iter_mut()) {
+                *v = Coil::at(o).is_some_and(|c| {
+                    c.safe_state() == SafeState::Hold
+                        && match c {
+                            Coil::Button(b) => self.pressed.contains(&b),
+                            Coil::ExternalControl => true,
+                        }
+                });
+            }
+            self.pressed
+                .retain(|b| Coil::Button(*b).safe_state() == SafeState::Hold);
+            self.send(PlcCommand::WriteAll(all));
         }
     }
 
@@ -452,9 +468,12 @@ impl Plc {
 
     fn mode_changed(&mut self, mode: CellMode) {
         if mode != CellMode::Maintenance {
-            // What a maintainer left pressed is released as maintenance ends.
+            // A line a maintainer left running stops as maintenance ends; a
+            // clamp stays (a mode also comes with a reassociation, when the
+            // robot may still weld): the next job's `activate` or `reset`
+            // sets it, or `home`.
             self.manual_line = None;
-            self.release(|_| true);
+            self.go_safe();
         }
     }
 
@@ -469,21 +488,22 @@ impl Plc {
 
     fn halt(&mut self) {
         self.watch = None;
-        self.release_lines();
+        self.go_safe();
     }
 
     fn lost(&mut self) {
-        // The commander is gone and with it the cell's whole job (the weld
-        // is stopped too): nothing holds a workpiece any more, every button
-        // is released, so the next commander starts from a known state.
-        self.release(|_| true);
+        // The commander is gone: this node cannot know whether the robot
+        // still welds (its workstation may not have heard yet, or may be
+        // cut off too). Every output to its safe state: the lines stop, a
+        // clamp holds until a command after the robot's stop releases it.
+        self.go_safe();
     }
 
     fn finished(&mut self, outcome: &Outcome) {
         self.watch = None;
         self.pace(false);
         if *outcome != Outcome::Done {
-            self.release_lines();
+            self.go_safe();
         }
         self.last_line = None;
     }
@@ -730,13 +750,17 @@ mod tests {
         p.handle(Duration::from_secs(6), Happening::Clock, &mut Vec::new());
         assert_eq!(drain(&mut p), vec![PlcCommand::Write(line_b, false)]);
         assert_eq!(p.poll_timeout(), None);
-        // Leaving maintenance releases what a maintainer left pressed.
+        // Leaving maintenance stops a line a maintainer left pressed; a
+        // clamp holds (its safe state) until a command releases it.
+        assert!(p.manual(Duration::from_secs(7), &press("K")).is_ok());
+        drain(&mut p);
         p.handle(
             Duration::ZERO,
             Happening::Mode(CellMode::Auto),
             &mut Vec::new(),
         );
-        assert_eq!(drain(&mut p), vec![PlcCommand::Write(station_3, false)]);
+        let line_k = Coil::Button(Button::Line('K'));
+        assert_eq!(drain(&mut p), vec![PlcCommand::Write(line_k, false)]);
     }
 
     #[test]
@@ -861,16 +885,43 @@ mod tests {
             &mut Vec::new(),
         );
         assert_eq!(drain(&mut p), vec![PlcCommand::Pace(Pace::Idle)]);
-        // The commander lost: the station button goes too.
+        // The commander lost: every output to its safe state, the line
+        // stops and the clamp on station 3 holds (the robot may still weld).
         let cell = falc_model::ids::StationName::new("cell").expect("valid");
         p.handle(Duration::ZERO, Happening::Lost(&cell), &mut Vec::new());
-        let released = drain(&mut p);
-        assert!(
-            released.contains(&PlcCommand::Write(
-                Coil::Button(Button::Station(PlcStation::of(3))),
-                false
-            )),
-            "{released:?}"
+        assert_eq!(
+            drain(&mut p),
+            vec![PlcCommand::Write(Coil::Button(Button::Line('K')), false)]
+        );
+        assert!(p.pressed.contains(&Button::Station(PlcStation::of(3))));
+    }
+
+    #[test]
+    fn the_node_stopping_stops_the_lines_and_holds_the_clamp_and_external_control() {
+        let mut p = plc();
+        p.connected(None);
+        p.inputs(ready(), 1);
+        act(
+            &mut p,
+            0,
+            Action::Activate(Button::Station(PlcStation::of(3))),
+        );
+        act(&mut p, 0, Action::Activate(Button::Line('E')));
+        drain(&mut p);
+        p.shutdown();
+        let mut want = [false; COILS as usize];
+        for c in [
+            Coil::Button(Button::Station(PlcStation::of(3))),
+            Coil::ExternalControl,
+        ] {
+            want[usize::from(c.offset().expect("mapped"))] = true;
+        }
+        assert_eq!(drain(&mut p), vec![PlcCommand::WriteAll(want)]);
+        // Each output's safe state is the map's.
+        assert_eq!(Coil::Button(Button::Line('A')).safe_state(), SafeState::Off);
+        assert_eq!(
+            Coil::Button(Button::Station(PlcStation::of(1))).safe_state(),
+            SafeState::Hold
         );
     }
 

@@ -30,6 +30,7 @@ use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::association::Role;
 use falc_model::mms::domain::download_steps;
 use falc_model::mms::error::ServiceError;
+use falc_model::mms::heard;
 use falc_model::mms::journal::{Publication, ReportLog, ReportsAsked};
 use falc_model::mms::pdu::{Peer, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::vmd::VmdStatus;
@@ -819,6 +820,18 @@ impl World {
         }
     }
 
+    /// A publication the bus carried to `to`, taken in.
+    fn heard(&mut self, now: Duration, to: Node, p: Publication) {
+        match to {
+            Node::Operator => self.list.handle_heard(now, p.stamp, p.message),
+            Node::Cell => {
+                let events = self.cell.device.unconfirmed(&p.message);
+                self.cell.feed(now, events);
+            }
+            _ => {}
+        }
+    }
+
     /// A message arrived.
     fn arrive(&mut self, a: Arrival) {
         let now = self.now;
@@ -845,10 +858,17 @@ impl World {
                     ..
                 }) = self.pending.remove(&id)
                 {
-                    self.list.handle_kept_reports(now, station(n), Ok(kept));
+                    let kept = heard::take_kept(&station(n), kept).map_err(|e| e.to_string());
+                    self.list.handle_kept_reports(now, station(n), kept);
                 }
             }
-            (Node::Operator, Msg::Publish(p)) => self.list.handle_heard(now, p.stamp, p.message),
+            // What a receiver takes in, as on the bus: the sender is the
+            // station it came from, texts bounded.
+            (to, Msg::Publish(p)) => {
+                if let Ok((p, _)) = heard::take_publication(&station(a.from), p) {
+                    self.heard(now, to, p);
+                }
+            }
             (to, Msg::ReadKept { id, after }) => {
                 if let Some(log) = self.kept.get(&to) {
                     let kept = log.after(ReportsAsked { after });
@@ -856,11 +876,6 @@ impl World {
                         .send(now, to, a.from, Msg::Kept { id, kept }, &mut self.rng);
                 }
             }
-            (Node::Cell, Msg::Publish(p)) => {
-                let events = self.cell.device.unconfirmed(&p.message);
-                self.cell.feed(now, events);
-            }
-            (_, Msg::Publish(_)) => {}
             (Node::Operator, Msg::Request { id, request }) => {
                 self.tickets += 1;
                 let t = Ticket(self.tickets);

@@ -238,7 +238,7 @@ impl<'a> Tui<'a> {
         // Every page of new messages (the operator answers a page a time).
         loop {
             let after = self.app.last_entry;
-            match self.call(ApiRequest::Messages { after }).await {
+            match self.call(ApiRequest::Messages { after, last: None }).await {
                 Ok(ApiReply::Entries(v)) if v.is_empty() => break,
                 Ok(ApiReply::Entries(v)) => self.app.entries(v),
                 // Asked again at the next poll.

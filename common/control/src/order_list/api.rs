@@ -321,12 +321,13 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 .orders()
                 .map(|orders| ApiReply::Orders(self.with_unwritten_ends(orders)))
                 .map_err(db),
-            ApiRequest::Messages { after } => self
+            ApiRequest::Messages { after, last } => self
                 .db
                 .entries(&EntryQuery {
                     messages_only: true,
                     cell: entries_of,
-                    ..EntryQuery::page(after, PAGE)
+                    newest: last.is_some(),
+                    ..EntryQuery::page(after, last.map_or(PAGE, |n| usize::from(n).min(PAGE)))
                 })
                 .map(ApiReply::Entries)
                 .map_err(db),

@@ -275,7 +275,75 @@ pub enum Request {
     },
 }
 
+/// The longest text a request may carry in one field (an Abort's reason, a
+/// Start's argument, a discard's reason, an output line, a prompt), in
+/// characters.
+pub const MAX_REQUEST_TEXT_CHARS: usize = crate::console::MAX_OUTPUT_CHARS;
+/// The most lines one Output may carry.
+pub const MAX_REQUEST_LINES: usize = crate::console::MAX_OUTPUT_LINES;
+/// The most stations a mode may name as stepping (more than any cell has).
+pub const MAX_STEPPING: usize = 64;
+
 impl Request {
+    /// Refuses what is beyond the bounds a station takes, whoever sent it
+    /// (the operator's API bounds what consoles send; this bounds what a
+    /// caller with a commander's credentials sends to the service): texts
+    /// of at most [`MAX_REQUEST_TEXT_CHARS`], at most [`MAX_REQUEST_LINES`]
+    /// output lines, a mode naming each station once and at most
+    /// [`MAX_STEPPING`]. The refusal quotes a short excerpt only.
+    pub fn check_limits(&self) -> Result<(), String> {
+        use crate::ids::excerpt;
+        let text = |what: &str, t: &str| {
+            let n = t.chars().count();
+            if n > MAX_REQUEST_TEXT_CHARS {
+                Err(format!(
+                    "{} refused: its {what} \"{}\" is longer than {MAX_REQUEST_TEXT_CHARS} characters",
+                    self.service(),
+                    excerpt(t)
+                ))
+            } else {
+                Ok(())
+            }
+        };
+        match self {
+            Self::Abort { reason, .. } => text("reason", reason),
+            Self::Start { argument, .. } => text("argument", argument),
+            Self::TerminateDownloadSequence {
+                discard: Some(why), ..
+            } => text("reason to discard", why),
+            Self::Input { prompt, .. } => text("prompt", prompt),
+            Self::Output { lines } if lines.len() > MAX_REQUEST_LINES => Err(format!(
+                "Output refused: {} lines, at most {MAX_REQUEST_LINES}",
+                lines.len()
+            )),
+            Self::Output { lines } => lines.iter().try_for_each(|l| text("line", l)),
+            Self::Mode(m) => {
+                if m.stepping.len() > MAX_STEPPING {
+                    return Err(format!(
+                        "Mode refused: {} stations named, at most {MAX_STEPPING}",
+                        m.stepping.len()
+                    ));
+                }
+                let mut seen = std::collections::BTreeSet::new();
+                match m.stepping.iter().find(|s| !seen.insert(*s)) {
+                    Some(s) => Err(format!("Mode refused: {s} is named more than once")),
+                    None => Ok(()),
+                }
+            }
+            Self::Manual { by, action, .. } => {
+                text("user", by)?;
+                match action {
+                    crate::mode::ManualAction::Press(t)
+                    | crate::mode::ManualAction::Release(t)
+                    | crate::mode::ManualAction::RunLine { line: t, .. }
+                    | crate::mode::ManualAction::RunRecipe(t) => text("operand", t),
+                    _ => Ok(()),
+                }
+            }
+            _ => Ok(()),
+        }
+    }
+
     /// The service this request belongs to (its key's last chunk).
     pub fn service(&self) -> ServiceName {
         use ServiceName as S;
@@ -443,6 +511,63 @@ impl Unconfirmed {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn requests_beyond_their_bounds_are_refused_at_the_service_with_a_short_quote() {
+        use crate::ids::{ObjectName, StationName};
+        use crate::mode::{CellMode, ModeSetting};
+        let peer = Peer {
+            station: StationName::new("cell").expect("valid"),
+            session: "s".into(),
+        };
+        let huge = "x".repeat(1_000_000);
+        for r in [
+            Request::Abort {
+                calling: peer.clone(),
+                reason: huge.clone(),
+            },
+            Request::Start {
+                name: ObjectName::new("STORE").expect("valid"),
+                argument: "a".repeat(100_000),
+            },
+            Request::Output {
+                lines: vec![huge.clone()],
+            },
+            Request::Output {
+                lines: vec!["l".into(); 101],
+            },
+            Request::Mode(ModeSetting {
+                mode: CellMode::Step,
+                stepping: vec![StationName::new("welding").expect("valid"); 5_000],
+            }),
+            Request::Mode(ModeSetting {
+                mode: CellMode::Step,
+                stepping: vec![
+                    StationName::new("welding").expect("valid"),
+                    StationName::new("welding").expect("valid"),
+                ],
+            }),
+        ] {
+            let e = r.check_limits().expect_err("refused");
+            assert!(e.len() < 300, "a short refusal: {}", e.len());
+            assert!(
+                e.starts_with(r.service().as_str()) || e.contains("refused"),
+                "{e}"
+            );
+        }
+        assert!(Request::Start {
+            name: ObjectName::new("DIKDROOG").expect("valid"),
+            argument: "from 9".into(),
+        }
+        .check_limits()
+        .is_ok());
+        assert!(Request::Mode(ModeSetting {
+            mode: CellMode::Step,
+            stepping: vec![StationName::new("welding").expect("valid")],
+        })
+        .check_limits()
+        .is_ok());
+    }
 
     #[test]
     fn service_keys_round_trip_and_are_unique() {
