@@ -454,3 +454,44 @@ fn a_refused_mode_change_is_taken_back_everywhere_and_nothing_moves_under_a_hand
         "{orders:?}"
     );
 }
+
+/// Issue 41, finding 9: a cell controller started again comes back in
+/// auto and passes its mode to the workstations it associates (they were
+/// left in maintenance), so the cell and its workstations are in one mode
+/// and `falc status` shows one truth: a maintainer's manual operation is
+/// refused, and the next order runs to done. (A workstation that refuses
+/// the cell's mode there keeps `start` refused naming it: unit test in
+/// `falc_control::pass_on`; a recipe run by hand ends with its commander,
+/// so none is left running when the cell comes back.)
+#[test]
+fn a_restarted_cell_and_its_workstations_come_to_one_mode() {
+    let mut rig = rig("20");
+    rig.cell.falc(&["mode", "maintenance"]);
+    all_in(&rig, CellMode::Maintenance);
+    rig.cell_node.kill();
+    rig.start_cell();
+    all_in(&rig, CellMode::Auto);
+    let s = rig.status();
+    assert_eq!(s.mode, CellMode::Auto, "{s:?}");
+    let (code, out) = rig
+        .cell
+        .falc_as("maintainer", &["manual", "welding", "select", "65"]);
+    assert_eq!(code, 1, "refused in auto: {out}");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    wait_until(
+        "start taken once the cell is back",
+        Duration::from_secs(30),
+        || {
+            rig.cell.falc(&["ack"]);
+            let (code, out) = rig.cell.falc_as("console", &["start"]);
+            holds(code == 0, || out)
+        },
+    );
+    rig.work_list("ja", Duration::from_secs(120));
+    let orders = rig.orders();
+    assert_eq!(
+        orders.last().map(|o| o.state),
+        Some(OrderState::Done),
+        "{orders:?}"
+    );
+}

@@ -209,6 +209,42 @@ fn sigkill_of_the_operator_mid_order_keeps_list_and_journal_and_the_order_is_ado
     assert_eq!(starts, 2, "each order started once");
 }
 
+/// Issue 41, finding 10: the operator killed mid-weld and started again
+/// after the weld ended (7 s, the robot's program taking 6 s at this time
+/// scale). What the stations reported meanwhile (the robot program's end,
+/// the weld job's end) is read back from the last report filed, which the
+/// operator keeps in its records: in the journal, marked replayed, and in
+/// the order's record.
+#[test]
+fn a_restarted_operator_reads_back_what_the_stations_reported_while_it_was_down() {
+    let mut rig = rig("20");
+    rig.start_list_until_welding(&["dikdroog"]);
+    rig.operator().kill();
+    rig.operator = None;
+    // The fault's duration: the weld ends while the operator is down.
+    std::thread::sleep(Duration::from_secs(7));
+    rig.start_operator();
+    rig.work_list("ja", Duration::from_secs(120));
+    let orders = rig.orders();
+    assert_eq!(orders[0].state, OrderState::Done, "{orders:?}");
+    let journal = rig.journal(Some(1));
+    for text in [
+        "robot program 65 ended: complete (replayed)",
+        "job DROOG_DIK ended: done (replayed)",
+    ] {
+        assert!(
+            journal.iter().any(|e| e.who == "welding" && e.text == text),
+            "{text:?} not in {:#?}",
+            journal.iter().map(|e| &e.text).collect::<Vec<_>>()
+        );
+    }
+    let record = rig.cell.falc(&["order", "show", "1"]);
+    assert!(
+        record.contains("DROOG_DIK"),
+        "the weld in the record: {record}"
+    );
+}
+
 #[test]
 fn a_recipe_defect_refuses_start_with_file_line_and_reason_and_downloads_nothing() {
     let mut rig = rig("100");

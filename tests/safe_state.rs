@@ -65,6 +65,7 @@ fn the_clamp_holds_when_the_cell_is_killed_or_the_transport_stopped_mid_weld() {
     next_order_done(&mut rig, "the cell killed");
 
     // The transport workstation stopped mid-weld (SIGTERM).
+    rig.rcm.forget("rx G");
     rig.start_list_until_welding(&["dikdroog", "dikdroog"]);
     rig.plc.forget("coil button station 3");
     rig.rcm.forget("rx H");

@@ -53,7 +53,7 @@ pub fn with_foreign(cell: &TestCell, files: &[&str]) -> PathBuf {
 
 #[test]
 fn the_cell_runs_orders_on_the_secure_transport_and_refuses_strangers() {
-    let rig = rig_secure("20");
+    let mut rig = rig_secure("20");
     rig.cell.falc(&["order", "add", "dikdroog"]);
     rig.cell.falc(&["order", "add", "dundroog"]);
     rig.cell.falc(&["start"]);
@@ -65,10 +65,22 @@ fn the_cell_runs_orders_on_the_secure_transport_and_refuses_strangers() {
         "{orders:?}"
     );
 
+    strangers_are_refused(&rig.cell, "operator");
+    // The console's password with the observer's certificate reaches
+    // nothing, and its session is not let stay: the router closes it,
+    // naming both (issue 41, finding 17).
+    let closed = rig
+        .cell
+        .router
+        .wait_line("with the certificate of observer", Duration::from_secs(5))
+        .expect("the router closes a session whose certificate is another user's");
+    assert!(
+        closed.contains("logged in as console") && closed.contains("refused login"),
+        "{closed}"
+    );
     let cell = &rig.cell;
     let dir = cell.dir.path();
     let own = console_args(&cell.topology_path, &cell.credentials_dir());
-    strangers_are_refused(cell, "operator");
 
     // The way back for a PC with a wrong bundle: the one `falc-router
     // bundle` makes, laid out as that PC's /etc/falc, and it connects.

@@ -138,6 +138,13 @@ CREATE TABLE IF NOT EXISTS modes (
     at_ms INTEGER NOT NULL,
     mode TEXT NOT NULL
 );
+CREATE TABLE IF NOT EXISTS reports_filed (
+    cell TEXT NOT NULL,
+    station TEXT NOT NULL,
+    run TEXT NOT NULL,
+    no INTEGER NOT NULL,
+    PRIMARY KEY (cell, station)
+);
 ";
 
 const VERSION_COLUMNS: &str = "file, version, hash, author, at_ms, message";
@@ -909,6 +916,37 @@ impl Records for Database {
                 ],
             )
             .map_err(self.fail("cannot keep a workstation's job"))
+            .map(|_| ())
+    }
+
+    fn reports_filed(&self) -> Result<Vec<(String, String, u64)>, Self::Error> {
+        let mut stmt = self
+            .conn
+            .prepare("SELECT station, run, no FROM reports_filed WHERE cell = ?1")
+            .map_err(self.fail("cannot read the reports filed"))?;
+        let rows = stmt
+            .query_map(params![self.cell], |r| {
+                let no: i64 = r.get(2)?;
+                Ok((r.get(0)?, r.get(1)?, u64::try_from(no).unwrap_or(0)))
+            })
+            .map_err(self.fail("cannot read the reports filed"))?;
+        rows.collect::<rusqlite::Result<Vec<_>>>()
+            .map_err(self.fail("cannot read the reports filed"))
+    }
+
+    fn report_filed(&mut self, station: &str, run: &str, no: u64) -> Result<(), Self::Error> {
+        self.conn
+            .execute(
+                "INSERT INTO reports_filed (cell, station, run, no) VALUES (?1, ?2, ?3, ?4) \
+                 ON CONFLICT (cell, station) DO UPDATE SET run = excluded.run, no = excluded.no",
+                params![
+                    self.cell,
+                    station,
+                    run,
+                    i64::try_from(no).unwrap_or(i64::MAX)
+                ],
+            )
+            .map_err(self.fail("cannot keep the last report filed"))
             .map(|_| ())
     }
 

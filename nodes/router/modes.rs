@@ -61,6 +61,18 @@ pub fn admitted(admit: &Admit, mode: WhatAmI, user: Option<&str>, zid: &str) -> 
     }
 }
 
+/// Whether a session's certificate and its login name one user: over QUIC
+/// each node's certificate's common name is its user, so a certificate of
+/// one user with another's password (`cert`, `user`) is refused, even
+/// though the access control would let it reach nothing. Either missing
+/// (plain tcp, a router's link up): nothing to compare.
+pub fn one_user(user: Option<&str>, cert: Option<&str>) -> bool {
+    match (user, cert) {
+        (Some(u), Some(c)) => u == c,
+        _ => true,
+    }
+}
+
 /// The host part of a locator (`tcp/10.0.0.5:41234` → `tcp/10.0.0.5`): a
 /// remote that reconnects comes from a new port each time but is one
 /// source of log lines.
@@ -82,6 +94,32 @@ impl ClientsOnly {
     pub fn new(tasks: tokio::runtime::Handle, admit: Admit) -> Self {
         ClientsOnly { tasks, admit }
     }
+}
+
+/// Closes `transport` (from `from`, in mode `mode`) on `tasks`.
+fn close(
+    tasks: &tokio::runtime::Handle,
+    transport: TransportUnicast,
+    from: String,
+    mode: WhatAmI,
+) -> zenoh::Result<Arc<dyn TransportPeerEventHandler>> {
+    // The close holds the transport from its first poll, here: zenoh
+    // keeps only a weak reference in `transport`, and a remote that
+    // reconnects at once can have its new transport dropped from
+    // zenoh's table by the end of its previous one (seen: the
+    // orphan then lived on, unclosed). The first poll takes the
+    // strong reference and waits for the transport's status lock,
+    // which zenoh holds until the transport is whole.
+    let mut close = Box::pin(async move {
+        if let Err(e) = transport.close().await {
+            tracing::warn!("closing a {mode} session from {from}: {e}");
+        }
+    });
+    let mut cx = std::task::Context::from_waker(futures::task::noop_waker_ref());
+    if futures::FutureExt::poll_unpin(&mut close, &mut cx).is_pending() {
+        tasks.spawn(close);
+    }
+    Err("refused: closed".into())
 }
 
 /// A link between routers of a plant, watched for its end: the log says
@@ -116,7 +154,28 @@ impl TransportEventHandler for ClientsOnly {
             .get_auth_ids()
             .ok()
             .and_then(|ids| ids.username().cloned());
+        let cert = transport.get_auth_ids().ok().and_then(|ids| {
+            ids.link_auth_ids()
+                .iter()
+                .find_map(|l| l.get_cert_common_name().map(str::to_string))
+        });
         let zid = peer.zid.to_string();
+        if !one_user(user.as_deref(), cert.as_deref()) {
+            let from = peer
+                .links
+                .first()
+                .map(|l| l.dst.to_string())
+                .unwrap_or_else(|| "an unknown address".into());
+            falc_bus::log_limit::warn(
+                host(&from),
+                &format!(
+                    "refused login: a session from {from} logged in as {} with the certificate of {} (zenoh id {zid}) closed: a node's certificate names its own user",
+                    falc_model::ids::printable(user.as_deref().unwrap_or_default()),
+                    falc_model::ids::printable(cert.as_deref().unwrap_or_default()),
+                ),
+            );
+            return close(&self.tasks, transport, from, peer.whatami);
+        }
         if admitted(&self.admit, peer.whatami, user.as_deref(), &zid) {
             if peer.whatami == WhatAmI::Router {
                 let what = user
@@ -144,23 +203,7 @@ impl TransportEventHandler for ClientsOnly {
                 peer.whatami
             ),
         );
-        // The close holds the transport from its first poll, here: zenoh
-        // keeps only a weak reference in `transport`, and a remote that
-        // reconnects at once can have its new transport dropped from
-        // zenoh's table by the end of its previous one (seen: the
-        // orphan then lived on, unclosed). The first poll takes the
-        // strong reference and waits for the transport's status lock,
-        // which zenoh holds until the transport is whole.
-        let mut close = Box::pin(async move {
-            if let Err(e) = transport.close().await {
-                tracing::warn!("closing a {} session from {from}: {e}", peer.whatami);
-            }
-        });
-        let mut cx = std::task::Context::from_waker(futures::task::noop_waker_ref());
-        if futures::FutureExt::poll_unpin(&mut close, &mut cx).is_pending() {
-            self.tasks.spawn(close);
-        }
-        Err("not a client: closed".into())
+        close(&self.tasks, transport, from, peer.whatami)
     }
 
     fn new_multicast(
@@ -188,6 +231,15 @@ pub async fn open(cfg: zenoh::Config, admit: Admit) -> zenoh::Result<zenoh::Sess
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_certificate_must_name_the_user_that_logged_in() {
+        assert!(super::one_user(Some("console"), Some("console")));
+        assert!(!super::one_user(Some("cell"), Some("observer")));
+        // Plain tcp (no certificate), a router's link up (no login).
+        assert!(super::one_user(Some("cell"), None));
+        assert!(super::one_user(None, Some("falc-router")));
+    }
+
     use super::*;
 
     #[test]

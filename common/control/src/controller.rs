@@ -635,6 +635,12 @@ impl<D: Device> Controller<D> {
         }
         // A run began: the alarm before it is dealt with.
         self.alarmed = false;
+        if t.request == PiRequest::Start && self.kind.is_workstation() {
+            self.out.push_back(Output::Job {
+                program: t.name.clone(),
+                event: JobEvent::Started,
+            });
+        }
         Ok(if t.request == PiRequest::Start {
             PiCompletion::Started
         } else {
@@ -1017,7 +1023,7 @@ mod tests {
         assert_eq!((held.state, held.command.as_str()), (1, "start rcm 65"));
         assert_eq!(c.status().mode, CellMode::Step);
         let outs = outputs(&mut c);
-        assert_eq!(job_events(&outs), vec![JobEvent::Paused]);
+        assert_eq!(job_events(&outs), vec![JobEvent::Started, JobEvent::Paused]);
         assert!(outs.iter().any(|o| matches!(o, Output::Report { text, .. }
             if text == "step: DROOG_DIK state 1 waits for `falc step`: start rcm 65")));
         assert_eq!(c.poll_timeout(), None, "no limit runs while a step waits");
@@ -1187,6 +1193,8 @@ mod tests {
             }]
         );
         assert_eq!(c.status().program.map(|p| p.state), Some(1));
+        // The run's start goes up, numbered like its end.
+        assert_eq!(job_events(&outputs(&mut c)), vec![JobEvent::Started]);
         c.feed(secs(2), vec![Event::Started(rcm())]);
         c.settle(secs(2));
         assert_eq!(c.status().program.map(|p| p.state), Some(2));
@@ -1283,7 +1291,7 @@ mod tests {
         assert_eq!(class, AlarmClass::Process);
         assert!(text.contains("robot program 65 still runs"), "{text}");
         match job_events(&outs).as_slice() {
-            [JobEvent::Alarm(cause)] => {
+            [JobEvent::Started, JobEvent::Alarm(cause)] => {
                 assert!(
                     cause.text.contains("robot program 65 still runs"),
                     "{cause:?}"
@@ -1311,7 +1319,11 @@ mod tests {
             severity: Severity::Alarm(AlarmClass::Communication),
             text: expected.text.clone(),
         }));
-        assert_eq!(job_events(&outs), vec![JobEvent::Alarm(expected)]);
+        // The run's start, numbered like its end (read back after a cut).
+        assert_eq!(
+            job_events(&outs),
+            vec![JobEvent::Started, JobEvent::Alarm(expected)]
+        );
         // Lost while idle: the device hears of it, nothing is reported.
         c.handle_abort(Duration::ZERO, &cell, Role::Commander);
         assert_eq!(outputs(&mut c), vec![]);
@@ -1353,6 +1365,7 @@ mod tests {
         assert_eq!(c.device.halted, 1);
         assert!(!c.is_running());
         assert!(matches!(c.device.finished.as_slice(), [Outcome::Alarm(_)]));
+        outputs(&mut c);
         // A late end of the robot's program changes nothing.
         c.feed(secs(4), vec![Event::Ended(rcm(), JobEnd::Done)]);
         c.settle(secs(4));
@@ -1363,6 +1376,7 @@ mod tests {
     fn done_waits_until_the_device_has_carried_out_its_outputs() {
         let mut c = loaded();
         start(&mut c, Duration::ZERO).unwrap();
+        assert_eq!(job_events(&outputs(&mut c)), vec![JobEvent::Started]);
         c.feed(secs(1), vec![Event::Started(rcm())]);
         c.device.settling = true;
         c.feed(secs(5), vec![Event::Ended(rcm(), JobEnd::Done)]);

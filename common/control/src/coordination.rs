@@ -202,6 +202,10 @@ impl Stations {
             return Vec::new();
         }
         let st = station.clone();
+        if *event == JobEvent::Started {
+            // Its Start's confirm says so already.
+            return Vec::new();
+        }
         vec![match event {
             JobEvent::Done => Event::Ended(st, JobEnd::Done),
             JobEvent::BadProduct => Event::Ended(st, JobEnd::BadProduct),
@@ -210,6 +214,7 @@ impl Stations {
             JobEvent::Alarm(text) => Event::Ended(st, JobEnd::Alarm(text.clone())),
             JobEvent::Paused => Event::Paused(st),
             JobEvent::Resumed => Event::Resumed(st),
+            JobEvent::Started => return Vec::new(),
         }]
     }
 }

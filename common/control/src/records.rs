@@ -164,6 +164,12 @@ pub trait Records {
     /// change before `until`, of every cell: what the figures are
     /// computed from.
     fn figure_inputs(&self, since: i64, until: i64) -> Result<FigureInputs, Self::Error>;
+    /// The last report filed of each station of this cell: the station,
+    /// its run and the report's number. An operator started again reads
+    /// back from there what the stations reported while it was down.
+    fn reports_filed(&self) -> Result<Vec<(String, String, u64)>, Self::Error>;
+    /// Report number `no` of `station`'s run `run` is filed.
+    fn report_filed(&mut self, station: &str, run: &str, no: u64) -> Result<(), Self::Error>;
 
     /// The orders marked running (of any cell).
     fn running_orders(&self) -> Result<Vec<Order>, Self::Error> {
@@ -286,6 +292,8 @@ pub mod memory {
         /// The ids of the orders not ended (queued or running): what the
         /// queue is looked up in, so a long history costs nothing.
         live: std::collections::BTreeSet<i64>,
+        /// The last report filed per (cell, station): its run and number.
+        filed: std::collections::BTreeMap<(String, String), (String, u64)>,
     }
 
     impl Memory {
@@ -320,6 +328,27 @@ pub mod memory {
         /// The journal's texts, in order.
         pub fn texts(&self) -> Vec<String> {
             self.journal.iter().map(|e| e.text.clone()).collect()
+        }
+        /// [`Records::reports_filed`] of cell `cell`.
+        pub fn reports_filed_of(&self, cell: &str) -> Vec<(String, String, u64)> {
+            self.filed
+                .iter()
+                .filter(|((c, _), _)| c == cell)
+                .map(|((_, st), (run, no))| (st.clone(), run.clone(), *no))
+                .collect()
+        }
+        /// [`Records::report_filed`] of cell `cell`.
+        pub fn report_filed_of(
+            &mut self,
+            cell: &str,
+            station: &str,
+            run: &str,
+            no: u64,
+        ) -> Result<(), String> {
+            self.write()?;
+            self.filed
+                .insert((cell.into(), station.into()), (run.into(), no));
+            Ok(())
         }
     }
 
@@ -617,6 +646,12 @@ pub mod memory {
             self.jobs.push((order, job.clone()));
             Ok(())
         }
+        fn reports_filed(&self) -> Result<Vec<(String, String, u64)>, String> {
+            Ok(self.reports_filed_of(MEMORY_CELL))
+        }
+        fn report_filed(&mut self, station: &str, run: &str, no: u64) -> Result<(), String> {
+            self.report_filed_of(MEMORY_CELL, station, run, no)
+        }
         fn record_mode(&mut self, mode: CellMode) -> Result<(), String> {
             if self.modes.last().map(|m| m.mode) == Some(mode) {
                 return Ok(());
@@ -817,6 +852,14 @@ pub mod shared {
         }
         fn record_mode(&mut self, mode: CellMode) -> Result<(), String> {
             self.all.borrow_mut().record_mode(mode)
+        }
+        fn reports_filed(&self) -> Result<Vec<(String, String, u64)>, String> {
+            Ok(self.all.borrow().reports_filed_of(&self.cell))
+        }
+        fn report_filed(&mut self, station: &str, run: &str, no: u64) -> Result<(), String> {
+            self.all
+                .borrow_mut()
+                .report_filed_of(&self.cell, station, run, no)
         }
         fn figure_inputs(&self, since: i64, until: i64) -> Result<FigureInputs, String> {
             self.all.borrow().figure_inputs(since, until)

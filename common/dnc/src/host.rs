@@ -269,7 +269,8 @@ impl Host {
     /// When the host next needs the clock: the next status request, or
     /// the end of the wait for its answer.
     pub fn poll_timeout(&self) -> Option<Duration> {
-        if !self.open || (self.running.is_none() && !self.probing) {
+        // A program a maintainer started is supervised like a job's.
+        if !self.open || (self.running.is_none() && !self.probing && !self.by_hand) {
             return None;
         }
         Some(match self.asked {
@@ -289,6 +290,18 @@ impl Host {
                 self.asked = None;
                 self.heard = now;
                 self.probing = true;
+                if self.running.is_none() && std::mem::take(&mut self.by_hand) {
+                    // No job to end: the alarm is reported as it is.
+                    return vec![Out::Alarm(Cause::new(
+                        AlarmClass::Communication,
+                        format!(
+                            "no connection with RCM on {}: status request unanswered for {:.1} s \
+                             while a robot program started by hand runs",
+                            self.line,
+                            now.saturating_sub(at).as_secs_f64()
+                        ),
+                    ))];
+                }
                 let Some(p) = self.running.take() else {
                     return Vec::new();
                 };
@@ -426,9 +439,9 @@ impl Host {
                 ))]
             }
             (Telegram::Ack { .. }, _) => Vec::new(),
-            (Telegram::ProgramEnd { result, .. }, _) => {
+            (Telegram::ProgramEnd { program, result }, _) => {
                 let ended = self.running.take();
-                self.by_hand = false;
+                let by_hand = std::mem::take(&mut self.by_hand);
                 let (end, word) = match result {
                     EndResult::Complete => (JobEnd::Done, "complete"),
                     EndResult::WeldAborted => (JobEnd::BadProduct, "weld aborted"),
@@ -438,6 +451,12 @@ impl Host {
                     out.push(Out::Info(format!(
                         "robot program {} ended: {word}",
                         p.number()
+                    )));
+                } else if by_hand {
+                    // A maintainer's program is followed to its end too.
+                    out.push(Out::Info(format!(
+                        "robot program {} ended: {word} (started by hand)",
+                        program.number()
                     )));
                 }
                 if let Some(mode) = self.mode {
@@ -896,6 +915,30 @@ mod tests {
     }
 
     #[test]
+    fn a_program_a_maintainer_started_is_supervised_and_a_silent_line_is_an_alarm() {
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
+        h.connected(s(0));
+        h.telegram(s(1), status(None, ProgramState::Idle));
+        assert_eq!(h.poll_timeout(), None, "nothing runs: nothing asked");
+        h.manual(&ManualAction::StartProgram).unwrap();
+        // Its status is asked while it runs.
+        let at = h.poll_timeout().expect("supervised");
+        let out = h.handle_timeout(at);
+        assert!(
+            out.iter()
+                .any(|o| matches!(o, Out::Telegram(Telegram::StatusRequest))),
+            "{out:?}"
+        );
+        // Unanswered: an alarm of its own (no job to end).
+        let limit = h.poll_timeout().expect("the answer awaited");
+        let out = h.handle_timeout(limit);
+        assert!(
+            matches!(&out[..], [Out::Alarm(c)] if c.text.contains("started by hand")),
+            "{out:?}"
+        );
+    }
+
+    #[test]
     fn a_program_a_maintainer_started_is_theirs_not_an_orphan() {
         let mut h = Host::new("/dev/ttyS0", &Timing::default());
         h.connected(s(0));
@@ -909,14 +952,21 @@ mod tests {
                 "a program started by hand is left running: {out:?}"
             );
         }
-        // Once it ended, a program running with no job is an orphan again.
-        h.telegram(
+        // Its end is reported, as a job's is.
+        let out = h.telegram(
             s(100),
             Telegram::ProgramEnd {
                 program: p65(),
                 result: EndResult::Complete,
             },
         );
+        assert!(
+            out.contains(&Out::Info(
+                "robot program 65 ended: complete (started by hand)".into()
+            )),
+            "{out:?}"
+        );
+        // Once it ended, a program running with no job is an orphan again.
         h.telegram(s(130), status(Some(p65()), ProgramState::Running));
         let out = h.telegram(s(160), status(Some(p65()), ProgramState::Running));
         assert!(

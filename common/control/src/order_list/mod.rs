@@ -380,6 +380,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         source: S,
         recipes: RecipeSet,
     ) -> Self {
+        let heard = replay::kept_filed(&db);
         let alarms = match AlarmList::load(&db) {
             Ok(l) => l,
             Err(e) => {
@@ -421,7 +422,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             next_try: Duration::ZERO,
             out: VecDeque::new(),
             told: None,
-            heard: BTreeMap::new(),
+            heard,
             replaying: None,
         }
         .versioned()

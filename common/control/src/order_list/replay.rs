@@ -10,6 +10,11 @@
 //! events are the exception: they end orders, so each is taken as it
 //! comes and never from a read (a late one could end a later order of the
 //! same recipe; one lost in a cut is asked for when the cell is back).
+//!
+//! The last number filed of each station's run is kept in the records as
+//! it is filed ([`Records::report_filed`]): an operator started again
+//! begins from there ([`kept_filed`]) and reads back, when each station is
+//! on the bus, what it reported while the operator was down.
 
 use super::*;
 use falc_model::mms::journal::{KeptReports, Stamp};
@@ -56,6 +61,27 @@ impl Heard {
     }
 }
 
+/// What the records say was filed last of each station: where a list
+/// started again begins (nothing asked yet; a station on the bus is read
+/// from there). Unreadable records: nothing, as for a new file (logged).
+pub(super) fn kept_filed<R: Records>(db: &R) -> BTreeMap<StationName, Heard> {
+    match db.reports_filed() {
+        Ok(filed) => filed
+            .into_iter()
+            .filter_map(|(station, run, no)| {
+                let station = StationName::new(&station).ok()?;
+                Some((station, Heard::new(&run, no, Reading::No)))
+            })
+            .collect(),
+        Err(e) => {
+            tracing::error!(
+                "{e}: reports the stations made while the operator was down are not read back"
+            );
+            BTreeMap::new()
+        }
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Reading {
     /// Nothing asked.
@@ -95,6 +121,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             if h.reading != Reading::Out && stamp.no > h.last {
                 if stamp.no == h.last + 1 {
                     h.filed(stamp.no);
+                    self.keep_filed(&station);
                 } else {
                     self.read_kept(station);
                 }
@@ -106,9 +133,22 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         }
         if stamp.no == h.last + 1 {
             h.filed(stamp.no);
-            return self.publication(now, u);
+            self.publication(now, u);
+            return self.keep_filed(&station);
         }
         self.read_kept(station);
+    }
+
+    /// Keeps in the records the last number filed of `station` (a failed
+    /// write stops the list, as any: [`Self::db_failed`]).
+    fn keep_filed(&mut self, station: &StationName) {
+        let Some(h) = self.heard.get(station) else {
+            return;
+        };
+        let (run, last) = (h.run.clone(), h.last);
+        if let Err(e) = self.db.report_filed(station.as_str(), &run, last) {
+            self.db_failed(&e);
+        }
     }
 
     /// Asks `station` for what it kept after the last report filed.
@@ -192,6 +232,9 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             filed += 1;
             self.replayed(now, stamp.at_ms, u);
         }
+        // What fell out of the buffer counts as filed too: never asked
+        // for again.
+        self.keep_filed(&station);
         self.say(format!(
             "EVENT replayed station={station} reports={filed} lost={lost}"
         ));

@@ -147,6 +147,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     ) {
         let outcome = match &event {
             JobEvent::Paused | JobEvent::Resumed => return,
+            JobEvent::Started => return self.workstation_started(now, station, program),
             JobEvent::Done => "done".to_string(),
             JobEvent::BadProduct => "bad product".to_string(),
             JobEvent::FailedSafe => "failed safe".to_string(),
@@ -173,6 +174,28 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             self.db_failed(&e);
         }
         self.station_says(now, station, text);
+    }
+
+    /// A workstation's run began (its numbered job event, live or read
+    /// back after a cut): its job is open from the station's time. If its
+    /// status said so first, the line is not written twice; a start read
+    /// back sets the time to the station's own.
+    fn workstation_started(&mut self, now: Duration, station: StationName, program: ObjectName) {
+        let at = self.replaying.unwrap_or_else(|| self.db.now_ms());
+        match self.open_jobs.get_mut(&station) {
+            Some((name, since, _)) if *name == program => {
+                // The station's own time of its start is the truth; the
+                // status's was when the operator heard of it.
+                if self.replaying.is_some() {
+                    *since = at;
+                }
+            }
+            _ => {
+                let job = (program.clone(), at, self.order_of_message(now));
+                self.open_jobs.insert(station.clone(), job);
+                self.station_says(now, station, format!("job {program} started"));
+            }
+        }
     }
 
     /// A line of what `station` did, journalled as its own report (its
@@ -205,6 +228,8 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                     &format!("{program} {event:?}").to_lowercase(),
                 );
             }
+            // The cell's own run's start is its Start's confirm.
+            JobEvent::Started => {}
             JobEvent::Done => {
                 self.running = None;
                 self.forget_question();

@@ -1390,6 +1390,55 @@ fn reports_missed_across_a_cut_are_read_back_filed_in_order_with_their_times_and
 }
 
 #[test]
+fn a_list_started_again_reads_back_from_the_last_report_its_records_say_was_filed() {
+    let mut r = Rig::new();
+    r.list.handle_presence(r.now, st("welding"), true);
+    for no in 1..=3 {
+        r.hear(numbered("welding", "a", no, &format!("r{no}")));
+    }
+    // Each report filed is kept in the records as it is filed.
+    assert_eq!(
+        r.list.records().reports_filed(),
+        Ok(vec![("welding".to_string(), "a".to_string(), 3)])
+    );
+    // The operator is killed; welding makes 4 and 5 meanwhile. The list
+    // started again on the same records reads from 3 once welding is
+    // heard on the bus.
+    let mut records = Memory::default();
+    records
+        .report_filed("welding", "a", 3)
+        .expect("a write in memory");
+    let topology = Topology::parse(TOPOLOGY, "test").expect("topology");
+    r.list = OrderList::new(
+        st("operator"),
+        st("cell"),
+        topology,
+        records,
+        Source::default(),
+        set(),
+    );
+    r.outputs();
+    r.list.handle_presence(r.now, st("welding"), true);
+    let out = r.outputs();
+    assert_eq!(reads(&out), vec![(st("welding"), 3)], "{out:?}");
+    let kept = KeptReports {
+        run: "a".into(),
+        first: 1,
+        reports: (1..=5)
+            .map(|no| numbered("welding", "a", no, &format!("r{no}")))
+            .collect(),
+    };
+    r.list.handle_kept_reports(r.now, st("welding"), Ok(kept));
+    r.outputs();
+    let texts: Vec<String> = r.lines_of("welding").into_iter().map(|(_, t)| t).collect();
+    assert_eq!(texts, ["r4 (replayed)", "r5 (replayed)"]);
+    assert_eq!(
+        r.list.records().reports_filed(),
+        Ok(vec![("welding".to_string(), "a".to_string(), 5)])
+    );
+}
+
+#[test]
 fn a_gap_in_the_numbers_is_read_back_and_what_fell_out_of_the_buffer_is_reported_lost() {
     let mut r = Rig::new();
     r.hear(numbered("transport", "a", 7, "first heard"));
@@ -1482,6 +1531,68 @@ fn a_replayed_job_end_is_recorded_with_the_station_s_time() {
         jobs.last().map(|(_, j)| j.ended_ms),
         Some(4_242),
         "{jobs:?}"
+    );
+}
+
+#[test]
+fn a_job_started_while_its_station_was_cut_off_is_read_back_with_its_start_time() {
+    let mut r = Rig::new();
+    r.hear(numbered("welding", "a", 1, "hello"));
+    let job = |no: u64, at_ms: i64, event: JobEvent| {
+        (
+            Stamp {
+                run: "a".into(),
+                no,
+                at_ms,
+            },
+            Unconfirmed::Job {
+                station: st("welding"),
+                program: name("DROOG_DIK"),
+                event,
+            },
+        )
+    };
+    // Back on the bus: its status (the job still runs) comes before the
+    // read; the start read back keeps one line and corrects the time.
+    r.list.handle_presence(r.now, st("welding"), true);
+    r.outputs();
+    r.publish(Unconfirmed::Status {
+        station: st("welding"),
+        status: VmdStatus {
+            program: Some(falc_model::mms::vmd::ProgramState {
+                name: name("DROOG_DIK"),
+                state: 2,
+            }),
+            ..VmdStatus::default()
+        },
+    });
+    let kept = KeptReports {
+        run: "a".into(),
+        first: 1,
+        reports: vec![
+            job(2, 4_000, JobEvent::Started),
+            job(3, 9_000, JobEvent::Done),
+        ],
+    };
+    r.list.handle_kept_reports(r.now, st("welding"), Ok(kept));
+    let texts: Vec<String> = r.lines_of("welding").into_iter().map(|l| l.1).collect();
+    let started = texts
+        .iter()
+        .filter(|t| t.starts_with("job DROOG_DIK started"))
+        .count();
+    assert_eq!(started, 1, "{texts:?}");
+    let jobs = r.list.records().jobs.clone();
+    assert_eq!(
+        jobs.last().map(|(_, j)| (j.started_ms, j.ended_ms)),
+        Some((Some(4_000), 9_000)),
+        "{jobs:?}"
+    );
+    // A start heard live with no status before it: one line, its time.
+    r.hear(job(4, 10_000, JobEvent::Started));
+    let texts: Vec<String> = r.lines_of("welding").into_iter().map(|l| l.1).collect();
+    assert_eq!(
+        texts.last().map(String::as_str),
+        Some("job DROOG_DIK started")
     );
 }
 

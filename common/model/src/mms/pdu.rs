@@ -465,6 +465,10 @@ pub enum JobEvent {
     FailedDanger,
     /// Ended in alarm, with the cause (its class set where it was raised).
     Alarm(crate::alarm::Cause),
+    /// A workstation's run began (numbered like every job event, so a
+    /// reader who missed it while a link was down reads it back with its
+    /// time; the status says so too, but is not kept).
+    Started,
 }
 
 /// An unconfirmed service, published upward (`…/<st>/status`, `…/<st>/report`).
