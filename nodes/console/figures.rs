@@ -133,6 +133,12 @@ fn cell_text(c: &CellFigures) -> Vec<String> {
         "OEE"
     ));
     out.extend(c.periods.iter().map(period_line));
+    if c.periods_left_out > 0 {
+        out.push(format!(
+            "  … and {} more periods not shown (a reply is a page: give a shorter range)",
+            c.periods_left_out
+        ));
+    }
     out.push(period_line(&c.total));
     let down: Vec<String> = c
         .total

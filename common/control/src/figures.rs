@@ -16,7 +16,7 @@ use falc_model::alarm::AlarmClass;
 use falc_model::console::OrderState;
 use falc_model::figures::{
     Calendar, CellFigures, CycleTime, FigureQuery, Figures, ParetoLine, Period, Quantities,
-    Reliability, RunBar, RunCount, TimeElements,
+    Reliability, RunBar, RunCount, TimeElements, MAX_PERIODS,
 };
 use falc_model::mode::CellMode;
 use std::collections::{BTreeMap, BTreeSet};
@@ -380,7 +380,10 @@ fn cell_figures(
     // A period is shown from the cell's first record on: before it the
     // records say nothing (all time is thousands of empty days).
     let first = cell.first_record().unwrap_or(until);
-    let shown: Vec<&(i64, i64, String)> = busy_periods.iter().filter(|p| p.1 > first).collect();
+    let mut shown: Vec<&(i64, i64, String)> = busy_periods.iter().filter(|p| p.1 > first).collect();
+    // A reply is a page: 1970–2100 would be tens of thousands of days.
+    let periods_left_out = shown.len().saturating_sub(MAX_PERIODS) as u64;
+    shown.truncate(MAX_PERIODS);
     let spans: Vec<(i64, i64)> = shown.iter().map(|p| (p.0, p.1)).collect();
     let periods: Vec<Period> = shown
         .iter()
@@ -474,6 +477,7 @@ fn cell_figures(
         ended,
         total,
         periods,
+        periods_left_out,
         cycle,
         reliability,
         pareto,
@@ -753,6 +757,28 @@ mod tests {
         let f = compute(&inputs, &two_shifts(), &[], &set, 0);
         assert_eq!(f.cells[0].total.quantities.planned_run_ms, 30 * M);
         assert!(f.cells[0].cycle[0].planned_set);
+    }
+
+    #[test]
+    fn a_range_to_2100_is_one_page_of_periods_and_says_how_many_were_left_out() {
+        let inputs = FigureInputs {
+            runs: vec![run(1, WED + 7 * H, Some(WED + 8 * H), OrderState::Done)],
+            ..Default::default()
+        };
+        let latest = falc_model::console::LATEST_FIGURES_MS;
+        let f = compute(&inputs, &two_shifts(), &[], &query(0, latest), 0);
+        let c = &f.cells[0];
+        assert_eq!(c.periods.len(), MAX_PERIODS);
+        // Two shifts a day from 2026-11-25 to 2100: the rest left out.
+        assert!(c.periods_left_out > 50_000, "{}", c.periods_left_out);
+        assert!(
+            c.periods[0].label.starts_with("2026-11-25"),
+            "{}",
+            c.periods[0].label
+        );
+        // On the wire (the envelope): a page, not megabytes.
+        let bytes = falc_model::envelope::encode(&f).len();
+        assert!(bytes < 300_000, "one page: {bytes} bytes");
     }
 
     #[test]

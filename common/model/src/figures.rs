@@ -374,6 +374,10 @@ pub struct RunCount {
     pub count: u64,
 }
 
+/// The most periods (shifts, or days) one reply of figures gives per cell:
+/// three shifts a day for about a year.
+pub const MAX_PERIODS: usize = 1_100;
+
 /// One cell's figures.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct CellFigures {
@@ -383,8 +387,13 @@ pub struct CellFigures {
     pub ended: Vec<RunCount>,
     /// The whole range.
     pub total: Period,
-    /// Each shift (each day with no shift calendar).
+    /// Each shift (each day with no shift calendar), from the cell's first
+    /// record on: at most [`MAX_PERIODS`], the oldest.
     pub periods: Vec<Period>,
+    /// How many periods of the range came after those (a reply stays a
+    /// page: ask for a shorter range to see them).
+    #[serde(default)]
+    pub periods_left_out: u64,
     /// Cycle time per recipe.
     pub cycle: Vec<CycleTime>,
     /// MTBF and MTTR per station.
