@@ -266,6 +266,17 @@ async fn run(cli: Cli) -> Result<(), String> {
                 write(&poller);
             }
         }
+        // A stranger's every attempt leaves a rejected certificate: the
+        // folder keeps the newest only.
+        match server::prune_rejected(&endpoint.pki_dir.join("rejected"), server::KEEP_REJECTED) {
+            Ok(0) => {}
+            Ok(n) => tracing::info!(
+                "{n} rejected client certificates removed: {} keeps the newest {}",
+                endpoint.pki_dir.join("rejected").display(),
+                server::KEEP_REJECTED
+            ),
+            Err(e) => tracing::warn!("the rejected client certificates cannot be pruned: {e}"),
+        }
         if !ready {
             ready = true;
             say(&format!(

@@ -590,3 +590,68 @@ pub fn build(
         },
     ))
 }
+/// How many rejected client certificates the gateway keeps for an
+/// administrator to move to `trusted/`: a stranger's every attempt writes
+/// one (no credentials needed), so the oldest beyond these are removed.
+pub const KEEP_REJECTED: usize = 100;
+
+/// Keeps the newest `keep` files of `dir` (a PKI's `rejected/`), removing
+/// the rest; how many were removed. A missing directory has none.
+pub fn prune_rejected(dir: &std::path::Path, keep: usize) -> std::io::Result<usize> {
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(0),
+        Err(e) => return Err(e),
+    };
+    let mut files: Vec<(std::time::SystemTime, std::path::PathBuf)> = entries
+        .filter_map(Result::ok)
+        .filter_map(|e| {
+            let m = e.metadata().ok()?;
+            m.is_file()
+                .then(|| (m.modified().unwrap_or(std::time::UNIX_EPOCH), e.path()))
+        })
+        .collect();
+    if files.len() <= keep {
+        return Ok(0);
+    }
+    files.sort();
+    let old = files.len() - keep;
+    let mut removed = 0;
+    for (_, path) in files.into_iter().take(old) {
+        if std::fs::remove_file(&path).is_ok() {
+            removed += 1;
+        }
+    }
+    Ok(removed)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_rejected_folder_keeps_the_newest_certificates_only() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let rejected = dir.path().join("rejected");
+        assert_eq!(prune_rejected(&rejected, 3).ok(), Some(0), "none yet");
+        std::fs::create_dir(&rejected).expect("mkdir");
+        let t0 = std::time::SystemTime::now();
+        for i in 0..10u64 {
+            let f = rejected.join(format!("stranger-{i}.der"));
+            std::fs::write(&f, b"cert").expect("write");
+            let when = t0 - std::time::Duration::from_secs(100 - i);
+            std::fs::File::options()
+                .write(true)
+                .open(&f)
+                .and_then(|h| h.set_modified(when))
+                .expect("mtime");
+        }
+        assert_eq!(prune_rejected(&rejected, 3).ok(), Some(7));
+        let mut left: Vec<String> = std::fs::read_dir(&rejected)
+            .expect("dir")
+            .filter_map(|e| e.ok().map(|e| e.file_name().to_string_lossy().into_owned()))
+            .collect();
+        left.sort();
+        assert_eq!(left, ["stranger-7.der", "stranger-8.der", "stranger-9.der"]);
+    }
+}

@@ -198,19 +198,23 @@ where
 }
 
 /// The log filter of every FALC process: `RUST_LOG`, else `info` with
-/// zenoh's own chatter at `warn`. zenoh's QUIC listener warns once per
-/// failed handshake, unthrottled (a stranger's flood would fill the log);
-/// the router reports those rate-limited in its own words
-/// (`falc-router`'s `logins`), so they are left out here.
+/// zenoh's and async-opcua's own chatter at `warn`. zenoh's QUIC listener
+/// warns once per failed handshake, unthrottled (a stranger's flood would
+/// fill the log); the router reports those rate-limited in its own words
+/// (`falc-router`'s `logins`), so they are left out here. async-opcua
+/// writes INFO lines for every secure channel and session a client opens
+/// (about 800 bytes an attempt, unthrottled, no credentials needed): left
+/// out too; its warnings and errors are rate-limited ([`library_log`]),
+/// and the gateway logs each login in its own words.
 fn log_filter() -> tracing_subscriber::EnvFilter {
     use tracing_subscriber::EnvFilter;
-    EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-        EnvFilter::new(
-            "info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn,\
-             zenoh_link_commons::quic::unicast=error",
-        )
-    })
+    EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(LOG_FILTER))
 }
+
+/// [`log_filter`]'s default.
+const LOG_FILTER: &str = "info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn,\
+     zenoh_link_commons::quic::unicast=error,opcua_server=warn,opcua_core=warn,\
+     opcua_crypto=warn,opcua_types=warn,opcua_nodes=warn,opcua=warn";
 
 /// Prints one line on stdout and flushes it: the events a node announces
 /// for tests, launchers and people (`EVENT ready …`, a twin's port).
