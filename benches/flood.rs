@@ -3,8 +3,8 @@
 //! console logging in (its session opened, allowed up to 60 s) while
 //! strangers hold the port. Side by side in one run:
 //! - `quic/…` with no flood, with 300 silent QUIC handshakes held open, and
-//!   during 100 failing QUIC handshakes a second for 30 s (a login every
-//!   5 s);
+//!   during 20 and during 100 failing QUIC handshakes a second for 30 s (a
+//!   login every 5 s, and one right after);
 //! - `tcp/…` with no flood and with 300 silent TCP connections held open.
 //!
 //! This is why the router's PC runs `falc-router firewall` (the flood test
@@ -23,8 +23,13 @@ use support::{flood, TestCell};
 
 /// A console's login: its time, or the error after the 60 s allowed.
 fn login(cell: &TestCell) -> String {
+    login_within(cell, Duration::from_secs(60))
+}
+
+/// A console's login given `limit`: its time, or the error after it.
+fn login_within(cell: &TestCell, limit: Duration) -> String {
     let mut settings = cell.settings("console");
-    settings.connect_timeout = Duration::from_secs(60);
+    settings.connect_timeout = limit;
     let rt = tokio::runtime::Runtime::new().expect("runtime");
     rt.block_on(async move {
         let begin = Instant::now();
@@ -46,7 +51,31 @@ fn address(cell: &TestCell) -> SocketAddr {
         .expect("a socket address")
 }
 
+/// Console logins every `every` during a stranger's flood that runs on
+/// another thread for `lasting`, then one right after it: what each took.
+fn logins_during(
+    cell: &TestCell,
+    every: Duration,
+    lasting: Duration,
+    flood: impl FnOnce() -> String + Send + 'static,
+) -> (Vec<String>, String, String) {
+    let strangers = std::thread::spawn(flood);
+    let mut during = Vec::new();
+    let end = Instant::now() + lasting;
+    while Instant::now() + every < end {
+        // A pace: a login every `every` while the flood lasts.
+        std::thread::sleep(every);
+        during.push(login(cell));
+    }
+    let what = strangers.join().expect("strangers");
+    (during, login(cell), what)
+}
+
 fn main() {
+    println!(
+        "zenoh's QUIC accept throttle: {} µs after each failed handshake (.cargo/config.toml [env]; zenoh's default 100,000)",
+        option_env!("QUIC_ACCEPT_THROTTLE_TIME").unwrap_or("100000 (zenoh's default)")
+    );
     let quic = TestCell::start_secure();
     let router = address(&quic);
     println!("quic, no flood: console login {}", login(&quic));
@@ -56,34 +85,97 @@ fn main() {
         login(&quic)
     );
     drop(held);
-    // Let the router's queue drain before the next case.
-    std::thread::sleep(Duration::from_secs(35));
     println!(
-        "quic, after the silent ones left: console login {}",
+        "quic, right after the silent ones left: console login {}",
         login(&quic)
     );
-    let strangers =
-        std::thread::spawn(move || flood::failing_handshakes(router, 100, Duration::from_secs(30)));
-    let mut logins = Vec::new();
-    for _ in 0..5 {
-        std::thread::sleep(Duration::from_secs(5));
-        logins.push(login(&quic));
+    // Let the router's queue drain before the next case.
+    std::thread::sleep(Duration::from_secs(35));
+    for per_second in [20, 100] {
+        let (during, after, what) = logins_during(
+            &quic,
+            Duration::from_secs(5),
+            Duration::from_secs(30),
+            move || {
+                let f = flood::failing_handshakes(router, per_second, Duration::from_secs(30));
+                format!("{} begun, {} answered by the router", f.begun, f.answered)
+            },
+        );
+        println!(
+            "quic, {per_second} failing handshakes a second for 30 s ({what}): console logins during {during:?}, right after {after}"
+        );
+        std::thread::sleep(Duration::from_secs(35));
     }
-    let failed = strangers.join().expect("strangers");
-    println!(
-        "quic, 100 failing handshakes a second for 30 s ({} begun, {} answered by the router): console logins {logins:?}",
-        failed.begun, failed.answered
-    );
 
     let tcp = TestCell::start();
     let at = address(&tcp);
     println!("tcp, no flood: console login {}", login(&tcp));
-    let held: Vec<_> = (0..300)
-        .filter_map(|_| std::net::TcpStream::connect(at).ok())
-        .collect();
+    // A thousand silent connections held for 40 s: each one the router
+    // drops (its handshake timeout) opened again at once.
+    raise_open_files();
+    let (during, after, what) = logins_within_during(&tcp, at);
+    let failed = during.iter().filter(|l| l.starts_with("no login")).count();
     println!(
-        "tcp, {} silent connections held: console login {}",
-        held.len(),
-        login(&tcp)
+        "tcp, 1,000 silent connections held 40 s ({what}): {} console logins (3 s allowed each), {failed} failed, slowest {}; right after {after}",
+        during.len(),
+        during
+            .iter()
+            .filter_map(|l| l.strip_suffix(" ms").and_then(|m| m.parse::<f64>().ok()))
+            .fold(0.0_f64, f64::max)
     );
+}
+
+/// Logins (3 s allowed) every 1.3 s while 1,000 silent TCP connections are
+/// held open at `at` for 40 s, and one right after.
+fn logins_within_during(cell: &TestCell, at: SocketAddr) -> (Vec<String>, String, String) {
+    let stop = Instant::now() + Duration::from_secs(40);
+    let strangers = std::thread::spawn(move || {
+        let mut held: Vec<std::net::TcpStream> = Vec::new();
+        let mut opened = 0u64;
+        while Instant::now() < stop {
+            // Keep those still open; open new ones up to 1,000.
+            held.retain(|c| {
+                let mut b = [0u8; 1];
+                let _ = c.set_nonblocking(true);
+                match c.peek(&mut b) {
+                    // Closed by the router.
+                    Ok(0) => false,
+                    Ok(_) => true,
+                    // Open and silent.
+                    Err(e) => e.kind() == std::io::ErrorKind::WouldBlock,
+                }
+            });
+            while held.len() < 1_000 {
+                match std::net::TcpStream::connect(at) {
+                    Ok(c) => {
+                        held.push(c);
+                        opened += 1;
+                    }
+                    Err(_) => break,
+                }
+            }
+            // A pace: the strangers look at their connections twice a second.
+            std::thread::sleep(Duration::from_millis(500));
+        }
+        format!("{opened} connections opened")
+    });
+    let mut during = Vec::new();
+    while Instant::now() + Duration::from_millis(1_300) < stop {
+        // A pace: a login every 1.3 s while the flood lasts.
+        std::thread::sleep(Duration::from_millis(1_300));
+        during.push(login_within(cell, Duration::from_secs(3)));
+    }
+    let what = strangers.join().expect("strangers");
+    (during, login(cell), what)
+}
+
+/// Raises this process's open-file limit to the hard limit (a thousand
+/// connections held).
+fn raise_open_files() {
+    use nix::sys::resource::{getrlimit, setrlimit, Resource};
+    if let Ok((soft, hard)) = getrlimit(Resource::RLIMIT_NOFILE) {
+        if soft < hard {
+            let _ = setrlimit(Resource::RLIMIT_NOFILE, hard, hard);
+        }
+    }
 }
