@@ -445,14 +445,7 @@ fn a_refused_mode_change_is_taken_back_everywhere_and_nothing_moves_under_a_hand
     // The way back: auto everywhere, an order done.
     rig.cell.falc(&["mode", "auto"]);
     all_in(&rig, CellMode::Auto);
-    rig.cell.falc(&["start"]);
-    rig.work_list("ja", Duration::from_secs(120));
-    let orders = rig.orders();
-    assert_eq!(
-        orders.last().map(|o| o.state),
-        Some(OrderState::Done),
-        "{orders:?}"
-    );
+    rig.start_again_until_done();
 }
 
 /// Issue 41, finding 9: a cell controller started again comes back in
@@ -478,20 +471,5 @@ fn a_restarted_cell_and_its_workstations_come_to_one_mode() {
         .falc_as("maintainer", &["manual", "welding", "select", "65"]);
     assert_eq!(code, 1, "refused in auto: {out}");
     rig.cell.falc(&["order", "add", "dikdroog"]);
-    wait_until(
-        "start taken once the cell is back",
-        Duration::from_secs(30),
-        || {
-            rig.cell.falc(&["ack"]);
-            let (code, out) = rig.cell.falc_as("console", &["start"]);
-            holds(code == 0, || out)
-        },
-    );
-    rig.work_list("ja", Duration::from_secs(120));
-    let orders = rig.orders();
-    assert_eq!(
-        orders.last().map(|o| o.state),
-        Some(OrderState::Done),
-        "{orders:?}"
-    );
+    rig.start_again_until_done();
 }

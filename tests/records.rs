@@ -226,7 +226,16 @@ fn five_orders_keep_their_recipe_versions_and_the_figures_match_the_records() {
     let span = |o: &Order| (o.started_ms.expect("started"), o.ended_ms.expect("ended"));
     let production: i64 = orders.iter().map(|o| span(o).1 - span(o).0).sum();
     let t = &f.total.time;
-    assert_eq!(t.planned_busy_ms, until - since, "always planned: {t:?}");
+    // No shift calendar: planned while the list worked (ran, or was held
+    // by the estop's alarm) and every run; never more than the range.
+    assert_eq!(
+        figures.planned_by,
+        falc_model::figures::PlannedBy::ListWorking
+    );
+    assert!(
+        t.planned_busy_ms >= production && t.planned_busy_ms <= until - since,
+        "planned while the list worked: {t:?}"
+    );
     assert_eq!(t.production_ms, production, "{t:?}");
     assert_eq!((t.setup_ms, t.maintenance_ms), (0, 0));
     // Down: the estop's alarm from its raise until it was gone, where no
@@ -273,7 +282,7 @@ fn five_orders_keep_their_recipe_versions_and_the_figures_match_the_records() {
     assert_eq!(ct.p50_ms, done[1], "nearest rank of 4: the 2nd");
     assert_eq!(ct.p95_ms, done[3]);
     assert_eq!(q.planned_run_ms, 5 * done[1]);
-    let availability = production as f64 / (until - since) as f64;
+    let availability = production as f64 / t.planned_busy_ms as f64;
     assert!((f.total.availability().expect("defined") - availability).abs() < 1e-12);
     assert_eq!(f.total.quality(), Some(0.8));
     let welding = f

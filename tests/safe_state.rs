@@ -10,7 +10,6 @@
 
 use crate::support::rig::{rig, Rig};
 use crate::support::wait::{holds, wait_until};
-use falc_model::console::OrderState;
 use std::time::Duration;
 
 /// After a fault mid-weld: the robot halted, and station 3 not released
@@ -21,33 +20,6 @@ fn clamp_held_while_the_robot_stops(rig: &mut Rig, fault: &str, window: Duration
         rig.plc.wait_line("coil button station 3 0", window),
         None,
         "{fault}: the clamp let go of the workpiece"
-    );
-}
-
-/// The way back after the fault, the node started again: carriers set
-/// back, `ack` and `start` (repeated while the node reassociates), the
-/// list worked; its last order done, none left running.
-fn next_order_done(rig: &mut Rig, fault: &str) {
-    rig.plc.control("layout W2 W2");
-    wait_until(
-        "start taken once the node is back",
-        Duration::from_secs(30),
-        || {
-            rig.cell.falc(&["ack"]);
-            let (code, out) = rig.cell.falc_as("console", &["start"]);
-            holds(code == 0, || out)
-        },
-    );
-    rig.work_list("ja", Duration::from_secs(120));
-    let orders = rig.orders();
-    assert_eq!(
-        orders.last().map(|o| o.state),
-        Some(OrderState::Done),
-        "after {fault}: {orders:?}"
-    );
-    assert!(
-        orders.iter().all(|o| o.state != OrderState::Running),
-        "{orders:?}"
     );
 }
 
@@ -62,7 +34,8 @@ fn the_clamp_holds_when_the_cell_is_killed_or_the_transport_stopped_mid_weld() {
     rig.cell_node.kill();
     clamp_held_while_the_robot_stops(&mut rig, "the cell killed", Duration::from_secs(3));
     rig.start_cell();
-    next_order_done(&mut rig, "the cell killed");
+    rig.plc.control("layout W2 W2");
+    rig.start_again_until_done();
 
     // The transport workstation stopped mid-weld (SIGTERM).
     rig.rcm.forget("rx G");
@@ -84,5 +57,6 @@ fn the_clamp_holds_when_the_cell_is_killed_or_the_transport_stopped_mid_weld() {
         None,
         "the restarted transport released the clamp"
     );
-    next_order_done(&mut rig, "the transport stopped");
+    rig.plc.control("layout W2 W2");
+    rig.start_again_until_done();
 }

@@ -195,11 +195,14 @@ fn cell_text(c: &CellFigures) -> Vec<String> {
 
 /// The figures as text.
 pub fn show(f: &Figures) -> String {
-    let mut out = vec![format!(
-        "figures from {} until {} (ISO 22400-2)",
-        date_time(f.since_ms),
-        date_time(f.until_ms)
-    )];
+    let mut out = vec![
+        format!(
+            "figures from {} until {} (ISO 22400-2)",
+            date_time(f.since_ms),
+            date_time(f.until_ms)
+        ),
+        f.planned_by.describe().to_string(),
+    ];
     for c in &f.cells {
         out.push(String::new());
         out.extend(cell_text(c));

@@ -398,6 +398,12 @@ mod tests {
                 gone_ms: Some(390_000),
             }],
             modes: Vec::new(),
+            // The list worked all along (no shift calendar: planned).
+            lists: vec![falc_control::figures::ListChange {
+                cell: "falc1".into(),
+                at_ms: 0,
+                working: true,
+            }],
         };
         let query = FigureQuery {
             since_ms: 0,

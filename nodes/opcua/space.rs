@@ -1182,6 +1182,12 @@ mod tests {
                 end_ms: Some(4000),
                 state: OrderState::Done,
             }],
+            // The list worked all along (no shift calendar: planned).
+            lists: vec![falc_control::figures::ListChange {
+                cell: "falc1".into(),
+                at_ms: 0,
+                working: true,
+            }],
             ..Default::default()
         };
         let f = falc_control::figures::compute(

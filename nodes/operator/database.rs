@@ -6,7 +6,7 @@
 //! that was running when the node died as interrupted (never re-run by
 //! itself) and journals it.
 
-use falc_control::figures::{AlarmSpan, FigureInputs, ModeChange, RunSpan};
+use falc_control::figures::{AlarmSpan, FigureInputs, ListChange, ModeChange, RunSpan};
 use falc_control::records::{
     adopted_text, interrupted_text, recovery, EntryQuery, Records, Recovered, INTERRUPTED_RESULT,
     RECORD_ENTRIES,
@@ -137,6 +137,12 @@ CREATE TABLE IF NOT EXISTS modes (
     cell TEXT NOT NULL,
     at_ms INTEGER NOT NULL,
     mode TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS list_states (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    cell TEXT NOT NULL,
+    at_ms INTEGER NOT NULL,
+    working INTEGER NOT NULL
 );
 CREATE TABLE IF NOT EXISTS reports_filed (
     cell TEXT NOT NULL,
@@ -919,6 +925,28 @@ impl Records for Database {
             .map(|_| ())
     }
 
+    fn record_working(&mut self, working: bool) -> Result<(), Self::Error> {
+        let newest: Option<bool> = self
+            .conn
+            .query_row(
+                "SELECT working FROM list_states WHERE cell = ?1 ORDER BY id DESC LIMIT 1",
+                params![self.cell],
+                |r| r.get(0),
+            )
+            .optional()
+            .map_err(self.fail("cannot read the order list's states"))?;
+        if newest == Some(working) {
+            return Ok(());
+        }
+        self.conn
+            .execute(
+                "INSERT INTO list_states (cell, at_ms, working) VALUES (?1, ?2, ?3)",
+                params![self.cell, now_ms(), working],
+            )
+            .map_err(self.fail("cannot keep the order list's state"))
+            .map(|_| ())
+    }
+
     fn reports_filed(&self) -> Result<Vec<(String, String, u64)>, Self::Error> {
         let mut stmt = self
             .conn
@@ -1037,10 +1065,26 @@ impl Records for Database {
             .map_err(fail())?
             .collect::<Result<Vec<_>, _>>()
             .map_err(fail())?;
+        let mut st = self
+            .conn
+            .prepare("SELECT cell, at_ms, working FROM list_states WHERE at_ms < ?1 ORDER BY id")
+            .map_err(fail())?;
+        let lists = st
+            .query_map(params![until], |r| {
+                Ok(ListChange {
+                    cell: r.get(0)?,
+                    at_ms: r.get(1)?,
+                    working: r.get(2)?,
+                })
+            })
+            .map_err(fail())?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(fail())?;
         Ok(FigureInputs {
             runs,
             alarms,
             modes,
+            lists,
         })
     }
 

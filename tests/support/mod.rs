@@ -866,7 +866,9 @@ impl Commander {
         }
     }
 
-    /// The next job event, if one comes within `within`.
+    /// The next job event, if one comes within `within`. A run's start is
+    /// passed over: what a commander's `wait` waits for is what ends or
+    /// pauses it.
     pub async fn try_job(&mut self, within: Duration) -> Option<JobEvent> {
         let end = tokio::time::Instant::now() + within;
         loop {
@@ -874,7 +876,7 @@ impl Commander {
                 Ok(Some(Publication {
                     message: Unconfirmed::Job { event, .. },
                     ..
-                })) => return Some(event),
+                })) if event != JobEvent::Started => return Some(event),
                 Ok(Some(_)) => continue,
                 Ok(None) => panic!("the subscription ended"),
                 Err(_) => return None,

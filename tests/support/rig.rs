@@ -324,6 +324,36 @@ impl Rig {
         out
     }
 
+    /// The way back once a node was started again: `ack` and `start`,
+    /// repeated while it reassociates (30 s at most), then the list worked
+    /// with `ja`; its last order must end done, none left running. Returns
+    /// the orders.
+    pub fn start_again_until_done(&self) -> Vec<Order> {
+        wait_until(
+            "start taken once the node is back",
+            Duration::from_secs(30),
+            || {
+                self.cell.falc(&["ack"]);
+                let (code, out) = self.cell.falc_as("console", &["start"]);
+                holds(code == 0, || out)
+            },
+        );
+        self.work_list("ja", Duration::from_secs(120));
+        let orders = self.orders();
+        assert_eq!(
+            orders.last().map(|o| o.state),
+            Some(falc_model::console::OrderState::Done),
+            "{orders:?}"
+        );
+        assert!(
+            orders
+                .iter()
+                .all(|o| o.state != falc_model::console::OrderState::Running),
+            "{orders:?}"
+        );
+        orders
+    }
+
     /// The way forward after any way back: `recipe` queued, the list
     /// started and worked with `ja`; the order must end done.
     pub fn next_order_done(&self, recipe: &str) {

@@ -15,8 +15,8 @@
 use falc_model::alarm::AlarmClass;
 use falc_model::console::OrderState;
 use falc_model::figures::{
-    Calendar, CellFigures, CycleTime, FigureQuery, Figures, ParetoLine, Period, Quantities,
-    Reliability, RunBar, RunCount, TimeElements, MAX_PERIODS,
+    Calendar, CellFigures, CycleTime, FigureQuery, Figures, ParetoLine, Period, PlannedBy,
+    Quantities, Reliability, RunBar, RunCount, TimeElements, MAX_PERIODS,
 };
 use falc_model::mode::CellMode;
 use std::collections::{BTreeMap, BTreeSet};
@@ -82,6 +82,19 @@ pub struct ModeChange {
     pub mode: CellMode,
 }
 
+/// Whether a cell's order list worked, from `at_ms` on: running, or
+/// stopped by an alarm until it was acknowledged. Without a shift calendar
+/// that is when the cell was meant to work.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ListChange {
+    /// The cell.
+    pub cell: String,
+    /// From when.
+    pub at_ms: i64,
+    /// Working from then on.
+    pub working: bool,
+}
+
 /// What the figures are computed from.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct FigureInputs {
@@ -91,6 +104,9 @@ pub struct FigureInputs {
     pub alarms: Vec<AlarmSpan>,
     /// Every mode change before the range's end, oldest first.
     pub modes: Vec<ModeChange>,
+    /// Every change of the order list's working before the range's end,
+    /// oldest first.
+    pub lists: Vec<ListChange>,
 }
 
 /// Sorted, disjoint half-open intervals of ms.
@@ -182,6 +198,8 @@ struct Cell<'a> {
     alarms: Vec<&'a AlarmSpan>,
     /// When its first mode change was kept.
     first_mode: Option<i64>,
+    /// When it was meant to work: its list working, and its runs.
+    working: Set,
 }
 
 impl<'a> Cell<'a> {
@@ -201,10 +219,16 @@ impl<'a> Cell<'a> {
             }
         }
         let runs: Vec<&RunSpan> = inputs.runs.iter().filter(|r| r.cell == cell).collect();
-        let production = runs
+        let production: Set = runs
             .iter()
             .map(|r| (r.start_ms.max(since), r.end_ms.unwrap_or(until).min(until)))
             .collect();
+        let lists: Vec<&ListChange> = inputs.lists.iter().filter(|l| l.cell == cell).collect();
+        let mut working = production.clone();
+        for (i, l) in lists.iter().enumerate().filter(|(_, l)| l.working) {
+            let end = lists.get(i + 1).map_or(until, |n| n.at_ms);
+            working.push((l.at_ms.max(since), end.min(until)));
+        }
         let alarms: Vec<&AlarmSpan> = inputs.alarms.iter().filter(|a| a.cell == cell).collect();
         let down = AlarmClass::ALL
             .into_iter()
@@ -228,6 +252,7 @@ impl<'a> Cell<'a> {
             maintenance: normalize(maintenance),
             setup: normalize(setup),
             production: normalize(production),
+            working: normalize(working),
             down,
             runs,
             alarms,
@@ -308,6 +333,11 @@ pub fn compute(
 ) -> Figures {
     let since = query.since_ms;
     let until = query.until_ms.unwrap_or(now).max(since);
+    let planned_by = if calendar.always() {
+        PlannedBy::ListWorking
+    } else {
+        PlannedBy::Calendar
+    };
     let names: BTreeSet<&str> = inputs
         .runs
         .iter()
@@ -324,6 +354,7 @@ pub fn compute(
         since_ms: since,
         until_ms: until,
         cells,
+        planned_by,
     }
 }
 
@@ -376,7 +407,16 @@ fn cell_figures(
         planned.entry(recipe.clone()).or_insert(*ms);
     }
     let busy_periods = calendar.periods(since, until);
-    let busy: Set = normalize(busy_periods.iter().map(|(a, b, _)| (*a, *b)).collect());
+    let mut busy: Set = normalize(busy_periods.iter().map(|(a, b, _)| (*a, *b)).collect());
+    // No shift calendar: planned is when the cell was meant to work.
+    let planned_in = |span: Set| {
+        if calendar.always() {
+            intersect(&span, &cell.working)
+        } else {
+            span
+        }
+    };
+    busy = planned_in(busy);
     // A period is shown from the cell's first record on: before it the
     // records say nothing (all time is thousands of empty days).
     let first = cell.first_record().unwrap_or(until);
@@ -392,7 +432,7 @@ fn cell_figures(
             label: label.clone(),
             start_ms: *from,
             end_ms: *to,
-            time: cell.time(&vec![(*from, *to)]),
+            time: cell.time(&planned_in(vec![(*from, *to)])),
             quantities,
         })
         .collect();
@@ -683,6 +723,7 @@ mod tests {
                 mode(WED + 11 * H, CellMode::Maintenance),
                 mode(WED + 12 * H, CellMode::Auto),
             ],
+            lists: Vec::new(),
         };
         let f = compute(&inputs, &two_shifts(), &[], &query(WED, WED + 14 * H), 0);
         let t = &f.cells[0].periods[0].time;
@@ -782,7 +823,61 @@ mod tests {
     }
 
     #[test]
-    fn all_time_shows_the_periods_from_the_first_record_and_plans_the_whole_range() {
+    fn without_a_calendar_the_cell_is_planned_busy_while_its_list_worked() {
+        let list = |at: i64, working: bool| ListChange {
+            cell: "falc1".into(),
+            at_ms: at,
+            working,
+        };
+        // The list ran 2 h (7:00-9:00), one order of 1 h in it, an alarm
+        // held it 30 min more (9:00-9:30); a run outside any list (the
+        // operator's records before lists were kept) counts as planned.
+        let inputs = FigureInputs {
+            runs: vec![
+                run(1, WED + 7 * H, Some(WED + 8 * H), OrderState::Done),
+                run(
+                    2,
+                    WED + 12 * H,
+                    Some(WED + 12 * H + 30 * M),
+                    OrderState::Done,
+                ),
+            ],
+            alarms: vec![AlarmSpan {
+                cell: "falc1".into(),
+                station: "welding".into(),
+                class: AlarmClass::Safety,
+                raised_ms: WED + 9 * H,
+                gone_ms: Some(WED + 9 * H + 30 * M),
+            }],
+            lists: vec![list(WED + 7 * H, true), list(WED + 9 * H + 30 * M, false)],
+            ..Default::default()
+        };
+        let f = compute(
+            &inputs,
+            &Calendar::default(),
+            &[],
+            &query(WED, WED + 24 * H),
+            0,
+        );
+        assert_eq!(f.planned_by, PlannedBy::ListWorking);
+        let t = &f.cells[0].total.time;
+        assert_eq!(t.planned_busy_ms, 2 * H + 30 * M + 30 * M);
+        assert_eq!(t.production_ms, H + 30 * M);
+        assert_eq!(t.down_total_ms(), 30 * M);
+        partitions(t);
+        // 1.5 h of production in 3 h meant to work: 50 %, where the whole
+        // day planned said 6 %.
+        let a = f.cells[0].total.availability().expect("defined");
+        assert!((a - 0.5).abs() < 1e-9, "{a}");
+        // The day's period says the same.
+        assert_eq!(f.cells[0].periods[0].time.planned_busy_ms, 3 * H);
+        // With a calendar, the shifts are planned.
+        let f = compute(&inputs, &two_shifts(), &[], &query(WED, WED + 24 * H), 0);
+        assert_eq!(f.planned_by, PlannedBy::Calendar);
+    }
+
+    #[test]
+    fn all_time_shows_the_periods_from_the_first_record_and_plans_what_the_list_worked() {
         let inputs = FigureInputs {
             runs: vec![run(1, WED + 7 * H, Some(WED + 8 * H), OrderState::Done)],
             ..Default::default()
@@ -798,7 +893,8 @@ mod tests {
         let c = &f.cells[0];
         let labels: Vec<&str> = c.periods.iter().map(|p| p.label.as_str()).collect();
         assert_eq!(labels, vec!["2026-11-25", "2026-11-26"]);
-        assert_eq!(c.total.time.planned_busy_ms, WED + 2 * H * 24);
+        // No list kept working: the order's run alone was planned.
+        assert_eq!(c.total.time.planned_busy_ms, H);
         assert_eq!(c.periods[0].quantities.good, 1);
         assert_eq!(c.total.quantities.good, 1);
         partitions(&c.total.time);
@@ -816,7 +912,7 @@ mod tests {
             (ct.runs_ms.len(), ct.count),
             (ANSWERED_RUN_TIMES, ANSWERED_RUN_TIMES as u64 + 10)
         );
-        // A cell with no record shows no period, its total still planned.
+        // A cell with no record shows no period, and nothing planned.
         let none = compute(
             &FigureInputs::default(),
             &Calendar::default(),
@@ -825,7 +921,7 @@ mod tests {
             0,
         );
         assert!(none.cells[0].periods.is_empty());
-        assert_eq!(none.cells[0].total.time.idle_ms, H);
+        assert_eq!(none.cells[0].total.time.planned_busy_ms, 0);
     }
 
     #[test]

@@ -164,6 +164,11 @@ pub trait Records {
     /// change before `until`, of every cell: what the figures are
     /// computed from.
     fn figure_inputs(&self, since: i64, until: i64) -> Result<FigureInputs, Self::Error>;
+    /// Keeps that this cell's order list works (`true`: running, or held
+    /// by an alarm until it is acknowledged) from now on, unless that is
+    /// what was kept last for it: without a shift calendar, the figures
+    /// plan the cell busy while it worked.
+    fn record_working(&mut self, working: bool) -> Result<(), Self::Error>;
     /// The last report filed of each station of this cell: the station,
     /// its run and the report's number. An operator started again reads
     /// back from there what the stations reported while it was down.
@@ -285,6 +290,8 @@ pub mod memory {
         pub spans: Vec<crate::figures::RunSpan>,
         /// The mode changes kept.
         pub modes: Vec<crate::figures::ModeChange>,
+        /// The changes of the order list's working kept.
+        pub lists: Vec<crate::figures::ListChange>,
         /// The workstation jobs kept, with their order.
         pub jobs: Vec<(Option<i64>, JobRecord)>,
         clock: std::cell::Cell<i64>,
@@ -646,6 +653,19 @@ pub mod memory {
             self.jobs.push((order, job.clone()));
             Ok(())
         }
+        fn record_working(&mut self, working: bool) -> Result<(), String> {
+            if self.lists.last().map(|l| l.working) == Some(working) {
+                return Ok(());
+            }
+            self.write()?;
+            let at_ms = self.now_ms();
+            self.lists.push(crate::figures::ListChange {
+                cell: MEMORY_CELL.into(),
+                at_ms,
+                working,
+            });
+            Ok(())
+        }
         fn reports_filed(&self) -> Result<Vec<(String, String, u64)>, String> {
             Ok(self.reports_filed_of(MEMORY_CELL))
         }
@@ -691,6 +711,12 @@ pub mod memory {
                     .modes
                     .iter()
                     .filter(|m| m.at_ms < until)
+                    .cloned()
+                    .collect(),
+                lists: self
+                    .lists
+                    .iter()
+                    .filter(|l| l.at_ms < until)
                     .cloned()
                     .collect(),
             })
@@ -852,6 +878,9 @@ pub mod shared {
         }
         fn record_mode(&mut self, mode: CellMode) -> Result<(), String> {
             self.all.borrow_mut().record_mode(mode)
+        }
+        fn record_working(&mut self, working: bool) -> Result<(), String> {
+            self.all.borrow_mut().record_working(working)
         }
         fn reports_filed(&self) -> Result<Vec<(String, String, u64)>, String> {
             Ok(self.all.borrow().reports_filed_of(&self.cell))

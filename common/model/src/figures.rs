@@ -404,6 +404,31 @@ pub struct CellFigures {
     pub runs: Vec<RunBar>,
 }
 
+/// What the planned busy time was taken from.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum PlannedBy {
+    /// The shift calendar's shifts.
+    #[default]
+    Calendar,
+    /// No shift calendar: the time the cell was meant to work, its order
+    /// list running (or stopped by an alarm until it was acknowledged),
+    /// and every order's run.
+    ListWorking,
+}
+
+impl PlannedBy {
+    /// The rule in words, for the text form.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::Calendar => "planned busy time: the shift calendar's shifts",
+            Self::ListWorking => {
+                "planned busy time: while the order list ran or an alarm held it, and every \
+                 order's run (no shift calendar: `[[shift]]` in the topology sets one)"
+            }
+        }
+    }
+}
+
 /// `falc figures`: each cell's.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Figures {
@@ -413,6 +438,9 @@ pub struct Figures {
     pub until_ms: i64,
     /// Each cell with records in the range.
     pub cells: Vec<CellFigures>,
+    /// What the planned busy time was taken from.
+    #[serde(default)]
+    pub planned_by: PlannedBy,
 }
 
 /// A ratio as a percentage with one decimal, or `-` where undefined.

@@ -284,6 +284,8 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     hashes: Vec<u64>,
     /// The cell's mode as last kept in the records (for the figures).
     recorded_mode: Option<CellMode>,
+    /// Whether the list works, as last kept in the records.
+    recorded_working: Option<bool>,
     /// Each workstation's job its status shows running: the program,
     /// since when (ms since the Unix epoch), the order it is part of.
     open_jobs: BTreeMap<StationName, (ObjectName, i64, Option<i64>)>,
@@ -397,6 +399,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             hashes: hashes_of(&recipes),
             versions: BTreeMap::new(),
             recorded_mode: None,
+            recorded_working: None,
             open_jobs: BTreeMap::new(),
             recipes,
             delivered: BTreeMap::new(),
@@ -786,9 +789,25 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     fn pump(&mut self, now: Duration) {
         while self.busy.is_none() {
             let Some(job) = self.jobs.pop_front() else {
-                return;
+                break;
             };
             self.begin(now, job);
+        }
+        self.note_working();
+    }
+
+    /// Keeps in the records whether the list works, when that changed:
+    /// running, or held by an alarm that stopped it while it ran (without
+    /// a shift calendar the figures plan the cell busy while it worked).
+    fn note_working(&mut self) {
+        let held = self.alarms.blocking().is_some() && self.recorded_working == Some(true);
+        let working = self.list == ListState::Running || held;
+        if self.recorded_working == Some(working) {
+            return;
+        }
+        match self.db.record_working(working) {
+            Ok(()) => self.recorded_working = Some(working),
+            Err(e) => self.db_failed(&e),
         }
     }
 }

@@ -29,12 +29,17 @@ struct Rig {
 
 impl Rig {
     fn new() -> Self {
+        Self::with(Memory::default())
+    }
+
+    /// The list over `records` (an operator started again on its file).
+    fn with(records: Memory) -> Self {
         let topology = Topology::parse(TOPOLOGY, "test").expect("topology");
         let list = OrderList::new(
             st("operator"),
             st("cell"),
             topology,
-            Memory::default(),
+            records,
             Source::default(),
             set(),
         );
@@ -193,6 +198,26 @@ fn call(out: &[Output]) -> Option<CellCall> {
 fn said(out: &[Output], what: &str) -> bool {
     out.iter()
         .any(|o| matches!(o, Output::Say(l) if l.contains(what)))
+}
+
+#[test]
+fn whether_the_list_works_is_kept_in_the_records_for_the_figures() {
+    let mut r = Rig::new();
+    let working = |r: &mut Rig| r.list.records().lists.last().map(|l| l.working);
+    r.add(2);
+    assert_eq!(working(&mut r), Some(false));
+    assert!(r.start().is_ok());
+    assert_eq!(working(&mut r), Some(true));
+    // An alarm ends the order and stops the list: still meant to work
+    // (its down time is planned) until it is acknowledged.
+    r.job(JobEvent::Alarm(Cause::new(AlarmClass::Safety, "estop")));
+    let lists = r.list.records().lists.clone();
+    assert_eq!(working(&mut r), Some(true), "{lists:?}");
+    let ack = r.ask("console", ApiRequest::Ack { id: None });
+    assert!(ack.is_ok(), "{ack:?}");
+    assert_eq!(working(&mut r), Some(false));
+    let changes: Vec<bool> = r.list.records().lists.iter().map(|l| l.working).collect();
+    assert_eq!(changes, [false, true, false], "each change kept once");
 }
 
 #[test]
@@ -1408,15 +1433,7 @@ fn a_list_started_again_reads_back_from_the_last_report_its_records_say_was_file
     records
         .report_filed("welding", "a", 3)
         .expect("a write in memory");
-    let topology = Topology::parse(TOPOLOGY, "test").expect("topology");
-    r.list = OrderList::new(
-        st("operator"),
-        st("cell"),
-        topology,
-        records,
-        Source::default(),
-        set(),
-    );
+    let mut r = Rig::with(records);
     r.outputs();
     r.list.handle_presence(r.now, st("welding"), true);
     let out = r.outputs();
