@@ -885,4 +885,15 @@ fn three_cells_run_nine_orders_through_an_estop_in_one_and_a_cut_uplink_of_anoth
         says("einde dikke plaat droog") && says("shown late"),
         "{journal:#?}"
     );
+    // Every workstation job of the cut order has its start in the record,
+    // those begun while the link was cut (the unload after the weld) read
+    // back with the station's time (issue 41, finding 11).
+    let record: falc_model::product::OrderRecord =
+        plant.reply(Some("falc3"), &["order", "show", &cut_order.to_string()]);
+    assert!(
+        record.jobs.iter().any(|j| j.program == "UNLOAD")
+            && record.jobs.iter().all(|j| j.started_ms.is_some()),
+        "{:#?}",
+        record.jobs
+    );
 }

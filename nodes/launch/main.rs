@@ -558,11 +558,15 @@ async fn run(cli: &Cli, cell: &mut Cell) -> ExitCode {
                 took.as_millis(),
                 cli.time_scale
             ));
-            say(&if plant {
+            let help = if plant {
                 plant_help(&cell.bin_dir, &cli.topology)
             } else {
                 help(&cell.bin_dir)
-            });
+            };
+            // One `say` a line: `say` escapes line breaks.
+            for line in help.lines() {
+                say(line);
+            }
         }
         Err(e) => {
             say(&format!("falc-launch: the cell did not start: {e:#}"));

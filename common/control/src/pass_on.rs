@@ -233,7 +233,8 @@ impl<T> PassOn<T> {
     fn route(&mut self, ticket: T, request: Request) {
         match route(&request, &self.workstations) {
             Route::Here
-                if matches!(request, Request::Start { .. }) && !self.not_in_mode.is_empty() =>
+                if matches!(request, Request::Start { .. } | Request::Resume { .. })
+                    && !self.not_in_mode.is_empty() =>
             {
                 let why: Vec<String> = self
                     .not_in_mode
