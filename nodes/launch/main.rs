@@ -106,8 +106,12 @@ impl Cell {
                 Ok(())
             });
         }
+        // A process group of its own: Ctrl-C in the terminal reaches the
+        // launcher alone, which then stops the nodes top-down (the
+        // transport leaves the conveyor safe while its PLC twin still runs).
         let mut child = command
             .args(args)
+            .process_group(0)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
