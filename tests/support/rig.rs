@@ -339,12 +339,7 @@ impl Rig {
             },
         );
         self.work_list("ja", Duration::from_secs(120));
-        let orders = self.orders();
-        assert_eq!(
-            orders.last().map(|o| o.state),
-            Some(falc_model::console::OrderState::Done),
-            "{orders:?}"
-        );
+        let orders = self.last_order_done();
         assert!(
             orders
                 .iter()
@@ -360,12 +355,18 @@ impl Rig {
         self.cell.falc(&["order", "add", recipe]);
         self.cell.falc(&["start"]);
         self.work_list("ja", Duration::from_secs(120));
+        self.last_order_done();
+    }
+
+    /// The orders, the last of which must be done.
+    fn last_order_done(&self) -> Vec<Order> {
         let orders = self.orders();
         assert_eq!(
             orders.last().map(|o| o.state),
             Some(falc_model::console::OrderState::Done),
             "{orders:?}"
         );
+        orders
     }
 
     /// Plays the operator through the CLI until the list stops running:

@@ -841,8 +841,8 @@ mod tests {
         assert_eq!(act(&mut p, 0, watch), vec![Event::InputReached]);
     }
 
-    #[test]
-    fn an_alarm_releases_line_buttons_but_not_station_buttons() {
+    /// A workstation whose recipe clamped station 3 and runs line E.
+    fn clamped_and_moving() -> Plc {
         let mut p = plc();
         p.connected(None);
         p.inputs(ready(), 1);
@@ -853,6 +853,12 @@ mod tests {
         );
         act(&mut p, 0, Action::Activate(Button::Line('E')));
         drain(&mut p);
+        p
+    }
+
+    #[test]
+    fn an_alarm_releases_line_buttons_but_not_station_buttons() {
+        let mut p = clamped_and_moving();
         p.handle(
             Duration::ZERO,
             Happening::Finished(&Outcome::Alarm(Cause::process("x"))),
@@ -898,16 +904,7 @@ mod tests {
 
     #[test]
     fn the_node_stopping_stops_the_lines_and_holds_the_clamp_and_external_control() {
-        let mut p = plc();
-        p.connected(None);
-        p.inputs(ready(), 1);
-        act(
-            &mut p,
-            0,
-            Action::Activate(Button::Station(PlcStation::of(3))),
-        );
-        act(&mut p, 0, Action::Activate(Button::Line('E')));
-        drain(&mut p);
+        let mut p = clamped_and_moving();
         p.shutdown();
         let mut want = [false; COILS as usize];
         for c in [
