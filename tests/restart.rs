@@ -83,3 +83,44 @@ fn a_workstation_restarted_in_maintenance_gets_the_mode_and_its_recipes() {
     rig.cell.falc(&["ack"]);
     rig.next_order_done("dikdroog");
 }
+
+/// Issue 41, finding 6, in step mode: the transport SIGKILLed mid-weld
+/// and started again is told the cell's step mode when it associates.
+/// Leaving auto brought every output to its safe state, which used to
+/// release every button: the clamp let go 11 ms after the reconnection
+/// with the robot's weld under it. Now the lines stop and the clamp holds;
+/// the way back (auto, carriers back, `ack`, `start`) runs the next order.
+#[test]
+fn a_transport_restarted_in_step_mode_keeps_the_workpiece_clamped() {
+    let mut rig = rig("20");
+    rig.start_list_until_welding(&["dikdroog", "dundroog"]);
+    rig.cell.falc(&["mode", "step", "--station", "transport"]);
+    let before = held(&mut rig);
+    assert!(
+        before.split_whitespace().any(|w| w == "3"),
+        "station 3 is pressed mid-weld: {before}"
+    );
+    rig.plc.forget("coil ");
+    if let Some(t) = rig.transport.as_mut() {
+        t.kill();
+    }
+    rig.start_transport();
+    rig.operator()
+        .expect_line("EVENT rejoined station=transport", Duration::from_secs(10));
+    assert_eq!(
+        rig.plc
+            .wait_line("coil button station 3 0", Duration::from_secs(3)),
+        None,
+        "the transport, told the step mode, released the clamped workpiece"
+    );
+    let after = held(&mut rig);
+    assert!(
+        after.split_whitespace().any(|w| w == "3"),
+        "station 3 still pressed after the restart in step mode: {after}"
+    );
+    rig.cell.falc(&["mode", "auto"]);
+    rig.way_back();
+    let orders = rig.orders();
+    assert_eq!(orders[0].state, OrderState::Failed, "{orders:?}");
+    assert_eq!(orders[1].state, OrderState::Done, "{orders:?}");
+}
