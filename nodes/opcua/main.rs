@@ -34,6 +34,9 @@ use std::time::Duration;
 /// journal does not move (time in a state grows all the same).
 const FIGURES_AGE: Duration = Duration::from_secs(10);
 
+/// How often the gateway prunes its rejected client certificates.
+const PRUNE_EVERY: Duration = Duration::from_secs(10);
+
 /// The window of the PackML Admin state times: the last day (the
 /// operator computes them from its records; a window keeps that cost
 /// the same however long the records grow).
@@ -217,6 +220,7 @@ async fn run(cli: Cli) -> Result<(), String> {
     let mut mirrors: Vec<space::Mirror> = scopes.iter().map(|_| space::Mirror::default()).collect();
     let mut poller = Poller::new(scopes.clone(), cli.journal_entries);
     let mut ready = false;
+    let mut pruned: Option<std::time::Instant> = None;
     let period = Duration::from_millis(cli.poll_ms.max(10));
     loop {
         // A look waits for the operator (up to 2 s a call when it is gone):
@@ -267,8 +271,18 @@ async fn run(cli: Cli) -> Result<(), String> {
             }
         }
         // A stranger's every attempt leaves a rejected certificate: the
-        // folder keeps the newest only.
-        match server::prune_rejected(&endpoint.pki_dir.join("rejected"), server::KEEP_REJECTED) {
+        // folder keeps the newest only (looked at every PRUNE_EVERY, not
+        // on every look).
+        let prune_due = pruned.map_or(true, |at: std::time::Instant| at.elapsed() >= PRUNE_EVERY);
+        if prune_due {
+            pruned = Some(std::time::Instant::now());
+        }
+        let pruning = if prune_due {
+            server::prune_rejected(&endpoint.pki_dir.join("rejected"), server::KEEP_REJECTED)
+        } else {
+            Ok(0)
+        };
+        match pruning {
             Ok(0) => {}
             Ok(n) => tracing::info!(
                 "{n} rejected client certificates removed: {} keeps the newest {}",

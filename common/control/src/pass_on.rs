@@ -150,8 +150,10 @@ struct Pass<T> {
     to: BTreeMap<u64, StationName>,
     /// The refusals so far, by id.
     refused: BTreeMap<u64, String>,
-    /// A mode change: the mode the cell had before, to take it back if
-    /// any workstation refuses (all or nothing).
+    /// A mode passed on: a workstation that takes it is in the cell's mode.
+    mode: bool,
+    /// The commander's mode change: the mode the cell had before, to take
+    /// it back if any workstation refuses (all or nothing).
     before: Option<ModeSetting>,
 }
 
@@ -402,7 +404,8 @@ impl<T> PassOn<T> {
             waiting,
             to: asked,
             refused: BTreeMap::new(),
-            before: before.filter(|_| matches!(request, Request::Mode(_))),
+            mode: matches!(request, Request::Mode(_)),
+            before,
         };
         self.passes.insert(pass, p);
         self.pass_ended(pass);
@@ -420,7 +423,7 @@ impl<T> PassOn<T> {
                     p.refused.insert(id, e.description);
                 }
                 // A mode taken: this workstation is in the cell's mode.
-                Ok(_) if p.before.is_some() || p.ticket.is_none() => {
+                Ok(_) if p.mode => {
                     if let Some(st) = p.to.get(&id) {
                         self.not_in_mode.remove(st);
                     }
