@@ -15,7 +15,7 @@
 //!
 //! The driver logs what [`take`] refused or cut, rate-limited per key.
 
-use super::journal::{KeptReports, Publication, Stamp};
+use super::journal::{KeptReports, Publication};
 use super::pdu::{JobEvent, Severity, Unconfirmed};
 use crate::ids::StationName;
 
@@ -113,7 +113,9 @@ pub fn take_publication(
     on: &StationName,
     p: Publication,
 ) -> Result<(Publication, Option<String>), Refused> {
-    check_stamp(on, p.stamp.as_ref(), kind(&p.message))?;
+    if let Some(stamp) = &p.stamp {
+        check_run(on, &stamp.run, kind(&p.message))?;
+    }
     let (message, note) = take(on, p.message)?;
     Ok((
         Publication {
@@ -124,20 +126,17 @@ pub fn take_publication(
     ))
 }
 
-/// Refuses a stamp whose run is longer than any a station makes.
-pub fn check_stamp(
-    on: &StationName,
-    stamp: Option<&Stamp>,
-    kind: &'static str,
-) -> Result<(), Refused> {
-    match stamp {
-        Some(s) if s.run.chars().count() > MAX_RUN_CHARS => Err(Refused::Run {
+/// Refuses a run name longer than any a station makes.
+fn check_run(on: &StationName, run: &str, kind: &'static str) -> Result<(), Refused> {
+    let chars = run.chars().count();
+    if chars > MAX_RUN_CHARS {
+        return Err(Refused::Run {
             on: on.clone(),
-            chars: s.run.chars().count(),
+            chars,
             kind,
-        }),
-        _ => Ok(()),
+        });
     }
+    Ok(())
 }
 
 /// Cuts `text` to [`MAX_PUBLISHED_CHARS`] characters, saying so in it and
@@ -160,7 +159,7 @@ fn cut(text: &mut String, what: &str, cuts: &mut Vec<String>) {
     ));
 }
 
-/// What a station's answer of kept reports is taken in as : a
+/// What a station's answer of kept reports is taken in as: a
 /// run name no station makes refuses it whole; a report naming another
 /// station than `station` (the key's) keeps its number but becomes a
 /// warning of `station`'s that says what was refused, so that the reader
@@ -171,15 +170,10 @@ pub fn take_kept(station: &StationName, kept: KeptReports) -> Result<KeptReports
         first,
         reports,
     } = kept;
-    let stamp = |run: &str| Stamp {
-        run: run.to_string(),
-        no: 0,
-        at_ms: 0,
-    };
-    check_stamp(station, Some(&stamp(&run)), "kept report")?;
+    check_run(station, &run, "kept report")?;
     let mut taken = Vec::with_capacity(reports.len());
     for (s, m) in reports {
-        check_stamp(station, Some(&s), kind(&m))?;
+        check_run(station, &s.run, kind(&m))?;
         let m = match take(station, m) {
             Ok((m, _)) => m,
             Err(e) => Unconfirmed::Report {
@@ -202,6 +196,7 @@ mod tests {
     use super::*;
     use crate::alarm::{AlarmClass, Cause};
     use crate::ids::ObjectName;
+    use crate::mms::journal::Stamp;
     use crate::mms::pdu::Severity;
     use crate::mms::vmd::VmdStatus;
     use crate::mode::HeldStep;
