@@ -39,7 +39,7 @@ async fn next(h: &mut DncHandle) -> Telegram {
     loop {
         match tokio::time::timeout(Duration::from_secs(20), h.events.recv()).await {
             Ok(Some(LinkEvent::Received(t))) => return Telegram::decode(&t).expect("valid"),
-            Ok(Some(LinkEvent::Sent(_) | LinkEvent::Refused(_))) => continue,
+            Ok(Some(LinkEvent::Sent(_) | LinkEvent::Refused(_) | LinkEvent::Silent(_))) => continue,
             other => panic!("no telegram: {other:?}"),
         }
     }

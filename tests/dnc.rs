@@ -25,15 +25,17 @@ fn connect(path: &str, timing: Timing) -> DncHandle {
     dnc_link::spawn(port, Priority::Low, timing)
 }
 
-/// The next received telegram, skipping our own Sent events and blocks
-/// refused with NAK (line noise that began with an STX).
+/// The next received telegram, skipping our own Sent events, blocks
+/// refused with NAK (line noise that began with an STX) and silences (a
+/// twin slower than a test's short acknowledgement delay on a busy
+/// machine; the procedure tries again).
 async fn next(h: &mut DncHandle) -> Telegram {
     loop {
         match tokio::time::timeout(WAIT, h.events.recv()).await {
             Ok(Some(LinkEvent::Received(t))) => {
                 return Telegram::decode(&t).expect("a valid telegram")
             }
-            Ok(Some(LinkEvent::Sent(_) | LinkEvent::Refused(_))) => continue,
+            Ok(Some(LinkEvent::Sent(_) | LinkEvent::Refused(_) | LinkEvent::Silent(_))) => continue,
             other => panic!("expected a telegram, got {other:?}"),
         }
     }
@@ -177,6 +179,11 @@ async fn an_unplugged_line_fails_after_six_attempts_and_recovers_when_replugged(
     assert!(matches!(next(&mut h).await, Telegram::ProgramStatus { .. }));
     rcm.control("unplug");
     send(&h, Telegram::StatusRequest);
+    // The first acknowledgement delay without a byte is told at once.
+    match tokio::time::timeout(WAIT, h.events.recv()).await {
+        Ok(Some(LinkEvent::Silent(waited))) => assert_eq!(waited, timing.ack_delay),
+        other => panic!("expected the silence told, got {other:?}"),
+    }
     match tokio::time::timeout(WAIT, h.events.recv()).await {
         Ok(Some(LinkEvent::Failed {
             error: SendError::NoConnection { attempts: 6, .. },

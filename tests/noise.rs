@@ -1,9 +1,11 @@
 //! The whole cell on a noisy robot line: the RCM twin flips one bit in 2 %
 //! of the bytes on the DNC line, both ways, for the whole list. The 3964R
-//! procedure repeats what noise spoils, and the welding workstation's
-//! supervision allows the link's own retry budget
-//! (`Timing::silent_after`), so no noise is taken for a dead line: every
-//! order runs to done. (`cargo bench --bench noise` reports 2 % and 5 %.)
+//! procedure repeats what noise spoils (an idle end answers a spoilt STX
+//! with NAK), and the welding workstation takes only silence for a dead
+//! line (`LinkEvent::Silent`; a request unanswered while bytes come gets
+//! the link's own retry budget, `Timing::silent_after`), so no noise is
+//! taken for a dead line: every order runs to done. (`cargo bench --bench
+//! noise` reports 2 % and 5 %, and a dead line's detection time.)
 
 use crate::support::noise::list_with_flips;
 use crate::support::rig::rig;

@@ -540,7 +540,7 @@ fn a_silent_robot_line_mid_weld_is_an_alarm_and_ack_start_run_the_next_order() {
         .unwrap_or_else(|| panic!("the line's alarm is listed: {:#?}", s.alarms));
     assert_eq!((a.class, a.order), (AlarmClass::Communication, Some(1)));
     assert!(
-        a.text.contains(&rig.rcm_path) && a.text.contains("status request unanswered"),
+        a.text.contains(&rig.rcm_path) && a.text.contains("nothing heard for 2.0 s"),
         "{a:#?}"
     );
     let (code, text) = rig.cell.falc_as("console", &["start"]);

@@ -14,10 +14,15 @@ use falc_model::mode::ManualAction;
 use falc_recipe::engine::{Event, JobEnd};
 use std::time::Duration;
 
-/// How often the RCM's status is asked while a program of ours runs. A
-/// request unanswered for the link's [`Timing::silent_after`] (6.88 s)
-/// makes the line silent: an alarm within 7.9 s of the line going quiet.
-pub const STATUS_PERIOD: Duration = Duration::from_secs(1);
+/// How often the RCM's status is asked while a program runs. A dead line
+/// is known from silence: the link tells an acknowledgement delay (2 s)
+/// that passed without one byte ([`crate::procedure::LinkEvent::Silent`];
+/// a live RCM answers even a spoilt byte with NAK), so the alarm comes
+/// within a status period and an acknowledgement delay (2.5 s) of the
+/// line going dead. A line that hears bytes but gets no answer through
+/// (noise on every attempt) is silent once a request has gone unanswered
+/// for the link's [`Timing::silent_after`] (6.88 s).
+pub const STATUS_PERIOD: Duration = Duration::from_millis(500);
 
 /// What the host wants done.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -285,40 +290,58 @@ impl Host {
             return Vec::new();
         }
         match self.asked {
-            Some(at) => {
-                // Unanswered: the line is silent.
-                self.asked = None;
-                self.heard = now;
-                self.probing = true;
-                if self.running.is_none() && std::mem::take(&mut self.by_hand) {
-                    // No job to end: the alarm is reported as it is.
-                    return vec![Out::Alarm(Cause::new(
-                        AlarmClass::Communication,
-                        format!(
-                            "no connection with RCM on {}: status request unanswered for {:.1} s \
-                             while a robot program started by hand runs",
-                            self.line,
-                            now.saturating_sub(at).as_secs_f64()
-                        ),
-                    ))];
-                }
-                let Some(p) = self.running.take() else {
-                    return Vec::new();
-                };
-                self.pending = None;
-                let why = format!(
-                    "no connection with RCM on {}: status request unanswered for {:.1} s while robot program {} runs",
-                    self.line,
-                    now.saturating_sub(at).as_secs_f64(),
-                    p.number()
-                );
-                vec![Out::Engine(Event::Ended(
-                    self.rcm.clone(),
-                    JobEnd::Alarm(Cause::new(AlarmClass::Communication, why)),
-                ))]
-            }
+            Some(at) => self.went_silent(
+                now,
+                &format!(
+                    "status request unanswered for {:.1} s",
+                    now.saturating_sub(at).as_secs_f64()
+                ),
+            ),
             None => self.ask(now).into_iter().collect(),
         }
+    }
+
+    /// The link waited an acknowledgement delay (`waited`) for the RCM and
+    /// heard not one byte: the line or the RCM is dead. A program that
+    /// runs is no longer supervised: its job ends in alarm (one started
+    /// by hand is reported); the RCM is asked until it answers again.
+    pub fn silent(&mut self, now: Duration, waited: Duration) -> Vec<Out> {
+        self.went_silent(
+            now,
+            &format!("nothing heard for {:.1} s", waited.as_secs_f64()),
+        )
+    }
+
+    /// The line went silent (`what` says how it was known): a running
+    /// program's job ends in alarm, one started by hand is reported, and
+    /// the RCM is asked until it answers again.
+    fn went_silent(&mut self, now: Duration, what: &str) -> Vec<Out> {
+        self.asked = None;
+        self.heard = now;
+        self.probing = true;
+        if self.running.is_none() && std::mem::take(&mut self.by_hand) {
+            // No job to end: the alarm is reported as it is.
+            return vec![Out::Alarm(Cause::new(
+                AlarmClass::Communication,
+                format!(
+                    "no connection with RCM on {}: {what} while a robot program started by hand runs",
+                    self.line
+                ),
+            ))];
+        }
+        let Some(p) = self.running.take() else {
+            return Vec::new();
+        };
+        self.pending = None;
+        let why = format!(
+            "no connection with RCM on {}: {what} while robot program {} runs",
+            self.line,
+            p.number()
+        );
+        vec![Out::Engine(Event::Ended(
+            self.rcm.clone(),
+            JobEnd::Alarm(Cause::new(AlarmClass::Communication, why)),
+        ))]
     }
 
     /// A program status from the RCM (asked for or not).
@@ -785,27 +808,34 @@ mod tests {
     }
 
     #[test]
-    fn a_running_program_is_supervised_and_a_silent_line_is_an_alarm_within_the_links_budget() {
-        // The limit is the link's: two lost attempts on the way (6.88 s).
+    fn a_running_program_is_supervised_and_an_unanswered_request_is_an_alarm_within_the_links_budget(
+    ) {
+        // Bytes heard but no answer through: the limit is the link's, two
+        // lost attempts on the way (6.88 s).
         let limit = Timing::default().silent_after();
         assert_eq!(limit, s(6880));
+        let period = STATUS_PERIOD;
+        assert_eq!(period, s(500));
         let mut h = running(1000);
         // A status request a period after the RCM was last heard.
-        assert_eq!(h.poll_timeout(), Some(s(2000)));
-        assert!(h.handle_timeout(s(1999)).is_empty(), "not due yet");
+        let asked = s(1000) + period;
+        assert_eq!(h.poll_timeout(), Some(asked));
+        assert!(h.handle_timeout(asked - s(1)).is_empty(), "not due yet");
         assert_eq!(
-            h.handle_timeout(s(2000)),
+            h.handle_timeout(asked),
             vec![Out::Telegram(Telegram::StatusRequest)]
         );
         // Answered after two attempts were lost (4.88 s): no alarm.
-        let out = h.telegram(s(6880), status(Some(p65()), ProgramState::Running));
+        let answered = asked + s(4880);
+        let out = h.telegram(answered, status(Some(p65()), ProgramState::Running));
         assert!(ended(&out).is_none(), "{out:?}");
-        assert_eq!(h.poll_timeout(), Some(s(7880)));
-        h.handle_timeout(s(7880));
-        // The line goes silent: the request goes unanswered.
-        assert_eq!(h.poll_timeout(), Some(s(7880) + limit));
-        assert!(h.handle_timeout(s(7880) + limit - s(1)).is_empty());
-        let out = h.handle_timeout(s(7880) + limit);
+        assert_eq!(h.poll_timeout(), Some(answered + period));
+        h.handle_timeout(answered + period);
+        // The request goes unanswered.
+        let asked = answered + period;
+        assert_eq!(h.poll_timeout(), Some(asked + limit));
+        assert!(h.handle_timeout(asked + limit - s(1)).is_empty());
+        let out = h.handle_timeout(asked + limit);
         match ended(&out) {
             Some(JobEnd::Alarm(why)) => {
                 assert_eq!(why.class, AlarmClass::Communication);
@@ -815,17 +845,17 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
-        // Silent since 6880 at the latest: the alarm came 7.9 s later.
+        assert!(!h.answered());
         // It keeps asking, and when the line is back stops the program it
         // no longer owns; never a second request behind one the link
         // still tries (3964R: up to 6 × 2 s).
-        let t = s(7880) + limit;
-        assert!(h.handle_timeout(t + s(1000)).is_empty());
+        let t = asked + limit;
+        assert!(h.handle_timeout(t + period).is_empty());
         h.sent(&Telegram::StatusRequest.encode());
-        assert_eq!(h.poll_timeout(), Some(t + s(1000) + limit));
-        h.handle_timeout(t + s(1000) + limit);
+        assert_eq!(h.poll_timeout(), Some(t + period + limit));
+        h.handle_timeout(t + period + limit);
         h.sent(&Telegram::StatusRequest.encode());
-        let t = t + s(2000) + limit;
+        let t = t + period + limit + period;
         assert_eq!(
             h.handle_timeout(t),
             vec![Out::Telegram(Telegram::StatusRequest)]
@@ -850,6 +880,34 @@ mod tests {
             "{out:?}"
         );
         assert_eq!(h.poll_timeout(), None);
+    }
+
+    #[test]
+    fn a_silent_line_is_an_alarm_at_once_for_a_program_that_runs_and_nothing_while_idle() {
+        // The link heard nothing for an acknowledgement delay.
+        let waited = Timing::default().ack_delay;
+        let mut h = running(1000);
+        let out = h.silent(s(3500), waited);
+        match ended(&out) {
+            Some(JobEnd::Alarm(why)) => {
+                assert_eq!(why.class, AlarmClass::Communication);
+                assert!(why.contains("/dev/ttyS0"), "names the device: {why}");
+                assert!(why.contains("nothing heard for 2.0 s"), "{why}");
+                assert!(why.contains("program 65"), "{why}");
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(!h.answered(), "the RCM does not answer until it does");
+        assert!(!h.has_job());
+        // The job is gone: a second silence tells nothing new.
+        assert!(h.silent(s(6000), waited).is_empty());
+        // The RCM answers again: it is ready once more.
+        h.telegram(s(7000), status(None, ProgramState::Idle));
+        assert!(h.answered());
+        // Idle (no program): a silence is no alarm, but the RCM does not
+        // answer until it does.
+        assert!(h.silent(s(9000), waited).is_empty());
+        assert!(!h.answered());
     }
 
     #[test]

@@ -17,6 +17,12 @@
 //! - the receiver answers STX with DLE, takes characters with at most the
 //!   character delay (220 ms) between them, checks the BCC and answers DLE,
 //!   or NAK on a bad BCC, a timeout or an overflow;
+//! - an idle end that hears anything but STX or NAK (an STX spoilt by
+//!   noise) waits until the line has been quiet for the character delay
+//!   and answers NAK, so a sender on a live line always hears something
+//!   within the acknowledgement delay: only a dead line (or partner) is
+//!   silent, and the link says so ([`LinkEvent::Silent`]) the first time
+//!   an acknowledgement delay passes without a byte;
 //! - initialisation conflict (both send STX): the low-priority station
 //!   (FALC's workstation) answers the other's STX with DLE and sends its own
 //!   telegram afterwards; the high-priority station (the RCM) waits on.
@@ -140,8 +146,14 @@ pub enum LinkEvent {
         /// Why.
         error: SendError,
     },
-    /// A received block was refused with NAK (bad BCC, timeout, overflow).
+    /// A received block was refused with NAK (bad BCC, timeout, overflow),
+    /// or noise on an idle line was answered with NAK.
     Refused(String),
+    /// An acknowledgement delay passed while this end waited for the
+    /// partner and not one byte came: the line or the partner is dead (a
+    /// live partner answers even a spoilt byte, with NAK). Told once per
+    /// silence; any byte heard ends it.
+    Silent(Duration),
 }
 
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -158,6 +170,12 @@ enum State {
     /// After NAK or a wrong character: wait, then STX again.
     Backoff {
         until: Duration,
+    },
+    /// Idle, a character other than STX or NAK heard: NAK once the line
+    /// has been quiet for the character delay.
+    Noise {
+        first: u8,
+        deadline: Duration,
     },
     /// Receiving a block.
     Receiving {
@@ -209,6 +227,9 @@ pub struct Link {
     transmit_tries: u8,
     out: VecDeque<u8>,
     events: VecDeque<LinkEvent>,
+    /// The current silence was told ([`LinkEvent::Silent`]); a byte heard
+    /// clears it.
+    silence_told: bool,
 }
 
 impl Link {
@@ -223,6 +244,7 @@ impl Link {
             transmit_tries: 0,
             out: VecDeque::new(),
             events: VecDeque::new(),
+            silence_told: false,
         }
     }
 
@@ -258,6 +280,7 @@ impl Link {
             State::AwaitStartAck { deadline }
             | State::AwaitFinalAck { deadline }
             | State::Backoff { until: deadline }
+            | State::Noise { deadline, .. }
             | State::Receiving { deadline, .. }
             | State::AwaitBcc { deadline, .. } => Some(*deadline),
         }
@@ -359,12 +382,17 @@ impl Link {
         }
         match self.state {
             State::AwaitStartAck { .. } => {
+                self.silent();
                 self.retry_connect(now, "no answer within the acknowledgement delay")
             }
             State::AwaitFinalAck { .. } => {
+                self.silent();
                 self.retry_transmit(now, "no answer within the acknowledgement delay")
             }
             State::Backoff { .. } => self.send_stx(now),
+            State::Noise { first, .. } => {
+                self.refuse(now, format!("0x{first:02x} on an idle line"))
+            }
             State::Receiving { .. } | State::AwaitBcc { .. } => {
                 self.refuse(now, "character delay exceeded inside a block".into())
             }
@@ -372,8 +400,20 @@ impl Link {
         }
     }
 
+    /// An acknowledgement delay passed without a byte from the partner
+    /// (any byte would have left the waiting state): told once.
+    fn silent(&mut self) {
+        if !std::mem::replace(&mut self.silence_told, true) {
+            self.events
+                .push_back(LinkEvent::Silent(self.timing.ack_delay));
+        }
+    }
+
     /// Bytes arrived from the line.
     pub fn handle_bytes(&mut self, now: Duration, bytes: &[u8]) {
+        if !bytes.is_empty() {
+            self.silence_told = false;
+        }
         for &b in bytes {
             self.handle_byte(now, b);
         }
@@ -382,11 +422,27 @@ impl Link {
     fn handle_byte(&mut self, now: Duration, b: u8) {
         let char_deadline = now + self.timing.char_delay;
         match std::mem::replace(&mut self.state, State::Idle) {
-            State::Idle => {
+            State::Idle => match b {
+                STX => self.begin_receive(now),
+                // A late NAK (of a telegram given up) asks nothing.
+                NAK => {}
+                // Noise, or the partner's STX spoilt: NAK once quiet.
+                first => {
+                    self.state = State::Noise {
+                        first,
+                        deadline: char_deadline,
+                    }
+                }
+            },
+            State::Noise { first, .. } => {
                 if b == STX {
                     self.begin_receive(now);
+                } else {
+                    self.state = State::Noise {
+                        first,
+                        deadline: char_deadline,
+                    };
                 }
-                // Anything else while idle is line noise: ignored.
             }
             State::AwaitStartAck { deadline } => match b {
                 DLE => {
@@ -548,7 +604,7 @@ mod tests {
     #[test]
     fn a_telegram_is_received_with_dle_undoubled() {
         let mut l = low();
-        l.handle_bytes(ms(0), &[0x55, STX]); // noise while idle is ignored
+        l.handle_bytes(ms(0), &[0x55, STX]); // an STX right after noise is taken
         assert_eq!(tx(&mut l), vec![DLE]);
         let block = frame(&[b'M', DLE, b'7']);
         l.handle_bytes(ms(10), &block);
@@ -621,14 +677,86 @@ mod tests {
         assert_eq!(stx_sent, 6);
         assert_eq!(now, ms(12_000), "6 × the acknowledgement delay");
         match events(&mut l).as_slice() {
-            [LinkEvent::Failed {
+            // The silence is told once, at the first acknowledgement delay.
+            [LinkEvent::Silent(waited), LinkEvent::Failed {
                 telegram,
                 error: SendError::NoConnection { attempts: 6, .. },
             }] => {
+                assert_eq!(*waited, ms(2000));
                 assert_eq!(telegram, b"G")
             }
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn noise_on_an_idle_line_is_answered_with_nak_once_the_line_is_quiet() {
+        let mut l = low();
+        l.handle_bytes(ms(0), &[0x12]); // an STX with a bit flipped
+        assert_eq!(tx(&mut l), Vec::<u8>::new());
+        assert_eq!(l.poll_timeout(), Some(ms(220)));
+        // More noise: the wait starts again from the last byte.
+        l.handle_bytes(ms(100), &[0x7f]);
+        assert_eq!(l.poll_timeout(), Some(ms(320)));
+        // A telegram queued meanwhile waits for the NAK.
+        l.send(ms(150), b"Q".to_vec());
+        assert_eq!(tx(&mut l), Vec::<u8>::new());
+        l.handle_timeout(ms(320));
+        assert_eq!(tx(&mut l), vec![NAK, STX]);
+        assert!(
+            matches!(events(&mut l).as_slice(), [LinkEvent::Refused(why)] if why == "0x12 on an idle line")
+        );
+        // A late NAK on an idle line asks nothing (no NAK ping-pong).
+        let mut l = low();
+        l.handle_bytes(ms(0), &[NAK]);
+        assert_eq!(l.poll_timeout(), None);
+        // An STX after noise is the partner's telegram.
+        l.handle_bytes(ms(10), &[0x33, STX]);
+        assert_eq!(tx(&mut l), vec![DLE]);
+    }
+
+    #[test]
+    fn a_live_partner_answers_a_spoilt_stx_and_only_a_dead_one_is_silent() {
+        let mut ws = low();
+        let mut rcm = Link::new(Priority::High, Timing::default());
+        ws.send(ms(0), b"Q".to_vec());
+        assert_eq!(tx(&mut ws), vec![STX]);
+        // The STX arrives spoilt: the RCM answers NAK after a character
+        // delay, well inside the workstation's acknowledgement delay.
+        rcm.handle_bytes(ms(1), &[STX ^ 0x40]);
+        rcm.handle_timeout(ms(221));
+        assert_eq!(tx(&mut rcm), vec![NAK]);
+        ws.handle_bytes(ms(222), &[NAK]);
+        // Quiet line, STX again, and this time it goes through.
+        ws.handle_timeout(ms(662));
+        assert_eq!(tx(&mut ws), vec![STX]);
+        rcm.handle_bytes(ms(663), &[STX]);
+        ws.handle_bytes(ms(664), &tx(&mut rcm));
+        rcm.handle_bytes(ms(665), &tx(&mut ws));
+        ws.handle_bytes(ms(666), &tx(&mut rcm));
+        assert_eq!(events(&mut ws), vec![LinkEvent::Sent(b"Q".to_vec())]);
+        assert_eq!(
+            events(&mut rcm).last(),
+            Some(&LinkEvent::Received(b"Q".to_vec()))
+        );
+        // The partner gone: one acknowledgement delay without a byte is
+        // told, once, and the attempts go on.
+        ws.send(ms(1000), b"Q".to_vec());
+        tx(&mut ws);
+        ws.handle_timeout(ms(2999));
+        assert_eq!(events(&mut ws), vec![]);
+        ws.handle_timeout(ms(3000));
+        assert_eq!(events(&mut ws), vec![LinkEvent::Silent(ms(2000))]);
+        assert_eq!(tx(&mut ws), vec![STX]);
+        ws.handle_timeout(ms(5000));
+        assert_eq!(events(&mut ws), vec![]);
+        // A byte heard ends the silence; the next one is told again.
+        ws.handle_bytes(ms(5100), &[0x7f]);
+        let quiet = ws.poll_timeout().unwrap_or_default();
+        ws.handle_timeout(quiet);
+        tx(&mut ws);
+        ws.handle_timeout(quiet + ms(2000));
+        assert_eq!(events(&mut ws), vec![LinkEvent::Silent(ms(2000))]);
     }
 
     #[test]
@@ -693,12 +821,20 @@ mod tests {
             }
         }
         assert_eq!(blocks, 6);
+        let evs = events(&mut l);
+        // Each lost acknowledgement is a silence of its own (the DLE to
+        // each STX was heard in between).
+        let silences = evs
+            .iter()
+            .filter(|e| matches!(e, LinkEvent::Silent(_)))
+            .count();
+        assert_eq!(silences, 3, "{evs:?}");
         assert!(matches!(
-            events(&mut l).as_slice(),
-            [LinkEvent::Failed {
+            evs.last(),
+            Some(LinkEvent::Failed {
                 error: SendError::NotAcknowledged { attempts: 6, .. },
                 ..
-            }]
+            })
         ));
     }
 
@@ -830,8 +966,9 @@ mod tests {
                 let mut ws = Link::new(Priority::Low, Timing::default());
                 let mut rcm = Link::new(Priority::High, Timing::default());
                 let mut now = Duration::ZERO;
-                // Noise on an idle line is ignored (an STX in it starts a
-                // block that then times out with NAK; that must not hurt).
+                // Noise on an idle line is answered with NAK once quiet (an
+                // STX in it starts a block that then times out with NAK;
+                // that must not hurt).
                 rcm.handle_bytes(now, &noise);
                 let _ = tx(&mut rcm);
                 if let Some(t) = rcm.poll_timeout() { now = t; rcm.handle_timeout(t); }

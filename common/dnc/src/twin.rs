@@ -105,7 +105,7 @@ impl RcmTwin {
                 LinkEvent::Failed { telegram, error } => self.notes.push_back(Note::Trouble(
                     format!("telegram {} lost: {error}", telegram.escape_ascii()),
                 )),
-                LinkEvent::Sent(_) | LinkEvent::Refused(_) => {}
+                LinkEvent::Sent(_) | LinkEvent::Refused(_) | LinkEvent::Silent(_) => {}
             }
         }
     }

@@ -166,6 +166,10 @@ impl Welding {
                 self.apply(outs, &mut out);
             }
             LinkEvent::Refused(why) => tracing::debug!("block refused: {why}"),
+            LinkEvent::Silent(waited) => {
+                let outs = self.host.silent(now, waited);
+                self.apply(outs, &mut out);
+            }
             LinkEvent::Sent(telegram) => self.host.sent(&telegram),
         }
         out

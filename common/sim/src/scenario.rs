@@ -243,9 +243,9 @@ const ORPHAN: Duration = Duration::from_secs(20);
 /// A line button held with no transport job for longer than this.
 const HELD: Duration = Duration::from_secs(2);
 /// An unplugged serial line is seen within this while a program of a job
-/// runs (a status request unanswered for its limit, 6.9 s, after at most
-/// one status period).
-const SILENT: Duration = Duration::from_secs(10);
+/// runs: nothing heard for an acknowledgement delay (2 s) after the next
+/// status request (at most a status period, 0.5 s, away).
+const SILENT: Duration = Duration::from_secs(3);
 /// A failed write stops the running order at the cell within this (the
 /// list halts it); a full disk is only known at the next write.
 const BEHIND: Duration = Duration::from_secs(2);
