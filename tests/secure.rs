@@ -300,6 +300,49 @@ fn silent_tcp_connections_do_not_keep_a_console_out() {
 }
 
 #[test]
+fn a_console_logs_in_within_3_s_while_a_thousand_silent_connections_come_again_and_again() {
+    // The router drops each silent connection after its 3 s login limit
+    // and the strangers open it again at once, a thousand at a time. With
+    // zenoh's one login thread (a70706b) every third login waited 3.1–3.7 s
+    // for it; the router now runs four.
+    let cell = TestCell::start();
+    let at: std::net::SocketAddr = cell
+        .endpoint
+        .split_once('/')
+        .and_then(|(_, a)| a.parse().ok())
+        .expect("a socket address");
+    let stop = Instant::now() + Duration::from_secs(12);
+    let strangers =
+        std::thread::spawn(move || crate::support::flood::silent_tcp_connections(at, 1_000, stop));
+    let rt = tokio::runtime::Runtime::new().expect("runtime");
+    let mut logins = Vec::new();
+    while Instant::now() + Duration::from_millis(1_300) < stop {
+        // A pace: a login every 1.3 s, so that some fall where the
+        // router drops a thousand at once.
+        std::thread::sleep(Duration::from_millis(1_300));
+        let mut settings = cell.settings("console");
+        settings.connect_timeout = Duration::from_secs(3);
+        let begin = Instant::now();
+        let login = rt.block_on(async {
+            let bus = falc_bus::Bus::open(settings).await?;
+            let _ = bus.session().close().await;
+            Ok::<_, falc_bus::BusError>(())
+        });
+        logins.push((begin.elapsed(), login.map_err(|e| e.to_string())));
+    }
+    let opened = strangers.join().expect("the strangers");
+    println!("{opened} silent connections opened; logins: {logins:?}");
+    let failed: Vec<_> = logins.iter().filter(|(_, l)| l.is_err()).collect();
+    assert!(
+        failed.is_empty(),
+        "logins that failed within 3 s: {failed:?}"
+    );
+    assert!(logins.len() >= 7, "{logins:?}");
+    // The router really dropped them and they came again.
+    assert!(opened >= 2_000, "{opened} connections opened");
+}
+
+#[test]
 fn refused_logins_are_logged() {
     // A wrong password, on the all-in-one tcp cell.
     let mut cell = TestCell::start();

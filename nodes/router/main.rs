@@ -203,8 +203,28 @@ fn write_bundle(copies: &[BundleFile]) -> Result<()> {
     Ok(())
 }
 
-#[tokio::main]
-async fn main() -> Result<()> {
+/// zenoh's runtimes as the router runs them (the `ZENOH_RUNTIME`
+/// environment variable, read once by zenoh at its first use; one set by
+/// the user is kept). zenoh 1.10 runs every link's login on one thread
+/// of its own (`acc`): under a thousand silent TCP connections, dropped
+/// after the 3 s login limit and opened again at once, one console login
+/// in three waited for that thread 3.1–3.7 s. Four threads: every login
+/// within 205 ms (`cargo bench --bench flood -- --only tcp`).
+const ZENOH_RUNTIME: &str = "(acc: (worker_threads: 4))";
+
+fn main() -> Result<()> {
+    // Before any thread exists, so nothing reads the environment meanwhile.
+    if std::env::var_os("ZENOH_RUNTIME").is_none() {
+        std::env::set_var("ZENOH_RUNTIME", ZENOH_RUNTIME);
+    }
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("cannot start the router's runtime")?
+        .block_on(main_async())
+}
+
+async fn main_async() -> Result<()> {
     let cli = Cli::parse();
     let command = cli.command.unwrap_or(Command::Run {
         listen: None,

@@ -1,7 +1,8 @@
-//! Strangers at the router's QUIC port, for the flood tests and benchmarks:
-//! handshakes begun and left silent ([`silent_handshakes`]), and handshakes
-//! that fail by the hundred ([`failing_handshakes`]). Neither holds any of
-//! the cell's credentials. Each runs on the calling thread's network
+//! Strangers at the router's port, for the flood tests and benchmarks:
+//! QUIC handshakes begun and left silent ([`silent_handshakes`]), QUIC
+//! handshakes that fail by the hundred ([`failing_handshakes`]), and TCP
+//! connections that say nothing, opened again as the router drops them
+//! ([`silent_tcp_connections`]). None holds any of the cell's credentials. Each runs on the calling thread's network
 //! namespace (see `hosts::Hosts::on`), against an address the test made.
 
 use quinn::rustls;
@@ -129,4 +130,51 @@ pub fn failing_handshakes(router: SocketAddr, per_second: u32, lasting: Duration
         }
         failed
     })
+}
+
+/// Holds `count` silent TCP connections open at `router` until `until`:
+/// each one the router drops (its login limit) is opened again at once,
+/// the strangers looking twice a second. Returns how many were opened.
+/// Raises this process's open-file limit to its hard limit first.
+pub fn silent_tcp_connections(router: SocketAddr, count: usize, until: Instant) -> u64 {
+    raise_open_files();
+    let mut held: Vec<std::net::TcpStream> = Vec::new();
+    let mut opened = 0u64;
+    while Instant::now() < until {
+        // Keep those still open; open new ones up to `count`.
+        held.retain(|c| {
+            let mut b = [0u8; 1];
+            let _ = c.set_nonblocking(true);
+            match c.peek(&mut b) {
+                // Closed by the router.
+                Ok(0) => false,
+                Ok(_) => true,
+                // Open and silent.
+                Err(e) => e.kind() == std::io::ErrorKind::WouldBlock,
+            }
+        });
+        while held.len() < count {
+            match std::net::TcpStream::connect(router) {
+                Ok(c) => {
+                    held.push(c);
+                    opened += 1;
+                }
+                Err(_) => break,
+            }
+        }
+        // A pace: the strangers look at their connections twice a second.
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    opened
+}
+
+/// Raises this process's open-file limit to the hard limit (a thousand
+/// connections held).
+fn raise_open_files() {
+    use nix::sys::resource::{getrlimit, setrlimit, Resource};
+    if let Ok((soft, hard)) = getrlimit(Resource::RLIMIT_NOFILE) {
+        if soft < hard {
+            let _ = setrlimit(Resource::RLIMIT_NOFILE, hard, hard);
+        }
+    }
 }
