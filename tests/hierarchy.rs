@@ -5,7 +5,6 @@
 use crate::support::{st, TestCell};
 use falc_bus::DEFAULT_DEADLINE;
 use falc_model::envelope;
-use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Request, Response, Unconfirmed};
 use falc_model::mms::vmd::VmdStatus;
 use std::collections::HashMap;
@@ -13,10 +12,6 @@ use std::time::Duration;
 
 const STATIONS: [&str; 4] = ["operator", "cell", "welding", "transport"];
 const WAIT: Duration = Duration::from_secs(10);
-
-fn is_unreachable(e: &ServiceError) -> bool {
-    e.class.to_string() == "application-reference/application-unreachable"
-}
 
 /// Every ordered pair of stations: Status is confirmed exactly when the
 /// target is the caller's direct subordinate, and refused by the router
@@ -41,7 +36,7 @@ async fn commander_is_confirmed_and_every_forbidden_pair_refused() {
                 .await;
             match (allowed, &result) {
                 (true, Ok(Response::Status(_))) => allowed_seen += 1,
-                (false, Err(e)) if is_unreachable(e) => {}
+                (false, Err(e)) if e.is_unreachable() => {}
                 _ => panic!("{caller} → {target} status: allowed={allowed}, got {result:?}"),
             }
         }
@@ -67,7 +62,7 @@ async fn commander_is_confirmed_and_every_forbidden_pair_refused() {
             .request(&st("operator"), &out, DEFAULT_DEADLINE)
             .await;
         assert!(
-            matches!(&r, Err(e) if is_unreachable(e)),
+            matches!(&r, Err(e) if e.is_unreachable()),
             "{ws} → operator output: {r:?}"
         );
     }
@@ -83,7 +78,7 @@ async fn commander_is_confirmed_and_every_forbidden_pair_refused() {
             "x",
         )
         .await;
-    assert!(matches!(&r, Err(e) if is_unreachable(e)), "{r:?}");
+    assert!(matches!(&r, Err(e) if e.is_unreachable()), "{r:?}");
 }
 
 /// Wildcard queries are denied even where every concrete key is allowed.
@@ -122,7 +117,7 @@ async fn wildcard_queries_are_refused() {
             )
             .await;
         assert!(
-            matches!(&r, Err(e) if is_unreachable(e)),
+            matches!(&r, Err(e) if e.is_unreachable()),
             "{wildcard}: {r:?}"
         );
     }

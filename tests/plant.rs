@@ -13,10 +13,6 @@ use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Request, Response};
 use std::time::{Duration, Instant};
 
-fn is_unreachable(e: &ServiceError) -> bool {
-    e.class.to_string() == "application-reference/application-unreachable"
-}
-
 async fn status(bus: &Bus, station: &str) -> Result<Response, ServiceError> {
     bus.request(&st(station), &Request::Status, DEFAULT_DEADLINE)
         .await
@@ -24,7 +20,7 @@ async fn status(bus: &Bus, station: &str) -> Result<Response, ServiceError> {
 
 async fn refused(bus: &Bus, station: &str, what: &str) {
     let r = status(bus, station).await;
-    assert!(matches!(&r, Err(e) if is_unreachable(e)), "{what}: {r:?}");
+    assert!(matches!(&r, Err(e) if e.is_unreachable()), "{what}: {r:?}");
 }
 
 /// A probe's payload: a sample sent until the subscribers hear them, not

@@ -31,7 +31,6 @@ use falc_node::controller_node::ControllerNode;
 use falc_node::{init_tracing, lane, say, NodeArgs};
 use falc_recipe::commands::RecipeKind;
 use std::collections::BTreeMap;
-use std::time::Duration;
 use tokio::sync::mpsc::{unbounded_channel, UnboundedSender};
 
 #[derive(Parser, Debug)]
@@ -206,7 +205,12 @@ async fn main() -> Result<()> {
     let stations = Stations::new(topology.commander_of(&cli.station).cloned());
     let (came, mut answers) = unbounded_channel();
     let mut cell = Cell {
-        ctl: ControllerNode::new(station, RecipeKind::Cell, Duration::from_secs(10), stations),
+        ctl: ControllerNode::new(
+            station,
+            RecipeKind::Cell,
+            coordination::CONFIRM_LIMIT,
+            stations,
+        ),
         lanes: Lanes {
             bus,
             replies: rtx,

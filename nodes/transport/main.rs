@@ -26,6 +26,7 @@ use falc_node::plc_link::{self, PlcArgs, PlcEvent, PlcSettings};
 use falc_node::{init_tracing, say, NodeArgs};
 use falc_plc::workstation::{Plc, PlcCommand};
 use falc_recipe::commands::RecipeKind;
+use falc_recipe::engine::START_CONFIRM_LIMIT;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -165,7 +166,7 @@ async fn main() -> Result<()> {
     let station = Station::open(settings, &topology).await?;
     let mut link = plc_link::spawn(plc_settings);
     let plc = Plc::new(address.clone());
-    let mut ws = ControllerNode::new(station, RecipeKind::Transport, Duration::from_secs(10), plc);
+    let mut ws = ControllerNode::new(station, RecipeKind::Transport, START_CONFIRM_LIMIT, plc);
     ws.publish_status().await;
     say(&format!(
         "EVENT ready station={} plc={address} poll_ms={}",

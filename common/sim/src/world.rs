@@ -39,6 +39,7 @@ use falc_plc::conveyor::{Conveyor, Spot};
 use falc_plc::map::{Coil, Inputs, COILS};
 use falc_plc::workstation::{Pace, Plc, PlcCommand, IDLE_POLL_MS, POLL_MS};
 use falc_recipe::commands::RecipeKind;
+use falc_recipe::engine::START_CONFIRM_LIMIT;
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use std::cell::RefCell;
@@ -131,7 +132,7 @@ fn order_list(view: Shared, source: Shipped, set: RecipeSet) -> OrderList<Shared
 fn cell_controller() -> Controller<Stations> {
     Controller::new(
         RecipeKind::Cell,
-        Duration::from_secs(10),
+        coordination::CONFIRM_LIMIT,
         Stations::new(Some(station(Node::Operator))),
     )
     .named(station(Node::Cell))
@@ -165,7 +166,7 @@ fn transport_node(now: Duration, coils: &[bool]) -> TransportNode {
     }
     device.connected(Some(held));
     TransportNode {
-        ctl: Controller::new(RecipeKind::Transport, Duration::from_secs(10), device),
+        ctl: Controller::new(RecipeKind::Transport, START_CONFIRM_LIMIT, device),
         pace: Pace::Idle,
         next_poll: now,
         done: 0,

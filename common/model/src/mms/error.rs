@@ -285,6 +285,15 @@ impl ServiceError {
         )
     }
 
+    /// Whether this is [`Self::unreachable`]: nobody answered (the router
+    /// refuses a request its access control does not allow this way).
+    pub fn is_unreachable(&self) -> bool {
+        matches!(
+            self.class,
+            ErrorClass::ApplicationReference(ApplicationReferenceError::ApplicationUnreachable)
+        )
+    }
+
     /// `application-reference/connection-lost`: the association was aborted.
     pub fn connection_lost(description: impl Into<String>) -> Self {
         Self::new(
@@ -369,6 +378,9 @@ mod tests {
             "application-reference/application-unreachable: no reply from station welding"
         );
         assert_eq!(e.class.class_number(), 1);
+        assert!(e.is_unreachable() && e.unanswered());
+        let lost = ServiceError::connection_lost("aborted");
+        assert!(!lost.is_unreachable() && lost.unanswered());
         assert_eq!(ErrorClass::Others(42).to_string(), "others/42");
         assert_eq!(
             ErrorClass::Initiate(InitiateError::ServiceCbbInsufficient).to_string(),
