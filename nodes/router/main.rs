@@ -206,10 +206,13 @@ fn write_bundle(copies: &[BundleFile]) -> Result<()> {
 /// zenoh's runtimes as the router runs them (the `ZENOH_RUNTIME`
 /// environment variable, read once by zenoh at its first use; one set by
 /// the user is kept). zenoh 1.10 runs every link's login on one thread
-/// of its own (`acc`): under a thousand silent TCP connections, dropped
-/// after the 3 s login limit and opened again at once, one console login
-/// in three waited for that thread 3.1–3.7 s. Four threads: every login
-/// within 205 ms (`cargo bench --bench flood -- --only tcp`).
+/// of its own (`acc`), and closes each link whose login timed out there;
+/// its TCP links have SO_LINGER set (10 s), so each close(2) blocks until
+/// the peer acknowledges the close (seen with `perf`: `acc-0` waiting in
+/// `sk_stream_wait_close`). Under a thousand silent TCP connections,
+/// dropped after the 3 s login limit and opened again at once, one
+/// console login in three waited 3.1–3.7 s for that thread. Four threads:
+/// every login within 205 ms (`cargo bench --bench flood -- --only tcp`).
 const ZENOH_RUNTIME: &str = "(acc: (worker_threads: 4))";
 
 fn main() -> Result<()> {
