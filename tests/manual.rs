@@ -2,7 +2,10 @@
 //! on the whole cell through the CLI: in maintenance mode, `manual welding
 //! select 65` and `start` run the program on the robot's twin, and the
 //! welding workstation does not stop it as an orphan; `manual welding
-//! stop` stops it; back in auto, an order runs to done.
+//! stop` stops it; back in auto, an order runs to done. Its line going
+//! silent while it runs is an alarm of its own (no job to end); when the
+//! line is back the program, unwatched meanwhile, is stopped, and the way
+//! back runs the next order.
 
 use crate::support::rig::rig;
 use std::time::Duration;
@@ -31,6 +34,57 @@ fn a_robot_program_started_by_hand_runs_until_the_maintainer_stops_it() {
         .falc_as("maintainer", &["manual", "welding", "stop"]);
     assert_eq!(code, 0, "{out}");
     rig.rcm.expect_line("rx H", Duration::from_secs(5));
+    rig.cell.falc(&["mode", "auto"]);
+    rig.cell.falc(&["ack"]);
+    rig.next_order_done("dikdroog");
+}
+
+#[test]
+fn a_silent_line_under_a_program_started_by_hand_is_an_alarm_and_the_way_back_runs_the_next_order()
+{
+    use falc_model::alarm::{AlarmClass, AlarmState};
+    let mut rig = rig("20");
+    rig.cell.falc(&["mode", "maintenance"]);
+    rig.rcm.forget("rx ");
+    for args in [&["select", "65"][..], &["start"][..]] {
+        let mut all = vec!["manual", "welding"];
+        all.extend(args);
+        let (code, out) = rig.cell.falc_as("maintainer", &all);
+        assert_eq!(code, 0, "{args:?}: {out}");
+    }
+    rig.rcm.expect_line("rx G", Duration::from_secs(5));
+    rig.rcm.control("unplug");
+    // Nothing heard for an acknowledgement delay after the next status
+    // request: an alarm naming the device and the program by hand.
+    let s = rig.until_status(Duration::from_secs(6), "the silent line's alarm", |s| {
+        s.alarms
+            .iter()
+            .any(|a| a.station == "welding" && a.class == AlarmClass::Communication)
+    });
+    let alarm = s
+        .alarms
+        .iter()
+        .find(|a| a.station == "welding")
+        .cloned()
+        .unwrap_or_else(|| panic!("{:#?}", s.alarms));
+    assert!(
+        alarm.text.contains(&rig.rcm_path)
+            && alarm.text.contains("nothing heard for 2.0 s")
+            && alarm.text.contains("started by hand"),
+        "{alarm:#?}"
+    );
+    // The line back: the workstation could not watch the program while
+    // the line was silent, so it is nobody's any more and is stopped (as
+    // any program found running that no job owns); the alarm clears once
+    // the robot answers again.
+    rig.rcm.forget("rx H");
+    rig.rcm.control("replug");
+    rig.rcm.expect_line("rx H", Duration::from_secs(15));
+    rig.until_status(Duration::from_secs(15), "the line's alarm cleared", |s| {
+        s.alarms
+            .iter()
+            .any(|x| x.id == alarm.id && x.state() == AlarmState::Cleared)
+    });
     rig.cell.falc(&["mode", "auto"]);
     rig.cell.falc(&["ack"]);
     rig.next_order_done("dikdroog");

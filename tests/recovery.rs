@@ -422,23 +422,6 @@ fn messages_stay_with_their_order_and_oversized_inputs_are_refused_briefly() {
     );
 }
 
-/// Waits until `pred` holds for the status, or fails with the last one.
-fn until_status(
-    rig: &Rig,
-    within: Duration,
-    what: &str,
-    pred: impl Fn(&falc_model::console::CellStatus) -> bool,
-) -> falc_model::console::CellStatus {
-    wait_until(what, within, || {
-        let s = rig.status();
-        if pred(&s) {
-            Ok(s)
-        } else {
-            Err(Box::new(s))
-        }
-    })
-}
-
 /// Alarm management: an alarm raised while no order runs (the conveyor's
 /// emergency stop) is listed with its class, holds start back until it is
 /// acknowledged, and clears when the PLC is ready again.
@@ -448,7 +431,7 @@ fn an_alarm_while_no_order_runs_is_listed_and_must_be_acknowledged() {
     let mut rig = rig("100");
     rig.cell.falc(&["order", "add", "dikdroog"]);
     rig.plc.control("estop");
-    let s = until_status(&rig, Duration::from_secs(5), "the PLC's alarm", |s| {
+    let s = rig.until_status(Duration::from_secs(5), "the PLC's alarm", |s| {
         s.alarms.iter().any(|a| a.station == "transport")
     });
     assert_eq!(s.list, ListState::Alarm, "{s:#?}");
@@ -468,7 +451,7 @@ fn an_alarm_while_no_order_runs_is_listed_and_must_be_acknowledged() {
     // Released: the condition clears, the alarm waits for its
     // acknowledgement; acknowledged, it leaves the list.
     rig.plc.control("estop-clear");
-    until_status(&rig, Duration::from_secs(5), "cleared", |s| {
+    rig.until_status(Duration::from_secs(5), "cleared", |s| {
         s.alarms
             .iter()
             .any(|x| x.id == a.id && x.state() == AlarmState::Cleared)
@@ -551,16 +534,11 @@ fn a_silent_robot_line_mid_weld_is_an_alarm_and_ack_start_run_the_next_order() {
     rig.rcm.forget("rx H");
     rig.rcm.control("replug");
     rig.rcm.expect_line("rx H", Duration::from_secs(15));
-    until_status(
-        &rig,
-        Duration::from_secs(15),
-        "the line's alarm cleared",
-        |s| {
-            s.alarms
-                .iter()
-                .any(|x| x.id == a.id && x.state() == AlarmState::Cleared)
-        },
-    );
+    rig.until_status(Duration::from_secs(15), "the line's alarm cleared", |s| {
+        s.alarms
+            .iter()
+            .any(|x| x.id == a.id && x.state() == AlarmState::Cleared)
+    });
     let out = rig.way_back();
     assert!(out.contains("order 2 (dikdroog) started"), "{out}");
     let orders = rig.orders();

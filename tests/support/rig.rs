@@ -369,6 +369,23 @@ impl Rig {
         orders
     }
 
+    /// Waits until `pred` holds for the status, or fails with the last one.
+    pub fn until_status(
+        &self,
+        within: Duration,
+        what: &str,
+        pred: impl Fn(&CellStatus) -> bool,
+    ) -> CellStatus {
+        wait_until(what, within, || {
+            let s = self.status();
+            if pred(&s) {
+                Ok(s)
+            } else {
+                Err(Box::new(s))
+            }
+        })
+    }
+
     /// Plays the operator through the CLI until the list stops running:
     /// answers every question with `answer`. Returns the questions seen.
     pub fn work_list(&self, answer: &str, within: Duration) -> Vec<String> {
