@@ -80,8 +80,16 @@ pub struct Host {
     /// not an orphan to stop, until it ends, is stopped, or a job starts.
     by_hand: bool,
     /// The job's select was sent again after a refusal noise can cause
-    /// ([`crate::telegram::AckError::may_be_noise`]).
+    /// ([`crate::telegram::AckError::may_be_noise`]) or a lost
+    /// acknowledgement.
     reselected: bool,
+    /// When the link delivered the pending select or start: its
+    /// acknowledgement is awaited until [`Self::ack_limit`] after that,
+    /// then the status is asked ([`Self::ack_lost`]).
+    pending_sent: Option<Duration>,
+    /// The status was asked because the pending step's acknowledgement
+    /// did not come: its answer says whether the step was done.
+    ack_lost: bool,
 }
 
 fn word(state: ProgramState) -> &'static str {
@@ -114,6 +122,8 @@ impl Host {
             last_alarm: None,
             by_hand: false,
             reselected: false,
+            pending_sent: None,
+            ack_lost: false,
         }
     }
 
@@ -213,11 +223,29 @@ impl Host {
         self.link_failed(why)
     }
 
-    /// The link delivered `telegram`.
-    pub fn sent(&mut self, telegram: &[u8]) {
+    /// The link delivered `telegram` at `now`.
+    pub fn sent(&mut self, now: Duration, telegram: &[u8]) {
         if telegram == Telegram::StatusRequest.encode().as_slice() {
             self.asking = false;
         }
+        let step = match self.pending {
+            Some(Pending::Select(p)) => Telegram::SelectProgram(p),
+            Some(Pending::Start(_)) => Telegram::StartProgram,
+            None => return,
+        };
+        if telegram == step.encode().as_slice() {
+            self.pending_sent = Some(now);
+        }
+    }
+
+    /// How long the acknowledgement of a delivered select or start is
+    /// awaited before the status is asked: the RCM's answer may lose two
+    /// attempts on the way ([`Timing::silent_after`], 6.88 s). A spoilt
+    /// answer can also pass 3964R's XOR check as another telegram (two
+    /// flips in one bit column), and is then never seen as the
+    /// acknowledgement.
+    fn ack_limit(&self) -> Duration {
+        self.silent_limit
     }
 
     /// The link gave `telegram` up (3964R attempts spent): a status
@@ -248,12 +276,16 @@ impl Host {
         self.pending = Some(Pending::Select(program));
         self.by_hand = false;
         self.reselected = false;
+        self.pending_sent = None;
+        self.ack_lost = false;
         vec![Out::Telegram(Telegram::SelectProgram(program))]
     }
 
     /// The engine (or the commander) wants the robot stopped.
     pub fn stop(&mut self) -> Vec<Out> {
         self.pending = None;
+        self.pending_sent = None;
+        self.ack_lost = false;
         self.running = None;
         vec![Out::Telegram(Telegram::StopProgram)]
     }
@@ -274,6 +306,15 @@ impl Host {
     /// When the host next needs the clock: the next status request, or
     /// the end of the wait for its answer.
     pub fn poll_timeout(&self) -> Option<Duration> {
+        [self.supervision_timeout(), self.ack_timeout()]
+            .into_iter()
+            .flatten()
+            .min()
+    }
+
+    /// The next status request, or the end of the wait for its answer,
+    /// while a program runs (or the line is probed).
+    fn supervision_timeout(&self) -> Option<Duration> {
         // A program a maintainer started is supervised like a job's.
         if !self.open || (self.running.is_none() && !self.probing && !self.by_hand) {
             return None;
@@ -284,9 +325,23 @@ impl Host {
         })
     }
 
+    /// When the delivered select's or start's acknowledgement counts as
+    /// lost.
+    fn ack_timeout(&self) -> Option<Duration> {
+        let at = self.pending_sent?;
+        (self.open && self.pending.is_some()).then(|| at + self.ack_limit())
+    }
+
     /// The clock reached [`Self::poll_timeout`].
     pub fn handle_timeout(&mut self, now: Duration) -> Vec<Out> {
-        if !self.poll_timeout().is_some_and(|t| t <= now) {
+        if self.ack_timeout().is_some_and(|t| t <= now) {
+            // The acknowledgement is lost: the status tells whether the
+            // step was done ([`Self::program_status`]).
+            self.pending_sent = None;
+            self.ack_lost = true;
+            return self.ask(now).into_iter().collect();
+        }
+        if !self.supervision_timeout().is_some_and(|t| t <= now) {
             return Vec::new();
         }
         match self.asked {
@@ -344,6 +399,51 @@ impl Host {
         ))]
     }
 
+    /// The status asked because the pending select's or start's
+    /// acknowledgement was lost: the step was done if the RCM shows our
+    /// program selected (then it is started) or running (then it runs);
+    /// else the job selects once more (once), and after that the recipe's
+    /// own limit ends it.
+    fn step_by_status(
+        &mut self,
+        program: Option<RobotProgram>,
+        state: ProgramState,
+        active: bool,
+    ) -> Vec<Out> {
+        let Some(step) = self.pending else {
+            return Vec::new();
+        };
+        let (Pending::Select(p) | Pending::Start(p)) = step;
+        let lost = |what: &str| {
+            Out::Info(format!(
+                "the acknowledgement of the {what} of robot program {} was lost; the RCM reports it {}",
+                p.number(),
+                word(state)
+            ))
+        };
+        match step {
+            Pending::Select(_) if program == Some(p) && state == ProgramState::Selected => {
+                self.pending = Some(Pending::Start(p));
+                vec![lost("selection"), Out::Telegram(Telegram::StartProgram)]
+            }
+            Pending::Start(_) if program == Some(p) && active => {
+                self.pending = None;
+                self.running = Some(p);
+                self.asked = None;
+                vec![
+                    lost("start"),
+                    Out::Engine(Event::Started(self.rcm.clone())),
+                    Out::Info(format!("robot program {} started", p.number())),
+                ]
+            }
+            _ if !std::mem::replace(&mut self.reselected, true) => {
+                self.pending = Some(Pending::Select(p));
+                vec![Out::Telegram(Telegram::SelectProgram(p))]
+            }
+            _ => Vec::new(),
+        }
+    }
+
     /// A program status from the RCM (asked for or not).
     fn program_status(
         &mut self,
@@ -359,6 +459,10 @@ impl Host {
         self.probing = false;
         let mut out = vec![Out::Detail(alarms::status_detail(state, mode))];
         let active = matches!(state, ProgramState::Running | ProgramState::Paused);
+        if std::mem::take(&mut self.ack_lost) {
+            out.extend(self.step_by_status(program, state, active));
+            return out;
+        }
         let acts = match self.running {
             Some(p) => self.pending.is_none() && !(program == Some(p) && active),
             // A program a maintainer started runs as theirs.
@@ -423,6 +527,7 @@ impl Host {
                 Some(Pending::Select(p)),
             ) => {
                 self.pending = Some(Pending::Start(p));
+                self.pending_sent = None;
                 vec![Out::Telegram(Telegram::StartProgram)]
             }
             (
@@ -433,6 +538,7 @@ impl Host {
                 Some(Pending::Start(p)),
             ) => {
                 self.pending = None;
+                self.pending_sent = None;
                 self.running = Some(p);
                 self.asked = None;
                 vec![
@@ -453,9 +559,11 @@ impl Host {
                     // selects once more.
                     let (Pending::Select(p) | Pending::Start(p)) = step;
                     self.pending = Some(Pending::Select(p));
+                    self.pending_sent = None;
                     return vec![Out::Telegram(Telegram::SelectProgram(p))];
                 }
                 self.pending = None;
+                self.pending_sent = None;
                 vec![Out::Engine(Event::StartFailed(
                     rcm,
                     e.to_service_error().to_string(),
@@ -851,10 +959,10 @@ mod tests {
         // still tries (3964R: up to 6 × 2 s).
         let t = asked + limit;
         assert!(h.handle_timeout(t + period).is_empty());
-        h.sent(&Telegram::StatusRequest.encode());
+        h.sent(t + period, &Telegram::StatusRequest.encode());
         assert_eq!(h.poll_timeout(), Some(t + period + limit));
         h.handle_timeout(t + period + limit);
-        h.sent(&Telegram::StatusRequest.encode());
+        h.sent(t + period + limit, &Telegram::StatusRequest.encode());
         let t = t + period + limit + period;
         assert_eq!(
             h.handle_timeout(t),
@@ -908,6 +1016,82 @@ mod tests {
         // answer until it does.
         assert!(h.silent(s(9000), waited).is_empty());
         assert!(!h.answered());
+    }
+
+    #[test]
+    fn a_lost_acknowledgement_of_the_select_or_the_start_is_asked_for() {
+        let limit = Timing::default().silent_after();
+        let selected = |h: &mut Host, at: Duration| {
+            h.connected(s(0));
+            h.telegram(s(0), status(None, ProgramState::Idle));
+            assert_eq!(
+                h.start(p65()),
+                vec![Out::Telegram(Telegram::SelectProgram(p65()))]
+            );
+            h.sent(at, &Telegram::SelectProgram(p65()).encode());
+        };
+        // The select's acknowledgement is lost: after the link's budget for
+        // an answer the status is asked; it shows 65 selected: started.
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
+        selected(&mut h, s(1000));
+        assert_eq!(h.poll_timeout(), Some(s(1000) + limit));
+        assert!(h.handle_timeout(s(1000) + limit - s(1)).is_empty());
+        assert_eq!(
+            h.handle_timeout(s(1000) + limit),
+            vec![Out::Telegram(Telegram::StatusRequest)]
+        );
+        let out = h.telegram(s(8000), status(Some(p65()), ProgramState::Selected));
+        assert!(
+            out.contains(&Out::Telegram(Telegram::StartProgram)),
+            "{out:?}"
+        );
+        assert!(
+            out.iter().any(|o| matches!(o, Out::Info(t) if t.contains("acknowledgement of the selection of robot program 65 was lost"))),
+            "{out:?}"
+        );
+        // Then the start's acknowledgement is lost too: the status shows
+        // 65 running, so it runs, as ours.
+        h.sent(s(8100), &Telegram::StartProgram.encode());
+        assert_eq!(
+            h.handle_timeout(s(8100) + limit),
+            vec![Out::Telegram(Telegram::StatusRequest)]
+        );
+        let out = h.telegram(s(15_100), status(Some(p65()), ProgramState::Running));
+        assert!(
+            out.iter()
+                .any(|o| matches!(o, Out::Engine(Event::Started(_)))),
+            "{out:?}"
+        );
+        assert_eq!(h.running(), Some(p65()));
+        assert!(
+            !out.contains(&Out::Telegram(Telegram::StopProgram)),
+            "{out:?}"
+        );
+        // The acknowledgement in time: no status asked for it.
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
+        selected(&mut h, s(1000));
+        h.telegram(s(1100), ack(b'S'));
+        h.sent(s(1200), &Telegram::StartProgram.encode());
+        h.telegram(s(1300), ack(b'G'));
+        assert_eq!(h.running(), Some(p65()));
+        assert_eq!(h.poll_timeout(), Some(s(1300) + STATUS_PERIOD));
+        // Lost, and the status shows nothing selected (the select never
+        // took): the job selects once more, and only once.
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
+        selected(&mut h, s(1000));
+        h.handle_timeout(s(1000) + limit);
+        let out = h.telegram(s(8000), status(None, ProgramState::Idle));
+        assert!(
+            out.contains(&Out::Telegram(Telegram::SelectProgram(p65()))),
+            "{out:?}"
+        );
+        h.sent(s(8100), &Telegram::SelectProgram(p65()).encode());
+        h.handle_timeout(s(8100) + limit);
+        let out = h.telegram(s(15_100), status(None, ProgramState::Idle));
+        assert!(
+            !out.iter().any(|o| matches!(o, Out::Telegram(_))),
+            "the recipe's own limit ends it: {out:?}"
+        );
     }
 
     #[test]
@@ -965,7 +1149,7 @@ mod tests {
         let mut h = Host::new("/dev/ttyS0", &Timing::default());
         h.connected(s(0));
         assert!(h.handle_timeout(s(6880)).is_empty());
-        h.sent(&Telegram::StatusRequest.encode());
+        h.sent(s(6880), &Telegram::StatusRequest.encode());
         assert_eq!(
             h.handle_timeout(s(7880)),
             vec![Out::Telegram(Telegram::StatusRequest)]

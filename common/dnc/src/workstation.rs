@@ -170,7 +170,7 @@ impl Welding {
                 let outs = self.host.silent(now, waited);
                 self.apply(outs, &mut out);
             }
-            LinkEvent::Sent(telegram) => self.host.sent(&telegram),
+            LinkEvent::Sent(telegram) => self.host.sent(now, &telegram),
         }
         out
     }
