@@ -53,14 +53,6 @@ fn held_on(rig: &Rig, station: &str) -> (CellMode, Option<u16>, Option<String>) 
     (cell.mode, held, s.question)
 }
 
-/// How often the journal says order `id` started.
-fn starts(rig: &Rig, id: i64) -> usize {
-    rig.journal(Some(id))
-        .iter()
-        .filter(|e| e.kind == EntryKind::Order && e.text.ends_with(") started"))
-        .count()
-}
-
 #[test]
 fn dikdroog_in_step_mode_is_confirmed_step_by_step_through_the_cli_to_done() {
     let rig = rig("10");
@@ -240,7 +232,7 @@ fn maintenance_brings_the_cell_home_after_a_robot_estop_and_the_next_order_runs_
         (orders[0].state, orders[1].state),
         (OrderState::Failed, OrderState::Done)
     );
-    assert_eq!((starts(&rig, 1), starts(&rig, 2)), (1, 1));
+    assert_eq!((rig.starts(1), rig.starts(2)), (1, 1));
 }
 
 #[test]
@@ -317,7 +309,7 @@ fn a_failed_order_restarted_from_a_chosen_state_runs_to_done() {
     assert!(questions.is_empty(), "{questions:?}");
     let orders = rig.orders();
     assert_eq!(orders[0].state, OrderState::Done, "{orders:?}");
-    assert_eq!(starts(&rig, 1), 2);
+    assert_eq!(rig.starts(1), 2);
     let j = rig.journal(Some(1));
     assert!(j
         .iter()
@@ -366,7 +358,7 @@ fn a_stopped_order_resumes_where_it_stopped_and_the_recipe_starts_anew_after() {
     rig.cell.falc(&["start"]);
     rig.work_list("ja", Duration::from_secs(120));
     assert_eq!(rig.orders()[1].state, OrderState::Done);
-    assert_eq!(starts(&rig, 2), 1);
+    assert_eq!(rig.starts(2), 1);
 }
 
 /// Every station's mode as its status says, the cell's first.

@@ -13,16 +13,6 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-/// How often the journal says order `id` started.
-fn starts(rig: &Rig, id: i64) -> usize {
-    let needle = format!("order {id} (");
-    rig.journal(Some(id))
-        .iter()
-        .filter(|e| e.kind == EntryKind::Order && e.text.starts_with(&needle))
-        .filter(|e| e.text.ends_with(") started"))
-        .count()
-}
-
 fn robot_detail(rig: &Rig) -> Option<RobotStatusDetail> {
     rig.status()
         .stations
@@ -237,7 +227,7 @@ fn robot_emergency_stop_mid_weld_then_ack_and_start_runs_the_next_order() {
         "{:#?}",
         rig.journal(Some(2))
     );
-    assert_eq!((starts(&rig, 1), starts(&rig, 2)), (1, 1));
+    assert_eq!((rig.starts(1), rig.starts(2)), (1, 1));
     // The stop released and everything acknowledged: the list is empty.
     let listed = rig.status().alarms;
     assert!(listed.is_empty(), "{listed:#?}");
@@ -366,7 +356,7 @@ fn a_full_disk_mid_order_stops_the_list_and_no_order_runs_twice() {
         "{orders:?}"
     );
     assert_eq!(orders[1].state, OrderState::Done, "{orders:?}");
-    assert_eq!((starts(&rig, 1), starts(&rig, 2)), (1, 1));
+    assert_eq!((rig.starts(1), rig.starts(2)), (1, 1));
     // A restart finds the same list: nothing running, nothing queued again.
     rig.operator().kill();
     rig.operator = None;
@@ -548,7 +538,7 @@ fn a_silent_robot_line_mid_weld_is_an_alarm_and_ack_start_run_the_next_order() {
         "{:#?}",
         rig.journal(Some(2))
     );
-    assert_eq!((starts(&rig, 1), starts(&rig, 2)), (1, 1));
+    assert_eq!((rig.starts(1), rig.starts(2)), (1, 1));
 }
 
 /// Answers the cell's questions with `ja` until the conveyor twin says

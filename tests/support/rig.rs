@@ -369,6 +369,16 @@ impl Rig {
         orders
     }
 
+    /// How often the journal says order `id` started.
+    pub fn starts(&self, id: i64) -> usize {
+        let needle = format!("order {id} (");
+        self.journal(Some(id))
+            .iter()
+            .filter(|e| e.kind == EntryKind::Order && e.text.starts_with(&needle))
+            .filter(|e| e.text.ends_with(") started"))
+            .count()
+    }
+
     /// Waits until `pred` holds for the status, or fails with the last one.
     pub fn until_status(
         &self,
