@@ -7,12 +7,12 @@
 //! line is back the program, unwatched meanwhile, is stopped, and the way
 //! back runs the next order.
 
-use crate::support::rig::rig;
+use crate::support::rig::{rig, Rig};
 use std::time::Duration;
 
-#[test]
-fn a_robot_program_started_by_hand_runs_until_the_maintainer_stops_it() {
-    let mut rig = rig("20");
+/// In maintenance mode, a maintainer selects and starts robot program 65
+/// through the CLI; the twin starts it (`rx G`).
+fn program_65_by_hand(rig: &mut Rig) {
     rig.cell.falc(&["mode", "maintenance"]);
     rig.rcm.forget("rx ");
     for args in [&["select", "65"][..], &["start"][..]] {
@@ -22,6 +22,12 @@ fn a_robot_program_started_by_hand_runs_until_the_maintainer_stops_it() {
         assert_eq!(code, 0, "{args:?}: {out}");
     }
     rig.rcm.expect_line("rx G", Duration::from_secs(5));
+}
+
+#[test]
+fn a_robot_program_started_by_hand_runs_until_the_maintainer_stops_it() {
+    let mut rig = rig("20");
+    program_65_by_hand(&mut rig);
     // The workstation watches the robot's status (a request every second
     // or so); none of its answers makes it stop the program.
     assert_eq!(
@@ -42,17 +48,9 @@ fn a_robot_program_started_by_hand_runs_until_the_maintainer_stops_it() {
 #[test]
 fn a_silent_line_under_a_program_started_by_hand_is_an_alarm_and_the_way_back_runs_the_next_order()
 {
-    use falc_model::alarm::{AlarmClass, AlarmState};
+    use falc_model::alarm::AlarmClass;
     let mut rig = rig("20");
-    rig.cell.falc(&["mode", "maintenance"]);
-    rig.rcm.forget("rx ");
-    for args in [&["select", "65"][..], &["start"][..]] {
-        let mut all = vec!["manual", "welding"];
-        all.extend(args);
-        let (code, out) = rig.cell.falc_as("maintainer", &all);
-        assert_eq!(code, 0, "{args:?}: {out}");
-    }
-    rig.rcm.expect_line("rx G", Duration::from_secs(5));
+    program_65_by_hand(&mut rig);
     rig.rcm.control("unplug");
     // Nothing heard for an acknowledgement delay after the next status
     // request: an alarm naming the device and the program by hand.
@@ -77,14 +75,7 @@ fn a_silent_line_under_a_program_started_by_hand_is_an_alarm_and_the_way_back_ru
     // the line was silent, so it is nobody's any more and is stopped (as
     // any program found running that no job owns); the alarm clears once
     // the robot answers again.
-    rig.rcm.forget("rx H");
-    rig.rcm.control("replug");
-    rig.rcm.expect_line("rx H", Duration::from_secs(15));
-    rig.until_status(Duration::from_secs(15), "the line's alarm cleared", |s| {
-        s.alarms
-            .iter()
-            .any(|x| x.id == alarm.id && x.state() == AlarmState::Cleared)
-    });
+    rig.replug_until_cleared(alarm.id);
     rig.cell.falc(&["mode", "auto"]);
     rig.cell.falc(&["ack"]);
     rig.next_order_done("dikdroog");

@@ -496,7 +496,7 @@ fn a_robot_in_manual_mode_reaches_the_operator_with_its_iso_9506_error() {
 /// order done.
 #[test]
 fn a_silent_robot_line_mid_weld_is_an_alarm_and_ack_start_run_the_next_order() {
-    use falc_model::alarm::{AlarmClass, AlarmState};
+    use falc_model::alarm::AlarmClass;
     let mut rig = rig("10");
     rig.start_list_until_welding(&["dikdroog", "dikdroog"]);
     rig.rcm.control("unplug");
@@ -521,14 +521,7 @@ fn a_silent_robot_line_mid_weld_is_an_alarm_and_ack_start_run_the_next_order() {
     assert!(text.contains("communication"), "{text}");
     // The line back: the robot, still welding for nobody, is stopped; the
     // station answers again and the alarm clears.
-    rig.rcm.forget("rx H");
-    rig.rcm.control("replug");
-    rig.rcm.expect_line("rx H", Duration::from_secs(15));
-    rig.until_status(Duration::from_secs(15), "the line's alarm cleared", |s| {
-        s.alarms
-            .iter()
-            .any(|x| x.id == a.id && x.state() == AlarmState::Cleared)
-    });
+    rig.replug_until_cleared(a.id);
     let out = rig.way_back();
     assert!(out.contains("order 2 (dikdroog) started"), "{out}");
     let orders = rig.orders();

@@ -369,6 +369,21 @@ impl Rig {
         orders
     }
 
+    /// The robot's line plugged in again after a silence mid-program:
+    /// the program nobody watched meanwhile is stopped (`rx H` at the
+    /// twin), and the line's alarm `alarm` clears once the robot answers.
+    pub fn replug_until_cleared(&mut self, alarm: i64) {
+        use falc_model::alarm::AlarmState;
+        self.rcm.forget("rx H");
+        self.rcm.control("replug");
+        self.rcm.expect_line("rx H", Duration::from_secs(15));
+        self.until_status(Duration::from_secs(15), "the line's alarm cleared", |s| {
+            s.alarms
+                .iter()
+                .any(|x| x.id == alarm && x.state() == AlarmState::Cleared)
+        });
+    }
+
     /// How often the journal says order `id` started.
     pub fn starts(&self, id: i64) -> usize {
         let needle = format!("order {id} (");
