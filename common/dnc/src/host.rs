@@ -46,13 +46,52 @@ enum Pending {
     Start(RobotProgram),
 }
 
+impl Pending {
+    /// The telegram of this step.
+    fn telegram(self) -> Telegram {
+        match self {
+            Self::Select(p) => Telegram::SelectProgram(p),
+            Self::Start(_) => Telegram::StartProgram,
+        }
+    }
+}
+
+/// A job's step on its way to the robot, and how far its acknowledgement
+/// is awaited.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Step {
+    what: Pending,
+    ack: AckWait,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum AckWait {
+    /// The link has not delivered the telegram yet.
+    Undelivered,
+    /// Delivered at this time: the acknowledgement is awaited until
+    /// [`Host::ack_limit`] after it.
+    Since(Duration),
+    /// Not acknowledged in time: the status was asked, and its answer
+    /// says whether the step was done ([`Host::step_by_status`]).
+    Status,
+}
+
+impl Step {
+    fn new(what: Pending) -> Option<Self> {
+        Some(Self {
+            what,
+            ack: AckWait::Undelivered,
+        })
+    }
+}
+
 /// The host's state.
 #[derive(Debug)]
 pub struct Host {
     rcm: StationName,
     /// The serial line, for messages.
     line: String,
-    pending: Option<Pending>,
+    pending: Option<Step>,
     /// The program a job of ours runs on the robot (from the start's
     /// acknowledgement until its end).
     running: Option<RobotProgram>,
@@ -83,13 +122,6 @@ pub struct Host {
     /// ([`crate::telegram::AckError::may_be_noise`]) or a lost
     /// acknowledgement.
     reselected: bool,
-    /// When the link delivered the pending select or start: its
-    /// acknowledgement is awaited until [`Self::ack_limit`] after that,
-    /// then the status is asked ([`Self::ack_lost`]).
-    pending_sent: Option<Duration>,
-    /// The status was asked because the pending step's acknowledgement
-    /// did not come: its answer says whether the step was done.
-    ack_lost: bool,
 }
 
 fn word(state: ProgramState) -> &'static str {
@@ -122,8 +154,6 @@ impl Host {
             last_alarm: None,
             by_hand: false,
             reselected: false,
-            pending_sent: None,
-            ack_lost: false,
         }
     }
 
@@ -228,13 +258,10 @@ impl Host {
         if telegram == Telegram::StatusRequest.encode().as_slice() {
             self.asking = false;
         }
-        let step = match self.pending {
-            Some(Pending::Select(p)) => Telegram::SelectProgram(p),
-            Some(Pending::Start(_)) => Telegram::StartProgram,
-            None => return,
-        };
-        if telegram == step.encode().as_slice() {
-            self.pending_sent = Some(now);
+        if let Some(step) = &mut self.pending {
+            if step.ack == AckWait::Undelivered && telegram == step.what.telegram().encode() {
+                step.ack = AckWait::Since(now);
+            }
         }
     }
 
@@ -273,19 +300,15 @@ impl Host {
 
     /// The engine wants robot program `program` started.
     pub fn start(&mut self, program: RobotProgram) -> Vec<Out> {
-        self.pending = Some(Pending::Select(program));
+        self.pending = Step::new(Pending::Select(program));
         self.by_hand = false;
         self.reselected = false;
-        self.pending_sent = None;
-        self.ack_lost = false;
         vec![Out::Telegram(Telegram::SelectProgram(program))]
     }
 
     /// The engine (or the commander) wants the robot stopped.
     pub fn stop(&mut self) -> Vec<Out> {
         self.pending = None;
-        self.pending_sent = None;
-        self.ack_lost = false;
         self.running = None;
         vec![Out::Telegram(Telegram::StopProgram)]
     }
@@ -328,17 +351,23 @@ impl Host {
     /// When the delivered select's or start's acknowledgement counts as
     /// lost.
     fn ack_timeout(&self) -> Option<Duration> {
-        let at = self.pending_sent?;
-        (self.open && self.pending.is_some()).then(|| at + self.ack_limit())
+        match self.pending {
+            Some(Step {
+                ack: AckWait::Since(at),
+                ..
+            }) if self.open => Some(at + self.ack_limit()),
+            _ => None,
+        }
     }
 
     /// The clock reached [`Self::poll_timeout`].
     pub fn handle_timeout(&mut self, now: Duration) -> Vec<Out> {
         if self.ack_timeout().is_some_and(|t| t <= now) {
             // The acknowledgement is lost: the status tells whether the
-            // step was done ([`Self::program_status`]).
-            self.pending_sent = None;
-            self.ack_lost = true;
+            // step was done ([`Self::step_by_status`]).
+            if let Some(step) = &mut self.pending {
+                step.ack = AckWait::Status;
+            }
             return self.ask(now).into_iter().collect();
         }
         if !self.supervision_timeout().is_some_and(|t| t <= now) {
@@ -410,7 +439,7 @@ impl Host {
         state: ProgramState,
         active: bool,
     ) -> Vec<Out> {
-        let Some(step) = self.pending else {
+        let Some(step) = self.pending.map(|s| s.what) else {
             return Vec::new();
         };
         let (Pending::Select(p) | Pending::Start(p)) = step;
@@ -423,7 +452,7 @@ impl Host {
         };
         match step {
             Pending::Select(_) if program == Some(p) && state == ProgramState::Selected => {
-                self.pending = Some(Pending::Start(p));
+                self.pending = Step::new(Pending::Start(p));
                 vec![lost("selection"), Out::Telegram(Telegram::StartProgram)]
             }
             Pending::Start(_) if program == Some(p) && active => {
@@ -437,10 +466,15 @@ impl Host {
                 ]
             }
             _ if !std::mem::replace(&mut self.reselected, true) => {
-                self.pending = Some(Pending::Select(p));
+                self.pending = Step::new(Pending::Select(p));
                 vec![Out::Telegram(Telegram::SelectProgram(p))]
             }
-            _ => Vec::new(),
+            // The recipe's own limit ends the job; the step is awaited
+            // no further.
+            _ => {
+                self.pending = Step::new(step);
+                Vec::new()
+            }
         }
     }
 
@@ -459,7 +493,7 @@ impl Host {
         self.probing = false;
         let mut out = vec![Out::Detail(alarms::status_detail(state, mode))];
         let active = matches!(state, ProgramState::Running | ProgramState::Paused);
-        if std::mem::take(&mut self.ack_lost) {
+        if self.pending.is_some_and(|s| s.ack == AckWait::Status) {
             out.extend(self.step_by_status(program, state, active));
             return out;
         }
@@ -518,7 +552,7 @@ impl Host {
     pub fn telegram(&mut self, now: Duration, t: Telegram) -> Vec<Out> {
         self.heard = now;
         let rcm = self.rcm.clone();
-        match (t, self.pending) {
+        match (t, self.pending.map(|s| s.what)) {
             (
                 Telegram::Ack {
                     of: b'S',
@@ -526,8 +560,7 @@ impl Host {
                 },
                 Some(Pending::Select(p)),
             ) => {
-                self.pending = Some(Pending::Start(p));
-                self.pending_sent = None;
+                self.pending = Step::new(Pending::Start(p));
                 vec![Out::Telegram(Telegram::StartProgram)]
             }
             (
@@ -538,7 +571,6 @@ impl Host {
                 Some(Pending::Start(p)),
             ) => {
                 self.pending = None;
-                self.pending_sent = None;
                 self.running = Some(p);
                 self.asked = None;
                 vec![
@@ -558,12 +590,10 @@ impl Host {
                     // such program" for a program the RCM has): the job
                     // selects once more.
                     let (Pending::Select(p) | Pending::Start(p)) = step;
-                    self.pending = Some(Pending::Select(p));
-                    self.pending_sent = None;
+                    self.pending = Step::new(Pending::Select(p));
                     return vec![Out::Telegram(Telegram::SelectProgram(p))];
                 }
                 self.pending = None;
-                self.pending_sent = None;
                 vec![Out::Engine(Event::StartFailed(
                     rcm,
                     e.to_service_error().to_string(),
@@ -652,7 +682,7 @@ impl Host {
     /// What the host waited for when a recipe's limit ran out.
     pub fn explain_timeout(&self, now: Duration) -> Option<String> {
         let heard = now.saturating_sub(self.heard).as_secs_f64();
-        match (self.pending, self.running) {
+        match (self.pending.map(|s| s.what), self.running) {
             (Some(Pending::Select(p)), _) => Some(format!(
                 "no acknowledgement of the selection of robot program {} (RCM last heard {heard:.1} s ago)",
                 p.number()
@@ -1091,6 +1121,24 @@ mod tests {
         assert!(
             !out.iter().any(|o| matches!(o, Out::Telegram(_))),
             "the recipe's own limit ends it: {out:?}"
+        );
+        // The line lost while the status for a lost acknowledgement is
+        // awaited: that wait goes with the job, and on the line's return
+        // a program found running is stopped as no job's (two statuses).
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
+        selected(&mut h, s(1000));
+        h.handle_timeout(s(1000) + limit);
+        h.closed("unplugged".into());
+        h.connected(s(20_000));
+        let out = h.telegram(s(20_100), status(Some(p65()), ProgramState::Running));
+        assert!(
+            !out.contains(&Out::Telegram(Telegram::StopProgram)),
+            "{out:?}"
+        );
+        let out = h.telegram(s(20_200), status(Some(p65()), ProgramState::Running));
+        assert!(
+            out.contains(&Out::Telegram(Telegram::StopProgram)),
+            "{out:?}"
         );
     }
 
