@@ -220,7 +220,7 @@ async fn run(cli: Cli) -> Result<(), String> {
     let mut mirrors: Vec<space::Mirror> = scopes.iter().map(|_| space::Mirror::default()).collect();
     let mut poller = Poller::new(scopes.clone(), cli.journal_entries);
     let mut ready = false;
-    let mut pruned: Option<std::time::Instant> = None;
+    let mut next_prune = std::time::Instant::now();
     let period = Duration::from_millis(cli.poll_ms.max(10));
     loop {
         // A look waits for the operator (up to 2 s a call when it is gone):
@@ -273,11 +273,8 @@ async fn run(cli: Cli) -> Result<(), String> {
         // A stranger's every attempt leaves a rejected certificate: the
         // folder keeps the newest only (looked at every PRUNE_EVERY, not
         // on every look).
-        let prune_due = pruned.map_or(true, |at: std::time::Instant| at.elapsed() >= PRUNE_EVERY);
-        if prune_due {
-            pruned = Some(std::time::Instant::now());
-        }
-        let pruning = if prune_due {
+        let pruning = if std::time::Instant::now() >= next_prune {
+            next_prune = std::time::Instant::now() + PRUNE_EVERY;
             server::prune_rejected(&endpoint.pki_dir.join("rejected"), server::KEEP_REJECTED)
         } else {
             Ok(0)

@@ -348,7 +348,7 @@ pub fn compute(
         .collect();
     let cells = names
         .into_iter()
-        .map(|name| cell_figures(name, inputs, calendar, query, since, until))
+        .map(|name| cell_figures(name, inputs, calendar, planned_by, query, since, until))
         .collect();
     Figures {
         since_ms: since,
@@ -362,6 +362,7 @@ fn cell_figures(
     name: &str,
     inputs: &FigureInputs,
     calendar: &Calendar,
+    planned_by: PlannedBy,
     query: &FigureQuery,
     since: i64,
     until: i64,
@@ -410,7 +411,7 @@ fn cell_figures(
     let mut busy: Set = normalize(busy_periods.iter().map(|(a, b, _)| (*a, *b)).collect());
     // No shift calendar: planned is when the cell was meant to work.
     let planned_in = |span: Set| {
-        if calendar.always() {
+        if planned_by == PlannedBy::ListWorking {
             intersect(&span, &cell.working)
         } else {
             span
