@@ -50,13 +50,6 @@ fn login_within(cell: &TestCell, limit: Duration) -> String {
     })
 }
 
-fn address(cell: &TestCell) -> SocketAddr {
-    cell.endpoint
-        .split_once('/')
-        .and_then(|(_, a)| a.parse().ok())
-        .expect("a socket address")
-}
-
 /// Console logins every `every` during a stranger's flood that runs on
 /// another thread for `lasting`, then one right after it: what each took.
 fn logins_during(
@@ -99,7 +92,7 @@ fn quic_floods() {
         option_env!("QUIC_ACCEPT_THROTTLE_TIME").unwrap_or("100000 (zenoh's default)")
     );
     let quic = TestCell::start_secure();
-    let router = address(&quic);
+    let router = quic.address();
     println!("quic, no flood: console login {}", login(&quic));
     let held = flood::silent_handshakes(router, 300);
     println!(
@@ -138,7 +131,7 @@ fn quic_floods() {
 
 fn tcp_flood() {
     let tcp = TestCell::start();
-    let at = address(&tcp);
+    let at = tcp.address();
     println!("tcp, no flood: console login {}", login(&tcp));
     // A thousand silent connections held for 40 s: each one the router
     // drops (its handshake timeout) opened again at once.

@@ -81,15 +81,10 @@ fn main() {
     );
 
     // 2. falc status with 1,000 silent TCP connections held.
-    let address = rig
-        .cell
-        .endpoint
-        .split_once('/')
-        .map(|(_, a)| a.to_string())
-        .expect("address");
+    let address = rig.cell.address();
     let (_, none_ms) = status(&rig, 20);
     let held: Vec<_> = (0..1000)
-        .filter_map(|_| std::net::TcpStream::connect(&address).ok())
+        .filter_map(|_| std::net::TcpStream::connect(address).ok())
         .collect();
     let mut times = Vec::new();
     let mut failed = 0;

@@ -23,7 +23,6 @@ mod support;
 use std::time::{Duration, Instant};
 use support::noise::list_with_flips;
 use support::rig::{rig, Rig};
-use support::wait::{holds, wait_until};
 
 fn arg(name: &str, default: usize) -> usize {
     let args: Vec<String> = std::env::args().collect();
@@ -41,11 +40,7 @@ fn arg(name: &str, default: usize) -> usize {
 /// back: the way back's first half.
 fn dead_line(rig: &mut Rig, into: Duration) -> (Duration, String) {
     rig.rcm.forget("rx G");
-    wait_until("start taken", Duration::from_secs(30), || {
-        rig.cell.falc(&["ack"]);
-        let (code, out) = rig.cell.falc_as("console", &["start"]);
-        holds(code == 0, || out)
-    });
+    rig.ack_until_started();
     rig.until_welding();
     std::thread::sleep(into);
     let welding = rig.welding.as_mut().expect("the welding node runs");
@@ -83,14 +78,11 @@ fn main() {
     }
     // The way back's second half: ack, start, the next order done.
     r.cell.falc(&["order", "add", "dikdroog"]);
-    wait_until("start taken", Duration::from_secs(30), || {
-        r.cell.falc(&["ack"]);
-        let (code, out) = r.cell.falc_as("console", &["start"]);
-        holds(code == 0, || out)
-    });
-    r.work_list("ja", Duration::from_secs(120));
-    let last = r.orders().last().map(|o| o.state);
-    println!("after the last round: ack, start, the next order {last:?}");
+    let done = r.start_again_until_done();
+    println!(
+        "after the last round: ack, start, the next order (order {}) done",
+        done.len()
+    );
     drop(r);
     took.sort();
     if let (Some(least), Some(most)) = (took.first(), took.last()) {

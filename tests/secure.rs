@@ -247,14 +247,10 @@ fn api_replies(cell: &TestCell, host: &str, mode: &str, certificate: bool) -> bo
 #[test]
 fn silent_tcp_connections_do_not_keep_a_console_out() {
     let mut cell = TestCell::start();
-    let address = cell
-        .endpoint
-        .split_once('/')
-        .map(|(_, a)| a.to_string())
-        .expect("address");
+    let address = cell.address();
     // 500 strangers connect and say nothing.
     let held: Vec<std::net::TcpStream> = (0..500)
-        .map(|_| std::net::TcpStream::connect(&address).expect("connect"))
+        .map(|_| std::net::TcpStream::connect(address).expect("connect"))
         .collect();
     let rt = tokio::runtime::Runtime::new().expect("runtime");
     let begin = Instant::now();
@@ -306,11 +302,7 @@ fn a_console_logs_in_within_3_s_while_a_thousand_silent_connections_come_again_a
     // zenoh's one login thread (a70706b) every third login waited 3.1–3.7 s
     // for it; the router now runs four.
     let cell = TestCell::start();
-    let at: std::net::SocketAddr = cell
-        .endpoint
-        .split_once('/')
-        .and_then(|(_, a)| a.parse().ok())
-        .expect("a socket address");
+    let at = cell.address();
     let stop = Instant::now() + Duration::from_secs(12);
     let strangers =
         std::thread::spawn(move || crate::support::flood::silent_tcp_connections(at, 1_000, stop));

@@ -544,6 +544,14 @@ pub struct TestCell {
 }
 
 impl TestCell {
+    /// The router's socket address (its endpoint without the protocol).
+    pub fn address(&self) -> std::net::SocketAddr {
+        self.endpoint
+            .split_once('/')
+            .and_then(|(_, a)| a.parse().ok())
+            .expect("the endpoint is protocol/address:port")
+    }
+
     /// The router's port.
     pub fn port(&self) -> u16 {
         self.endpoint

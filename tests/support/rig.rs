@@ -329,15 +329,7 @@ impl Rig {
     /// with `ja`; its last order must end done, none left running. Returns
     /// the orders.
     pub fn start_again_until_done(&self) -> Vec<Order> {
-        wait_until(
-            "start taken once the node is back",
-            Duration::from_secs(30),
-            || {
-                self.cell.falc(&["ack"]);
-                let (code, out) = self.cell.falc_as("console", &["start"]);
-                holds(code == 0, || out)
-            },
-        );
+        self.ack_until_started();
         self.work_list("ja", Duration::from_secs(120));
         let orders = self.last_order_done();
         assert!(
@@ -347,6 +339,16 @@ impl Rig {
             "{orders:?}"
         );
         orders
+    }
+
+    /// `ack` and `start`, repeated until the start is taken (30 s at
+    /// most: a node started again reassociates, an alarm's cause clears).
+    pub fn ack_until_started(&self) {
+        wait_until("start taken", Duration::from_secs(30), || {
+            self.cell.falc(&["ack"]);
+            let (code, out) = self.cell.falc_as("console", &["start"]);
+            holds(code == 0, || out)
+        });
     }
 
     /// The way forward after any way back: `recipe` queued, the list
