@@ -262,6 +262,27 @@ async fn a_lost_program_end_is_recovered_from_the_robot_status() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lost_acknowledgement_of_the_select_is_asked_for_and_the_job_runs_to_done() {
+    let mut rig = rig("100").await;
+    rig.load("droog_dik", &droog_dik()).await;
+    rig.rcm.control("lose-ack");
+    rig.rcm.forget("rx ");
+    rig.start("droog_dik").await;
+    // The select is done at the robot, its acknowledgement never sent.
+    // After the link's budget for an answer (6.88 s) the workstation asks
+    // the status, finds program 65 selected and starts it.
+    rig.rcm.take_line("rx S", Duration::from_secs(10));
+    rig.rcm.take_line("rx Q", Duration::from_secs(10));
+    rig.rcm.take_line("rx G", Duration::from_secs(5));
+    let report = rig
+        .commander
+        .report("acknowledgement of the selection", Duration::from_secs(5))
+        .await;
+    assert!(report.contains("robot program 65"), "{report}");
+    assert_eq!(rig.job(Duration::from_secs(15)).await, JobEvent::Done);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_restarted_welding_node_stops_a_program_no_job_owns() {
     let mut rig = rig("1").await; // 120 s programs
     rig.load("droog_dik", &droog_dik()).await;

@@ -14,7 +14,8 @@
 //! on the line, either way, has one bit flipped with that chance; `flips
 //! 0` ends it; answered with the count of bytes flipped so far),
 //! `unplug`, `replug`, `lose-end` (the next program end is never sent:
-//! the host must learn it from the status).
+//! the host must learn it from the status), `lose-ack` (the next
+//! acknowledgement of a select or start is never sent: likewise).
 
 use anyhow::{Context, Result};
 use clap::Parser;
@@ -84,6 +85,7 @@ fn parse_control(line: &str) -> Result<Line, String> {
         ["limit-switch"] => Line::Control(Control::LimitSwitch),
         ["abort-weld"] => Line::Control(Control::AbortWeld),
         ["lose-end"] => Line::Control(Control::LoseEnd),
+        ["lose-ack"] => Line::Control(Control::LoseAck),
         ["alarm", code] => Line::Control(Control::Alarm(
             code.parse()
                 .map_err(|_| format!("bad alarm code `{code}`"))?,

@@ -29,6 +29,10 @@ pub enum Control {
     /// The next program end is never sent (as when all its 3964R attempts
     /// failed on a disturbed line): the host must learn it from the status.
     LoseEnd,
+    /// The next acknowledgement of a select or a start is never sent (as
+    /// when a spoilt answer passes the block check as another telegram):
+    /// the host must learn from the status that the step was done.
+    LoseAck,
 }
 
 #[derive(Debug, Clone)]
@@ -51,6 +55,7 @@ pub struct Robot {
     /// next select or start.
     stopped: bool,
     lose_end: bool,
+    lose_ack: bool,
 }
 
 /// The program table: number → duration at time scale 1.
@@ -78,6 +83,7 @@ impl Robot {
             run: None,
             stopped: false,
             lose_end: false,
+            lose_ack: false,
         }
     }
 
@@ -138,7 +144,7 @@ impl Robot {
                 } else {
                     self.selected = Some(p);
                     self.stopped = false;
-                    vec![ack(None)]
+                    self.acked(ack(None))
                 }
             }
             Telegram::StartProgram => match (self.selected, &self.run) {
@@ -152,7 +158,9 @@ impl Robot {
                         left,
                         since: Some(now),
                     });
-                    vec![ack(None), self.status()]
+                    let mut out = self.acked(ack(None));
+                    out.push(self.status());
+                    out
                 }
             },
             Telegram::StopProgram => match self.cut() {
@@ -173,6 +181,15 @@ impl Robot {
             | Telegram::Alarm(_) => {
                 vec![ack(Some(AckError::Malformed))]
             }
+        }
+    }
+
+    /// A select's or start's acknowledgement, unless it is to be lost.
+    fn acked(&mut self, ack: Telegram) -> Vec<Telegram> {
+        if std::mem::take(&mut self.lose_ack) {
+            Vec::new()
+        } else {
+            vec![ack]
         }
     }
 
@@ -245,6 +262,10 @@ impl Robot {
             }
             Control::LoseEnd => {
                 self.lose_end = true;
+                Vec::new()
+            }
+            Control::LoseAck => {
+                self.lose_ack = true;
                 Vec::new()
             }
         }
@@ -363,6 +384,28 @@ mod tests {
         // Only the next end: the one after is sent.
         r.handle(secs(62), Telegram::StartProgram);
         assert_eq!(r.handle_timeout(secs(122)).len(), 1);
+    }
+
+    #[test]
+    fn a_lost_acknowledgement_is_the_next_select_s_or_start_s_only() {
+        let mut r = Robot::new(Mode::AutomaticExternal, 1.0);
+        r.control(secs(0), Control::LoseAck);
+        // The select is done, its acknowledgement never sent.
+        assert_eq!(r.handle(secs(0), Telegram::SelectProgram(p(64))), vec![]);
+        let out = r.handle(secs(0), Telegram::StatusRequest);
+        assert!(
+            matches!(&out[..], [Telegram::ProgramStatus { program: Some(q), state: ProgramState::Selected, .. }] if *q == p(64)),
+            "{out:?}"
+        );
+        // The start's is sent again.
+        let out = r.handle(secs(1), Telegram::StartProgram);
+        assert_eq!(
+            out.first(),
+            Some(&Telegram::Ack {
+                of: b'G',
+                error: None
+            })
+        );
     }
 
     #[test]
