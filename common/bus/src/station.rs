@@ -11,8 +11,10 @@ use super::{
     acl, Bus, BusError, BusEvent, BusSettings, Declaration, Indication, Responder, StatusBoard,
 };
 use falc_model::ids::StationName;
-use falc_model::mms::association::{AbortIndication, Associations, InitiateOutcome, InitiateStep};
-use falc_model::mms::error::{ApplicationReferenceError, ErrorClass, ServiceError};
+use falc_model::mms::association::{
+    initiate_limit, AbortIndication, Associations, InitiateOutcome, InitiateStep,
+};
+use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Peer, Request, Response, Unconfirmed};
 use falc_model::mms::vmd::VmdStatus;
 use falc_model::topology::Topology;
@@ -58,15 +60,7 @@ impl Station {
     /// of every cell on one session: [`Bus::alongside`]).
     pub async fn on(bus: Bus, topology: &Topology) -> Result<Self, BusError> {
         let me = bus.me().station.clone();
-        let runs_on_alone = topology
-            .station(&me)
-            .is_some_and(|s| s.kind.runs_on_alone());
-        let assoc = Associations::new(
-            me.clone(),
-            topology.commander_of(&me).cloned(),
-            topology.subordinates_of(&me).into_iter().cloned(),
-        )
-        .runs_on_alone(runs_on_alone);
+        let assoc = Associations::of(topology, &me);
         let (tx, rx) = unbounded_channel();
         let board = StatusBoard::default();
         let mut served = bus
@@ -80,10 +74,7 @@ impl Station {
         let initiate_limits = topology
             .subordinates_of(&me)
             .into_iter()
-            .map(|sub| {
-                let levels = 1 + topology.height(sub);
-                (sub.clone(), super::DEFAULT_DEADLINE * levels)
-            })
+            .map(|sub| (sub.clone(), initiate_limit(topology, sub)))
             .collect();
         Ok(Self {
             bus,
@@ -184,19 +175,13 @@ impl Station {
                 self.on_lost(&calling, &format!("Abort from {calling}: {reason}"), true)
                     .await
             }
-            ref r if changes_state(r) && self.assoc.commander().is_none() => {
-                let e = ServiceError::new(
-                    ErrorClass::ApplicationReference(ApplicationReferenceError::Other),
-                    format!(
-                        "{} refused: {} has no associated commander (Initiate first)",
-                        r.service(),
-                        self.bus.me().station
-                    ),
-                );
-                ind.responder.respond(Err(e)).await;
-                None
-            }
-            _ => Some(StationEvent::Indication(ind)),
+            ref r => match self.assoc.admit(r) {
+                Ok(()) => Some(StationEvent::Indication(ind)),
+                Err(e) => {
+                    ind.responder.respond(Err(e)).await;
+                    None
+                }
+            },
         }
     }
 
@@ -345,24 +330,6 @@ impl Station {
     fn unwatch(&mut self, peer: &Peer) {
         self.watches.remove(peer);
     }
-}
-
-/// Services that change a VMD's objects: only an associated commander may.
-fn changes_state(r: &Request) -> bool {
-    matches!(
-        r,
-        Request::InitiateDownloadSequence { .. }
-            | Request::DownloadSegment { .. }
-            | Request::TerminateDownloadSequence { .. }
-            | Request::DeleteDomain { .. }
-            | Request::CreateProgramInvocation { .. }
-            | Request::DeleteProgramInvocation { .. }
-            | Request::Start { .. }
-            | Request::Stop { .. }
-            | Request::Resume { .. }
-            | Request::Reset { .. }
-            | Request::Kill { .. }
-    )
 }
 
 /// Sends Initiate to each station of `initiates` at once, each with its

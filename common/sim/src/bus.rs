@@ -5,7 +5,6 @@
 //! cut link drops what crosses it (a confirmed request then runs out of
 //! time at its sender, as on the real bus).
 
-use falc_control::recipe_source::Delivery;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::journal::{KeptReports, Publication};
 use falc_model::mms::pdu::{Request, Response};
@@ -63,15 +62,6 @@ pub enum Msg {
         id: u64,
         /// The request.
         request: Request,
-    },
-    /// A recipe delivery (domain download with its program invocation):
-    /// the steps of `falc_model::mms::domain::download_steps` carried out
-    /// at the receiver as one exchange.
-    Deliver {
-        /// Names the confirm.
-        id: u64,
-        /// The recipe.
-        delivery: Box<Delivery>,
     },
     /// The confirm of request `id`.
     Response {

@@ -14,8 +14,8 @@ use crate::recipes::Shipped;
 use falc_control::controller::{Controller, Device};
 use falc_control::coordination::{self, Awaiting, Reply, Stations};
 use falc_control::order_list::{OrderList, Output as ListOutput, Ticket, CELL_LIMIT};
-use falc_control::pass_on::{PassOn, Todo};
-use falc_control::recipe_source::{Delivery, RecipeSet, RecipeSource};
+use falc_control::pass_on::{PassOn, Todo, PASS_LIMIT};
+use falc_control::recipe_source::{RecipeSet, RecipeSource};
 use falc_control::records::memory::Memory;
 use falc_control::records::shared::{plant, Shared};
 use falc_control::records::Records;
@@ -26,9 +26,11 @@ use falc_dnc::twin::{Note, RcmTwin};
 use falc_dnc::workstation::{self, Welding};
 use falc_model::alarm::AlarmClass;
 use falc_model::console::{ApiRequest, ApiResult};
-use falc_model::ids::{ObjectName, StationName};
-use falc_model::mms::association::Role;
-use falc_model::mms::domain::download_steps;
+use falc_model::ids::StationName;
+use falc_model::mms::association::{
+    initiate_limit, Associations, InitiateOutcome, InitiateStep, Role,
+};
+use falc_model::mms::delivery::{Delivery, DeliveryStep, STEP_LIMIT};
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::heard;
 use falc_model::mms::journal::{Publication, ReportLog, ReportsAsked};
@@ -76,24 +78,54 @@ enum Waiter {
     Cell(Awaiting),
     /// The order list's read of what a station kept.
     Kept(Node),
+    /// The cell's Initiate of a workstation ([`Initiating`]).
+    Initiate(Node),
+    /// A step of delivery `n` ([`World::deliveries`]).
+    Delivery(u64),
+    /// A workstation's confirm of what the cell's pass-on asked (its id).
+    Pass(u64),
 }
 
-/// A workstation's association with the cell, and its process.
+/// A recipe delivery under way: its steps go over the bus one by one.
+#[derive(Debug)]
+struct Delivering {
+    from: Node,
+    to: Node,
+    delivery: Delivery,
+    then: Then,
+}
+
+/// Who takes a delivery's outcome.
 #[derive(Debug, Clone, Copy)]
+enum Then {
+    /// The order list (its delivery to the cell).
+    List,
+    /// The cell's pass-on ([`PassOn::handle_delivered`] with this id).
+    Pass(u64),
+}
+
+/// A node's process: whether it runs, its session, its associations (the
+/// core `falc_bus::station` drives on zenoh).
+#[derive(Debug, Clone)]
 struct Up {
-    /// Associated with its commander.
-    associated: bool,
     /// Its process runs (not crashed).
     running: bool,
+    /// Its session: a process started again is another peer.
+    session: String,
+    /// Its commander and subordinates.
+    assoc: Associations,
 }
 
-impl Default for Up {
-    fn default() -> Self {
-        Self {
-            associated: false,
-            running: true,
-        }
-    }
+/// The cell's Initiate from its commander, held while its workstations
+/// are initiated (as `falc_bus::station` awaits them).
+#[derive(Debug)]
+struct Initiating {
+    /// Who asked, and the request's id.
+    commander: (Node, u64),
+    /// How many subordinates were asked.
+    asked: usize,
+    /// Their answers so far.
+    results: Vec<(StationName, Result<Peer, ServiceError>)>,
 }
 
 /// The welding workstation: its controller and its end of the line.
@@ -181,15 +213,8 @@ fn station(n: Node) -> StationName {
     StationName::new(n.station()).unwrap_or_else(|e| unreachable!("{n}: {e}"))
 }
 
-/// What a station not associated with its commander answers.
 /// What a console hears while the operator's process is down.
 const NO_OPERATOR: &str = "no connection with the operator";
-
-fn not_associated(n: Node) -> ServiceError {
-    ServiceError::state_conflict(format!(
-        "{n} refused: no associated commander (Initiate first)"
-    ))
-}
 
 /// What a controller put out since it was last asked, as the bus carries
 /// it: its reports and job events, and its status if it changed.
@@ -208,13 +233,6 @@ fn outputs<D: Device>(
         out.push(Unconfirmed::Status { station, status });
     }
     out
-}
-
-fn peer(n: Node) -> Peer {
-    Peer {
-        station: station(n),
-        session: format!("sim-{n}"),
-    }
 }
 
 /// The whole cell.
@@ -247,15 +265,17 @@ pub struct World {
     /// The cell's pass-on; a ticket is the indication's sender and id.
     pass: PassOn<(Node, u64)>,
     cell_status: Option<VmdStatus>,
-    /// The operator–cell association.
-    cell_associated: bool,
+    /// The cell's Initiate while it initiates its workstations.
+    initiating: Option<Initiating>,
+    /// The cell's stations.
+    topology: Topology,
     /// How long a silent peer is still taken for present (the topology's).
     lease: Duration,
     /// The welding workstation.
     pub welding: WeldingNode,
     /// The transport workstation.
     pub transport: TransportNode,
-    /// The workstations' associations and processes.
+    /// Each node's process and associations.
     ups: BTreeMap<Node, Up>,
     /// The robot controller's twin.
     pub rcm: RcmTwin,
@@ -268,6 +288,8 @@ pub struct World {
     timing: Timing,
     pending: BTreeMap<u64, Pending>,
     next_id: u64,
+    /// Deliveries under way, by number.
+    deliveries: BTreeMap<u64, Delivering>,
     /// Abort indications due when a lease runs out: (when, node).
     leases: Vec<(Duration, Node)>,
     /// Cell-level Starts confirmed, per order id.
@@ -316,11 +338,11 @@ impl World {
             cell,
             pass: cell_pass_on(),
             cell_status: None,
-            cell_associated: false,
+            initiating: None,
             lease: topology.lease(),
             welding: welding_node(now, timing),
             transport,
-            ups: Node::ALL.into_iter().map(|n| (n, Up::default())).collect(),
+            ups: BTreeMap::new(),
             rcm: RcmTwin::new(Robot::new(Mode::AutomaticExternal, time_scale), timing),
             wire: VecDeque::new(),
             plugged: true,
@@ -328,14 +350,16 @@ impl World {
             timing,
             pending: BTreeMap::new(),
             next_id: 0,
+            deliveries: BTreeMap::new(),
             leases: Vec::new(),
             starts: BTreeMap::new(),
             started_twice: None,
             trace: VecDeque::new(),
             kept: BTreeMap::new(),
             runs: 0,
+            topology,
         };
-        for n in [Node::Cell, Node::Welding, Node::Transport] {
+        for n in Node::ALL {
             w.new_run(n);
         }
         for n in [Node::Cell, Node::Welding, Node::Transport] {
@@ -388,9 +412,20 @@ impl World {
         self.ups.get(&n).map_or(true, |u| u.running)
     }
 
-    /// Whether workstation `n` is associated with the cell.
-    fn is_associated(&self, n: Node) -> bool {
-        self.ups.get(&n).is_some_and(|u| u.associated)
+    /// `n`'s process and associations.
+    fn up(&mut self, n: Node) -> Option<&mut Up> {
+        self.ups.get_mut(&n)
+    }
+
+    /// `n`'s process as its peers know it: its station and session.
+    fn peer(&self, n: Node) -> Peer {
+        Peer {
+            station: station(n),
+            session: self
+                .ups
+                .get(&n)
+                .map_or_else(|| format!("sim-{n}"), |u| u.session.clone()),
+        }
     }
 
     /// When something is next due.
@@ -597,11 +632,20 @@ impl World {
             .collect()
     }
 
-    /// Node `n`'s process starts: its kept reports are a new run's.
+    /// Node `n`'s process starts: a new session with no associations, and
+    /// its kept reports are a new run's.
     fn new_run(&mut self, n: Node) {
         self.runs += 1;
         let run = format!("{n}-{}", self.runs);
-        self.kept.insert(n, ReportLog::new(run));
+        let up = Up {
+            running: true,
+            session: format!("sim-{run}"),
+            assoc: Associations::of(&self.topology, &station(n)),
+        };
+        self.ups.insert(n, up);
+        if n != Node::Operator {
+            self.kept.insert(n, ReportLog::new(run));
+        }
     }
 
     fn publish(&mut self, from: Node, u: Unconfirmed) {
@@ -632,19 +676,20 @@ impl World {
         }
         while let Some(out) = self.list.poll_output() {
             match out {
-                ListOutput::Cell(call) => {
-                    let (msg, limit): (Box<dyn FnOnce(u64) -> Msg>, _) = match call
-                        .request(&peer(Node::Operator))
-                    {
-                        Ok(request) => (Box::new(|id| Msg::Request { id, request }), CELL_LIMIT),
-                        // One exchange here, a request per step on the
-                        // real bus: as long as its steps may take.
-                        Err(delivery) => {
-                            (Box::new(|id| Msg::Deliver { id, delivery }), CELL_LIMIT * 4)
-                        }
-                    };
-                    self.request(Node::Operator, Node::Cell, msg, limit, Waiter::List);
-                }
+                ListOutput::Cell(call) => match call.request(&self.peer(Node::Operator)) {
+                    Ok(request) => self.request(
+                        Node::Operator,
+                        Node::Cell,
+                        |id| Msg::Request { id, request },
+                        CELL_LIMIT,
+                        Waiter::List,
+                    ),
+                    Err(d) => {
+                        let delivery =
+                            Delivery::new(station(Node::Cell), d.domain, &d.content, d.is_cell);
+                        self.deliver(Node::Operator, delivery, Then::List);
+                    }
+                },
                 ListOutput::Reply { ticket, result } => {
                     self.replies.insert(ticket, *result);
                 }
@@ -844,9 +889,7 @@ impl World {
             }
             // A dead process's queryables went with its session: the
             // router ends a query to it at once, with no reply.
-            (to, Msg::Request { id, .. } | Msg::Deliver { id, .. } | Msg::ReadKept { id, .. })
-                if !self.is_running(to) =>
-            {
+            (to, Msg::Request { id, .. } | Msg::ReadKept { id, .. }) if !self.is_running(to) => {
                 if let Some(p) = self.pending.remove(&id) {
                     let e = ServiceError::unreachable(format!("no reply from {to}"));
                     self.confirm(p.waiter, Err(e));
@@ -883,27 +926,11 @@ impl World {
                 self.indications.insert(t, id);
                 self.list.handle_cell_request(now, t, request);
             }
-            (Node::Cell, Msg::Request { id, request }) => {
-                if let Request::Initiate { .. } = request {
-                    let result = self.cell_initiate();
-                    self.respond(Node::Cell, a.from, id, result);
-                } else if !self.cell_associated {
-                    self.respond(Node::Cell, a.from, id, Err(not_associated(Node::Cell)));
-                } else {
-                    self.pass.handle_indication((a.from, id), request);
-                }
-            }
-            (Node::Cell, Msg::Deliver { id, delivery }) => match self.cell_delivery(&delivery) {
-                Ok(()) => self
-                    .pass
-                    .downloaded((a.from, id), &delivery.domain, self.cell.vmd()),
-                Err(e) => self.respond(Node::Cell, a.from, id, Err(e)),
-            },
+            (Node::Cell, Msg::Request { id, request }) => self.cell_request(a.from, id, request),
             (ws @ (Node::Welding | Node::Transport), Msg::Request { id, request }) => {
-                let result = self.workstation_indication(ws, &request);
+                let result = self.workstation_request(ws, request);
                 self.respond(ws, a.from, id, result);
             }
-            (to, msg) => self.note(format!("{to}: nobody serves {msg:?}")),
         }
     }
 
@@ -918,22 +945,216 @@ impl World {
                 let why = result.err().map_or_else(String::new, |e| e.to_string());
                 self.list.handle_kept_reports(now, station(n), Err(why));
             }
+            Waiter::Delivery(n) => {
+                if let Some(d) = self.deliveries.get_mut(&n) {
+                    let step = d.delivery.answered(result);
+                    self.delivery_step(n, step);
+                }
+            }
+            Waiter::Pass(id) => self.pass.handle_confirm(id, result),
+            Waiter::Initiate(ws) => self.subordinate_initiated(ws, result),
         }
     }
 
-    /// The commander's Initiate: the workstations first (the 1992
-    /// recursive scheme), then the cell; the pass-on gives them what they
-    /// lack.
-    fn cell_initiate(&mut self) -> Result<Response, ServiceError> {
-        for ws in [Node::Welding, Node::Transport] {
-            self.associate(ws)?;
+    /// The node that waits for `waiter`'s confirm (whose process it dies
+    /// with).
+    fn waits_at(&self, waiter: &Waiter) -> Node {
+        match waiter {
+            Waiter::List | Waiter::Kept(_) => Node::Operator,
+            Waiter::Cell(_) | Waiter::Pass(_) | Waiter::Initiate(_) => Node::Cell,
+            Waiter::Delivery(n) => self.deliveries.get(n).map_or(Node::Operator, |d| d.from),
         }
-        self.cell_associated = true;
+    }
+
+    /// Starts `delivery` from `from`; its outcome goes to `then`.
+    fn deliver(&mut self, from: Node, delivery: Delivery, then: Then) {
+        let Some(to) = Node::of(delivery.to()) else {
+            let e = ServiceError::unreachable(format!("no station {}", delivery.to()));
+            self.delivered(then, Err(e));
+            return;
+        };
+        self.next_id += 1;
+        let n = self.next_id;
+        let mut d = Delivering {
+            from,
+            to,
+            delivery,
+            then,
+        };
+        let step = d.delivery.start();
+        self.deliveries.insert(n, d);
+        self.delivery_step(n, step);
+    }
+
+    /// Carries out delivery `n`'s next step: a request over the bus, or
+    /// its outcome to whom it goes.
+    fn delivery_step(&mut self, n: u64, step: DeliveryStep) {
+        let Some(d) = self.deliveries.get(&n) else {
+            return;
+        };
+        let (from, to, then) = (d.from, d.to, d.then);
+        match step {
+            DeliveryStep::Send(request) => self.request(
+                from,
+                to,
+                |id| Msg::Request { id, request },
+                STEP_LIMIT,
+                Waiter::Delivery(n),
+            ),
+            DeliveryStep::Done(result) => {
+                self.deliveries.remove(&n);
+                self.delivered(then, result);
+            }
+        }
+    }
+
+    /// A delivery's outcome, to whom it goes.
+    fn delivered(&mut self, then: Then, result: Result<(), ServiceError>) {
+        match then {
+            Then::List => self
+                .list
+                .handle_cell_answer(self.now, result.map(|()| Response::Done)),
+            Then::Pass(id) => self.pass.handle_delivered(id, result),
+        }
+    }
+
+    /// What node `n`'s process waited for dies with it: its requests out
+    /// and its deliveries.
+    fn forget_waits_of(&mut self, n: Node) {
+        let gone: Vec<u64> = self
+            .pending
+            .iter()
+            .filter(|(_, p)| self.waits_at(&p.waiter) == n)
+            .map(|(id, _)| *id)
+            .collect();
+        for id in gone {
+            self.pending.remove(&id);
+        }
+        self.deliveries.retain(|_, d| d.from != n);
+    }
+
+    /// A request to the cell: the association services its station
+    /// serves itself, the rest through the pass-on once admitted.
+    fn cell_request(&mut self, from: Node, id: u64, request: Request) {
+        let Some(up) = self.up(Node::Cell) else {
+            return;
+        };
+        match request {
+            Request::Initiate { calling } => match up.assoc.initiate(calling) {
+                InitiateStep::Refuse(e) => self.respond(Node::Cell, from, id, Err(e)),
+                InitiateStep::Confirm(_) => self.cell_associated((from, id)),
+                InitiateStep::InitiateSubordinates(subs) => {
+                    // The workstations first (the 1992 recursive scheme).
+                    self.initiating = Some(Initiating {
+                        commander: (from, id),
+                        asked: subs.len(),
+                        results: Vec::new(),
+                    });
+                    let calling = self.peer(Node::Cell);
+                    for sub in subs {
+                        let limit = initiate_limit(&self.topology, &sub);
+                        match Node::of(&sub) {
+                            Some(ws) => {
+                                let request = Request::Initiate {
+                                    calling: calling.clone(),
+                                };
+                                let msg = |id| Msg::Request { id, request };
+                                self.request(Node::Cell, ws, msg, limit, Waiter::Initiate(ws));
+                            }
+                            None => {
+                                let e = ServiceError::unreachable(format!("no station {sub}"));
+                                self.initiated(sub, Err(e));
+                            }
+                        }
+                    }
+                }
+            },
+            Request::Conclude { calling } => {
+                let result = up.assoc.conclude(&calling).map(|subs| {
+                    for p in subs {
+                        self.conclude(Node::Cell, &p);
+                    }
+                    Response::Done
+                });
+                self.respond(Node::Cell, from, id, result);
+            }
+            other => match up.assoc.admit(&other) {
+                Ok(()) => self.pass.handle_indication((from, id), other),
+                Err(e) => self.respond(Node::Cell, from, id, Err(e)),
+            },
+        }
+    }
+
+    /// A workstation answered the cell's Initiate.
+    fn subordinate_initiated(&mut self, ws: Node, result: Result<Response, ServiceError>) {
+        let name = station(ws);
+        let result = match result {
+            Ok(Response::Initiate { responding }) if responding.station == name => Ok(responding),
+            Ok(other) => Err(ServiceError::malformed(format!(
+                "station {name} answered Initiate with {other:?}"
+            ))),
+            Err(e) => Err(e),
+        };
+        self.initiated(name, result);
+    }
+
+    /// One subordinate's answer to the cell's Initiates; once all are in,
+    /// the commander's Initiate is answered.
+    fn initiated(&mut self, sub: StationName, result: Result<Peer, ServiceError>) {
+        let Some(i) = self.initiating.as_mut() else {
+            return;
+        };
+        i.results.push((sub, result));
+        if i.results.len() < i.asked {
+            return;
+        }
+        let Some(i) = self.initiating.take() else {
+            return;
+        };
+        let Some(up) = self.up(Node::Cell) else {
+            return;
+        };
+        match up.assoc.subordinates_initiated(i.results) {
+            InitiateOutcome::Confirm { associated, .. } => {
+                for p in associated {
+                    self.note(format!("{}: associated with the cell", p.station));
+                }
+                self.cell_associated(i.commander);
+            }
+            InitiateOutcome::Refuse { error, conclude } => {
+                for p in conclude {
+                    self.conclude(Node::Cell, &p);
+                }
+                let (to, id) = i.commander;
+                self.respond(Node::Cell, to, id, Err(error));
+            }
+        }
+    }
+
+    /// The cell confirms its commander's Initiate `(to, id)`: its
+    /// controller and the pass-on, which gives the workstations what they
+    /// lack, take the association in.
+    fn cell_associated(&mut self, (to, id): (Node, u64)) {
         self.cell.handle_associated(self.now);
         self.cell_status = None;
         let mode = self.cell.mode().clone();
         self.pass.handle_associated(self.cell.vmd(), &mode);
-        Ok(Response::Done)
+        let responding = self.peer(Node::Cell);
+        self.respond(Node::Cell, to, id, Ok(Response::Initiate { responding }));
+    }
+
+    /// `from` concludes its association with subordinate `sub` (nobody
+    /// waits for the confirm).
+    fn conclude(&mut self, from: Node, sub: &Peer) {
+        if let Some(to) = Node::of(&sub.station) {
+            self.next_id += 1;
+            let request = Request::Conclude {
+                calling: self.peer(from),
+            };
+            let (now, id) = (self.now, self.next_id);
+            self.bus
+                .send(now, from, to, Msg::Request { id, request }, &mut self.rng);
+        }
     }
 
     /// The cell's controller answers its commander (what the pass-on
@@ -958,34 +1179,35 @@ impl World {
         result
     }
 
-    /// Carries out what the cell's pass-on asks, at once: a workstation
-    /// out of reach answers as the bus would.
+    /// Carries out what the cell's pass-on asks: its requests to the
+    /// workstations go over the bus, as `falc-cell` sends them.
     fn carry_out(&mut self, todo: Todo<(Node, u64)>) {
-        let reach = |w: &Self, st: &StationName| match Node::of(st) {
-            Some(ws) if w.bus.reachable(Node::Cell, ws) && w.is_running(ws) => Ok(ws),
-            _ => Err(ServiceError::unreachable(format!(
-                "no connection with station {st}"
-            ))),
-        };
         match todo {
             Todo::Answer {
                 ticket: (to, id),
                 result,
             } => self.respond(Node::Cell, to, id, result),
-            Todo::Ask { id, to, request } => {
-                let result =
-                    reach(self, &to).and_then(|ws| self.workstation_indication(ws, &request));
-                self.pass.handle_confirm(id, result);
-            }
+            Todo::Ask { id, to, request } => match Node::of(&to) {
+                Some(ws) => self.request(
+                    Node::Cell,
+                    ws,
+                    |id| Msg::Request { id, request },
+                    PASS_LIMIT,
+                    Waiter::Pass(id),
+                ),
+                None => self.pass.handle_confirm(
+                    id,
+                    Err(ServiceError::unreachable(format!("no station {to}"))),
+                ),
+            },
             Todo::Deliver {
                 id,
                 to,
                 name,
                 content,
             } => {
-                let result =
-                    reach(self, &to).and_then(|ws| self.deliver_to(ws, &name, &content, true));
-                self.pass.handle_delivered(id, result);
+                let delivery = Delivery::new(to, name, &content, true);
+                self.deliver(Node::Cell, delivery, Then::Pass(id));
             }
             Todo::Delivered { to, name } => self.note(format!("cell: {name} delivered to {to}")),
             Todo::Discard(domain) => self.cell.discard_domain(&domain),
@@ -996,93 +1218,45 @@ impl World {
         }
     }
 
-    /// Associates workstation `ws` with the cell if it is not, and gives it
-    /// the recipes it lacks and the cell's mode.
-    fn associate(&mut self, ws: Node) -> Result<(), ServiceError> {
-        if !self.bus.reachable(Node::Cell, ws) || !self.is_running(ws) {
-            return Err(ServiceError::unreachable(format!(
-                "no connection with station {ws}"
-            )));
-        }
-        let up = self.ups.entry(ws).or_default();
-        if up.associated {
-            return Ok(());
-        }
-        up.associated = true;
-        // Associated: its status is published again.
-        match ws {
-            Node::Welding => {
-                self.welding.ctl.handle_associated(self.now);
-                self.welding.status = None;
-            }
-            _ => {
-                self.transport.ctl.handle_associated(self.now);
-                self.transport.status = None;
-            }
-        }
-        self.note(format!("{ws}: associated with the cell"));
-        Ok(())
-    }
-
-    /// A recipe delivered to the cell's controller; the pass-on hands a
-    /// workstation's on.
-    fn cell_delivery(&mut self, d: &Delivery) -> Result<(), ServiceError> {
-        if !self.cell_associated {
-            return Err(not_associated(Node::Cell));
-        }
-        self.deliver_to(Node::Cell, &d.domain, &d.content, d.is_cell)
-    }
-
-    /// The steps of a delivery at `to`, all or nothing.
-    fn deliver_to(
-        &mut self,
-        to: Node,
-        name: &ObjectName,
-        content: &[u8],
-        with_program: bool,
-    ) -> Result<(), ServiceError> {
-        let mut steps = vec![
-            Request::DeleteProgramInvocation { name: name.clone() },
-            Request::DeleteDomain {
-                domain: name.clone(),
-            },
-        ];
-        let first = steps.len();
-        steps.extend(download_steps(name, content));
-        if with_program {
-            steps.push(Request::CreateProgramInvocation {
-                name: name.clone(),
-                domains: vec![name.clone()],
-                reusable: true,
-            });
-        }
-        for (i, req) in steps.iter().enumerate() {
-            if let Err(e) = self.handle_at(to, req) {
-                // What was there before may be absent.
-                if i >= first {
-                    let del = Request::DeleteDomain {
-                        domain: name.clone(),
-                    };
-                    let _ = self.handle_at(to, &del);
-                    return Err(ServiceError::state_conflict(format!(
-                        "recipe {name} on {to}: {}",
-                        e.description
-                    )));
-                }
-            }
-        }
-        Ok(())
-    }
-
-    fn workstation_indication(
+    /// A request to workstation `ws`: the association services its station
+    /// serves itself, the rest by its controller once admitted.
+    fn workstation_request(
         &mut self,
         ws: Node,
-        request: &Request,
+        request: Request,
     ) -> Result<Response, ServiceError> {
-        if !self.is_associated(ws) {
-            return Err(not_associated(ws));
+        let now = self.now;
+        let responding = self.peer(ws);
+        let up = self
+            .up(ws)
+            .ok_or_else(|| ServiceError::unreachable(format!("no station {ws}")))?;
+        match request {
+            Request::Initiate { calling } => match up.assoc.initiate(calling) {
+                InitiateStep::Confirm(_) => {
+                    // Associated: its status is published again.
+                    match ws {
+                        Node::Welding => {
+                            self.welding.ctl.handle_associated(now);
+                            self.welding.status = None;
+                        }
+                        _ => {
+                            self.transport.ctl.handle_associated(now);
+                            self.transport.status = None;
+                        }
+                    }
+                    Ok(Response::Initiate { responding })
+                }
+                InitiateStep::Refuse(e) => Err(e),
+                InitiateStep::InitiateSubordinates(subs) => Err(ServiceError::undefined(format!(
+                    "{ws} has subordinates in the topology ({subs:?}); the simulation has none"
+                ))),
+            },
+            Request::Conclude { calling } => up.assoc.conclude(&calling).map(|_| Response::Done),
+            other => {
+                up.assoc.admit(&other)?;
+                self.handle_at(ws, &other)
+            }
         }
-        self.handle_at(ws, request)
     }
 
     /// `request` handled by `at`'s controller.
@@ -1143,58 +1317,66 @@ impl World {
         }
     }
 
-    /// `n`'s associations ended (its lease ran out, or it crashed).
+    /// `n`'s associations ended (its lease ran out, or it crashed): every
+    /// peer associated with it takes the abort indication, and a cut `n`
+    /// takes theirs.
     fn lost(&mut self, n: Node) {
         let now = self.now;
         self.note(format!("bus: {n} lost"));
         self.finalize(n);
-        let op = station(Node::Operator);
-        let cell = station(Node::Cell);
-        match n {
-            Node::Operator | Node::Cell => {
-                if self.cell_associated {
-                    self.cell_associated = false;
-                    self.list
-                        .handle_abort(now, &format!("no connection with {n}"));
-                    self.cell.handle_abort(now, &op, Role::Commander);
-                }
-                if n == Node::Cell {
-                    self.list.handle_presence(now, cell.clone(), false);
-                    for ws in [Node::Welding, Node::Transport] {
-                        self.drop_workstation(ws);
-                    }
-                } else {
-                    for s in [Node::Cell, Node::Welding, Node::Transport] {
-                        self.list.handle_presence(now, station(s), false);
-                    }
-                }
+        let reason = format!("no connection with {n}");
+        if matches!(n, Node::Operator | Node::Cell) {
+            let was = self
+                .ups
+                .get(&Node::Cell)
+                .is_some_and(|u| u.assoc.commander().is_some());
+            self.sees_lost(Node::Cell, Node::Operator, &reason);
+            if was {
+                self.list.handle_abort(now, &reason);
             }
-            ws => {
-                self.list.handle_presence(now, station(ws), false);
-                self.drop_workstation(ws);
+        }
+        let seen = match n {
+            Node::Operator => vec![Node::Cell, Node::Welding, Node::Transport],
+            other => vec![other],
+        };
+        for s in seen {
+            self.list.handle_presence(now, station(s), false);
+        }
+        for ws in [Node::Welding, Node::Transport] {
+            if n == Node::Cell || n == ws {
+                self.sees_lost(Node::Cell, ws, &reason);
+                self.sees_lost(ws, Node::Cell, &reason);
             }
         }
     }
 
-    fn drop_workstation(&mut self, ws: Node) {
-        let up = self.ups.entry(ws).or_default();
-        if !up.associated {
+    /// Node `at` loses its association with `gone` (if it had one and
+    /// runs): the abort indication, as its station hands it on.
+    fn sees_lost(&mut self, at: Node, gone: Node, reason: &str) {
+        let now = self.now;
+        let peer = self.peer(gone);
+        let Some(up) = self.up(at).filter(|u| u.running) else {
             return;
+        };
+        let Some((ind, abort)) = up.assoc.lost(&peer, reason, false) else {
+            return;
+        };
+        let name = station(gone);
+        match at {
+            Node::Cell => {
+                if ind.role == Role::Subordinate {
+                    self.pass.handle_lost(&name);
+                }
+                self.cell.handle_abort(now, &name, ind.role);
+            }
+            Node::Welding => self.welding.ctl.handle_abort(now, &name, ind.role),
+            Node::Transport => self.transport.ctl.handle_abort(now, &name, ind.role),
+            Node::Operator => {}
         }
-        up.associated = false;
-        let (cell, name) = (station(Node::Cell), station(ws));
-        self.pass.handle_lost(&name);
-        self.cell.handle_abort(self.now, &name, Role::Subordinate);
-        if self.is_running(ws) {
-            match ws {
-                Node::Welding => self
-                    .welding
-                    .ctl
-                    .handle_abort(self.now, &cell, Role::Commander),
-                _ => self
-                    .transport
-                    .ctl
-                    .handle_abort(self.now, &cell, Role::Commander),
+        // A node that does not run on alone aborts its subtree.
+        for sub in abort {
+            if let Some(s) = Node::of(&sub.station) {
+                self.sees_lost(s, at, &format!("{at} lost its commander: {reason}"));
             }
         }
     }
@@ -1207,41 +1389,34 @@ impl World {
         self.wire.push_back((at, false, bytes));
     }
 
-    /// Node `n`'s process dies (a workstation or the cell): only the
-    /// twins' state survives.
+    /// Node `n`'s process dies: only the twins' state survives (and the
+    /// operator's records).
     pub fn crash(&mut self, n: Node) {
         self.note(format!("{n}: process killed"));
-        self.ups.entry(n).or_default().running = false;
-        let now = self.now;
+        if let Some(up) = self.up(n) {
+            up.running = false;
+        }
+        // Its requests out die with it.
+        self.forget_waits_of(n);
         if n == Node::Operator {
-            // Its requests out, its indications and its API go with it;
-            // the router ends the cell's queries to it; the cell runs its
-            // order on alone.
-            self.pending
-                .retain(|_, p| !matches!(p.waiter, Waiter::List | Waiter::Kept(_)));
+            // Its indications and its API go with it; the router ends the
+            // cell's queries to it; the cell runs its order on alone.
             self.indications.clear();
             self.lost_before = self.tickets;
             self.finalize(Node::Operator);
-            if self.cell_associated {
-                self.cell_associated = false;
-                if self.is_running(Node::Cell) {
-                    self.cell
-                        .handle_abort(now, &station(Node::Operator), Role::Commander);
-                }
-            }
-            self.pump();
-            return;
-        }
-        // Its liveliness token goes with its session: seen at once.
-        self.list.handle_presence(now, station(n), false);
-        if n == Node::Cell {
-            // Its requests out die with it.
-            self.pending
-                .retain(|_, p| !matches!(p.waiter, Waiter::Cell(_)));
-            self.lost(Node::Cell);
+            let reason = format!("no connection with {n}");
+            self.sees_lost(Node::Cell, Node::Operator, &reason);
         } else {
-            self.finalize(n);
-            self.drop_workstation(n);
+            if n == Node::Cell {
+                self.initiating = None;
+            }
+            // Its liveliness token goes with its session: seen at once.
+            self.lost(n);
+        }
+        // A dead process holds no association.
+        let fresh = Associations::of(&self.topology, &station(n));
+        if let Some(up) = self.up(n) {
+            up.assoc = fresh;
         }
         self.pump();
     }
@@ -1250,9 +1425,6 @@ impl World {
     pub fn restart(&mut self, n: Node) {
         let now = self.now;
         self.note(format!("{n}: process started again"));
-        if n != Node::Operator {
-            self.new_run(n);
-        }
         match n {
             Node::Welding => {
                 self.welding = welding_node(now, self.timing);
@@ -1262,7 +1434,7 @@ impl World {
                 self.cell = cell_controller();
                 self.pass = cell_pass_on();
                 self.cell_status = None;
-                self.cell_associated = false;
+                self.initiating = None;
             }
             Node::Operator => {
                 self.restart_operator();
@@ -1270,7 +1442,7 @@ impl World {
             }
             Node::Transport => self.transport = transport_node(now, self.conveyor.coils()),
         }
-        self.ups.insert(n, Up::default());
+        self.new_run(n);
         if self.bus.reachable(Node::Operator, n) {
             self.list.handle_presence(now, station(n), true);
         }
@@ -1308,7 +1480,7 @@ impl World {
             list = list.adopting(o);
         }
         self.list = list;
-        self.ups.insert(Node::Operator, Up::default());
+        self.new_run(Node::Operator);
         for s in [Node::Cell, Node::Welding, Node::Transport] {
             if self.bus.reachable(Node::Operator, s) && self.is_running(s) {
                 self.list.handle_presence(now, station(s), true);

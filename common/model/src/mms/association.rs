@@ -25,10 +25,23 @@
 //! The driver (`bus::station`) does the I/O: it sends the Initiates this core
 //! asks for, watches tokens, and feeds results back.
 
-use super::error::{ErrorClass, InitiateError, ServiceError};
-use super::pdu::Peer;
+use super::error::{ApplicationReferenceError, ErrorClass, InitiateError, ServiceError};
+use super::pdu::{Peer, Request};
 use crate::ids::StationName;
+use crate::topology::Topology;
 use std::collections::BTreeMap;
+use std::time::Duration;
+
+/// How long one level of the hierarchy may take to confirm an Initiate.
+pub const INITIATE_LEVEL_LIMIT: Duration = Duration::from_secs(2);
+
+/// How long an Initiate of `sub` may take: one
+/// [`INITIATE_LEVEL_LIMIT`] per level of its subtree (it initiates its own
+/// subordinates first).
+pub fn initiate_limit(topology: &Topology, sub: &StationName) -> Duration {
+    let levels = 1 + topology.height(sub);
+    INITIATE_LEVEL_LIMIT * levels
+}
 
 /// Which end of an association was lost.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -112,6 +125,34 @@ impl Associations {
             subordinates: subordinates.into_iter().map(|s| (s, None)).collect(),
             runs_on_alone: false,
         }
+    }
+
+    /// Station `me` of `topology`: its commander, its subordinates, and
+    /// whether it runs on alone (by its kind).
+    pub fn of(topology: &Topology, me: &StationName) -> Self {
+        let alone = topology.station(me).is_some_and(|s| s.kind.runs_on_alone());
+        Self::new(
+            me.clone(),
+            topology.commander_of(me).cloned(),
+            topology.subordinates_of(me).into_iter().cloned(),
+        )
+        .runs_on_alone(alone)
+    }
+
+    /// Whether `request` may be served now: a service that changes the
+    /// VMD's objects only under an associated commander.
+    pub fn admit(&self, request: &Request) -> Result<(), ServiceError> {
+        if changes_state(request) && self.commander().is_none() {
+            return Err(ServiceError::new(
+                ErrorClass::ApplicationReference(ApplicationReferenceError::Other),
+                format!(
+                    "{} refused: {} has no associated commander (Initiate first)",
+                    request.service(),
+                    self.me
+                ),
+            ));
+        }
+        Ok(())
     }
 
     /// A node that keeps its subordinates when its commander's token is
@@ -315,6 +356,24 @@ impl Associations {
         *slot = None;
         Some((indication(Role::Subordinate), Vec::new()))
     }
+}
+
+/// Services that change a VMD's objects: only an associated commander may.
+fn changes_state(r: &Request) -> bool {
+    matches!(
+        r,
+        Request::InitiateDownloadSequence { .. }
+            | Request::DownloadSegment { .. }
+            | Request::TerminateDownloadSequence { .. }
+            | Request::DeleteDomain { .. }
+            | Request::CreateProgramInvocation { .. }
+            | Request::DeleteProgramInvocation { .. }
+            | Request::Start { .. }
+            | Request::Stop { .. }
+            | Request::Resume { .. }
+            | Request::Reset { .. }
+            | Request::Kill { .. }
+    )
 }
 
 #[cfg(test)]
