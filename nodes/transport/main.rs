@@ -19,7 +19,6 @@ use clap::{Parser, Subcommand};
 use falc_bus::station::Station;
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::StationName;
-use falc_model::mms::pdu::Severity;
 use falc_model::topology::Topology;
 use falc_node::controller_node::ControllerNode;
 use falc_node::plc_link::{self, PlcArgs, PlcEvent, PlcSettings};
@@ -185,12 +184,8 @@ async fn main() -> Result<()> {
                 }
                 Some(PlcEvent::Inputs { inputs, commands_done }) => {
                     let reading = ws.core.device.reading(inputs, commands_done);
-                    ws.feed(reading.events);
-                    if let Some(cause) = reading.alarm {
-                        ws.fault(cause).await;
-                    } else if let Some(line) = reading.ready {
+                    if ws.take_reading(reading).await {
                         say("EVENT plc-ready");
-                        ws.report(Severity::Info, line).await;
                     }
                 }
                 Some(PlcEvent::Fault(why)) => {

@@ -179,6 +179,17 @@ impl Running {
     }
 }
 
+/// What one reading of a device means ([`Controller::take_reading`]).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Reading {
+    /// For the running recipe.
+    pub events: Vec<Event>,
+    /// An emergency stop (safety), or the device out of ready.
+    pub alarm: Option<Cause>,
+    /// The device became usable again: the line to report.
+    pub ready: Option<String>,
+}
+
 /// The runtime of one control level.
 pub struct Controller<D> {
     vmd: Vmd,
@@ -294,6 +305,24 @@ impl<D: Device> Controller<D> {
             for ev in events {
                 r.engine.handle(now, ev);
             }
+        }
+    }
+
+    /// Takes in what one reading of the device means: its events for the
+    /// running recipe, then its alarm, or else the line saying it became
+    /// usable again. True when that line was reported.
+    pub fn take_reading(&mut self, now: Duration, reading: Reading) -> bool {
+        self.feed(now, reading.events);
+        match (reading.alarm, reading.ready) {
+            (Some(cause), _) => {
+                self.fault(cause);
+                false
+            }
+            (None, Some(line)) => {
+                self.report(Severity::Info, line);
+                true
+            }
+            (None, None) => false,
         }
     }
 
@@ -1045,6 +1074,40 @@ mod tests {
             Some(secs(280)),
             "170 s from state 2 at 110 s"
         );
+    }
+
+    #[test]
+    fn a_reading_feeds_the_recipe_then_raises_its_alarm_or_reports_the_device_ready() {
+        let mut c = loaded();
+        start(&mut c, secs(0)).unwrap();
+        c.settle(secs(0));
+        outputs(&mut c);
+        let ready = Reading {
+            events: vec![Event::Started(rcm())],
+            alarm: None,
+            ready: Some("robot ready".into()),
+        };
+        assert!(c.take_reading(secs(1), ready));
+        c.settle(secs(1));
+        assert_eq!(c.status().program.map(|p| p.state), Some(2), "fed");
+        assert!(outputs(&mut c).iter().any(|o| matches!(o,
+            Output::Report { severity: Severity::Info, text } if text == "robot ready")));
+        let alarm = Reading {
+            alarm: Some(Cause::new(AlarmClass::Safety, "emergency stop")),
+            ready: Some("never said".into()),
+            ..Reading::default()
+        };
+        assert!(!c.take_reading(secs(2), alarm));
+        let outs = outputs(&mut c);
+        assert!(outs.iter().any(|o| matches!(
+            o,
+            Output::Report {
+                severity: Severity::Alarm(AlarmClass::Safety),
+                ..
+            }
+        )));
+        assert!(!outs.iter().any(|o| matches!(o,
+            Output::Report { text, .. } if text == "never said")));
     }
 
     #[test]

@@ -11,7 +11,7 @@
 use crate::say;
 use falc_bus::station::{Station, StationEvent};
 use falc_bus::BusEvent;
-use falc_control::controller::{Controller, Device};
+use falc_control::controller::{Controller, Device, Reading};
 use falc_model::alarm::Cause;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Request, Response, Severity, Unconfirmed};
@@ -99,6 +99,16 @@ impl<D: Device> ControllerNode<D> {
     pub async fn fault(&mut self, cause: Cause) {
         self.core.fault(cause);
         self.flush().await;
+    }
+
+    /// Takes in what one reading of the device means
+    /// ([`Controller::take_reading`]) and publishes it; true when the
+    /// device became usable again with it.
+    pub async fn take_reading(&mut self, reading: Reading) -> bool {
+        let now = self.now();
+        let ready = self.core.take_reading(now, reading);
+        self.flush().await;
+        ready
     }
 
     /// Publishes a report (operator message) from this station.

@@ -48,7 +48,7 @@
 //! through [`Plc::connected`], [`Plc::reading`] and [`Plc::link_down`].
 
 use crate::map::{self, Coil, Input, Inputs, SafeState, SignalName, Spot, COILS};
-use falc_control::controller::{Device, Happening};
+use falc_control::controller::{Device, Happening, Reading};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::Place;
 use falc_model::mms::pdu::Severity;
@@ -92,17 +92,6 @@ struct Watch {
     since: Duration,
     /// Commands issued before the watch: a reading must come after them.
     after: u64,
-}
-
-/// What one reading of the inputs means ([`Plc::reading`]).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Reading {
-    /// For the running recipe.
-    pub events: Vec<Event>,
-    /// An emergency stop (safety) or the PLC out of ready (device).
-    pub alarm: Option<Cause>,
-    /// The PLC became usable again: the line to report.
-    pub ready: Option<String>,
 }
 
 /// The conveyor PLC behind its link.

@@ -555,12 +555,7 @@ impl World {
             t.wrote = false;
             t.last = Some(inputs);
             let reading = t.ctl.device.reading(inputs, t.done);
-            t.ctl.feed(now, reading.events);
-            if let Some(cause) = reading.alarm {
-                t.ctl.fault(cause);
-            } else if let Some(line) = reading.ready {
-                t.ctl.report(Severity::Info, line);
-            }
+            t.ctl.take_reading(now, reading);
         }
     }
 

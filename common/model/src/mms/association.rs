@@ -414,6 +414,30 @@ mod tests {
     }
 
     #[test]
+    fn only_an_associated_commander_may_change_objects_and_reading_needs_none() {
+        let mut a = cell();
+        let start = Request::Start {
+            name: crate::ids::ObjectName::new("DIKDROOG").expect("valid"),
+            argument: String::new(),
+        };
+        let e = a.admit(&start).expect_err("no commander yet");
+        assert_eq!(
+            e.class,
+            ErrorClass::ApplicationReference(ApplicationReferenceError::Other)
+        );
+        assert_eq!(
+            e.description,
+            "start refused: cell has no associated commander (Initiate first)"
+        );
+        assert_eq!(a.admit(&Request::Status), Ok(()));
+        assert!(matches!(
+            initiate_all(&mut a, peer("operator", "1")),
+            InitiateOutcome::Confirm { .. }
+        ));
+        assert_eq!(a.admit(&start), Ok(()));
+    }
+
+    #[test]
     fn leaf_confirms_at_once() {
         let mut a = Associations::new(st("welding"), Some(st("cell")), []);
         assert_eq!(
