@@ -49,6 +49,9 @@ pub struct Database {
     /// The cell whose alarms this connection lists and whose journal
     /// entries and alarms it writes.
     cell: String,
+    /// The time records are stamped with ([`Records::set_now`]; the wall
+    /// clock at open until given).
+    now: i64,
 }
 
 const SCHEMA: &str = "
@@ -342,6 +345,7 @@ impl Database {
             conn,
             path: name,
             cell: cell.to_string(),
+            now: now_ms(),
         })
     }
 
@@ -410,7 +414,7 @@ impl Records for Database {
     /// with a journal entry.
     fn recover(&mut self, cells: &[&str]) -> Result<Recovered, DatabaseError> {
         let recovered = recovery(self.running_orders()?, cells);
-        let now = now_ms();
+        let now = self.now;
         let tx = self.conn.transaction().map_err(|source| DatabaseError {
             path: self.path.clone(),
             what: "cannot begin recovery",
@@ -460,7 +464,10 @@ impl Records for Database {
     }
 
     fn now_ms(&self) -> i64 {
-        now_ms()
+        self.now
+    }
+    fn set_now(&mut self, at_ms: i64) {
+        self.now = at_ms;
     }
 
     /// Adds a queued order, placed as `placement` says.
@@ -477,7 +484,7 @@ impl Records for Database {
                 params![
                     recipe,
                     who,
-                    now_ms(),
+                    self.now,
                     placement.cell.as_ref().map(|c| c.as_str()),
                     placement.priority,
                     placement.due_ms
@@ -571,7 +578,7 @@ impl Records for Database {
         cell: &str,
         recipes: &[UsedRecipe],
     ) -> Result<i64, Self::Error> {
-        let started = now_ms();
+        let started = self.now;
         self.in_transaction("cannot mark an order running", |tx| {
             tx.execute(
                 "UPDATE orders SET state = 'running', started_ms = ?1, cell = ?2 WHERE id = ?3",
@@ -629,7 +636,7 @@ impl Records for Database {
 
     /// Ends an order in `state` with `result` in words.
     fn end_order(&mut self, id: i64, state: OrderState, result: &str) -> Result<(), Self::Error> {
-        let at = now_ms();
+        let at = self.now;
         self.in_transaction("cannot end an order", |tx| {
             tx.execute(
                 "UPDATE orders SET state = ?1, ended_ms = ?2, result = ?3 WHERE id = ?4",
@@ -678,7 +685,7 @@ impl Records for Database {
         text: &str,
         order: Option<i64>,
     ) -> Result<Alarm, Self::Error> {
-        let raised_ms = now_ms();
+        let raised_ms = self.now;
         self.conn
             .execute(
                 "INSERT INTO alarms (station, class, text, order_id, raised_ms, cell) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
@@ -769,7 +776,7 @@ impl Records for Database {
             version: newest.map_or(1, |v| v.version + 1),
             hash,
             author: who.to_string(),
-            at_ms: now_ms(),
+            at_ms: self.now,
             message: message.to_string(),
         };
         self.conn
@@ -941,7 +948,7 @@ impl Records for Database {
         self.conn
             .execute(
                 "INSERT INTO list_states (cell, at_ms, working) VALUES (?1, ?2, ?3)",
-                params![self.cell, now_ms(), working],
+                params![self.cell, self.now, working],
             )
             .map_err(self.fail("cannot keep the order list's state"))
             .map(|_| ())
@@ -994,7 +1001,7 @@ impl Records for Database {
         self.conn
             .execute(
                 "INSERT INTO modes (cell, at_ms, mode) VALUES (?1, ?2, ?3)",
-                params![self.cell, now_ms(), mode.as_str()],
+                params![self.cell, self.now, mode.as_str()],
             )
             .map_err(self.fail("cannot keep a mode change"))
             .map(|_| ())
@@ -1506,7 +1513,9 @@ mod tests {
             .is_empty());
         s.set_running(o.id, "falc1", &[used(&v2)]).expect("run");
         s.end_order(o.id, OrderState::Failed, "alarm").expect("end");
-        std::thread::sleep(std::time::Duration::from_millis(2));
+        // The records' time is the time they are given.
+        let later = s.now_ms() + 2;
+        s.set_now(later);
         s.set_running(o.id, "falc1", &[used(&v3)])
             .expect("run again");
         s.journal(EntryKind::Order, Some(o.id), "falc", "order started")

@@ -407,6 +407,10 @@ async fn run(cli: Cli) -> Result<ExitCode> {
     let (ltx, mut lane_done) = unbounded_channel::<(usize, LaneDone)>();
     let mut cells = Vec::new();
     let mut lists = Vec::new();
+    // The one clock: the lists run on the time since this instant and
+    // stamp their records with the system's time at it plus that.
+    let started = Instant::now();
+    let origin_ms = database::now_ms();
     for (i, ((p, (source, set)), db)) in plans.iter().zip(sets).zip(dbs).enumerate() {
         let keys = KeySpace::new(p.topology.cell().clone());
         // In a cell of its own the operator's API and its place in the
@@ -438,7 +442,8 @@ async fn run(cli: Cli) -> Result<ExitCode> {
             source,
             set,
         )
-        .with_max_queued(cli.max_queued_orders);
+        .with_max_queued(cli.max_queued_orders)
+        .clocked_from(origin_ms);
         let cell_id = p.topology.cell().as_str();
         if let Some(k) = adopted
             .iter()
@@ -460,7 +465,7 @@ async fn run(cli: Cli) -> Result<ExitCode> {
         plant: Plant::new(lists),
         cells,
         api_bus,
-        started: Instant::now(),
+        started,
         next_ticket: 0,
         consoles: HashMap::new(),
         indications: HashMap::new(),

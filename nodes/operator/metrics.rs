@@ -155,7 +155,8 @@ impl Source {
             .db
             .lock()
             .map_err(|_| "the records connection failed earlier".to_string())?;
-        let now = db.now_ms();
+        // A reader with a connection of its own: the system's time.
+        let now = crate::database::now_ms();
         let inputs = db.figure_inputs(0, now).map_err(|e| e.to_string())?;
         let cells: Vec<&str> = self.cells.iter().map(String::as_str).collect();
         let query = FigureQuery {

@@ -63,8 +63,14 @@ pub trait Records {
     /// A failed read or write, saying of what.
     type Error: Display;
 
-    /// Milliseconds since the Unix epoch, now (the records' clock).
+    /// The time every record is stamped with, in milliseconds since the
+    /// Unix epoch: the time last given ([`Records::set_now`]). The records
+    /// read no clock of their own: the order list gives them its `now`
+    /// before it handles anything, so the processes and `falc-sim` stamp
+    /// their records by the one clock each runs on.
     fn now_ms(&self) -> i64;
+    /// Gives the records the time (milliseconds since the Unix epoch).
+    fn set_now(&mut self, at_ms: i64);
     /// Adds a queued order of cell recipe `recipe`, placed as `placement`
     /// says.
     fn add_order(
@@ -294,7 +300,8 @@ pub mod memory {
         pub lists: Vec<crate::figures::ListChange>,
         /// The workstation jobs kept, with their order.
         pub jobs: Vec<(Option<i64>, JobRecord)>,
-        clock: std::cell::Cell<i64>,
+        /// The time given ([`Records::set_now`]).
+        now: i64,
         refused: std::cell::Cell<u64>,
         /// The ids of the orders not ended (queued or running): what the
         /// queue is looked up in, so a long history costs nothing.
@@ -362,8 +369,10 @@ pub mod memory {
     impl Records for Memory {
         type Error = String;
         fn now_ms(&self) -> i64 {
-            self.clock.set(self.clock.get() + 1);
-            self.clock.get()
+            self.now
+        }
+        fn set_now(&mut self, at_ms: i64) {
+            self.now = at_ms;
         }
         fn add_order(
             &mut self,
@@ -766,6 +775,9 @@ pub mod shared {
         type Error = String;
         fn now_ms(&self) -> i64 {
             self.all.borrow().now_ms()
+        }
+        fn set_now(&mut self, at_ms: i64) {
+            self.all.borrow_mut().set_now(at_ms);
         }
         fn add_order(&mut self, recipe: &str, who: &str, p: &Placement) -> Result<Order, String> {
             self.all.borrow_mut().add_order(recipe, who, p)

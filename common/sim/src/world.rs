@@ -58,6 +58,9 @@ const POLL_BUSY: Duration = Duration::from_millis(POLL_MS);
 const POLL_IDLE: Duration = Duration::from_millis(IDLE_POLL_MS);
 /// Where carriers stand when an order may start.
 pub const HOME: [&str; 2] = ["W2", "W2"];
+/// The wall time the virtual clock starts at (2026-01-01 00:00 UTC): the
+/// records are stamped with it plus the virtual time.
+pub const EPOCH_MS: i64 = 1_767_225_600_000;
 /// At most this many lines of the trace are kept.
 const TRACE: usize = 400;
 
@@ -158,6 +161,7 @@ fn order_list(view: Shared, source: Shipped, set: RecipeSet) -> OrderList<Shared
         source,
         set,
     )
+    .clocked_from(EPOCH_MS)
 }
 
 /// The cell controller as `falc-cell` starts it.
@@ -313,7 +317,9 @@ impl World {
         let source = Shipped::new(topology.clone(), station(Node::Cell));
         let set = source.load().map_err(|p| p.join("\n"))?;
         let mut views = plant(&[topology.cell().as_str()]);
-        let view = views.pop().ok_or("no records")?;
+        let mut view = views.pop().ok_or("no records")?;
+        // What the list writes as it starts is stamped at the run's start.
+        view.set_now(EPOCH_MS);
         let records = view.all.clone();
         let durable = (view.clone(), source.clone());
         let list = order_list(view, source, set);
@@ -410,6 +416,11 @@ impl World {
     /// Whether `n`'s process runs.
     pub fn is_running(&self, n: Node) -> bool {
         self.ups.get(&n).map_or(true, |u| u.running)
+    }
+
+    /// The virtual clock's time as the records stamp it.
+    fn wall_ms(&self) -> i64 {
+        EPOCH_MS.saturating_add(i64::try_from(self.now.as_millis()).unwrap_or(i64::MAX))
     }
 
     /// `n`'s process and associations.
@@ -644,8 +655,8 @@ impl World {
     }
 
     fn publish(&mut self, from: Node, u: Unconfirmed) {
-        // Numbered and kept as the bus does (the virtual clock's ms).
-        let at_ms = i64::try_from(self.now.as_millis()).unwrap_or(i64::MAX);
+        // Numbered and kept as the bus does (stamped by the virtual clock).
+        let at_ms = self.wall_ms();
         let u = match self.kept.get_mut(&from) {
             Some(log) => log.publication(at_ms, u),
             None => Publication {
@@ -1450,6 +1461,7 @@ impl World {
     fn restart_operator(&mut self) {
         let now = self.now;
         let (mut view, source) = self.durable.clone();
+        view.set_now(self.wall_ms());
         let recovered = match view.recover(&[source.topology().cell().as_str()]) {
             Ok(r) => r,
             Err(e) => {

@@ -1,6 +1,7 @@
 //! The simulation in CI: clean runs and runs with every fault, the
 //! invariants checked after every step.
 
+use falc_model::console::EntryKind;
 use falc_sim::{Config, Fault, Run};
 
 fn run(cfg: Config) -> falc_sim::Summary {
@@ -52,4 +53,42 @@ fn the_same_seed_gives_the_same_run() {
     let (a, b) = (run(cfg.clone()), run(cfg));
     assert_eq!(a.kinds, b.kinds);
     assert_eq!((a.steps, a.simulated), (b.steps, b.simulated));
+}
+
+/// The records are stamped by the virtual clock: every entry between the
+/// start of the run and its end, in order, and the orders' runs (the
+/// journal's start to its end of each) fill most of the production time,
+/// not the few milliseconds a clock of the records' own gave them.
+#[test]
+fn recorded_times_follow_the_virtual_clock() {
+    let s = run(Config {
+        orders: 10,
+        faults: Vec::new(),
+        keep_journal: true,
+        ..Config::default()
+    });
+    let start = falc_sim::world::EPOCH_MS;
+    let end = start + i64::try_from(s.simulated.as_millis()).expect("fits");
+    let mut last = start;
+    let mut spans: std::collections::BTreeMap<i64, (i64, i64)> = Default::default();
+    for e in &s.entries {
+        assert!(
+            (last..=end).contains(&e.at_ms),
+            "entry {} at {} not between {last} and {end}",
+            e.id,
+            e.at_ms
+        );
+        last = e.at_ms;
+        if let (Some(o), EntryKind::Order) = (e.order, e.kind) {
+            let span = spans.entry(o).or_insert((e.at_ms, e.at_ms));
+            span.1 = e.at_ms;
+        }
+    }
+    assert_eq!(spans.len(), 10, "{spans:?}");
+    let busy: i64 = spans.values().map(|(a, b)| b - a).sum();
+    let production = end - start;
+    assert!(
+        busy * 2 > production && busy <= production,
+        "orders spanned {busy} ms of {production} ms"
+    );
 }

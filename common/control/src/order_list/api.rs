@@ -193,6 +193,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         request: ApiRequest,
         entries_of: Option<&str>,
     ) {
+        self.tick(now);
         if let Some(result) = self.api(ticket, user, request, entries_of) {
             self.reply(ticket, result);
         }

@@ -344,6 +344,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 
     /// The answer to the call to the cell that is out.
     pub fn handle_cell_answer(&mut self, now: Duration, result: Result<Response, ServiceError>) {
+        self.tick(now);
         let Some(busy) = self.busy.take() else {
             tracing::warn!("a reply from the cell that nothing waits for: {result:?}");
             return;
@@ -501,6 +502,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// it is asked how the run ended ([`CellCall::Ask`]). Nothing is
     /// assumed meanwhile, so nothing is lost and nothing runs twice.
     pub fn handle_abort(&mut self, now: Duration, reason: &str) {
+        self.tick(now);
         self.associated = false;
         self.delivered.clear();
         let text = format!("no connection with station {}", self.cell);

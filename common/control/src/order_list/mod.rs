@@ -315,6 +315,9 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     away: Option<Away>,
     question: Option<Question>,
     shutdown_pending: bool,
+    /// The wall time (ms since the Unix epoch) at `now` = 0: what the
+    /// records are stamped with ([`Self::clocked_from`]).
+    origin_ms: i64,
     statuses: BTreeMap<StationName, VmdStatus>,
     /// The stations on the bus now.
     present: BTreeSet<StationName>,
@@ -414,6 +417,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             away: None,
             question: None,
             shutdown_pending: false,
+            origin_ms: 0,
             statuses: BTreeMap::new(),
             present: BTreeSet::new(),
             shown: Vec::new(),
@@ -501,6 +505,22 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self
     }
 
+    /// The wall time, in ms since the Unix epoch, at `now` = 0 of the
+    /// clock its driver gives it (0 unless given): the list's records are
+    /// stamped by that one clock (`falc-operator`: the system's time at its
+    /// start; `falc-sim`: its virtual clock from a fixed day).
+    pub fn clocked_from(mut self, origin_ms: i64) -> Self {
+        self.origin_ms = origin_ms;
+        self
+    }
+
+    /// Gives the records the time `now` is on the wall clock: called first
+    /// by every entry that has a `now`.
+    pub(super) fn tick(&mut self, now: Duration) {
+        let ms = i64::try_from(now.as_millis()).unwrap_or(i64::MAX);
+        self.db.set_now(self.origin_ms.saturating_add(ms));
+    }
+
     /// At most `max` orders wait in the list; one more is refused.
     pub fn with_max_queued(mut self, max: usize) -> Self {
         self.max_queued = max;
@@ -550,6 +570,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 
     /// The time of [`Self::poll_timeout`] has come: try the cell again.
     pub fn handle_timeout(&mut self, now: Duration) {
+        self.tick(now);
         self.read_again(now);
         let idle = self.busy.is_none() && self.jobs.is_empty();
         let deliver = self.running.is_none() && self.undelivered().next().is_some();

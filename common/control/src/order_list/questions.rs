@@ -27,6 +27,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// A request of the cell: operator communication. Answered through
     /// [`Output::Respond`] under `ticket` (an `input` once answered).
     pub fn handle_cell_request(&mut self, now: Duration, ticket: Ticket, request: Request) {
+        self.tick(now);
         if let Some(e) = too_long_for_the_operator(&request) {
             self.out.push_back(Output::Respond {
                 ticket,

@@ -95,6 +95,7 @@ enum Reading {
 impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// A station's publication as heard on the bus, numbered or not.
     pub fn handle_heard(&mut self, now: Duration, stamp: Option<Stamp>, u: Unconfirmed) {
+        self.tick(now);
         match stamp {
             None => self.publication(now, u),
             Some(stamp) => self.numbered(now, stamp, u),
@@ -185,6 +186,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         station: StationName,
         answer: Result<KeptReports, String>,
     ) {
+        self.tick(now);
         let present = self.present.contains(&station);
         let Some(h) = self.heard.get_mut(&station) else {
             return;

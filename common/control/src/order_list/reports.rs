@@ -10,6 +10,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// communication alarm of its own; while an order runs the cell raises
     /// it. Back on the bus, every alarm saying it cannot be reached clears.
     pub fn handle_presence(&mut self, now: Duration, station: StationName, present: bool) {
+        self.tick(now);
         if present {
             let back = self.present.insert(station.clone());
             if back {
@@ -41,6 +42,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 
     /// A publication of a station.
     pub fn handle_publication(&mut self, now: Duration, u: Unconfirmed) {
+        self.tick(now);
         self.publication(now, u);
         self.pump(now);
     }
