@@ -112,6 +112,17 @@ impl<R: Records, S: RecipeSource> Plant<R, S> {
                         other => self.out.push_back(PlantOutput::Cell(i, other)),
                     }
                 }
+                // The queue and the journal are the plant's: a change one
+                // list made is in every list's status. The others compute
+                // theirs again; one that only saw this passes it on to
+                // nobody.
+                if self.lists[i].take_shared_change() {
+                    for (j, l) in self.lists.iter_mut().enumerate() {
+                        if j != i {
+                            l.records_changed();
+                        }
+                    }
+                }
             }
             if !any && self.out.is_empty() {
                 return None;
@@ -475,6 +486,38 @@ mod tests {
             },
             count: 1,
         }
+    }
+
+    /// Which cells' lists told a changed status, draining what came out.
+    fn told(r: &mut Rig) -> Vec<usize> {
+        let mut told = Vec::new();
+        while let Some(out) = r.plant.poll_output() {
+            if let PlantOutput::Cell(i, Output::Changed) = out {
+                told.push(i);
+            }
+        }
+        told
+    }
+
+    /// A list computes its status when something happened to it, not at
+    /// every poll; an order one cell's list queues moves every cell's
+    /// status (the queue and the journal are the plant's), and each tells
+    /// it once.
+    #[test]
+    fn a_status_is_told_when_something_changed_it_in_any_cell() {
+        let mut r = Rig::new();
+        told(&mut r);
+        assert_eq!(told(&mut r), Vec::<usize>::new(), "nothing happened");
+        // An order for falc1, added through falc1's list.
+        r.tickets += 1;
+        let cell = CellId::new("falc1").expect("id");
+        let t = Ticket(r.tickets);
+        r.plant
+            .handle_api(r.now, t, &st("console"), Some(&cell), add(Some("falc1")));
+        let mut both = told(&mut r);
+        both.sort_unstable();
+        assert_eq!(both, [0, 1], "each list tells the plant's queue once");
+        assert_eq!(told(&mut r), Vec::<usize>::new());
     }
 
     /// Both cells run in parallel from one list; an order for a cell waits

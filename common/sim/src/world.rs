@@ -573,8 +573,7 @@ impl World {
     /// Carries what every core put out to where it goes, until all are
     /// quiet.
     pub fn pump(&mut self) {
-        // The order list's outputs all go on the bus: once is enough (and
-        // each empty poll of it compares its whole status).
+        // The order list's outputs all go on the bus: once is enough.
         self.pump_list();
         for _ in 0..64 {
             let mut busy = self.pump_cell();

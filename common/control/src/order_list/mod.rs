@@ -124,6 +124,18 @@ impl CellCall {
     }
 }
 
+/// Why the status may differ from the one last told.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stale {
+    /// Nothing happened since it was computed.
+    No,
+    /// This list handled something.
+    Own,
+    /// Another cell's list changed the records all share (the plant's
+    /// queue and journal: [`OrderList::records_changed`]).
+    Shared,
+}
+
 /// What the node must do.
 #[derive(Debug)]
 pub enum Output {
@@ -343,6 +355,12 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     out: VecDeque<Output>,
     /// The status as last told by [`Output::Changed`].
     told: Option<CellStatus>,
+    /// Why the status may differ from the one told: nothing happened
+    /// since, or something did (computing it reads the records).
+    stale: Stale,
+    /// The status last told changed in what every cell's list shares, by
+    /// this list's own doing ([`Self::take_shared_change`]).
+    shared_moved: bool,
     /// What the list has of each station's numbered reports.
     heard: BTreeMap<StationName, replay::Heard>,
     /// Filing a replayed report made at this time (ms since the Unix
@@ -429,6 +447,8 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             next_try: Duration::ZERO,
             out: VecDeque::new(),
             told: None,
+            stale: Stale::Own,
+            shared_moved: false,
             heard,
             replaying: None,
         }
@@ -514,9 +534,26 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self
     }
 
-    /// Gives the records the time `now` is on the wall clock: called first
-    /// by every entry that has a `now`.
+    /// Whether this list, by its own doing, changed the records every
+    /// cell's list shares since last asked: the other lists' statuses then
+    /// need computing again ([`Self::records_changed`]).
+    pub fn take_shared_change(&mut self) -> bool {
+        std::mem::take(&mut self.shared_moved)
+    }
+
+    /// Another cell's list changed the records all share: the status is
+    /// computed again at the next poll.
+    pub fn records_changed(&mut self) {
+        if self.stale == Stale::No {
+            self.stale = Stale::Shared;
+        }
+    }
+
+    /// Gives the records the time `now` is on the wall clock, and marks
+    /// the status to be computed again: called first by every entry that
+    /// has a `now`.
     pub(super) fn tick(&mut self, now: Duration) {
+        self.stale = Stale::Own;
         let ms = i64::try_from(now.as_millis()).unwrap_or(i64::MAX);
         self.db.set_now(self.origin_ms.saturating_add(ms));
     }
@@ -527,15 +564,24 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self
     }
 
-    /// The next thing the node must do. When nothing else is left, an
+    /// The next thing the node must do. When nothing else is left and
+    /// something happened since the status was last computed, an
     /// [`Output::Changed`] if the status differs from the one last told.
     pub fn poll_output(&mut self) -> Option<Output> {
         if let Some(out) = self.out.pop_front() {
             return Some(out);
         }
+        if self.stale == Stale::No {
+            return None;
+        }
         let now = self.status().ok()?;
+        let own = std::mem::replace(&mut self.stale, Stale::No) == Stale::Own;
         if self.told.as_ref() == Some(&now) {
             return None;
+        }
+        let shared = |s: &CellStatus| (s.journal_head, s.queued);
+        if own && self.told.as_ref().map(shared) != Some(shared(&now)) {
+            self.shared_moved = true;
         }
         // Each station's recipe state as it changes, for the log.
         for v in &now.stations {
@@ -611,6 +657,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 
     /// Journals; a failure to write stops the list ([`Self::db_failed`]).
     pub fn journal(&mut self, kind: EntryKind, order: Option<i64>, who: &str, text: &str) {
+        self.stale = Stale::Own;
         let written = match self.replaying {
             None => self.db.journal(kind, order, who, text),
             Some(at) => {
