@@ -66,6 +66,11 @@ struct Step {
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum AckWait {
+    /// Not sent: the line is not known to be back (opened, or silent
+    /// since); the select goes once the RCM answered, after the program
+    /// it may still run with no job of ours is stopped
+    /// ([`Host::program_status`]).
+    Held,
     /// The link has not delivered the telegram yet.
     Undelivered,
     /// Delivered at this time: the acknowledgement is awaited until
@@ -95,8 +100,13 @@ pub struct Host {
     /// The program a job of ours runs on the robot (from the start's
     /// acknowledgement until its end).
     running: Option<RobotProgram>,
-    /// When the unanswered status request went out.
+    /// When the first status request still unanswered was asked.
     asked: Option<Duration>,
+    /// When the link last delivered a status request: unanswered a status
+    /// period later, it is asked again, so a line that died after a
+    /// request went is seen by the link's silence on the next one, not
+    /// only at [`Timing::silent_after`].
+    delivered: Duration,
     /// How long it may go unanswered ([`Timing::silent_after`]).
     silent_limit: Duration,
     /// When the RCM was last heard.
@@ -124,6 +134,19 @@ pub struct Host {
     reselected: bool,
 }
 
+/// The warning for program `program` found `state` on the RCM on `line`
+/// with no job of this workstation, and stopped.
+fn orphan(program: Option<RobotProgram>, state: ProgramState, line: &str) -> Cause {
+    let shown = program.map_or("none".to_string(), |q| q.number().to_string());
+    Cause::new(
+        AlarmClass::Warning,
+        format!(
+            "robot program {shown} was {} on the RCM on {line} with no job of this workstation (a restart of the workstation, or a lost line): stopped",
+            word(state)
+        ),
+    )
+}
+
 fn word(state: ProgramState) -> &'static str {
     match state {
         ProgramState::Idle => "idle, no program selected",
@@ -144,6 +167,7 @@ impl Host {
             pending: None,
             running: None,
             asked: None,
+            delivered: Duration::ZERO,
             silent_limit: timing.silent_after(),
             heard: Duration::ZERO,
             probing: false,
@@ -257,6 +281,7 @@ impl Host {
     pub fn sent(&mut self, now: Duration, telegram: &[u8]) {
         if telegram == Telegram::StatusRequest.encode().as_slice() {
             self.asking = false;
+            self.delivered = now;
         }
         if let Some(step) = &mut self.pending {
             if step.ack == AckWait::Undelivered && telegram == step.what.telegram().encode() {
@@ -290,7 +315,7 @@ impl Host {
     /// Asks the robot's status at `now`, unless a request is still in the
     /// link's hands (then its answer, or its silence, is awaited).
     fn ask(&mut self, now: Duration) -> Option<Out> {
-        self.asked = Some(now);
+        self.asked.get_or_insert(now);
         if std::mem::replace(&mut self.asking, true) {
             None
         } else {
@@ -298,11 +323,22 @@ impl Host {
         }
     }
 
-    /// The engine wants robot program `program` started.
+    /// The engine wants robot program `program` started. While the line
+    /// is not known to be back (the RCM has not answered since it was
+    /// opened or went silent), or a program found running with no job is
+    /// being confirmed before it is stopped, the select is held: that
+    /// program would refuse it (DNC error 04), so the answer is awaited,
+    /// and such a program stopped, before it goes.
     pub fn start(&mut self, program: RobotProgram) -> Vec<Out> {
         self.pending = Step::new(Pending::Select(program));
         self.by_hand = false;
         self.reselected = false;
+        if self.probing || self.suspect.is_some() {
+            if let Some(step) = &mut self.pending {
+                step.ack = AckWait::Held;
+            }
+            return Vec::new();
+        }
         vec![Out::Telegram(Telegram::SelectProgram(program))]
     }
 
@@ -343,6 +379,10 @@ impl Host {
             return None;
         }
         Some(match self.asked {
+            // Asked again a period after the last request was delivered.
+            Some(at) if !self.asking => {
+                (at + self.silent_limit).min(self.delivered + STATUS_PERIOD)
+            }
             Some(at) => at + self.silent_limit,
             None => self.heard + STATUS_PERIOD,
         })
@@ -374,14 +414,14 @@ impl Host {
             return Vec::new();
         }
         match self.asked {
-            Some(at) => self.went_silent(
+            Some(at) if at + self.silent_limit <= now => self.went_silent(
                 now,
                 &format!(
                     "status request unanswered for {:.1} s",
                     now.saturating_sub(at).as_secs_f64()
                 ),
             ),
-            None => self.ask(now).into_iter().collect(),
+            _ => self.ask(now).into_iter().collect(),
         }
     }
 
@@ -493,6 +533,24 @@ impl Host {
         self.probing = false;
         let mut out = vec![Out::Detail(alarms::status_detail(state, mode))];
         let active = matches!(state, ProgramState::Running | ProgramState::Paused);
+        if let Some(held) = self.pending.filter(|s| s.ack == AckWait::Held) {
+            if active {
+                // Not ours (our select never went). Acted on when a second
+                // answer confirms it, like any status that stops the robot.
+                if self.suspect != Some((program, state)) {
+                    self.suspect = Some((program, state));
+                    out.extend(self.ask(now));
+                    return out;
+                }
+                self.suspect = None;
+                out.push(Out::Telegram(Telegram::StopProgram));
+                out.push(Out::Alarm(orphan(program, state, &self.line)));
+            }
+            // The RCM takes telegrams in order: the stop, then the select.
+            self.pending = Step::new(held.what);
+            out.push(Out::Telegram(held.what.telegram()));
+            return out;
+        }
         if self.pending.is_some_and(|s| s.ack == AckWait::Status) {
             out.extend(self.step_by_status(program, state, active));
             return out;
@@ -538,11 +596,7 @@ impl Host {
             }
             None => {
                 out.push(Out::Telegram(Telegram::StopProgram));
-                out.push(Out::Alarm(Cause::new(AlarmClass::Warning, format!(
-                    "robot program {shown} was {} on the RCM on {} with no job of this workstation (a restart of the workstation, or a lost line): stopped",
-                    word(state),
-                    self.line
-                ))));
+                out.push(Out::Alarm(orphan(program, state, &self.line)));
             }
         }
         out
@@ -552,7 +606,9 @@ impl Host {
     pub fn telegram(&mut self, now: Duration, t: Telegram) -> Vec<Out> {
         self.heard = now;
         let rcm = self.rcm.clone();
-        match (t, self.pending.map(|s| s.what)) {
+        // A held select never went: no acknowledgement is of it.
+        let sent = self.pending.filter(|s| s.ack != AckWait::Held);
+        match (t, sent.map(|s| s.what)) {
             (
                 Telegram::Ack {
                     of: b'S',
@@ -986,14 +1042,14 @@ mod tests {
         assert!(!h.answered());
         // It keeps asking, and when the line is back stops the program it
         // no longer owns; never a second request behind one the link
-        // still tries (3964R: up to 6 × 2 s).
+        // still tries (3964R: up to 6 × 2 s), and a request delivered but
+        // unanswered is asked again a period later (a line that died
+        // after it went shows on the next one's STX).
         let t = asked + limit;
         assert!(h.handle_timeout(t + period).is_empty());
         h.sent(t + period, &Telegram::StatusRequest.encode());
-        assert_eq!(h.poll_timeout(), Some(t + period + limit));
-        h.handle_timeout(t + period + limit);
-        h.sent(t + period + limit, &Telegram::StatusRequest.encode());
-        let t = t + period + limit + period;
+        assert_eq!(h.poll_timeout(), Some(t + period + period));
+        let t = t + period + period;
         assert_eq!(
             h.handle_timeout(t),
             vec![Out::Telegram(Telegram::StatusRequest)]
@@ -1046,6 +1102,114 @@ mod tests {
         // answer until it does.
         assert!(h.silent(s(9000), waited).is_empty());
         assert!(!h.answered());
+    }
+
+    /// Found by `falc-sim` (seed 6): the line was unplugged just after a
+    /// status request was delivered; the host waited 6.88 s for its answer
+    /// before it called the line silent, with the robot's program
+    /// unwatched all that while.
+    #[test]
+    fn a_line_that_dies_after_a_request_went_is_seen_by_the_next_request() {
+        let timing = Timing::default();
+        let mut h = running(1000);
+        let asked = s(1500);
+        assert_eq!(
+            h.handle_timeout(asked),
+            vec![Out::Telegram(Telegram::StatusRequest)]
+        );
+        h.sent(asked + s(5), &Telegram::StatusRequest.encode());
+        // Unplugged now: no answer. A period after it went, asked again.
+        let again = asked + s(5) + STATUS_PERIOD;
+        assert_eq!(h.poll_timeout(), Some(again));
+        assert_eq!(
+            h.handle_timeout(again),
+            vec![Out::Telegram(Telegram::StatusRequest)]
+        );
+        // Its STX hears nothing for an acknowledgement delay: the alarm,
+        // 2.5 s after the last answer's request, where it was 6.88 s.
+        let seen = again + timing.ack_delay;
+        assert!(ended(&h.silent(seen, timing.ack_delay)).is_some());
+        assert!(seen - asked < s(3000), "{:?}", seen - asked);
+    }
+
+    /// Found by `falc-sim` (seeds 2 and 6): the line came back under a
+    /// program whose job had ended in alarm, and the next order's job
+    /// selected before the RCM had answered: refused, "a program is
+    /// running on the RCM (DNC error 04)", and the order failed.
+    #[test]
+    fn a_job_started_before_the_line_is_back_selects_once_the_left_program_is_stopped() {
+        let waited = Timing::default().ack_delay;
+        let mut h = running(1000);
+        assert!(ended(&h.silent(s(3500), waited)).is_some());
+        // The way back's start comes before the RCM answered: held.
+        assert_eq!(h.start(RobotProgram::of(66)), vec![]);
+        assert!(h.has_job());
+        // A stray acknowledgement is not of the held select.
+        assert_eq!(h.telegram(s(3600), ack(b'S')), vec![]);
+        // The RCM answers: 65 still runs. Confirmed by a second answer,
+        // it is stopped, and then the select goes.
+        let first = h.telegram(s(4000), status(Some(p65()), ProgramState::Running));
+        assert!(
+            first.contains(&Out::Telegram(Telegram::StatusRequest)),
+            "{first:?}"
+        );
+        assert!(!first
+            .iter()
+            .any(|o| matches!(o, Out::Telegram(Telegram::SelectProgram(_)))));
+        let second = h.telegram(s(4100), status(Some(p65()), ProgramState::Running));
+        let telegrams: Vec<&Telegram> = second
+            .iter()
+            .filter_map(|o| match o {
+                Out::Telegram(t) => Some(t),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(
+            telegrams,
+            [
+                &Telegram::StopProgram,
+                &Telegram::SelectProgram(RobotProgram::of(66))
+            ]
+        );
+        assert!(second.iter().any(|o| matches!(o, Out::Alarm(c)
+            if c.class == AlarmClass::Warning && c.contains("robot program 65 was running"))));
+        // The job goes on as any: acknowledged, started.
+        assert_eq!(
+            h.telegram(s(4200), ack(b'S')),
+            vec![Out::Telegram(Telegram::StartProgram)]
+        );
+        assert!(matches!(
+            h.telegram(s(4300), ack(b'G')).first(),
+            Some(Out::Engine(Event::Started(_)))
+        ));
+        // Seen once running with no job when the job starts (the line
+        // answered again a moment before): held until it is confirmed.
+        let mut h = running(1000);
+        h.silent(s(3500), Timing::default().ack_delay);
+        let seen = h.telegram(s(4000), status(Some(p65()), ProgramState::Running));
+        assert!(seen.contains(&Out::Telegram(Telegram::StatusRequest)));
+        assert!(h.answered());
+        assert_eq!(h.start(RobotProgram::of(66)), vec![]);
+        let out = h.telegram(s(4100), status(Some(p65()), ProgramState::Running));
+        assert!(
+            out.contains(&Out::Telegram(Telegram::StopProgram)),
+            "{out:?}"
+        );
+        assert!(
+            out.contains(&Out::Telegram(Telegram::SelectProgram(RobotProgram::of(
+                66
+            )))),
+            "{out:?}"
+        );
+        // An idle RCM: the held select goes at its first answer.
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
+        h.connected(s(0));
+        assert_eq!(h.start(p65()), vec![]);
+        let out = h.telegram(s(10), status(None, ProgramState::Idle));
+        assert!(
+            out.contains(&Out::Telegram(Telegram::SelectProgram(p65()))),
+            "{out:?}"
+        );
     }
 
     #[test]

@@ -356,7 +356,10 @@ mod tests {
         // Idle: only the close.
         w.close();
         assert_eq!(drain(&mut w), vec![CLOSE]);
-        // A job's program runs: stopped first.
+        // A job's program runs: stopped first. (The RCM answered first:
+        // a job's select waits for that.)
+        w.link_event(Duration::ZERO, status_of(Mode::AutomaticExternal));
+        drain(&mut w);
         let p = RobotProgram::of(65);
         let mut out = Vec::new();
         w.handle(
