@@ -5,33 +5,28 @@
 //! alarm from a workstation ends the running recipe in alarm, stops the
 //! other workstations' program invocations and reports the cause up.
 //!
-//! Recipe delivery, modes, steps and manual operations passed on to the
-//! workstations and answered with their confirms: the sans-I/O
-//! `falc_control::pass_on`, which holds the commander's further
-//! indications while a delivery runs.
-//!
-//! A thin driver: the recipe runtime is `falc_control::controller`, the
-//! coordination of the stations below `falc_control::coordination`, the
-//! pass-on `falc_control::pass_on` (all sans-I/O), driven by
-//! `falc_node::controller_node`; here are the request lanes (one task per
-//! station) and a task per request passed on. Nothing in the loop waits on
-//! another station.
+//! A transport: every decision is the sans-I/O
+//! `falc_control::cell_node::CellNode` (the recipe runtime, the pass-on of
+//! modes, steps, manual operations and recipe deliveries, one request lane
+//! per station), which `falc-sim` runs too. Here its actions are carried
+//! over zenoh: each request a task of its own whose confirm comes back
+//! to the loop; nothing in the loop waits on another station.
 
 use anyhow::Result;
 use clap::Parser;
 use falc_bus::station::{Station, StationEvent};
-use falc_bus::{Bus, Responder};
-use falc_control::coordination::{self, Command, Reply, Stations};
-use falc_control::pass_on::{PassOn, Todo, PASS_LIMIT};
-use falc_model::alarm::AlarmClass;
+use falc_bus::Responder;
+use falc_control::cell_node::{CellAction, CellNode};
+use falc_control::coordination::Reply;
+use falc_control::pass_on::{Todo, PASS_LIMIT};
 use falc_model::ids::StationName;
 use falc_model::mms::error::ServiceError;
-use falc_model::mms::pdu::{Response, Severity};
-use falc_node::controller_node::ControllerNode;
-use falc_node::{init_tracing, lane, say, NodeArgs};
-use falc_recipe::commands::RecipeKind;
-use std::collections::BTreeMap;
+use falc_model::mms::pdu::Response;
+use falc_node::controller_node;
+use falc_node::{init_tracing, say, NodeArgs};
+use std::time::Duration;
 use tokio::sync::mpsc::{unbounded_channel, UnboundedSender};
+use tokio::time::Instant;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -46,87 +41,56 @@ struct Cli {
     node: NodeArgs,
 }
 
-/// One lane per station: its requests go out in order, one at a time, and
-/// each confirm comes back as a [`Reply`].
-struct Lanes {
-    bus: Bus,
-    replies: UnboundedSender<Reply>,
-    lanes: BTreeMap<StationName, UnboundedSender<Command>>,
-}
-
-impl Lanes {
-    fn send(&mut self, cmd: Command) {
-        let lane = self.lanes.entry(cmd.to.clone()).or_insert_with(|| {
-            let bus = self.bus.clone();
-            lane::spawn(self.replies.clone(), move |cmd: Command| {
-                let bus = bus.clone();
-                async move {
-                    let result = bus.request(&cmd.to, &cmd.request, cmd.limit).await;
-                    Reply {
-                        awaiting: cmd.awaiting,
-                        result,
-                    }
-                }
-            })
-        });
-        if lane.send(cmd).is_err() {
-            tracing::error!("a request lane stopped");
-        }
-    }
-}
-
-/// What a workstation answered to what the pass-on asked.
+/// What came back from a workstation or the operator.
 enum Came {
+    /// The confirm of a [`CellAction::Request`] to this station.
+    Reply(StationName, Reply),
     /// The confirm of a [`Todo::Ask`].
     Confirm(u64, Result<Response, ServiceError>),
     /// The outcome of a [`Todo::Deliver`].
     Delivered(u64, Result<(), ServiceError>),
 }
 
-/// The cell: its controller, the lanes and the pass-on.
+/// The cell: its node, carried over its station on the bus.
 struct Cell {
-    ctl: ControllerNode<Stations>,
-    lanes: Lanes,
-    pass: PassOn<Responder>,
+    node: CellNode<Responder>,
+    station: Station,
+    origin: Instant,
     came: UnboundedSender<Came>,
 }
 
 impl Cell {
-    /// Settles the controller, sends what its stations must be asked,
-    /// carries out the pass-on's work, then publishes (requests first: they
-    /// are on the critical path of the recipe, the status put is not).
+    /// Time since start (the node's clock).
+    fn now(&self) -> Duration {
+        Instant::now().duration_since(self.origin)
+    }
+
+    /// Carries out what the node has to do, in order.
     async fn settle(&mut self) {
-        loop {
-            self.ctl.settle_core();
-            while let Some(cmd) = self.ctl.core.device.poll_command() {
-                self.lanes.send(cmd);
-            }
-            if let Some(local) = self.ctl.core.device.poll_local_reply() {
-                let now = self.ctl.now();
-                coordination::handle_reply(&mut self.ctl.core, now, local);
-                continue;
-            }
-            let mut more = false;
-            while let Some(here) = self.pass.poll_here() {
-                more = true;
-                let result = self.ctl.indication(&here.request).await;
-                self.pass.handled(here, result, self.ctl.core.vmd());
-            }
-            while let Some(todo) = self.pass.poll_todo() {
-                more = true;
-                self.carry_out(todo).await;
-            }
-            if !more {
-                break;
+        let now = self.now();
+        while let Some(action) = self.node.poll(now) {
+            match action {
+                CellAction::Request(cmd) => {
+                    let (bus, came) = (self.station.bus().clone(), self.came.clone());
+                    tokio::spawn(async move {
+                        let result = bus.request(&cmd.to, &cmd.request, cmd.limit).await;
+                        let reply = Reply {
+                            awaiting: cmd.awaiting,
+                            result,
+                        };
+                        let _ = came.send(Came::Reply(cmd.to, reply));
+                    });
+                }
+                CellAction::Pass(todo) => self.carry_out(todo).await,
+                CellAction::Publish(u) => controller_node::publish(&self.station, u).await,
             }
         }
-        self.ctl.publish().await;
     }
 
     /// Carries out what the pass-on asks; what workstations answer comes
     /// back as [`Came`].
     async fn carry_out(&mut self, todo: Todo<Responder>) {
-        let bus = self.lanes.bus.clone();
+        let bus = self.station.bus().clone();
         let came = self.came.clone();
         match todo {
             Todo::Answer { ticket, result } => ticket.respond(result).await,
@@ -150,36 +114,40 @@ impl Cell {
             Todo::Delivered { to, name } => {
                 say(&format!("EVENT delivered station={to} recipe={name}"));
             }
-            Todo::Discard(domain) => self.ctl.core.discard_domain(&domain),
-            Todo::Alarm(text) => {
-                self.ctl
-                    .report(Severity::Alarm(AlarmClass::Communication), text)
-                    .await;
-            }
+            // The node keeps these itself.
+            Todo::Discard(_) | Todo::Alarm(_) => {}
             Todo::Warn(text) => tracing::warn!("{text}"),
         }
     }
 
-    /// Acts on what the station hands the cell: indications go through the
-    /// pass-on; a lost workstation comes back empty, and returned ones get
-    /// their recipes and the cell's mode again.
+    /// Acts on what the station hands the cell.
     async fn on_station(&mut self, ev: StationEvent) {
+        let now = self.now();
         match ev {
             StationEvent::Indication(ind) => {
-                self.pass.handle_indication(ind.responder, ind.request)
+                self.node.handle_indication(ind.responder, ind.request)
             }
-            other => {
-                let associated = matches!(other, StationEvent::Associated(_));
-                if let StationEvent::Abort(a) = &other {
-                    self.pass.handle_lost(&a.peer.station);
-                }
-                self.ctl.station_event(other).await;
-                if associated {
-                    let mode = self.ctl.core.mode().clone();
-                    self.pass.handle_associated(self.ctl.core.vmd(), &mode);
-                }
+            StationEvent::Associated(p) => {
+                say(&format!("EVENT associated commander={}", p.station));
+                self.node.handle_associated(now);
+                self.settle().await;
+                // A new commander sees the status at once, changed or not.
+                self.station.republish_status().await;
             }
+            StationEvent::Abort(a) => {
+                say(&format!("EVENT abort-indication peer={}", a.peer.station));
+                self.node.handle_abort(now, &a.peer.station, a.role);
+            }
+            StationEvent::Concluded(_) => {}
         }
+    }
+
+    fn deadline(&self) -> Instant {
+        self.node
+            .poll_timeout()
+            .map_or(Instant::now() + Duration::from_secs(3600), |t| {
+                self.origin + t
+            })
     }
 }
 
@@ -201,58 +169,54 @@ async fn main() -> Result<()> {
     for st in &subordinates {
         subscriptions.extend(bus.subscribe(st, utx.clone()).await?);
     }
-    let (rtx, mut replies) = unbounded_channel();
-    let stations = Stations::new(topology.commander_of(&cli.station).cloned());
+    let alone = station.associations().runs_alone();
+    let node = CellNode::new(
+        cli.station.clone(),
+        topology.commander_of(&cli.station).cloned(),
+        subordinates,
+        alone,
+    );
     let (came, mut answers) = unbounded_channel();
     let mut cell = Cell {
-        ctl: ControllerNode::new(
-            station,
-            RecipeKind::Cell,
-            coordination::CONFIRM_LIMIT,
-            stations,
-        ),
-        lanes: Lanes {
-            bus,
-            replies: rtx,
-            lanes: BTreeMap::new(),
-        },
-        pass: PassOn::new(subordinates),
+        node,
+        station,
+        origin: Instant::now(),
         came,
     };
-    cell.ctl.publish_status().await;
+    cell.settle().await;
     say(&format!("EVENT ready station={}", cli.station));
     let mut shutdown = falc_node::Shutdown::new();
     loop {
-        let deadline = cell.ctl.deadline();
+        let deadline = cell.deadline();
         tokio::select! {
-            ev = cell.ctl.station_recv() => {
+            ev = cell.station.recv() => {
                 let Some(ev) = ev else { break };
-                if let Some(ev) = cell.ctl.station_handle(ev).await {
+                if let Some(ev) = cell.station.handle(ev).await {
                     cell.on_station(ev).await;
                 }
             }
-            r = replies.recv() => match r {
-                Some(r) => {
-                    let now = cell.ctl.now();
-                    coordination::handle_reply(&mut cell.ctl.core, now, r);
-                }
-                None => break,
-            },
             c = answers.recv() => match c {
-                Some(Came::Confirm(id, result)) => cell.pass.handle_confirm(id, result),
-                Some(Came::Delivered(id, result)) => cell.pass.handle_delivered(id, result),
+                Some(Came::Reply(to, reply)) => {
+                    let now = cell.now();
+                    cell.node.handle_reply(now, &to, reply);
+                }
+                Some(Came::Confirm(id, result)) => cell.node.handle_confirm(id, result),
+                Some(Came::Delivered(id, result)) => cell.node.handle_delivered(id, result),
                 None => break,
             },
             u = publications.recv() => match u {
                 Some(u) => {
                     // A workstation's reports reach the operator directly
                     // (it reads every station's reports), under its name.
-                    let events = cell.ctl.core.device.unconfirmed(&u.message);
-                    cell.ctl.feed(events);
+                    let now = cell.now();
+                    cell.node.handle_publication(now, &u.message);
                 }
                 None => break,
             },
-            _ = tokio::time::sleep_until(deadline) => cell.ctl.on_timeout(),
+            _ = tokio::time::sleep_until(deadline) => {
+                let now = cell.now();
+                cell.node.handle_timeout(now);
+            }
             _ = shutdown.requested() => break,
         }
         cell.settle().await;

@@ -10,6 +10,9 @@
 //!   operator above, requests out as commands, confirms and job events in;
 //! - [`pass_on`]: the cell's pass-on of modes, steps, manual operations
 //!   and workstation recipes to its workstations;
+//! - [`cell_node`]: the cell controller's node: the controller over its
+//!   stations, the pass-on in front of it, a request lane per station
+//!   (what `falc-cell` and `falc-sim` both run);
 //! - [`order_list`]: the operator's order list worked through the cell,
 //!   with its [`alarm_list`], over its durable [`records`] and the
 //!   [`recipe_source`];
@@ -18,6 +21,7 @@
 //!   per cell, the API's requests routed to the cells they concern.
 
 pub mod alarm_list;
+pub mod cell_node;
 pub mod controller;
 pub mod coordination;
 pub mod figures;

@@ -117,26 +117,11 @@ impl<D: Device> ControllerNode<D> {
         self.flush().await;
     }
 
-    /// Publishes what the core put out, in order, each report and job
-    /// event numbered (`no=` in its `EVENT` line).
+    /// Publishes what the core put out, in order ([`publish`]).
     async fn flush(&mut self) {
         let me = self.station.bus().me().station.clone();
         while let Some(out) = self.core.poll_output() {
-            let u = out.publication(me.clone());
-            let no = self.station.bus().publish(&u).await.map_or(0, |s| s.no);
-            match u {
-                Unconfirmed::Report { severity, text, .. } => {
-                    say(&format!(
-                        "EVENT report severity={severity:?} no={no} text={text}"
-                    ));
-                }
-                Unconfirmed::Job { program, event, .. } => {
-                    say(&format!(
-                        "EVENT job program={program} event={event:?} no={no}"
-                    ));
-                }
-                Unconfirmed::Status { .. } => {}
-            }
+            publish(&self.station, out.publication(me.clone())).await;
         }
     }
 
@@ -198,5 +183,29 @@ impl<D: Device> ControllerNode<D> {
         self.flush().await;
         self.publish_status().await;
         result
+    }
+}
+
+/// Publishes `u` from `station`: a status through its status board (sent
+/// when it changed), a report or job event numbered, with its `EVENT` line
+/// (`no=` its number).
+pub async fn publish(station: &Station, u: Unconfirmed) {
+    if let Unconfirmed::Status { status, .. } = u {
+        station.set_status(status).await;
+        return;
+    }
+    let no = station.bus().publish(&u).await.map_or(0, |s| s.no);
+    match u {
+        Unconfirmed::Report { severity, text, .. } => {
+            say(&format!(
+                "EVENT report severity={severity:?} no={no} text={text}"
+            ));
+        }
+        Unconfirmed::Job { program, event, .. } => {
+            say(&format!(
+                "EVENT job program={program} event={event:?} no={no}"
+            ));
+        }
+        Unconfirmed::Status { .. } => {}
     }
 }

@@ -372,7 +372,9 @@ impl Run {
         // Settled (reads of kept reports answered): every report of each
         // running station's current run is in the journal.
         let settle = self.world.now + Duration::from_secs(10);
-        self.world.step(settle);
+        while self.world.now < settle {
+            self.world.step(settle);
+        }
         if let Some(what) = self.world.unfiled().into_iter().next() {
             return Err(self.violation(format!("reports not filed: {what}")));
         }
@@ -735,7 +737,7 @@ impl Run {
         // A write that fails stops the cell: no order runs on with the
         // journal behind.
         let refused = self.world.records.borrow().refused();
-        let behind = refused > self.refused && self.world.cell.is_running();
+        let behind = refused > self.refused && self.world.cell.controller().is_running();
         if !self.world.records.borrow().failing {
             self.refused = refused;
         }

@@ -11,10 +11,11 @@
 
 use crate::bus::{Arrival, Bus, Link, Msg, Node};
 use crate::recipes::Shipped;
+use falc_control::cell_node::{CellAction, CellNode};
 use falc_control::controller::{Controller, Device};
-use falc_control::coordination::{self, Awaiting, Reply, Stations};
+use falc_control::coordination::{Awaiting, Reply};
 use falc_control::order_list::{OrderList, Output as ListOutput, Ticket, CELL_LIMIT};
-use falc_control::pass_on::{PassOn, Todo, PASS_LIMIT};
+use falc_control::pass_on::{Todo, PASS_LIMIT};
 use falc_control::recipe_source::{RecipeSet, RecipeSource};
 use falc_control::records::memory::Memory;
 use falc_control::records::shared::{plant, Shared};
@@ -24,17 +25,14 @@ use falc_dnc::robot::Robot;
 use falc_dnc::telegram::Mode;
 use falc_dnc::twin::{Note, RcmTwin};
 use falc_dnc::workstation::{self, Welding};
-use falc_model::alarm::AlarmClass;
 use falc_model::console::{ApiRequest, ApiResult};
 use falc_model::ids::StationName;
-use falc_model::mms::association::{
-    initiate_limit, Associations, InitiateOutcome, InitiateStep, Role,
-};
+use falc_model::mms::association::{initiate_limit, Associations, InitiateOutcome, InitiateStep};
 use falc_model::mms::delivery::{Delivery, DeliveryStep, STEP_LIMIT};
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::heard;
 use falc_model::mms::journal::{Publication, ReportLog, ReportsAsked};
-use falc_model::mms::pdu::{Peer, Request, Response, Severity, Unconfirmed};
+use falc_model::mms::pdu::{Peer, Request, Response, Unconfirmed};
 use falc_model::mms::vmd::VmdStatus;
 use falc_model::topology::Topology;
 use falc_plc::conveyor::{Conveyor, Spot};
@@ -77,8 +75,9 @@ struct Pending {
 enum Waiter {
     /// The order list's cell call.
     List,
-    /// The cell's request to a station or its operator.
-    Cell(Awaiting),
+    /// The cell's request to a station or its operator (on that
+    /// station's lane).
+    Cell(StationName, Awaiting),
     /// The order list's read of what a station kept.
     Kept(Node),
     /// The cell's Initiate of a workstation ([`Initiating`]).
@@ -164,20 +163,16 @@ fn order_list(view: Shared, source: Shipped, set: RecipeSet) -> OrderList<Shared
     .clocked_from(EPOCH_MS)
 }
 
-/// The cell controller as `falc-cell` starts it.
-fn cell_controller() -> Controller<Stations> {
-    Controller::new(
-        RecipeKind::Cell,
-        coordination::CONFIRM_LIMIT,
-        Stations::new(Some(station(Node::Operator))),
+/// The cell controller's node as `falc-cell` starts it.
+fn cell_node(topology: &Topology) -> CellNode<(Node, u64)> {
+    let me = station(Node::Cell);
+    let alone = Associations::of(topology, &me).runs_alone();
+    CellNode::new(
+        me,
+        Some(station(Node::Operator)),
+        vec![station(Node::Welding), station(Node::Transport)],
+        alone,
     )
-    .named(station(Node::Cell))
-    .runs_on_alone(true)
-}
-
-/// The cell's pass-on, empty.
-fn cell_pass_on() -> PassOn<(Node, u64)> {
-    PassOn::new(vec![station(Node::Welding), station(Node::Transport)])
 }
 
 fn welding_node(now: Duration, timing: Timing) -> WeldingNode {
@@ -219,6 +214,14 @@ fn station(n: Node) -> StationName {
 
 /// What a console hears while the operator's process is down.
 const NO_OPERATOR: &str = "no connection with the operator";
+
+/// The order a cell-level Start names (`order N`).
+fn order_of(argument: &str) -> Option<i64> {
+    argument
+        .strip_prefix("order ")
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|s| s.parse().ok())
+}
 
 /// What a controller put out since it was last asked, as the bus carries
 /// it: its reports and job events, and its status if it changed.
@@ -264,11 +267,12 @@ pub struct World {
     replies: BTreeMap<Ticket, ApiResult>,
     /// The cell's indications at the operator: ticket → request id.
     indications: BTreeMap<Ticket, u64>,
-    /// The cell controller.
-    pub cell: Controller<Stations>,
-    /// The cell's pass-on; a ticket is the indication's sender and id.
-    pass: PassOn<(Node, u64)>,
-    cell_status: Option<VmdStatus>,
+    /// The cell controller's node, as `falc-cell` runs it; a ticket is
+    /// the indication's sender and id.
+    pub cell: CellNode<(Node, u64)>,
+    /// The commander's Starts the cell has not answered yet: their
+    /// tickets, and the order each names (counted once answered).
+    starting: BTreeMap<(Node, u64), i64>,
     /// The cell's Initiate while it initiates its workstations.
     initiating: Option<Initiating>,
     /// The cell's stations.
@@ -328,7 +332,7 @@ impl World {
         let conveyor = Conveyor::new(&home, time_scale)?;
         let now = Duration::ZERO;
         let transport = transport_node(now, conveyor.coils());
-        let cell = cell_controller();
+        let cell = cell_node(&topology);
         let mut w = Self {
             now,
             steps: 0,
@@ -342,8 +346,7 @@ impl World {
             replies: BTreeMap::new(),
             indications: BTreeMap::new(),
             cell,
-            pass: cell_pass_on(),
-            cell_status: None,
+            starting: BTreeMap::new(),
             initiating: None,
             lease: topology.lease(),
             welding: welding_node(now, timing),
@@ -704,7 +707,12 @@ impl World {
                     }
                 }
                 ListOutput::Forget(ticket) => {
-                    self.indications.remove(&ticket);
+                    // Dropped unanswered: zenoh ends a query whose
+                    // responder is dropped with no reply, at once.
+                    if let Some(id) = self.indications.remove(&ticket) {
+                        let e = ServiceError::unreachable("no reply to the question (dropped)");
+                        self.respond(Node::Operator, Node::Cell, id, Err(e));
+                    }
                 }
                 ListOutput::Say(line) => self.note(format!("operator: {line}")),
                 ListOutput::Changed => {}
@@ -723,45 +731,31 @@ impl World {
             return false;
         }
         let mut any = false;
-        loop {
-            self.cell.settle(self.now);
-            let mut more = false;
-            while let Some(cmd) = self.cell.device.poll_command() {
-                more = true;
-                let Some(to) = Node::of(&cmd.to) else {
-                    self.note(format!("cell: no station {} in the simulation", cmd.to));
-                    continue;
-                };
-                let request = cmd.request;
-                self.request(
-                    Node::Cell,
-                    to,
-                    |id| Msg::Request { id, request },
-                    cmd.limit,
-                    Waiter::Cell(cmd.awaiting),
-                );
-            }
-            while let Some(local) = self.cell.device.poll_local_reply() {
-                more = true;
-                coordination::handle_reply(&mut self.cell, self.now, local);
-            }
-            while let Some(here) = self.pass.poll_here() {
-                more = true;
-                let result = self.cell_indication(&here.request);
-                self.pass.handled(here, result, self.cell.vmd());
-            }
-            while let Some(todo) = self.pass.poll_todo() {
-                more = true;
-                self.carry_out(todo);
-            }
-            if !more {
-                break;
-            }
+        while let Some(action) = self.cell.poll(self.now) {
             any = true;
-        }
-        for u in outputs(&mut self.cell, &mut self.cell_status, Node::Cell) {
-            any = true;
-            self.publish(Node::Cell, u);
+            match action {
+                CellAction::Request(cmd) => {
+                    let Some(to) = Node::of(&cmd.to) else {
+                        let e = ServiceError::unreachable(format!("no station {}", cmd.to));
+                        let reply = Reply {
+                            awaiting: cmd.awaiting,
+                            result: Err(e),
+                        };
+                        self.cell.handle_reply(self.now, &cmd.to, reply);
+                        continue;
+                    };
+                    let request = cmd.request;
+                    self.request(
+                        Node::Cell,
+                        to,
+                        |id| Msg::Request { id, request },
+                        cmd.limit,
+                        Waiter::Cell(cmd.to, cmd.awaiting),
+                    );
+                }
+                CellAction::Pass(todo) => self.carry_out(todo),
+                CellAction::Publish(u) => self.publish(Node::Cell, u),
+            }
         }
         any
     }
@@ -875,10 +869,7 @@ impl World {
     fn heard(&mut self, now: Duration, to: Node, p: Publication) {
         match to {
             Node::Operator => self.list.handle_heard(now, p.stamp, p.message),
-            Node::Cell => {
-                let events = self.cell.device.unconfirmed(&p.message);
-                self.cell.feed(now, events);
-            }
+            Node::Cell => self.cell.handle_publication(now, &p.message),
             _ => {}
         }
     }
@@ -943,8 +934,8 @@ impl World {
         let now = self.now;
         match waiter {
             Waiter::List => self.list.handle_cell_answer(now, result),
-            Waiter::Cell(awaiting) => {
-                coordination::handle_reply(&mut self.cell, now, Reply { awaiting, result });
+            Waiter::Cell(to, awaiting) => {
+                self.cell.handle_reply(now, &to, Reply { awaiting, result });
             }
             Waiter::Kept(n) => {
                 let why = result.err().map_or_else(String::new, |e| e.to_string());
@@ -956,7 +947,7 @@ impl World {
                     self.delivery_step(n, step);
                 }
             }
-            Waiter::Pass(id) => self.pass.handle_confirm(id, result),
+            Waiter::Pass(id) => self.cell.handle_confirm(id, result),
             Waiter::Initiate(ws) => self.subordinate_initiated(ws, result),
         }
     }
@@ -966,7 +957,7 @@ impl World {
     fn waits_at(&self, waiter: &Waiter) -> Node {
         match waiter {
             Waiter::List | Waiter::Kept(_) => Node::Operator,
-            Waiter::Cell(_) | Waiter::Pass(_) | Waiter::Initiate(_) => Node::Cell,
+            Waiter::Cell(..) | Waiter::Pass(_) | Waiter::Initiate(_) => Node::Cell,
             Waiter::Delivery(n) => self.deliveries.get(n).map_or(Node::Operator, |d| d.from),
         }
     }
@@ -1019,7 +1010,7 @@ impl World {
             Then::List => self
                 .list
                 .handle_cell_answer(self.now, result.map(|()| Response::Done)),
-            Then::Pass(id) => self.pass.handle_delivered(id, result),
+            Then::Pass(id) => self.cell.handle_delivered(id, result),
         }
     }
 
@@ -1084,7 +1075,15 @@ impl World {
                 self.respond(Node::Cell, from, id, result);
             }
             other => match up.assoc.admit(&other) {
-                Ok(()) => self.pass.handle_indication((from, id), other),
+                Ok(()) => {
+                    if let Request::Start { argument, .. } = &other {
+                        // Watched for the invariant: counted once answered.
+                        if let Some(n) = order_of(argument) {
+                            self.starting.insert((from, id), n);
+                        }
+                    }
+                    self.cell.handle_indication((from, id), other)
+                }
                 Err(e) => self.respond(Node::Cell, from, id, Err(e)),
             },
         }
@@ -1141,9 +1140,6 @@ impl World {
     /// lack, take the association in.
     fn cell_associated(&mut self, (to, id): (Node, u64)) {
         self.cell.handle_associated(self.now);
-        self.cell_status = None;
-        let mode = self.cell.mode().clone();
-        self.pass.handle_associated(self.cell.vmd(), &mode);
         let responding = self.peer(Node::Cell);
         self.respond(Node::Cell, to, id, Ok(Response::Initiate { responding }));
     }
@@ -1162,26 +1158,14 @@ impl World {
         }
     }
 
-    /// The cell's controller answers its commander (what the pass-on
-    /// leaves to it).
-    fn cell_indication(&mut self, request: &Request) -> Result<Response, ServiceError> {
-        let now = self.now;
-        let result = self.cell.handle_request(now, request);
-        if let (Ok(_), Request::Start { argument, .. }) = (&result, request) {
-            if let Some(n) = argument
-                .strip_prefix("order ")
-                .and_then(|s| s.split_whitespace().next())
-                .and_then(|s| s.parse::<i64>().ok())
-            {
-                let count = self.starts.entry(n).or_default();
-                *count += 1;
-                if *count > 1 && self.started_twice.is_none() {
-                    self.started_twice = Some((n, *count));
-                }
-                self.note(format!("cell: order {n} started"));
-            }
+    /// The cell answered its commander's Start of order `n`: counted.
+    fn started(&mut self, n: i64) {
+        let count = self.starts.entry(n).or_default();
+        *count += 1;
+        if *count > 1 && self.started_twice.is_none() {
+            self.started_twice = Some((n, *count));
         }
-        result
+        self.note(format!("cell: order {n} started"));
     }
 
     /// Carries out what the cell's pass-on asks: its requests to the
@@ -1191,7 +1175,12 @@ impl World {
             Todo::Answer {
                 ticket: (to, id),
                 result,
-            } => self.respond(Node::Cell, to, id, result),
+            } => {
+                if let (Some(n), true) = (self.starting.remove(&(to, id)), result.is_ok()) {
+                    self.started(n);
+                }
+                self.respond(Node::Cell, to, id, result)
+            }
             Todo::Ask { id, to, request } => match Node::of(&to) {
                 Some(ws) => self.request(
                     Node::Cell,
@@ -1200,7 +1189,7 @@ impl World {
                     PASS_LIMIT,
                     Waiter::Pass(id),
                 ),
-                None => self.pass.handle_confirm(
+                None => self.cell.handle_confirm(
                     id,
                     Err(ServiceError::unreachable(format!("no station {to}"))),
                 ),
@@ -1215,10 +1204,8 @@ impl World {
                 self.deliver(Node::Cell, delivery, Then::Pass(id));
             }
             Todo::Delivered { to, name } => self.note(format!("cell: {name} delivered to {to}")),
-            Todo::Discard(domain) => self.cell.discard_domain(&domain),
-            Todo::Alarm(text) => self
-                .cell
-                .report(Severity::Alarm(AlarmClass::Communication), text),
+            // The node keeps these itself.
+            Todo::Discard(_) | Todo::Alarm(_) => {}
             Todo::Warn(text) => self.note(format!("cell: {text}")),
         }
     }
@@ -1264,16 +1251,15 @@ impl World {
         }
     }
 
-    /// `request` handled by `at`'s controller.
+    /// `request` handled by workstation `at`'s controller.
     fn handle_at(&mut self, at: Node, request: &Request) -> Result<Response, ServiceError> {
         let now = self.now;
         match at {
-            Node::Cell => self.cell.handle_request(now, request),
             Node::Welding => self.welding.ctl.handle_request(now, request),
             Node::Transport => self.transport.ctl.handle_request(now, request),
-            Node::Operator => Err(ServiceError::undefined(
-                "the operator serves no such request",
-            )),
+            Node::Operator | Node::Cell => {
+                Err(ServiceError::undefined(format!("{at} is no workstation")))
+            }
         }
     }
 
@@ -1304,19 +1290,24 @@ impl World {
         }
     }
 
-    /// The router closed `n`'s session: the requests routed to it end
+    /// `n`'s session and its router parted: the requests routed to it end
     /// with no reply at once, as zenoh's router finalizes a closed face's
-    /// pending queries (`finalize_pending_queries`).
+    /// pending queries (`finalize_pending_queries`); and so do the requests
+    /// `n` sent and still waits for, which its own session had routed to
+    /// the router's face, closed on its side too.
     fn finalize(&mut self, n: Node) {
         let ids: Vec<u64> = self
             .pending
             .iter()
-            .filter(|(_, p)| p.to == n)
+            .filter(|(_, p)| p.to == n || self.waits_at(&p.waiter) == n)
             .map(|(id, _)| *id)
             .collect();
         for id in ids {
             if let Some(p) = self.pending.remove(&id) {
-                let e = ServiceError::unreachable(format!("no reply from {n}: its session closed"));
+                let e = ServiceError::unreachable(format!(
+                    "no reply from {}: the session closed",
+                    p.to
+                ));
                 self.confirm(p.waiter, Err(e));
             }
         }
@@ -1368,12 +1359,7 @@ impl World {
         };
         let name = station(gone);
         match at {
-            Node::Cell => {
-                if ind.role == Role::Subordinate {
-                    self.pass.handle_lost(&name);
-                }
-                self.cell.handle_abort(now, &name, ind.role);
-            }
+            Node::Cell => self.cell.handle_abort(now, &name, ind.role),
             Node::Welding => self.welding.ctl.handle_abort(now, &name, ind.role),
             Node::Transport => self.transport.ctl.handle_abort(now, &name, ind.role),
             Node::Operator => {}
@@ -1436,9 +1422,8 @@ impl World {
                 self.wire.retain(|w| w.1);
             }
             Node::Cell => {
-                self.cell = cell_controller();
-                self.pass = cell_pass_on();
-                self.cell_status = None;
+                self.cell = cell_node(&self.topology);
+                self.starting.clear();
                 self.initiating = None;
             }
             Node::Operator => {
