@@ -366,7 +366,7 @@ mod tests {
     use falc_model::alarm::{AlarmClass, Cause};
     use falc_model::console::{ListState, OrderState, Placement};
     use falc_model::ids::ObjectName;
-    use falc_model::mms::pdu::{JobEvent, Request, Unconfirmed};
+    use falc_model::mms::pdu::{JobEvent, Request, Response, Unconfirmed};
     use falc_model::mode::CellMode;
     use falc_model::topology::Topology;
 
@@ -438,7 +438,7 @@ mod tests {
                 assert!(!calls.is_empty(), "no answer and no call");
                 for (i, _) in calls {
                     let list = self.plant.list(i).expect("list");
-                    list.handle_cell_reply(self.now, Ok(()));
+                    list.handle_cell_answer(self.now, Ok(Response::Done));
                 }
             }
         }
@@ -446,8 +446,9 @@ mod tests {
         /// Cell `i`'s controller publishes the end of its job.
         fn job(&mut self, i: usize, event: JobEvent) -> Vec<(usize, CellCall)> {
             let list = self.plant.list(i).expect("list");
-            list.handle_publication(
+            list.handle_heard(
                 self.now,
+                None,
                 Unconfirmed::Job {
                     station: st("cell"),
                     program: ObjectName::new("DIKDROOG").expect("name"),
@@ -564,7 +565,7 @@ mod tests {
         r.plant
             .list(0)
             .expect("list")
-            .handle_cell_reply(r.now, Ok(()));
+            .handle_cell_answer(r.now, Ok(Response::Done));
         assert_eq!(r.order(1).0, OrderState::Done);
         assert_eq!(r.order(3), (OrderState::Running, Some("falc1".into())));
         let s = r.status();

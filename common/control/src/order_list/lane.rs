@@ -336,12 +336,6 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         );
     }
 
-    /// The outcome of the call to the cell that is out, when only success
-    /// or failure matters ([`Self::handle_cell_answer`] with the answer).
-    pub fn handle_cell_reply(&mut self, now: Duration, result: Result<(), ServiceError>) {
-        self.handle_cell_answer(now, result.map(|()| Response::Done));
-    }
-
     /// The answer to the call to the cell that is out.
     pub fn handle_cell_answer(&mut self, now: Duration, result: Result<Response, ServiceError>) {
         self.tick(now);

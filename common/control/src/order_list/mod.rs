@@ -5,7 +5,7 @@
 //!
 //! Events come in with the time they happen (`handle_*`); what the node
 //! must do comes out of [`OrderList::poll_output`]: one request to the cell
-//! at a time ([`CellCall`], answered with [`OrderList::handle_cell_reply`]),
+//! at a time ([`CellCall`], answered with [`OrderList::handle_cell_answer`]),
 //! answers to consoles and to the cell's indications, and lines to say.
 //! [`OrderList::poll_timeout`] is when to try the cell again. Nothing here
 //! waits: a console's `status` is answered while a start is under way;
@@ -66,7 +66,7 @@ pub const RETRY: Duration = Duration::from_secs(1);
 pub struct Ticket(pub u64);
 
 /// A request to the cell. One is out at a time; its outcome comes back
-/// through [`OrderList::handle_cell_reply`].
+/// through [`OrderList::handle_cell_answer`].
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum CellCall {
     /// Associate the cell (the root's Initiate).

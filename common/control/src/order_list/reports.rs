@@ -40,13 +40,6 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.pump(now);
     }
 
-    /// A publication of a station.
-    pub fn handle_publication(&mut self, now: Duration, u: Unconfirmed) {
-        self.tick(now);
-        self.publication(now, u);
-        self.pump(now);
-    }
-
     /// A publication of a station, without beginning the next job.
     pub(super) fn publication(&mut self, now: Duration, u: Unconfirmed) {
         match u {

@@ -89,14 +89,15 @@ impl Rig {
     /// The cell answers the call that is out (an error is a refusal).
     fn answer(&mut self, result: Result<(), &str>) -> Vec<Output> {
         let result = result.map_err(ServiceError::state_conflict);
-        self.list.handle_cell_reply(self.now, result);
+        self.list
+            .handle_cell_answer(self.now, result.map(|()| Response::Done));
         self.outputs()
     }
 
     /// No answer comes to the call that is out.
     fn no_reply(&mut self) -> Vec<Output> {
         let e = ServiceError::unreachable("no reply from cell");
-        self.list.handle_cell_reply(self.now, Err(e));
+        self.list.handle_cell_answer(self.now, Err(e));
         self.outputs()
     }
 
@@ -127,7 +128,7 @@ impl Rig {
     }
 
     fn publish(&mut self, u: Unconfirmed) -> Vec<Output> {
-        self.list.handle_publication(self.now, u);
+        self.list.handle_heard(self.now, None, u);
         self.outputs()
     }
 
@@ -891,7 +892,7 @@ fn an_order_running_when_the_operator_stopped_is_adopted_and_asked_for() {
     list.handle_timeout(Duration::ZERO);
     let out: Vec<Output> = std::iter::from_fn(|| list.poll_output()).collect();
     assert_eq!(call(&out), Some(CellCall::Associate));
-    list.handle_cell_reply(Duration::ZERO, Ok(()));
+    list.handle_cell_answer(Duration::ZERO, Ok(Response::Done));
     let out: Vec<Output> = std::iter::from_fn(|| list.poll_output()).collect();
     assert!(matches!(call(&out), Some(CellCall::Ask { .. })), "{out:?}");
     list.handle_cell_answer(
@@ -1216,8 +1217,9 @@ fn a_workstation_lost_while_idle_is_an_alarm_that_clears_when_it_returns() {
     assert_eq!(s.list, ListState::Alarm, "start waits for the ack");
     // The cell passing the same loss on, still listed: both clear when
     // welding is back; a station named alike is not welding.
-    r.list.handle_publication(
+    r.list.handle_heard(
         r.now,
+        None,
         Unconfirmed::Report {
             station: st("cell"),
             severity: Severity::Alarm(AlarmClass::Communication),
