@@ -243,14 +243,7 @@ mod tests {
     use falc_model::mms::delivery::{Delivery, DeliveryStep};
     use falc_model::mms::pdu::Response;
 
-    const CELL: &str = "A test cell recipe.\n\
-        -1 | output hallo          |       |            | 2\n\
-        -2 | input (ja/nee)        |       | answer=ja  | 3\n\
-        -2 | input (ja/nee)        |       | answer=*   | 0\n\
-        -3 | start transport store |       | gestart    | 4\n\
-        -3 | start transport store |       | tijdlimiet | 5\n\
-        -4 | output einde          |       |            | 0\n\
-        -5 |                       | alarm |            | 0\n";
+    const CELL: &str = crate::controller::testing::CELL_RECIPE;
 
     fn st(s: &str) -> StationName {
         StationName::new(s).expect("station")

@@ -878,21 +878,32 @@ fn restart_state(argument: &str) -> Result<Option<StateNo>, ServiceError> {
 #[cfg(test)]
 pub(crate) mod testing {
     use super::*;
-    use falc_model::mms::domain::download_steps;
+    use falc_model::mms::delivery::{Delivery, DeliveryStep};
+
+    /// A cell recipe for tests: an output and a question to the operator,
+    /// a transport job started and waited for, an alarm state.
+    pub const CELL_RECIPE: &str = "A test cell recipe.\n\
+        -1 | output hallo          |       |            | 2\n\
+        -2 | input (ja/nee)        |       | answer=ja  | 3\n\
+        -2 | input (ja/nee)        |       | answer=*   | 0\n\
+        -3 | start transport store |       | gestart    | 4\n\
+        -3 | start transport store |       | tijdlimiet | 6\n\
+        -4 | wait transport 60     |       | klaar      | 5\n\
+        -4 | wait transport 60     |       | tijdlimiet | 6\n\
+        -5 | output einde          |       |            | 0\n\
+        -6 |                       | alarm |            | 0\n";
 
     /// Delivers `text` as domain and reusable program invocation `name`,
-    /// as `falc_bus::download` does.
+    /// as a commander does ([`Delivery`]).
     pub fn load<D: Device>(c: &mut Controller<D>, name: &str, text: &str) {
         let n = ObjectName::new(name).unwrap();
-        let mut steps = download_steps(&n, text.as_bytes());
-        steps.push(Request::CreateProgramInvocation {
-            name: n.clone(),
-            domains: vec![n],
-            reusable: true,
-        });
-        for req in steps {
-            c.handle_request(Duration::ZERO, &req).unwrap();
+        let me = StationName::new("test").unwrap();
+        let mut d = Delivery::new(me, n, text.as_bytes(), true);
+        let mut step = d.start();
+        while let DeliveryStep::Send(req) = step {
+            step = d.answered(c.handle_request(Duration::ZERO, &req));
         }
+        assert_eq!(step, DeliveryStep::Done(Ok(())), "{name} delivered");
     }
 
     /// Everything put out so far, in order.

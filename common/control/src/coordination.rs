@@ -444,16 +444,7 @@ mod tests {
     use falc_model::mms::program::PiState;
     use falc_recipe::commands::RecipeKind;
 
-    const CELL: &str = "A test cell recipe.\n\
-        -1 | output hallo          |       |            | 2\n\
-        -2 | input (ja/nee)        |       | answer=ja  | 3\n\
-        -2 | input (ja/nee)        |       | answer=*   | 0\n\
-        -3 | start transport store |       | gestart    | 4\n\
-        -3 | start transport store |       | tijdlimiet | 6\n\
-        -4 | wait transport 60     |       | klaar      | 5\n\
-        -4 | wait transport 60     |       | tijdlimiet | 6\n\
-        -5 | output einde          |       |            | 0\n\
-        -6 |                       | alarm |            | 0\n";
+    const CELL: &str = crate::controller::testing::CELL_RECIPE;
 
     fn st(s: &str) -> StationName {
         StationName::new(s).unwrap()
