@@ -15,7 +15,7 @@
 #[path = "../tests/support/mod.rs"]
 mod support;
 
-use falc_dnc::procedure::{frame, LinkEvent, Priority, Timing};
+use falc_dnc::procedure::{frame, Link, LinkEvent, Priority, Timing};
 use falc_dnc::telegram::Telegram;
 use falc_model::ids::RobotProgram;
 use falc_node::dnc_link::{self, DncHandle, LineSettings};
@@ -67,7 +67,10 @@ async fn main() {
         parity: "none".into(),
     })
     .expect("pty");
-    let mut h = dnc_link::spawn(port, Priority::Low, Timing::default());
+    let mut h = dnc_link::spawn(
+        port,
+        Link::new(Priority::Low, Timing::default()).awaiting_answers(),
+    );
     let p64 = RobotProgram::of(64);
     let duration = Duration::from_secs(60).div_f64(TIME_SCALE);
     let ack = |of| Telegram::Ack { of, error: None };

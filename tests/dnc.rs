@@ -3,7 +3,7 @@
 //! the robot controller, with faults injected through its control lines.
 
 use crate::support::Proc;
-use falc_dnc::procedure::{LinkEvent, Priority, SendError, Timing};
+use falc_dnc::procedure::{Link, LinkEvent, Priority, SendError, Timing};
 use falc_dnc::telegram::{AckError, EndResult, Telegram};
 use falc_model::ids::RobotProgram;
 use falc_node::dnc_link::{self, DncHandle, LineSettings};
@@ -22,7 +22,7 @@ fn connect(path: &str, timing: Timing) -> DncHandle {
         parity: "none".into(),
     })
     .expect("the pty opens as a serial port");
-    dnc_link::spawn(port, Priority::Low, timing)
+    dnc_link::spawn(port, Link::new(Priority::Low, timing).awaiting_answers())
 }
 
 /// The next received telegram, skipping our own Sent events, blocks

@@ -15,7 +15,7 @@
 use anyhow::{Context, Result};
 use clap::Parser;
 use falc_bus::station::Station;
-use falc_dnc::procedure::{LinkEvent, Priority, Timing};
+use falc_dnc::procedure::{Link, LinkEvent, Priority, Timing};
 use falc_dnc::workstation::{self, Welding};
 use falc_model::ids::StationName;
 use falc_node::controller_node::ControllerNode;
@@ -72,7 +72,7 @@ async fn main() -> Result<()> {
     let timing = Timing::default();
     let (mut dnc, mut dnc_events) = match dnc_link::open_serial(&line) {
         Ok(port) => {
-            let h = dnc_link::spawn(port, Priority::Low, timing);
+            let h = dnc_link::spawn(port, workstation_end(timing));
             (Some(h.send), Some(h.events))
         }
         Err(e) => {
@@ -112,7 +112,7 @@ async fn main() -> Result<()> {
             _ = reopen.tick(), if dnc.is_none() => {
                 if let Ok(port) = dnc_link::open_serial(&line) {
                     tracing::info!(path = %line.path, "line to the RCM open again");
-                    let h = dnc_link::spawn(port, Priority::Low, timing);
+                    let h = dnc_link::spawn(port, workstation_end(timing));
                     dnc = Some(h.send);
                     dnc_events = Some(h.events);
                     let now = ws.now();
@@ -150,4 +150,11 @@ async fn main() -> Result<()> {
     }
     say("EVENT stopped");
     Ok(())
+}
+
+/// The workstation's end of the DNC line: low priority, and the RCM
+/// answers every telegram it is sent, so an acknowledgement delay without
+/// a byte after one went is a silence ([`Link::awaiting_answers`]).
+fn workstation_end(timing: Timing) -> Link {
+    Link::new(Priority::Low, timing).awaiting_answers()
 }

@@ -100,13 +100,8 @@ pub struct Host {
     /// The program a job of ours runs on the robot (from the start's
     /// acknowledgement until its end).
     running: Option<RobotProgram>,
-    /// When the first status request still unanswered was asked.
+    /// When the unanswered status request went out.
     asked: Option<Duration>,
-    /// When the link last delivered a status request: unanswered a status
-    /// period later, it is asked again, so a line that died after a
-    /// request went is seen by the link's silence on the next one, not
-    /// only at [`Timing::silent_after`].
-    delivered: Duration,
     /// How long it may go unanswered ([`Timing::silent_after`]).
     silent_limit: Duration,
     /// When the RCM was last heard.
@@ -167,7 +162,6 @@ impl Host {
             pending: None,
             running: None,
             asked: None,
-            delivered: Duration::ZERO,
             silent_limit: timing.silent_after(),
             heard: Duration::ZERO,
             probing: false,
@@ -281,7 +275,6 @@ impl Host {
     pub fn sent(&mut self, now: Duration, telegram: &[u8]) {
         if telegram == Telegram::StatusRequest.encode().as_slice() {
             self.asking = false;
-            self.delivered = now;
         }
         if let Some(step) = &mut self.pending {
             if step.ack == AckWait::Undelivered && telegram == step.what.telegram().encode() {
@@ -315,7 +308,7 @@ impl Host {
     /// Asks the robot's status at `now`, unless a request is still in the
     /// link's hands (then its answer, or its silence, is awaited).
     fn ask(&mut self, now: Duration) -> Option<Out> {
-        self.asked.get_or_insert(now);
+        self.asked = Some(now);
         if std::mem::replace(&mut self.asking, true) {
             None
         } else {
@@ -379,10 +372,6 @@ impl Host {
             return None;
         }
         Some(match self.asked {
-            // Asked again a period after the last request was delivered.
-            Some(at) if !self.asking => {
-                (at + self.silent_limit).min(self.delivered + STATUS_PERIOD)
-            }
             Some(at) => at + self.silent_limit,
             None => self.heard + STATUS_PERIOD,
         })
@@ -414,14 +403,14 @@ impl Host {
             return Vec::new();
         }
         match self.asked {
-            Some(at) if at + self.silent_limit <= now => self.went_silent(
+            Some(at) => self.went_silent(
                 now,
                 &format!(
                     "status request unanswered for {:.1} s",
                     now.saturating_sub(at).as_secs_f64()
                 ),
             ),
-            _ => self.ask(now).into_iter().collect(),
+            None => self.ask(now).into_iter().collect(),
         }
     }
 
@@ -1042,14 +1031,14 @@ mod tests {
         assert!(!h.answered());
         // It keeps asking, and when the line is back stops the program it
         // no longer owns; never a second request behind one the link
-        // still tries (3964R: up to 6 × 2 s), and a request delivered but
-        // unanswered is asked again a period later (a line that died
-        // after it went shows on the next one's STX).
+        // still tries (3964R: up to 6 × 2 s).
         let t = asked + limit;
         assert!(h.handle_timeout(t + period).is_empty());
         h.sent(t + period, &Telegram::StatusRequest.encode());
-        assert_eq!(h.poll_timeout(), Some(t + period + period));
-        let t = t + period + period;
+        assert_eq!(h.poll_timeout(), Some(t + period + limit));
+        h.handle_timeout(t + period + limit);
+        h.sent(t + period + limit, &Telegram::StatusRequest.encode());
+        let t = t + period + limit + period;
         assert_eq!(
             h.handle_timeout(t),
             vec![Out::Telegram(Telegram::StatusRequest)]
@@ -1102,34 +1091,6 @@ mod tests {
         // answer until it does.
         assert!(h.silent(s(9000), waited).is_empty());
         assert!(!h.answered());
-    }
-
-    /// Found by `falc-sim` (seed 6): the line was unplugged just after a
-    /// status request was delivered; the host waited 6.88 s for its answer
-    /// before it called the line silent, with the robot's program
-    /// unwatched all that while.
-    #[test]
-    fn a_line_that_dies_after_a_request_went_is_seen_by_the_next_request() {
-        let timing = Timing::default();
-        let mut h = running(1000);
-        let asked = s(1500);
-        assert_eq!(
-            h.handle_timeout(asked),
-            vec![Out::Telegram(Telegram::StatusRequest)]
-        );
-        h.sent(asked + s(5), &Telegram::StatusRequest.encode());
-        // Unplugged now: no answer. A period after it went, asked again.
-        let again = asked + s(5) + STATUS_PERIOD;
-        assert_eq!(h.poll_timeout(), Some(again));
-        assert_eq!(
-            h.handle_timeout(again),
-            vec![Out::Telegram(Telegram::StatusRequest)]
-        );
-        // Its STX hears nothing for an acknowledgement delay: the alarm,
-        // 2.5 s after the last answer's request, where it was 6.88 s.
-        let seen = again + timing.ack_delay;
-        assert!(ended(&h.silent(seen, timing.ack_delay)).is_some());
-        assert!(seen - asked < s(3000), "{:?}", seen - asked);
     }
 
     /// Found by `falc-sim` (seeds 2 and 6): the line came back under a

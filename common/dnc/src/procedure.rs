@@ -230,6 +230,12 @@ pub struct Link {
     /// The current silence was told ([`LinkEvent::Silent`]); a byte heard
     /// clears it.
     silence_told: bool,
+    /// Whether the partner answers every telegram of ours
+    /// ([`Link::awaiting_answers`]).
+    answered: bool,
+    /// Until when a byte is awaited after a telegram of ours went (the
+    /// partner's answer): none heard by then is a silence.
+    answer_due: Option<Duration>,
 }
 
 impl Link {
@@ -245,7 +251,21 @@ impl Link {
             out: VecDeque::new(),
             events: VecDeque::new(),
             silence_told: false,
+            answered: false,
+            answer_due: None,
         }
+    }
+
+    /// An end whose partner answers every telegram it is sent (the DNC
+    /// host: the RCM acknowledges each command and answers each status
+    /// request). Once a telegram went, an acknowledgement delay without
+    /// one byte from the partner is a silence ([`LinkEvent::Silent`]), as
+    /// while waiting for a DLE: a line that dies just after a telegram
+    /// went is told then, not only when the next telegram's STX goes
+    /// unanswered. Noise is bytes, and ends the wait like an answer.
+    pub fn awaiting_answers(mut self) -> Self {
+        self.answered = true;
+        self
     }
 
     /// Queues a telegram; it is sent when the link is free.
@@ -276,7 +296,7 @@ impl Link {
     /// When `handle_timeout` must be called next.
     pub fn poll_timeout(&self) -> Option<Duration> {
         match &self.state {
-            State::Idle => None,
+            State::Idle => self.answer_due,
             State::AwaitStartAck { deadline }
             | State::AwaitFinalAck { deadline }
             | State::Backoff { until: deadline }
@@ -396,7 +416,11 @@ impl Link {
             State::Receiving { .. } | State::AwaitBcc { .. } => {
                 self.refuse(now, "character delay exceeded inside a block".into())
             }
-            State::Idle => {}
+            State::Idle => {
+                // The partner's answer did not begin within the delay.
+                self.answer_due = None;
+                self.silent();
+            }
         }
     }
 
@@ -413,6 +437,7 @@ impl Link {
     pub fn handle_bytes(&mut self, now: Duration, bytes: &[u8]) {
         if !bytes.is_empty() {
             self.silence_told = false;
+            self.answer_due = None;
         }
         for &b in bytes {
             self.handle_byte(now, b);
@@ -469,6 +494,9 @@ impl Link {
             State::AwaitFinalAck { .. } => match b {
                 DLE => {
                     self.state = State::Idle;
+                    if self.answered {
+                        self.answer_due = Some(now + self.timing.ack_delay);
+                    }
                     if let Some(t) = self.queue.pop_front() {
                         self.events.push_back(LinkEvent::Sent(t));
                     }
@@ -599,6 +627,40 @@ mod tests {
         l.handle_bytes(ms(30), &[DLE]);
         assert_eq!(events(&mut l), vec![LinkEvent::Sent(b"S064".to_vec())]);
         assert!(l.is_idle());
+    }
+
+    /// Found by `falc-sim` (seeds 1, 4, 6, 9–12 of 3,000 orders): a line
+    /// unplugged just after a status request went left the robot's program
+    /// unwatched until the host's 6.88 s limit; the link now tells the
+    /// silence an acknowledgement delay after the telegram went.
+    #[test]
+    fn a_partner_that_answers_every_telegram_is_silent_when_no_byte_follows_one() {
+        let delivered = |l: &mut Link| {
+            l.send(ms(0), b"Q".to_vec());
+            tx(l);
+            l.handle_bytes(ms(5), &[DLE]);
+            tx(l);
+            l.handle_bytes(ms(10), &[DLE]);
+            assert_eq!(events(l), vec![LinkEvent::Sent(b"Q".to_vec())]);
+        };
+        let mut l = low().awaiting_answers();
+        delivered(&mut l);
+        assert_eq!(l.poll_timeout(), Some(ms(2010)));
+        l.handle_timeout(ms(2009));
+        assert_eq!(events(&mut l), vec![]);
+        l.handle_timeout(ms(2010));
+        assert_eq!(events(&mut l), vec![LinkEvent::Silent(ms(2000))]);
+        assert_eq!(l.poll_timeout(), None, "told once");
+        // The answer begins (or noise comes: bytes either way): no silence.
+        let mut l = low().awaiting_answers();
+        delivered(&mut l);
+        l.handle_bytes(ms(400), &[0x55]);
+        l.handle_timeout(ms(2010));
+        assert!(!events(&mut l).contains(&LinkEvent::Silent(ms(2000))));
+        // A partner that answers nothing is never awaited.
+        let mut l = low();
+        delivered(&mut l);
+        assert_eq!(l.poll_timeout(), None);
     }
 
     #[test]

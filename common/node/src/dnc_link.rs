@@ -3,7 +3,7 @@
 //! channel; link events come out over another. The driver only moves bytes
 //! and time; every rule lives in [`super::procedure`].
 
-use falc_dnc::procedure::{Link, LinkEvent, Priority, Timing};
+use falc_dnc::procedure::{Link, LinkEvent};
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
@@ -73,14 +73,14 @@ pub struct DncHandle {
     pub events: UnboundedReceiver<LinkEvent>,
 }
 
-/// Spawns a driver over `port`.
-pub fn spawn<P>(port: P, priority: Priority, timing: Timing) -> DncHandle
+/// Spawns a driver of `link` over `port`.
+pub fn spawn<P>(port: P, link: Link) -> DncHandle
 where
     P: AsyncRead + AsyncWrite + Unpin + Send + 'static,
 {
     let (send_tx, send_rx) = unbounded_channel();
     let (ev_tx, ev_rx) = unbounded_channel();
-    tokio::spawn(run(port, Link::new(priority, timing), send_rx, ev_tx));
+    tokio::spawn(run(port, link, send_rx, ev_tx));
     DncHandle {
         send: send_tx,
         events: ev_rx,

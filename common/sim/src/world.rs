@@ -184,7 +184,7 @@ fn welding_node(now: Duration, timing: Timing) -> WeldingNode {
             workstation::confirm_limit(&timing),
             device,
         ),
-        link: DncLink::new(Priority::Low, timing),
+        link: DncLink::new(Priority::Low, timing).awaiting_answers(),
         status: None,
     }
 }
