@@ -18,7 +18,7 @@ use falc_bus::station::{Station, StationEvent};
 use falc_bus::Responder;
 use falc_control::cell_node::{CellAction, CellNode};
 use falc_control::coordination::Reply;
-use falc_control::pass_on::{Todo, PASS_LIMIT};
+use falc_control::pass_on::PASS_LIMIT;
 use falc_model::ids::StationName;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::Response;
@@ -45,9 +45,9 @@ struct Cli {
 enum Came {
     /// The confirm of a [`CellAction::Request`] to this station.
     Reply(StationName, Reply),
-    /// The confirm of a [`Todo::Ask`].
+    /// The confirm of a [`CellAction::Ask`].
     Confirm(u64, Result<Response, ServiceError>),
-    /// The outcome of a [`Todo::Deliver`].
+    /// The outcome of a [`CellAction::Deliver`].
     Delivered(u64, Result<(), ServiceError>),
 }
 
@@ -81,42 +81,27 @@ impl Cell {
                         let _ = came.send(Came::Reply(cmd.to, reply));
                     });
                 }
-                CellAction::Pass(todo) => self.carry_out(todo).await,
+                CellAction::Answer { ticket, result } => ticket.respond(result).await,
+                CellAction::Ask { id, to, request } => {
+                    let (bus, came) = (self.station.bus().clone(), self.came.clone());
+                    tokio::spawn(async move {
+                        let result = bus.request(&to, &request, PASS_LIMIT).await;
+                        let _ = came.send(Came::Confirm(id, result));
+                    });
+                }
+                CellAction::Deliver { id, delivery } => {
+                    let (bus, came) = (self.station.bus().clone(), self.came.clone());
+                    tokio::spawn(async move {
+                        let result = bus.carry(delivery).await;
+                        let _ = came.send(Came::Delivered(id, result));
+                    });
+                }
+                CellAction::Delivered { to, name } => {
+                    say(&format!("EVENT delivered station={to} recipe={name}"));
+                }
+                CellAction::Warn(text) => tracing::warn!("{text}"),
                 CellAction::Publish(u) => controller_node::publish(&self.station, u).await,
             }
-        }
-    }
-
-    /// Carries out what the pass-on asks; what workstations answer comes
-    /// back as [`Came`].
-    async fn carry_out(&mut self, todo: Todo<Responder>) {
-        let bus = self.station.bus().clone();
-        let came = self.came.clone();
-        match todo {
-            Todo::Answer { ticket, result } => ticket.respond(result).await,
-            Todo::Ask { id, to, request } => {
-                tokio::spawn(async move {
-                    let result = bus.request(&to, &request, PASS_LIMIT).await;
-                    let _ = came.send(Came::Confirm(id, result));
-                });
-            }
-            Todo::Deliver {
-                id,
-                to,
-                name,
-                content,
-            } => {
-                tokio::spawn(async move {
-                    let result = bus.deliver(&to, &name, &content).await;
-                    let _ = came.send(Came::Delivered(id, result));
-                });
-            }
-            Todo::Delivered { to, name } => {
-                say(&format!("EVENT delivered station={to} recipe={name}"));
-            }
-            // The node keeps these itself.
-            Todo::Discard(_) | Todo::Alarm(_) => {}
-            Todo::Warn(text) => tracing::warn!("{text}"),
         }
     }
 

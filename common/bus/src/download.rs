@@ -36,8 +36,8 @@ impl Bus {
             .await
     }
 
-    /// Sends `delivery`'s steps until it ends.
-    async fn carry(&self, mut delivery: Delivery) -> Result<(), ServiceError> {
+    /// Sends `delivery`'s steps until it ends (to the station it names).
+    pub async fn carry(&self, mut delivery: Delivery) -> Result<(), ServiceError> {
         let to = delivery.to().clone();
         let mut step = delivery.start();
         loop {

@@ -11,33 +11,68 @@
 //! The driver hands in what comes (the commander's indications with a
 //! ticket of its own `T`, confirms, the workstations' publications,
 //! associations and aborts, the time) and carries out what
-//! [`CellNode::poll`] gives, in order: a request to send, what the
-//! pass-on asks (answer the commander, ask or deliver to a workstation),
-//! a publication. A publication the cell's answer to an indication caused
+//! [`CellNode::poll`] gives, in order ([`CellAction`]): a request to
+//! send, an answer to the commander, a request or a delivery to a
+//! workstation on the pass-on's behalf, a line for the log, a
+//! publication. A publication the cell's answer to an indication caused
 //! comes before that answer, as the processes have always sent them.
 
 use crate::controller::Controller;
 use crate::coordination::{self, Command, Reply, Stations, CONFIRM_LIMIT};
+#[cfg(doc)]
+use crate::pass_on::PASS_LIMIT;
 use crate::pass_on::{PassOn, Todo};
 use falc_model::alarm::AlarmClass;
-use falc_model::ids::StationName;
+use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::association::Role;
-use falc_model::mms::pdu::{Request, Severity, Unconfirmed};
+use falc_model::mms::delivery::Delivery;
+use falc_model::mms::error::ServiceError;
+use falc_model::mms::pdu::{Request, Response, Severity, Unconfirmed};
 use falc_model::mms::vmd::VmdStatus;
 use falc_recipe::commands::RecipeKind;
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
 
 /// What the driver does, in order.
-#[derive(Debug, PartialEq)]
+#[derive(Debug)]
 pub enum CellAction<T> {
     /// Send `command.request` to `command.to` within `command.limit`; its
     /// confirm goes to [`CellNode::handle_reply`].
     Request(Command),
-    /// What the pass-on asks: answer the commander, ask or deliver to a
-    /// workstation, or say a delivery ended ([`Todo`]; the node keeps its
-    /// discards and alarms itself).
-    Pass(Todo<T>),
+    /// Answer the commander's indication `ticket`.
+    Answer {
+        /// The driver's handle on it.
+        ticket: T,
+        /// The answer.
+        result: Result<Response, ServiceError>,
+    },
+    /// Ask workstation `to` within [`PASS_LIMIT`]; its confirm goes to
+    /// [`CellNode::handle_confirm`] with `id`.
+    Ask {
+        /// Names the confirm.
+        id: u64,
+        /// The workstation.
+        to: StationName,
+        /// What it is asked.
+        request: Request,
+    },
+    /// Carry out `delivery` to its workstation; its outcome goes to
+    /// [`CellNode::handle_delivered`] with `id`.
+    Deliver {
+        /// Names the outcome.
+        id: u64,
+        /// The recipe's domain and program invocation, all or nothing.
+        delivery: Delivery,
+    },
+    /// Recipe `name` reached workstation `to` (for the log).
+    Delivered {
+        /// The workstation.
+        to: StationName,
+        /// The recipe.
+        name: ObjectName,
+    },
+    /// Worth a warning in the log, no more.
+    Warn(String),
     /// Publish this (a report, a job event, the status when it changed).
     Publish(Unconfirmed),
 }
@@ -104,21 +139,13 @@ impl<T> CellNode<T> {
         coordination::handle_reply(&mut self.ctl, now, reply);
     }
 
-    /// A workstation confirmed what the pass-on asked ([`Todo::Ask`]).
-    pub fn handle_confirm(
-        &mut self,
-        id: u64,
-        result: Result<falc_model::mms::pdu::Response, falc_model::mms::error::ServiceError>,
-    ) {
+    /// A workstation confirmed what the node asked ([`CellAction::Ask`]).
+    pub fn handle_confirm(&mut self, id: u64, result: Result<Response, ServiceError>) {
         self.pass.handle_confirm(id, result);
     }
 
-    /// A delivery the pass-on asked for ended ([`Todo::Deliver`]).
-    pub fn handle_delivered(
-        &mut self,
-        id: u64,
-        result: Result<(), falc_model::mms::error::ServiceError>,
-    ) {
+    /// A delivery the node asked for ended ([`CellAction::Deliver`]).
+    pub fn handle_delivered(&mut self, id: u64, result: Result<(), ServiceError>) {
         self.pass.handle_delivered(id, result);
     }
 
@@ -188,13 +215,31 @@ impl<T> CellNode<T> {
             }
             while let Some(todo) = self.pass.poll_todo() {
                 more = true;
-                match todo {
-                    Todo::Discard(domain) => self.ctl.discard_domain(&domain),
-                    Todo::Alarm(text) => self
-                        .ctl
-                        .report(Severity::Alarm(AlarmClass::Communication), text),
-                    other => self.out.push_back(CellAction::Pass(other)),
-                }
+                let action = match todo {
+                    Todo::Discard(domain) => {
+                        self.ctl.discard_domain(&domain);
+                        continue;
+                    }
+                    Todo::Alarm(text) => {
+                        let alarm = Severity::Alarm(AlarmClass::Communication);
+                        self.ctl.report(alarm, text);
+                        continue;
+                    }
+                    Todo::Answer { ticket, result } => CellAction::Answer { ticket, result },
+                    Todo::Ask { id, to, request } => CellAction::Ask { id, to, request },
+                    Todo::Deliver {
+                        id,
+                        to,
+                        name,
+                        content,
+                    } => CellAction::Deliver {
+                        id,
+                        delivery: Delivery::new(to, name, &content, true),
+                    },
+                    Todo::Delivered { to, name } => CellAction::Delivered { to, name },
+                    Todo::Warn(text) => CellAction::Warn(text),
+                };
+                self.out.push_back(action);
             }
             if !more {
                 break;
@@ -271,9 +316,7 @@ mod tests {
         &Result<Response, falc_model::mms::error::ServiceError>,
     )> {
         acts.iter().enumerate().find_map(|(i, a)| match a {
-            CellAction::Pass(Todo::Answer { ticket: t, result }) if *t == ticket => {
-                Some((i, result))
-            }
+            CellAction::Answer { ticket: t, result } if *t == ticket => Some((i, result)),
             _ => None,
         })
     }

@@ -15,7 +15,7 @@ use falc_control::cell_node::{CellAction, CellNode};
 use falc_control::controller::{Controller, Device};
 use falc_control::coordination::{Awaiting, Reply};
 use falc_control::order_list::{OrderList, Output as ListOutput, Ticket, CELL_LIMIT};
-use falc_control::pass_on::{Todo, PASS_LIMIT};
+use falc_control::pass_on::PASS_LIMIT;
 use falc_control::recipe_source::{RecipeSet, RecipeSource};
 use falc_control::records::memory::Memory;
 use falc_control::records::shared::{plant, Shared};
@@ -753,7 +753,35 @@ impl World {
                         Waiter::Cell(cmd.to, cmd.awaiting),
                     );
                 }
-                CellAction::Pass(todo) => self.carry_out(todo),
+                CellAction::Answer {
+                    ticket: (to, id),
+                    result,
+                } => {
+                    if let (Some(n), true) = (self.starting.remove(&(to, id)), result.is_ok()) {
+                        self.started(n);
+                    }
+                    self.respond(Node::Cell, to, id, result)
+                }
+                CellAction::Ask { id, to, request } => match Node::of(&to) {
+                    Some(ws) => self.request(
+                        Node::Cell,
+                        ws,
+                        |id| Msg::Request { id, request },
+                        PASS_LIMIT,
+                        Waiter::Pass(id),
+                    ),
+                    None => {
+                        let e = ServiceError::unreachable(format!("no station {to}"));
+                        self.cell.handle_confirm(id, Err(e));
+                    }
+                },
+                CellAction::Deliver { id, delivery } => {
+                    self.deliver(Node::Cell, delivery, Then::Pass(id));
+                }
+                CellAction::Delivered { to, name } => {
+                    self.note(format!("cell: {name} delivered to {to}"));
+                }
+                CellAction::Warn(text) => self.note(format!("cell: {text}")),
                 CellAction::Publish(u) => self.publish(Node::Cell, u),
             }
         }
@@ -1166,48 +1194,6 @@ impl World {
             self.started_twice = Some((n, *count));
         }
         self.note(format!("cell: order {n} started"));
-    }
-
-    /// Carries out what the cell's pass-on asks: its requests to the
-    /// workstations go over the bus, as `falc-cell` sends them.
-    fn carry_out(&mut self, todo: Todo<(Node, u64)>) {
-        match todo {
-            Todo::Answer {
-                ticket: (to, id),
-                result,
-            } => {
-                if let (Some(n), true) = (self.starting.remove(&(to, id)), result.is_ok()) {
-                    self.started(n);
-                }
-                self.respond(Node::Cell, to, id, result)
-            }
-            Todo::Ask { id, to, request } => match Node::of(&to) {
-                Some(ws) => self.request(
-                    Node::Cell,
-                    ws,
-                    |id| Msg::Request { id, request },
-                    PASS_LIMIT,
-                    Waiter::Pass(id),
-                ),
-                None => self.cell.handle_confirm(
-                    id,
-                    Err(ServiceError::unreachable(format!("no station {to}"))),
-                ),
-            },
-            Todo::Deliver {
-                id,
-                to,
-                name,
-                content,
-            } => {
-                let delivery = Delivery::new(to, name, &content, true);
-                self.deliver(Node::Cell, delivery, Then::Pass(id));
-            }
-            Todo::Delivered { to, name } => self.note(format!("cell: {name} delivered to {to}")),
-            // The node keeps these itself.
-            Todo::Discard(_) | Todo::Alarm(_) => {}
-            Todo::Warn(text) => self.note(format!("cell: {text}")),
-        }
     }
 
     /// A request to workstation `ws`: the association services its station
