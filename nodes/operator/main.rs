@@ -36,7 +36,7 @@ use falc_model::ids::StationName;
 use falc_model::keys::KeySpace;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::journal::{KeptReports, Publication};
-use falc_model::mms::pdu::{Peer, Request, Response};
+use falc_model::mms::pdu::{Request, Response};
 use falc_model::plant::Layout;
 use falc_model::topology::{StationKind, Topology};
 use falc_node::{init_tracing, lane, say, NodeArgs};
@@ -88,7 +88,7 @@ enum LaneJob {
 /// What came back of a [`LaneJob`].
 enum LaneDone {
     /// The Initiates' outcomes, for the station to record.
-    Initiates(Vec<(StationName, Result<Peer, ServiceError>)>),
+    Initiates(Vec<(StationName, Result<Response, ServiceError>)>),
     /// A request's or delivery's outcome.
     Done(Result<Response, ServiceError>),
 }
@@ -190,7 +190,7 @@ impl Operator {
             Output::Cell(call) => {
                 let job = match call {
                     // The root's Initiate: of the cell and what it needs.
-                    CellCall::Associate => LaneJob::Initiates(cell.station.initiates_due()),
+                    CellCall::Associate => LaneJob::Initiates(cell.station.initiates()),
                     call => match call.request(cell.station.bus().me()) {
                         Ok(request) => LaneJob::Request(request),
                         Err(delivery) => LaneJob::Deliver(*delivery),

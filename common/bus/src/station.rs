@@ -1,21 +1,20 @@
 //! A station's runtime on the bus: its session, the services it serves, and
-//! its associations (the I/O half of [`falc_model::mms::association`]).
+//! its associations (the I/O half of [`falc_model::mms::serving`]).
 //!
-//! [`Station::next`] handles Initiate, Conclude, Abort and lost tokens
-//! itself (initiating subordinates before confirming, watching tokens,
-//! aborting subordinates when the commander is lost) and hands the node only
-//! what it must act on: the other indications, association changes and
-//! abort indications.
+//! [`Station::next`] hands Initiate, Conclude, Abort and lost tokens to the
+//! sans-I/O [`Serving`] and carries out what it asks (initiating
+//! subordinates before confirming, watching tokens, concluding and
+//! aborting subordinates); it hands the node only what it must act on:
+//! the other indications, association changes and abort indications.
 
 use super::{
     acl, Bus, BusError, BusEvent, BusSettings, Declaration, Indication, Responder, StatusBoard,
 };
 use falc_model::ids::StationName;
-use falc_model::mms::association::{
-    initiate_limit, AbortIndication, Associations, InitiateOutcome, InitiateStep,
-};
+use falc_model::mms::association::{AbortIndication, Associations};
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Peer, Request, Response, Unconfirmed};
+use falc_model::mms::serving::{Action, Serving};
 use falc_model::mms::vmd::VmdStatus;
 use falc_model::topology::Topology;
 use std::collections::HashMap;
@@ -38,16 +37,16 @@ pub enum StationEvent {
 /// A node's station runtime.
 pub struct Station {
     bus: Bus,
-    assoc: Associations,
+    serving: Serving<u64>,
+    /// The responders of the indications [`Self::serving`] holds.
+    responders: HashMap<u64, Responder>,
+    next_token: u64,
     tx: UnboundedSender<BusEvent>,
     rx: UnboundedReceiver<BusEvent>,
     watches: HashMap<Peer, Declaration>,
     board: StatusBoard,
     _served: Vec<Declaration>,
     deadline: Duration,
-    /// How long an Initiate of each subordinate may take: one deadline per
-    /// level of its subtree (it initiates its own subordinates first).
-    initiate_limits: HashMap<StationName, Duration>,
 }
 
 impl Station {
@@ -60,7 +59,7 @@ impl Station {
     /// of every cell on one session: [`Bus::alongside`]).
     pub async fn on(bus: Bus, topology: &Topology) -> Result<Self, BusError> {
         let me = bus.me().station.clone();
-        let assoc = Associations::of(topology, &me);
+        let serving = Serving::of(topology, bus.me().clone());
         let (tx, rx) = unbounded_channel();
         let board = StatusBoard::default();
         let mut served = bus
@@ -71,21 +70,17 @@ impl Station {
             served.push(bus.keep_reports().await?);
         }
         bus.sync_with_router().await?;
-        let initiate_limits = topology
-            .subordinates_of(&me)
-            .into_iter()
-            .map(|sub| (sub.clone(), initiate_limit(topology, sub)))
-            .collect();
         Ok(Self {
             bus,
-            assoc,
+            serving,
+            responders: HashMap::new(),
+            next_token: 0,
             tx,
             rx,
             watches: HashMap::new(),
             board,
             _served: served,
             deadline: super::DEFAULT_DEADLINE,
-            initiate_limits,
         })
     }
 
@@ -120,7 +115,7 @@ impl Station {
 
     /// The association state.
     pub fn associations(&self) -> &Associations {
-        &self.assoc
+        self.serving.associations()
     }
 
     /// The next event the node must act on; None when the bus is gone.
@@ -148,116 +143,82 @@ impl Station {
     /// would leave the association pending and the commander unanswered.
     pub async fn handle(&mut self, ev: BusEvent) -> Option<StationEvent> {
         match ev {
-            BusEvent::Indication(ind) => self.on_indication(ind).await,
-            BusEvent::PeerLost { peer, reason } => self.on_lost(&peer, &reason, false).await,
+            BusEvent::Indication(ind) => {
+                self.next_token += 1;
+                let token = self.next_token;
+                self.responders.insert(token, ind.responder);
+                self.serving.handle_request(token, ind.request);
+            }
+            BusEvent::PeerLost { peer, reason } => self.serving.handle_lost(&peer, &reason),
         }
+        self.carry_out().await
     }
 
-    async fn on_indication(&mut self, ind: Indication) -> Option<StationEvent> {
-        match ind.request {
-            Request::Initiate { calling } => self.on_initiate(calling, ind.responder).await,
-            Request::Conclude { calling } => match self.assoc.conclude(&calling) {
-                Ok(subs) => {
-                    self.unwatch(&calling);
-                    for sub in subs {
-                        self.conclude_one(&sub).await;
-                    }
-                    ind.responder.respond(Ok(Response::Done)).await;
-                    Some(StationEvent::Concluded(calling))
-                }
-                Err(e) => {
-                    ind.responder.respond(Err(e)).await;
-                    None
-                }
-            },
-            Request::Abort { calling, reason } => {
-                ind.responder.respond(Ok(Response::Done)).await;
-                self.on_lost(&calling, &format!("Abort from {calling}: {reason}"), true)
-                    .await
-            }
-            ref r => match self.assoc.admit(r) {
-                Ok(()) => Some(StationEvent::Indication(ind)),
-                Err(e) => {
-                    ind.responder.respond(Err(e)).await;
-                    None
-                }
-            },
-        }
-    }
-
-    async fn on_initiate(&mut self, calling: Peer, responder: Responder) -> Option<StationEvent> {
-        let commander = match self.assoc.initiate(calling) {
-            InitiateStep::Refuse(e) => {
-                responder.respond(Err(e)).await;
-                return None;
-            }
-            InitiateStep::Confirm(p) => p,
-            InitiateStep::InitiateSubordinates(subs) => {
-                let results = initiate_all(&self.bus, self.with_limits(subs)).await;
-                match self.assoc.subordinates_initiated(results) {
-                    InitiateOutcome::Confirm {
-                        commander,
-                        associated,
-                    } => {
-                        for p in associated {
-                            self.watch(&p).await;
+    /// Carries out what [`Serving`] asks, the subordinates' Initiates at
+    /// once, until it asks nothing more; what the node must act on (one
+    /// at most per event).
+    async fn carry_out(&mut self) -> Option<StationEvent> {
+        let mut event = None;
+        loop {
+            let mut initiates = Vec::new();
+            while let Some(action) = self.serving.poll() {
+                match action {
+                    Action::Respond(token, result) => {
+                        if let Some(r) = self.responders.remove(&token) {
+                            r.respond(result).await;
                         }
-                        commander
                     }
-                    InitiateOutcome::Refuse { error, conclude } => {
-                        for p in conclude {
-                            self.conclude_one(&p).await;
+                    Action::Initiate { to, request, limit } => {
+                        initiates.push((to, request, limit));
+                    }
+                    Action::Tell { to, request } => {
+                        if let Err(e) = self.bus.request(&to, &request, self.deadline).await {
+                            tracing::warn!("{} to {to} not confirmed: {e}", request.service());
                         }
-                        let me = self.bus.me().clone();
-                        self.watches.retain(|p, _| *p == me);
-                        responder.respond(Err(error)).await;
-                        return None;
                     }
+                    Action::Watch(p) => self.watch(&p).await,
+                    Action::Unwatch(p) => {
+                        self.watches.remove(&p);
+                    }
+                    Action::Indication(token, request) => {
+                        if let Some(responder) = self.responders.remove(&token) {
+                            event =
+                                Some(StationEvent::Indication(Indication { request, responder }));
+                        }
+                    }
+                    Action::Associated(p) => event = Some(StationEvent::Associated(p)),
+                    Action::Concluded(p) => event = Some(StationEvent::Concluded(p)),
+                    Action::Abort(a) => event = Some(StationEvent::Abort(a)),
                 }
             }
-        };
-        self.watch(&commander).await;
-        responder
-            .respond(Ok(Response::Initiate {
-                responding: self.bus.me().clone(),
-            }))
-            .await;
-        Some(StationEvent::Associated(commander))
-    }
-
-    async fn on_lost(
-        &mut self,
-        peer: &Peer,
-        reason: &str,
-        sent_abort: bool,
-    ) -> Option<StationEvent> {
-        self.unwatch(peer);
-        let (indication, abort) = self.assoc.lost(peer, reason, sent_abort)?;
-        for sub in abort {
-            self.unwatch(&sub);
-            let req = Request::Abort {
-                calling: self.bus.me().clone(),
-                reason: format!("{} lost its commander: {reason}", self.bus.me().station),
-            };
-            if let Err(e) = self.bus.request(&sub.station, &req, self.deadline).await {
-                tracing::warn!("Abort to {sub} not confirmed: {e}");
+            if initiates.is_empty() {
+                return event;
+            }
+            let bus = &self.bus;
+            let calls = initiates
+                .into_iter()
+                .map(|(to, request, limit)| async move {
+                    let r = bus.request(&to, &request, limit).await;
+                    (to, r)
+                });
+            for (to, result) in futures::future::join_all(calls).await {
+                self.serving.handle_initiated(&to, result);
             }
         }
-        Some(StationEvent::Abort(indication))
     }
 
-    /// The root (which has no commander) associates every missing subordinate.
+    /// The root (which has no commander) associates its subordinates.
     pub async fn associate_subordinates(&mut self) -> Result<Vec<Peer>, ServiceError> {
-        let initiates = self.initiates_due();
+        let initiates = self.initiates();
         let results = initiate_all(&self.bus, initiates).await;
         self.record_initiates(results).await
     }
 
     /// What [`Self::associate_subordinates`] sends, for a driver that sends
-    /// it outside its event loop ([`initiate_all`]): every missing
-    /// subordinate, with how long its Initiate may take.
-    pub fn initiates_due(&self) -> Vec<(StationName, Duration)> {
-        self.with_limits(self.assoc.missing_subordinates())
+    /// it outside its event loop ([`initiate_all`]): every subordinate
+    /// ([`Serving::initiates`]), with how long its Initiate may take.
+    pub fn initiates(&self) -> Vec<(StationName, Duration)> {
+        self.serving.initiates()
     }
 
     /// Records the outcomes of the root's Initiates: watches the
@@ -265,51 +226,17 @@ impl Station {
     /// returns the failure.
     pub async fn record_initiates(
         &mut self,
-        results: Vec<(StationName, Result<Peer, ServiceError>)>,
+        results: Vec<(StationName, Result<Response, ServiceError>)>,
     ) -> Result<Vec<Peer>, ServiceError> {
-        match self.assoc.record_subordinates(results) {
-            Ok(made) => {
-                for p in &made {
-                    self.watch(p).await;
-                }
-                Ok(made)
-            }
-            Err((e, made)) => {
-                for p in made {
-                    self.conclude_one(&p).await;
-                }
-                Err(e)
-            }
-        }
-    }
-
-    /// Each of `subs` with how long its Initiate may take: one deadline
-    /// per level of its subtree.
-    fn with_limits(&self, subs: Vec<StationName>) -> Vec<(StationName, Duration)> {
-        subs.into_iter()
-            .map(|s| {
-                let limit = self.initiate_limits.get(&s).copied();
-                (s, limit.unwrap_or(self.deadline))
-            })
-            .collect()
+        let made = self.serving.record_initiates(results);
+        self.carry_out().await;
+        made
     }
 
     /// The root concludes every subordinate.
     pub async fn conclude_subordinates(&mut self) {
-        for p in self.assoc.release_subordinates() {
-            self.unwatch(&p);
-            self.conclude_one(&p).await;
-        }
-    }
-
-    async fn conclude_one(&mut self, sub: &Peer) {
-        self.unwatch(sub);
-        let req = Request::Conclude {
-            calling: self.bus.me().clone(),
-        };
-        if let Err(e) = self.bus.request(&sub.station, &req, self.deadline).await {
-            tracing::warn!("Conclude of {sub} not confirmed: {e}");
-        }
+        self.serving.conclude_subordinates();
+        self.carry_out().await;
     }
 
     async fn watch(&mut self, peer: &Peer) {
@@ -326,34 +253,24 @@ impl Station {
             }
         }
     }
-
-    fn unwatch(&mut self, peer: &Peer) {
-        self.watches.remove(peer);
-    }
 }
 
 /// Sends Initiate to each station of `initiates` at once, each with its
-/// time limit; the outcomes, in the same order. Needs only the bus, so a
+/// time limit; the confirms, in the same order. Needs only the bus, so a
 /// driver can run it outside its event loop.
 pub async fn initiate_all(
     bus: &Bus,
     initiates: Vec<(StationName, Duration)>,
-) -> Vec<(StationName, Result<Peer, ServiceError>)> {
-    let calls = initiates.into_iter().map(|(s, limit)| async move {
-        let r = initiate_one(bus, &s, limit).await;
-        (s, r)
-    });
-    futures::future::join_all(calls).await
-}
-
-async fn initiate_one(bus: &Bus, sub: &StationName, limit: Duration) -> Result<Peer, ServiceError> {
-    let req = Request::Initiate {
+) -> Vec<(StationName, Result<Response, ServiceError>)> {
+    let request = Request::Initiate {
         calling: bus.me().clone(),
     };
-    match bus.request(sub, &req, limit).await? {
-        Response::Initiate { responding } if &responding.station == sub => Ok(responding),
-        other => Err(ServiceError::malformed(format!(
-            "station {sub} answered Initiate with {other:?}"
-        ))),
-    }
+    let calls = initiates.into_iter().map(|(s, limit)| {
+        let request = &request;
+        async move {
+            let r = bus.request(&s, request, limit).await;
+            (s, r)
+        }
+    });
+    futures::future::join_all(calls).await
 }

@@ -270,7 +270,8 @@ impl Associations {
 
     /// Records the answers of subordinates to Initiate: all associated, or
     /// the first failure ("no connection with station …") and the ones made
-    /// in this attempt, which must be concluded again (nothing half-made).
+    /// in this attempt, which must be concluded again (nothing half-made:
+    /// none of those asked counts as associated then).
     pub fn record_subordinates(
         &mut self,
         results: Vec<(StationName, Result<Peer, ServiceError>)>,
@@ -283,11 +284,19 @@ impl Associations {
                 )
             })
         });
+        let asked: Vec<StationName> = results.iter().map(|(s, _)| s.clone()).collect();
         let made: Vec<(StationName, Peer)> = results
             .into_iter()
             .filter_map(|(s, r)| r.ok().map(|p| (s, p)))
             .collect();
         if let Some(error) = first_error {
+            // Nothing half-made, also for one associated before this
+            // (repeated) Initiate: one that refused freed its commander,
+            // one that did not answer is unknown, and the ones made are
+            // concluded again.
+            for station in &asked {
+                self.subordinates.insert(station.clone(), None);
+            }
             return Err((error, made.into_iter().map(|(_, p)| p).collect()));
         }
         for (s, p) in &made {
