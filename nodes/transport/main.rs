@@ -43,6 +43,8 @@ struct Cli {
     #[command(flatten)]
     plc: PlcArgs,
     #[command(flatten)]
+    memory: falc_node::controller_node::MemoryArgs,
+    #[command(flatten)]
     node: NodeArgs,
 }
 
@@ -166,6 +168,7 @@ async fn main() -> Result<()> {
     let mut link = plc_link::spawn(plc_settings);
     let plc = Plc::new(address.clone());
     let mut ws = ControllerNode::new(station, RecipeKind::Transport, START_CONFIRM_LIMIT, plc);
+    ws.core.set_recipe_memory(cli.memory.recipe_memory);
     ws.publish_status().await;
     say(&format!(
         "EVENT ready station={} plc={address} poll_ms={}",

@@ -39,6 +39,8 @@ struct Cli {
     #[command(flatten)]
     line: falc_node::dnc_link::LineArgs,
     #[command(flatten)]
+    memory: falc_node::controller_node::MemoryArgs,
+    #[command(flatten)]
     node: NodeArgs,
 }
 
@@ -83,6 +85,7 @@ async fn main() -> Result<()> {
     let robot = Welding::new(&line.path, &timing);
     let limit = workstation::confirm_limit(&timing);
     let mut ws = ControllerNode::new(station, RecipeKind::Welding, limit, robot);
+    ws.core.set_recipe_memory(cli.memory.recipe_memory);
     if dnc.is_some() {
         let now = ws.now();
         ws.core.device.opened(now);

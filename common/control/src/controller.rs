@@ -247,6 +247,13 @@ impl<D: Device> Controller<D> {
         self
     }
 
+    /// Its recipe memory holds at most `bytes` of domains (default
+    /// [`falc_model::mms::vmd::RECIPE_MEMORY`]): a delivery past it is
+    /// refused, and the delivery taken back.
+    pub fn set_recipe_memory(&mut self, bytes: usize) {
+        self.vmd.set_memory(bytes);
+    }
+
     /// The station this controller is (default: its kind's name).
     pub fn named(mut self, me: StationName) -> Self {
         self.me = me;

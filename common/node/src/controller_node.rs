@@ -20,6 +20,16 @@ use falc_recipe::engine::Event;
 use std::time::Duration;
 use tokio::time::Instant;
 
+/// A workstation's recipe memory, on its command line.
+#[derive(clap::Args, Debug, Clone, Copy)]
+pub struct MemoryArgs {
+    /// How many bytes of recipes (domains) the station holds at most; a
+    /// delivery past it is refused with `resource/memory-unavailable` and
+    /// taken back.
+    #[arg(long, default_value_t = falc_model::mms::vmd::RECIPE_MEMORY)]
+    pub recipe_memory: usize,
+}
+
 /// A controller core on its station.
 pub struct ControllerNode<D> {
     station: Station,

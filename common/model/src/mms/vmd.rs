@@ -7,9 +7,13 @@
 //! GetNameList/Identify, with no I/O. What a program invocation *does* when
 //! it starts is the node's business: the node reads the transition and calls
 //! [`Vmd::complete`] when its executor has finished it.
+//!
+//! Its recipe memory is bounded ([`Vmd::set_memory`], [`RECIPE_MEMORY`]
+//! unless told): a download that would hold more is refused with
+//! `resource/memory-unavailable`, saying how much is used.
 
 use super::domain::{Domain, DomainState, MAX_SEGMENT_BYTES};
-use super::error::{DefinitionError, ErrorClass, ServiceError};
+use super::error::{DefinitionError, ErrorClass, ResourceError, ServiceError};
 use super::pdu::{JobEvent, ObjectClass, PiAttributes, Request, Response};
 use super::program::{PiCompletion, PiRequest, PiState, ProgramInvocation};
 use crate::ids::ObjectName;
@@ -172,10 +176,16 @@ pub struct Identity {
     pub revision: String,
 }
 
+/// How many bytes of domains a station holds unless told otherwise
+/// (sixteen recipes of the largest size).
+pub const RECIPE_MEMORY: usize = 16 * super::domain::MAX_DOMAIN_BYTES;
+
 /// A station's object store.
 #[derive(Debug, Clone)]
 pub struct Vmd {
     identity: Identity,
+    /// How many bytes of domain content it holds at most.
+    memory: usize,
     domains: BTreeMap<ObjectName, Domain>,
     programs: BTreeMap<ObjectName, ProgramInvocation>,
     uploads: BTreeMap<u32, (ObjectName, usize)>,
@@ -200,11 +210,17 @@ impl Vmd {
     pub fn new(identity: Identity) -> Self {
         Self {
             identity,
+            memory: RECIPE_MEMORY,
             domains: BTreeMap::new(),
             programs: BTreeMap::new(),
             uploads: BTreeMap::new(),
             next_ulsm: 1,
         }
+    }
+
+    /// Its recipe memory holds `bytes` from now on (what it holds stays).
+    pub fn set_memory(&mut self, bytes: usize) {
+        self.memory = bytes;
     }
 
     /// A domain by name.
@@ -248,7 +264,8 @@ impl Vmd {
                 data,
                 more_follows,
             } => plain(
-                self.domain_mut(domain)
+                self.room_for(domain, data.len())
+                    .and_then(|()| self.domain_mut(domain))
                     .and_then(|d| d.download_segment(data, *more_follows))
                     .map(|()| Response::Done),
             ),
@@ -371,6 +388,21 @@ impl Vmd {
         self.domains
             .get(name)
             .ok_or_else(|| ServiceError::undefined(format!("domain {name} does not exist")))
+    }
+
+    /// Whether `more` bytes of `domain` fit in the recipe memory.
+    fn room_for(&self, domain: &ObjectName, more: usize) -> Result<(), ServiceError> {
+        let used: usize = self.domains.values().map(|d| d.content().len()).sum();
+        if used.saturating_add(more) <= self.memory {
+            return Ok(());
+        }
+        Err(ServiceError::new(
+            ErrorClass::Resource(ResourceError::MemoryUnavailable),
+            format!(
+                "the recipe memory is full: {used} of {} bytes used, {more} more asked for domain {domain}; delete a recipe or give the station more memory",
+                self.memory
+            ),
+        ))
     }
 
     fn domain_mut(&mut self, name: &ObjectName) -> Result<&mut Domain, ServiceError> {
@@ -523,6 +555,37 @@ mod tests {
                 discard: None,
             },
         );
+    }
+
+    #[test]
+    fn a_download_past_the_recipe_memory_is_refused_and_a_deletion_makes_room() {
+        let mut v = vmd();
+        v.set_memory(100);
+        download(&mut v, "A", &[b'a'; 60]);
+        ok(
+            &mut v,
+            Request::InitiateDownloadSequence { domain: name("B") },
+        );
+        let seg = Request::DownloadSegment {
+            domain: name("B"),
+            data: vec![b'b'; 41],
+            more_follows: false,
+        };
+        let Some((Err(e), None)) = v.handle(&seg) else {
+            panic!("41 bytes more fitted in 40")
+        };
+        assert_eq!(
+            e.class,
+            ErrorClass::Resource(ResourceError::MemoryUnavailable)
+        );
+        assert!(
+            e.description.starts_with(
+                "the recipe memory is full: 60 of 100 bytes used, 41 more asked for domain B"
+            ),
+            "{e}"
+        );
+        ok(&mut v, Request::DeleteDomain { domain: name("A") });
+        ok(&mut v, seg);
     }
 
     #[test]
