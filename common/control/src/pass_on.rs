@@ -24,7 +24,9 @@
 //!   comes back empty: when the workstations are associated again, every
 //!   recipe one should hold is sent again, and each that cannot be is a
 //!   communication alarm, and owed: sent again before the commander's next
-//!   indication is taken (the way back's `start`).
+//!   indication is taken (the way back's `start`). A Start or Resume that
+//!   finds a recipe still owed once that is done is refused naming it and
+//!   why: an order never starts on a workstation that lacks its recipes.
 //! - **Order.** Deliveries run one at a time in the order asked; while one
 //!   runs, the commander's further indications are held and taken in
 //!   order once it ended, as if the cell had waited (a Start must not
@@ -53,6 +55,9 @@ use std::time::Duration;
 /// How long a workstation may take to confirm a mode, step or manual
 /// operation passed on.
 pub const PASS_LIMIT: Duration = Duration::from_secs(10);
+
+/// How many recipes still owed a refused start names (the rest counted).
+const OWED_SAID: usize = 3;
 
 /// An indication the cell's own controller answers first.
 #[derive(Debug)]
@@ -172,7 +177,7 @@ pub struct PassOn<T> {
     /// Recipes a returned workstation could not be given (a communication
     /// alarm said so): sent again before the commander's next indication
     /// is taken, so the way back (`ack`, `start`) delivers them first.
-    owed: Vec<Recipe>,
+    owed: Vec<(Recipe, ServiceError)>,
     /// Requests passed on: id of the pass → the pass.
     passes: BTreeMap<u64, Pass<T>>,
     /// The mode the cell's controller last took.
@@ -222,7 +227,10 @@ impl<T> PassOn<T> {
     /// for them).
     pub fn handle_indication(&mut self, ticket: T, request: Request) {
         if !self.owed.is_empty() && !self.busy() {
-            let todo = std::mem::take(&mut self.owed).into();
+            let todo = std::mem::take(&mut self.owed)
+                .into_iter()
+                .map(|(r, _)| r)
+                .collect();
             self.deliver(None, todo);
         }
         if self.busy() || !self.held.is_empty() {
@@ -233,11 +241,29 @@ impl<T> PassOn<T> {
     }
 
     fn route(&mut self, ticket: T, request: Request) {
+        let starts = matches!(request, Request::Start { .. } | Request::Resume { .. });
         match route(&request, &self.workstations) {
-            Route::Here
-                if matches!(request, Request::Start { .. } | Request::Resume { .. })
-                    && !self.not_in_mode.is_empty() =>
-            {
+            Route::Here if starts && !self.owed.is_empty() => {
+                // The deliveries' refusals name recipe and workstation.
+                let mut why: Vec<String> = self
+                    .owed
+                    .iter()
+                    .take(OWED_SAID)
+                    .map(|(_, e)| e.description.clone())
+                    .collect();
+                if self.owed.len() > OWED_SAID {
+                    why.push(format!("{} more recipes", self.owed.len() - OWED_SAID));
+                }
+                self.out.push_back(Todo::Answer {
+                    ticket,
+                    result: Err(ServiceError::state_conflict(format!(
+                        "{}; the cell starts no order until its workstations hold their recipes \
+                         (sent again at the next start)",
+                        why.join("; ")
+                    ))),
+                });
+            }
+            Route::Here if starts && !self.not_in_mode.is_empty() => {
                 let why: Vec<String> = self
                     .not_in_mode
                     .iter()
@@ -546,8 +572,8 @@ impl<T> PassOn<T> {
                 }
                 None => {
                     for (recipe, e) in job.failed {
-                        self.out.push_back(Todo::Alarm(e.description));
-                        self.owed.push(recipe);
+                        self.out.push_back(Todo::Alarm(e.description.clone()));
+                        self.owed.push((recipe, e));
                     }
                 }
             }
@@ -1049,6 +1075,32 @@ mod tests {
             vec![Todo::Alarm("no confirm from welding".into())]
         );
         assert_eq!(answer_here(&mut p, &vmd), vec![5]);
+        // A start that finds it owed still is refused, naming it.
+        let start = Request::Start {
+            name: ObjectName::new("DIKDROOG").expect("valid"),
+            argument: String::new(),
+        };
+        p.handle_indication(9, start);
+        let out = todos(&mut p);
+        let (id, ..) = delivery(&out).expect("the owed recipe again");
+        p.handle_delivered(id, Err(ServiceError::timeout("no confirm from welding")));
+        assert!(p.poll_here().is_none(), "the start reached the controller");
+        let out = todos(&mut p);
+        let refusal = out.iter().find_map(|t| match t {
+            Todo::Answer {
+                ticket: 9,
+                result: Err(e),
+            } => Some(e.description.clone()),
+            _ => None,
+        });
+        assert_eq!(
+            refusal.as_deref(),
+            Some(
+                "no confirm from welding; the cell starts no order until its workstations hold \
+                 their recipes (sent again at the next start)"
+            ),
+            "{out:?}"
+        );
         // The way back: the next indication (the operator's start) waits
         // until the owed recipe went out again.
         p.handle_indication(6, Request::Status);
