@@ -101,7 +101,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             self.busy,
             Some(
                 Busy::Starting { .. }
-                    | Busy::Initiating(_)
+                    | Busy::Initiating(Some(_))
                     | Busy::Associating { start: Some(_) }
                     | Busy::Delivering { start: Some(_), .. }
                     | Busy::Asking { start: Some(_) }

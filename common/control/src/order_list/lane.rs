@@ -81,6 +81,14 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         }
         let next = self.undelivered().next().map(|(d, h)| (d.clone(), h));
         if let Some((d, hash)) = next {
+            if !self.whole {
+                // A workstation left the bus since the cell associated
+                // it (and came back while an order ran, when it is not
+                // initiated): its recipes go through the cell to it, so
+                // the cell associates it again first.
+                self.call(CellCall::Initiate, Busy::Initiating(start));
+                return;
+            }
             let busy = Busy::Delivering {
                 start,
                 domain: d.domain.clone(),
@@ -98,7 +106,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 self.problem = None;
                 self.start_next(Some(by));
             } else {
-                self.call(CellCall::Initiate, Busy::Initiating(by));
+                self.call(CellCall::Initiate, Busy::Initiating(Some(by)));
             }
         }
     }
@@ -395,11 +403,17 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 Ok(()) => {
                     self.whole = true;
                     self.problem = None;
-                    self.start_next(Some(by));
+                    // What waited for it: a start, the deliveries first.
+                    match by {
+                        Some(by) if self.undelivered().next().is_none() => {
+                            self.start_next(Some(by))
+                        }
+                        by => self.connect(by, false),
+                    }
                 }
                 Err(text) => {
                     self.problem = Some(text.clone());
-                    self.reply(by.ticket, Err(text));
+                    self.connect_failed(by, text);
                 }
             },
             Busy::Starting {

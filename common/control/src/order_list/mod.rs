@@ -231,7 +231,9 @@ enum Busy {
         domain: ObjectName,
         hash: u64,
     },
-    Initiating(Caller),
+    /// The cell initiated again (what it lost below associated again)
+    /// before a start or the deliveries.
+    Initiating(Option<Caller>),
     Starting {
         order: Order,
         started_ms: i64,

@@ -1319,6 +1319,34 @@ fn a_workstation_back_on_the_bus_is_associated_again_through_the_cell() {
     assert!(said(&out, "EVENT rejoined station=transport"), "{out:?}");
 }
 
+/// Seen in `falc-sim` (seed 2 of 1,000 orders): a workstation that came
+/// back while an order ran is not initiated then; once the order ended,
+/// the recipes the cell's new association owed went through the cell to
+/// a workstation nobody had associated again, were refused, and the list
+/// tried them again for good, never initiating the cell.
+#[test]
+fn a_workstation_back_while_an_order_ran_is_associated_again_before_the_recipes_go() {
+    let mut r = Rig::new();
+    cut_mid_order(&mut r);
+    let out = r.tell(attributes(PiState::Running, None));
+    assert!(said(&out, "EVENT order-followed id=1"), "{out:?}");
+    r.list.handle_presence(r.now, st("welding"), true);
+    r.outputs();
+    r.list.handle_presence(r.now, st("welding"), false);
+    r.list.handle_presence(r.now, st("welding"), true);
+    assert_eq!(call(&r.outputs()), None, "not while the order runs");
+    r.job(JobEvent::Done);
+    r.now += RETRY;
+    r.list.handle_timeout(r.now);
+    let out = r.outputs();
+    assert_eq!(call(&out), Some(CellCall::Initiate), "{out:?}");
+    let out = r.answer(Ok(()));
+    assert!(
+        matches!(call(&out), Some(CellCall::Deliver(_))),
+        "the recipes go once it is whole: {out:?}"
+    );
+}
+
 /// A numbered report of `station` made at `at_ms`, in run `run`.
 fn numbered(station: &str, run: &str, no: u64, text: &str) -> (Stamp, Unconfirmed) {
     let stamp = Stamp {
