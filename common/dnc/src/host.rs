@@ -591,6 +591,13 @@ impl Host {
         out
     }
 
+    /// The program a job is selecting or starting, if any.
+    fn starting(&self) -> Option<RobotProgram> {
+        self.pending.map(|s| match s.what {
+            Pending::Select(p) | Pending::Start(p) => p,
+        })
+    }
+
     /// A telegram from the RCM, at `now`.
     pub fn telegram(&mut self, now: Duration, t: Telegram) -> Vec<Out> {
         self.heard = now;
@@ -645,6 +652,22 @@ impl Host {
                 ))]
             }
             (Telegram::Ack { .. }, _) => Vec::new(),
+            (Telegram::ProgramEnd { program, .. }, _)
+                if self.running.or(self.starting()) != Some(program) && !self.by_hand =>
+            {
+                // The end of another program than a job's: one that ended
+                // while the line was out, its end telegram sent once the
+                // line was back, as the next job starts. Not that job's end.
+                let now_running = self
+                    .running
+                    .map_or("no job's program runs".to_string(), |p| {
+                        format!("program {} runs", p.number())
+                    });
+                vec![Out::Info(format!(
+                    "robot program {} ended while {now_running}: not a job's end",
+                    program.number()
+                ))]
+            }
             (Telegram::ProgramEnd { program, result }, _) => {
                 let ended = self.running.take();
                 let by_hand = std::mem::take(&mut self.by_hand);
@@ -853,6 +876,56 @@ mod tests {
         h.start(p65());
         let out = h.gave_up(&Telegram::SelectProgram(p65()).encode(), "x".into());
         assert!(matches!(ended(&out), Some(JobEnd::Alarm(_))), "{out:?}");
+    }
+
+    /// Seen in `falc-sim` (seed 7 of 1,000 orders, with the `memory`
+    /// fault in the deck): program 65 ended while the line was unplugged;
+    /// its end telegram went once the line was back, just after the next
+    /// job had started program 66, and ended that job `done` at once while
+    /// 66 ran on (the next order's select then met DNC error 04).
+    #[test]
+    fn the_late_end_of_another_program_does_not_end_the_job() {
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
+        let p66 = RobotProgram::new(66).expect("valid");
+        let end65 = Telegram::ProgramEnd {
+            program: p65(),
+            result: EndResult::Complete,
+        };
+        // Before the job's start (no job's program runs) …
+        h.start(p66);
+        let out = h.telegram(s(0), end65.clone());
+        assert_eq!(
+            out,
+            vec![Out::Info(
+                "robot program 65 ended while no job's program runs: not a job's end".into()
+            )]
+        );
+        h.telegram(s(0), ack(b'S'));
+        h.telegram(s(0), ack(b'G'));
+        // … or after it.
+        let out = h.telegram(
+            s(1),
+            Telegram::ProgramEnd {
+                program: p65(),
+                result: EndResult::Complete,
+            },
+        );
+        assert_eq!(ended(&out), None, "{out:?}");
+        assert_eq!(
+            out,
+            vec![Out::Info(
+                "robot program 65 ended while program 66 runs: not a job's end".into()
+            )]
+        );
+        assert_eq!(h.running(), Some(p66));
+        let out = h.telegram(
+            s(2),
+            Telegram::ProgramEnd {
+                program: p66,
+                result: EndResult::Complete,
+            },
+        );
+        assert_eq!(ended(&out), Some(&JobEnd::Done));
     }
 
     #[test]
