@@ -13,8 +13,8 @@ use crate::bus::{Arrival, Bus, Link, Msg, Node};
 use crate::recipes::Shipped;
 use falc_control::cell_node::{CellAction, CellNode};
 use falc_control::controller::{Controller, Device};
-use falc_control::coordination::{Awaiting, Reply};
-use falc_control::order_list::{OrderList, Output as ListOutput, Ticket, CELL_LIMIT};
+use falc_control::coordination::{workstation_domain, Awaiting, Reply};
+use falc_control::order_list::{CellCall, OrderList, Output as ListOutput, Ticket, CELL_LIMIT};
 use falc_control::pass_on::PASS_LIMIT;
 use falc_control::recipe_source::{RecipeSet, RecipeSource};
 use falc_control::records::memory::Memory;
@@ -27,13 +27,15 @@ use falc_dnc::twin::{Note, RcmTwin};
 use falc_dnc::workstation::{self, Welding};
 use falc_model::console::{ApiRequest, ApiResult};
 use falc_model::ids::StationName;
-use falc_model::mms::association::{initiate_limit, Associations, InitiateOutcome, InitiateStep};
+use falc_model::mms::association::Associations;
 use falc_model::mms::delivery::{Delivery, DeliveryStep, STEP_LIMIT};
+use falc_model::mms::domain::{content_hash, DomainState};
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::heard;
 use falc_model::mms::journal::{Publication, ReportLog, ReportsAsked};
 use falc_model::mms::pdu::{Peer, Request, Response, Unconfirmed};
-use falc_model::mms::vmd::VmdStatus;
+use falc_model::mms::serving::{Action as Serve, Serving};
+use falc_model::mms::vmd::{VmdStatus, RECIPE_MEMORY};
 use falc_model::topology::Topology;
 use falc_plc::conveyor::{Conveyor, Spot};
 use falc_plc::map::{Coil, Inputs, COILS};
@@ -80,10 +82,12 @@ enum Waiter {
     Cell(StationName, Awaiting),
     /// The order list's read of what a station kept.
     Kept(Node),
-    /// The cell's Initiate of a workstation ([`Initiating`]).
-    Initiate(Node),
+    /// A station's Initiate of its subordinate (for its [`Serving`]).
+    Initiate(Node, StationName),
     /// A step of delivery `n` ([`World::deliveries`]).
     Delivery(u64),
+    /// The operator's Initiate of its cell, the root's ([`World::associate`]).
+    Associate(StationName),
     /// A workstation's confirm of what the cell's pass-on asked (its id).
     Pass(u64),
 }
@@ -93,6 +97,9 @@ enum Waiter {
 struct Delivering {
     from: Node,
     to: Node,
+    /// The receiver's session when it began: a receiver started again
+    /// meanwhile holds none of it.
+    session: String,
     delivery: Delivery,
     then: Then,
 }
@@ -106,28 +113,16 @@ enum Then {
     Pass(u64),
 }
 
-/// A node's process: whether it runs, its session, its associations (the
-/// core `falc_bus::station` drives on zenoh).
-#[derive(Debug, Clone)]
+/// A node's process: whether it runs, its session, its association
+/// services (the core `falc_bus::station` drives on zenoh).
+#[derive(Debug)]
 struct Up {
     /// Its process runs (not crashed).
     running: bool,
     /// Its session: a process started again is another peer.
     session: String,
-    /// Its commander and subordinates.
-    assoc: Associations,
-}
-
-/// The cell's Initiate from its commander, held while its workstations
-/// are initiated (as `falc_bus::station` awaits them).
-#[derive(Debug)]
-struct Initiating {
-    /// Who asked, and the request's id.
-    commander: (Node, u64),
-    /// How many subordinates were asked.
-    asked: usize,
-    /// Their answers so far.
-    results: Vec<(StationName, Result<Peer, ServiceError>)>,
+    /// Its commander and subordinates, and the Initiate in progress.
+    serving: Serving<(Node, u64)>,
 }
 
 /// The welding workstation: its controller and its end of the line.
@@ -273,8 +268,6 @@ pub struct World {
     /// The commander's Starts the cell has not answered yet: their
     /// tickets, and the order each names (counted once answered).
     starting: BTreeMap<(Node, u64), i64>,
-    /// The cell's Initiate while it initiates its workstations.
-    initiating: Option<Initiating>,
     /// The cell's stations.
     topology: Topology,
     /// How long a silent peer is still taken for present (the topology's).
@@ -304,6 +297,14 @@ pub struct World {
     pub starts: BTreeMap<i64, u32>,
     /// The first order started more than once, and how often.
     pub started_twice: Option<(i64, u32)>,
+    /// The first order the cell started while a workstation lacked a
+    /// recipe the cell holds for it.
+    pub started_lacking: Option<String>,
+    /// The first delivery confirmed whose receiver does not hold it.
+    pub false_delivery: Option<String>,
+    /// Each workstation's recipe memory, where not the default (it
+    /// survives a restart: it is the controller's).
+    memory: BTreeMap<Node, usize>,
     /// The last lines of what happened, for a broken invariant's report.
     pub trace: VecDeque<String>,
     /// Each station's kept reports: a process's own, a new run when it
@@ -347,7 +348,6 @@ impl World {
             indications: BTreeMap::new(),
             cell,
             starting: BTreeMap::new(),
-            initiating: None,
             lease: topology.lease(),
             welding: welding_node(now, timing),
             transport,
@@ -363,6 +363,9 @@ impl World {
             leases: Vec::new(),
             starts: BTreeMap::new(),
             started_twice: None,
+            false_delivery: None,
+            started_lacking: None,
+            memory: BTreeMap::new(),
             trace: VecDeque::new(),
             kept: BTreeMap::new(),
             runs: 0,
@@ -645,10 +648,15 @@ impl World {
     fn new_run(&mut self, n: Node) {
         self.runs += 1;
         let run = format!("{n}-{}", self.runs);
+        let session = format!("sim-{run}");
+        let me = Peer {
+            station: station(n),
+            session: session.clone(),
+        };
         let up = Up {
             running: true,
-            session: format!("sim-{run}"),
-            assoc: Associations::of(&self.topology, &station(n)),
+            session,
+            serving: Serving::of(&self.topology, me),
         };
         self.ups.insert(n, up);
         if n != Node::Operator {
@@ -684,6 +692,7 @@ impl World {
         }
         while let Some(out) = self.list.poll_output() {
             match out {
+                ListOutput::Cell(CellCall::Associate) => self.associate(),
                 ListOutput::Cell(call) => match call.request(&self.peer(Node::Operator)) {
                     Ok(request) => self.request(
                         Node::Operator,
@@ -944,16 +953,11 @@ impl World {
                         .send(now, to, a.from, Msg::Kept { id, kept }, &mut self.rng);
                 }
             }
-            (Node::Operator, Msg::Request { id, request }) => {
-                self.tickets += 1;
-                let t = Ticket(self.tickets);
-                self.indications.insert(t, id);
-                self.list.handle_cell_request(now, t, request);
-            }
-            (Node::Cell, Msg::Request { id, request }) => self.cell_request(a.from, id, request),
-            (ws @ (Node::Welding | Node::Transport), Msg::Request { id, request }) => {
-                let result = self.workstation_request(ws, request);
-                self.respond(ws, a.from, id, result);
+            (to, Msg::Request { id, request }) => {
+                if let Some(up) = self.up(to) {
+                    up.serving.handle_request((a.from, id), request);
+                }
+                self.carry_serving(to);
             }
         }
     }
@@ -976,7 +980,24 @@ impl World {
                 }
             }
             Waiter::Pass(id) => self.cell.handle_confirm(id, result),
-            Waiter::Initiate(ws) => self.subordinate_initiated(ws, result),
+            Waiter::Associate(sub) => {
+                let made = self
+                    .up(Node::Operator)
+                    .map(|u| u.serving.record_initiates(vec![(sub, result)]));
+                self.carry_serving(Node::Operator);
+                let answer = match made {
+                    Some(Ok(_)) => Ok(Response::Done),
+                    Some(Err(e)) => Err(e),
+                    None => Err(ServiceError::unreachable("the operator is not running")),
+                };
+                self.list.handle_cell_answer(now, answer);
+            }
+            Waiter::Initiate(at, sub) => {
+                if let Some(up) = self.up(at) {
+                    up.serving.handle_initiated(&sub, result);
+                }
+                self.carry_serving(at);
+            }
         }
     }
 
@@ -985,9 +1006,36 @@ impl World {
     fn waits_at(&self, waiter: &Waiter) -> Node {
         match waiter {
             Waiter::List | Waiter::Kept(_) => Node::Operator,
-            Waiter::Cell(..) | Waiter::Pass(_) | Waiter::Initiate(_) => Node::Cell,
+            Waiter::Cell(..) | Waiter::Pass(_) => Node::Cell,
+            Waiter::Initiate(at, _) => *at,
+            Waiter::Associate(_) => Node::Operator,
             Waiter::Delivery(n) => self.deliveries.get(n).map_or(Node::Operator, |d| d.from),
         }
+    }
+
+    /// The operator associates its cell, as `falc-operator`'s station does
+    /// as the root: the Initiates its [`Serving`] sends (a cell's operator
+    /// has one subordinate, the cell), recorded once confirmed.
+    fn associate(&mut self) {
+        let due = self
+            .up(Node::Operator)
+            .map(|u| u.serving.initiates())
+            .unwrap_or_default();
+        let Some((sub, limit)) = due.into_iter().next() else {
+            let e = ServiceError::undefined("the operator commands no cell in the topology");
+            self.list.handle_cell_answer(self.now, Err(e));
+            return;
+        };
+        let Some(to) = Node::of(&sub) else {
+            let e = ServiceError::unreachable(format!("no station {sub}"));
+            self.list.handle_cell_answer(self.now, Err(e));
+            return;
+        };
+        let request = Request::Initiate {
+            calling: self.peer(Node::Operator),
+        };
+        let msg = |id| Msg::Request { id, request };
+        self.request(Node::Operator, to, msg, limit, Waiter::Associate(sub));
     }
 
     /// Starts `delivery` from `from`; its outcome goes to `then`.
@@ -1002,6 +1050,7 @@ impl World {
         let mut d = Delivering {
             from,
             to,
+            session: self.peer(to).session,
             delivery,
             then,
         };
@@ -1026,9 +1075,39 @@ impl World {
                 Waiter::Delivery(n),
             ),
             DeliveryStep::Done(result) => {
-                self.deliveries.remove(&n);
+                if let (Some(d), Ok(())) = (self.deliveries.remove(&n), &result) {
+                    self.check_held(&d);
+                }
                 self.delivered(then, result);
             }
+        }
+    }
+
+    /// A delivery confirmed: its receiver, if it still runs the session
+    /// it began in, holds the domain, whole (else noted as the first
+    /// [`World::false_delivery`]).
+    fn check_held(&mut self, d: &Delivering) {
+        if !self.is_running(d.to) || self.peer(d.to).session != d.session {
+            return;
+        }
+        let vmd = match d.to {
+            Node::Cell => self.cell.controller().vmd(),
+            Node::Welding => self.welding.ctl.vmd(),
+            Node::Transport => self.transport.ctl.vmd(),
+            Node::Operator => return,
+        };
+        let name = d.delivery.name();
+        let held = vmd.domain(name).is_some_and(|dom| {
+            matches!(dom.state(), DomainState::Ready | DomainState::InUse)
+                && content_hash(dom.content()) == d.delivery.content_hash()
+        });
+        if !held && self.false_delivery.is_none() {
+            let what = format!(
+                "the delivery of {name} to {} was confirmed, but {} does not hold it whole",
+                d.to, d.to
+            );
+            self.note(what.clone());
+            self.false_delivery = Some(what);
         }
     }
 
@@ -1057,132 +1136,87 @@ impl World {
         self.deliveries.retain(|_, d| d.from != n);
     }
 
-    /// A request to the cell: the association services its station
-    /// serves itself, the rest through the pass-on once admitted.
-    fn cell_request(&mut self, from: Node, id: u64, request: Request) {
-        let Some(up) = self.up(Node::Cell) else {
-            return;
-        };
-        match request {
-            Request::Initiate { calling } => match up.assoc.initiate(calling) {
-                InitiateStep::Refuse(e) => self.respond(Node::Cell, from, id, Err(e)),
-                InitiateStep::Confirm(_) => self.cell_associated((from, id)),
-                InitiateStep::InitiateSubordinates(subs) => {
-                    // The workstations first (the 1992 recursive scheme).
-                    self.initiating = Some(Initiating {
-                        commander: (from, id),
-                        asked: subs.len(),
-                        results: Vec::new(),
-                    });
-                    let calling = self.peer(Node::Cell);
-                    for sub in subs {
-                        let limit = initiate_limit(&self.topology, &sub);
-                        match Node::of(&sub) {
-                            Some(ws) => {
-                                let request = Request::Initiate {
-                                    calling: calling.clone(),
-                                };
-                                let msg = |id| Msg::Request { id, request };
-                                self.request(Node::Cell, ws, msg, limit, Waiter::Initiate(ws));
-                            }
-                            None => {
-                                let e = ServiceError::unreachable(format!("no station {sub}"));
-                                self.initiated(sub, Err(e));
-                            }
+    /// Carries out what station `at`'s association services ask (as
+    /// `falc_bus::station` does on zenoh): answers, Initiates of its
+    /// subordinates, Concludes and Aborts told, and what its node takes in.
+    /// The simulation watches no token: its leases and crashes tell a loss.
+    fn carry_serving(&mut self, at: Node) {
+        let now = self.now;
+        while let Some(action) = self
+            .up(at)
+            .filter(|u| u.running)
+            .and_then(|u| u.serving.poll())
+        {
+            match action {
+                Serve::Respond((to, id), result) => self.respond(at, to, id, result),
+                Serve::Initiate { to, request, limit } => match Node::of(&to) {
+                    Some(sub) => {
+                        let msg = |id| Msg::Request { id, request };
+                        self.request(at, sub, msg, limit, Waiter::Initiate(at, to));
+                    }
+                    None => {
+                        let e = ServiceError::unreachable(format!("no station {to}"));
+                        if let Some(up) = self.up(at) {
+                            up.serving.handle_initiated(&to, Err(e));
                         }
                     }
-                }
-            },
-            Request::Conclude { calling } => {
-                let result = up.assoc.conclude(&calling).map(|subs| {
-                    for p in subs {
-                        self.conclude(Node::Cell, &p);
+                },
+                Serve::Tell { to, request } => {
+                    if let Some(to) = Node::of(&to) {
+                        self.next_id += 1;
+                        let id = self.next_id;
+                        self.bus
+                            .send(now, at, to, Msg::Request { id, request }, &mut self.rng);
                     }
-                    Response::Done
-                });
-                self.respond(Node::Cell, from, id, result);
-            }
-            other => match up.assoc.admit(&other) {
-                Ok(()) => {
-                    if let Request::Start { argument, .. } = &other {
-                        // Watched for the invariant: counted once answered.
-                        if let Some(n) = order_of(argument) {
-                            self.starting.insert((from, id), n);
+                }
+                Serve::Watch(_) | Serve::Unwatch(_) | Serve::Concluded(_) => {}
+                Serve::Indication((from, id), request) => match at {
+                    // The cell's questions and lines, for the order list.
+                    Node::Operator => {
+                        self.tickets += 1;
+                        let t = Ticket(self.tickets);
+                        self.indications.insert(t, id);
+                        self.list.handle_cell_request(now, t, request);
+                    }
+                    Node::Cell => {
+                        if let Request::Start { argument, .. } = &request {
+                            // Watched for the invariant: counted once answered.
+                            if let Some(n) = order_of(argument) {
+                                self.starting.insert((from, id), n);
+                            }
                         }
+                        self.cell.handle_indication((from, id), request);
                     }
-                    self.cell.handle_indication((from, id), other)
+                    _ => {
+                        let result = self.handle_at(at, &request);
+                        self.respond(at, from, id, result);
+                    }
+                },
+                Serve::Associated(p) => {
+                    self.note(format!("{at}: associated with {}", p.station));
+                    match at {
+                        Node::Cell => self.cell.handle_associated(now),
+                        Node::Welding => {
+                            self.welding.ctl.handle_associated(now);
+                            self.welding.status = None;
+                        }
+                        Node::Transport => {
+                            self.transport.ctl.handle_associated(now);
+                            self.transport.status = None;
+                        }
+                        Node::Operator => {}
+                    }
                 }
-                Err(e) => self.respond(Node::Cell, from, id, Err(e)),
-            },
-        }
-    }
-
-    /// A workstation answered the cell's Initiate.
-    fn subordinate_initiated(&mut self, ws: Node, result: Result<Response, ServiceError>) {
-        let name = station(ws);
-        let result = match result {
-            Ok(Response::Initiate { responding }) if responding.station == name => Ok(responding),
-            Ok(other) => Err(ServiceError::malformed(format!(
-                "station {name} answered Initiate with {other:?}"
-            ))),
-            Err(e) => Err(e),
-        };
-        self.initiated(name, result);
-    }
-
-    /// One subordinate's answer to the cell's Initiates; once all are in,
-    /// the commander's Initiate is answered.
-    fn initiated(&mut self, sub: StationName, result: Result<Peer, ServiceError>) {
-        let Some(i) = self.initiating.as_mut() else {
-            return;
-        };
-        i.results.push((sub, result));
-        if i.results.len() < i.asked {
-            return;
-        }
-        let Some(i) = self.initiating.take() else {
-            return;
-        };
-        let Some(up) = self.up(Node::Cell) else {
-            return;
-        };
-        match up.assoc.subordinates_initiated(i.results) {
-            InitiateOutcome::Confirm { associated, .. } => {
-                for p in associated {
-                    self.note(format!("{}: associated with the cell", p.station));
+                Serve::Abort(ind) => {
+                    let (name, role) = (&ind.peer.station, ind.role);
+                    match at {
+                        Node::Cell => self.cell.handle_abort(now, name, role),
+                        Node::Welding => self.welding.ctl.handle_abort(now, name, role),
+                        Node::Transport => self.transport.ctl.handle_abort(now, name, role),
+                        Node::Operator => self.list.handle_abort(now, &ind.reason),
+                    }
                 }
-                self.cell_associated(i.commander);
             }
-            InitiateOutcome::Refuse { error, conclude } => {
-                for p in conclude {
-                    self.conclude(Node::Cell, &p);
-                }
-                let (to, id) = i.commander;
-                self.respond(Node::Cell, to, id, Err(error));
-            }
-        }
-    }
-
-    /// The cell confirms its commander's Initiate `(to, id)`: its
-    /// controller and the pass-on, which gives the workstations what they
-    /// lack, take the association in.
-    fn cell_associated(&mut self, (to, id): (Node, u64)) {
-        self.cell.handle_associated(self.now);
-        let responding = self.peer(Node::Cell);
-        self.respond(Node::Cell, to, id, Ok(Response::Initiate { responding }));
-    }
-
-    /// `from` concludes its association with subordinate `sub` (nobody
-    /// waits for the confirm).
-    fn conclude(&mut self, from: Node, sub: &Peer) {
-        if let Some(to) = Node::of(&sub.station) {
-            self.next_id += 1;
-            let request = Request::Conclude {
-                calling: self.peer(from),
-            };
-            let (now, id) = (self.now, self.next_id);
-            self.bus
-                .send(now, from, to, Msg::Request { id, request }, &mut self.rng);
         }
     }
 
@@ -1194,47 +1228,38 @@ impl World {
             self.started_twice = Some((n, *count));
         }
         self.note(format!("cell: order {n} started"));
+        if let Some(what) = self.lacking().filter(|_| self.started_lacking.is_none()) {
+            self.note(what.clone());
+            self.started_lacking = Some(format!("order {n} started at the cell while {what}"));
+        }
     }
 
-    /// A request to workstation `ws`: the association services its station
-    /// serves itself, the rest by its controller once admitted.
-    fn workstation_request(
-        &mut self,
-        ws: Node,
-        request: Request,
-    ) -> Result<Response, ServiceError> {
-        let now = self.now;
-        let responding = self.peer(ws);
-        let up = self
-            .up(ws)
-            .ok_or_else(|| ServiceError::unreachable(format!("no station {ws}")))?;
-        match request {
-            Request::Initiate { calling } => match up.assoc.initiate(calling) {
-                InitiateStep::Confirm(_) => {
-                    // Associated: its status is published again.
-                    match ws {
-                        Node::Welding => {
-                            self.welding.ctl.handle_associated(now);
-                            self.welding.status = None;
-                        }
-                        _ => {
-                            self.transport.ctl.handle_associated(now);
-                            self.transport.status = None;
-                        }
-                    }
-                    Ok(Response::Initiate { responding })
+    /// A workstation associated with the cell that lacks a recipe the
+    /// cell holds for it (or holds another version), said.
+    fn lacking(&self) -> Option<String> {
+        let cell = self.cell.controller().vmd();
+        let assoc = self.ups.get(&Node::Cell)?.serving.associations();
+        for ws in [Node::Welding, Node::Transport] {
+            if !self.is_running(ws) || assoc.subordinate(&station(ws)) != Some(&self.peer(ws)) {
+                continue;
+            }
+            let held = match ws {
+                Node::Welding => self.welding.ctl.vmd(),
+                _ => self.transport.ctl.vmd(),
+            };
+            for d in cell.domains() {
+                let Some((to, name)) = workstation_domain(d.name()) else {
+                    continue;
+                };
+                let same = held
+                    .domain(&name)
+                    .is_some_and(|h| content_hash(h.content()) == content_hash(d.content()));
+                if to == station(ws) && !same {
+                    return Some(format!("{ws} lacks its recipe {name}"));
                 }
-                InitiateStep::Refuse(e) => Err(e),
-                InitiateStep::InitiateSubordinates(subs) => Err(ServiceError::undefined(format!(
-                    "{ws} has subordinates in the topology ({subs:?}); the simulation has none"
-                ))),
-            },
-            Request::Conclude { calling } => up.assoc.conclude(&calling).map(|_| Response::Done),
-            other => {
-                up.assoc.admit(&other)?;
-                self.handle_at(ws, &other)
             }
         }
+        None
     }
 
     /// `request` handled by workstation `at`'s controller.
@@ -1308,14 +1333,8 @@ impl World {
         self.finalize(n);
         let reason = format!("no connection with {n}");
         if matches!(n, Node::Operator | Node::Cell) {
-            let was = self
-                .ups
-                .get(&Node::Cell)
-                .is_some_and(|u| u.assoc.commander().is_some());
             self.sees_lost(Node::Cell, Node::Operator, &reason);
-            if was {
-                self.list.handle_abort(now, &reason);
-            }
+            self.sees_lost(Node::Operator, Node::Cell, &reason);
         }
         let seen = match n {
             Node::Operator => vec![Node::Cell, Node::Welding, Node::Transport],
@@ -1335,27 +1354,11 @@ impl World {
     /// Node `at` loses its association with `gone` (if it had one and
     /// runs): the abort indication, as its station hands it on.
     fn sees_lost(&mut self, at: Node, gone: Node, reason: &str) {
-        let now = self.now;
         let peer = self.peer(gone);
-        let Some(up) = self.up(at).filter(|u| u.running) else {
-            return;
-        };
-        let Some((ind, abort)) = up.assoc.lost(&peer, reason, false) else {
-            return;
-        };
-        let name = station(gone);
-        match at {
-            Node::Cell => self.cell.handle_abort(now, &name, ind.role),
-            Node::Welding => self.welding.ctl.handle_abort(now, &name, ind.role),
-            Node::Transport => self.transport.ctl.handle_abort(now, &name, ind.role),
-            Node::Operator => {}
+        if let Some(up) = self.up(at).filter(|u| u.running) {
+            up.serving.handle_lost(&peer, reason);
         }
-        // A node that does not run on alone aborts its subtree.
-        for sub in abort {
-            if let Some(s) = Node::of(&sub.station) {
-                self.sees_lost(s, at, &format!("{at} lost its commander: {reason}"));
-            }
-        }
+        self.carry_serving(at);
     }
 
     /// Random bytes on the serial line, towards both ends.
@@ -1384,18 +1387,34 @@ impl World {
             let reason = format!("no connection with {n}");
             self.sees_lost(Node::Cell, Node::Operator, &reason);
         } else {
-            if n == Node::Cell {
-                self.initiating = None;
-            }
             // Its liveliness token goes with its session: seen at once.
             self.lost(n);
         }
         // A dead process holds no association.
-        let fresh = Associations::of(&self.topology, &station(n));
+        let fresh = Serving::of(&self.topology, self.peer(n));
         if let Some(up) = self.up(n) {
-            up.assoc = fresh;
+            up.serving = fresh;
         }
         self.pump();
+    }
+
+    /// Workstation `n`'s recipe memory is `bytes` from now on (None: the
+    /// default), also after a restart.
+    pub fn set_recipe_memory(&mut self, n: Node, bytes: Option<usize>) {
+        match bytes {
+            Some(b) => self.memory.insert(n, b),
+            None => self.memory.remove(&n),
+        };
+        self.apply_memory(n);
+    }
+
+    fn apply_memory(&mut self, n: Node) {
+        let bytes = self.memory.get(&n).copied().unwrap_or(RECIPE_MEMORY);
+        match n {
+            Node::Welding => self.welding.ctl.set_recipe_memory(bytes),
+            Node::Transport => self.transport.ctl.set_recipe_memory(bytes),
+            Node::Operator | Node::Cell => {}
+        }
     }
 
     /// Node `n` starts again: empty, but for the operator's records.
@@ -1410,7 +1429,6 @@ impl World {
             Node::Cell => {
                 self.cell = cell_node(&self.topology);
                 self.starting.clear();
-                self.initiating = None;
             }
             Node::Operator => {
                 self.restart_operator();
@@ -1418,6 +1436,7 @@ impl World {
             }
             Node::Transport => self.transport = transport_node(now, self.conveyor.coils()),
         }
+        self.apply_memory(n);
         self.new_run(n);
         if self.bus.reachable(Node::Operator, n) {
             self.list.handle_presence(now, station(n), true);

@@ -64,6 +64,11 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.alarms.listed().iter().any(|a| a.id == id)
     }
 
+    /// The alarms listed here.
+    pub fn listed_alarms(&self) -> &[Alarm] {
+        self.alarms.listed()
+    }
+
     /// Whether order `id` ran (or runs) on this cell.
     pub fn ran(&self, id: i64) -> bool {
         self.db.orders().is_ok_and(|orders| {

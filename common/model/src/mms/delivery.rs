@@ -14,7 +14,7 @@
 //! (`falc_bus::download`); `falc-sim` carries the same steps over its
 //! simulated bus.
 
-use super::domain::download_steps;
+use super::domain::{content_hash, download_steps};
 use super::error::{DefinitionError, ErrorClass, ServiceError};
 use super::pdu::{Request, Response};
 use crate::ids::{ObjectName, StationName};
@@ -51,6 +51,8 @@ enum Purpose {
 pub struct Delivery {
     to: StationName,
     name: ObjectName,
+    /// The content's [`content_hash`].
+    hash: u64,
     steps: VecDeque<(Request, Purpose)>,
     /// What the request out is for (none out: not started or done).
     out: Option<Purpose>,
@@ -89,6 +91,7 @@ impl Delivery {
         Self {
             to,
             name,
+            hash: content_hash(content),
             steps,
             out: None,
             failed: None,
@@ -103,6 +106,12 @@ impl Delivery {
     /// The recipe's domain.
     pub fn name(&self) -> &ObjectName {
         &self.name
+    }
+
+    /// The [`content_hash`] of what it delivers: a receiver that confirmed
+    /// it holds a domain of its name with this hash.
+    pub fn content_hash(&self) -> u64 {
+        self.hash
     }
 
     /// The first step.
