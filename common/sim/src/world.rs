@@ -70,6 +70,8 @@ struct Pending {
     to: Node,
     deadline: Duration,
     waiter: Waiter,
+    /// Sent by or to a node parted from the router: no route, no reply.
+    parted: bool,
 }
 
 /// Who waits for a confirm.
@@ -293,6 +295,9 @@ pub struct World {
     deliveries: BTreeMap<u64, Delivering>,
     /// Abort indications due when a lease runs out: (when, node).
     leases: Vec<(Duration, Node)>,
+    /// Nodes cut off whose lease ran out: parted from the router until
+    /// joined again.
+    parted: std::collections::BTreeSet<Node>,
     /// Cell-level Starts confirmed, per order id.
     pub starts: BTreeMap<i64, u32>,
     /// The first order started more than once, and how often.
@@ -361,6 +366,7 @@ impl World {
             next_id: 0,
             deliveries: BTreeMap::new(),
             leases: Vec::new(),
+            parted: Default::default(),
             starts: BTreeMap::new(),
             started_twice: None,
             false_delivery: None,
@@ -494,7 +500,11 @@ impl World {
             .collect();
         for id in late {
             if let Some(p) = self.pending.remove(&id) {
-                let e = ServiceError::timeout(format!("no confirm from {} in time", p.to));
+                let e = if p.parted {
+                    ServiceError::unreachable(format!("no reply from {}: no route", p.to))
+                } else {
+                    ServiceError::timeout(format!("no confirm from {} in time", p.to))
+                };
                 self.confirm(p.waiter, Err(e));
             }
         }
@@ -508,6 +518,7 @@ impl World {
         self.leases.retain(|l| l.0 > now);
         for n in due {
             if self.bus.is_cut(n) {
+                self.parted.insert(n);
                 self.lost(n);
             }
         }
@@ -601,17 +612,24 @@ impl World {
     ) {
         self.next_id += 1;
         let id = self.next_id;
-        let msg = msg(id);
+        // A session parted from its router (its lease ran out while cut)
+        // knows no queryable: zenoh ends such a query at once, with no
+        // reply (at the next step here).
+        let parted = self.parted.contains(&from) || self.parted.contains(&to);
+        let deadline = if parted { self.now } else { self.now + limit };
         self.pending.insert(
             id,
             Pending {
                 to,
-                deadline: self.now + limit,
+                deadline,
                 waiter,
+                parted,
             },
         );
-        let now = self.now;
-        self.bus.send(now, from, to, msg, &mut self.rng);
+        if !parted {
+            let now = self.now;
+            self.bus.send(now, from, to, msg(id), &mut self.rng);
+        }
     }
 
     fn respond(&mut self, from: Node, to: Node, id: u64, result: Result<Response, ServiceError>) {
@@ -1290,6 +1308,7 @@ impl World {
     /// The operator sees `n` (and, for the operator, everyone) again.
     fn back(&mut self, n: Node) {
         let now = self.now;
+        self.parted.remove(&n);
         let seen: Vec<Node> = match n {
             Node::Operator => vec![Node::Cell, Node::Welding, Node::Transport],
             other => vec![other],
