@@ -386,14 +386,14 @@ fn changes_state(r: &Request) -> bool {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn st(s: &str) -> StationName {
+    pub(crate) fn st(s: &str) -> StationName {
         StationName::new(s).expect("valid")
     }
 
-    fn peer(s: &str, session: &str) -> Peer {
+    pub(crate) fn peer(s: &str, session: &str) -> Peer {
         Peer {
             station: st(s),
             session: session.into(),

@@ -322,21 +322,11 @@ fn responding(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::mms::association::tests::{peer, st};
     use crate::mms::association::Role;
     use crate::mms::error::ErrorClass;
 
     const TOPOLOGY: &str = include_str!("../../../../launch/cell.toml");
-
-    fn st(s: &str) -> StationName {
-        StationName::new(s).expect("valid")
-    }
-
-    fn peer(s: &str, session: &str) -> Peer {
-        Peer {
-            station: st(s),
-            session: session.into(),
-        }
-    }
 
     fn serving(me: &str) -> Serving<u32> {
         let topology = Topology::parse(TOPOLOGY, "launch/cell.toml").expect("the shipped topology");
