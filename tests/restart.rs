@@ -7,8 +7,12 @@
 //! the next order to done. And a workstation restarted in maintenance
 //! mode (issue 27, B13) comes back associated, in maintenance, with its
 //! recipes: the maintainer's manual operations and `home` work at once.
+//! A workstation started again with too little recipe memory cannot be
+//! given its recipes: the start is refused saying so, and the way back
+//! (room again, `ack`, `start`) runs the order to done.
 
 use crate::support::rig::rig;
+use crate::support::wait::{holds, wait_until};
 use falc_model::console::OrderState;
 use std::time::Duration;
 
@@ -111,4 +115,50 @@ fn a_transport_restarted_in_step_mode_keeps_the_workpiece_clamped() {
     let orders = rig.orders();
     assert_eq!(orders[0].state, OrderState::Failed, "{orders:?}");
     assert_eq!(orders[1].state, OrderState::Done, "{orders:?}");
+}
+
+/// Issue 42: a transport started again with a 64-byte recipe memory (a
+/// controller replaced) is associated, but the cell cannot give it its
+/// recipes. `falc start` is refused naming the recipe and the full
+/// memory, and the order stays queued: before, the cell started it and it
+/// failed at the transport ("program invocation STORE does not exist").
+/// The way back: the transport started again with room, `ack`, `start`;
+/// the order runs to done.
+#[test]
+fn a_workstation_with_too_little_recipe_memory_refuses_the_start_until_it_has_room() {
+    let mut rig = rig("20");
+    if let Some(t) = rig.transport.as_mut() {
+        t.kill();
+    }
+    rig.start_transport_with(&["--recipe-memory", "64"]);
+    rig.operator()
+        .expect_line("EVENT rejoined station=transport", Duration::from_secs(10));
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    // Its loss while idle, and each recipe it could not be given, are
+    // alarms of their own: acknowledged, they no longer hold the start
+    // back, and the start is refused by the cell.
+    let out = wait_until("the cell's refusal", Duration::from_secs(20), || {
+        rig.cell.falc(&["ack"]);
+        let (code, out) = rig.cell.falc_as("console", &["start"]);
+        holds(
+            code != 0 && out.contains("the cell starts no order until"),
+            || out.clone(),
+        )
+        .map(|()| out)
+    });
+    assert!(
+        out.contains("cannot be created on WS TRANSPORT")
+            && out.contains("the recipe memory is full: 0 of 64 bytes used"),
+        "{out}"
+    );
+    let orders = rig.orders();
+    assert_eq!(orders[0].state, OrderState::Queued, "{orders:?}");
+    if let Some(t) = rig.transport.as_mut() {
+        t.kill();
+    }
+    rig.start_transport();
+    rig.operator()
+        .expect_line("EVENT rejoined station=transport", Duration::from_secs(10));
+    let orders = rig.start_again_until_done();
+    assert_eq!(orders.len(), 1, "{orders:?}");
 }

@@ -184,11 +184,16 @@ impl Rig {
     }
 
     pub fn start_transport(&mut self) {
-        let mut t = self.cell.start_node(
-            env!("CARGO_BIN_EXE_falc-transport"),
-            "transport",
-            &["--plc", &self.plc_address],
-        );
+        self.start_transport_with(&[]);
+    }
+
+    /// [`Self::start_transport`] with more arguments for `falc-transport`.
+    pub fn start_transport_with(&mut self, more: &[&str]) {
+        let mut args = vec!["--plc", &self.plc_address];
+        args.extend_from_slice(more);
+        let mut t = self
+            .cell
+            .start_node(env!("CARGO_BIN_EXE_falc-transport"), "transport", &args);
         t.expect_line("EVENT plc-ready", Duration::from_secs(10));
         self.transport = Some(t);
     }
