@@ -26,7 +26,7 @@ use falc_dnc::telegram::Mode;
 use falc_dnc::twin::{Note, RcmTwin};
 use falc_dnc::workstation::{self, Welding};
 use falc_model::console::{ApiRequest, ApiResult};
-use falc_model::ids::StationName;
+use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::association::Associations;
 use falc_model::mms::delivery::{Delivery, DeliveryStep, STEP_LIMIT};
 use falc_model::mms::domain::{content_hash, DomainState};
@@ -1105,20 +1105,12 @@ impl World {
     /// it began in, holds the domain, whole (else noted as the first
     /// [`World::false_delivery`]).
     fn check_held(&mut self, d: &Delivering) {
-        if !self.is_running(d.to) || self.peer(d.to).session != d.session {
+        if d.to == Node::Operator || !self.is_running(d.to) || self.peer(d.to).session != d.session
+        {
             return;
         }
-        let vmd = match d.to {
-            Node::Cell => self.cell.controller().vmd(),
-            Node::Welding => self.welding.ctl.vmd(),
-            Node::Transport => self.transport.ctl.vmd(),
-            Node::Operator => return,
-        };
         let name = d.delivery.name();
-        let held = vmd.domain(name).is_some_and(|dom| {
-            matches!(dom.state(), DomainState::Ready | DomainState::InUse)
-                && content_hash(dom.content()) == d.delivery.content_hash()
-        });
+        let held = self.holds(d.to, name, d.delivery.content_hash());
         if !held && self.false_delivery.is_none() {
             let what = format!(
                 "the delivery of {name} to {} was confirmed, but {} does not hold it whole",
@@ -1261,23 +1253,31 @@ impl World {
             if !self.is_running(ws) || assoc.subordinate(&station(ws)) != Some(&self.peer(ws)) {
                 continue;
             }
-            let held = match ws {
-                Node::Welding => self.welding.ctl.vmd(),
-                _ => self.transport.ctl.vmd(),
-            };
             for d in cell.domains() {
                 let Some((to, name)) = workstation_domain(d.name()) else {
                     continue;
                 };
-                let same = held
-                    .domain(&name)
-                    .is_some_and(|h| content_hash(h.content()) == content_hash(d.content()));
-                if to == station(ws) && !same {
+                if to == station(ws) && !self.holds(ws, &name, content_hash(d.content())) {
                     return Some(format!("{ws} lacks its recipe {name}"));
                 }
             }
         }
         None
+    }
+
+    /// Whether node `n`'s VMD holds domain `name` whole (loaded) with
+    /// content hash `hash`.
+    fn holds(&self, n: Node, name: &ObjectName, hash: u64) -> bool {
+        let vmd = match n {
+            Node::Cell => self.cell.controller().vmd(),
+            Node::Welding => self.welding.ctl.vmd(),
+            Node::Transport => self.transport.ctl.vmd(),
+            Node::Operator => return false,
+        };
+        vmd.domain(name).is_some_and(|d| {
+            matches!(d.state(), DomainState::Ready | DomainState::InUse)
+                && content_hash(d.content()) == hash
+        })
     }
 
     /// `request` handled by workstation `at`'s controller.
