@@ -127,15 +127,10 @@ async fn io(mut settings: PlcSettings, watch: bool) -> Result<()> {
     }
 }
 
-/// Hands what the device asked of the link to its task.
-fn send_commands(
-    ws: &mut ControllerNode<Plc>,
-    link: &tokio::sync::mpsc::UnboundedSender<PlcCommand>,
-) {
-    while let Some(c) = ws.core.device.poll_command() {
-        if link.send(c).is_err() {
-            tracing::error!("the PLC link task is gone");
-        }
+/// Hands a command the node decided on to the link's task.
+fn send_command(link: &tokio::sync::mpsc::UnboundedSender<PlcCommand>, c: PlcCommand) {
+    if link.send(c).is_err() {
+        tracing::error!("the PLC link task is gone");
     }
 }
 
@@ -168,7 +163,7 @@ async fn main() -> Result<()> {
     let mut link = plc_link::spawn(plc_settings);
     let plc = Plc::new(address.clone());
     let mut ws = ControllerNode::new(station, RecipeKind::Transport, START_CONFIRM_LIMIT, plc);
-    ws.core.set_recipe_memory(cli.memory.recipe_memory);
+    ws.node.set_recipe_memory(cli.memory.recipe_memory);
     ws.publish_status().await;
     say(&format!(
         "EVENT ready station={} plc={address} poll_ms={}",
@@ -181,38 +176,26 @@ async fn main() -> Result<()> {
         tokio::select! {
             ev = ws.station_recv() => if !ws.station_step(ev).await { break },
             ev = link.events.recv() => match ev {
-                Some(PlcEvent::Connected { coils }) => {
-                    say(&format!("EVENT plc-connected address={address}"));
-                    ws.core.device.connected(coils);
-                }
-                Some(PlcEvent::Inputs { inputs, commands_done }) => {
-                    let reading = ws.core.device.reading(inputs, commands_done);
-                    if ws.take_reading(reading).await {
-                        say("EVENT plc-ready");
-                    }
-                }
-                Some(PlcEvent::Fault(why)) => {
-                    ws.core.device.link_down(&why);
-                    ws.fault(Cause::new(AlarmClass::Communication, why)).await;
-                }
+                Some(ev) => ws.link(ev),
                 None => {
-                    ws.fault(Cause::new(AlarmClass::Device, "the PLC link task stopped")).await;
+                    ws.fault(Cause::new(AlarmClass::Device, "the PLC link task stopped"));
+                    ws.carry(|c| send_command(&link.commands, c)).await;
                     break;
                 }
             },
             _ = tokio::time::sleep_until(deadline) => ws.on_timeout(),
             _ = shutdown.requested() => break,
         }
-        ws.settle_core();
-        send_commands(&mut ws, &link.commands);
-        ws.publish().await;
+        ws.carry(|c| send_command(&link.commands, c)).await;
     }
     // Leave the conveyor safe (each output's safe state): no line running,
     // a clamp still holding its workpiece, since this node cannot know
     // whether the robot still welds.
-    ws.core.device.shutdown();
-    send_commands(&mut ws, &link.commands);
-    let issued = ws.core.device.issued();
+    ws.node.device_mut().shutdown();
+    for c in ws.node.take_commands() {
+        send_command(&link.commands, c);
+    }
+    let issued = ws.node.device_mut().issued();
     let _ = tokio::time::timeout(Duration::from_millis(500), async {
         while let Some(ev) = link.events.recv().await {
             if matches!(ev, PlcEvent::Inputs { commands_done, .. } if commands_done >= issued)

@@ -16,7 +16,8 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use falc_bus::station::Station;
 use falc_dnc::procedure::{Link, LinkEvent, Priority, Timing};
-use falc_dnc::workstation::{self, Welding};
+use falc_dnc::telegram::Telegram;
+use falc_dnc::workstation::{self, LineEvent, Welding};
 use falc_model::ids::StationName;
 use falc_node::controller_node::ControllerNode;
 use falc_node::dnc_link;
@@ -44,14 +45,12 @@ struct Cli {
     node: NodeArgs,
 }
 
-/// Hands the telegrams the device queued to the link's task (dropped
+/// Hands a telegram the node decided on to the link's task (dropped
 /// while the line is closed: the device applied that failure already).
-fn send_telegrams(ws: &mut ControllerNode<Welding>, dnc: &mut Option<UnboundedSender<Vec<u8>>>) {
-    while let Some(t) = ws.core.device.poll_telegram() {
-        if let Some(d) = dnc {
-            if d.send(t.encode()).is_err() {
-                tracing::warn!("the DNC link task is gone");
-            }
+fn send_telegram(dnc: &Option<UnboundedSender<Vec<u8>>>, t: Telegram) {
+    if let Some(d) = dnc {
+        if d.send(t.encode()).is_err() {
+            tracing::warn!("the DNC link task is gone");
         }
     }
 }
@@ -85,12 +84,11 @@ async fn main() -> Result<()> {
     let robot = Welding::new(&line.path, &timing);
     let limit = workstation::confirm_limit(&timing);
     let mut ws = ControllerNode::new(station, RecipeKind::Welding, limit, robot);
-    ws.core.set_recipe_memory(cli.memory.recipe_memory);
+    ws.node.set_recipe_memory(cli.memory.recipe_memory);
     if dnc.is_some() {
-        let now = ws.now();
-        ws.core.device.opened(now);
+        ws.link(LineEvent::Opened);
     }
-    ws.publish_status().await;
+    ws.carry(|t| send_telegram(&dnc, t)).await;
     say(&format!(
         "EVENT ready station={} device={}",
         cli.station, line.path
@@ -102,15 +100,14 @@ async fn main() -> Result<()> {
         tokio::select! {
             ev = ws.station_recv() => if !ws.station_step(ev).await { break },
             ev = async { match &mut dnc_events { Some(e) => e.recv().await, None => std::future::pending().await } } => {
-                let events = match ev {
-                    Some(ev) => { let now = ws.now(); ws.core.device.link_event(now, ev) }
+                match ev {
+                    Some(ev) => ws.link(LineEvent::Link(ev)),
                     None => {
                         dnc_events = None;
                         dnc = None;
-                        ws.core.device.closed()
+                        ws.link(LineEvent::Closed);
                     }
-                };
-                ws.feed(events);
+                }
             },
             _ = reopen.tick(), if dnc.is_none() => {
                 if let Ok(port) = dnc_link::open_serial(&line) {
@@ -118,22 +115,21 @@ async fn main() -> Result<()> {
                     let h = dnc_link::spawn(port, workstation_end(timing));
                     dnc = Some(h.send);
                     dnc_events = Some(h.events);
-                    let now = ws.now();
-                    ws.core.device.opened(now);
+                    ws.link(LineEvent::Opened);
                 }
             }
             _ = tokio::time::sleep_until(deadline) => ws.on_timeout(),
             _ = shutdown.requested() => break,
         }
-        ws.settle_core();
-        send_telegrams(&mut ws, &mut dnc);
-        ws.publish().await;
+        ws.carry(|t| send_telegram(&dnc, t)).await;
     }
     // A job's program stopped (`H`) and the DNC link closed (`C`) before
     // the port is let go: the RCM knows nobody commands it (the twin says
     // `rx C`).
-    ws.core.device.close();
-    send_telegrams(&mut ws, &mut dnc);
+    ws.node.device_mut().close();
+    for t in ws.node.take_commands() {
+        send_telegram(&dnc, t);
+    }
     if let Some(events) = dnc_events.as_mut() {
         let close = workstation::CLOSE.encode();
         // At most the link's own budget for a telegram, retries included.

@@ -86,7 +86,6 @@ struct Lane {
 
 /// The cell controller's node.
 pub struct CellNode<T> {
-    me: StationName,
     /// The recipe runtime over the stations (read it; change it through
     /// the node).
     ctl: Controller<Stations>,
@@ -107,10 +106,9 @@ impl<T> CellNode<T> {
         alone: bool,
     ) -> Self {
         let ctl = Controller::new(RecipeKind::Cell, CONFIRM_LIMIT, Stations::new(commander))
-            .named(me.clone())
+            .named(me)
             .runs_on_alone(alone);
         Self {
-            me,
             ctl,
             pass: PassOn::new(workstations),
             lanes: BTreeMap::new(),
@@ -263,18 +261,9 @@ impl<T> CellNode<T> {
 
     /// What the controller put out, and its status if it changed.
     fn publish(&mut self) {
-        while let Some(o) = self.ctl.poll_output() {
-            let u = o.publication(self.me.clone());
-            self.out.push_back(CellAction::Publish(u));
-        }
-        let status = self.ctl.status();
-        if self.told.as_ref() != Some(&status) {
-            self.told = Some(status.clone());
-            self.out.push_back(CellAction::Publish(Unconfirmed::Status {
-                station: self.me.clone(),
-                status,
-            }));
-        }
+        let publications = self.ctl.publications(&mut self.told);
+        self.out
+            .extend(publications.into_iter().map(CellAction::Publish));
     }
 }
 

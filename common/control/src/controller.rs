@@ -353,6 +353,25 @@ impl<D: Device> Controller<D> {
         self.out.pop_front()
     }
 
+    /// What it put out since it was last asked, as publications from this
+    /// station in order, then its status if it differs from `told` (the
+    /// status the driver last published, which it then becomes; none:
+    /// publish it whatever it is).
+    pub fn publications(&mut self, told: &mut Option<VmdStatus>) -> Vec<Unconfirmed> {
+        let mut out: Vec<Unconfirmed> = std::iter::from_fn(|| self.out.pop_front())
+            .map(|o| o.publication(self.me.clone()))
+            .collect();
+        let status = self.status();
+        if told.as_ref() != Some(&status) {
+            *told = Some(status.clone());
+            out.push(Unconfirmed::Status {
+                station: self.me.clone(),
+                status,
+            });
+        }
+        out
+    }
+
     /// The recipe state this level is in (the local detail of its
     /// status): EXECUTING while a recipe runs; ERROR after an alarm until
     /// a run starts or a program invocation is reset; READY with a recipe

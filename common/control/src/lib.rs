@@ -13,6 +13,9 @@
 //! - [`cell_node`]: the cell controller's node: the controller over its
 //!   stations, the pass-on in front of it, a request lane per station
 //!   (what `falc-cell` and `falc-sim` both run);
+//! - [`workstation_node`]: a workstation's node: the controller around a
+//!   device with a link (what `falc-welding`, `falc-transport` and
+//!   `falc-sim` run);
 //! - [`order_list`]: the operator's order list worked through the cell,
 //!   with its [`alarm_list`], over its durable [`records`] and the
 //!   [`recipe_source`];
@@ -30,3 +33,4 @@ pub mod pass_on;
 pub mod plant;
 pub mod recipe_source;
 pub mod records;
+pub mod workstation_node;

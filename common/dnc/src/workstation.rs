@@ -21,7 +21,8 @@ use crate::telegram::Mode;
 use crate::host::{Host, Out};
 use crate::procedure::{LinkEvent, Timing};
 use crate::telegram::Telegram;
-use falc_control::controller::{Device, Happening};
+use falc_control::controller::{Controller, Device, Happening};
+use falc_control::workstation_node::Linked;
 use falc_model::mms::pdu::Severity;
 use falc_model::mms::vmd::{PhysicalStatus, RobotStatusDetail, VmdStatus};
 use falc_model::mode::ManualAction;
@@ -257,6 +258,39 @@ impl Welding {
     fn handle_timeout(&mut self, now: Duration, out: &mut Vec<Event>) {
         let outs = self.host.handle_timeout(now);
         self.apply(outs, out);
+    }
+}
+
+/// What happened on the DNC line, as the workstation's node takes it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum LineEvent {
+    /// The line was (re)opened ([`Welding::opened`]).
+    Opened,
+    /// The 3964R link reported this ([`Welding::link_event`]).
+    Link(LinkEvent),
+    /// The line closed ([`Welding::closed`]).
+    Closed,
+}
+
+impl Linked for Welding {
+    type Command = Telegram;
+    type LinkEvent = LineEvent;
+
+    fn next_command(&mut self) -> Option<Telegram> {
+        self.poll_telegram()
+    }
+
+    fn take_link_event(ctl: &mut Controller<Self>, now: Duration, ev: LineEvent) -> Option<String> {
+        let events = match ev {
+            LineEvent::Opened => {
+                ctl.device.opened(now);
+                return None;
+            }
+            LineEvent::Link(ev) => ctl.device.link_event(now, ev),
+            LineEvent::Closed => ctl.device.closed(),
+        };
+        ctl.feed(now, events);
+        None
     }
 }
 

@@ -1,22 +1,23 @@
-//! Drives a [`Controller`] on the bus: the thin async shell around the
-//! sans-I/O core. It owns the station (association, indications), the
-//! clock (time since start), and publishes what the core puts out: reports
-//! and job events as unsolicited status, the status when it changed.
+//! Drives a workstation's sans-I/O node ([`WorkstationNode`]) on the bus:
+//! the thin async shell around it. It owns the station (association,
+//! indications) and the clock (time since start), and carries out what the
+//! node decides: answers, commands to the device's link, publications
+//! (reports and job events as unsolicited status, the status when it
+//! changed), log lines.
 //!
-//! A node's loop: `select!` on [`ControllerNode::station_recv`], its
-//! device's events (fed with [`ControllerNode::feed`] /
-//! [`ControllerNode::fault`]) and `sleep_until(`[`ControllerNode::deadline`]`)`
-//! → [`ControllerNode::on_timeout`]; then [`ControllerNode::settle`].
+//! A node's loop: `select!` on [`ControllerNode::station_recv`] (handled
+//! by [`ControllerNode::station_step`]), its link's events
+//! ([`ControllerNode::link`]) and `sleep_until(`[`ControllerNode::deadline`]`)`
+//! → [`ControllerNode::on_timeout`]; then [`ControllerNode::carry`].
 
 use crate::say;
 use falc_bus::station::{Station, StationEvent};
 use falc_bus::BusEvent;
-use falc_control::controller::{Controller, Device, Reading};
+use falc_bus::Responder;
+use falc_control::workstation_node::{Linked, WorkstationAction, WorkstationNode};
 use falc_model::alarm::Cause;
-use falc_model::mms::error::ServiceError;
-use falc_model::mms::pdu::{Request, Response, Severity, Unconfirmed};
+use falc_model::mms::pdu::Unconfirmed;
 use falc_recipe::commands::RecipeKind;
-use falc_recipe::engine::Event;
 use std::time::Duration;
 use tokio::time::Instant;
 
@@ -30,27 +31,25 @@ pub struct MemoryArgs {
     pub recipe_memory: usize,
 }
 
-/// A controller core on its station.
-pub struct ControllerNode<D> {
+/// A workstation's node on its station.
+pub struct ControllerNode<D: Linked> {
     station: Station,
-    /// The sans-I/O core (its device is `core.device`).
-    pub core: Controller<D>,
+    /// The sans-I/O node (its device: [`WorkstationNode::device_mut`]).
+    pub node: WorkstationNode<D, Responder>,
     origin: Instant,
 }
 
-impl<D: Device> ControllerNode<D> {
-    /// A controller of `kind` on `station`; a `start` in its recipes waits
-    /// `confirm_limit` for the device's confirm.
+impl<D: Linked> ControllerNode<D> {
+    /// A workstation of `kind` on `station`; a `start` in its recipes
+    /// waits `confirm_limit` for the device's confirm.
     pub fn new(station: Station, kind: RecipeKind, confirm_limit: Duration, device: D) -> Self {
         let me = station.bus().me().station.clone();
-        // A cell runs its order on when its commander is lost; the
+        // Whether it runs its job on when its commander is lost: the
         // station's associations say so (from its kind in the topology).
         let alone = station.associations().runs_alone();
         Self {
             station,
-            core: Controller::new(kind, confirm_limit, device)
-                .named(me)
-                .runs_on_alone(alone),
+            node: WorkstationNode::new(me, kind, confirm_limit, device, alone),
             origin: Instant::now(),
         }
     }
@@ -67,25 +66,48 @@ impl<D: Device> ControllerNode<D> {
     }
 
     /// Handles a raw bus event to the end (in a branch's body, never as a
-    /// branch): what the node must act on, if anything.
-    pub async fn station_handle(&mut self, ev: BusEvent) -> Option<StationEvent> {
-        self.station.handle(ev).await
-    }
-
-    /// Receives and handles the next bus event as a workstation does
-    /// (indications answered, aborts and associations taken in); false
-    /// when the bus is gone.
+    /// branch): indications, aborts and associations go to the node;
+    /// false when the bus is gone.
     pub async fn station_step(&mut self, ev: Option<BusEvent>) -> bool {
         let Some(ev) = ev else { return false };
-        if let Some(e) = self.station_handle(ev).await {
-            self.station_event(e).await;
+        let Some(e) = self.station.handle(ev).await else {
+            return true;
+        };
+        let now = self.now();
+        match e {
+            StationEvent::Indication(ind) => {
+                self.node
+                    .handle_indication(now, ind.responder, &ind.request);
+            }
+            StationEvent::Abort(a) => {
+                say(&format!("EVENT abort-indication peer={}", a.peer.station));
+                self.node.handle_abort(now, &a.peer.station, a.role);
+            }
+            StationEvent::Associated(p) => {
+                say(&format!("EVENT associated commander={}", p.station));
+                self.node.handle_associated(now);
+                self.station.republish_status().await;
+            }
+            StationEvent::Concluded(_) => {}
         }
         true
     }
 
+    /// What the device's link reported.
+    pub fn link(&mut self, ev: D::LinkEvent) {
+        let now = self.now();
+        self.node.handle_link(now, ev);
+    }
+
+    /// The device failed outside its link's reports: the running recipe
+    /// ends in alarm with `cause`, and the alarm goes up.
+    pub fn fault(&mut self, cause: Cause) {
+        self.node.handle_fault(cause);
+    }
+
     /// When the running recipe's next limit runs out (far away if none).
     pub fn deadline(&self) -> Instant {
-        self.core
+        self.node
             .poll_timeout()
             .map_or(Instant::now() + Duration::from_secs(3600), |t| {
                 self.origin + t
@@ -95,104 +117,29 @@ impl<D: Device> ControllerNode<D> {
     /// The clock reached the deadline.
     pub fn on_timeout(&mut self) {
         let now = self.now();
-        self.core.handle_timeout(now);
-    }
-
-    /// Feeds device events to the running recipe.
-    pub fn feed(&mut self, events: Vec<Event>) {
-        let now = self.now();
-        self.core.feed(now, events);
-    }
-
-    /// The device failed: the running recipe ends in alarm with `cause`,
-    /// and the alarm goes up (also when no recipe runs).
-    pub async fn fault(&mut self, cause: Cause) {
-        self.core.fault(cause);
-        self.flush().await;
-    }
-
-    /// Takes in what one reading of the device means
-    /// ([`Controller::take_reading`]) and publishes it; true when the
-    /// device became usable again with it.
-    pub async fn take_reading(&mut self, reading: Reading) -> bool {
-        let now = self.now();
-        let ready = self.core.take_reading(now, reading);
-        self.flush().await;
-        ready
-    }
-
-    /// Publishes a report (operator message) from this station.
-    pub async fn report(&mut self, severity: Severity, text: String) {
-        self.core.report(severity, text);
-        self.flush().await;
-    }
-
-    /// Publishes what the core put out, in order ([`publish`]).
-    async fn flush(&mut self) {
-        let me = self.station.bus().me().station.clone();
-        while let Some(out) = self.core.poll_output() {
-            publish(&self.station, out.publication(me.clone())).await;
-        }
+        self.node.handle_timeout(now);
     }
 
     /// Publishes the status if it changed.
     pub async fn publish_status(&mut self) {
-        self.station.set_status(self.core.status()).await;
+        self.station
+            .set_status(self.node.controller().status())
+            .await;
     }
 
-    /// Runs the engine's actions, finishes the job if it ended, publishes
-    /// what came of it and the status: call after every event.
-    pub async fn settle(&mut self) {
-        self.settle_core();
-        self.publish().await;
-    }
-
-    /// The first half of [`Self::settle`]: runs the engine's actions in the
-    /// core, publishes nothing yet (a driver with commands to send sends
-    /// them first: the next station should not wait for a status put).
-    pub fn settle_core(&mut self) {
+    /// Carries out what the node decided, in order: answers to the
+    /// commander, commands to the link (`send`), publications, log lines.
+    /// Call after every event.
+    pub async fn carry(&mut self, mut send: impl FnMut(D::Command)) {
         let now = self.now();
-        self.core.settle(now);
-    }
-
-    /// The second half of [`Self::settle`]: publishes what the core put out
-    /// and the status.
-    pub async fn publish(&mut self) {
-        self.flush().await;
-        self.publish_status().await;
-    }
-
-    /// Handles what the station hands the node.
-    pub async fn station_event(&mut self, ev: StationEvent) {
-        match ev {
-            StationEvent::Indication(ind) => {
-                let result = self.indication(&ind.request).await;
-                ind.responder.respond(result).await;
+        while let Some(action) = self.node.poll(now) {
+            match action {
+                WorkstationAction::Answer { ticket, result } => ticket.respond(result).await,
+                WorkstationAction::Command(c) => send(c),
+                WorkstationAction::Publish(u) => publish(&self.station, u).await,
+                WorkstationAction::Event(line) => say(&format!("EVENT {line}")),
             }
-            StationEvent::Abort(a) => {
-                say(&format!("EVENT abort-indication peer={}", a.peer.station));
-                let now = self.now();
-                self.core.handle_abort(now, &a.peer.station, a.role);
-                self.flush().await;
-            }
-            StationEvent::Associated(p) => {
-                say(&format!("EVENT associated commander={}", p.station));
-                let now = self.now();
-                self.core.handle_associated(now);
-                self.publish_status().await;
-                self.station.republish_status().await;
-            }
-            StationEvent::Concluded(_) => {}
         }
-    }
-
-    /// Answers one indication (the node answers it to the commander).
-    pub async fn indication(&mut self, req: &Request) -> Result<Response, ServiceError> {
-        let now = self.now();
-        let result = self.core.handle_request(now, req);
-        self.flush().await;
-        self.publish_status().await;
-        result
     }
 }
 

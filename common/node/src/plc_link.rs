@@ -10,6 +10,7 @@
 //! coil write from one taken after.
 
 use falc_plc::map::{Inputs, IoMap, MapError, COILS, INPUTS};
+pub use falc_plc::workstation::PlcEvent;
 use falc_plc::workstation::{Pace, PlcCommand};
 use std::net::SocketAddr;
 use std::time::Duration;
@@ -100,28 +101,6 @@ impl PlcArgs {
             timeout: Duration::from_millis(self.modbus_timeout_ms.max(1)),
         })
     }
-}
-
-/// What the link reports.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum PlcEvent {
-    /// Connected (again), with the coils the PLC holds as it reads them
-    /// back (offset order), or None if it would not say (a Modbus
-    /// exception to the read).
-    Connected {
-        /// The coils, read back.
-        coils: Option<[bool; COILS as usize]>,
-    },
-    /// A reading of the inputs (sent when it differs from the last one, and
-    /// after every coil write).
-    Inputs {
-        /// The inputs.
-        inputs: Inputs,
-        /// Commands carried out (or dropped) before this read began.
-        commands_done: u64,
-    },
-    /// The link failed or the PLC refused a request; the link retries.
-    Fault(String),
 }
 
 /// The link task's two ends.

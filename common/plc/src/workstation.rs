@@ -48,7 +48,8 @@
 //! through [`Plc::connected`], [`Plc::reading`] and [`Plc::link_down`].
 
 use crate::map::{self, Coil, Input, Inputs, SafeState, SignalName, Spot, COILS};
-use falc_control::controller::{Device, Happening, Reading};
+use falc_control::controller::{Controller, Device, Happening, Reading};
+use falc_control::workstation_node::Linked;
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::Place;
 use falc_model::mms::pdu::Severity;
@@ -68,6 +69,28 @@ pub enum PlcCommand {
     WriteAll([bool; COILS as usize]),
     /// Poll at the busy or the idle period from now on (no Modbus request).
     Pace(Pace),
+}
+
+/// What the link reports.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PlcEvent {
+    /// Connected (again), with the coils the PLC holds as it reads them
+    /// back (offset order), or None if it would not say (a Modbus
+    /// exception to the read).
+    Connected {
+        /// The coils, read back.
+        coils: Option<[bool; COILS as usize]>,
+    },
+    /// A reading of the inputs (sent when it differs from the last one, and
+    /// after every coil write).
+    Inputs {
+        /// The inputs.
+        inputs: Inputs,
+        /// Commands carried out (or dropped) before this read began.
+        commands_done: u64,
+    },
+    /// The link failed or the PLC refused a request; the link retries.
+    Fault(String),
 }
 
 /// The link's poll period while a recipe runs, in ms (its default).
@@ -1129,5 +1152,39 @@ mod tests {
         // From then on each change needs a cause.
         let (_, alarm) = p.inputs(showing(&[2, 6], &['K']), 2);
         assert!(alarm.is_some_and(|a| a.text.contains("(W6)")));
+    }
+}
+
+impl Linked for Plc {
+    type Command = PlcCommand;
+    type LinkEvent = PlcEvent;
+
+    fn next_command(&mut self) -> Option<PlcCommand> {
+        self.poll_command()
+    }
+
+    /// A connection adopts or corrects the coils; a reading goes to the
+    /// running recipe (`plc-ready` when the PLC became usable with it); a
+    /// fault is a communication alarm.
+    fn take_link_event(ctl: &mut Controller<Self>, now: Duration, ev: PlcEvent) -> Option<String> {
+        match ev {
+            PlcEvent::Connected { coils } => {
+                ctl.device.connected(coils);
+                Some(format!("plc-connected address={}", ctl.device.address))
+            }
+            PlcEvent::Inputs {
+                inputs,
+                commands_done,
+            } => {
+                let reading = ctl.device.reading(inputs, commands_done);
+                ctl.take_reading(now, reading)
+                    .then(|| "plc-ready".to_string())
+            }
+            PlcEvent::Fault(why) => {
+                ctl.device.link_down(&why);
+                ctl.fault(Cause::new(AlarmClass::Communication, why));
+                None
+            }
+        }
     }
 }

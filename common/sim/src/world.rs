@@ -12,7 +12,6 @@
 use crate::bus::{Arrival, Bus, Link, Msg, Node};
 use crate::recipes::Shipped;
 use falc_control::cell_node::{CellAction, CellNode};
-use falc_control::controller::{Controller, Device};
 use falc_control::coordination::{workstation_domain, Awaiting, Reply};
 use falc_control::order_list::{CellCall, OrderList, Output as ListOutput, Ticket, CELL_LIMIT};
 use falc_control::pass_on::PASS_LIMIT;
@@ -20,11 +19,12 @@ use falc_control::recipe_source::{RecipeSet, RecipeSource};
 use falc_control::records::memory::Memory;
 use falc_control::records::shared::{plant, Shared};
 use falc_control::records::Records;
+use falc_control::workstation_node::{Linked, WorkstationAction, WorkstationNode};
 use falc_dnc::procedure::{Link as DncLink, Priority, Timing};
 use falc_dnc::robot::Robot;
 use falc_dnc::telegram::Mode;
 use falc_dnc::twin::{Note, RcmTwin};
-use falc_dnc::workstation::{self, Welding};
+use falc_dnc::workstation::{self, LineEvent, Welding};
 use falc_model::console::{ApiRequest, ApiResult};
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::association::Associations;
@@ -35,11 +35,11 @@ use falc_model::mms::heard;
 use falc_model::mms::journal::{Publication, ReportLog, ReportsAsked};
 use falc_model::mms::pdu::{Peer, Request, Response, Unconfirmed};
 use falc_model::mms::serving::{Action as Serve, Serving};
-use falc_model::mms::vmd::{VmdStatus, RECIPE_MEMORY};
+use falc_model::mms::vmd::RECIPE_MEMORY;
 use falc_model::topology::Topology;
 use falc_plc::conveyor::{Conveyor, Spot};
 use falc_plc::map::{Coil, Inputs, COILS};
-use falc_plc::workstation::{Pace, Plc, PlcCommand, IDLE_POLL_MS, POLL_MS};
+use falc_plc::workstation::{Pace, Plc, PlcCommand, PlcEvent, IDLE_POLL_MS, POLL_MS};
 use falc_recipe::commands::RecipeKind;
 use falc_recipe::engine::START_CONFIRM_LIMIT;
 use rand::rngs::StdRng;
@@ -127,24 +127,23 @@ struct Up {
     serving: Serving<(Node, u64)>,
 }
 
-/// The welding workstation: its controller and its end of the line.
+/// The welding workstation: its node and its end of the line.
 pub struct WeldingNode {
-    /// The recipe runtime around the robot.
-    pub ctl: Controller<Welding>,
+    /// The node around the robot.
+    pub node: WorkstationNode<Welding, (Node, u64)>,
     link: DncLink,
-    status: Option<VmdStatus>,
 }
 
-/// The transport workstation: its controller and its Modbus poller.
+/// The transport workstation: its node and its Modbus link (the poller
+/// `falc_node::plc_link` runs as a task).
 pub struct TransportNode {
-    /// The recipe runtime around the PLC.
-    pub ctl: Controller<Plc>,
+    /// The node around the PLC.
+    pub node: WorkstationNode<Plc, (Node, u64)>,
     pace: Pace,
     next_poll: Duration,
     done: u64,
     last: Option<Inputs>,
     wrote: bool,
-    status: Option<VmdStatus>,
 }
 
 /// The operator's order list as `falc-operator` starts it.
@@ -172,35 +171,47 @@ fn cell_node(topology: &Topology) -> CellNode<(Node, u64)> {
     )
 }
 
-fn welding_node(now: Duration, timing: Timing) -> WeldingNode {
-    let mut device = Welding::new("sim-serial", &timing);
-    device.opened(now);
+/// Workstation `n`'s node as `falc_node::controller_node` starts it.
+fn workstation_node<D: Linked>(
+    topology: &Topology,
+    n: Node,
+    kind: RecipeKind,
+    confirm_limit: Duration,
+    device: D,
+) -> WorkstationNode<D, (Node, u64)> {
+    let me = station(n);
+    let alone = Associations::of(topology, &me).runs_alone();
+    WorkstationNode::new(me, kind, confirm_limit, device, alone)
+}
+
+fn welding_node(topology: &Topology, now: Duration, timing: Timing) -> WeldingNode {
+    let device = Welding::new("sim-serial", &timing);
+    let limit = workstation::confirm_limit(&timing);
+    let mut node = workstation_node(topology, Node::Welding, RecipeKind::Welding, limit, device);
+    node.handle_link(now, LineEvent::Opened);
     WeldingNode {
-        ctl: Controller::new(
-            RecipeKind::Welding,
-            workstation::confirm_limit(&timing),
-            device,
-        ),
+        node,
         link: DncLink::new(Priority::Low, timing).awaiting_answers(),
-        status: None,
     }
 }
 
-fn transport_node(now: Duration, coils: &[bool]) -> TransportNode {
-    let mut device = Plc::new("sim-plc:502".into());
+fn transport_node(topology: &Topology, now: Duration, coils: &[bool]) -> TransportNode {
+    let device = Plc::new("sim-plc:502".into());
+    let kind = RecipeKind::Transport;
+    let mut node = workstation_node(topology, Node::Transport, kind, START_CONFIRM_LIMIT, device);
     let mut held = [false; COILS as usize];
     for (h, c) in held.iter_mut().zip(coils) {
         *h = *c;
     }
-    device.connected(Some(held));
+    let coils = Some(held);
+    node.handle_link(now, PlcEvent::Connected { coils });
     TransportNode {
-        ctl: Controller::new(RecipeKind::Transport, START_CONFIRM_LIMIT, device),
+        node,
         pace: Pace::Idle,
         next_poll: now,
         done: 0,
         last: None,
         wrote: true,
-        status: None,
     }
 }
 
@@ -218,25 +229,6 @@ fn order_of(argument: &str) -> Option<i64> {
         .strip_prefix("order ")
         .and_then(|s| s.split_whitespace().next())
         .and_then(|s| s.parse().ok())
-}
-
-/// What a controller put out since it was last asked, as the bus carries
-/// it: its reports and job events, and its status if it changed.
-fn outputs<D: Device>(
-    ctl: &mut Controller<D>,
-    last: &mut Option<VmdStatus>,
-    from: Node,
-) -> Vec<Unconfirmed> {
-    let station = station(from);
-    let mut out: Vec<Unconfirmed> = std::iter::from_fn(|| ctl.poll_output())
-        .map(|o| o.publication(station.clone()))
-        .collect();
-    let status = ctl.status();
-    if last.as_ref() != Some(&status) {
-        *last = Some(status.clone());
-        out.push(Unconfirmed::Status { station, status });
-    }
-    out
 }
 
 /// The whole cell.
@@ -337,7 +329,7 @@ impl World {
         let home: Vec<Spot> = HOME.iter().filter_map(|s| Spot::parse(s)).collect();
         let conveyor = Conveyor::new(&home, time_scale)?;
         let now = Duration::ZERO;
-        let transport = transport_node(now, conveyor.coils());
+        let transport = transport_node(&topology, now, conveyor.coils());
         let cell = cell_node(&topology);
         let mut w = Self {
             now,
@@ -354,7 +346,7 @@ impl World {
             cell,
             starting: BTreeMap::new(),
             lease: topology.lease(),
-            welding: welding_node(now, timing),
+            welding: welding_node(&topology, now, timing),
             transport,
             ups: BTreeMap::new(),
             rcm: RcmTwin::new(Robot::new(Mode::AutomaticExternal, time_scale), timing),
@@ -461,11 +453,11 @@ impl World {
             self.cell
                 .poll_timeout()
                 .filter(|_| self.is_running(Node::Cell)),
-            self.welding.ctl.poll_timeout(),
+            self.welding.node.poll_timeout(),
             self.welding.link.poll_timeout(),
             self.rcm.poll_timeout(),
             self.wire.iter().map(|w| w.0).min(),
-            self.transport.ctl.poll_timeout(),
+            self.transport.node.poll_timeout(),
             Some(self.transport.next_poll),
             self.conveyor.poll_timeout(),
             self.pending.values().map(|p| p.deadline).min(),
@@ -529,8 +521,8 @@ impl World {
         if self.is_running(Node::Cell) && self.cell.poll_timeout().is_some_and(|t| t <= now) {
             self.cell.handle_timeout(now);
         }
-        if self.welding.ctl.poll_timeout().is_some_and(|t| t <= now) {
-            self.welding.ctl.handle_timeout(now);
+        if self.welding.node.poll_timeout().is_some_and(|t| t <= now) {
+            self.welding.node.handle_timeout(now);
         }
         if self.welding.link.poll_timeout().is_some_and(|t| t <= now) {
             self.welding.link.handle_timeout(now);
@@ -551,8 +543,8 @@ impl World {
                 self.welding.link.handle_bytes(now, &bytes);
             }
         }
-        if self.transport.ctl.poll_timeout().is_some_and(|t| t <= now) {
-            self.transport.ctl.handle_timeout(now);
+        if self.transport.node.poll_timeout().is_some_and(|t| t <= now) {
+            self.transport.node.handle_timeout(now);
         }
         if self.conveyor.poll_timeout().is_some_and(|t| t <= now) {
             self.conveyor.handle_timeout(now);
@@ -582,8 +574,14 @@ impl World {
         if t.wrote || t.last != Some(inputs) {
             t.wrote = false;
             t.last = Some(inputs);
-            let reading = t.ctl.device.reading(inputs, t.done);
-            t.ctl.take_reading(now, reading);
+            let commands_done = t.done;
+            t.node.handle_link(
+                now,
+                PlcEvent::Inputs {
+                    inputs,
+                    commands_done,
+                },
+            );
         }
     }
 
@@ -815,6 +813,9 @@ impl World {
         any
     }
 
+    /// Carries what the welding node decided: its telegrams over the
+    /// 3964R link to the line (as `falc_node::dnc_link`'s task), what the
+    /// link reports back to the node, until both are quiet.
     fn pump_welding(&mut self) -> bool {
         if !self.is_running(Node::Welding) {
             return false;
@@ -822,16 +823,16 @@ impl World {
         let mut any = false;
         let now = self.now;
         loop {
-            let mut more = false;
-            self.welding.ctl.settle(now);
-            while let Some(t) = self.welding.ctl.device.poll_telegram() {
-                more = true;
-                self.welding.link.send(now, t.encode());
+            while let Some(a) = self.welding.node.poll(now) {
+                any = true;
+                if let Some(t) = self.carry_workstation(Node::Welding, a) {
+                    self.welding.link.send(now, t.encode());
+                }
             }
+            let mut more = false;
             while let Some(ev) = self.welding.link.poll_event() {
                 more = true;
-                let events = self.welding.ctl.device.link_event(now, ev);
-                self.welding.ctl.feed(now, events);
+                self.welding.node.handle_link(now, LineEvent::Link(ev));
             }
             while let Some(bytes) = self.welding.link.poll_transmit() {
                 self.wire.push_back((now + WIRE, true, bytes));
@@ -839,7 +840,6 @@ impl World {
             if !more {
                 break;
             }
-            any = true;
         }
         while let Some(bytes) = self.rcm.poll_transmit() {
             self.wire.push_back((now + WIRE, false, bytes));
@@ -850,67 +850,72 @@ impl World {
                 self.note(format!("rcm: {why}"));
             }
         }
-        let w = &mut self.welding;
-        for u in outputs(&mut w.ctl, &mut w.status, Node::Welding) {
-            any = true;
-            self.publish(Node::Welding, u);
-        }
         any
     }
 
+    /// Carries what the transport node decided: its commands to the
+    /// conveyor's twin (as `falc_node::plc_link`'s task writes coils and
+    /// sets its pace).
     fn pump_transport(&mut self) -> bool {
         if !self.is_running(Node::Transport) {
             return false;
         }
         let mut any = false;
         let now = self.now;
-        loop {
-            self.transport.ctl.settle(now);
-            let mut more = false;
-            while let Some(c) = self.transport.ctl.device.poll_command() {
-                more = true;
-                match c {
-                    PlcCommand::Write(coil, v) => {
-                        self.write_coil(coil, v);
-                        self.transport.done += 1;
-                        self.transport.wrote = true;
-                    }
-                    PlcCommand::WriteAll(values) => {
-                        for (o, v) in values.iter().enumerate() {
-                            if let Some(coil) = Coil::at(o as u16) {
-                                self.write_coil(coil, *v);
-                            }
+        while let Some(a) = self.transport.node.poll(now) {
+            any = true;
+            match self.carry_workstation(Node::Transport, a) {
+                Some(PlcCommand::Write(coil, v)) => {
+                    self.write_coil(coil, v);
+                    self.transport.done += 1;
+                    self.transport.wrote = true;
+                }
+                Some(PlcCommand::WriteAll(values)) => {
+                    for (o, v) in values.iter().enumerate() {
+                        if let Some(coil) = Coil::at(o as u16) {
+                            self.write_coil(coil, *v);
                         }
-                        self.transport.done += 1;
-                        self.transport.wrote = true;
                     }
-                    PlcCommand::Pace(p) => {
-                        self.transport.pace = p;
-                        if p == Pace::Busy {
-                            self.transport.next_poll =
-                                self.transport.next_poll.min(now + POLL_BUSY);
-                        }
+                    self.transport.done += 1;
+                    self.transport.wrote = true;
+                }
+                Some(PlcCommand::Pace(p)) => {
+                    self.transport.pace = p;
+                    if p == Pace::Busy {
+                        self.transport.next_poll = self.transport.next_poll.min(now + POLL_BUSY);
                     }
                 }
+                None => {}
             }
-            if self.transport.wrote {
-                // The link reads right after a write.
-                self.transport.next_poll = self.transport.next_poll.min(now + POLL_BUSY);
-            }
-            if !more {
-                break;
-            }
-            any = true;
+        }
+        if self.transport.wrote {
+            // The link reads right after a write.
+            self.transport.next_poll = self.transport.next_poll.min(now + POLL_BUSY);
         }
         while let Some(note) = self.conveyor.poll_note() {
             self.note(format!("plc: {note}"));
         }
-        let t = &mut self.transport;
-        for u in outputs(&mut t.ctl, &mut t.status, Node::Transport) {
-            any = true;
-            self.publish(Node::Transport, u);
-        }
         any
+    }
+
+    /// Carries out a workstation's action on the bus (an answer, a
+    /// publication, a line for the trace); a command for its device's
+    /// link is returned, for the caller to carry.
+    fn carry_workstation<C>(
+        &mut self,
+        at: Node,
+        action: WorkstationAction<(Node, u64), C>,
+    ) -> Option<C> {
+        match action {
+            WorkstationAction::Answer {
+                ticket: (to, id),
+                result,
+            } => self.respond(at, to, id, result),
+            WorkstationAction::Publish(u) => self.publish(at, u),
+            WorkstationAction::Event(line) => self.note(format!("{at}: {line}")),
+            WorkstationAction::Command(c) => return Some(c),
+        }
+        None
     }
 
     fn write_coil(&mut self, coil: Coil, v: bool) {
@@ -1197,23 +1202,22 @@ impl World {
                         }
                         self.cell.handle_indication((from, id), request);
                     }
-                    _ => {
-                        let result = self.handle_at(at, &request);
-                        self.respond(at, from, id, result);
+                    Node::Welding => self
+                        .welding
+                        .node
+                        .handle_indication(now, (from, id), &request),
+                    Node::Transport => {
+                        self.transport
+                            .node
+                            .handle_indication(now, (from, id), &request);
                     }
                 },
                 Serve::Associated(p) => {
                     self.note(format!("{at}: associated with {}", p.station));
                     match at {
                         Node::Cell => self.cell.handle_associated(now),
-                        Node::Welding => {
-                            self.welding.ctl.handle_associated(now);
-                            self.welding.status = None;
-                        }
-                        Node::Transport => {
-                            self.transport.ctl.handle_associated(now);
-                            self.transport.status = None;
-                        }
+                        Node::Welding => self.welding.node.handle_associated(now),
+                        Node::Transport => self.transport.node.handle_associated(now),
                         Node::Operator => {}
                     }
                 }
@@ -1221,8 +1225,8 @@ impl World {
                     let (name, role) = (&ind.peer.station, ind.role);
                     match at {
                         Node::Cell => self.cell.handle_abort(now, name, role),
-                        Node::Welding => self.welding.ctl.handle_abort(now, name, role),
-                        Node::Transport => self.transport.ctl.handle_abort(now, name, role),
+                        Node::Welding => self.welding.node.handle_abort(now, name, role),
+                        Node::Transport => self.transport.node.handle_abort(now, name, role),
                         Node::Operator => self.list.handle_abort(now, &ind.reason),
                     }
                 }
@@ -1270,26 +1274,14 @@ impl World {
     fn holds(&self, n: Node, name: &ObjectName, hash: u64) -> bool {
         let vmd = match n {
             Node::Cell => self.cell.controller().vmd(),
-            Node::Welding => self.welding.ctl.vmd(),
-            Node::Transport => self.transport.ctl.vmd(),
+            Node::Welding => self.welding.node.controller().vmd(),
+            Node::Transport => self.transport.node.controller().vmd(),
             Node::Operator => return false,
         };
         vmd.domain(name).is_some_and(|d| {
             matches!(d.state(), DomainState::Ready | DomainState::InUse)
                 && content_hash(d.content()) == hash
         })
-    }
-
-    /// `request` handled by workstation `at`'s controller.
-    fn handle_at(&mut self, at: Node, request: &Request) -> Result<Response, ServiceError> {
-        let now = self.now;
-        match at {
-            Node::Welding => self.welding.ctl.handle_request(now, request),
-            Node::Transport => self.transport.ctl.handle_request(now, request),
-            Node::Operator | Node::Cell => {
-                Err(ServiceError::undefined(format!("{at} is no workstation")))
-            }
-        }
     }
 
     /// `n`'s link to the router is cut (or joined again).
@@ -1430,8 +1422,8 @@ impl World {
     fn apply_memory(&mut self, n: Node) {
         let bytes = self.memory.get(&n).copied().unwrap_or(RECIPE_MEMORY);
         match n {
-            Node::Welding => self.welding.ctl.set_recipe_memory(bytes),
-            Node::Transport => self.transport.ctl.set_recipe_memory(bytes),
+            Node::Welding => self.welding.node.set_recipe_memory(bytes),
+            Node::Transport => self.transport.node.set_recipe_memory(bytes),
             Node::Operator | Node::Cell => {}
         }
     }
@@ -1442,7 +1434,7 @@ impl World {
         self.note(format!("{n}: process started again"));
         match n {
             Node::Welding => {
-                self.welding = welding_node(now, self.timing);
+                self.welding = welding_node(&self.topology, now, self.timing);
                 self.wire.retain(|w| w.1);
             }
             Node::Cell => {
@@ -1453,7 +1445,9 @@ impl World {
                 self.restart_operator();
                 return;
             }
-            Node::Transport => self.transport = transport_node(now, self.conveyor.coils()),
+            Node::Transport => {
+                self.transport = transport_node(&self.topology, now, self.conveyor.coils());
+            }
         }
         self.apply_memory(n);
         self.new_run(n);

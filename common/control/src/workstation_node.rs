@@ -1,0 +1,377 @@
+//! A workstation's node, sans-I/O: everything `falc-welding` and
+//! `falc-transport` decide around their device, for any transport and
+//! clock. The processes carry its actions over zenoh, a serial line and
+//! Modbus TCP; `falc-sim` over its simulated bus and twins; both run this
+//! code.
+//!
+//! It holds the workstation's [`Controller`] around a [`Linked`] device:
+//! a device with a link the driver carries (the DNC line to the robot
+//! controller, the Modbus link to the conveyor PLC). The driver hands in
+//! what comes (the commander's indications with a ticket of its own `T`,
+//! associations and aborts, what the link reported, the time) and carries
+//! out what [`WorkstationNode::poll`] gives, in order
+//! ([`WorkstationAction`]): an answer to the commander, a command for the
+//! link, a publication, a line for the node's log. What an indication
+//! changed is published before its answer; the commands the recipe's
+//! next steps issue go out before what they caused is published (the next
+//! station should not wait for a status put).
+
+use crate::controller::{Controller, Device};
+use falc_model::alarm::Cause;
+use falc_model::ids::StationName;
+use falc_model::mms::association::Role;
+use falc_model::mms::error::ServiceError;
+use falc_model::mms::pdu::{Request, Response, Unconfirmed};
+use falc_model::mms::vmd::VmdStatus;
+use falc_recipe::commands::RecipeKind;
+use std::collections::VecDeque;
+use std::time::Duration;
+
+/// A device with a link its driver carries: what it asks the link to do,
+/// and what a report of the link means for the controller.
+pub trait Linked: Device + Sized {
+    /// What the device asks of its link (a telegram, a coil write).
+    type Command;
+    /// What the link reports (a telegram received, a reading, a fault).
+    type LinkEvent;
+
+    /// The next command for the link, in the order issued.
+    fn next_command(&mut self) -> Option<Self::Command>;
+
+    /// Takes in `ev` at `now`: the device's state, the running recipe's
+    /// events, an alarm. Returns a line worth the node's log, if any
+    /// (`plc-ready`).
+    fn take_link_event(
+        ctl: &mut Controller<Self>,
+        now: Duration,
+        ev: Self::LinkEvent,
+    ) -> Option<String>;
+}
+
+/// What the driver does, in order.
+#[derive(Debug)]
+pub enum WorkstationAction<T, C> {
+    /// Answer the commander's indication `ticket`.
+    Answer {
+        /// The driver's handle on it.
+        ticket: T,
+        /// The answer.
+        result: Result<Response, ServiceError>,
+    },
+    /// Hand this to the device's link.
+    Command(C),
+    /// Publish this (a report, a job event, the status when it changed).
+    Publish(Unconfirmed),
+    /// A line for the node's log (`EVENT …`).
+    Event(String),
+}
+
+/// A workstation's node.
+pub struct WorkstationNode<D: Linked, T> {
+    ctl: Controller<D>,
+    /// The status last published (none: publish it at the next poll).
+    told: Option<VmdStatus>,
+    out: VecDeque<WorkstationAction<T, D::Command>>,
+}
+
+impl<D: Linked, T> WorkstationNode<D, T> {
+    /// Workstation `me` of `kind` around `device`; a `start` in its
+    /// recipes waits `confirm_limit` for the device's confirm; whether it
+    /// runs its job on when its commander is lost (`alone`).
+    pub fn new(
+        me: StationName,
+        kind: RecipeKind,
+        confirm_limit: Duration,
+        device: D,
+        alone: bool,
+    ) -> Self {
+        let ctl = Controller::new(kind, confirm_limit, device)
+            .named(me)
+            .runs_on_alone(alone);
+        Self {
+            ctl,
+            told: None,
+            out: VecDeque::new(),
+        }
+    }
+
+    /// The recipe runtime (its VMD, status, mode).
+    pub fn controller(&self) -> &Controller<D> {
+        &self.ctl
+    }
+
+    /// The device, to set it up before the first event or to shut it down
+    /// after the last ([`Self::take_commands`]).
+    pub fn device_mut(&mut self) -> &mut D {
+        &mut self.ctl.device
+    }
+
+    /// How many bytes of recipes the station holds at most.
+    pub fn set_recipe_memory(&mut self, bytes: usize) {
+        self.ctl.set_recipe_memory(bytes);
+    }
+
+    /// The commander's indication (an association service aside), with
+    /// the driver's handle `ticket` on it: answered at the next poll,
+    /// after what it changed is published.
+    pub fn handle_indication(&mut self, now: Duration, ticket: T, request: &Request) {
+        let result = self.ctl.handle_request(now, request);
+        self.publish();
+        self.out
+            .push_back(WorkstationAction::Answer { ticket, result });
+    }
+
+    /// The commander associated: the status is published again.
+    pub fn handle_associated(&mut self, now: Duration) {
+        self.ctl.handle_associated(now);
+        self.told = None;
+    }
+
+    /// The association with `peer` was lost (`role`: what it was to this
+    /// station).
+    pub fn handle_abort(&mut self, now: Duration, peer: &StationName, role: Role) {
+        self.ctl.handle_abort(now, peer, role);
+    }
+
+    /// What the device's link reported.
+    pub fn handle_link(&mut self, now: Duration, ev: D::LinkEvent) {
+        if let Some(line) = D::take_link_event(&mut self.ctl, now, ev) {
+            self.out.push_back(WorkstationAction::Event(line));
+        }
+    }
+
+    /// The device failed outside its link's reports (its link's task
+    /// stopped): the running recipe ends in alarm with `cause`, and the
+    /// alarm goes up.
+    pub fn handle_fault(&mut self, cause: Cause) {
+        self.ctl.fault(cause);
+    }
+
+    /// When [`Self::handle_timeout`] is due next.
+    pub fn poll_timeout(&self) -> Option<Duration> {
+        self.ctl.poll_timeout()
+    }
+
+    /// The clock reached `now`.
+    pub fn handle_timeout(&mut self, now: Duration) {
+        self.ctl.handle_timeout(now);
+    }
+
+    /// The next thing to do; none when all is done.
+    pub fn poll(&mut self, now: Duration) -> Option<WorkstationAction<T, D::Command>> {
+        if self.out.is_empty() {
+            self.settle(now);
+        }
+        self.out.pop_front()
+    }
+
+    /// The commands the device queued, without running the recipe on
+    /// (the node shuts down).
+    pub fn take_commands(&mut self) -> Vec<D::Command> {
+        std::iter::from_fn(|| self.ctl.device.next_command()).collect()
+    }
+
+    /// Runs the recipe's next steps, then queues the commands they issued
+    /// and what they caused.
+    fn settle(&mut self, now: Duration) {
+        self.ctl.settle(now);
+        while let Some(c) = self.ctl.device.next_command() {
+            self.out.push_back(WorkstationAction::Command(c));
+        }
+        self.publish();
+    }
+
+    /// What the controller put out, and its status if it changed.
+    fn publish(&mut self) {
+        let publications = self.ctl.publications(&mut self.told);
+        self.out
+            .extend(publications.into_iter().map(WorkstationAction::Publish));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    //! The node on a virtual clock around a fake robot whose link the test
+    //! carries: a start goes out as a command, the link's reports come back.
+
+    use super::*;
+    use crate::controller::testing::load;
+    use crate::controller::Happening;
+    use falc_model::alarm::AlarmClass;
+    use falc_model::ids::ObjectName;
+    use falc_model::mms::pdu::JobEvent;
+    use falc_recipe::check::Job;
+    use falc_recipe::engine::{Action, Event, JobEnd};
+
+    const RECIPE: &str = "#WELD\n\
+        -1 | start rcm 65 |       | gestart    | 2\n\
+        -1 | start rcm 65 |       | tijdlimiet | 3\n\
+        -2 | wait rcm 170 |       | klaar      | 0\n\
+        -2 | wait rcm 170 |       | tijdlimiet | 3\n\
+        -3 |              | alarm |            | 0\n";
+
+    /// A robot behind a link: a start is a command; the link says
+    /// "started", "ended" or "hello" (a line for the log).
+    #[derive(Default)]
+    struct Robot {
+        queued: VecDeque<String>,
+    }
+
+    impl Device for Robot {
+        fn handle(&mut self, _now: Duration, what: Happening<'_>, _out: &mut Vec<Event>) {
+            if let Happening::Act(Action::Start {
+                job: Job::Program(p),
+                ..
+            }) = what
+            {
+                self.queued.push_back(format!("start {p}"));
+            }
+        }
+        fn unavailable(&self) -> Option<String> {
+            None
+        }
+        fn status(&self, _status: &mut VmdStatus) {}
+    }
+
+    impl Linked for Robot {
+        type Command = String;
+        type LinkEvent = &'static str;
+
+        fn next_command(&mut self) -> Option<String> {
+            self.queued.pop_front()
+        }
+
+        fn take_link_event(
+            ctl: &mut Controller<Self>,
+            now: Duration,
+            ev: &'static str,
+        ) -> Option<String> {
+            let rcm = StationName::new("rcm").expect("rcm");
+            match ev {
+                "started" => ctl.feed(now, vec![Event::Started(rcm)]),
+                "ended" => ctl.feed(now, vec![Event::Ended(rcm, JobEnd::Done)]),
+                other => return Some(other.to_string()),
+            }
+            None
+        }
+    }
+
+    type Action_ = WorkstationAction<u32, String>;
+
+    fn node() -> WorkstationNode<Robot, u32> {
+        let me = StationName::new("welding").expect("name");
+        let limit = Duration::from_secs(10);
+        let mut n = WorkstationNode::new(me, RecipeKind::Welding, limit, Robot::default(), false);
+        load(&mut n.ctl, "WELD", RECIPE);
+        n
+    }
+
+    fn drain(n: &mut WorkstationNode<Robot, u32>, now: Duration) -> Vec<Action_> {
+        std::iter::from_fn(|| n.poll(now)).collect()
+    }
+
+    fn start() -> Request {
+        Request::Start {
+            name: ObjectName::new("WELD").expect("name"),
+            argument: String::new(),
+        }
+    }
+
+    fn job_events(acts: &[Action_]) -> Vec<JobEvent> {
+        acts.iter()
+            .filter_map(|a| match a {
+                WorkstationAction::Publish(Unconfirmed::Job { event, .. }) => Some(event.clone()),
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn statuses(acts: &[Action_]) -> usize {
+        acts.iter()
+            .filter(|a| matches!(a, WorkstationAction::Publish(Unconfirmed::Status { .. })))
+            .count()
+    }
+
+    #[test]
+    fn a_start_is_answered_before_its_command_goes_to_the_link() {
+        let mut n = node();
+        let _ = drain(&mut n, Duration::ZERO);
+        n.handle_indication(Duration::ZERO, 7, &start());
+        let acts = drain(&mut n, Duration::ZERO);
+        let answer = acts
+            .iter()
+            .position(|a| {
+                matches!(
+                    a,
+                    WorkstationAction::Answer {
+                        ticket: 7,
+                        result: Ok(_)
+                    }
+                )
+            })
+            .expect("the start answered");
+        let command = acts
+            .iter()
+            .position(|a| matches!(a, WorkstationAction::Command(c) if c == "start 65"))
+            .expect("the start sent to the robot");
+        assert!(answer < command, "{acts:?}");
+        // What the start changed went out before its answer.
+        assert!(statuses(&acts[..answer]) >= 1, "{acts:?}");
+        // Nothing more until the link reports.
+        assert!(drain(&mut n, Duration::ZERO).is_empty());
+        assert!(n.controller().is_running());
+    }
+
+    #[test]
+    fn the_links_reports_run_the_recipe_to_its_end() {
+        let mut n = node();
+        n.handle_indication(Duration::ZERO, 1, &start());
+        let _ = drain(&mut n, Duration::ZERO);
+        let t = Duration::from_secs(1);
+        n.handle_link(t, "started");
+        n.handle_link(t, "ended");
+        let acts = drain(&mut n, t);
+        assert!(!n.controller().is_running(), "{acts:?}");
+        assert!(job_events(&acts).contains(&JobEvent::Done), "{acts:?}");
+        assert_eq!(
+            statuses(&acts),
+            1,
+            "one status for the settled end: {acts:?}"
+        );
+    }
+
+    #[test]
+    fn a_line_from_the_link_is_an_event_and_the_status_goes_out_only_when_changed() {
+        let mut n = node();
+        let first = drain(&mut n, Duration::ZERO);
+        assert_eq!(statuses(&first), 1, "{first:?}");
+        n.handle_link(Duration::ZERO, "plc-ready");
+        let acts = drain(&mut n, Duration::ZERO);
+        assert!(
+            matches!(&acts[..], [WorkstationAction::Event(l)] if l == "plc-ready"),
+            "{acts:?}"
+        );
+        // An association publishes the unchanged status again.
+        n.handle_associated(Duration::ZERO);
+        assert_eq!(statuses(&drain(&mut n, Duration::ZERO)), 1);
+    }
+
+    #[test]
+    fn a_fault_ends_the_job_in_alarm_and_shutting_down_takes_only_the_queued_commands() {
+        let mut n = node();
+        n.handle_indication(Duration::ZERO, 1, &start());
+        let _ = drain(&mut n, Duration::ZERO);
+        n.handle_fault(Cause::new(AlarmClass::Device, "the link task stopped"));
+        let acts = drain(&mut n, Duration::ZERO);
+        assert!(!n.controller().is_running(), "{acts:?}");
+        assert!(
+            acts.iter().any(|a| matches!(a,
+                WorkstationAction::Publish(Unconfirmed::Report { text, .. })
+                    if text.contains("the link task stopped"))),
+            "{acts:?}"
+        );
+        n.device_mut().queued.push_back("halt".into());
+        assert_eq!(n.take_commands(), vec!["halt".to_string()]);
+        assert!(n.take_commands().is_empty());
+    }
+}
