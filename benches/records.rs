@@ -26,8 +26,8 @@ mod database;
 mod stats;
 
 use database::Database;
-use falc_control::figures;
-use falc_control::records::Records;
+use falc_factory::figures;
+use falc_factory::records::Records;
 use falc_model::console::{Placement, RecipeFile};
 use falc_model::figures::{Calendar, FigureQuery};
 use falc_model::ids::StationName;

@@ -364,7 +364,7 @@ pub fn html(f: &Figures) -> Result<String, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use falc_control::figures::{compute, AlarmSpan, FigureInputs, RunSpan};
+    use falc_factory::figures::{compute, AlarmSpan, FigureInputs, RunSpan};
     use falc_model::alarm::AlarmClass;
     use falc_model::console::OrderState;
     use falc_model::figures::{Calendar, FigureQuery};
@@ -399,7 +399,7 @@ mod tests {
             }],
             modes: Vec::new(),
             // The list worked all along (no shift calendar: planned).
-            lists: vec![falc_control::figures::ListChange {
+            lists: vec![falc_factory::figures::ListChange {
                 cell: "falc1".into(),
                 at_ms: 0,
                 working: true,

@@ -1173,8 +1173,8 @@ mod tests {
             until_ms: Some(10_000),
             planned: Vec::new(),
         };
-        let inputs = falc_control::figures::FigureInputs {
-            runs: vec![falc_control::figures::RunSpan {
+        let inputs = falc_factory::figures::FigureInputs {
+            runs: vec![falc_factory::figures::RunSpan {
                 order: 1,
                 recipe: "dikdroog".into(),
                 cell: "falc1".into(),
@@ -1183,14 +1183,14 @@ mod tests {
                 state: OrderState::Done,
             }],
             // The list worked all along (no shift calendar: planned).
-            lists: vec![falc_control::figures::ListChange {
+            lists: vec![falc_factory::figures::ListChange {
                 cell: "falc1".into(),
                 at_ms: 0,
                 working: true,
             }],
             ..Default::default()
         };
-        let f = falc_control::figures::compute(
+        let f = falc_factory::figures::compute(
             &inputs,
             &falc_model::figures::Calendar::default(),
             &["falc1"],

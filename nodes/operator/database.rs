@@ -6,8 +6,8 @@
 //! that was running when the node died as interrupted (never re-run by
 //! itself) and journals it.
 
-use falc_control::figures::{AlarmSpan, FigureInputs, ListChange, ModeChange, RunSpan};
-use falc_control::records::{
+use falc_factory::figures::{AlarmSpan, FigureInputs, ListChange, ModeChange, RunSpan};
+use falc_factory::records::{
     adopted_text, interrupted_text, recovery, EntryQuery, Records, Recovered, INTERRUPTED_RESULT,
     RECORD_ENTRIES,
 };

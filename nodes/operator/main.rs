@@ -9,8 +9,8 @@
 //! operator communication (`input`, `output`) to each cell, and, with
 //! `--metrics`, OpenMetrics to the plant's monitoring (`metrics`).
 //!
-//! A thin driver: the behaviour is `falc_control::plant` over one
-//! `falc_control::order_list` per cell (sans-I/O); here are start-up, the
+//! A thin driver: the behaviour is `falc_factory::plant` over one
+//! `falc_factory::order_list` per cell (sans-I/O); here are start-up, the
 //! event loop and the cell lanes, one task per cell that sends its list's
 //! requests to its cell, one at a time. In a plant one session carries
 //! every cell's key space (`Bus::alongside`). Nothing in the loop waits on
@@ -27,10 +27,10 @@ use database::Database;
 use falc_bus::operator_service::ApiResponder;
 use falc_bus::station::{self, Station, StationEvent};
 use falc_bus::{Bus, BusEvent, Declaration, Presence, Responder, DEFAULT_DEADLINE};
-use falc_control::order_list::{CellCall, OrderList, Output, Ticket, CELL_LIMIT};
-use falc_control::plant::{Plant, PlantOutput};
-use falc_control::recipe_source::{Delivery, RecipeSet, RecipeSource};
-use falc_control::records::Records;
+use falc_factory::order_list::{CellCall, OrderList, Output, Ticket, CELL_LIMIT};
+use falc_factory::plant::{Plant, PlantOutput};
+use falc_factory::recipe_source::{Delivery, RecipeSet, RecipeSource};
+use falc_factory::records::Records;
 use falc_model::console::EntryKind;
 use falc_model::ids::StationName;
 use falc_model::keys::KeySpace;

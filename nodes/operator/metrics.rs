@@ -1,7 +1,7 @@
 //! The operator's OpenMetrics endpoint (`--metrics HOST:PORT`, `GET
 //! /metrics`) for the plant's monitoring: every scrape reads the records
 //! on a connection of its own and computes the figures of all time
-//! (`falc_control::figures`), then writes them with the
+//! (`falc_factory::figures`), then writes them with the
 //! `prometheus-client` crate:
 //!
 //! - `falc_orders_total{cell,recipe,result}`: order runs by how they
@@ -18,8 +18,8 @@
 //! `GET /metrics` is answered 404 or 400, never fails the node.
 
 use crate::database::Database;
-use falc_control::figures;
-use falc_control::records::Records;
+use falc_factory::figures;
+use falc_factory::records::Records;
 use falc_model::figures::{Calendar, FigureQuery, Figures};
 use prometheus_client::encoding::text::encode;
 use prometheus_client::metrics::counter::Counter;
@@ -263,7 +263,7 @@ async fn answer(mut stream: TcpStream, source: Arc<Source>) -> Result<(), String
 #[cfg(test)]
 mod tests {
     use super::*;
-    use falc_control::figures::{AlarmSpan, FigureInputs, RunSpan};
+    use falc_factory::figures::{AlarmSpan, FigureInputs, RunSpan};
     use falc_model::alarm::AlarmClass;
     use falc_model::console::OrderState;
 
@@ -291,7 +291,7 @@ mod tests {
             }],
             modes: Vec::new(),
             // The list worked all along (no shift calendar: planned).
-            lists: vec![falc_control::figures::ListChange {
+            lists: vec![falc_factory::figures::ListChange {
                 cell: "falc1".into(),
                 at_ms: 0,
                 working: true,

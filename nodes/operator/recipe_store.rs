@@ -13,7 +13,7 @@
 //! whole set checks clean with it, and only if nobody changed it since the
 //! editor fetched it; the cell gets it at the next start.
 
-use falc_control::recipe_source::{checked_set, PutError, RecipeSet, RecipeSource};
+use falc_factory::recipe_source::{checked_set, PutError, RecipeSet, RecipeSource};
 use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::ids::StationName;
 use falc_model::mms::domain::content_hash;

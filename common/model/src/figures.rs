@@ -4,7 +4,7 @@
 //! derived from them. Everything on the wire is a whole number
 //! (milliseconds, counts); the ratios are computed from it
 //! ([`Period::availability`] …), so a reader can check every one.
-//! The computation is `falc_control::figures`.
+//! The computation is `falc_factory::figures`.
 
 use crate::alarm::AlarmClass;
 use serde::{Deserialize, Serialize};

@@ -2,7 +2,7 @@
 //! recipe store: checked and verified across levels by the same
 //! [`checked_set`] the operator node runs on its directory.
 
-use falc_control::recipe_source::{checked_set, PutError, RecipeSet, RecipeSource};
+use falc_factory::recipe_source::{checked_set, PutError, RecipeSet, RecipeSource};
 use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::ids::StationName;
 use falc_model::mms::domain::content_hash;

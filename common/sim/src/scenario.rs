@@ -7,8 +7,8 @@
 use crate::bus::{Link, Node};
 use crate::world::{World, HOME};
 use falc_control::controller::Device;
-use falc_control::order_list::Ticket;
 use falc_dnc::robot::Control as Rcm;
+use falc_factory::order_list::Ticket;
 use falc_model::alarm::Alarm;
 use falc_model::console::{ApiRequest, Entry, EntryKind, ListState, Order, OrderState};
 use falc_model::ids::Place;

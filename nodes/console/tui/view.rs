@@ -1010,7 +1010,7 @@ mod tests {
 
     #[test]
     fn f5_draws_the_figures_fetched_and_asks_for_them_again_when_the_journal_moved() {
-        use falc_control::figures::{compute, FigureInputs, RunSpan};
+        use falc_factory::figures::{compute, FigureInputs, RunSpan};
         use falc_model::console::{ApiReply, OrderState};
         use falc_model::figures::{Calendar, FigureQuery};
         use ratatui::crossterm::event::{KeyCode, KeyEvent, KeyModifiers};

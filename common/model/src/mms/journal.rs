@@ -5,7 +5,7 @@
 //! of the buffer is counted in the answer ([`KeptReports::lost_after`]).
 //!
 //! The reader's half (noticing a gap, asking, filing what comes back in
-//! order) is the operator's order list (`falc_control::order_list`).
+//! order) is the operator's order list (`falc_factory::order_list`).
 
 use super::pdu::Unconfirmed;
 use serde::{Deserialize, Serialize};
