@@ -200,11 +200,6 @@ impl Operator {
                     tracing::error!("the cell lane stopped");
                 }
             }
-            // The API's own answers come as the plant's (above).
-            Output::Reply { ticket, result } => match self.consoles.remove(&ticket) {
-                Some(r) => r.respond(*result).await,
-                None => tracing::warn!("no console waits for answer {ticket:?}"),
-            },
             Output::Respond { ticket, result } => match self.indications.remove(&ticket) {
                 Some(r) => r.respond(result).await,
                 None => tracing::warn!("no indication waits for answer {ticket:?}"),

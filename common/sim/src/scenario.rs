@@ -433,7 +433,7 @@ impl Run {
             && self.world.records.borrow().orders.iter().all(is_ended)
             && self
                 .world
-                .list
+                .order_list()
                 .status()
                 .is_ok_and(|s| s.running.is_none() && s.queued == 0)
     }
@@ -470,7 +470,7 @@ impl Run {
                 None => return,
             }
         }
-        let Ok(s) = self.world.list.status() else {
+        let Ok(s) = self.world.order_list().status() else {
             return;
         };
         if let Some(q) = &s.question {
@@ -873,7 +873,12 @@ fn unlisted_alarm(open: Vec<Alarm>, world: &World) -> Option<Alarm> {
     }
     // Once per step, not per alarm: a run that piles alarms up stays fast
     // enough to reach the invariant that catches it.
-    let listed: BTreeSet<i64> = world.list.listed_alarms().iter().map(|a| a.id).collect();
+    let listed: BTreeSet<i64> = world
+        .order_list()
+        .listed_alarms()
+        .iter()
+        .map(|a| a.id)
+        .collect();
     open.into_iter().find(|a| !listed.contains(&a.id))
 }
 

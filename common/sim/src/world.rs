@@ -21,6 +21,7 @@ use falc_dnc::telegram::Mode;
 use falc_dnc::twin::{Note, RcmTwin};
 use falc_dnc::workstation::{self, LineEvent, Welding};
 use falc_factory::order_list::{CellCall, OrderList, Output as ListOutput, Ticket, CELL_LIMIT};
+use falc_factory::plant::{Plant, PlantOutput};
 use falc_factory::recipe_source::{RecipeSet, RecipeSource};
 use falc_factory::records::memory::Memory;
 use falc_factory::records::shared::{plant, Shared};
@@ -243,8 +244,9 @@ pub struct World {
     pub bus: Bus,
     /// The records (durable: they survive an operator's restart).
     pub records: Rc<RefCell<Memory>>,
-    /// The order list.
-    pub list: OrderList<Shared, Shipped>,
+    /// The operator's plant, as `falc-operator` runs it: a cell of its
+    /// own is a plant of one (its order list: [`Self::order_list`]).
+    pub plant: Plant<Shared, Shipped>,
     /// A second handle on the records and the recipe store, for an
     /// operator started again.
     durable: (Shared, Shipped),
@@ -337,7 +339,7 @@ impl World {
             rng: StdRng::seed_from_u64(seed),
             bus: Bus::new(link),
             records,
-            list,
+            plant: Plant::new(vec![list]),
             durable,
             lost_before: 0,
             tickets: 0,
@@ -373,10 +375,24 @@ impl World {
             w.new_run(n);
         }
         for n in [Node::Cell, Node::Welding, Node::Transport] {
-            w.list.handle_presence(now, station(n), true);
+            w.list().handle_presence(now, station(n), true);
         }
         w.pump();
         Ok(w)
+    }
+
+    /// The cell's order list in the operator's plant.
+    fn list(&mut self) -> &mut OrderList<Shared, Shipped> {
+        self.plant
+            .list(0)
+            .unwrap_or_else(|| unreachable!("a plant of one cell has its list"))
+    }
+
+    /// The cell's order list, to read.
+    pub fn order_list(&self) -> &OrderList<Shared, Shipped> {
+        self.plant
+            .list_at(0)
+            .unwrap_or_else(|| unreachable!("a plant of one cell has its list"))
     }
 
     /// Notes a line in the trace.
@@ -401,7 +417,10 @@ impl World {
             Ok(_) if !self.is_running(Node::Operator) => {
                 self.replies.insert(t, Err(NO_OPERATOR.into()));
             }
-            Ok(u) => self.list.handle_api(self.now, t, &u, request),
+            Ok(u) => {
+                let now = self.now;
+                self.plant.handle_api(now, t, &u, None, request);
+            }
             Err(e) => {
                 self.replies.insert(t, Err(e.to_string()));
             }
@@ -447,7 +466,7 @@ impl World {
     fn next_due(&self) -> Option<Duration> {
         let mut t = [
             self.bus.poll_timeout(),
-            self.list
+            self.plant
                 .poll_timeout()
                 .filter(|_| self.is_running(Node::Operator)),
             self.cell
@@ -515,8 +534,8 @@ impl World {
             }
         }
         // Clocks.
-        if self.is_running(Node::Operator) && self.list.poll_timeout().is_some_and(|t| t <= now) {
-            self.list.handle_timeout(now);
+        if self.is_running(Node::Operator) && self.plant.poll_timeout().is_some_and(|t| t <= now) {
+            self.plant.handle_timeout(now);
         }
         if self.is_running(Node::Cell) && self.cell.poll_timeout().is_some_and(|t| t <= now) {
             self.cell.handle_timeout(now);
@@ -647,7 +666,7 @@ impl World {
             .iter()
             .filter(|(n, _)| self.is_running(**n))
             .filter_map(|(n, log)| {
-                let (run, last, holes) = self.list.filed(&station(*n))?;
+                let (run, last, holes) = self.order_list().filed(&station(*n))?;
                 (run == log.run() && (last != log.last() || holes > 0)).then(|| {
                     format!(
                         "{n} made {} reports in run {run}; the list filed up to {last}, \
@@ -706,7 +725,14 @@ impl World {
         if !self.is_running(Node::Operator) {
             return;
         }
-        while let Some(out) = self.list.poll_output() {
+        while let Some(out) = self.plant.poll_output() {
+            let out = match out {
+                PlantOutput::Reply { ticket, result } => {
+                    self.replies.insert(ticket, *result);
+                    continue;
+                }
+                PlantOutput::Cell(_, out) => out,
+            };
             match out {
                 ListOutput::Cell(CellCall::Associate) => self.associate(),
                 ListOutput::Cell(call) => match call.request(&self.peer(Node::Operator)) {
@@ -723,9 +749,6 @@ impl World {
                         self.deliver(Node::Operator, delivery, Then::List);
                     }
                 },
-                ListOutput::Reply { ticket, result } => {
-                    self.replies.insert(ticket, *result);
-                }
                 ListOutput::Respond { ticket, result } => {
                     if let Some(id) = self.indications.remove(&ticket) {
                         self.respond(Node::Operator, Node::Cell, id, result);
@@ -928,7 +951,7 @@ impl World {
     /// A publication the bus carried to `to`, taken in.
     fn heard(&mut self, now: Duration, to: Node, p: Publication) {
         match to {
-            Node::Operator => self.list.handle_heard(now, p.stamp, p.message),
+            Node::Operator => self.list().handle_heard(now, p.stamp, p.message),
             Node::Cell => self.cell.handle_publication(now, &p.message),
             _ => {}
         }
@@ -959,7 +982,7 @@ impl World {
                 }) = self.pending.remove(&id)
                 {
                     let kept = heard::take_kept(&station(n), kept).map_err(|e| e.to_string());
-                    self.list.handle_kept_reports(now, station(n), kept);
+                    self.list().handle_kept_reports(now, station(n), kept);
                 }
             }
             // What a receiver takes in, as on the bus: the sender is the
@@ -988,13 +1011,13 @@ impl World {
     fn confirm(&mut self, waiter: Waiter, result: Result<Response, ServiceError>) {
         let now = self.now;
         match waiter {
-            Waiter::List => self.list.handle_cell_answer(now, result),
+            Waiter::List => self.list().handle_cell_answer(now, result),
             Waiter::Cell(to, awaiting) => {
                 self.cell.handle_reply(now, &to, Reply { awaiting, result });
             }
             Waiter::Kept(n) => {
                 let why = result.err().map_or_else(String::new, |e| e.to_string());
-                self.list.handle_kept_reports(now, station(n), Err(why));
+                self.list().handle_kept_reports(now, station(n), Err(why));
             }
             Waiter::Delivery(n) => {
                 if let Some(d) = self.deliveries.get_mut(&n) {
@@ -1013,7 +1036,7 @@ impl World {
                     Some(Err(e)) => Err(e),
                     None => Err(ServiceError::unreachable("the operator is not running")),
                 };
-                self.list.handle_cell_answer(now, answer);
+                self.list().handle_cell_answer(now, answer);
             }
             Waiter::Initiate(at, sub) => {
                 if let Some(up) = self.up(at) {
@@ -1046,12 +1069,14 @@ impl World {
             .unwrap_or_default();
         let Some((sub, limit)) = due.into_iter().next() else {
             let e = ServiceError::undefined("the operator commands no cell in the topology");
-            self.list.handle_cell_answer(self.now, Err(e));
+            let now = self.now;
+            self.list().handle_cell_answer(now, Err(e));
             return;
         };
         let Some(to) = Node::of(&sub) else {
             let e = ServiceError::unreachable(format!("no station {sub}"));
-            self.list.handle_cell_answer(self.now, Err(e));
+            let now = self.now;
+            self.list().handle_cell_answer(now, Err(e));
             return;
         };
         let request = Request::Initiate {
@@ -1129,9 +1154,11 @@ impl World {
     /// A delivery's outcome, to whom it goes.
     fn delivered(&mut self, then: Then, result: Result<(), ServiceError>) {
         match then {
-            Then::List => self
-                .list
-                .handle_cell_answer(self.now, result.map(|()| Response::Done)),
+            Then::List => {
+                let now = self.now;
+                self.list()
+                    .handle_cell_answer(now, result.map(|()| Response::Done));
+            }
             Then::Pass(id) => self.cell.handle_delivered(id, result),
         }
     }
@@ -1191,7 +1218,7 @@ impl World {
                         self.tickets += 1;
                         let t = Ticket(self.tickets);
                         self.indications.insert(t, id);
-                        self.list.handle_cell_request(now, t, request);
+                        self.list().handle_cell_request(now, t, request);
                     }
                     Node::Cell => {
                         if let Request::Start { argument, .. } = &request {
@@ -1227,7 +1254,7 @@ impl World {
                         Node::Cell => self.cell.handle_abort(now, name, role),
                         Node::Welding => self.welding.node.handle_abort(now, name, role),
                         Node::Transport => self.transport.node.handle_abort(now, name, role),
-                        Node::Operator => self.list.handle_abort(now, &ind.reason),
+                        Node::Operator => self.list().handle_abort(now, &ind.reason),
                     }
                 }
             }
@@ -1307,7 +1334,7 @@ impl World {
         };
         for s in seen {
             if self.bus.reachable(Node::Operator, s) && self.is_running(s) {
-                self.list.handle_presence(now, station(s), true);
+                self.list().handle_presence(now, station(s), true);
             }
         }
     }
@@ -1352,7 +1379,7 @@ impl World {
             other => vec![other],
         };
         for s in seen {
-            self.list.handle_presence(now, station(s), false);
+            self.list().handle_presence(now, station(s), false);
         }
         for ws in [Node::Welding, Node::Transport] {
             if n == Node::Cell || n == ws {
@@ -1452,7 +1479,7 @@ impl World {
         self.apply_memory(n);
         self.new_run(n);
         if self.bus.reachable(Node::Operator, n) {
-            self.list.handle_presence(now, station(n), true);
+            self.list().handle_presence(now, station(n), true);
         }
         self.pump();
     }
@@ -1488,11 +1515,11 @@ impl World {
             self.note(format!("operator: adopted order {}", o.id));
             list = list.adopting(o);
         }
-        self.list = list;
+        self.plant = Plant::new(vec![list]);
         self.new_run(Node::Operator);
         for s in [Node::Cell, Node::Welding, Node::Transport] {
             if self.bus.reachable(Node::Operator, s) && self.is_running(s) {
-                self.list.handle_presence(now, station(s), true);
+                self.list().handle_presence(now, station(s), true);
             }
         }
         self.pump();

@@ -178,7 +178,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     }
 
     /// One operator API request from console user `user`, answered through
-    /// [`Output::Reply`] under `ticket`: at once, or (`start`, `stop`) when
+    /// [`Self::poll_reply`] under `ticket`: at once, or (`start`, `stop`) when
     /// the cell confirmed.
     pub fn handle_api(
         &mut self,

@@ -124,30 +124,11 @@ impl CellCall {
     }
 }
 
-/// Why the status may differ from the one last told.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Stale {
-    /// Nothing happened since it was computed.
-    No,
-    /// This list handled something.
-    Own,
-    /// Another cell's list changed the records all share (the plant's
-    /// queue and journal: [`OrderList::records_changed`]).
-    Shared,
-}
-
 /// What the node must do.
 #[derive(Debug)]
 pub enum Output {
     /// Send this request to the cell.
     Cell(CellCall),
-    /// Answer a console's request.
-    Reply {
-        /// Which.
-        ticket: Ticket,
-        /// The answer (boxed: a status is large, the other outputs small).
-        result: Box<ApiResult>,
-    },
     /// Answer an indication of the cell.
     Respond {
         /// Which.
@@ -355,14 +336,17 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     /// When to try the cell again.
     next_try: Duration,
     out: VecDeque<Output>,
+    /// The consoles' answers, in order ([`Self::poll_reply`]).
+    replies: VecDeque<(Ticket, ApiResult)>,
     /// The status as last told by [`Output::Changed`].
     told: Option<CellStatus>,
-    /// Why the status may differ from the one told: nothing happened
-    /// since, or something did (computing it reads the records).
-    stale: Stale,
-    /// The status last told changed in what every cell's list shares, by
-    /// this list's own doing ([`Self::take_shared_change`]).
-    shared_moved: bool,
+    /// Whether the status may differ from the one told: something
+    /// happened to this list since (computing it reads the records). What
+    /// another cell's list changes in the records all share (the plant's
+    /// queue and journal) makes no list compute its status again: the
+    /// changing list tells [`Output::Changed`], and that word is the
+    /// plant's (a console then asks every cell's status afresh).
+    stale: bool,
     /// What the list has of each station's numbered reports.
     heard: BTreeMap<StationName, replay::Heard>,
     /// Filing a replayed report made at this time (ms since the Unix
@@ -448,9 +432,9 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             early: Vec::new(),
             next_try: Duration::ZERO,
             out: VecDeque::new(),
+            replies: VecDeque::new(),
             told: None,
-            stale: Stale::Own,
-            shared_moved: false,
+            stale: true,
             heard,
             replaying: None,
         }
@@ -536,26 +520,11 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self
     }
 
-    /// Whether this list, by its own doing, changed the records every
-    /// cell's list shares since last asked: the other lists' statuses then
-    /// need computing again ([`Self::records_changed`]).
-    pub fn take_shared_change(&mut self) -> bool {
-        std::mem::take(&mut self.shared_moved)
-    }
-
-    /// Another cell's list changed the records all share: the status is
-    /// computed again at the next poll.
-    pub fn records_changed(&mut self) {
-        if self.stale == Stale::No {
-            self.stale = Stale::Shared;
-        }
-    }
-
     /// Gives the records the time `now` is on the wall clock, and marks
     /// the status to be computed again: called first by every entry that
     /// has a `now`.
     pub(super) fn tick(&mut self, now: Duration) {
-        self.stale = Stale::Own;
+        self.stale = true;
         let ms = i64::try_from(now.as_millis()).unwrap_or(i64::MAX);
         self.db.set_now(self.origin_ms.saturating_add(ms));
     }
@@ -566,6 +535,12 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self
     }
 
+    /// The next console's answer (the answers are the plant's to carry:
+    /// a request of several cells is answered once all are in).
+    pub fn poll_reply(&mut self) -> Option<(Ticket, ApiResult)> {
+        self.replies.pop_front()
+    }
+
     /// The next thing the node must do. When nothing else is left and
     /// something happened since the status was last computed, an
     /// [`Output::Changed`] if the status differs from the one last told.
@@ -573,17 +548,13 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         if let Some(out) = self.out.pop_front() {
             return Some(out);
         }
-        if self.stale == Stale::No {
+        if !self.stale {
             return None;
         }
         let now = self.status().ok()?;
-        let own = std::mem::replace(&mut self.stale, Stale::No) == Stale::Own;
+        self.stale = false;
         if self.told.as_ref() == Some(&now) {
             return None;
-        }
-        let shared = |s: &CellStatus| (s.journal_head, s.queued);
-        if own && self.told.as_ref().map(shared) != Some(shared(&now)) {
-            self.shared_moved = true;
         }
         // Each station's recipe state as it changes, for the log.
         for v in &now.stations {
@@ -646,10 +617,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     }
 
     fn reply(&mut self, ticket: Ticket, result: ApiResult) {
-        self.out.push_back(Output::Reply {
-            ticket,
-            result: Box::new(result),
-        });
+        self.replies.push_back((ticket, result));
     }
 
     fn call(&mut self, call: CellCall, busy: Busy) {
@@ -659,7 +627,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 
     /// Journals; a failure to write stops the list ([`Self::db_failed`]).
     pub fn journal(&mut self, kind: EntryKind, order: Option<i64>, who: &str, text: &str) {
-        self.stale = Stale::Own;
+        self.stale = true;
         let written = match self.replaying {
             None => self.db.journal(kind, order, who, text),
             Some(at) => {

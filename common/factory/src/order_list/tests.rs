@@ -25,6 +25,8 @@ struct Rig {
     tickets: u64,
     /// Every line the list said, in order.
     said: Vec<String>,
+    /// The consoles' answers not taken yet.
+    replies: std::collections::BTreeMap<Ticket, ApiResult>,
 }
 
 impl Rig {
@@ -48,17 +50,26 @@ impl Rig {
             now: Duration::ZERO,
             tickets: 0,
             said: Vec::new(),
+            replies: Default::default(),
         }
     }
 
     fn outputs(&mut self) -> Vec<Output> {
         let out: Vec<Output> = std::iter::from_fn(|| self.list.poll_output()).collect();
+        while let Some((t, result)) = self.list.poll_reply() {
+            self.replies.insert(t, result);
+        }
         for o in &out {
             if let Output::Say(l) = o {
                 self.said.push(l.clone());
             }
         }
         out
+    }
+
+    /// The answer to console request `t`, if it came.
+    fn reply(&mut self, t: Ticket) -> Option<ApiResult> {
+        self.replies.remove(&t)
     }
 
     fn ticket(&mut self) -> Ticket {
@@ -76,7 +87,8 @@ impl Rig {
     /// A console request answered at once.
     fn ask(&mut self, user: &str, req: ApiRequest) -> ApiResult {
         let (t, out) = self.api(user, req);
-        reply(&out, t).unwrap_or_else(|| panic!("no answer at once: {out:?}"))
+        self.reply(t)
+            .unwrap_or_else(|| panic!("no answer at once: {out:?}"))
     }
 
     fn status(&mut self) -> CellStatus {
@@ -152,7 +164,7 @@ impl Rig {
     fn start(&mut self) -> ApiResult {
         let (t, mut out) = self.api("console", ApiRequest::Start);
         loop {
-            if let Some(r) = reply(&out, t) {
+            if let Some(r) = self.reply(t) {
                 return r;
             }
             assert!(
@@ -180,13 +192,6 @@ impl Rig {
             .find(|o| o.id == id)
             .unwrap_or_else(|| panic!("no order {id}"))
     }
-}
-
-fn reply(out: &[Output], ticket: Ticket) -> Option<ApiResult> {
-    out.iter().find_map(|o| match o {
-        Output::Reply { ticket: t, result } if *t == ticket => Some(*result.clone()),
-        _ => None,
-    })
 }
 
 fn call(out: &[Output]) -> Option<CellCall> {
@@ -303,12 +308,12 @@ fn a_start_associates_delivers_and_starts_and_status_is_answered_meanwhile() {
         "durably running before the cell is asked"
     );
     assert!(
-        reply(&out, start).is_none(),
+        r.reply(start).is_none(),
         "answered only when the cell confirmed"
     );
     let out = r.answer(Ok(()));
     assert_eq!(
-        reply(&out, start),
+        r.reply(start),
         Some(Ok(ApiReply::Done("order 1 (dikdroog) started".into())))
     );
     assert_eq!(r.status().list, ListState::Running);
@@ -342,7 +347,7 @@ fn a_start_associates_delivers_and_starts_and_status_is_answered_meanwhile() {
     let (start, out) = r.api("console", ApiRequest::Start);
     assert_eq!(call(&out), Some(CellCall::Initiate));
     let out = r.answer(Err("welding: not associated"));
-    assert!(matches!(reply(&out, start), Some(Err(_))), "{out:?}");
+    assert!(matches!(r.reply(start), Some(Err(_))), "{out:?}");
     // Refused: the next start tries again; once it went through, the
     // association stands.
     let (_, out) = r.api("console", ApiRequest::Start);
@@ -844,7 +849,7 @@ fn a_start_that_was_never_confirmed_is_queued_again_only_if_the_cell_never_began
         r.add(1);
         let t = r.start_until_the_cells_start();
         let out = r.no_reply();
-        assert!(reply(&out, t).is_some_and(|a| a.is_err()), "{out:?}");
+        assert!(r.reply(t).is_some_and(|a| a.is_err()), "{out:?}");
         assert_eq!(
             r.order(1).state,
             OrderState::Running,
@@ -914,7 +919,7 @@ fn a_job_event_before_the_start_is_confirmed_is_kept_for_it() {
     )));
     assert!(early.is_empty(), "{early:?}");
     let out = r.answer(Ok(()));
-    assert!(reply(&out, t).is_some_and(|r| r.is_ok()));
+    assert!(r.reply(t).is_some_and(|r| r.is_ok()));
     assert!(said(&out, "EVENT order-ended id=1 state=failed"));
     assert_eq!(r.order(1).state, OrderState::Failed);
 }
@@ -944,7 +949,7 @@ fn messages_before_the_start_is_confirmed_are_journalled_after_it() {
     });
     let q = r.question("verder?");
     let out = r.answer(Ok(()));
-    assert!(reply(&out, t).is_some_and(|r| r.is_ok()));
+    assert!(r.reply(t).is_some_and(|r| r.is_ok()));
     let journal = r
         .list
         .records()
@@ -964,7 +969,7 @@ fn messages_before_the_start_is_confirmed_are_journalled_after_it() {
     }
     // The question still waits for its answer.
     let (a, out) = r.api("console", ApiRequest::Answer { text: "ja".into() });
-    assert!(reply(&out, a).is_some_and(|r| r.is_ok()), "{out:?}");
+    assert!(r.reply(a).is_some_and(|r| r.is_ok()), "{out:?}");
     assert!(out
         .iter()
         .any(|x| matches!(x, Output::Respond { ticket, .. } if *ticket == q)));
@@ -987,7 +992,7 @@ fn stop_ends_the_order_and_roles_are_checked_again() {
     );
     assert_eq!(r.status().running, None);
     let out = r.answer(Err("no reply from cell"));
-    let Some(Ok(ApiReply::Done(text))) = reply(&out, t) else {
+    let Some(Ok(ApiReply::Done(text))) = r.reply(t) else {
         panic!("{out:?}")
     };
     assert!(text.contains("the cell did not confirm the stop"), "{text}");
@@ -1017,7 +1022,7 @@ fn a_stopped_order_resumes_at_the_cell_and_a_refused_restart_leaves_it_as_it_was
     assert_eq!(r.order(1).state, OrderState::Running);
     // The cell refuses: back to stopped, never queued (it ran).
     let out = r.answer(Err("Resume refused"));
-    assert!(reply(&out, t).is_some_and(|r| r.is_err()), "{out:?}");
+    assert!(r.reply(t).is_some_and(|r| r.is_err()), "{out:?}");
     assert_eq!(r.order(1).state, OrderState::Stopped);
     assert_eq!(r.order(2).state, OrderState::Queued);
     // From a state: the recipe must have it.
@@ -1066,7 +1071,7 @@ fn modes_pass_to_the_cell_and_maintenance_waits_until_no_order_runs() {
         })))
     );
     let out = r.answer(Ok(()));
-    let Some(Ok(ApiReply::Done(text))) = reply(&out, t) else {
+    let Some(Ok(ApiReply::Done(text))) = r.reply(t) else {
         panic!("{out:?}")
     };
     assert_eq!(text, "mode step (cell, welding)");
@@ -1095,7 +1100,7 @@ fn a_defective_recipe_set_refuses_the_start_and_delivers_nothing() {
     r.list.source.broken = true;
     let (t, out) = r.api("console", ApiRequest::Start);
     assert!(call(&out).is_none(), "nothing delivered");
-    let e = reply(&out, t).and_then(|r| r.err()).unwrap_or_default();
+    let e = r.reply(t).and_then(|r| r.err()).unwrap_or_default();
     assert!(e.contains("cell/dikdroog.rcp:3: unknown state 9"), "{e}");
     assert_eq!(r.order(1).state, OrderState::Queued);
 }
