@@ -328,11 +328,7 @@ async fn run(cli: Cli) -> Result<ExitCode> {
     let mut sets = Vec::new();
     let mut checked: Vec<(Vec<LayoutKey>, RecipeSet)> = Vec::new();
     for p in &plans {
-        let source = RecipeDir {
-            dir: cli.recipes.clone(),
-            topology: p.topology.clone(),
-            cell: p.cell.clone(),
-        };
+        let source = RecipeDir::new(cli.recipes.clone(), p.topology.clone(), p.cell.clone());
         let key = layout_key(&p.topology);
         if let Some((_, set)) = checked.iter().find(|(k, _)| *k == key) {
             sets.push((source, set.clone()));
