@@ -49,7 +49,7 @@ async fn alarms(
             Ok(other) => return refuse(&format!("status answered {other:?}")),
             Err(why) => return fail(&why),
         };
-    list.retain(|(_, a)| station.map_or(true, |st| a.station == st.as_str()));
+    list.retain(|(_, a)| station.map_or(true, |st| a.station == *st));
     list.sort_by_key(|(_, a)| (a.class.priority(), a.id));
     if json {
         let alarms: Vec<&Alarm> = list.iter().map(|(_, a)| a).collect();

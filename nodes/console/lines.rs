@@ -19,7 +19,7 @@ pub(crate) fn alarm(a: &Alarm) -> String {
         a.id,
         time_of_day_ms(a.raised_ms),
         a.class.as_str(),
-        printable(&a.station),
+        a.station,
         printable(&a.text),
         printable(&state)
     )

@@ -727,7 +727,7 @@ fn acked_by(a: &Alarm) -> String {
 fn event(a: &Alarm, what: &str) -> AlarmEvent {
     AlarmEvent {
         id: a.id,
-        station: a.station.clone(),
+        station: a.station.to_string(),
         severity: severity(a.class),
         message: format!("alarm {what}: {}", alarm_text(a)),
     }
@@ -908,7 +908,7 @@ mod tests {
     fn alarm(id: i64) -> Alarm {
         Alarm {
             id,
-            station: "welding".into(),
+            station: StationName::new("welding").expect("name"),
             class: AlarmClass::Communication,
             text: "gone".into(),
             order: None,

@@ -214,9 +214,11 @@ fn alarm_of(row: &Row<'_>) -> rusqlite::Result<Alarm> {
     let class: String = row.get(2)?;
     let acked_by: Option<String> = row.get(6)?;
     let acked_ms: Option<i64> = row.get(7)?;
+    let station: String = row.get(1)?;
+    let station = StationName::new(&station).map_err(|e| unreadable(1, e.to_string()))?;
     Ok(Alarm {
         id: row.get(0)?,
-        station: row.get(1)?,
+        station,
         // A class this version does not know is kept as the strictest.
         class: AlarmClass::parse(&class).unwrap_or(AlarmClass::Safety),
         text: row.get(3)?,
@@ -680,7 +682,7 @@ impl Records for Database {
     /// Records a new alarm, active.
     fn raise_alarm(
         &mut self,
-        station: &str,
+        station: &StationName,
         class: AlarmClass,
         text: &str,
         order: Option<i64>,
@@ -689,12 +691,12 @@ impl Records for Database {
         self.conn
             .execute(
                 "INSERT INTO alarms (station, class, text, order_id, raised_ms, cell) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
-                params![station, class.as_str(), text, order, raised_ms, self.cell],
+                params![station.as_str(), class.as_str(), text, order, raised_ms, self.cell],
             )
             .map_err(self.fail("cannot record an alarm"))?;
         Ok(Alarm {
             id: self.conn.last_insert_rowid(),
-            station: station.to_string(),
+            station: station.clone(),
             class,
             text: text.to_string(),
             order,
@@ -1050,7 +1052,7 @@ impl Records for Database {
             .filter(|(a, _)| a.gone_ms().map_or(true, |g| g > since))
             .map(|(a, cell)| AlarmSpan {
                 cell,
-                station: a.station.clone(),
+                station: a.station.to_string(),
                 class: a.class,
                 raised_ms: a.raised_ms,
                 gone_ms: a.gone_ms(),
@@ -1176,6 +1178,10 @@ fn make_private(file: &Path) -> std::io::Result<()> {
 mod tests {
     use super::*;
 
+    fn st(s: &str) -> StationName {
+        StationName::new(s).expect("station name")
+    }
+
     const ANY: Placement = Placement {
         cell: None,
         priority: 0,
@@ -1247,10 +1253,10 @@ mod tests {
             )
             .expect("an alarm of before");
         let a = one
-            .raise_alarm("welding", AlarmClass::Safety, "estop", None)
+            .raise_alarm(&st("welding"), AlarmClass::Safety, "estop", None)
             .expect("raise");
         let b = two
-            .raise_alarm("transport", AlarmClass::Device, "jam", None)
+            .raise_alarm(&st("transport"), AlarmClass::Device, "jam", None)
             .expect("raise");
         assert_ne!(a.id, b.id);
         let texts = |db: &Database| -> Vec<String> {
@@ -1315,6 +1321,25 @@ mod tests {
 
     /// A file made before orders had a cell, a priority and a due time
     /// gets the columns at open; its orders read as placed by default.
+    /// An alarm row whose station is no station name (a file edited by
+    /// hand) is refused when read, naming the column and the value, not
+    /// taken in as a station.
+    #[test]
+    fn an_alarm_of_no_station_is_refused_naming_it() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let db = Database::open(&dir.path().join("falc.db"), "falc1").expect("open");
+        db.conn
+            .execute(
+                "INSERT INTO alarms (station, class, text, raised_ms, cell) \
+                 VALUES ('Weld ing!', 'device', 'jam', 1, 'falc1')",
+                [],
+            )
+            .expect("a row written by hand");
+        let e = db.listed_alarms().expect_err("refused");
+        let text = e.to_string();
+        assert!(text.contains("Weld ing!"), "{text}");
+    }
+
     #[test]
     fn a_file_of_the_first_schema_gets_the_new_columns() {
         let dir = tempfile::tempdir().expect("tempdir");
@@ -1351,7 +1376,7 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("var/falc.db");
         let mut db = Database::open(&path, "falc1").expect("open");
-        db.raise_alarm("welding", AlarmClass::Safety, "estop", Some(1))
+        db.raise_alarm(&st("welding"), AlarmClass::Safety, "estop", Some(1))
             .expect("write");
         let mode = |p: &Path| std::fs::metadata(p).expect("exists").permissions().mode() & 0o777;
         assert_eq!(mode(&path), 0o600);
@@ -1380,10 +1405,10 @@ mod tests {
         let (a, b) = {
             let mut s = Database::open(&path, "falc1").expect("open");
             let a = s
-                .raise_alarm("welding", AlarmClass::Safety, "estop", Some(1))
+                .raise_alarm(&st("welding"), AlarmClass::Safety, "estop", Some(1))
                 .expect("raise");
             let b = s
-                .raise_alarm("transport", AlarmClass::Device, "not ready", None)
+                .raise_alarm(&st("transport"), AlarmClass::Device, "not ready", None)
                 .expect("raise");
             s.ack_alarm(a.id, "ann", 5).expect("ack");
             s.clear_alarm(b.id, 6).expect("clear");
@@ -1520,7 +1545,7 @@ mod tests {
             .expect("run again");
         s.journal(EntryKind::Order, Some(o.id), "falc", "order started")
             .expect("j");
-        s.raise_alarm("welding", AlarmClass::Safety, "estop", Some(o.id))
+        s.raise_alarm(&st("welding"), AlarmClass::Safety, "estop", Some(o.id))
             .expect("alarm");
         drop(s);
         let s = Database::open(&path, "falc1").expect("reopen");
@@ -1550,7 +1575,7 @@ mod tests {
             .expect("the same mode: no change");
         s.record_mode(CellMode::Auto).expect("mode");
         let alarm = s
-            .raise_alarm("welding", AlarmClass::Safety, "estop", Some(b.id))
+            .raise_alarm(&st("welding"), AlarmClass::Safety, "estop", Some(b.id))
             .expect("alarm");
         s.clear_alarm(alarm.id, now_ms()).expect("clear");
         let i = s.figure_inputs(0, now_ms() + 1000).expect("read");

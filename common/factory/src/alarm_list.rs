@@ -19,6 +19,7 @@
 
 use crate::records::Records;
 use falc_model::alarm::{passed_on_from, Alarm, AlarmClass, UNSTORED_ALARM_IDS};
+use falc_model::ids::StationName;
 use falc_model::mms::vmd::{PhysicalStatus, RobotStatusDetail, RobotVmdState, VmdStatus};
 
 /// What raising an alarm did.
@@ -100,7 +101,7 @@ impl AlarmList {
     pub fn raise<R: Records>(
         &mut self,
         db: &mut R,
-        station: &str,
+        station: &StationName,
         class: AlarmClass,
         text: &str,
         order: Option<i64>,
@@ -110,9 +111,9 @@ impl AlarmList {
             |upper: &str, from: &str, lower: &str| passed_on_from(upper, from) == Some(lower);
         if let Some(a) = self.listed.iter().find(|a| {
             a.acked.is_none()
-                && ((a.station == station && a.text == text)
-                    || passes_on(text, &a.station, &a.text)
-                    || passes_on(&a.text, station, text))
+                && ((a.station == *station && a.text == text)
+                    || passes_on(text, a.station.as_str(), &a.text)
+                    || passes_on(&a.text, station.as_str(), text))
         }) {
             return (Raised::Repeated(a.id), None);
         }
@@ -122,7 +123,7 @@ impl AlarmList {
                 self.unstored += 1;
                 let a = Alarm {
                     id: UNSTORED_ALARM_IDS + self.unstored,
-                    station: station.to_string(),
+                    station: station.clone(),
                     class,
                     text: text.to_string(),
                     order,
@@ -183,12 +184,12 @@ impl AlarmList {
     pub fn settle<R: Records>(
         &mut self,
         db: &mut R,
-        station: &str,
+        station: &StationName,
         status: Option<&VmdStatus>,
         present: bool,
     ) -> (Vec<Alarm>, Option<R::Error>) {
         self.clear_where(db, |a| {
-            a.station == station && !condition_holds(a, status, present)
+            a.station == *station && !condition_holds(a, status, present)
         })
     }
 
@@ -261,6 +262,10 @@ mod tests {
 
     use crate::records::memory::Memory;
 
+    fn st(s: &str) -> StationName {
+        StationName::new(s).expect("station name")
+    }
+
     fn status(physical: PhysicalStatus) -> VmdStatus {
         VmdStatus {
             physical,
@@ -274,7 +279,7 @@ mod tests {
         let mut l = AlarmList::load(&s).expect("load");
         let (r, _) = l.raise(
             &mut s,
-            "welding",
+            &st("welding"),
             AlarmClass::Communication,
             "silent",
             Some(1),
@@ -302,17 +307,23 @@ mod tests {
     fn raise_repeat_ack_and_clear() {
         let mut s = Memory::default();
         let mut l = AlarmList::load(&s).expect("load");
-        let (r, e) = l.raise(&mut s, "transport", AlarmClass::Safety, "estop", Some(1));
+        let (r, e) = l.raise(
+            &mut s,
+            &st("transport"),
+            AlarmClass::Safety,
+            "estop",
+            Some(1),
+        );
         assert!(e.is_none());
         let Raised::New(a) = r else { panic!("{r:?}") };
         // The same again while unacknowledged: one alarm.
         assert!(matches!(
-            l.raise(&mut s, "transport", AlarmClass::Safety, "estop", Some(1)).0,
+            l.raise(&mut s, &st("transport"), AlarmClass::Safety, "estop", Some(1)).0,
             Raised::Repeated(id) if id == a.id
         ));
         let (p, _) = l.raise(
             &mut s,
-            "cell",
+            &st("cell"),
             AlarmClass::Process,
             "alarm in state 19",
             Some(1),
@@ -327,7 +338,7 @@ mod tests {
         // Still in emergency stop: not cleared.
         let (c, _) = l.settle(
             &mut s,
-            "transport",
+            &st("transport"),
             Some(&status(PhysicalStatus::Inoperable)),
             true,
         );
@@ -338,7 +349,7 @@ mod tests {
         assert_eq!(l.listed().len(), 2, "acknowledged, the stop still pressed");
         let (c, _) = l.settle(
             &mut s,
-            "transport",
+            &st("transport"),
             Some(&status(PhysicalStatus::Operational)),
             true,
         );
@@ -358,7 +369,7 @@ mod tests {
         let mut l = AlarmList::load(&s).expect("load");
         let (r, _) = l.raise(
             &mut s,
-            "welding",
+            &st("welding"),
             AlarmClass::Safety,
             "RCM message 24",
             Some(1),
@@ -366,20 +377,20 @@ mod tests {
         let Raised::New(w) = r else { panic!() };
         let text = "alarm from welding: RCM message 24";
         assert!(matches!(
-            l.raise(&mut s, "cell", AlarmClass::Safety, text, Some(1)).0,
+            l.raise(&mut s, &st("cell"), AlarmClass::Safety, text, Some(1)).0,
             Raised::Repeated(id) if id == w.id
         ));
         assert_eq!(l.listed().len(), 1);
         // Whichever arrives first.
         let (_, _) = l.raise(
             &mut s,
-            "cell",
+            &st("cell"),
             AlarmClass::Device,
             "alarm from transport: jam",
             None,
         );
         assert!(matches!(
-            l.raise(&mut s, "transport", AlarmClass::Device, "jam", None)
+            l.raise(&mut s, &st("transport"), AlarmClass::Device, "jam", None)
                 .0,
             Raised::Repeated(_)
         ));
@@ -387,7 +398,8 @@ mod tests {
         // Once acknowledged, a new fault is a new alarm.
         l.ack(&mut s, None, "ann").expect("ack");
         assert!(matches!(
-            l.raise(&mut s, "cell", AlarmClass::Safety, text, Some(2)).0,
+            l.raise(&mut s, &st("cell"), AlarmClass::Safety, text, Some(2))
+                .0,
             Raised::New(_)
         ));
     }
@@ -396,7 +408,7 @@ mod tests {
     fn conditions_by_class() {
         let mk = |class| Alarm {
             id: 1,
-            station: "welding".into(),
+            station: st("welding"),
             class,
             text: "x".into(),
             order: None,
@@ -428,7 +440,13 @@ mod tests {
         let mut l = AlarmList::load(&s).expect("load");
         // Every write fails from now on.
         s.failing = true;
-        let (r, e) = l.raise(&mut s, "operator", AlarmClass::Device, "disk full", None);
+        let (r, e) = l.raise(
+            &mut s,
+            &st("operator"),
+            AlarmClass::Device,
+            "disk full",
+            None,
+        );
         assert!(e.is_some());
         let Raised::New(a) = r else { panic!() };
         assert_eq!(a.id, UNSTORED_ALARM_IDS + 1, "not stored, positive: {a:?}");

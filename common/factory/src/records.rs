@@ -9,6 +9,7 @@
 use crate::figures::FigureInputs;
 use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement, RecipeFile};
+use falc_model::ids::StationName;
 use falc_model::mode::CellMode;
 use falc_model::product::{JobRecord, OrderRecord, RecipeVersion, UsedRecipe};
 use std::fmt::Display;
@@ -129,7 +130,7 @@ pub trait Records {
     /// Records a new alarm, active.
     fn raise_alarm(
         &mut self,
-        station: &str,
+        station: &StationName,
         class: AlarmClass,
         text: &str,
         order: Option<i64>,
@@ -545,7 +546,7 @@ pub mod memory {
         }
         fn raise_alarm(
             &mut self,
-            station: &str,
+            station: &StationName,
             class: AlarmClass,
             text: &str,
             order: Option<i64>,
@@ -553,7 +554,7 @@ pub mod memory {
             self.write()?;
             let a = Alarm {
                 id: self.alarms.len() as i64 + 1,
-                station: station.into(),
+                station: station.clone(),
                 class,
                 text: text.into(),
                 order,
@@ -710,7 +711,7 @@ pub mod memory {
                     .filter(|a| overlaps(a.raised_ms, a.gone_ms()))
                     .map(|a| crate::figures::AlarmSpan {
                         cell: MEMORY_CELL.into(),
-                        station: a.station.clone(),
+                        station: a.station.to_string(),
                         class: a.class,
                         raised_ms: a.raised_ms,
                         gone_ms: a.gone_ms(),
@@ -835,7 +836,7 @@ pub mod shared {
         }
         fn raise_alarm(
             &mut self,
-            station: &str,
+            station: &StationName,
             class: AlarmClass,
             text: &str,
             order: Option<i64>,

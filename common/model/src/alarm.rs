@@ -6,6 +6,7 @@
 //! No I/O: the operator keeps the list (`nodes/operator/alarms.rs`) and
 //! stores it; the stations only classify.
 
+use crate::ids::StationName;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
@@ -177,7 +178,7 @@ pub struct Alarm {
     /// Its number (`falc ack N`).
     pub id: i64,
     /// The station that raised it (`welding`, `cell`, `operator` …).
-    pub station: String,
+    pub station: StationName,
     /// Its class.
     pub class: AlarmClass,
     /// What happened.
@@ -242,7 +243,7 @@ mod tests {
     fn alarm(class: AlarmClass) -> Alarm {
         Alarm {
             id: 1,
-            station: "welding".into(),
+            station: StationName::new("welding").expect("name"),
             class,
             text: "RCM message 24: emergency stop".into(),
             order: Some(1),

@@ -192,6 +192,20 @@ macro_rules! name_newtype {
             }
         }
 
+        /// Compared with a text as it is written (a name is normalised:
+        /// `WELDING` is no station name `welding` is).
+        impl PartialEq<str> for $name {
+            fn eq(&self, other: &str) -> bool {
+                self.0 == other
+            }
+        }
+
+        impl PartialEq<&str> for $name {
+            fn eq(&self, other: &&str) -> bool {
+                self.0 == *other
+            }
+        }
+
         impl fmt::Display for $name {
             fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
                 f.write_str(&self.0)

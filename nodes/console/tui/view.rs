@@ -101,7 +101,7 @@ fn look_in(s: &CellStatus, name: &falc_model::ids::StationName, is_cell: bool) -
     }
     if s.alarms
         .iter()
-        .any(|a| a.station == name.as_str() && a.blocks_start())
+        .any(|a| a.station == *name && a.blocks_start())
     {
         return Look::Alarm;
     }

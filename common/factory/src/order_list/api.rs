@@ -126,7 +126,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             self.alarms
                 .listed()
                 .iter()
-                .any(|a| a.station == station.as_str() && a.blocks_start())
+                .any(|a| a.station == *station && a.blocks_start())
         };
         if unacked {
             RecipeState::WaitAck

@@ -137,7 +137,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.problem = None;
         self.delivered.clear();
         self.say(format!("EVENT associated station={}", self.cell));
-        let me = self.me.to_string();
+        let me = self.me.clone();
         // The cell is back: the lost connection has cleared.
         let (_, error) = self.alarms.clear_where(&mut self.db, |a| {
             a.station == me && a.class == AlarmClass::Communication
@@ -280,7 +280,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 self.say("EVENT list-done".into());
             }
             (None, Err(text)) => {
-                let me = self.me.to_string();
+                let me = self.me.clone();
                 self.raise(&me, None, AlarmClass::Process, text);
             }
         }
@@ -528,7 +528,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             );
             self.journal_mine(EntryKind::Order, id, &line);
         }
-        let me = self.me.to_string();
+        let me = self.me.clone();
         self.raise(&me, id, AlarmClass::Communication, text);
         self.pump(now);
     }
@@ -623,7 +623,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             order.recipe, self.cell
         );
         self.end(now, order, OrderState::Interrupted, &text);
-        let me = self.me.to_string();
+        let me = self.me.clone();
         self.raise(&me, Some(id), AlarmClass::Process, text);
     }
 }

@@ -676,7 +676,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         // Neither journalled nor, most likely, stored: the records are what
         // cannot be written (the list keeps it in memory meanwhile).
         let order = self.running_id();
-        let me = self.me.to_string();
+        let me = self.me.clone();
         let (raised, _) = self
             .alarms
             .raise(&mut self.db, &me, AlarmClass::Device, &text, order);
@@ -715,7 +715,13 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// unacknowledged is not repeated); one that needs acknowledgement
     /// stops the list ([`Self::raised`]) and is shown as its state
     /// ([`Self::list_state`]).
-    fn raise_alarm(&mut self, station: &str, class: AlarmClass, text: &str, order: Option<i64>) {
+    fn raise_alarm(
+        &mut self,
+        station: &StationName,
+        class: AlarmClass,
+        text: &str,
+        order: Option<i64>,
+    ) {
         let (raised, error) = self.alarms.raise(&mut self.db, station, class, text, order);
         self.raised(raised, class);
         if let Some(e) = error {
@@ -726,9 +732,15 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// Raises an alarm of `station` that this node journals (a station's
     /// own reports are journalled as they come), under `order` (the order
     /// that failed, which no longer runs by now).
-    fn raise(&mut self, station: &str, order: Option<i64>, class: AlarmClass, text: String) {
+    fn raise(
+        &mut self,
+        station: &StationName,
+        order: Option<i64>,
+        class: AlarmClass,
+        text: String,
+    ) {
         self.raise_alarm(station, class, &text, order);
-        self.journal(EntryKind::Alarm, order, station, &text);
+        self.journal(EntryKind::Alarm, order, station.as_str(), &text);
     }
 
     /// Clears the alarms of `station` whose condition is gone, from its
@@ -736,9 +748,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     fn settle_alarms(&mut self, station: &StationName) {
         let status = self.statuses.get(station);
         let present = self.present.contains(station);
-        let (cleared, error) = self
-            .alarms
-            .settle(&mut self.db, station.as_str(), status, present);
+        let (cleared, error) = self.alarms.settle(&mut self.db, station, status, present);
         self.cleared(station.as_str(), cleared, error);
     }
 

@@ -33,7 +33,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             }
             if self.is_workstation(&station) && self.running.is_none() {
                 let text = format!("no connection with station {station}");
-                self.raise(station.as_str(), None, AlarmClass::Communication, text);
+                self.raise(&station, None, AlarmClass::Communication, text);
             }
         }
         self.settle_alarms(&station);
@@ -121,7 +121,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         let order = self.order_of_message(now);
         match severity {
             Severity::Alarm(class) => {
-                self.raise_alarm(station.as_str(), class, &text, order);
+                self.raise_alarm(&station, class, &text, order);
                 self.journal(EntryKind::Alarm, order, station.as_str(), &text);
             }
             Severity::Info | Severity::Warning => {
@@ -240,7 +240,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                         self.end(now, order, OrderState::Failed, &format!("alarm: {cause}"));
                         // The cell reported the same alarm (journalled as it
                         // came): one alarm, whichever is first.
-                        let cell = self.cell.to_string();
+                        let cell = self.cell.clone();
                         self.raise_alarm(&cell, cause.class, &cause.text, Some(id));
                     }
                     other => {
@@ -251,7 +251,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                         };
                         let text = format!("order {} ({}) ended with {word}", id, order.recipe);
                         self.end(now, order, OrderState::Failed, word);
-                        let me = self.me.to_string();
+                        let me = self.me.clone();
                         self.raise(&me, Some(id), class, text.clone());
                         // An order's end is an event, not a condition that
                         // holds: raised cleared, it leaves the list once

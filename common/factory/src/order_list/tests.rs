@@ -311,7 +311,7 @@ fn a_start_associates_delivers_and_starts_and_status_is_answered_meanwhile() {
         r.reply(start).is_none(),
         "answered only when the cell confirmed"
     );
-    let out = r.answer(Ok(()));
+    r.answer(Ok(()));
     assert_eq!(
         r.reply(start),
         Some(Ok(ApiReply::Done("order 1 (dikdroog) started".into())))
@@ -948,7 +948,7 @@ fn messages_before_the_start_is_confirmed_are_journalled_after_it() {
         text: "state 1 waits".into(),
     });
     let q = r.question("verder?");
-    let out = r.answer(Ok(()));
+    r.answer(Ok(()));
     assert!(r.reply(t).is_some_and(|r| r.is_ok()));
     let journal = r
         .list
