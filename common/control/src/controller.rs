@@ -919,6 +919,15 @@ pub(crate) mod testing {
         -5 | output einde          |       |            | 0\n\
         -6 |                       | alarm |            | 0\n";
 
+    /// A welding recipe for tests: robot program 65 started and waited
+    /// for, an alarm state.
+    pub const DROOG_DIK: &str = "#DROOG_DIK\n\
+        -1 | start rcm 65 |       | gestart    | 2\n\
+        -1 | start rcm 65 |       | tijdlimiet | 3\n\
+        -2 | wait rcm 170  |       | klaar      | 0\n\
+        -2 | wait rcm 170  |       | tijdlimiet | 3\n\
+        -3 |              | alarm |            | 0\n";
+
     /// Delivers `text` as domain and reusable program invocation `name`,
     /// as a commander does ([`Delivery`]).
     pub fn load<D: Device>(c: &mut Controller<D>, name: &str, text: &str) {
@@ -960,12 +969,7 @@ mod tests {
     use falc_model::mms::program::PiState;
     use falc_recipe::check::Job;
 
-    const DROOG_DIK: &str = "#DROOG_DIK\n\
-        -1 | start rcm 65 |       | gestart    | 2\n\
-        -1 | start rcm 65 |       | tijdlimiet | 3\n\
-        -2 | wait rcm 170  |       | klaar      | 0\n\
-        -2 | wait rcm 170  |       | tijdlimiet | 3\n\
-        -3 |              | alarm |            | 0\n";
+    use super::testing::DROOG_DIK;
 
     #[derive(Default)]
     struct Fake {

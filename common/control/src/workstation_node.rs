@@ -195,20 +195,13 @@ mod tests {
     //! carries: a start goes out as a command, the link's reports come back.
 
     use super::*;
-    use crate::controller::testing::load;
+    use crate::controller::testing::{load, DROOG_DIK};
     use crate::controller::Happening;
     use falc_model::alarm::AlarmClass;
     use falc_model::ids::ObjectName;
     use falc_model::mms::pdu::JobEvent;
     use falc_recipe::check::Job;
     use falc_recipe::engine::{Action, Event, JobEnd};
-
-    const RECIPE: &str = "#WELD\n\
-        -1 | start rcm 65 |       | gestart    | 2\n\
-        -1 | start rcm 65 |       | tijdlimiet | 3\n\
-        -2 | wait rcm 170 |       | klaar      | 0\n\
-        -2 | wait rcm 170 |       | tijdlimiet | 3\n\
-        -3 |              | alarm |            | 0\n";
 
     /// A robot behind a link: a start is a command; the link says
     /// "started", "ended" or "hello" (a line for the log).
@@ -262,7 +255,7 @@ mod tests {
         let me = StationName::new("welding").expect("name");
         let limit = Duration::from_secs(10);
         let mut n = WorkstationNode::new(me, RecipeKind::Welding, limit, Robot::default(), false);
-        load(&mut n.ctl, "WELD", RECIPE);
+        load(&mut n.ctl, "DROOG_DIK", DROOG_DIK);
         n
     }
 
@@ -272,7 +265,7 @@ mod tests {
 
     fn start() -> Request {
         Request::Start {
-            name: ObjectName::new("WELD").expect("name"),
+            name: ObjectName::new("DROOG_DIK").expect("name"),
             argument: String::new(),
         }
     }
