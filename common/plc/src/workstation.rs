@@ -669,6 +669,40 @@ impl Device for Plc {
     }
 }
 
+impl Linked for Plc {
+    type Command = PlcCommand;
+    type LinkEvent = PlcEvent;
+
+    fn next_command(&mut self) -> Option<PlcCommand> {
+        self.poll_command()
+    }
+
+    /// A connection adopts or corrects the coils; a reading goes to the
+    /// running recipe (`plc-ready` when the PLC became usable with it); a
+    /// fault is a communication alarm.
+    fn take_link_event(ctl: &mut Controller<Self>, now: Duration, ev: PlcEvent) -> Option<String> {
+        match ev {
+            PlcEvent::Connected { coils } => {
+                ctl.device.connected(coils);
+                Some(format!("plc-connected address={}", ctl.device.address))
+            }
+            PlcEvent::Inputs {
+                inputs,
+                commands_done,
+            } => {
+                let reading = ctl.device.reading(inputs, commands_done);
+                ctl.take_reading(now, reading)
+                    .then(|| "plc-ready".to_string())
+            }
+            PlcEvent::Fault(why) => {
+                ctl.device.link_down(&why);
+                ctl.fault(Cause::new(AlarmClass::Communication, why));
+                None
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1152,39 +1186,5 @@ mod tests {
         // From then on each change needs a cause.
         let (_, alarm) = p.inputs(showing(&[2, 6], &['K']), 2);
         assert!(alarm.is_some_and(|a| a.text.contains("(W6)")));
-    }
-}
-
-impl Linked for Plc {
-    type Command = PlcCommand;
-    type LinkEvent = PlcEvent;
-
-    fn next_command(&mut self) -> Option<PlcCommand> {
-        self.poll_command()
-    }
-
-    /// A connection adopts or corrects the coils; a reading goes to the
-    /// running recipe (`plc-ready` when the PLC became usable with it); a
-    /// fault is a communication alarm.
-    fn take_link_event(ctl: &mut Controller<Self>, now: Duration, ev: PlcEvent) -> Option<String> {
-        match ev {
-            PlcEvent::Connected { coils } => {
-                ctl.device.connected(coils);
-                Some(format!("plc-connected address={}", ctl.device.address))
-            }
-            PlcEvent::Inputs {
-                inputs,
-                commands_done,
-            } => {
-                let reading = ctl.device.reading(inputs, commands_done);
-                ctl.take_reading(now, reading)
-                    .then(|| "plc-ready".to_string())
-            }
-            PlcEvent::Fault(why) => {
-                ctl.device.link_down(&why);
-                ctl.fault(Cause::new(AlarmClass::Communication, why));
-                None
-            }
-        }
     }
 }
