@@ -1,5 +1,5 @@
 //! The gateway's address space, and what fills it, without I/O: the node
-//! of every value and method ([`Scope`], [`Method`], [`layout`]), the
+//! of every value and method ([`Scope`], [`Method`], [`layout()`]), the
 //! values of one look at a cell or the plant ([`values`]: status, order
 //! list, journal), and the [`Mirror`] that turns successive looks into the
 //! changes to publish and the alarm events to raise. The server side

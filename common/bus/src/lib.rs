@@ -15,7 +15,8 @@
 //! - liveliness: every session holds a token `…/alive/<me>/<session>`;
 //!   [`Bus::watch`] reports a peer's lost token as [`BusEvent::PeerLost`].
 //!
-//! Sub-modules: [`keys`] (every key), [`envelope`] (the payload format),
+//! Its keys are `falc_model::keys` (every key), its payloads
+//! `falc_model::envelope` (the format). Sub-modules:
 //! [`credentials`], [`certificates`] (the cell CA and the secure transport's
 //! certificates), [`download`] (recipe delivery), [`operator_service`] (the
 //! operator API), [`config`] (generated zenoh configs), [`acl`] (the

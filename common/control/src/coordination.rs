@@ -43,7 +43,7 @@ pub fn workstation_domain(domain: &ObjectName) -> Option<(StationName, ObjectNam
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Awaiting {
     /// The Start of the recipe's job on this station, by the recipe run
-    /// numbered so ([`Stations::run`]): the confirm of an earlier run's
+    /// numbered so (`Stations::run`): the confirm of an earlier run's
     /// Start (it timed out after a cut, say) is not this run's.
     Started(StationName, u64),
     /// The operator's answer to an `input`.

@@ -1,7 +1,7 @@
 //! The DNC driver: runs the 3964R [`Link`] over any byte stream (a
 //! tokio-serial port, a pty) with the real clock. Telegrams go in over a
 //! channel; link events come out over another. The driver only moves bytes
-//! and time; every rule lives in [`super::procedure`].
+//! and time; every rule lives in [`falc_dnc::procedure`].
 
 use falc_dnc::procedure::{Link, LinkEvent};
 use std::time::Duration;

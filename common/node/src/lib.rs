@@ -181,7 +181,7 @@ pub fn init_tracing() {
 }
 
 /// The log of every FALC process, as a layer (the router adds its own
-/// beside it): to stderr, filtered by [`log_filter`] and the libraries'
+/// beside it): to stderr, filtered by `log_filter` and the libraries'
 /// own warnings and errors rate-limited ([`library_log`]), colours only on a
 /// terminal.
 pub fn log_layer<S>() -> impl tracing_subscriber::Layer<S>

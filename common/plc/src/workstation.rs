@@ -375,7 +375,7 @@ impl Plc {
         Some(Cause::new(class, text))
     }
 
-    /// A new reading as a driver takes it: [`Plc::inputs`], and the line
+    /// A new reading as a driver takes it: `Plc::inputs`, and the line
     /// to report when the PLC became usable with it (linked, ready, no
     /// emergency stop) after it was not.
     pub fn reading(&mut self, inputs: Inputs, commands_done: u64) -> Reading {

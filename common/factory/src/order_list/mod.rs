@@ -625,7 +625,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.busy = Some(busy);
     }
 
-    /// Journals; a failure to write stops the list ([`Self::db_failed`]).
+    /// Journals; a failure to write stops the list (`db_failed`).
     pub fn journal(&mut self, kind: EntryKind, order: Option<i64>, who: &str, text: &str) {
         self.stale = true;
         let written = match self.replaying {
