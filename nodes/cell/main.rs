@@ -114,10 +114,10 @@ impl Cell {
             }
             StationEvent::Associated(p) => {
                 say(&format!("EVENT associated commander={}", p.station));
+                // A new commander sees the status at once, changed or not
+                // (the node publishes it again).
                 self.node.handle_associated(now);
                 self.settle().await;
-                // A new commander sees the status at once, changed or not.
-                self.station.republish_status().await;
             }
             StationEvent::Abort(a) => {
                 say(&format!("EVENT abort-indication peer={}", a.peer.station));

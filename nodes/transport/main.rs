@@ -21,9 +21,9 @@ use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::StationName;
 use falc_model::topology::Topology;
 use falc_node::controller_node::ControllerNode;
-use falc_node::plc_link::{self, PlcArgs, PlcEvent, PlcSettings};
+use falc_node::plc_link::{self, PlcArgs, PlcSettings};
 use falc_node::{init_tracing, say, NodeArgs};
-use falc_plc::workstation::{Plc, PlcCommand};
+use falc_plc::workstation::{Plc, PlcCommand, PlcEvent};
 use falc_recipe::commands::RecipeKind;
 use falc_recipe::engine::START_CONFIRM_LIMIT;
 use std::path::PathBuf;
@@ -164,7 +164,7 @@ async fn main() -> Result<()> {
     let plc = Plc::new(address.clone());
     let mut ws = ControllerNode::new(station, RecipeKind::Transport, START_CONFIRM_LIMIT, plc);
     ws.node.set_recipe_memory(cli.memory.recipe_memory);
-    ws.publish_status().await;
+    ws.carry(|c| send_command(&link.commands, c)).await;
     say(&format!(
         "EVENT ready station={} plc={address} poll_ms={}",
         cli.station,
@@ -191,11 +191,10 @@ async fn main() -> Result<()> {
     // Leave the conveyor safe (each output's safe state): no line running,
     // a clamp still holding its workpiece, since this node cannot know
     // whether the robot still welds.
-    ws.node.device_mut().shutdown();
-    for c in ws.node.take_commands() {
+    for c in ws.node.shut_down() {
         send_command(&link.commands, c);
     }
-    let issued = ws.node.device_mut().issued();
+    let issued = ws.node.controller().device.issued();
     let _ = tokio::time::timeout(Duration::from_millis(500), async {
         while let Some(ev) = link.events.recv().await {
             if matches!(ev, PlcEvent::Inputs { commands_done, .. } if commands_done >= issued)

@@ -126,8 +126,7 @@ async fn main() -> Result<()> {
     // A job's program stopped (`H`) and the DNC link closed (`C`) before
     // the port is let go: the RCM knows nobody commands it (the twin says
     // `rx C`).
-    ws.node.device_mut().close();
-    for t in ws.node.take_commands() {
+    for t in ws.node.shut_down() {
         send_telegram(&dnc, t);
     }
     if let Some(events) = dnc_events.as_mut() {

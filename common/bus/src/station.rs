@@ -102,13 +102,15 @@ impl Station {
         }
     }
 
-    /// Publishes the current status again, changed or not (a new commander
-    /// and the operator see it at once, not at the next change).
-    pub async fn republish_status(&self) {
+    /// Sets this station's status (answered to Status requests) and
+    /// publishes it, changed or not: for a node whose core decides when
+    /// its status is due (when it changed, and again for a new commander).
+    pub async fn put_status(&self, status: VmdStatus) {
+        self.board.set(&status);
         self.bus
             .publish(&Unconfirmed::Status {
                 station: self.bus.me().station.clone(),
-                status: self.board.get(),
+                status,
             })
             .await;
     }

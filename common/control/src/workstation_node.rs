@@ -38,6 +38,11 @@ pub trait Linked: Device + Sized {
     /// The next command for the link, in the order issued.
     fn next_command(&mut self) -> Option<Self::Command>;
 
+    /// The node stops on purpose: what the device leaves behind it is
+    /// queued for the link ([`Self::next_command`]): each output to its
+    /// safe state, a robot's job stopped and its line closed.
+    fn stop(&mut self);
+
     /// Takes in `ev` at `now`: the device's state, the running recipe's
     /// events, an alarm. Returns a line worth the node's log, if any
     /// (`plc-ready`).
@@ -100,12 +105,6 @@ impl<D: Linked, T> WorkstationNode<D, T> {
         &self.ctl
     }
 
-    /// The device, to set it up before the first event or to shut it down
-    /// after the last ([`Self::take_commands`]).
-    pub fn device_mut(&mut self) -> &mut D {
-        &mut self.ctl.device
-    }
-
     /// How many bytes of recipes the station holds at most.
     pub fn set_recipe_memory(&mut self, bytes: usize) {
         self.ctl.set_recipe_memory(bytes);
@@ -165,9 +164,11 @@ impl<D: Linked, T> WorkstationNode<D, T> {
         self.out.pop_front()
     }
 
-    /// The commands the device queued, without running the recipe on
-    /// (the node shuts down).
-    pub fn take_commands(&mut self) -> Vec<D::Command> {
+    /// The node stops on purpose ([`Linked::stop`]): the commands that
+    /// leave the device safe, for the driver to send before it lets the
+    /// link go. The recipe is not run on.
+    pub fn shut_down(&mut self) -> Vec<D::Command> {
+        self.ctl.device.stop();
         std::iter::from_fn(|| self.ctl.device.next_command()).collect()
     }
 
@@ -232,6 +233,10 @@ mod tests {
 
         fn next_command(&mut self) -> Option<String> {
             self.queued.pop_front()
+        }
+
+        fn stop(&mut self) {
+            self.queued.push_back("halt".into());
         }
 
         fn take_link_event(
@@ -350,7 +355,7 @@ mod tests {
     }
 
     #[test]
-    fn a_fault_ends_the_job_in_alarm_and_shutting_down_takes_only_the_queued_commands() {
+    fn a_fault_ends_the_job_in_alarm_and_shutting_down_gives_the_stops_commands_and_nothing_more() {
         let mut n = node();
         n.handle_indication(Duration::ZERO, 1, &start());
         let _ = drain(&mut n, Duration::ZERO);
@@ -363,8 +368,9 @@ mod tests {
                     if text.contains("the link task stopped"))),
             "{acts:?}"
         );
-        n.device_mut().queued.push_back("halt".into());
-        assert_eq!(n.take_commands(), vec!["halt".to_string()]);
-        assert!(n.take_commands().is_empty());
+        assert_eq!(n.shut_down(), vec!["halt".to_string()]);
+        assert!(drain(&mut n, Duration::ZERO)
+            .iter()
+            .all(|a| !matches!(a, WorkstationAction::Command(_))));
     }
 }

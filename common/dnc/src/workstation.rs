@@ -280,6 +280,10 @@ impl Linked for Welding {
         self.poll_telegram()
     }
 
+    fn stop(&mut self) {
+        self.close();
+    }
+
     fn take_link_event(ctl: &mut Controller<Self>, now: Duration, ev: LineEvent) -> Option<String> {
         let events = match ev {
             LineEvent::Opened => {

@@ -34,7 +34,7 @@ pub struct MemoryArgs {
 /// A workstation's node on its station.
 pub struct ControllerNode<D: Linked> {
     station: Station,
-    /// The sans-I/O node (its device: [`WorkstationNode::device_mut`]).
+    /// The sans-I/O node.
     pub node: WorkstationNode<D, Responder>,
     origin: Instant,
 }
@@ -86,7 +86,6 @@ impl<D: Linked> ControllerNode<D> {
             StationEvent::Associated(p) => {
                 say(&format!("EVENT associated commander={}", p.station));
                 self.node.handle_associated(now);
-                self.station.republish_status().await;
             }
             StationEvent::Concluded(_) => {}
         }
@@ -120,13 +119,6 @@ impl<D: Linked> ControllerNode<D> {
         self.node.handle_timeout(now);
     }
 
-    /// Publishes the status if it changed.
-    pub async fn publish_status(&mut self) {
-        self.station
-            .set_status(self.node.controller().status())
-            .await;
-    }
-
     /// Carries out what the node decided, in order: answers to the
     /// commander, commands to the link (`send`), publications, log lines.
     /// Call after every event.
@@ -143,12 +135,13 @@ impl<D: Linked> ControllerNode<D> {
     }
 }
 
-/// Publishes `u` from `station`: a status through its status board (sent
-/// when it changed), a report or job event numbered, with its `EVENT` line
-/// (`no=` its number).
+/// Publishes `u` from `station`, as its sans-I/O node decided: a status
+/// through its status board (the node says when one is due: changed, or
+/// for a new commander), a report or job event numbered, with its `EVENT`
+/// line (`no=` its number).
 pub async fn publish(station: &Station, u: Unconfirmed) {
     if let Unconfirmed::Status { status, .. } = u {
-        station.set_status(status).await;
+        station.put_status(status).await;
         return;
     }
     let no = station.bus().publish(&u).await.map_or(0, |s| s.no);

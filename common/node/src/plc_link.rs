@@ -10,8 +10,7 @@
 //! coil write from one taken after.
 
 use falc_plc::map::{Inputs, IoMap, MapError, COILS, INPUTS};
-pub use falc_plc::workstation::PlcEvent;
-use falc_plc::workstation::{Pace, PlcCommand};
+use falc_plc::workstation::{Pace, PlcCommand, PlcEvent};
 use std::net::SocketAddr;
 use std::time::Duration;
 use tokio::sync::mpsc;

@@ -677,6 +677,10 @@ impl Linked for Plc {
         self.poll_command()
     }
 
+    fn stop(&mut self) {
+        self.shutdown();
+    }
+
     /// A connection adopts or corrects the coils; a reading goes to the
     /// running recipe (`plc-ready` when the PLC became usable with it); a
     /// fault is a communication alarm.
