@@ -487,15 +487,7 @@ impl Run {
         }
         // Plan a fault for a running order.
         let room = self.cfg.fault_limit.map_or(true, |l| self.injected < l);
-        let moment = !self.cfg.at_weld
-            || self
-                .world
-                .welding
-                .node
-                .controller()
-                .device
-                .program()
-                .is_some();
+        let moment = !self.cfg.at_weld || self.world.welding().device.program().is_some();
         if let Some(o) = &s.running {
             if self.planned_for != Some(o.id)
                 && self.active.is_none()
@@ -756,15 +748,8 @@ impl Run {
         }
         // No line button stays pressed while the conveyor is idle.
         let idle = self.world.is_running(Node::Transport)
-            && !self.world.transport.node.controller().is_running()
-            && self
-                .world
-                .transport
-                .node
-                .controller()
-                .device
-                .unavailable()
-                .is_none();
+            && !self.world.transport().is_running()
+            && self.world.transport().device.unavailable().is_none();
         let held = LINES.iter().find(|l| {
             Coil::Button(falc_recipe::check::Button::Line(**l))
                 .offset()
@@ -779,23 +764,15 @@ impl Run {
         }
         // No robot program runs without a job that owns it.
         let orphan = self.world.rcm.robot.running().is_some()
-            && !(self.world.is_running(Node::Welding)
-                && self.world.welding.node.controller().is_running());
+            && !(self.world.is_running(Node::Welding) && self.world.welding().is_running());
         if lasting(&mut self.orphan_since, orphan, now) > ORPHAN {
             return Err(self.violation("a robot program runs with no job owning it".into()));
         }
         // A dead serial line is seen while a program of a job runs.
         let unseen = !self.world.plugged
             && self.world.is_running(Node::Welding)
-            && self
-                .world
-                .welding
-                .node
-                .controller()
-                .device
-                .program()
-                .is_some()
-            && self.world.welding.node.controller().status().physical != PhysicalStatus::Inoperable;
+            && self.world.welding().device.program().is_some()
+            && self.world.welding().status().physical != PhysicalStatus::Inoperable;
         if lasting(&mut self.silent_since, unseen, now) > SILENT {
             return Err(self.violation(format!(
                 "the serial line is unplugged under a running program and the welding station has not seen it in {} s",

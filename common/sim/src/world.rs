@@ -12,6 +12,7 @@
 use crate::bus::{Arrival, Bus, Link, Msg, Node};
 use crate::recipes::Shipped;
 use falc_control::cell_node::{CellAction, CellNode};
+use falc_control::controller::Controller;
 use falc_control::coordination::{workstation_domain, Awaiting, Reply};
 use falc_control::pass_on::PASS_LIMIT;
 use falc_control::workstation_node::{Linked, WorkstationAction, WorkstationNode};
@@ -129,17 +130,17 @@ struct Up {
 }
 
 /// The welding workstation: its node and its end of the line.
-pub struct WeldingNode {
+struct WeldingNode {
     /// The node around the robot.
-    pub node: WorkstationNode<Welding, (Node, u64)>,
+    node: WorkstationNode<Welding, (Node, u64)>,
     link: DncLink,
 }
 
 /// The transport workstation: its node and its Modbus link (the poller
 /// `falc_node::plc_link` runs as a task).
-pub struct TransportNode {
+struct TransportNode {
     /// The node around the PLC.
-    pub node: WorkstationNode<Plc, (Node, u64)>,
+    node: WorkstationNode<Plc, (Node, u64)>,
     pace: Pace,
     next_poll: Duration,
     done: u64,
@@ -269,9 +270,9 @@ pub struct World {
     /// How long a silent peer is still taken for present (the topology's).
     lease: Duration,
     /// The welding workstation.
-    pub welding: WeldingNode,
+    welding: WeldingNode,
     /// The transport workstation.
-    pub transport: TransportNode,
+    transport: TransportNode,
     /// Each node's process and associations.
     ups: BTreeMap<Node, Up>,
     /// The robot controller's twin.
@@ -386,6 +387,16 @@ impl World {
         self.plant
             .list(0)
             .unwrap_or_else(|| unreachable!("a plant of one cell has its list"))
+    }
+
+    /// The welding workstation's recipe runtime (its robot: `.device`).
+    pub fn welding(&self) -> &Controller<Welding> {
+        self.welding.node.controller()
+    }
+
+    /// The transport workstation's recipe runtime (its PLC: `.device`).
+    pub fn transport(&self) -> &Controller<Plc> {
+        self.transport.node.controller()
     }
 
     /// The cell's order list, to read.
@@ -1301,8 +1312,8 @@ impl World {
     fn holds(&self, n: Node, name: &ObjectName, hash: u64) -> bool {
         let vmd = match n {
             Node::Cell => self.cell.controller().vmd(),
-            Node::Welding => self.welding.node.controller().vmd(),
-            Node::Transport => self.transport.node.controller().vmd(),
+            Node::Welding => self.welding().vmd(),
+            Node::Transport => self.transport().vmd(),
             Node::Operator => return false,
         };
         vmd.domain(name).is_some_and(|d| {
