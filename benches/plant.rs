@@ -75,10 +75,8 @@ struct Figures {
     busy: Vec<Load>,
 }
 
-/// How long a demo cell's order runs before it ends by itself.
-const JOB_MS: &str = "200";
-/// The same, as a number.
-const JOB: i64 = 200;
+/// How long a demo cell's order runs before it ends by itself, in ms.
+const JOB_MS: i64 = 200;
 
 /// Orders per cell in the queued batch.
 const BATCH: usize = 4;
@@ -90,7 +88,7 @@ fn run(cells: usize) -> Figures {
         let id = c.id().as_str();
         stations.push(plant.demo_station(id, "welding"));
         stations.push(plant.demo_station(id, "transport"));
-        stations.push(plant.demo_station_with(id, "cell", &["--job-ms", JOB_MS]));
+        stations.push(plant.demo_station_with(id, "cell", &["--job-ms", &JOB_MS.to_string()]));
     }
     let spawned = Instant::now();
     let mut operator = plant.spawn_operator();
@@ -180,7 +178,7 @@ fn run(cells: usize) -> Figures {
                     .collect();
                 mine.sort();
                 for w in mine.windows(2) {
-                    handovers.push((w[1].1 - w[0].1 - JOB) as f64);
+                    handovers.push((w[1].1 - w[0].1 - JOB_MS) as f64);
                 }
             }
         })
