@@ -304,6 +304,10 @@ pub mod memory {
         /// The time given ([`Records::set_now`]).
         now: i64,
         refused: std::cell::Cell<u64>,
+        /// The cell the last write was for (a [`shared`] view sets it),
+        /// and the writes refused per cell.
+        pub(super) writer: String,
+        refused_by: std::cell::RefCell<std::collections::BTreeMap<String, u64>>,
         /// The ids of the orders not ended (queued or running): what the
         /// queue is looked up in, so a long history costs nothing.
         live: std::collections::BTreeSet<i64>,
@@ -315,6 +319,11 @@ pub mod memory {
         fn write(&self) -> Result<(), String> {
             if self.failing {
                 self.refused.set(self.refused.get() + 1);
+                *self
+                    .refused_by
+                    .borrow_mut()
+                    .entry(self.writer.clone())
+                    .or_default() += 1;
                 Err("disk full".into())
             } else {
                 Ok(())
@@ -323,6 +332,11 @@ pub mod memory {
         /// How many writes were refused so far.
         pub fn refused(&self) -> u64 {
             self.refused.get()
+        }
+        /// How many writes for cell `cell` were refused so far (through
+        /// its [`shared`] view).
+        pub fn refused_of(&self, cell: &str) -> u64 {
+            self.refused_by.borrow().get(cell).copied().unwrap_or(0)
         }
         /// Orders are kept by ascending id (added so, removed in place).
         fn order_mut(&mut self, id: i64) -> Option<&mut Order> {
@@ -772,16 +786,28 @@ pub mod shared {
             .collect()
     }
 
+    impl Shared {
+        /// The records, to write on behalf of this view's cell (a write
+        /// refused is counted against it: [`Memory::refused_of`]).
+        fn writing(&self) -> std::cell::RefMut<'_, Memory> {
+            let mut m = self.all.borrow_mut();
+            if m.writer != self.cell {
+                m.writer.clone_from(&self.cell);
+            }
+            m
+        }
+    }
+
     impl Records for Shared {
         type Error = String;
         fn now_ms(&self) -> i64 {
             self.all.borrow().now_ms()
         }
         fn set_now(&mut self, at_ms: i64) {
-            self.all.borrow_mut().set_now(at_ms);
+            self.writing().set_now(at_ms);
         }
         fn add_order(&mut self, recipe: &str, who: &str, p: &Placement) -> Result<Order, String> {
-            self.all.borrow_mut().add_order(recipe, who, p)
+            self.writing().add_order(recipe, who, p)
         }
         fn orders(&self) -> Result<Vec<Order>, String> {
             self.all.borrow().orders()
@@ -799,7 +825,7 @@ pub mod shared {
             self.all.borrow().queued()
         }
         fn remove_order(&mut self, id: i64) -> Result<Result<Order, String>, String> {
-            self.all.borrow_mut().remove_order(id)
+            self.writing().remove_order(id)
         }
         fn set_running(
             &mut self,
@@ -807,13 +833,13 @@ pub mod shared {
             cell: &str,
             recipes: &[UsedRecipe],
         ) -> Result<i64, String> {
-            self.all.borrow_mut().set_running(id, cell, recipes)
+            self.writing().set_running(id, cell, recipes)
         }
         fn requeue(&mut self, id: i64) -> Result<(), String> {
-            self.all.borrow_mut().requeue(id)
+            self.writing().requeue(id)
         }
         fn end_order(&mut self, id: i64, state: OrderState, result: &str) -> Result<(), String> {
-            self.all.borrow_mut().end_order(id, state, result)
+            self.writing().end_order(id, state, result)
         }
         fn journal_at(
             &mut self,
@@ -823,7 +849,7 @@ pub mod shared {
             who: &str,
             text: &str,
         ) -> Result<Entry, String> {
-            let mut all = self.all.borrow_mut();
+            let mut all = self.writing();
             let mut e = all.journal_at(at_ms, kind, order, who, text)?;
             e.cell = Some(self.cell.clone());
             if let Some(last) = all.journal.last_mut() {
@@ -849,10 +875,10 @@ pub mod shared {
             Ok(a)
         }
         fn ack_alarm(&mut self, id: i64, who: &str, at_ms: i64) -> Result<(), String> {
-            self.all.borrow_mut().ack_alarm(id, who, at_ms)
+            self.writing().ack_alarm(id, who, at_ms)
         }
         fn clear_alarm(&mut self, id: i64, at_ms: i64) -> Result<(), String> {
-            self.all.borrow_mut().clear_alarm(id, at_ms)
+            self.writing().clear_alarm(id, at_ms)
         }
         fn listed_alarms(&self) -> Result<Vec<Alarm>, String> {
             let owners = self.owners.borrow();
@@ -871,7 +897,7 @@ pub mod shared {
             who: &str,
             message: &str,
         ) -> Result<(RecipeVersion, bool), String> {
-            self.all.borrow_mut().add_version(file, text, who, message)
+            self.writing().add_version(file, text, who, message)
         }
         fn versions(&self, file: &RecipeFile) -> Result<Vec<RecipeVersion>, String> {
             self.all.borrow().versions(file)
@@ -887,13 +913,13 @@ pub mod shared {
             self.all.borrow().order_record(id)
         }
         fn record_job(&mut self, order: Option<i64>, job: &JobRecord) -> Result<(), String> {
-            self.all.borrow_mut().record_job(order, job)
+            self.writing().record_job(order, job)
         }
         fn record_mode(&mut self, mode: CellMode) -> Result<(), String> {
-            self.all.borrow_mut().record_mode(mode)
+            self.writing().record_mode(mode)
         }
         fn record_working(&mut self, working: bool) -> Result<(), String> {
-            self.all.borrow_mut().record_working(working)
+            self.writing().record_working(working)
         }
         fn reports_filed(&self) -> Result<Vec<(String, String, u64)>, String> {
             Ok(self.all.borrow().reports_filed_of(&self.cell))

@@ -1,9 +1,13 @@
-//! The in-memory bus: every node reaches the others through the router, as
-//! on zenoh, and each node's link to the router has its own latency, loss
-//! and cut. A message is delivered at the time its sender's and its
-//! receiver's latencies add up to, in the order sent between one pair; a
-//! cut link drops what crosses it (a confirmed request then runs out of
-//! time at its sender, as on the real bus).
+//! The in-memory bus: every node reaches the others through its router,
+//! as on zenoh, and each node's link to its router has its own latency,
+//! loss and cut. In a plant each cell has a router of its own, joined to
+//! the factory router (where the operator is) by the cell's uplink: what
+//! passes between the operator and a cell's station crosses it, and a cut
+//! uplink parts the whole cell from the operator while its stations still
+//! reach each other. A message is delivered at the time the latencies on
+//! its way add up to, in the order sent between one pair; a cut link drops
+//! what crosses it (a confirmed request then runs out of time at its
+//! sender, as on the real bus).
 
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::journal::{KeptReports, Publication};
@@ -14,10 +18,11 @@ use std::collections::{BTreeMap, BinaryHeap};
 use std::fmt;
 use std::time::Duration;
 
-/// A process of the cell.
+/// What a process is in a cell.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum Node {
-    /// The operator (order list, records).
+pub enum Role {
+    /// The operator (order list, records): one process, with a place in
+    /// every cell it commands.
     Operator,
     /// The cell controller.
     Cell,
@@ -27,29 +32,88 @@ pub enum Node {
     Transport,
 }
 
-impl Node {
-    /// Every node.
-    pub const ALL: [Node; 4] = [Node::Operator, Node::Cell, Node::Welding, Node::Transport];
+impl Role {
+    /// Every role.
+    pub const ALL: [Role; 4] = [Role::Operator, Role::Cell, Role::Welding, Role::Transport];
 
-    /// The node that is station `name` of the shipped topology.
-    pub fn of(name: &falc_model::ids::StationName) -> Option<Node> {
-        Node::ALL.into_iter().find(|n| n.station() == name.as_str())
-    }
-
-    /// Its station name in the shipped topology.
+    /// Its station name in the shipped topologies (every cell of
+    /// `launch/factory.toml` names its stations alike).
     pub fn station(self) -> &'static str {
         match self {
-            Node::Operator => "operator",
-            Node::Cell => "cell",
-            Node::Welding => "welding",
-            Node::Transport => "transport",
+            Role::Operator => "operator",
+            Role::Cell => "cell",
+            Role::Welding => "welding",
+            Role::Transport => "transport",
+        }
+    }
+}
+
+/// A place on the bus: a role in cell number `cell` (the topology's
+/// cells counted from 0). The operator's places in the cells are one
+/// process and one link to the factory router.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Node {
+    /// The cell, counted from 0.
+    pub cell: usize,
+    /// What it is there.
+    pub role: Role,
+}
+
+impl Node {
+    /// `role` in cell `cell`.
+    pub fn new(cell: usize, role: Role) -> Self {
+        Self { cell, role }
+    }
+
+    /// The operator's place in cell `cell`.
+    pub fn operator(cell: usize) -> Self {
+        Self::new(cell, Role::Operator)
+    }
+
+    /// Every node of cell `cell`.
+    pub fn all_of(cell: usize) -> [Node; 4] {
+        Role::ALL.map(|r| Node::new(cell, r))
+    }
+
+    /// The node of cell `cell` that is station `name` of the shipped
+    /// topologies.
+    pub fn of(cell: usize, name: &falc_model::ids::StationName) -> Option<Node> {
+        Role::ALL
+            .into_iter()
+            .find(|r| r.station() == name.as_str())
+            .map(|r| Node::new(cell, r))
+    }
+
+    /// Its station name.
+    pub fn station(self) -> &'static str {
+        self.role.station()
+    }
+
+    /// Whether it is the operator's.
+    pub fn is_operator(self) -> bool {
+        self.role == Role::Operator
+    }
+
+    /// The link it reaches its router by: the operator's is one for all
+    /// its places.
+    fn link_key(self) -> Node {
+        if self.is_operator() {
+            Node::operator(0)
+        } else {
+            self
         }
     }
 }
 
 impl fmt::Display for Node {
+    /// `welding` in the first cell (as in a cell of its own), `welding@2`
+    /// in the third; the operator is one.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.station())
+        match self.cell {
+            0 => f.write_str(self.station()),
+            _ if self.is_operator() => f.write_str(self.station()),
+            c => write!(f, "{}@{c}", self.station()),
+        }
     }
 }
 
@@ -124,7 +188,12 @@ pub struct Arrival {
 /// The bus.
 #[derive(Debug, Default)]
 pub struct Bus {
+    /// Every node's link, but those set apart.
+    default: Link,
     links: BTreeMap<Node, Link>,
+    /// Each cell's uplink, in a plant (a cell of its own has none: its
+    /// router is the operator's).
+    uplinks: BTreeMap<usize, Link>,
     queue: BinaryHeap<Reverse<(Duration, u64)>>,
     in_flight: BTreeMap<u64, Arrival>,
     /// When the last message between each ordered pair arrives (order
@@ -136,21 +205,37 @@ pub struct Bus {
 }
 
 impl Bus {
-    /// A bus with `link` for every node.
-    pub fn new(link: Link) -> Self {
+    /// A bus with `link` for every node, and for the uplinks of
+    /// `uplinks` cells (none: a cell of its own).
+    pub fn new(link: Link, uplinks: usize) -> Self {
         Self {
-            links: Node::ALL.iter().map(|n| (*n, link)).collect(),
+            default: link,
+            uplinks: (0..uplinks).map(|c| (c, link)).collect(),
             ..Self::default()
         }
     }
 
     fn link(&self, n: Node) -> Link {
-        self.links.get(&n).copied().unwrap_or_default()
+        self.links
+            .get(&n.link_key())
+            .copied()
+            .unwrap_or(self.default)
+    }
+
+    /// The uplink a message between `a` and `b` crosses, if any: the
+    /// operator's to a cell of a plant.
+    fn uplink(&self, a: Node, b: Node) -> Option<Link> {
+        match (a.is_operator(), b.is_operator()) {
+            (true, false) => self.uplinks.get(&b.cell).copied(),
+            (false, true) => self.uplinks.get(&a.cell).copied(),
+            _ => None,
+        }
     }
 
     /// Cuts `node`'s link (or joins it again).
     pub fn set_cut(&mut self, node: Node, cut: bool) {
-        self.links.entry(node).or_default().cut = cut;
+        let default = self.default;
+        self.links.entry(node.link_key()).or_insert(default).cut = cut;
     }
 
     /// Whether `node`'s link is cut.
@@ -158,9 +243,27 @@ impl Bus {
         self.link(node).cut
     }
 
+    /// Cuts cell `cell`'s uplink (or joins it again); a cell of its own
+    /// has none.
+    pub fn set_uplink_cut(&mut self, cell: usize, cut: bool) {
+        if let Some(l) = self.uplinks.get_mut(&cell) {
+            l.cut = cut;
+        }
+    }
+
+    /// Whether cell `cell`'s uplink is cut.
+    pub fn is_uplink_cut(&self, cell: usize) -> bool {
+        self.uplinks.get(&cell).is_some_and(|l| l.cut)
+    }
+
+    /// Whether the cells have uplinks (a plant of several).
+    pub fn has_uplinks(&self) -> bool {
+        !self.uplinks.is_empty()
+    }
+
     /// Whether `a` and `b` reach each other now.
     pub fn reachable(&self, a: Node, b: Node) -> bool {
-        !self.link(a).cut && !self.link(b).cut
+        !self.link(a).cut && !self.link(b).cut && self.uplink(a, b).map_or(true, |u| !u.cut)
     }
 
     /// Sends `msg`; false if it is lost at once (a cut link or loss).
@@ -173,12 +276,13 @@ impl Bus {
         rng: &mut impl Rng,
     ) -> bool {
         let (lf, lt) = (self.link(from), self.link(to));
-        let loss = lf.loss.max(lt.loss);
-        if lf.cut || lt.cut || (loss > 0.0 && rng.gen_bool(loss.min(1.0))) {
+        let up = self.uplink(from, to);
+        let loss = lf.loss.max(lt.loss).max(up.map_or(0.0, |u| u.loss));
+        if !self.reachable(from, to) || (loss > 0.0 && rng.gen_bool(loss.min(1.0))) {
             self.dropped += 1;
             return false;
         }
-        let earliest = now + lf.latency + lt.latency;
+        let earliest = now + lf.latency + lt.latency + up.map_or(Duration::ZERO, |u| u.latency);
         let at = self
             .last
             .get(&(from, to))
@@ -227,29 +331,59 @@ mod tests {
         }
     }
 
+    const CELL: Node = Node {
+        cell: 0,
+        role: Role::Cell,
+    };
+    const WELDING: Node = Node {
+        cell: 0,
+        role: Role::Welding,
+    };
+
     #[test]
     fn messages_arrive_after_both_latencies_and_a_cut_drops_them() {
         let mut rng = rand::rngs::StdRng::seed_from_u64(1);
-        let mut bus = Bus::new(Link::default());
+        let mut bus = Bus::new(Link::default(), 0);
         let t0 = Duration::ZERO;
-        assert!(bus.send(t0, Node::Cell, Node::Welding, publish(), &mut rng));
+        assert!(bus.send(t0, CELL, WELDING, publish(), &mut rng));
         assert_eq!(bus.poll_timeout(), Some(Duration::from_micros(500)));
         assert!(bus.poll_delivery(Duration::from_micros(499)).is_none());
         let d = bus.poll_delivery(Duration::from_micros(500));
-        assert!(matches!(
-            d,
-            Some(Arrival {
-                to: Node::Welding,
-                ..
-            })
-        ));
+        assert!(matches!(d, Some(Arrival { to: WELDING, .. })));
         // In flight when the link is cut: dropped on arrival.
-        assert!(bus.send(t0, Node::Cell, Node::Welding, publish(), &mut rng));
-        bus.set_cut(Node::Welding, true);
+        assert!(bus.send(t0, CELL, WELDING, publish(), &mut rng));
+        bus.set_cut(WELDING, true);
         assert!(bus.poll_delivery(Duration::from_secs(1)).is_none());
-        assert!(!bus.send(t0, Node::Cell, Node::Welding, publish(), &mut rng));
-        assert!(!bus.reachable(Node::Operator, Node::Welding));
-        assert!(bus.reachable(Node::Operator, Node::Cell));
+        assert!(!bus.send(t0, CELL, WELDING, publish(), &mut rng));
+        assert!(!bus.reachable(Node::operator(0), WELDING));
+        assert!(bus.reachable(Node::operator(0), CELL));
         assert_eq!(bus.dropped, 2);
+    }
+
+    #[test]
+    fn a_cut_uplink_parts_its_cell_from_the_operator_only() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+        let mut bus = Bus::new(Link::default(), 2);
+        let (op, cell1, ws1) = (
+            Node::operator(1),
+            Node::new(1, Role::Cell),
+            Node::new(1, Role::Welding),
+        );
+        // Across the uplink: three latencies.
+        assert!(bus.send(Duration::ZERO, op, cell1, publish(), &mut rng));
+        assert_eq!(bus.poll_timeout(), Some(Duration::from_micros(750)));
+        bus.set_uplink_cut(1, true);
+        assert!(bus.is_uplink_cut(1) && !bus.is_uplink_cut(0));
+        assert!(bus.poll_delivery(Duration::from_secs(1)).is_none());
+        assert!(!bus.reachable(op, cell1));
+        assert!(!bus.reachable(Node::operator(0), ws1));
+        // Inside the cell, and to the other cell, all still goes.
+        assert!(bus.reachable(cell1, ws1));
+        assert!(bus.reachable(Node::operator(0), Node::new(0, Role::Cell)));
+        // The operator's places are one link: cut once, cut in every cell.
+        bus.set_uplink_cut(1, false);
+        bus.set_cut(Node::operator(0), true);
+        assert!(!bus.reachable(op, cell1));
+        assert!(bus.reachable(cell1, ws1));
     }
 }

@@ -1,6 +1,7 @@
-//! `falc-sim --seed S --orders N [--faults …]`: one seeded run of the whole
-//! cell on a virtual clock; prints a summary, or the broken invariant with
-//! the events that led there (exit status 1). The same seed replays it.
+//! `falc-sim [--topology FILE] --seed S --orders N [--faults …]`: one
+//! seeded run of the whole cell, or of a plant of cells, on a virtual
+//! clock; prints a summary, or the broken invariant with the events that
+//! led there (exit status 1). The same seed replays it.
 
 use clap::Parser;
 use falc_sim::{Config, Fault, Run};
@@ -11,6 +12,10 @@ use std::time::Instant;
 #[derive(Parser, Debug)]
 #[command(version, about = "FALC's whole cell in one process on a virtual clock")]
 struct Cli {
+    /// A topology file, a cell's or a plant's (`launch/factory.toml`);
+    /// without it, the shipped cell (`launch/cell.toml`).
+    #[arg(long)]
+    topology: Option<std::path::PathBuf>,
     /// Drives every random choice; the same seed gives the same run.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -18,7 +23,8 @@ struct Cli {
     #[arg(long, default_value_t = 100)]
     orders: usize,
     /// The faults to inject, comma-separated (crash, estop, limit-switch,
-    /// unplug, noise, jam, stuck, partition, disk-full), `all` or `none`.
+    /// unplug, noise, jam, stuck, partition, disk-full, memory, uplink),
+    /// `all` or `none`. A cell of its own has no uplink: it skips it.
     #[arg(long, default_value = "all")]
     faults: String,
     /// Chance that an order meets a fault (0 to 1).
@@ -53,6 +59,7 @@ fn main() -> ExitCode {
         }
     };
     let cfg = Config {
+        topology: cli.topology.clone(),
         seed: cli.seed,
         orders: cli.orders,
         faults,
@@ -91,9 +98,13 @@ fn main() -> ExitCode {
         }
         Err(v) => writeln!(out, "seed {}: {v}", cli.seed)
             .and_then(|()| {
+                let topology = cli
+                    .topology
+                    .as_ref()
+                    .map_or(String::new(), |t| format!("--topology {} ", t.display()));
                 writeln!(
                     out,
-                    "replay: cargo run -p falc-sim -- --seed {} --orders {} --faults {}",
+                    "replay: cargo run -p falc-sim -- {topology}--seed {} --orders {} --faults {}",
                     cli.seed, cli.orders, cli.faults
                 )
             })

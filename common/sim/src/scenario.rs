@@ -1,11 +1,12 @@
 //! A seeded run: orders added and worked through as an operator would
-//! (answering the cell's questions with `ja`), faults injected while
-//! orders run, each followed by the documented way back (clear the cause,
-//! carriers home, `ack`, `start`), and the invariants checked after every
-//! step. The same seed gives the same run.
+//! (answering each cell's questions with `ja`, at a console per cell in a
+//! plant), faults injected while orders run, each followed by the
+//! documented way back (clear the cause, carriers home, `ack`, `start`),
+//! and the invariants checked after every step, those across the cells of
+//! a plant too. The same seed gives the same run.
 
-use crate::bus::{Link, Node};
-use crate::world::{World, HOME};
+use crate::bus::{Link, Node, Role};
+use crate::world::{shipped_cell, World, HOME};
 use falc_control::controller::Device;
 use falc_dnc::robot::Control as Rcm;
 use falc_factory::order_list::Ticket;
@@ -13,12 +14,14 @@ use falc_model::alarm::Alarm;
 use falc_model::console::{ApiRequest, Entry, EntryKind, ListState, Order, OrderState};
 use falc_model::ids::Place;
 use falc_model::mms::vmd::PhysicalStatus;
+use falc_model::plant::Layout;
 use falc_plc::conveyor::{Control as Plc, Spot};
 use falc_plc::map::{Coil, LINES};
 use rand::seq::SliceRandom;
 use rand::Rng;
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt;
+use std::path::PathBuf;
 use std::time::Duration;
 
 /// A kind of fault the simulation injects.
@@ -47,11 +50,14 @@ pub enum Fault {
     /// its recipes (a controller replaced): the cell's deliveries to it
     /// are refused until it has enough.
     Memory,
+    /// A cell's uplink to the factory router is cut for a while (a plant
+    /// only: a cell of its own has none, and skips it).
+    Uplink,
 }
 
 impl Fault {
     /// Every kind.
-    pub const ALL: [Fault; 10] = [
+    pub const ALL: [Fault; 11] = [
         Fault::Crash,
         Fault::EStop,
         Fault::LimitSwitch,
@@ -62,6 +68,7 @@ impl Fault {
         Fault::Partition,
         Fault::DiskFull,
         Fault::Memory,
+        Fault::Uplink,
     ];
 
     /// Its name on the command line.
@@ -77,6 +84,7 @@ impl Fault {
             Fault::Partition => "partition",
             Fault::DiskFull => "disk-full",
             Fault::Memory => "memory",
+            Fault::Uplink => "uplink",
         }
     }
 
@@ -84,7 +92,7 @@ impl Fault {
     /// cable or a link stays out until somebody finds it.
     fn lasts(self) -> std::ops::Range<u64> {
         match self {
-            Fault::Unplug | Fault::Partition | Fault::Crash => 2_000..20_000,
+            Fault::Unplug | Fault::Partition | Fault::Crash | Fault::Uplink => 2_000..20_000,
             _ => 2_000..8_000,
         }
     }
@@ -104,6 +112,9 @@ impl fmt::Display for Fault {
 /// What a run is asked to do.
 #[derive(Debug, Clone)]
 pub struct Config {
+    /// The topology file, a cell's or a plant's (None: the shipped
+    /// `launch/cell.toml`, compiled in).
+    pub topology: Option<PathBuf>,
     /// Drives every random choice.
     pub seed: u64,
     /// Orders to work through.
@@ -128,6 +139,7 @@ pub struct Config {
 impl Default for Config {
     fn default() -> Self {
         Self {
+            topology: None,
             seed: 1,
             orders: 10,
             faults: Fault::ALL.to_vec(),
@@ -197,6 +209,8 @@ pub struct Summary {
     pub lines: Vec<String>,
     /// The journal's entries, if kept (for comparing runs).
     pub entries: Vec<Entry>,
+    /// In a plant, each cell's orders: (cell, done, ended otherwise).
+    pub cells: Vec<(String, usize, usize)>,
 }
 
 impl fmt::Display for Summary {
@@ -220,6 +234,14 @@ impl fmt::Display for Summary {
                 faults.join(", ")
             }
         )?;
+        if !self.cells.is_empty() {
+            let cells: Vec<String> = self
+                .cells
+                .iter()
+                .map(|(c, done, failed)| format!("{c} {done} done, {failed} failed"))
+                .collect();
+            writeln!(f, "cells: {}", cells.join("; "))?;
+        }
         write!(
             f,
             "{} steps over {:.1} s of simulated production",
@@ -234,10 +256,20 @@ impl fmt::Display for Summary {
 struct Active {
     fault: Fault,
     clear_at: Duration,
+    /// The cell it was injected in.
+    cell: usize,
     /// What it needs cleared (a node, a line, a place).
     node: Option<Node>,
     line: Option<char>,
     place: Option<Place>,
+}
+
+impl Active {
+    /// Whether it reaches every cell (the operator's process or link, its
+    /// disk), not its own cell only.
+    fn plant_wide(&self) -> bool {
+        self.fault == Fault::DiskFull || self.node.is_some_and(Node::is_operator)
+    }
 }
 
 /// The recipe memory of a workstation under [`Fault::Memory`]: less than
@@ -261,28 +293,23 @@ const SILENT: Duration = Duration::from_secs(3);
 /// list halts it); a full disk is only known at the next write.
 const BEHIND: Duration = Duration::from_secs(2);
 
-/// One run.
-pub struct Run {
-    /// The cell.
-    pub world: World,
-    cfg: Config,
-    added: usize,
-    /// Kinds in turn, shuffled once per round.
-    deck: Vec<Fault>,
-    active: Option<Active>,
-    /// A fault is due at this time.
-    fault_at: Option<Duration>,
+/// The operator at one cell's console: what it waits for, and the
+/// invariants kept per cell.
+#[derive(Debug, Default)]
+struct Desk {
     /// The running order a fault was already planned for.
     planned_for: Option<i64>,
     /// The way back is to be taken: carriers home before the next start.
     way_back: bool,
-    /// After a way back: the faults injected so far and the last order
-    /// started before it. The first order started after it must end done
-    /// unless another fault comes.
+    /// After a way back: the faults that reached this cell so far and the
+    /// last order it started before it. The first order it ends after the
+    /// way back must end done unless another fault reaches it.
     production_since: Option<(Duration, u32, i64)>,
-    /// Faults injected so far.
-    injected: u32,
-    next_tick: Duration,
+    /// Faults that reached this cell so far.
+    hits: u32,
+    /// The cell is clean (no fault reached it since its last way back):
+    /// the orders it starts after this one owe nothing to a fault.
+    clean_after: Option<i64>,
     console: Option<Ticket>,
     /// The console request out is an order's add.
     adding: bool,
@@ -290,30 +317,67 @@ pub struct Run {
     /// no sooner than this.
     starting: bool,
     start_after: Duration,
+    orphan_since: Option<Duration>,
+    /// Since when the line is unplugged under a weld, unseen.
+    silent_since: Option<Duration>,
+    held_since: Option<Duration>,
+    answered: Option<String>,
+    /// Since when an order runs at the cell after a write for it failed.
+    behind_since: Option<Duration>,
+    /// The cell's writes refused before the disk last filled.
+    refused: u64,
+}
+
+/// An order that must end done: it ran on a clean cell (no fault reached
+/// it since its way back) when a fault came to another cell.
+#[derive(Debug, Clone)]
+struct Spared {
+    order: i64,
+    cell: usize,
+    /// The cell's [`Desk::hits`] then: another fault there excuses it.
+    hits: u32,
+    /// What it was spared from, for the report.
+    fault: String,
+}
+
+/// One run.
+pub struct Run {
+    /// The cell, or plant.
+    pub world: World,
+    cfg: Config,
+    added: usize,
+    /// Kinds in turn, shuffled once per round.
+    deck: Vec<Fault>,
+    active: Option<Active>,
+    /// A fault is due at this time, in this cell.
+    fault_at: Option<(Duration, usize)>,
+    /// Faults injected so far.
+    injected: u32,
+    next_tick: Duration,
+    /// Ticks so far.
+    ticks: u64,
+    /// Each cell's console.
+    desks: Vec<Desk>,
     summary: Summary,
     /// Journal entries checked so far, and ends seen per order.
     checked: usize,
     ends: BTreeMap<i64, u32>,
     last_end: Duration,
-    orphan_since: Option<Duration>,
-    /// Since when the line is unplugged under a weld, unseen.
-    silent_since: Option<Duration>,
     /// The records' alarms not yet both acknowledged and cleared (their
     /// index, and when first seen), and how many of the records' alarms
     /// were looked at.
     open_alarms: Vec<(usize, Duration)>,
     alarms_seen: usize,
-    /// Since when an order runs at the cell after a write failed.
-    behind_since: Option<Duration>,
-    /// Writes refused before the disk last filled.
-    refused: u64,
-    held_since: Option<Duration>,
-    answered: Option<String>,
+    /// Orders a fault elsewhere must not fail.
+    spared: Vec<Spared>,
+    /// The order a cut-off cell ran when its uplink was cut: no end of it
+    /// may be recorded while the operator cannot hear the cell.
+    cut_off: Option<(usize, i64)>,
 }
 
 impl Run {
-    /// A run of `cfg` on a fresh cell; a configuration that cannot run is
-    /// refused, saying why.
+    /// A run of `cfg` on a fresh cell or plant; a configuration that
+    /// cannot run is refused, saying why.
     pub fn new(cfg: Config) -> Result<Self, String> {
         if cfg.recipes.is_empty() {
             return Err("no cell recipe to order".into());
@@ -324,7 +388,17 @@ impl Run {
         if !(cfg.time_scale.is_finite() && cfg.time_scale > 0.0) {
             return Err(format!("a time scale of {} (above 0)", cfg.time_scale));
         }
-        let world = World::new(cfg.seed, cfg.time_scale, Link::default())?;
+        let layout = match &cfg.topology {
+            None => shipped_cell()?,
+            Some(path) => Layout::load(path).map_err(|e| e.to_string())?,
+        };
+        let world = World::new(&layout, cfg.seed, cfg.time_scale, Link::default())?;
+        let desks = (0..world.cell_count())
+            .map(|_| Desk {
+                clean_after: Some(0),
+                ..Desk::default()
+            })
+            .collect();
         Ok(Self {
             world,
             cfg,
@@ -332,27 +406,18 @@ impl Run {
             deck: Vec::new(),
             active: None,
             fault_at: None,
-            planned_for: None,
-            way_back: false,
-            production_since: None,
             injected: 0,
             next_tick: Duration::ZERO,
-            console: None,
-            adding: false,
-            starting: false,
-            start_after: Duration::ZERO,
+            ticks: 0,
+            desks,
             summary: Summary::default(),
             checked: 0,
             ends: BTreeMap::new(),
             last_end: Duration::ZERO,
-            orphan_since: None,
-            behind_since: None,
             open_alarms: Vec::new(),
             alarms_seen: 0,
-            silent_since: None,
-            refused: 0,
-            held_since: None,
-            answered: None,
+            spared: Vec::new(),
+            cut_off: None,
         })
     }
 
@@ -361,7 +426,7 @@ impl Run {
         loop {
             let until = [
                 Some(self.next_tick),
-                self.fault_at,
+                self.fault_at.map(|f| f.0),
                 self.active.map(|a| a.clear_at),
             ]
             .into_iter()
@@ -370,16 +435,22 @@ impl Run {
             .unwrap_or(self.next_tick);
             self.world.step(until);
             let now = self.world.now;
-            if self.fault_at.is_some_and(|t| t <= now) {
+            if let Some((_, c)) = self.fault_at.filter(|f| f.0 <= now) {
                 self.fault_at = None;
-                self.inject();
+                self.inject(c);
             }
             if self.active.is_some_and(|a| a.clear_at <= now) {
                 self.clear();
             }
             if self.next_tick <= now {
                 self.next_tick = now + TICK;
-                self.operate();
+                // The consoles in turn, a different one first each tick
+                // (the first to see a running order plans the fault).
+                let n = self.desks.len();
+                self.ticks += 1;
+                for k in 0..n {
+                    self.operate((self.ticks as usize + k) % n);
+                }
             }
             self.check()?;
             if self.finished() {
@@ -417,25 +488,34 @@ impl Run {
                 .collect();
             self.summary.entries = rec.journal.clone();
         }
-        self.summary.done = rec
-            .orders
-            .iter()
-            .filter(|o| o.state == OrderState::Done)
-            .count();
+        let done = |o: &&Order| o.state == OrderState::Done;
+        self.summary.done = rec.orders.iter().filter(done).count();
         self.summary.failed = rec.orders.len() - self.summary.done;
+        if self.world.cell_count() > 1 {
+            self.summary.cells = (0..self.world.cell_count())
+                .map(|c| {
+                    let id = self.world.cell_id(c).to_string();
+                    let of = |o: &&Order| o.cell.as_deref() == Some(id.as_str());
+                    let ran: Vec<&Order> = rec.orders.iter().filter(of).collect();
+                    let done = ran.iter().filter(|o| done(o)).count();
+                    (id, done, ran.len() - done)
+                })
+                .collect();
+        }
         Ok(self.summary)
     }
 
     fn finished(&self) -> bool {
         self.added >= self.cfg.orders
             && self.active.is_none()
-            && self.console.is_none()
+            && self.desks.iter().all(|d| d.console.is_none())
             && self.world.records.borrow().orders.iter().all(is_ended)
-            && self
-                .world
-                .order_list()
-                .status()
-                .is_ok_and(|s| s.running.is_none() && s.queued == 0)
+            && (0..self.world.cell_count()).all(|c| {
+                self.world
+                    .order_list(c)
+                    .status()
+                    .is_ok_and(|s| s.running.is_none() && s.queued == 0)
+            })
     }
 
     fn violation(&self, what: String) -> Box<Violation> {
@@ -447,73 +527,88 @@ impl Run {
         })
     }
 
-    /// The operator at the console.
-    fn operate(&mut self) {
-        if let Some(t) = self.console {
+    /// The console request of cell `c`'s desk: for the cell in a plant,
+    /// with no `--cell` in a cell of its own.
+    fn ask(&mut self, c: usize, request: ApiRequest) -> Ticket {
+        let cell = (self.world.cell_count() > 1).then_some(c);
+        self.world.api("console", cell, request)
+    }
+
+    /// The operator at cell `c`'s console.
+    fn operate(&mut self, c: usize) {
+        let Some(desk) = self.desks.get_mut(c) else {
+            return;
+        };
+        if let Some(t) = desk.console {
             match self.world.reply(t) {
                 Some(r) => {
                     if let Err(e) = r {
                         self.world.note(format!("console: refused: {e}"));
-                        if self.adding {
+                        if desk.adding {
                             // Refused (a full disk): added again later.
                             self.added -= 1;
                         }
-                        if self.starting {
+                        if desk.starting {
                             // The operator reads why before trying again.
-                            self.start_after = self.world.now + START_AGAIN;
+                            desk.start_after = self.world.now + START_AGAIN;
                         }
                     }
-                    self.console = None;
-                    self.adding = false;
-                    self.starting = false;
+                    desk.console = None;
+                    desk.adding = false;
+                    desk.starting = false;
                 }
                 None => return,
             }
         }
-        let Ok(s) = self.world.order_list().status() else {
+        let Ok(s) = self.world.order_list(c).status() else {
             return;
         };
         if let Some(q) = &s.question {
-            if self.answered.as_deref() != Some(q.as_str()) {
-                self.answered = Some(q.clone());
-                self.console = Some(
-                    self.world
-                        .api("console", ApiRequest::Answer { text: "ja".into() }),
-                );
+            if desk.answered.as_deref() != Some(q.as_str()) {
+                desk.answered = Some(q.clone());
+                let t = self.ask(c, ApiRequest::Answer { text: "ja".into() });
+                self.desks[c].console = Some(t);
                 return;
             }
         } else {
-            self.answered = None;
+            desk.answered = None;
         }
         // Plan a fault for a running order.
         let room = self.cfg.fault_limit.map_or(true, |l| self.injected < l);
-        let moment = !self.cfg.at_weld || self.world.welding().device.program().is_some();
+        let moment = !self.cfg.at_weld || self.world.welding(c).device.program().is_some();
         if let Some(o) = &s.running {
-            if self.planned_for != Some(o.id)
+            if desk.planned_for != Some(o.id)
                 && self.active.is_none()
                 && self.fault_at.is_none()
                 && room
                 && moment
             {
-                self.planned_for = Some(o.id);
-                if !self.cfg.faults.is_empty() && self.world.rng.gen_bool(self.cfg.fault_rate) {
+                desk.planned_for = Some(o.id);
+                if !self.deck_kinds().is_empty() && self.world.rng.gen_bool(self.cfg.fault_rate) {
                     let delay = match self.cfg.at_weld {
                         true => 0,
                         false => self.world.rng.gen_range(0..20_000u64),
                     };
-                    self.fault_at = Some(self.world.now + Duration::from_millis(delay));
+                    self.fault_at = Some((self.world.now + Duration::from_millis(delay), c));
                 }
             }
         }
-        if self.added < self.cfg.orders && s.queued < 2 {
+        // Orders are added for any cell: the plant's queue is kept at two
+        // per cell.
+        if self.added < self.cfg.orders && s.queued < 2 * self.desks.len() {
             // Not empty (Run::new).
             let turn = self.added % self.cfg.recipes.len().max(1);
             let recipe = self.cfg.recipes.get(turn).cloned().unwrap_or_default();
             self.added += 1;
-            self.adding = true;
-            self.console = Some(self.world.api("console", ApiRequest::order_add(&recipe)));
+            let t = self
+                .world
+                .api("console", None, ApiRequest::order_add(&recipe));
+            let desk = &mut self.desks[c];
+            desk.adding = true;
+            desk.console = Some(t);
             return;
         }
+        let desk = &mut self.desks[c];
         // A full recipe memory is found by starting: the start is refused
         // saying so (the other faults are seen, and cleared first).
         let unseen = self.active.is_some_and(|a| a.fault == Fault::Memory);
@@ -523,31 +618,44 @@ impl Run {
         }
         let blocking: Vec<&Alarm> = s.alarms.iter().filter(|a| a.blocks_start()).collect();
         if !blocking.is_empty() || s.list == ListState::Alarm {
-            self.way_back = true;
+            desk.way_back = true;
         }
-        if self.way_back {
+        if desk.way_back {
             // Carriers home, then ack, then start.
             let home: Vec<Spot> = HOME.iter().filter_map(|h| Spot::parse(h)).collect();
-            if let Err(e) = self.world.conveyor.set_layout(&home) {
+            desk.way_back = false;
+            let last = self.world.last_started.get(c).copied().unwrap_or(0);
+            desk.production_since = Some((self.world.now, desk.hits, last));
+            desk.clean_after = Some(last);
+            if let Err(e) = self.world.part_mut(c).conveyor.set_layout(&home) {
                 self.world.note(format!("operator: carriers not home: {e}"));
             }
-            self.way_back = false;
-            let last = self.world.starts.keys().next_back().copied().unwrap_or(0);
-            self.production_since = Some((self.world.now, self.injected, last));
             if s.alarms.iter().any(|a| a.acked.is_none()) {
-                self.console = Some(self.world.api("console", ApiRequest::Ack { id: None }));
+                let t = self.ask(c, ApiRequest::Ack { id: None });
+                self.desks[c].console = Some(t);
                 return;
             }
         }
-        if (s.queued > 0 || s.list == ListState::Alarm) && self.world.now >= self.start_after {
-            self.starting = true;
-            self.console = Some(self.world.api("console", ApiRequest::Start));
+        if (s.queued > 0 || s.list == ListState::Alarm) && self.world.now >= desk.start_after {
+            let t = self.ask(c, ApiRequest::Start);
+            let desk = &mut self.desks[c];
+            desk.starting = true;
+            desk.console = Some(t);
         }
     }
 
-    fn inject(&mut self) {
+    /// The kinds of fault this run injects: those asked that the layout
+    /// has (a cell of its own has no uplink).
+    fn deck_kinds(&self) -> Vec<Fault> {
+        let plant = self.world.cell_count() > 1;
+        let applies = |f: &&Fault| plant || **f != Fault::Uplink;
+        self.cfg.faults.iter().filter(applies).copied().collect()
+    }
+
+    /// A fault, in cell `c`.
+    fn inject(&mut self, c: usize) {
         if self.deck.is_empty() {
-            self.deck = self.cfg.faults.clone();
+            self.deck = self.deck_kinds();
             self.deck.shuffle(&mut self.world.rng);
         }
         let Some(fault) = self.deck.pop() else {
@@ -560,52 +668,89 @@ impl Run {
         let mut a = Active {
             fault,
             clear_at: now + Duration::from_millis(w.rng.gen_range(fault.lasts())),
+            cell: c,
             node: None,
             line: None,
             place: None,
         };
-        w.note(format!("FAULT {fault}"));
+        let at = w.cell_id(c).to_string();
+        w.note(format!("FAULT {fault} in {at}"));
+        let cut_order = running_order(w, c);
         match fault {
             Fault::Crash => {
-                let n = *Node::ALL.choose(&mut w.rng).unwrap_or(&Node::Welding);
+                let n = *Node::all_of(c)
+                    .choose(&mut w.rng)
+                    .unwrap_or(&Node::new(c, Role::Welding));
                 a.node = Some(n);
                 w.crash(n);
             }
-            Fault::EStop => w.rcm.control(now, Rcm::EStop),
-            Fault::LimitSwitch => w.rcm.control(now, Rcm::LimitSwitch),
-            Fault::Unplug => w.plugged = false,
+            Fault::EStop => w.part_mut(c).rcm.control(now, Rcm::EStop),
+            Fault::LimitSwitch => w.part_mut(c).rcm.control(now, Rcm::LimitSwitch),
+            Fault::Unplug => w.part_mut(c).plugged = false,
             Fault::Noise => {
                 let n = w.rng.gen_range(1..40);
                 let noise: Vec<u8> = (0..n).map(|_| w.rng.gen()).collect();
-                w.noise(noise);
+                w.noise(c, noise);
                 a.clear_at = now;
             }
             Fault::Jam => {
                 let l = *LINES.choose(&mut w.rng).unwrap_or(&'A');
                 a.line = Some(l);
-                w.conveyor.control(now, Plc::Jam(l));
+                w.part_mut(c).conveyor.control(now, Plc::Jam(l));
             }
             Fault::Stuck => {
                 let p = Place::of(w.rng.gen_range(2..=6));
                 let v = w.rng.gen_bool(0.5);
                 a.place = Some(p);
-                w.conveyor.control(now, Plc::Stuck(p, v));
+                w.part_mut(c).conveyor.control(now, Plc::Stuck(p, v));
             }
             Fault::Partition => {
-                let n = *Node::ALL.choose(&mut w.rng).unwrap_or(&Node::Welding);
+                let n = *Node::all_of(c)
+                    .choose(&mut w.rng)
+                    .unwrap_or(&Node::new(c, Role::Welding));
                 a.node = Some(n);
                 w.cut(n, true);
             }
             Fault::DiskFull => w.records.borrow_mut().failing = true,
             Fault::Memory => {
-                let n = *[Node::Welding, Node::Transport]
+                let n = *[Node::new(c, Role::Welding), Node::new(c, Role::Transport)]
                     .choose(&mut w.rng)
-                    .unwrap_or(&Node::Welding);
+                    .unwrap_or(&Node::new(c, Role::Welding));
                 a.node = Some(n);
                 w.set_recipe_memory(n, Some(SMALL_MEMORY));
                 w.crash(n);
                 w.restart(n);
             }
+            Fault::Uplink => w.cut_uplink(c, true),
+        }
+        // Who it reaches; the orders it must spare.
+        let reached: Vec<usize> = match a.plant_wide() {
+            true => (0..self.desks.len()).collect(),
+            false => vec![c],
+        };
+        for d in &reached {
+            if let Some(desk) = self.desks.get_mut(*d) {
+                desk.hits += 1;
+                desk.clean_after = None;
+            }
+        }
+        let what = format!("{fault} in {at}");
+        for (d, desk) in self.desks.iter().enumerate() {
+            if reached.contains(&d) {
+                continue;
+            }
+            let clean = |o: i64| desk.clean_after.is_some_and(|after| o > after);
+            if let Some(order) = running_order(&self.world, d).filter(|o| clean(*o)) {
+                self.spared.push(Spared {
+                    order,
+                    cell: d,
+                    hits: desk.hits,
+                    fault: what.clone(),
+                });
+            }
+        }
+        if fault == Fault::Uplink {
+            self.cut_off = cut_order.map(|o| (c, o));
         }
         self.active = Some(a);
         self.world.pump();
@@ -617,33 +762,52 @@ impl Run {
             return;
         };
         let now = self.world.now;
+        let c = a.cell;
         let w = &mut self.world;
         w.note(format!("CLEARED {}", a.fault));
+        let node = a.node.unwrap_or(Node::new(c, Role::Welding));
         match a.fault {
-            Fault::Crash => w.restart(a.node.unwrap_or(Node::Welding)),
-            Fault::EStop => w.rcm.control(now, Rcm::EStopClear),
+            Fault::Crash => w.restart(node),
+            Fault::EStop => w.part_mut(c).rcm.control(now, Rcm::EStopClear),
             Fault::LimitSwitch | Fault::Noise => {}
-            Fault::Unplug => w.plugged = true,
-            Fault::Jam => w.conveyor.control(now, Plc::Unjam(a.line.unwrap_or('A'))),
+            Fault::Unplug => w.part_mut(c).plugged = true,
+            Fault::Jam => {
+                let l = a.line.unwrap_or('A');
+                w.part_mut(c).conveyor.control(now, Plc::Unjam(l));
+            }
             Fault::Stuck => {
                 if let Some(p) = a.place {
-                    w.conveyor.control(now, Plc::Unstuck(p));
+                    w.part_mut(c).conveyor.control(now, Plc::Unstuck(p));
                 }
             }
-            Fault::Partition => w.cut(a.node.unwrap_or(Node::Welding), false),
+            Fault::Partition => w.cut(node, false),
             Fault::DiskFull => w.records.borrow_mut().failing = false,
-            Fault::Memory => w.set_recipe_memory(a.node.unwrap_or(Node::Welding), None),
+            Fault::Memory => w.set_recipe_memory(node, None),
+            Fault::Uplink => {
+                w.cut_uplink(c, false);
+                self.cut_off = None;
+            }
         }
-        self.way_back = true;
+        for (d, desk) in self.desks.iter_mut().enumerate() {
+            if a.plant_wide() || d == c {
+                desk.way_back = true;
+            }
+        }
         self.world.pump();
+    }
+
+    /// The index of the cell called `id`.
+    fn cell_index(&self, id: Option<&str>) -> Option<usize> {
+        let id = id?;
+        (0..self.world.cell_count()).find(|c| self.world.cell_id(*c).as_str() == id)
     }
 
     /// The invariants, after every step.
     fn check(&mut self) -> Result<(), Box<Violation>> {
         let now = self.world.now;
-        // No order runs twice.
+        // No order runs twice, on any cell.
         if let Some((id, n)) = self.world.started_twice {
-            return Err(self.violation(format!("order {id} was started {n} times at the cell")));
+            return Err(self.violation(format!("order {id} was started {n} times at the cells")));
         }
         // What a station confirmed as delivered, it holds; and no order
         // starts while a workstation lacks its recipes.
@@ -655,21 +819,18 @@ impl Run {
         }
         // Every order ends in the journal exactly once (entries so far).
         let rec = self.world.records.borrow();
-        // Each order end entry since the last step, and whether it is done.
-        let ended: Vec<(i64, bool)> = rec
+        // Each order end entry since the last step: the order, whether it
+        // is done, and its cell.
+        let ended: Vec<(i64, bool, Option<String>)> = rec
             .journal
             .iter()
             .skip(self.checked)
             .filter(|e| e.kind == EntryKind::Order)
             .filter_map(|e| end_of(&e.text))
             .map(|id| {
-                let done = rec
-                    .orders
-                    .iter()
-                    .rev()
-                    .find(|o| o.id == id)
-                    .is_some_and(|o| o.state == OrderState::Done);
-                (id, done)
+                let o = rec.orders.iter().rev().find(|o| o.id == id);
+                let done = o.is_some_and(|o| o.state == OrderState::Done);
+                (id, done, o.and_then(|o| o.cell.clone()))
             })
             .collect();
         self.checked = rec.journal.len();
@@ -703,7 +864,7 @@ impl Run {
                 STUCK.as_secs()
             )));
         }
-        for (id, done) in ended {
+        for (id, done, cell) in ended {
             let n = {
                 let n = self.ends.entry(id).or_default();
                 *n += 1;
@@ -713,14 +874,39 @@ impl Run {
                 return Err(self.violation(format!("order {id} ended {n} times in the journal")));
             }
             self.last_end = now;
-            if let Some((_, faults, before)) = self.production_since {
+            // A cell cut off keeps its order: nobody can know how it ended
+            // until the cell is heard again.
+            if self.cut_off.is_some_and(|(_, o)| o == id) {
+                let at = self.cut_off.map_or(0, |c| c.0);
+                return Err(self.violation(format!(
+                    "order {id} was ended in the records while its cell {} was cut off",
+                    self.world.cell_id(at)
+                )));
+            }
+            let c = self.cell_index(cell.as_deref());
+            // A fault in one cell fails no order of another.
+            if let Some(k) = self.spared.iter().position(|s| s.order == id) {
+                let s = self.spared.swap_remove(k);
+                let untouched = self.desks.get(s.cell).is_some_and(|d| d.hits == s.hits);
+                if !done && untouched && c == Some(s.cell) {
+                    return Err(self.violation(format!(
+                        "order {id} on {} did not end done though the only fault was elsewhere ({})",
+                        self.world.cell_id(s.cell),
+                        s.fault
+                    )));
+                }
+            }
+            let Some(desk) = c.and_then(|c| self.desks.get_mut(c)) else {
+                continue;
+            };
+            if let Some((_, hits, before)) = desk.production_since {
                 if id > before {
-                    if !done && faults == self.injected && self.active.is_none() {
+                    if !done && hits == desk.hits && self.active.is_none() {
                         return Err(self.violation(format!(
                             "order {id}, the first after the way back, did not end done though no fault came"
                         )));
                     }
-                    self.production_since = None;
+                    desk.production_since = None;
                 }
             }
         }
@@ -746,65 +932,96 @@ impl Run {
                 return Err(self.violation(what));
             }
         }
-        // No line button stays pressed while the conveyor is idle.
-        let idle = self.world.is_running(Node::Transport)
-            && !self.world.transport().is_running()
-            && self.world.transport().device.unavailable().is_none();
-        let held = LINES.iter().find(|l| {
-            Coil::Button(falc_recipe::check::Button::Line(**l))
-                .offset()
-                .and_then(|o| self.world.conveyor.coils().get(usize::from(o)).copied())
-                .unwrap_or(false)
-        });
-        if let (true, Some(l)) = (
-            lasting(&mut self.held_since, idle && held.is_some(), now) > HELD,
-            held,
-        ) {
-            return Err(self.violation(format!("line button {l} held with no transport job")));
-        }
-        // No robot program runs without a job that owns it.
-        let orphan = self.world.rcm.robot.running().is_some()
-            && !(self.world.is_running(Node::Welding) && self.world.welding().is_running());
-        if lasting(&mut self.orphan_since, orphan, now) > ORPHAN {
-            return Err(self.violation("a robot program runs with no job owning it".into()));
-        }
-        // A dead serial line is seen while a program of a job runs.
-        let unseen = !self.world.plugged
-            && self.world.is_running(Node::Welding)
-            && self.world.welding().device.program().is_some()
-            && self.world.welding().status().physical != PhysicalStatus::Inoperable;
-        if lasting(&mut self.silent_since, unseen, now) > SILENT {
-            return Err(self.violation(format!(
-                "the serial line is unplugged under a running program and the welding station has not seen it in {} s",
-                SILENT.as_secs()
-            )));
-        }
-        // A write that fails stops the cell: no order runs on with the
-        // journal behind.
-        let refused = self.world.records.borrow().refused();
-        let behind = refused > self.refused && self.world.cell.controller().is_running();
-        if !self.world.records.borrow().failing {
-            self.refused = refused;
-        }
-        if lasting(&mut self.behind_since, behind, now) > BEHIND {
-            return Err(self.violation(
-                "an order runs at the cell while the records cannot be written".into(),
-            ));
-        }
-        // The order list returns to production after the way back.
-        if let Some((since, _, _)) = self.production_since {
-            if now.saturating_sub(since) > STUCK && self.active.is_none() {
-                return Err(self.violation(format!(
-                    "no order done in {} s after the way back",
-                    STUCK.as_secs()
-                )));
-            }
+        for c in 0..self.desks.len() {
+            self.check_cell(c, now)?;
         }
         if now.saturating_sub(self.last_end) > STUCK && self.active.is_none() && !self.finished() {
             return Err(self.violation(format!("no order ended in {} s", STUCK.as_secs())));
         }
         Ok(())
     }
+
+    /// Cell `c`'s own invariants: its equipment, and its return to
+    /// production after the way back.
+    fn check_cell(&mut self, c: usize, now: Duration) -> Result<(), Box<Violation>> {
+        let w = &self.world;
+        let Some(desk) = self.desks.get_mut(c) else {
+            return Ok(());
+        };
+        let p = w.part(c);
+        let (transport, welding) = (Node::new(c, Role::Transport), Node::new(c, Role::Welding));
+        // No line button stays pressed while the conveyor is idle.
+        let idle = w.is_running(transport)
+            && !p.transport().is_running()
+            && p.transport().device.unavailable().is_none();
+        let held = LINES.iter().find(|l| {
+            Coil::Button(falc_recipe::check::Button::Line(**l))
+                .offset()
+                .and_then(|o| p.conveyor.coils().get(usize::from(o)).copied())
+                .unwrap_or(false)
+        });
+        let held_for = lasting(&mut desk.held_since, idle && held.is_some(), now);
+        // No robot program runs without a job that owns it.
+        let orphan =
+            p.rcm.robot.running().is_some() && !(w.is_running(welding) && p.welding().is_running());
+        let orphan_for = lasting(&mut desk.orphan_since, orphan, now);
+        // A dead serial line is seen while a program of a job runs.
+        let unseen = !p.plugged
+            && w.is_running(welding)
+            && p.welding().device.program().is_some()
+            && p.welding().status().physical != PhysicalStatus::Inoperable;
+        let silent_for = lasting(&mut desk.silent_since, unseen, now);
+        // A write that fails stops the cell: no order runs on with the
+        // journal behind.
+        let (refused, failing) = {
+            let rec = w.records.borrow();
+            (rec.refused_of(w.cell_id(c).as_str()), rec.failing)
+        };
+        let behind = refused > desk.refused && p.controller().is_running();
+        if !failing {
+            desk.refused = refused;
+        }
+        let behind_for = lasting(&mut desk.behind_since, behind, now);
+        // The order list returns to production after the way back.
+        let since = desk.production_since.map(|p| p.0);
+        let at = if w.cell_count() > 1 {
+            format!(" on {}", w.cell_id(c))
+        } else {
+            String::new()
+        };
+        if let (true, Some(l)) = (held_for > HELD, held) {
+            return Err(self.violation(format!("line button {l} held with no transport job{at}")));
+        }
+        if orphan_for > ORPHAN {
+            return Err(self.violation(format!("a robot program runs with no job owning it{at}")));
+        }
+        if silent_for > SILENT {
+            return Err(self.violation(format!(
+                "the serial line is unplugged under a running program and the welding station has not seen it in {} s{at}",
+                SILENT.as_secs()
+            )));
+        }
+        if behind_for > BEHIND {
+            return Err(self.violation(format!(
+                "an order runs{at} while the records cannot be written"
+            )));
+        }
+        if let Some(since) = since {
+            if now.saturating_sub(since) > STUCK && self.active.is_none() {
+                return Err(self.violation(format!(
+                    "no order done{at} in {} s after the way back",
+                    STUCK.as_secs()
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The order cell `c`'s list runs, if any.
+fn running_order(world: &World, c: usize) -> Option<i64> {
+    let s = world.order_list(c).status().ok()?;
+    s.running.map(|o| o.id)
 }
 
 /// How long a condition has held: `since` keeps when it began.
@@ -850,10 +1067,8 @@ fn unlisted_alarm(open: Vec<Alarm>, world: &World) -> Option<Alarm> {
     }
     // Once per step, not per alarm: a run that piles alarms up stays fast
     // enough to reach the invariant that catches it.
-    let listed: BTreeSet<i64> = world
-        .order_list()
-        .listed_alarms()
-        .iter()
+    let listed: BTreeSet<i64> = (0..world.cell_count())
+        .flat_map(|c| world.order_list(c).listed_alarms())
         .map(|a| a.id)
         .collect();
     open.into_iter().find(|a| !listed.contains(&a.id))

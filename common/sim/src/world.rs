@@ -1,19 +1,20 @@
-//! The whole cell wired together on one virtual clock: the operator's
-//! order list (records in memory), the cell controller, both workstations
-//! with their devices, the robot controller's twin behind a serial line
-//! with the 3964R procedure at both ends, and the conveyor's twin behind
-//! the I/O map. Every core is the one the nodes run; this module is their
-//! driver, as `falc_node` is on the real bus.
+//! A cell, or a plant of cells, wired together on one virtual clock: the
+//! operator's plant of order lists (records in memory), and in each cell
+//! the cell controller, both workstations with their devices, the robot
+//! controller's twin behind a serial line with the 3964R procedure at both
+//! ends, and the conveyor's twin behind the I/O map. Every core is the one
+//! the nodes run; this module is their driver, as `falc_node` is on the
+//! real bus.
 //!
 //! [`World::step`] advances the clock to the next thing due and handles
 //! everything due then; what the cores put out is carried to where it
 //! goes at once (and arrives after the bus's latency).
 
-use crate::bus::{Arrival, Bus, Link, Msg, Node};
+use crate::bus::{Arrival, Bus, Link, Msg, Node, Role};
 use crate::recipes::Shipped;
 use falc_control::cell_node::{CellAction, CellNode};
 use falc_control::controller::Controller;
-use falc_control::coordination::{workstation_domain, Awaiting, Reply};
+use falc_control::coordination::{workstation_domain, Awaiting, Reply, Stations};
 use falc_control::pass_on::PASS_LIMIT;
 use falc_control::workstation_node::{Linked, WorkstationAction, WorkstationNode};
 use falc_dnc::procedure::{Link as DncLink, Priority, Timing};
@@ -28,7 +29,7 @@ use falc_factory::records::memory::Memory;
 use falc_factory::records::shared::{plant, Shared};
 use falc_factory::records::Records;
 use falc_model::console::{ApiRequest, ApiResult};
-use falc_model::ids::{ObjectName, StationName};
+use falc_model::ids::{CellId, ObjectName, StationName};
 use falc_model::mms::association::Associations;
 use falc_model::mms::delivery::{Delivery, DeliveryStep, STEP_LIMIT};
 use falc_model::mms::domain::{content_hash, DomainState};
@@ -38,6 +39,7 @@ use falc_model::mms::journal::{Publication, ReportLog, ReportsAsked};
 use falc_model::mms::pdu::{Peer, Request, Response, Unconfirmed};
 use falc_model::mms::serving::{Action as Serve, Serving};
 use falc_model::mms::vmd::RECIPE_MEMORY;
+use falc_model::plant::Layout;
 use falc_model::topology::Topology;
 use falc_plc::conveyor::{Conveyor, Spot};
 use falc_plc::map::{Coil, Inputs, COILS};
@@ -53,6 +55,13 @@ use std::time::Duration;
 
 /// The shipped topology: operator, cell, welding, transport.
 const TOPOLOGY: &str = include_str!("../../../launch/cell.toml");
+
+/// The shipped cell (`launch/cell.toml`), a plant of one.
+pub fn shipped_cell() -> Result<Layout, String> {
+    Topology::parse(TOPOLOGY, "launch/cell.toml")
+        .map(Layout::Cell)
+        .map_err(|e| e.to_string())
+}
 /// How long one byte chunk takes on the serial line.
 const WIRE: Duration = Duration::from_millis(2);
 /// The transport's poll periods (the link's defaults).
@@ -79,21 +88,22 @@ struct Pending {
 /// Who waits for a confirm.
 #[derive(Debug)]
 enum Waiter {
-    /// The order list's cell call.
-    List,
-    /// The cell's request to a station or its operator (on that
+    /// Cell `c`'s order list's cell call.
+    List(usize),
+    /// Cell `c`'s request to a station or its operator (on that
     /// station's lane).
-    Cell(StationName, Awaiting),
+    Cell(usize, StationName, Awaiting),
     /// The order list's read of what a station kept.
     Kept(Node),
     /// A station's Initiate of its subordinate (for its [`Serving`]).
     Initiate(Node, StationName),
     /// A step of delivery `n` ([`World::deliveries`]).
     Delivery(u64),
-    /// The operator's Initiate of its cell, the root's ([`World::associate`]).
-    Associate(StationName),
-    /// A workstation's confirm of what the cell's pass-on asked (its id).
-    Pass(u64),
+    /// The operator's Initiate of cell `c`'s controller, the root's
+    /// ([`World::associate`]).
+    Associate(usize, StationName),
+    /// A workstation's confirm of what cell `c`'s pass-on asked (its id).
+    Pass(usize, u64),
 }
 
 /// A recipe delivery under way: its steps go over the bus one by one.
@@ -111,10 +121,10 @@ struct Delivering {
 /// Who takes a delivery's outcome.
 #[derive(Debug, Clone, Copy)]
 enum Then {
-    /// The order list (its delivery to the cell).
-    List,
-    /// The cell's pass-on ([`PassOn::handle_delivered`] with this id).
-    Pass(u64),
+    /// Cell `c`'s order list (its delivery to the cell).
+    List(usize),
+    /// Cell `c`'s pass-on ([`CellNode::handle_delivered`] with this id).
+    Pass(usize, u64),
 }
 
 /// A node's process: whether it runs, its session, its association
@@ -148,11 +158,11 @@ struct TransportNode {
     wrote: bool,
 }
 
-/// The operator's order list as `falc-operator` starts it.
+/// A cell's order list as `falc-operator` starts it.
 fn order_list(view: Shared, source: Shipped, set: RecipeSet) -> OrderList<Shared, Shipped> {
     OrderList::new(
-        station(Node::Operator),
-        station(Node::Cell),
+        name(Role::Operator),
+        name(Role::Cell),
         source.topology().clone(),
         view,
         source,
@@ -163,25 +173,25 @@ fn order_list(view: Shared, source: Shipped, set: RecipeSet) -> OrderList<Shared
 
 /// The cell controller's node as `falc-cell` starts it.
 fn cell_node(topology: &Topology) -> CellNode<(Node, u64)> {
-    let me = station(Node::Cell);
+    let me = name(Role::Cell);
     let alone = Associations::of(topology, &me).runs_alone();
     CellNode::new(
         me,
-        Some(station(Node::Operator)),
-        vec![station(Node::Welding), station(Node::Transport)],
+        Some(name(Role::Operator)),
+        vec![name(Role::Welding), name(Role::Transport)],
         alone,
     )
 }
 
-/// Workstation `n`'s node as `falc_node::controller_node` starts it.
+/// A workstation's node as `falc_node::controller_node` starts it.
 fn workstation_node<D: Linked>(
     topology: &Topology,
-    n: Node,
+    role: Role,
     kind: RecipeKind,
     confirm_limit: Duration,
     device: D,
 ) -> WorkstationNode<D, (Node, u64)> {
-    let me = station(n);
+    let me = name(role);
     let alone = Associations::of(topology, &me).runs_alone();
     WorkstationNode::new(me, kind, confirm_limit, device, alone)
 }
@@ -189,7 +199,7 @@ fn workstation_node<D: Linked>(
 fn welding_node(topology: &Topology, now: Duration, timing: Timing) -> WeldingNode {
     let device = Welding::new("sim-serial", &timing);
     let limit = workstation::confirm_limit(&timing);
-    let mut node = workstation_node(topology, Node::Welding, RecipeKind::Welding, limit, device);
+    let mut node = workstation_node(topology, Role::Welding, RecipeKind::Welding, limit, device);
     node.handle_link(now, LineEvent::Opened);
     WeldingNode {
         node,
@@ -200,7 +210,7 @@ fn welding_node(topology: &Topology, now: Duration, timing: Timing) -> WeldingNo
 fn transport_node(topology: &Topology, now: Duration, coils: &[bool]) -> TransportNode {
     let device = Plc::new("sim-plc:502".into());
     let kind = RecipeKind::Transport;
-    let mut node = workstation_node(topology, Node::Transport, kind, START_CONFIRM_LIMIT, device);
+    let mut node = workstation_node(topology, Role::Transport, kind, START_CONFIRM_LIMIT, device);
     let mut held = [false; COILS as usize];
     for (h, c) in held.iter_mut().zip(coils) {
         *h = *c;
@@ -217,9 +227,47 @@ fn transport_node(topology: &Topology, now: Duration, coils: &[bool]) -> Transpo
     }
 }
 
-fn station(n: Node) -> StationName {
+/// The station name of `role` (the shipped topologies' names, checked
+/// when the world is built).
+fn name(role: Role) -> StationName {
     // The four names are valid station names.
-    StationName::new(n.station()).unwrap_or_else(|e| unreachable!("{n}: {e}"))
+    StationName::new(role.station()).unwrap_or_else(|e| unreachable!("{role:?}: {e}"))
+}
+
+fn station(n: Node) -> StationName {
+    name(n.role)
+}
+
+/// The cell topologies of `layout`, each checked to have the stations
+/// the simulation drives: an operator over a cell controller over a
+/// welding and a transport workstation.
+fn cell_topologies(layout: &Layout) -> Result<Vec<Topology>, String> {
+    let cells: Vec<Topology> = match layout {
+        Layout::Cell(t) => vec![t.clone()],
+        Layout::Plant(p) => p.cells().iter().map(|c| c.topology().clone()).collect(),
+    };
+    for t in &cells {
+        let mut names: Vec<&str> = t.stations().iter().map(|s| s.name.as_str()).collect();
+        names.sort_unstable();
+        let mut want: Vec<&str> = Role::ALL.iter().map(|r| r.station()).collect();
+        want.sort_unstable();
+        let shape = Role::ALL.iter().skip(1).all(|r| {
+            let commander = match r {
+                Role::Cell => Role::Operator,
+                _ => Role::Cell,
+            };
+            t.commander_of(&name(*r)) == Some(&name(commander))
+        });
+        if names != want || !shape {
+            return Err(format!(
+                "cell {}: the simulation drives an operator over a cell controller `cell` over \
+                 `welding` and `transport`; the topology has {}",
+                t.cell(),
+                names.join(", ")
+            ));
+        }
+    }
+    Ok(cells)
 }
 
 /// What a console hears while the operator's process is down.
@@ -233,7 +281,66 @@ fn order_of(argument: &str) -> Option<i64> {
         .and_then(|s| s.parse().ok())
 }
 
-/// The whole cell.
+/// One cell's processes and equipment (the operator's place in it is
+/// the plant's).
+pub struct CellParts {
+    /// Its topology.
+    topology: Topology,
+    /// The cell controller's node, as `falc-cell` runs it; a ticket is
+    /// the indication's sender and id.
+    cell: CellNode<(Node, u64)>,
+    /// The commander's Starts the cell has not answered yet: their
+    /// tickets, and the order each names (counted once answered).
+    starting: BTreeMap<(Node, u64), i64>,
+    /// The welding workstation.
+    welding: WeldingNode,
+    /// The transport workstation.
+    transport: TransportNode,
+    /// The robot controller's twin.
+    pub rcm: RcmTwin,
+    /// Bytes on the serial line: (arrival, towards the twin, bytes).
+    wire: VecDeque<(Duration, bool, Vec<u8>)>,
+    /// The serial line is plugged in.
+    pub plugged: bool,
+    /// The conveyor's twin.
+    pub conveyor: Conveyor,
+}
+
+impl CellParts {
+    fn new(topology: Topology, time_scale: f64, timing: Timing) -> Result<Self, String> {
+        let home: Vec<Spot> = HOME.iter().filter_map(|s| Spot::parse(s)).collect();
+        let conveyor = Conveyor::new(&home, time_scale)?;
+        let now = Duration::ZERO;
+        Ok(Self {
+            cell: cell_node(&topology),
+            starting: BTreeMap::new(),
+            welding: welding_node(&topology, now, timing),
+            transport: transport_node(&topology, now, conveyor.coils()),
+            rcm: RcmTwin::new(Robot::new(Mode::AutomaticExternal, time_scale), timing),
+            wire: VecDeque::new(),
+            plugged: true,
+            conveyor,
+            topology,
+        })
+    }
+
+    /// The cell controller's recipe runtime.
+    pub fn controller(&self) -> &Controller<Stations> {
+        self.cell.controller()
+    }
+
+    /// The welding workstation's recipe runtime (its robot: `.device`).
+    pub fn welding(&self) -> &Controller<Welding> {
+        self.welding.node.controller()
+    }
+
+    /// The transport workstation's recipe runtime (its PLC: `.device`).
+    pub fn transport(&self) -> &Controller<Plc> {
+        self.transport.node.controller()
+    }
+}
+
+/// The whole cell, or plant.
 pub struct World {
     /// Virtual time since the start.
     pub now: Duration,
@@ -246,58 +353,45 @@ pub struct World {
     /// The records (durable: they survive an operator's restart).
     pub records: Rc<RefCell<Memory>>,
     /// The operator's plant, as `falc-operator` runs it: a cell of its
-    /// own is a plant of one (its order list: [`Self::order_list`]).
+    /// own is a plant of one (cell `c`'s order list: [`Self::order_list`]).
     pub plant: Plant<Shared, Shipped>,
-    /// A second handle on the records and the recipe store, for an
+    /// A second handle on each cell's records and recipe store, for an
     /// operator started again.
-    durable: (Shared, Shipped),
+    durable: Vec<(Shared, Shipped)>,
     /// Console requests up to this ticket that were not answered when the
     /// operator died are refused (its API went with it).
     lost_before: u64,
     tickets: u64,
     /// Console answers not taken yet.
     replies: BTreeMap<Ticket, ApiResult>,
-    /// The cell's indications at the operator: ticket → request id.
+    /// The cells' indications at the operator: ticket → request id.
     indications: BTreeMap<Ticket, u64>,
-    /// The cell controller's node, as `falc-cell` runs it; a ticket is
-    /// the indication's sender and id.
-    pub cell: CellNode<(Node, u64)>,
-    /// The commander's Starts the cell has not answered yet: their
-    /// tickets, and the order each names (counted once answered).
-    starting: BTreeMap<(Node, u64), i64>,
-    /// The cell's stations.
-    topology: Topology,
+    /// The cells.
+    cells: Vec<CellParts>,
     /// How long a silent peer is still taken for present (the topology's).
     lease: Duration,
-    /// The welding workstation.
-    welding: WeldingNode,
-    /// The transport workstation.
-    transport: TransportNode,
     /// Each node's process and associations.
     ups: BTreeMap<Node, Up>,
-    /// The robot controller's twin.
-    pub rcm: RcmTwin,
-    /// Bytes on the serial line: (arrival, towards the twin, bytes).
-    wire: VecDeque<(Duration, bool, Vec<u8>)>,
-    /// The serial line is plugged in.
-    pub plugged: bool,
-    /// The conveyor's twin.
-    pub conveyor: Conveyor,
     timing: Timing,
     pending: BTreeMap<u64, Pending>,
     next_id: u64,
     /// Deliveries under way, by number.
     deliveries: BTreeMap<u64, Delivering>,
-    /// Abort indications due when a lease runs out: (when, node).
-    leases: Vec<(Duration, Node)>,
-    /// Nodes cut off whose lease ran out: parted from the router until
+    /// Abort indications due when a lease runs out: (when, what parted).
+    leases: Vec<(Duration, Parting)>,
+    /// Nodes cut off whose lease ran out: parted from their router until
     /// joined again.
     parted: std::collections::BTreeSet<Node>,
+    /// Cells whose uplink was cut for longer than the lease: parted from
+    /// the operator until joined again.
+    parted_cells: std::collections::BTreeSet<usize>,
     /// Cell-level Starts confirmed, per order id.
     pub starts: BTreeMap<i64, u32>,
+    /// The highest order id each cell confirmed a Start of (0: none).
+    pub last_started: Vec<i64>,
     /// The first order started more than once, and how often.
     pub started_twice: Option<(i64, u32)>,
-    /// The first order the cell started while a workstation lacked a
+    /// The first order a cell started while a workstation lacked a
     /// recipe the cell holds for it.
     pub started_lacking: Option<String>,
     /// The first delivery confirmed whose receiver does not hold it.
@@ -314,54 +408,69 @@ pub struct World {
     runs: u64,
 }
 
+/// What a cut parts when its lease runs out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Parting {
+    /// A node's link to its router.
+    Node(Node),
+    /// A cell's uplink to the factory router.
+    Uplink(usize),
+}
+
 impl World {
-    /// A cell at rest at time zero, the twins at `time_scale`, the bus
-    /// with `link` for every node; `seed` drives every random choice.
-    pub fn new(seed: u64, time_scale: f64, link: Link) -> Result<Self, String> {
-        let topology = Topology::parse(TOPOLOGY, "launch/cell.toml").map_err(|e| e.to_string())?;
-        let source = Shipped::new(topology.clone(), station(Node::Cell));
-        let set = source.load().map_err(|p| p.join("\n"))?;
-        let mut views = plant(&[topology.cell().as_str()]);
-        let mut view = views.pop().ok_or("no records")?;
-        // What the list writes as it starts is stamped at the run's start.
-        view.set_now(EPOCH_MS);
-        let records = view.all.clone();
-        let durable = (view.clone(), source.clone());
-        let list = order_list(view, source, set);
+    /// The cells of `layout` at rest at time zero, the twins at
+    /// `time_scale`, the bus with `link` for every node (and uplink, in a
+    /// plant); `seed` drives every random choice.
+    pub fn new(layout: &Layout, seed: u64, time_scale: f64, link: Link) -> Result<Self, String> {
+        let topologies = cell_topologies(layout)?;
+        let lease = topologies
+            .first()
+            .map(Topology::lease)
+            .ok_or("the layout has no cell")?;
+        let ids: Vec<&str> = topologies.iter().map(|t| t.cell().as_str()).collect();
+        let views = plant(&ids);
+        let records = views.first().map(|v| v.all.clone()).ok_or("no records")?;
         let timing = Timing::default();
-        let home: Vec<Spot> = HOME.iter().filter_map(|s| Spot::parse(s)).collect();
-        let conveyor = Conveyor::new(&home, time_scale)?;
+        let mut lists = Vec::new();
+        let mut durable = Vec::new();
+        let mut cells = Vec::new();
+        for (topology, mut view) in topologies.into_iter().zip(views) {
+            let source = Shipped::new(topology.clone(), name(Role::Cell));
+            let set = source.load().map_err(|p| p.join("\n"))?;
+            // What the list writes as it starts is stamped at the run's start.
+            view.set_now(EPOCH_MS);
+            durable.push((view.clone(), source.clone()));
+            lists.push(order_list(view, source, set));
+            cells.push(CellParts::new(topology, time_scale, timing)?);
+        }
+        let uplinks = match layout {
+            Layout::Cell(_) => 0,
+            Layout::Plant(_) => cells.len(),
+        };
         let now = Duration::ZERO;
-        let transport = transport_node(&topology, now, conveyor.coils());
-        let cell = cell_node(&topology);
         let mut w = Self {
             now,
             steps: 0,
             rng: StdRng::seed_from_u64(seed),
-            bus: Bus::new(link),
+            bus: Bus::new(link, uplinks),
             records,
-            plant: Plant::new(vec![list]),
+            plant: Plant::new(lists),
             durable,
             lost_before: 0,
             tickets: 0,
             replies: BTreeMap::new(),
             indications: BTreeMap::new(),
-            cell,
-            starting: BTreeMap::new(),
-            lease: topology.lease(),
-            welding: welding_node(&topology, now, timing),
-            transport,
+            last_started: vec![0; cells.len()],
+            cells,
+            lease,
             ups: BTreeMap::new(),
-            rcm: RcmTwin::new(Robot::new(Mode::AutomaticExternal, time_scale), timing),
-            wire: VecDeque::new(),
-            plugged: true,
-            conveyor,
             timing,
             pending: BTreeMap::new(),
             next_id: 0,
             deliveries: BTreeMap::new(),
             leases: Vec::new(),
             parted: Default::default(),
+            parted_cells: Default::default(),
             starts: BTreeMap::new(),
             started_twice: None,
             false_delivery: None,
@@ -370,40 +479,66 @@ impl World {
             trace: VecDeque::new(),
             kept: BTreeMap::new(),
             runs: 0,
-            topology,
         };
-        for n in Node::ALL {
-            w.new_run(n);
-        }
-        for n in [Node::Cell, Node::Welding, Node::Transport] {
-            w.list().handle_presence(now, station(n), true);
+        for c in 0..w.cells.len() {
+            for n in Node::all_of(c) {
+                w.new_run(n);
+            }
+            for r in [Role::Cell, Role::Welding, Role::Transport] {
+                w.list(c).handle_presence(now, name(r), true);
+            }
         }
         w.pump();
         Ok(w)
     }
 
-    /// The cell's order list in the operator's plant.
-    fn list(&mut self) -> &mut OrderList<Shared, Shipped> {
+    /// How many cells.
+    pub fn cell_count(&self) -> usize {
+        self.cells.len()
+    }
+
+    /// Cell `c`'s id in the topology.
+    pub fn cell_id(&self, c: usize) -> &CellId {
+        self.part(c).topology.cell()
+    }
+
+    /// Cell `c`'s processes and equipment.
+    pub fn part(&self, c: usize) -> &CellParts {
+        self.cells
+            .get(c)
+            .unwrap_or_else(|| unreachable!("cell {c} of {}", self.cells.len()))
+    }
+
+    /// Cell `c`'s processes and equipment, to change (its twins).
+    pub fn part_mut(&mut self, c: usize) -> &mut CellParts {
+        let n = self.cells.len();
+        self.cells
+            .get_mut(c)
+            .unwrap_or_else(|| unreachable!("cell {c} of {n}"))
+    }
+
+    /// Cell `c`'s order list in the operator's plant.
+    fn list(&mut self, c: usize) -> &mut OrderList<Shared, Shipped> {
         self.plant
-            .list(0)
-            .unwrap_or_else(|| unreachable!("a plant of one cell has its list"))
+            .list(c)
+            .unwrap_or_else(|| unreachable!("the plant has a list per cell"))
     }
 
-    /// The welding workstation's recipe runtime (its robot: `.device`).
-    pub fn welding(&self) -> &Controller<Welding> {
-        self.welding.node.controller()
+    /// Cell `c`'s welding workstation's recipe runtime.
+    pub fn welding(&self, c: usize) -> &Controller<Welding> {
+        self.part(c).welding()
     }
 
-    /// The transport workstation's recipe runtime (its PLC: `.device`).
-    pub fn transport(&self) -> &Controller<Plc> {
-        self.transport.node.controller()
+    /// Cell `c`'s transport workstation's recipe runtime.
+    pub fn transport(&self, c: usize) -> &Controller<Plc> {
+        self.part(c).transport()
     }
 
-    /// The cell's order list, to read.
-    pub fn order_list(&self) -> &OrderList<Shared, Shipped> {
+    /// Cell `c`'s order list, to read.
+    pub fn order_list(&self, c: usize) -> &OrderList<Shared, Shipped> {
         self.plant
-            .list_at(0)
-            .unwrap_or_else(|| unreachable!("a plant of one cell has its list"))
+            .list_at(c)
+            .unwrap_or_else(|| unreachable!("the plant has a list per cell"))
     }
 
     /// Notes a line in the trace.
@@ -419,18 +554,20 @@ impl World {
         ));
     }
 
-    /// A console request as `user`; its answer comes later ([`Self::reply`]).
-    pub fn api(&mut self, user: &str, request: ApiRequest) -> Ticket {
+    /// A console request as `user`, for cell `cell` (None: as the
+    /// console gives no `--cell`); its answer comes later ([`Self::reply`]).
+    pub fn api(&mut self, user: &str, cell: Option<usize>, request: ApiRequest) -> Ticket {
         self.tickets += 1;
         let t = Ticket(self.tickets);
         self.note(format!("console {user}: {request:?}"));
+        let cell = cell.map(|c| self.cell_id(c).clone());
         match StationName::new(user) {
-            Ok(_) if !self.is_running(Node::Operator) => {
+            Ok(_) if !self.operator_runs() => {
                 self.replies.insert(t, Err(NO_OPERATOR.into()));
             }
             Ok(u) => {
                 let now = self.now;
-                self.plant.handle_api(now, t, &u, None, request);
+                self.plant.handle_api(now, t, &u, cell.as_ref(), request);
             }
             Err(e) => {
                 self.replies.insert(t, Err(e.to_string()));
@@ -450,6 +587,11 @@ impl World {
     /// Whether `n`'s process runs.
     pub fn is_running(&self, n: Node) -> bool {
         self.ups.get(&n).map_or(true, |u| u.running)
+    }
+
+    /// Whether the operator's process runs.
+    pub fn operator_runs(&self) -> bool {
+        self.is_running(Node::operator(0))
     }
 
     /// The virtual clock's time as the records stamp it.
@@ -473,29 +615,40 @@ impl World {
         }
     }
 
+    /// The places `n`'s process has: the operator's in every cell, any
+    /// other its own.
+    fn places(&self, n: Node) -> Vec<Node> {
+        match n.role {
+            Role::Operator => (0..self.cells.len()).map(Node::operator).collect(),
+            _ => vec![n],
+        }
+    }
+
     /// When something is next due.
     fn next_due(&self) -> Option<Duration> {
-        let mut t = [
+        let op = self.operator_runs();
+        let plant = [
             self.bus.poll_timeout(),
-            self.plant
-                .poll_timeout()
-                .filter(|_| self.is_running(Node::Operator)),
-            self.cell
-                .poll_timeout()
-                .filter(|_| self.is_running(Node::Cell)),
-            self.welding.node.poll_timeout(),
-            self.welding.link.poll_timeout(),
-            self.rcm.poll_timeout(),
-            self.wire.iter().map(|w| w.0).min(),
-            self.transport.node.poll_timeout(),
-            Some(self.transport.next_poll),
-            self.conveyor.poll_timeout(),
+            self.plant.poll_timeout().filter(|_| op),
+        ];
+        let cells = self.cells.iter().enumerate().flat_map(|(c, p)| {
+            let cell = self.is_running(Node::new(c, Role::Cell));
+            [
+                p.cell.poll_timeout().filter(|_| cell),
+                p.welding.node.poll_timeout(),
+                p.welding.link.poll_timeout(),
+                p.rcm.poll_timeout(),
+                p.wire.iter().map(|w| w.0).min(),
+                p.transport.node.poll_timeout(),
+                Some(p.transport.next_poll),
+                p.conveyor.poll_timeout(),
+            ]
+        });
+        let rest = [
             self.pending.values().map(|p| p.deadline).min(),
             self.leases.iter().map(|l| l.0).min(),
-        ]
-        .into_iter()
-        .flatten()
-        .min();
+        ];
+        let mut t = plant.into_iter().chain(cells).chain(rest).flatten().min();
         if let Some(x) = &mut t {
             *x = (*x).max(self.now);
         }
@@ -531,66 +684,86 @@ impl World {
             }
         }
         // Leases.
-        let due: Vec<Node> = self
+        let due: Vec<Parting> = self
             .leases
             .iter()
             .filter(|l| l.0 <= now)
             .map(|l| l.1)
             .collect();
         self.leases.retain(|l| l.0 > now);
-        for n in due {
-            if self.bus.is_cut(n) {
-                self.parted.insert(n);
-                self.lost(n);
+        for p in due {
+            match p {
+                Parting::Node(n) if self.bus.is_cut(n) => {
+                    self.parted.extend(self.places(n));
+                    self.lost(n);
+                }
+                Parting::Uplink(c) if self.bus.is_uplink_cut(c) => {
+                    self.parted_cells.insert(c);
+                    self.lost_uplink(c);
+                }
+                Parting::Node(_) | Parting::Uplink(_) => {}
             }
         }
         // Clocks.
-        if self.is_running(Node::Operator) && self.plant.poll_timeout().is_some_and(|t| t <= now) {
+        if self.operator_runs() && self.plant.poll_timeout().is_some_and(|t| t <= now) {
             self.plant.handle_timeout(now);
         }
-        if self.is_running(Node::Cell) && self.cell.poll_timeout().is_some_and(|t| t <= now) {
-            self.cell.handle_timeout(now);
-        }
-        if self.welding.node.poll_timeout().is_some_and(|t| t <= now) {
-            self.welding.node.handle_timeout(now);
-        }
-        if self.welding.link.poll_timeout().is_some_and(|t| t <= now) {
-            self.welding.link.handle_timeout(now);
-        }
-        if self.rcm.poll_timeout().is_some_and(|t| t <= now) {
-            self.rcm.handle_timeout(now);
-        }
-        while let Some(i) = self.wire.iter().position(|w| w.0 <= now) {
-            let Some((_, to_twin, bytes)) = self.wire.remove(i) else {
-                break;
-            };
-            if !self.plugged {
-                continue;
-            }
-            if to_twin {
-                self.rcm.handle_bytes(now, &bytes);
-            } else if self.is_running(Node::Welding) {
-                self.welding.link.handle_bytes(now, &bytes);
-            }
-        }
-        if self.transport.node.poll_timeout().is_some_and(|t| t <= now) {
-            self.transport.node.handle_timeout(now);
-        }
-        if self.conveyor.poll_timeout().is_some_and(|t| t <= now) {
-            self.conveyor.handle_timeout(now);
-        }
-        if self.transport.next_poll <= now {
-            self.poll_plc();
+        for c in 0..self.cells.len() {
+            self.clocks(c);
         }
         self.pump();
     }
 
-    /// The transport's Modbus poll: the inputs as the PLC has them, handed
-    /// on when they changed or after a write (as `falc_node::plc_link`).
-    fn poll_plc(&mut self) {
+    /// Cell `c`'s timers due now.
+    fn clocks(&mut self, c: usize) {
         let now = self.now;
-        let running = self.is_running(Node::Transport);
-        let t = &mut self.transport;
+        let cell_runs = self.is_running(Node::new(c, Role::Cell));
+        let welding_runs = self.is_running(Node::new(c, Role::Welding));
+        let p = self.part_mut(c);
+        if cell_runs && p.cell.poll_timeout().is_some_and(|t| t <= now) {
+            p.cell.handle_timeout(now);
+        }
+        if p.welding.node.poll_timeout().is_some_and(|t| t <= now) {
+            p.welding.node.handle_timeout(now);
+        }
+        if p.welding.link.poll_timeout().is_some_and(|t| t <= now) {
+            p.welding.link.handle_timeout(now);
+        }
+        if p.rcm.poll_timeout().is_some_and(|t| t <= now) {
+            p.rcm.handle_timeout(now);
+        }
+        while let Some(i) = p.wire.iter().position(|w| w.0 <= now) {
+            let Some((_, to_twin, bytes)) = p.wire.remove(i) else {
+                break;
+            };
+            if !p.plugged {
+                continue;
+            }
+            if to_twin {
+                p.rcm.handle_bytes(now, &bytes);
+            } else if welding_runs {
+                p.welding.link.handle_bytes(now, &bytes);
+            }
+        }
+        if p.transport.node.poll_timeout().is_some_and(|t| t <= now) {
+            p.transport.node.handle_timeout(now);
+        }
+        if p.conveyor.poll_timeout().is_some_and(|t| t <= now) {
+            p.conveyor.handle_timeout(now);
+        }
+        if p.transport.next_poll <= now {
+            self.poll_plc(c);
+        }
+    }
+
+    /// Cell `c`'s transport's Modbus poll: the inputs as the PLC has them,
+    /// handed on when they changed or after a write (as
+    /// `falc_node::plc_link`).
+    fn poll_plc(&mut self, c: usize) {
+        let now = self.now;
+        let running = self.is_running(Node::new(c, Role::Transport));
+        let p = self.part_mut(c);
+        let t = &mut p.transport;
         t.next_poll = now
             + match t.pace {
                 Pace::Busy => POLL_BUSY,
@@ -599,8 +772,8 @@ impl World {
         if !running {
             return;
         }
-        self.conveyor.handle_timeout(now);
-        let inputs = self.conveyor.inputs();
+        p.conveyor.handle_timeout(now);
+        let inputs = p.conveyor.inputs();
         if t.wrote || t.last != Some(inputs) {
             t.wrote = false;
             t.last = Some(inputs);
@@ -618,16 +791,30 @@ impl World {
     /// Carries what every core put out to where it goes, until all are
     /// quiet.
     pub fn pump(&mut self) {
-        // The order list's outputs all go on the bus: once is enough.
+        // The order lists' outputs all go on the bus: once is enough.
         self.pump_list();
         for _ in 0..64 {
-            let mut busy = self.pump_cell();
-            busy |= self.pump_welding();
-            busy |= self.pump_transport();
+            let mut busy = false;
+            for c in 0..self.cells.len() {
+                busy |= self.pump_cell(c);
+                busy |= self.pump_welding(c);
+                busy |= self.pump_transport(c);
+            }
             if !busy {
                 return;
             }
         }
+    }
+
+    /// Whether `a` and `b` are parted from each other's router: no route.
+    fn is_parted(&self, a: Node, b: Node) -> bool {
+        // Between the operator and a cell's station: across that cell's
+        // uplink.
+        let across = a.is_operator() != b.is_operator();
+        let cut_off = |n: Node| !n.is_operator() && self.parted_cells.contains(&n.cell);
+        self.parted.contains(&a)
+            || self.parted.contains(&b)
+            || (across && (cut_off(a) || cut_off(b)))
     }
 
     fn request(
@@ -643,7 +830,7 @@ impl World {
         // A session parted from its router (its lease ran out while cut)
         // knows no queryable: zenoh ends such a query at once, with no
         // reply (at the next step here).
-        let parted = self.parted.contains(&from) || self.parted.contains(&to);
+        let parted = self.is_parted(from, to);
         let deadline = if parted { self.now } else { self.now + limit };
         self.pending.insert(
             id,
@@ -666,18 +853,18 @@ impl World {
             .send(now, from, to, Msg::Response { id, result }, &mut self.rng);
     }
 
-    /// The stations whose reports the order list has not all filed: each
-    /// running station's current run, as far as the list heard it, must be
+    /// The stations whose reports the order lists have not all filed: each
+    /// running station's current run, as far as its list heard it, must be
     /// filed up to its last report (what a cut kept read back).
     pub fn unfiled(&self) -> Vec<String> {
-        if !self.is_running(Node::Operator) {
+        if !self.operator_runs() {
             return Vec::new();
         }
         self.kept
             .iter()
             .filter(|(n, _)| self.is_running(**n))
             .filter_map(|(n, log)| {
-                let (run, last, holes) = self.order_list().filed(&station(*n))?;
+                let (run, last, holes) = self.order_list(n.cell).filed(&station(*n))?;
                 (run == log.run() && (last != log.last() || holes > 0)).then(|| {
                     format!(
                         "{n} made {} reports in run {run}; the list filed up to {last}, \
@@ -702,10 +889,10 @@ impl World {
         let up = Up {
             running: true,
             session,
-            serving: Serving::of(&self.topology, me),
+            serving: Serving::of(&self.part(n.cell).topology, me),
         };
         self.ups.insert(n, up);
-        if n != Node::Operator {
+        if !n.is_operator() {
             self.kept.insert(n, ReportLog::new(run));
         }
     }
@@ -720,10 +907,11 @@ impl World {
                 message: u,
             },
         };
-        let to: &[Node] = match from {
-            Node::Welding | Node::Transport => &[Node::Operator, Node::Cell],
-            Node::Cell => &[Node::Operator],
-            Node::Operator => &[],
+        let c = from.cell;
+        let to: &[Node] = match from.role {
+            Role::Welding | Role::Transport => &[Node::operator(c), Node::new(c, Role::Cell)],
+            Role::Cell => &[Node::operator(c)],
+            Role::Operator => &[],
         };
         let now = self.now;
         for t in to {
@@ -733,36 +921,37 @@ impl World {
     }
 
     fn pump_list(&mut self) {
-        if !self.is_running(Node::Operator) {
+        if !self.operator_runs() {
             return;
         }
         while let Some(out) = self.plant.poll_output() {
-            let out = match out {
+            let (c, out) = match out {
                 PlantOutput::Reply { ticket, result } => {
                     self.replies.insert(ticket, *result);
                     continue;
                 }
-                PlantOutput::Cell(_, out) => out,
+                PlantOutput::Cell(c, out) => (c, out),
             };
+            let (me, cell) = (Node::operator(c), Node::new(c, Role::Cell));
             match out {
-                ListOutput::Cell(CellCall::Associate) => self.associate(),
-                ListOutput::Cell(call) => match call.request(&self.peer(Node::Operator)) {
+                ListOutput::Cell(CellCall::Associate) => self.associate(c),
+                ListOutput::Cell(call) => match call.request(&self.peer(me)) {
                     Ok(request) => self.request(
-                        Node::Operator,
-                        Node::Cell,
+                        me,
+                        cell,
                         |id| Msg::Request { id, request },
                         CELL_LIMIT,
-                        Waiter::List,
+                        Waiter::List(c),
                     ),
                     Err(d) => {
                         let delivery =
-                            Delivery::new(station(Node::Cell), d.domain, &d.content, d.is_cell);
-                        self.deliver(Node::Operator, delivery, Then::List);
+                            Delivery::new(name(Role::Cell), d.domain, &d.content, d.is_cell);
+                        self.deliver(me, delivery, Then::List(c));
                     }
                 },
                 ListOutput::Respond { ticket, result } => {
                     if let Some(id) = self.indications.remove(&ticket) {
-                        self.respond(Node::Operator, Node::Cell, id, result);
+                        self.respond(me, cell, id, result);
                     }
                 }
                 ListOutput::Forget(ticket) => {
@@ -770,164 +959,186 @@ impl World {
                     // responder is dropped with no reply, at once.
                     if let Some(id) = self.indications.remove(&ticket) {
                         let e = ServiceError::unreachable("no reply to the question (dropped)");
-                        self.respond(Node::Operator, Node::Cell, id, Err(e));
+                        self.respond(me, cell, id, Err(e));
                     }
                 }
                 ListOutput::Say(line) => self.note(format!("operator: {line}")),
                 ListOutput::Changed => {}
                 ListOutput::ReadReports { station, after } => {
-                    if let Some(to) = Node::of(&station) {
+                    if let Some(to) = Node::of(c, &station) {
                         let msg = move |id| Msg::ReadKept { id, after };
-                        self.request(Node::Operator, to, msg, CELL_LIMIT, Waiter::Kept(to));
+                        self.request(me, to, msg, CELL_LIMIT, Waiter::Kept(to));
                     }
                 }
             }
         }
     }
 
-    fn pump_cell(&mut self) -> bool {
-        if !self.is_running(Node::Cell) {
+    fn pump_cell(&mut self, c: usize) -> bool {
+        let me = Node::new(c, Role::Cell);
+        if !self.is_running(me) {
             return false;
         }
         let mut any = false;
-        while let Some(action) = self.cell.poll(self.now) {
+        loop {
+            let now = self.now;
+            let Some(action) = self.part_mut(c).cell.poll(now) else {
+                break;
+            };
             any = true;
             match action {
                 CellAction::Request(cmd) => {
-                    let Some(to) = Node::of(&cmd.to) else {
+                    let Some(to) = Node::of(c, &cmd.to) else {
                         let e = ServiceError::unreachable(format!("no station {}", cmd.to));
                         let reply = Reply {
                             awaiting: cmd.awaiting,
                             result: Err(e),
                         };
-                        self.cell.handle_reply(self.now, &cmd.to, reply);
+                        let now = self.now;
+                        self.part_mut(c).cell.handle_reply(now, &cmd.to, reply);
                         continue;
                     };
                     let request = cmd.request;
                     self.request(
-                        Node::Cell,
+                        me,
                         to,
                         |id| Msg::Request { id, request },
                         cmd.limit,
-                        Waiter::Cell(cmd.to, cmd.awaiting),
+                        Waiter::Cell(c, cmd.to, cmd.awaiting),
                     );
                 }
                 CellAction::Answer {
                     ticket: (to, id),
                     result,
                 } => {
-                    if let (Some(n), true) = (self.starting.remove(&(to, id)), result.is_ok()) {
-                        self.started(n);
+                    let starting = self.part_mut(c).starting.remove(&(to, id));
+                    if let (Some(n), true) = (starting, result.is_ok()) {
+                        self.started(c, n);
                     }
-                    self.respond(Node::Cell, to, id, result)
+                    self.respond(me, to, id, result)
                 }
-                CellAction::Ask { id, to, request } => match Node::of(&to) {
+                CellAction::Ask { id, to, request } => match Node::of(c, &to) {
                     Some(ws) => self.request(
-                        Node::Cell,
+                        me,
                         ws,
                         |id| Msg::Request { id, request },
                         PASS_LIMIT,
-                        Waiter::Pass(id),
+                        Waiter::Pass(c, id),
                     ),
                     None => {
                         let e = ServiceError::unreachable(format!("no station {to}"));
-                        self.cell.handle_confirm(id, Err(e));
+                        self.part_mut(c).cell.handle_confirm(id, Err(e));
                     }
                 },
                 CellAction::Deliver { id, delivery } => {
-                    self.deliver(Node::Cell, delivery, Then::Pass(id));
+                    self.deliver(me, delivery, Then::Pass(c, id));
                 }
                 CellAction::Delivered { to, name } => {
-                    self.note(format!("cell: {name} delivered to {to}"));
+                    self.note(format!("{me}: {name} delivered to {to}"));
                 }
-                CellAction::Warn(text) => self.note(format!("cell: {text}")),
-                CellAction::Publish(u) => self.publish(Node::Cell, u),
+                CellAction::Warn(text) => self.note(format!("{me}: {text}")),
+                CellAction::Publish(u) => self.publish(me, u),
             }
         }
         any
     }
 
-    /// Carries what the welding node decided: its telegrams over the
-    /// 3964R link to the line (as `falc_node::dnc_link`'s task), what the
-    /// link reports back to the node, until both are quiet.
-    fn pump_welding(&mut self) -> bool {
-        if !self.is_running(Node::Welding) {
+    /// Carries what cell `c`'s welding node decided: its telegrams over
+    /// the 3964R link to the line (as `falc_node::dnc_link`'s task), what
+    /// the link reports back to the node, until both are quiet.
+    fn pump_welding(&mut self, c: usize) -> bool {
+        let me = Node::new(c, Role::Welding);
+        if !self.is_running(me) {
             return false;
         }
         let mut any = false;
         let now = self.now;
         loop {
-            while let Some(a) = self.welding.node.poll(now) {
+            while let Some(a) = self.part_mut(c).welding.node.poll(now) {
                 any = true;
-                if let Some(t) = self.carry_workstation(Node::Welding, a) {
-                    self.welding.link.send(now, t.encode());
+                if let Some(t) = self.carry_workstation(me, a) {
+                    self.part_mut(c).welding.link.send(now, t.encode());
                 }
             }
+            let p = self.part_mut(c);
             let mut more = false;
-            while let Some(ev) = self.welding.link.poll_event() {
+            while let Some(ev) = p.welding.link.poll_event() {
                 more = true;
-                self.welding.node.handle_link(now, LineEvent::Link(ev));
+                p.welding.node.handle_link(now, LineEvent::Link(ev));
             }
-            while let Some(bytes) = self.welding.link.poll_transmit() {
-                self.wire.push_back((now + WIRE, true, bytes));
+            while let Some(bytes) = p.welding.link.poll_transmit() {
+                p.wire.push_back((now + WIRE, true, bytes));
             }
             if !more {
                 break;
             }
         }
-        while let Some(bytes) = self.rcm.poll_transmit() {
-            self.wire.push_back((now + WIRE, false, bytes));
+        let p = self.part_mut(c);
+        while let Some(bytes) = p.rcm.poll_transmit() {
+            p.wire.push_back((now + WIRE, false, bytes));
         }
-        while let Some(note) = self.rcm.poll_note() {
+        let mut troubles = Vec::new();
+        while let Some(note) = p.rcm.poll_note() {
             // Each telegram received is too many lines for the trace.
             if let Note::Trouble(why) = note {
-                self.note(format!("rcm: {why}"));
+                troubles.push(why);
             }
+        }
+        for why in troubles {
+            self.note(format!("rcm{}: {why}", at_cell(c)));
         }
         any
     }
 
-    /// Carries what the transport node decided: its commands to the
-    /// conveyor's twin (as `falc_node::plc_link`'s task writes coils and
-    /// sets its pace).
-    fn pump_transport(&mut self) -> bool {
-        if !self.is_running(Node::Transport) {
+    /// Carries what cell `c`'s transport node decided: its commands to
+    /// the conveyor's twin (as `falc_node::plc_link`'s task writes coils
+    /// and sets its pace).
+    fn pump_transport(&mut self, c: usize) -> bool {
+        let me = Node::new(c, Role::Transport);
+        if !self.is_running(me) {
             return false;
         }
         let mut any = false;
         let now = self.now;
-        while let Some(a) = self.transport.node.poll(now) {
+        while let Some(a) = self.part_mut(c).transport.node.poll(now) {
             any = true;
-            match self.carry_workstation(Node::Transport, a) {
+            let command = self.carry_workstation(me, a);
+            let p = self.part_mut(c);
+            match command {
                 Some(PlcCommand::Write(coil, v)) => {
-                    self.write_coil(coil, v);
-                    self.transport.done += 1;
-                    self.transport.wrote = true;
+                    write_coil(&mut p.conveyor, now, coil, v);
+                    p.transport.done += 1;
+                    p.transport.wrote = true;
                 }
                 Some(PlcCommand::WriteAll(values)) => {
                     for (o, v) in values.iter().enumerate() {
                         if let Some(coil) = Coil::at(o as u16) {
-                            self.write_coil(coil, *v);
+                            write_coil(&mut p.conveyor, now, coil, *v);
                         }
                     }
-                    self.transport.done += 1;
-                    self.transport.wrote = true;
+                    p.transport.done += 1;
+                    p.transport.wrote = true;
                 }
-                Some(PlcCommand::Pace(p)) => {
-                    self.transport.pace = p;
-                    if p == Pace::Busy {
-                        self.transport.next_poll = self.transport.next_poll.min(now + POLL_BUSY);
+                Some(PlcCommand::Pace(pace)) => {
+                    p.transport.pace = pace;
+                    if pace == Pace::Busy {
+                        p.transport.next_poll = p.transport.next_poll.min(now + POLL_BUSY);
                     }
                 }
                 None => {}
             }
         }
-        if self.transport.wrote {
+        let p = self.part_mut(c);
+        if p.transport.wrote {
             // The link reads right after a write.
-            self.transport.next_poll = self.transport.next_poll.min(now + POLL_BUSY);
+            p.transport.next_poll = p.transport.next_poll.min(now + POLL_BUSY);
         }
-        while let Some(note) = self.conveyor.poll_note() {
-            self.note(format!("plc: {note}"));
+        let mut notes = Vec::new();
+        while let Some(note) = p.conveyor.poll_note() {
+            notes.push(note);
+        }
+        for note in notes {
+            self.note(format!("plc{}: {note}", at_cell(c)));
         }
         any
     }
@@ -952,18 +1163,14 @@ impl World {
         None
     }
 
-    fn write_coil(&mut self, coil: Coil, v: bool) {
-        if let Some(o) = coil.offset() {
-            let now = self.now;
-            self.conveyor.write_coil(now, o, v);
-        }
-    }
-
     /// A publication the bus carried to `to`, taken in.
     fn heard(&mut self, now: Duration, to: Node, p: Publication) {
-        match to {
-            Node::Operator => self.list().handle_heard(now, p.stamp, p.message),
-            Node::Cell => self.cell.handle_publication(now, &p.message),
+        match to.role {
+            Role::Operator => self.list(to.cell).handle_heard(now, p.stamp, p.message),
+            Role::Cell => self
+                .part_mut(to.cell)
+                .cell
+                .handle_publication(now, &p.message),
             _ => {}
         }
     }
@@ -993,7 +1200,7 @@ impl World {
                 }) = self.pending.remove(&id)
                 {
                     let kept = heard::take_kept(&station(n), kept).map_err(|e| e.to_string());
-                    self.list().handle_kept_reports(now, station(n), kept);
+                    self.list(n.cell).handle_kept_reports(now, station(n), kept);
                 }
             }
             // What a receiver takes in, as on the bus: the sender is the
@@ -1022,13 +1229,15 @@ impl World {
     fn confirm(&mut self, waiter: Waiter, result: Result<Response, ServiceError>) {
         let now = self.now;
         match waiter {
-            Waiter::List => self.list().handle_cell_answer(now, result),
-            Waiter::Cell(to, awaiting) => {
-                self.cell.handle_reply(now, &to, Reply { awaiting, result });
+            Waiter::List(c) => self.list(c).handle_cell_answer(now, result),
+            Waiter::Cell(c, to, awaiting) => {
+                let reply = Reply { awaiting, result };
+                self.part_mut(c).cell.handle_reply(now, &to, reply);
             }
             Waiter::Kept(n) => {
                 let why = result.err().map_or_else(String::new, |e| e.to_string());
-                self.list().handle_kept_reports(now, station(n), Err(why));
+                self.list(n.cell)
+                    .handle_kept_reports(now, station(n), Err(why));
             }
             Waiter::Delivery(n) => {
                 if let Some(d) = self.deliveries.get_mut(&n) {
@@ -1036,18 +1245,19 @@ impl World {
                     self.delivery_step(n, step);
                 }
             }
-            Waiter::Pass(id) => self.cell.handle_confirm(id, result),
-            Waiter::Associate(sub) => {
+            Waiter::Pass(c, id) => self.part_mut(c).cell.handle_confirm(id, result),
+            Waiter::Associate(c, sub) => {
+                let me = Node::operator(c);
                 let made = self
-                    .up(Node::Operator)
+                    .up(me)
                     .map(|u| u.serving.record_initiates(vec![(sub, result)]));
-                self.carry_serving(Node::Operator);
+                self.carry_serving(me);
                 let answer = match made {
                     Some(Ok(_)) => Ok(Response::Done),
                     Some(Err(e)) => Err(e),
                     None => Err(ServiceError::unreachable("the operator is not running")),
                 };
-                self.list().handle_cell_answer(now, answer);
+                self.list(c).handle_cell_answer(now, answer);
             }
             Waiter::Initiate(at, sub) => {
                 if let Some(up) = self.up(at) {
@@ -1062,44 +1272,45 @@ impl World {
     /// with).
     fn waits_at(&self, waiter: &Waiter) -> Node {
         match waiter {
-            Waiter::List | Waiter::Kept(_) => Node::Operator,
-            Waiter::Cell(..) | Waiter::Pass(_) => Node::Cell,
+            Waiter::List(c) | Waiter::Associate(c, _) => Node::operator(*c),
+            Waiter::Kept(n) => Node::operator(n.cell),
+            Waiter::Cell(c, ..) | Waiter::Pass(c, _) => Node::new(*c, Role::Cell),
             Waiter::Initiate(at, _) => *at,
-            Waiter::Associate(_) => Node::Operator,
-            Waiter::Delivery(n) => self.deliveries.get(n).map_or(Node::Operator, |d| d.from),
+            Waiter::Delivery(n) => self.deliveries.get(n).map_or(Node::operator(0), |d| d.from),
         }
     }
 
-    /// The operator associates its cell, as `falc-operator`'s station does
-    /// as the root: the Initiates its [`Serving`] sends (a cell's operator
-    /// has one subordinate, the cell), recorded once confirmed.
-    fn associate(&mut self) {
+    /// The operator associates cell `c`'s controller, as `falc-operator`'s
+    /// station for that cell does as the root: the Initiates its
+    /// [`Serving`] sends (a cell's operator has one subordinate, the
+    /// cell), recorded once confirmed.
+    fn associate(&mut self, c: usize) {
+        let me = Node::operator(c);
         let due = self
-            .up(Node::Operator)
+            .up(me)
             .map(|u| u.serving.initiates())
             .unwrap_or_default();
+        let now = self.now;
         let Some((sub, limit)) = due.into_iter().next() else {
             let e = ServiceError::undefined("the operator commands no cell in the topology");
-            let now = self.now;
-            self.list().handle_cell_answer(now, Err(e));
+            self.list(c).handle_cell_answer(now, Err(e));
             return;
         };
-        let Some(to) = Node::of(&sub) else {
+        let Some(to) = Node::of(c, &sub) else {
             let e = ServiceError::unreachable(format!("no station {sub}"));
-            let now = self.now;
-            self.list().handle_cell_answer(now, Err(e));
+            self.list(c).handle_cell_answer(now, Err(e));
             return;
         };
         let request = Request::Initiate {
-            calling: self.peer(Node::Operator),
+            calling: self.peer(me),
         };
         let msg = |id| Msg::Request { id, request };
-        self.request(Node::Operator, to, msg, limit, Waiter::Associate(sub));
+        self.request(me, to, msg, limit, Waiter::Associate(c, sub));
     }
 
     /// Starts `delivery` from `from`; its outcome goes to `then`.
     fn deliver(&mut self, from: Node, delivery: Delivery, then: Then) {
-        let Some(to) = Node::of(delivery.to()) else {
+        let Some(to) = Node::of(from.cell, delivery.to()) else {
             let e = ServiceError::unreachable(format!("no station {}", delivery.to()));
             self.delivered(then, Err(e));
             return;
@@ -1146,8 +1357,7 @@ impl World {
     /// it began in, holds the domain, whole (else noted as the first
     /// [`World::false_delivery`]).
     fn check_held(&mut self, d: &Delivering) {
-        if d.to == Node::Operator || !self.is_running(d.to) || self.peer(d.to).session != d.session
-        {
+        if d.to.is_operator() || !self.is_running(d.to) || self.peer(d.to).session != d.session {
             return;
         }
         let name = d.delivery.name();
@@ -1165,12 +1375,12 @@ impl World {
     /// A delivery's outcome, to whom it goes.
     fn delivered(&mut self, then: Then, result: Result<(), ServiceError>) {
         match then {
-            Then::List => {
+            Then::List(c) => {
                 let now = self.now;
-                self.list()
+                self.list(c)
                     .handle_cell_answer(now, result.map(|()| Response::Done));
             }
-            Then::Pass(id) => self.cell.handle_delivered(id, result),
+            Then::Pass(c, id) => self.part_mut(c).cell.handle_delivered(id, result),
         }
     }
 
@@ -1195,6 +1405,7 @@ impl World {
     /// The simulation watches no token: its leases and crashes tell a loss.
     fn carry_serving(&mut self, at: Node) {
         let now = self.now;
+        let c = at.cell;
         while let Some(action) = self
             .up(at)
             .filter(|u| u.running)
@@ -1202,7 +1413,7 @@ impl World {
         {
             match action {
                 Serve::Respond((to, id), result) => self.respond(at, to, id, result),
-                Serve::Initiate { to, request, limit } => match Node::of(&to) {
+                Serve::Initiate { to, request, limit } => match Node::of(c, &to) {
                     Some(sub) => {
                         let msg = |id| Msg::Request { id, request };
                         self.request(at, sub, msg, limit, Waiter::Initiate(at, to));
@@ -1215,7 +1426,7 @@ impl World {
                     }
                 },
                 Serve::Tell { to, request } => {
-                    if let Some(to) = Node::of(&to) {
+                    if let Some(to) = Node::of(c, &to) {
                         self.next_id += 1;
                         let id = self.next_id;
                         self.bus
@@ -1223,75 +1434,98 @@ impl World {
                     }
                 }
                 Serve::Watch(_) | Serve::Unwatch(_) | Serve::Concluded(_) => {}
-                Serve::Indication((from, id), request) => match at {
+                Serve::Indication((from, id), request) => match at.role {
                     // The cell's questions and lines, for the order list.
-                    Node::Operator => {
+                    Role::Operator => {
                         self.tickets += 1;
                         let t = Ticket(self.tickets);
                         self.indications.insert(t, id);
-                        self.list().handle_cell_request(now, t, request);
+                        self.list(c).handle_cell_request(now, t, request);
                     }
-                    Node::Cell => {
+                    Role::Cell => {
+                        let p = self.part_mut(c);
                         if let Request::Start { argument, .. } = &request {
                             // Watched for the invariant: counted once answered.
                             if let Some(n) = order_of(argument) {
-                                self.starting.insert((from, id), n);
+                                p.starting.insert((from, id), n);
                             }
                         }
-                        self.cell.handle_indication((from, id), request);
+                        p.cell.handle_indication((from, id), request);
                     }
-                    Node::Welding => self
-                        .welding
-                        .node
-                        .handle_indication(now, (from, id), &request),
-                    Node::Transport => {
-                        self.transport
+                    Role::Welding => {
+                        self.part_mut(c)
+                            .welding
                             .node
-                            .handle_indication(now, (from, id), &request);
+                            .handle_indication(now, (from, id), &request)
+                    }
+                    Role::Transport => {
+                        self.part_mut(c).transport.node.handle_indication(
+                            now,
+                            (from, id),
+                            &request,
+                        );
                     }
                 },
                 Serve::Associated(p) => {
                     self.note(format!("{at}: associated with {}", p.station));
-                    match at {
-                        Node::Cell => self.cell.handle_associated(now),
-                        Node::Welding => self.welding.node.handle_associated(now),
-                        Node::Transport => self.transport.node.handle_associated(now),
-                        Node::Operator => {}
+                    let parts = self.part_mut(c);
+                    match at.role {
+                        Role::Cell => parts.cell.handle_associated(now),
+                        Role::Welding => parts.welding.node.handle_associated(now),
+                        Role::Transport => parts.transport.node.handle_associated(now),
+                        Role::Operator => {}
                     }
                 }
                 Serve::Abort(ind) => {
                     let (name, role) = (&ind.peer.station, ind.role);
-                    match at {
-                        Node::Cell => self.cell.handle_abort(now, name, role),
-                        Node::Welding => self.welding.node.handle_abort(now, name, role),
-                        Node::Transport => self.transport.node.handle_abort(now, name, role),
-                        Node::Operator => self.list().handle_abort(now, &ind.reason),
+                    match at.role {
+                        Role::Cell => self.part_mut(c).cell.handle_abort(now, name, role),
+                        Role::Welding => {
+                            self.part_mut(c).welding.node.handle_abort(now, name, role)
+                        }
+                        Role::Transport => self
+                            .part_mut(c)
+                            .transport
+                            .node
+                            .handle_abort(now, name, role),
+                        Role::Operator => self.list(c).handle_abort(now, &ind.reason),
                     }
                 }
             }
         }
     }
 
-    /// The cell answered its commander's Start of order `n`: counted.
-    fn started(&mut self, n: i64) {
+    /// Cell `c` answered its commander's Start of order `n`: counted.
+    fn started(&mut self, c: usize, n: i64) {
         let count = self.starts.entry(n).or_default();
         *count += 1;
         if *count > 1 && self.started_twice.is_none() {
             self.started_twice = Some((n, *count));
         }
-        self.note(format!("cell: order {n} started"));
-        if let Some(what) = self.lacking().filter(|_| self.started_lacking.is_none()) {
+        if let Some(last) = self.last_started.get_mut(c) {
+            *last = (*last).max(n);
+        }
+        self.note(format!("{}: order {n} started", Node::new(c, Role::Cell)));
+        if let Some(what) = self.lacking(c).filter(|_| self.started_lacking.is_none()) {
             self.note(what.clone());
-            self.started_lacking = Some(format!("order {n} started at the cell while {what}"));
+            self.started_lacking = Some(format!(
+                "order {n} started at {} while {what}",
+                Node::new(c, Role::Cell)
+            ));
         }
     }
 
-    /// A workstation associated with the cell that lacks a recipe the
-    /// cell holds for it (or holds another version), said.
-    fn lacking(&self) -> Option<String> {
-        let cell = self.cell.controller().vmd();
-        let assoc = self.ups.get(&Node::Cell)?.serving.associations();
-        for ws in [Node::Welding, Node::Transport] {
+    /// A workstation of cell `c` associated with its cell controller that
+    /// lacks a recipe the controller holds for it (or holds another
+    /// version), said.
+    fn lacking(&self, c: usize) -> Option<String> {
+        let cell = self.part(c).controller().vmd();
+        let assoc = self
+            .ups
+            .get(&Node::new(c, Role::Cell))?
+            .serving
+            .associations();
+        for ws in [Node::new(c, Role::Welding), Node::new(c, Role::Transport)] {
             if !self.is_running(ws) || assoc.subordinate(&station(ws)) != Some(&self.peer(ws)) {
                 continue;
             }
@@ -1310,11 +1544,12 @@ impl World {
     /// Whether node `n`'s VMD holds domain `name` whole (loaded) with
     /// content hash `hash`.
     fn holds(&self, n: Node, name: &ObjectName, hash: u64) -> bool {
-        let vmd = match n {
-            Node::Cell => self.cell.controller().vmd(),
-            Node::Welding => self.welding().vmd(),
-            Node::Transport => self.transport().vmd(),
-            Node::Operator => return false,
+        let p = self.part(n.cell);
+        let vmd = match n.role {
+            Role::Cell => p.controller().vmd(),
+            Role::Welding => p.welding().vmd(),
+            Role::Transport => p.transport().vmd(),
+            Role::Operator => return false,
         };
         vmd.domain(name).is_some_and(|d| {
             matches!(d.state(), DomainState::Ready | DomainState::InUse)
@@ -1322,44 +1557,77 @@ impl World {
         })
     }
 
-    /// `n`'s link to the router is cut (or joined again).
+    /// `n`'s link to its router is cut (or joined again); the operator's
+    /// is one for all its places.
     pub fn cut(&mut self, n: Node, cut: bool) {
         self.bus.set_cut(n, cut);
         self.note(format!("bus: {n} {}", if cut { "cut off" } else { "back" }));
         if cut {
             let at = self.now + self.lease;
-            self.leases.push((at, n));
+            self.leases.push((at, Parting::Node(n)));
         } else {
             self.back(n);
         }
         self.pump();
     }
 
+    /// Cell `c`'s uplink to the factory router is cut (or joined again):
+    /// the cell runs on, parted from the operator.
+    pub fn cut_uplink(&mut self, c: usize, cut: bool) {
+        self.bus.set_uplink_cut(c, cut);
+        let what = if cut { "cut" } else { "back" };
+        self.note(format!("bus: cell {} uplink {what}", self.cell_id(c)));
+        if cut {
+            let at = self.now + self.lease;
+            self.leases.push((at, Parting::Uplink(c)));
+        } else {
+            self.parted_cells.remove(&c);
+            self.seen_again(c);
+        }
+        self.pump();
+    }
+
     /// The operator sees `n` (and, for the operator, everyone) again.
     fn back(&mut self, n: Node) {
-        let now = self.now;
-        self.parted.remove(&n);
-        let seen: Vec<Node> = match n {
-            Node::Operator => vec![Node::Cell, Node::Welding, Node::Transport],
-            other => vec![other],
-        };
-        for s in seen {
-            if self.bus.reachable(Node::Operator, s) && self.is_running(s) {
-                self.list().handle_presence(now, station(s), true);
+        for p in self.places(n) {
+            self.parted.remove(&p);
+        }
+        match n.role {
+            Role::Operator => {
+                for c in 0..self.cells.len() {
+                    self.seen_again(c);
+                }
             }
+            _ => self.present(n),
         }
     }
 
-    /// `n`'s session and its router parted: the requests routed to it end
-    /// with no reply at once, as zenoh's router finalizes a closed face's
-    /// pending queries (`finalize_pending_queries`); and so do the requests
-    /// `n` sent and still waits for, which its own session had routed to
-    /// the router's face, closed on its side too.
-    fn finalize(&mut self, n: Node) {
+    /// The operator sees cell `c`'s stations it reaches again.
+    fn seen_again(&mut self, c: usize) {
+        for r in [Role::Cell, Role::Welding, Role::Transport] {
+            self.present(Node::new(c, r));
+        }
+    }
+
+    /// The operator's list of `n`'s cell sees `n` present, if it reaches
+    /// it and `n` runs.
+    fn present(&mut self, n: Node) {
+        let now = self.now;
+        if self.bus.reachable(Node::operator(n.cell), n) && self.is_running(n) {
+            self.list(n.cell).handle_presence(now, station(n), true);
+        }
+    }
+
+    /// The requests between nodes for which `gone` holds end with no reply
+    /// at once, as zenoh's router finalizes a closed face's pending
+    /// queries (`finalize_pending_queries`): those routed to a parted node
+    /// and those it sent and still waits for, which its own session had
+    /// routed to the router's face, closed on its side too.
+    fn finalize_where(&mut self, gone: impl Fn(Node, Node) -> bool) {
         let ids: Vec<u64> = self
             .pending
             .iter()
-            .filter(|(_, p)| p.to == n || self.waits_at(&p.waiter) == n)
+            .filter(|(_, p)| gone(self.waits_at(&p.waiter), p.to))
             .map(|(id, _)| *id)
             .collect();
         for id in ids {
@@ -1373,30 +1641,62 @@ impl World {
         }
     }
 
+    /// `n`'s session and its router parted: what it waits for and what
+    /// waits for it ends.
+    fn finalize(&mut self, n: Node) {
+        self.finalize_where(|from, to| to == n || from == n);
+    }
+
     /// `n`'s associations ended (its lease ran out, or it crashed): every
     /// peer associated with it takes the abort indication, and a cut `n`
-    /// takes theirs.
+    /// takes theirs. The operator's places all go together.
     fn lost(&mut self, n: Node) {
         let now = self.now;
         self.note(format!("bus: {n} lost"));
-        self.finalize(n);
+        for p in self.places(n) {
+            self.finalize(p);
+        }
         let reason = format!("no connection with {n}");
-        if matches!(n, Node::Operator | Node::Cell) {
-            self.sees_lost(Node::Cell, Node::Operator, &reason);
-            self.sees_lost(Node::Operator, Node::Cell, &reason);
-        }
-        let seen = match n {
-            Node::Operator => vec![Node::Cell, Node::Welding, Node::Transport],
-            other => vec![other],
+        let cells: Vec<usize> = match n.role {
+            Role::Operator => (0..self.cells.len()).collect(),
+            _ => vec![n.cell],
         };
-        for s in seen {
-            self.list().handle_presence(now, station(s), false);
-        }
-        for ws in [Node::Welding, Node::Transport] {
-            if n == Node::Cell || n == ws {
-                self.sees_lost(Node::Cell, ws, &reason);
-                self.sees_lost(ws, Node::Cell, &reason);
+        for c in cells {
+            let (op, cell) = (Node::operator(c), Node::new(c, Role::Cell));
+            if n.is_operator() || n == cell {
+                self.sees_lost(cell, op, &reason);
+                self.sees_lost(op, cell, &reason);
             }
+            let seen = match n.role {
+                Role::Operator => vec![Role::Cell, Role::Welding, Role::Transport],
+                other => vec![other],
+            };
+            for s in seen {
+                self.list(c).handle_presence(now, name(s), false);
+            }
+            for ws in [Node::new(c, Role::Welding), Node::new(c, Role::Transport)] {
+                if n == cell || n == ws {
+                    self.sees_lost(cell, ws, &reason);
+                    self.sees_lost(ws, cell, &reason);
+                }
+            }
+        }
+    }
+
+    /// Cell `c`'s uplink stayed cut past the lease: the operator and the
+    /// cell's stations lose each other (the cell's own associations hold).
+    fn lost_uplink(&mut self, c: usize) {
+        let now = self.now;
+        self.note(format!("bus: cell {} lost", self.cell_id(c)));
+        self.finalize_where(|from, to| {
+            (from.is_operator() != to.is_operator()) && from.cell == c && to.cell == c
+        });
+        let (op, cell) = (Node::operator(c), Node::new(c, Role::Cell));
+        let reason = format!("no connection with cell {}", self.cell_id(c));
+        self.sees_lost(cell, op, &reason);
+        self.sees_lost(op, cell, &reason);
+        for r in [Role::Cell, Role::Welding, Role::Transport] {
+            self.list(c).handle_presence(now, name(r), false);
         }
     }
 
@@ -1410,39 +1710,51 @@ impl World {
         self.carry_serving(at);
     }
 
-    /// Random bytes on the serial line, towards both ends.
-    pub fn noise(&mut self, bytes: Vec<u8>) {
+    /// Random bytes on cell `c`'s serial line, towards both ends.
+    pub fn noise(&mut self, c: usize, bytes: Vec<u8>) {
         let at = self.now + WIRE;
-        self.note(format!("serial: {} bytes of noise", bytes.len()));
-        self.wire.push_back((at, true, bytes.clone()));
-        self.wire.push_back((at, false, bytes));
+        self.note(format!(
+            "serial{}: {} bytes of noise",
+            at_cell(c),
+            bytes.len()
+        ));
+        let p = self.part_mut(c);
+        p.wire.push_back((at, true, bytes.clone()));
+        p.wire.push_back((at, false, bytes));
     }
 
     /// Node `n`'s process dies: only the twins' state survives (and the
     /// operator's records).
     pub fn crash(&mut self, n: Node) {
         self.note(format!("{n}: process killed"));
-        if let Some(up) = self.up(n) {
-            up.running = false;
+        let places = self.places(n);
+        for p in &places {
+            if let Some(up) = self.up(*p) {
+                up.running = false;
+            }
+            // Its requests out die with it.
+            self.forget_waits_of(*p);
         }
-        // Its requests out die with it.
-        self.forget_waits_of(n);
-        if n == Node::Operator {
-            // Its indications and its API go with it; the router ends the
-            // cell's queries to it; the cell runs its order on alone.
+        if n.is_operator() {
+            // Its indications and its API go with it; the routers end the
+            // cells' queries to it; each cell runs its order on alone.
             self.indications.clear();
             self.lost_before = self.tickets;
-            self.finalize(Node::Operator);
             let reason = format!("no connection with {n}");
-            self.sees_lost(Node::Cell, Node::Operator, &reason);
+            for p in &places {
+                self.finalize(*p);
+                self.sees_lost(Node::new(p.cell, Role::Cell), *p, &reason);
+            }
         } else {
             // Its liveliness token goes with its session: seen at once.
             self.lost(n);
         }
         // A dead process holds no association.
-        let fresh = Serving::of(&self.topology, self.peer(n));
-        if let Some(up) = self.up(n) {
-            up.serving = fresh;
+        for p in places {
+            let fresh = Serving::of(&self.part(p.cell).topology, self.peer(p));
+            if let Some(up) = self.up(p) {
+                up.serving = fresh;
+            }
         }
         self.pump();
     }
@@ -1459,10 +1771,11 @@ impl World {
 
     fn apply_memory(&mut self, n: Node) {
         let bytes = self.memory.get(&n).copied().unwrap_or(RECIPE_MEMORY);
-        match n {
-            Node::Welding => self.welding.node.set_recipe_memory(bytes),
-            Node::Transport => self.transport.node.set_recipe_memory(bytes),
-            Node::Operator | Node::Cell => {}
+        let p = self.part_mut(n.cell);
+        match n.role {
+            Role::Welding => p.welding.node.set_recipe_memory(bytes),
+            Role::Transport => p.transport.node.set_recipe_memory(bytes),
+            Role::Operator | Role::Cell => {}
         }
     }
 
@@ -1470,69 +1783,96 @@ impl World {
     pub fn restart(&mut self, n: Node) {
         let now = self.now;
         self.note(format!("{n}: process started again"));
-        match n {
-            Node::Welding => {
-                self.welding = welding_node(&self.topology, now, self.timing);
-                self.wire.retain(|w| w.1);
+        let timing = self.timing;
+        let p = self.part_mut(n.cell);
+        match n.role {
+            Role::Welding => {
+                p.welding = welding_node(&p.topology, now, timing);
+                p.wire.retain(|w| w.1);
             }
-            Node::Cell => {
-                self.cell = cell_node(&self.topology);
-                self.starting.clear();
+            Role::Cell => {
+                p.cell = cell_node(&p.topology);
+                p.starting.clear();
             }
-            Node::Operator => {
+            Role::Operator => {
                 self.restart_operator();
                 return;
             }
-            Node::Transport => {
-                self.transport = transport_node(&self.topology, now, self.conveyor.coils());
+            Role::Transport => {
+                p.transport = transport_node(&p.topology, now, p.conveyor.coils());
             }
         }
         self.apply_memory(n);
         self.new_run(n);
-        if self.bus.reachable(Node::Operator, n) {
-            self.list().handle_presence(now, station(n), true);
-        }
+        self.present(n);
         self.pump();
     }
 
-    /// The operator starts again on its records: the order they hold as
-    /// running is adopted (the cell is asked how it ended), as
-    /// `falc-operator` does at start.
+    /// The operator starts again on its records: the order each cell's
+    /// records hold as running is adopted (the cell is asked how it
+    /// ended), as `falc-operator` does at start.
     fn restart_operator(&mut self) {
-        let now = self.now;
-        let (mut view, source) = self.durable.clone();
-        view.set_now(self.wall_ms());
-        let recovered = match view.recover(&[source.topology().cell().as_str()]) {
-            Ok(r) => r,
-            Err(e) => {
-                // The real node exits and is started again; here it
-                // starts with nothing adopted, and says so.
-                self.note(format!("operator: cannot recover: {e}"));
-                Default::default()
+        let ids: Vec<String> = (0..self.cells.len())
+            .map(|c| self.cell_id(c).to_string())
+            .collect();
+        let ids: Vec<&str> = ids.iter().map(String::as_str).collect();
+        let mut adopted = Vec::new();
+        let mut lists = Vec::new();
+        for (i, (mut view, source)) in self.durable.clone().into_iter().enumerate() {
+            view.set_now(self.wall_ms());
+            if i == 0 {
+                adopted = match view.recover(&ids) {
+                    Ok(r) => r.adopted,
+                    Err(e) => {
+                        // The real node exits and is started again; here it
+                        // starts with nothing adopted, and says so.
+                        self.note(format!("operator: cannot recover: {e}"));
+                        Vec::new()
+                    }
+                };
             }
-        };
-        let set = match source.load() {
-            Ok(set) => set,
-            Err(problems) => {
-                self.note(format!(
-                    "operator: recipes refused: {}",
-                    problems.join("; ")
-                ));
-                return;
+            let set = match source.load() {
+                Ok(set) => set,
+                Err(problems) => {
+                    self.note(format!(
+                        "operator: recipes refused: {}",
+                        problems.join("; ")
+                    ));
+                    return;
+                }
+            };
+            let mut list = order_list(view, source, set);
+            let cell = list.cell().to_string();
+            if let Some(k) = adopted
+                .iter()
+                .position(|o| o.cell.as_deref() == Some(cell.as_str()))
+            {
+                let o = adopted.swap_remove(k);
+                self.note(format!("operator: adopted order {} on {cell}", o.id));
+                list = list.adopting(o);
             }
-        };
-        let mut list = order_list(view, source, set);
-        if let Some(o) = recovered.adopted.into_iter().next() {
-            self.note(format!("operator: adopted order {}", o.id));
-            list = list.adopting(o);
+            lists.push(list);
         }
-        self.plant = Plant::new(vec![list]);
-        self.new_run(Node::Operator);
-        for s in [Node::Cell, Node::Welding, Node::Transport] {
-            if self.bus.reachable(Node::Operator, s) && self.is_running(s) {
-                self.list().handle_presence(now, station(s), true);
-            }
+        self.plant = Plant::new(lists);
+        for c in 0..self.cells.len() {
+            self.new_run(Node::operator(c));
+            self.seen_again(c);
         }
         self.pump();
+    }
+}
+
+/// ` at cell c` for cells past the first, for the trace.
+fn at_cell(c: usize) -> String {
+    match c {
+        0 => String::new(),
+        c => format!("@{c}"),
+    }
+}
+
+/// Writes `coil` on the conveyor's twin.
+fn write_coil(conveyor: &mut Conveyor, now: Duration, coil: Coil, v: bool) {
+    if let Some(o) = coil.offset() {
+        conveyor.write_coil(now, o, v);
     }
 }
