@@ -592,9 +592,13 @@ impl Host {
     }
 
     /// The program a job is selecting or starting, if any.
+    /// The program a job's start was sent for and not acknowledged yet:
+    /// the robot may run it (the acknowledgement lost), so its end may
+    /// come. A program only selected has not started, and cannot end.
     fn starting(&self) -> Option<RobotProgram> {
-        self.pending.map(|s| match s.what {
-            Pending::Select(p) | Pending::Start(p) => p,
+        self.pending.and_then(|s| match s.what {
+            Pending::Start(p) => Some(p),
+            Pending::Select(_) => None,
         })
     }
 
@@ -657,7 +661,8 @@ impl Host {
             {
                 // The end of another program than a job's: one that ended
                 // while the line was out, its end telegram sent once the
-                // line was back, as the next job starts. Not that job's end.
+                // line was back, as the next job starts. Not that job's
+                // end, even of the same number while that job only selects.
                 let now_running = self
                     .running
                     .map_or("no job's program runs".to_string(), |p| {
@@ -926,6 +931,49 @@ mod tests {
             },
         );
         assert_eq!(ended(&out), Some(&JobEnd::Done));
+    }
+
+    /// Seen in `falc-sim` (a plant, seed 4 of 3,000 orders): program 66
+    /// ended while the line was unplugged; its end telegram came once the
+    /// line was back, while the next job, for program 66 too, held its
+    /// select: the job ended `done` before its program started, and the
+    /// program it then started ran with no job (the next order's select
+    /// met DNC error 04).
+    #[test]
+    fn the_late_end_of_the_same_program_before_its_start_does_not_end_the_job() {
+        let waited = Timing::default().ack_delay;
+        let mut h = running(1000);
+        let p66 = RobotProgram::of(66);
+        let end66 = Telegram::ProgramEnd {
+            program: p66,
+            result: EndResult::Complete,
+        };
+        // The line went silent under a job's program; the next job starts
+        // before the line is back: its select is held.
+        assert!(ended(&h.silent(s(3500), waited)).is_some());
+        assert_eq!(h.start(p66), vec![]);
+        let out = h.telegram(s(4000), end66.clone());
+        assert_eq!(ended(&out), None, "{out:?}");
+        assert_eq!(
+            out,
+            vec![Out::Info(
+                "robot program 66 ended while no job's program runs: not a job's end".into()
+            )]
+        );
+        // Nor while its select is on its way.
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
+        assert_eq!(
+            h.start(p66),
+            vec![Out::Telegram(Telegram::SelectProgram(p66))]
+        );
+        assert_eq!(ended(&h.telegram(s(0), end66.clone())), None);
+        // Once the start went, an end of its program is the job's (its
+        // acknowledgement may be lost while the program runs).
+        assert_eq!(
+            h.telegram(s(0), ack(b'S')),
+            vec![Out::Telegram(Telegram::StartProgram)]
+        );
+        assert_eq!(ended(&h.telegram(s(9), end66)), Some(&JobEnd::Done));
     }
 
     #[test]
