@@ -26,26 +26,9 @@ pub enum Role {
     Operator,
     /// The cell controller.
     Cell,
-    /// The welding workstation.
-    Welding,
-    /// The transport workstation.
-    Transport,
-}
-
-impl Role {
-    /// Every role.
-    pub const ALL: [Role; 4] = [Role::Operator, Role::Cell, Role::Welding, Role::Transport];
-
-    /// Its station name in the shipped topologies (every cell of
-    /// `launch/factory.toml` names its stations alike).
-    pub fn station(self) -> &'static str {
-        match self {
-            Role::Operator => "operator",
-            Role::Cell => "cell",
-            Role::Welding => "welding",
-            Role::Transport => "transport",
-        }
-    }
+    /// The cell's workstation number `k` (its topology's workstations
+    /// counted from 0, in the file's order).
+    Workstation(usize),
 }
 
 /// A place on the bus: a role in cell number `cell` (the topology's
@@ -70,23 +53,14 @@ impl Node {
         Self::new(cell, Role::Operator)
     }
 
-    /// Every node of cell `cell`.
-    pub fn all_of(cell: usize) -> [Node; 4] {
-        Role::ALL.map(|r| Node::new(cell, r))
+    /// Cell `cell`'s controller.
+    pub fn cell(cell: usize) -> Self {
+        Self::new(cell, Role::Cell)
     }
 
-    /// The node of cell `cell` that is station `name` of the shipped
-    /// topologies.
-    pub fn of(cell: usize, name: &falc_model::ids::StationName) -> Option<Node> {
-        Role::ALL
-            .into_iter()
-            .find(|r| r.station() == name.as_str())
-            .map(|r| Node::new(cell, r))
-    }
-
-    /// Its station name.
-    pub fn station(self) -> &'static str {
-        self.role.station()
+    /// Cell `cell`'s workstation number `k`.
+    pub fn workstation(cell: usize, k: usize) -> Self {
+        Self::new(cell, Role::Workstation(k))
     }
 
     /// Whether it is the operator's.
@@ -106,13 +80,13 @@ impl Node {
 }
 
 impl fmt::Display for Node {
-    /// `welding` in the first cell (as in a cell of its own), `welding@2`
-    /// in the third; the operator is one.
+    /// `cell 2 workstation 0`: the world names nodes by their stations
+    /// where it can.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self.cell {
-            0 => f.write_str(self.station()),
-            _ if self.is_operator() => f.write_str(self.station()),
-            c => write!(f, "{}@{c}", self.station()),
+        match self.role {
+            Role::Operator => f.write_str("operator"),
+            Role::Cell => write!(f, "cell {} controller", self.cell),
+            Role::Workstation(k) => write!(f, "cell {} workstation {k}", self.cell),
         }
     }
 }
@@ -337,7 +311,7 @@ mod tests {
     };
     const WELDING: Node = Node {
         cell: 0,
-        role: Role::Welding,
+        role: Role::Workstation(0),
     };
 
     #[test]
@@ -364,11 +338,7 @@ mod tests {
     fn a_cut_uplink_parts_its_cell_from_the_operator_only() {
         let mut rng = rand::rngs::StdRng::seed_from_u64(1);
         let mut bus = Bus::new(Link::default(), 2);
-        let (op, cell1, ws1) = (
-            Node::operator(1),
-            Node::new(1, Role::Cell),
-            Node::new(1, Role::Welding),
-        );
+        let (op, cell1, ws1) = (Node::operator(1), Node::cell(1), Node::workstation(1, 0));
         // Across the uplink: three latencies.
         assert!(bus.send(Duration::ZERO, op, cell1, publish(), &mut rng));
         assert_eq!(bus.poll_timeout(), Some(Duration::from_micros(750)));
@@ -379,7 +349,7 @@ mod tests {
         assert!(!bus.reachable(Node::operator(0), ws1));
         // Inside the cell, and to the other cell, all still goes.
         assert!(bus.reachable(cell1, ws1));
-        assert!(bus.reachable(Node::operator(0), Node::new(0, Role::Cell)));
+        assert!(bus.reachable(Node::operator(0), Node::cell(0)));
         // The operator's places are one link: cut once, cut in every cell.
         bus.set_uplink_cut(1, false);
         bus.set_cut(Node::operator(0), true);

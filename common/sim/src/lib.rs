@@ -17,6 +17,7 @@
 //! seed replays it. No tokio, no zenoh, no sockets, no wall clock.
 
 pub mod bus;
+pub mod cell;
 pub mod recipes;
 pub mod scenario;
 pub mod world;

@@ -16,6 +16,14 @@ struct Cli {
     /// without it, the shipped cell (`launch/cell.toml`).
     #[arg(long)]
     topology: Option<std::path::PathBuf>,
+    /// A recipe tree with a directory per station (`cell/`, `welding/`,
+    /// `welding2/` …), for a topology of other stations; without it, the
+    /// shipped recipes.
+    #[arg(long)]
+    recipes: Option<std::path::PathBuf>,
+    /// The cell recipes ordered, in turn, comma-separated.
+    #[arg(long, default_value = "dikdroog,dundroog,pipdroog")]
+    order_recipes: String,
     /// Drives every random choice; the same seed gives the same run.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -60,6 +68,13 @@ fn main() -> ExitCode {
     };
     let cfg = Config {
         topology: cli.topology.clone(),
+        recipe_dir: cli.recipes.clone(),
+        recipes: cli
+            .order_recipes
+            .split(',')
+            .map(|r| r.trim().to_string())
+            .filter(|r| !r.is_empty())
+            .collect(),
         seed: cli.seed,
         orders: cli.orders,
         faults,
@@ -98,10 +113,17 @@ fn main() -> ExitCode {
         }
         Err(v) => writeln!(out, "seed {}: {v}", cli.seed)
             .and_then(|()| {
-                let topology = cli
+                let mut topology = cli
                     .topology
                     .as_ref()
                     .map_or(String::new(), |t| format!("--topology {} ", t.display()));
+                if let Some(r) = &cli.recipes {
+                    topology += &format!(
+                        "--recipes {} --order-recipes {} ",
+                        r.display(),
+                        cli.order_recipes
+                    );
+                }
                 writeln!(
                     out,
                     "replay: cargo run -p falc-sim -- {topology}--seed {} --orders {} --faults {}",

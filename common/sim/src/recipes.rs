@@ -1,5 +1,7 @@
-//! The shipped recipes (`recipes/`), compiled in, as the order list's
-//! recipe store: checked and verified across levels by the same
+//! The recipes a simulated operator runs, as the order list's recipe
+//! store: the shipped ones (`recipes/`, compiled in), or a recipe tree
+//! read once at the start (`falc-sim --recipes DIR`, for a topology of
+//! other stations); checked and verified across levels by the same
 //! [`checked_set`] the operator node runs on its directory.
 
 use falc_factory::recipe_source::{checked_set, PutError, RecipeSet, RecipeSource};
@@ -8,7 +10,8 @@ use falc_model::ids::StationName;
 use falc_model::mms::domain::content_hash;
 use falc_model::topology::Topology;
 use falc_recipe::files::{entry_in, StationKinds};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::rc::Rc;
 
 /// Every shipped recipe: (file under `recipes/`, text).
 pub const SHIPPED: &[(&str, &str)] = &[
@@ -62,25 +65,74 @@ pub const SHIPPED: &[(&str, &str)] = &[
     ),
 ];
 
-/// The shipped recipes as a recipe store: read-only (a save is refused),
-/// so the set is checked and verified once, not at every start.
+/// The recipes as a recipe store: read-only (a save is refused), so the
+/// set is checked and verified once, not at every start.
 #[derive(Debug, Clone)]
 pub struct Shipped {
     /// The cell's topology.
     topology: Topology,
     /// The cell the set is for.
     cell: StationName,
+    /// Where the files are (`recipes` for the shipped ones), named in
+    /// every problem found.
+    root: PathBuf,
+    /// Each file under the root (`welding/droog_dik.rcp`) and its text.
+    texts: Rc<Vec<(String, String)>>,
     checked: std::cell::OnceCell<Result<RecipeSet, Vec<String>>>,
 }
 
 impl Shipped {
     /// The shipped recipes for `cell` of `topology`.
     pub fn new(topology: Topology, cell: StationName) -> Self {
+        let texts = SHIPPED
+            .iter()
+            .map(|(f, t)| (f.to_string(), t.to_string()))
+            .collect();
         Self {
             topology,
             cell,
+            root: PathBuf::from("recipes"),
+            texts: Rc::new(texts),
             checked: std::cell::OnceCell::new(),
         }
+    }
+
+    /// The recipe tree `dir` for `cell` of `topology`: the `.rcp` files in
+    /// the directory of the cell and of each of its workstations, read now
+    /// (checked when loaded). A directory that cannot be read is refused,
+    /// naming it; a station without one has no recipes.
+    pub fn read(dir: &Path, topology: Topology, cell: StationName) -> Result<Self, String> {
+        let mut stations = vec![cell.clone()];
+        stations.extend(topology.subordinates_of(&cell).into_iter().cloned());
+        let mut texts = Vec::new();
+        for station in stations {
+            let sub = dir.join(station.as_str());
+            if !sub.is_dir() {
+                continue;
+            }
+            let read = std::fs::read_dir(&sub).map_err(|e| format!("{}: {e}", sub.display()))?;
+            let mut files: Vec<PathBuf> = read
+                .filter_map(Result::ok)
+                .map(|e| e.path())
+                .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("rcp")))
+                .collect();
+            files.sort();
+            for path in files {
+                let text = std::fs::read_to_string(&path)
+                    .map_err(|e| format!("{}: {e}", path.display()))?;
+                let Some(name) = path.file_name().and_then(|n| n.to_str()) else {
+                    return Err(format!("{}: not a UTF-8 file name", path.display()));
+                };
+                texts.push((format!("{station}/{name}"), text));
+            }
+        }
+        Ok(Self {
+            topology,
+            cell,
+            root: dir.to_path_buf(),
+            texts: Rc::new(texts),
+            checked: std::cell::OnceCell::new(),
+        })
     }
 
     /// The cell's topology.
@@ -91,9 +143,9 @@ impl Shipped {
     fn check(&self) -> Result<RecipeSet, Vec<String>> {
         let kinds = StationKinds::of(&self.topology);
         let mut entries = Vec::new();
-        for (file, text) in SHIPPED {
-            let path = Path::new("recipes").join(file);
-            entries.push(entry_in(&path, None, &kinds, text.to_string()).map_err(|e| vec![e])?);
+        for (file, text) in self.texts.iter() {
+            let path = self.root.join(file);
+            entries.push(entry_in(&path, None, &kinds, text.clone()).map_err(|e| vec![e])?);
         }
         checked_set(&entries, &self.topology, &self.cell)
     }
@@ -110,12 +162,12 @@ impl RecipeSource for Shipped {
 
     fn get(&self, file: &RecipeFile) -> Result<RecipeText, String> {
         let name = format!("{}/{}", file.station(), file.file());
-        SHIPPED
+        self.texts
             .iter()
             .find(|(f, _)| *f == name)
             .map(|(_, text)| RecipeText {
                 file: file.clone(),
-                text: text.to_string(),
+                text: text.clone(),
                 hash: content_hash(text.as_bytes()),
             })
             .ok_or_else(|| format!("no recipe {name}"))
@@ -123,7 +175,7 @@ impl RecipeSource for Shipped {
 
     fn put(&self, _: &RecipeFile, _: &str, _: Option<u64>) -> Result<(), PutError> {
         Err(PutError::Refused(
-            "the simulation's recipes are the shipped ones".into(),
+            "the simulation's recipes are read once, at its start".into(),
         ))
     }
 }

@@ -115,6 +115,9 @@ pub struct Config {
     /// The topology file, a cell's or a plant's (None: the shipped
     /// `launch/cell.toml`, compiled in).
     pub topology: Option<PathBuf>,
+    /// A recipe tree with a directory per station (None: the shipped
+    /// recipes, compiled in), for a topology of other stations.
+    pub recipe_dir: Option<PathBuf>,
     /// Drives every random choice.
     pub seed: u64,
     /// Orders to work through.
@@ -140,6 +143,7 @@ impl Default for Config {
     fn default() -> Self {
         Self {
             topology: None,
+            recipe_dir: None,
             seed: 1,
             orders: 10,
             faults: Fault::ALL.to_vec(),
@@ -317,10 +321,13 @@ struct Desk {
     /// no sooner than this.
     starting: bool,
     start_after: Duration,
-    orphan_since: Option<Duration>,
-    /// Since when the line is unplugged under a weld, unseen.
-    silent_since: Option<Duration>,
-    held_since: Option<Duration>,
+    /// Per welding workstation: since when a robot program runs with no
+    /// job, and since when its line is unplugged under a weld, unseen.
+    orphan_since: BTreeMap<usize, Option<Duration>>,
+    silent_since: BTreeMap<usize, Option<Duration>>,
+    /// Per transport workstation: since when a line button is held with
+    /// no job.
+    held_since: BTreeMap<usize, Option<Duration>>,
     answered: Option<String>,
     /// Since when an order runs at the cell after a write for it failed.
     behind_since: Option<Duration>,
@@ -392,7 +399,8 @@ impl Run {
             None => shipped_cell()?,
             Some(path) => Layout::load(path).map_err(|e| e.to_string())?,
         };
-        let world = World::new(&layout, cfg.seed, cfg.time_scale, Link::default())?;
+        let recipes = cfg.recipe_dir.as_deref();
+        let world = World::new(&layout, recipes, cfg.seed, cfg.time_scale, Link::default())?;
         let desks = (0..world.cell_count())
             .map(|_| Desk {
                 clean_after: Some(0),
@@ -575,7 +583,14 @@ impl Run {
         }
         // Plan a fault for a running order.
         let room = self.cfg.fault_limit.map_or(true, |l| self.injected < l);
-        let moment = !self.cfg.at_weld || self.world.welding(c).device.program().is_some();
+        let part = self.world.part(c);
+        let welding = |k: &usize| part.welding_parts(*k).map(|w| w.controller());
+        let moment = !self.cfg.at_weld
+            || part
+                .weldings()
+                .iter()
+                .filter_map(welding)
+                .any(|w| w.device.program().is_some());
         if let Some(o) = &s.running {
             if desk.planned_for != Some(o.id)
                 && self.active.is_none()
@@ -627,8 +642,13 @@ impl Run {
             let last = self.world.last_started.get(c).copied().unwrap_or(0);
             desk.production_since = Some((self.world.now, desk.hits, last));
             desk.clean_after = Some(last);
-            if let Err(e) = self.world.part_mut(c).conveyor.set_layout(&home) {
-                self.world.note(format!("operator: carriers not home: {e}"));
+            for k in self.world.part(c).transports() {
+                let Some(t) = self.world.part_mut(c).transport_mut(k) else {
+                    continue;
+                };
+                if let Err(e) = t.conveyor.set_layout(&home) {
+                    self.world.note(format!("operator: carriers not home: {e}"));
+                }
             }
             if s.alarms.iter().any(|a| a.acked.is_none()) {
                 let t = self.ask(c, ApiRequest::Ack { id: None });
@@ -676,50 +696,98 @@ impl Run {
         let at = w.cell_id(c).to_string();
         w.note(format!("FAULT {fault} in {at}"));
         let cut_order = running_order(w, c);
+        // The workstations a fault of the robot or conveyor can reach (a
+        // choice only where the cell has more than one).
+        let weldings = w.part(c).weldings();
+        let robot = pick(&mut w.rng, &weldings).map(|k| Node::workstation(c, k));
+        let belt = |w: &mut World| {
+            let transports = w.part(c).transports();
+            pick(&mut w.rng, &transports).map(|k| Node::workstation(c, k))
+        };
         match fault {
             Fault::Crash => {
-                let n = *Node::all_of(c)
-                    .choose(&mut w.rng)
-                    .unwrap_or(&Node::new(c, Role::Welding));
-                a.node = Some(n);
-                w.crash(n);
+                let n = w.nodes_of(c).choose(&mut w.rng).copied();
+                a.node = n;
+                if let Some(n) = n {
+                    w.crash(n);
+                }
             }
-            Fault::EStop => w.part_mut(c).rcm.control(now, Rcm::EStop),
-            Fault::LimitSwitch => w.part_mut(c).rcm.control(now, Rcm::LimitSwitch),
-            Fault::Unplug => w.part_mut(c).plugged = false,
-            Fault::Noise => {
-                let n = w.rng.gen_range(1..40);
-                let noise: Vec<u8> = (0..n).map(|_| w.rng.gen()).collect();
-                w.noise(c, noise);
-                a.clear_at = now;
+            Fault::EStop | Fault::LimitSwitch | Fault::Unplug | Fault::Noise => {
+                a.node = robot;
+                let Some(n) = robot else {
+                    a.clear_at = now;
+                    w.note(format!("{at} has no welding station: nothing to {fault}"));
+                    self.active = Some(a);
+                    return;
+                };
+                match fault {
+                    Fault::EStop => {
+                        if let Some(r) = rcm(w, n) {
+                            r.rcm.control(now, Rcm::EStop);
+                        }
+                    }
+                    Fault::LimitSwitch => {
+                        if let Some(r) = rcm(w, n) {
+                            r.rcm.control(now, Rcm::LimitSwitch);
+                        }
+                    }
+                    Fault::Unplug => {
+                        if let Some(r) = rcm(w, n) {
+                            r.plugged = false;
+                        }
+                    }
+                    _ => {
+                        let n_bytes = w.rng.gen_range(1..40);
+                        let noise: Vec<u8> = (0..n_bytes).map(|_| w.rng.gen()).collect();
+                        w.noise(n, noise);
+                        a.clear_at = now;
+                    }
+                }
             }
-            Fault::Jam => {
-                let l = *LINES.choose(&mut w.rng).unwrap_or(&'A');
-                a.line = Some(l);
-                w.part_mut(c).conveyor.control(now, Plc::Jam(l));
-            }
-            Fault::Stuck => {
-                let p = Place::of(w.rng.gen_range(2..=6));
-                let v = w.rng.gen_bool(0.5);
-                a.place = Some(p);
-                w.part_mut(c).conveyor.control(now, Plc::Stuck(p, v));
+            Fault::Jam | Fault::Stuck => {
+                let t = belt(w);
+                a.node = t;
+                let Some(n) = t else {
+                    a.clear_at = now;
+                    w.note(format!("{at} has no transport station: nothing to {fault}"));
+                    self.active = Some(a);
+                    return;
+                };
+                let control = if fault == Fault::Jam {
+                    let l = *LINES.choose(&mut w.rng).unwrap_or(&'A');
+                    a.line = Some(l);
+                    Plc::Jam(l)
+                } else {
+                    let p = Place::of(w.rng.gen_range(2..=6));
+                    let v = w.rng.gen_bool(0.5);
+                    a.place = Some(p);
+                    Plc::Stuck(p, v)
+                };
+                if let Some(t) = conveyor(w, n) {
+                    t.conveyor.control(now, control);
+                }
             }
             Fault::Partition => {
-                let n = *Node::all_of(c)
-                    .choose(&mut w.rng)
-                    .unwrap_or(&Node::new(c, Role::Welding));
-                a.node = Some(n);
-                w.cut(n, true);
+                let n = w.nodes_of(c).choose(&mut w.rng).copied();
+                a.node = n;
+                if let Some(n) = n {
+                    w.cut(n, true);
+                }
             }
             Fault::DiskFull => w.records.borrow_mut().failing = true,
             Fault::Memory => {
-                let n = *[Node::new(c, Role::Welding), Node::new(c, Role::Transport)]
-                    .choose(&mut w.rng)
-                    .unwrap_or(&Node::new(c, Role::Welding));
-                a.node = Some(n);
-                w.set_recipe_memory(n, Some(SMALL_MEMORY));
-                w.crash(n);
-                w.restart(n);
+                let ws: Vec<Node> = w
+                    .part(c)
+                    .workstations()
+                    .map(|k| Node::workstation(c, k))
+                    .collect();
+                let n = ws.choose(&mut w.rng).copied();
+                a.node = n;
+                if let Some(n) = n {
+                    w.set_recipe_memory(n, Some(SMALL_MEMORY));
+                    w.crash(n);
+                    w.restart(n);
+                }
             }
             Fault::Uplink => w.cut_uplink(c, true),
         }
@@ -765,28 +833,42 @@ impl Run {
         let c = a.cell;
         let w = &mut self.world;
         w.note(format!("CLEARED {}", a.fault));
-        let node = a.node.unwrap_or(Node::new(c, Role::Welding));
-        match a.fault {
-            Fault::Crash => w.restart(node),
-            Fault::EStop => w.part_mut(c).rcm.control(now, Rcm::EStopClear),
-            Fault::LimitSwitch | Fault::Noise => {}
-            Fault::Unplug => w.part_mut(c).plugged = true,
-            Fault::Jam => {
-                let l = a.line.unwrap_or('A');
-                w.part_mut(c).conveyor.control(now, Plc::Unjam(l));
-            }
-            Fault::Stuck => {
-                if let Some(p) = a.place {
-                    w.part_mut(c).conveyor.control(now, Plc::Unstuck(p));
+        match (a.fault, a.node) {
+            (_, None) => {}
+            (Fault::Crash, Some(n)) => w.restart(n),
+            (Fault::EStop, Some(n)) => {
+                if let Some(r) = rcm(w, n) {
+                    r.rcm.control(now, Rcm::EStopClear);
                 }
             }
-            Fault::Partition => w.cut(node, false),
+            (Fault::LimitSwitch | Fault::Noise, _) => {}
+            (Fault::Unplug, Some(n)) => {
+                if let Some(r) = rcm(w, n) {
+                    r.plugged = true;
+                }
+            }
+            (Fault::Jam, Some(n)) => {
+                let l = a.line.unwrap_or('A');
+                if let Some(t) = conveyor(w, n) {
+                    t.conveyor.control(now, Plc::Unjam(l));
+                }
+            }
+            (Fault::Stuck, Some(n)) => {
+                if let (Some(p), Some(t)) = (a.place, conveyor(w, n)) {
+                    t.conveyor.control(now, Plc::Unstuck(p));
+                }
+            }
+            (Fault::Partition, Some(n)) => w.cut(n, false),
+            (Fault::DiskFull | Fault::Uplink, _) => {}
+            (Fault::Memory, Some(n)) => w.set_recipe_memory(n, None),
+        }
+        match a.fault {
             Fault::DiskFull => w.records.borrow_mut().failing = false,
-            Fault::Memory => w.set_recipe_memory(node, None),
             Fault::Uplink => {
                 w.cut_uplink(c, false);
                 self.cut_off = None;
             }
+            _ => {}
         }
         for (d, desk) in self.desks.iter_mut().enumerate() {
             if a.plant_wide() || d == c {
@@ -949,28 +1031,47 @@ impl Run {
             return Ok(());
         };
         let p = w.part(c);
-        let (transport, welding) = (Node::new(c, Role::Transport), Node::new(c, Role::Welding));
         // No line button stays pressed while the conveyor is idle.
-        let idle = w.is_running(transport)
-            && !p.transport().is_running()
-            && p.transport().device.unavailable().is_none();
-        let held = LINES.iter().find(|l| {
-            Coil::Button(falc_recipe::check::Button::Line(**l))
-                .offset()
-                .and_then(|o| p.conveyor.coils().get(usize::from(o)).copied())
-                .unwrap_or(false)
-        });
-        let held_for = lasting(&mut desk.held_since, idle && held.is_some(), now);
-        // No robot program runs without a job that owns it.
-        let orphan =
-            p.rcm.robot.running().is_some() && !(w.is_running(welding) && p.welding().is_running());
-        let orphan_for = lasting(&mut desk.orphan_since, orphan, now);
-        // A dead serial line is seen while a program of a job runs.
-        let unseen = !p.plugged
-            && w.is_running(welding)
-            && p.welding().device.program().is_some()
-            && p.welding().status().physical != PhysicalStatus::Inoperable;
-        let silent_for = lasting(&mut desk.silent_since, unseen, now);
+        let mut held = None;
+        for k in p.transports() {
+            let Some(t) = p.transport_parts(k) else {
+                continue;
+            };
+            let idle = w.is_running(Node::workstation(c, k))
+                && !t.controller().is_running()
+                && t.controller().device.unavailable().is_none();
+            let line = LINES.iter().find(|l| {
+                Coil::Button(falc_recipe::check::Button::Line(**l))
+                    .offset()
+                    .and_then(|o| t.conveyor.coils().get(usize::from(o)).copied())
+                    .unwrap_or(false)
+            });
+            let since = desk.held_since.entry(k).or_default();
+            if lasting(since, idle && line.is_some(), now) > HELD {
+                held = line.map(|l| (k, *l));
+            }
+        }
+        let (mut orphan, mut silent) = (None, None);
+        for k in p.weldings() {
+            let Some(r) = p.welding_parts(k) else {
+                continue;
+            };
+            let runs = w.is_running(Node::workstation(c, k));
+            // No robot program runs without a job that owns it.
+            let orphaned =
+                r.rcm.robot.running().is_some() && !(runs && r.controller().is_running());
+            if lasting(desk.orphan_since.entry(k).or_default(), orphaned, now) > ORPHAN {
+                orphan = Some(k);
+            }
+            // A dead serial line is seen while a program of a job runs.
+            let unseen = !r.plugged
+                && runs
+                && r.controller().device.program().is_some()
+                && r.controller().status().physical != PhysicalStatus::Inoperable;
+            if lasting(desk.silent_since.entry(k).or_default(), unseen, now) > SILENT {
+                silent = Some(k);
+            }
+        }
         // A write that fails stops the cell: no order runs on with the
         // journal behind.
         let (refused, failing) = {
@@ -989,13 +1090,23 @@ impl Run {
         } else {
             String::new()
         };
-        if let (true, Some(l)) = (held_for > HELD, held) {
+        let station = |k: usize| {
+            let n = Node::workstation(c, k);
+            match w.cell_count() {
+                1 => String::new(),
+                _ => format!(" ({})", w.label(n)),
+            }
+        };
+        if let Some((k, l)) = held {
+            let at = station(k);
             return Err(self.violation(format!("line button {l} held with no transport job{at}")));
         }
-        if orphan_for > ORPHAN {
+        if let Some(k) = orphan {
+            let at = station(k);
             return Err(self.violation(format!("a robot program runs with no job owning it{at}")));
         }
-        if silent_for > SILENT {
+        if let Some(k) = silent {
+            let at = station(k);
             return Err(self.violation(format!(
                 "the serial line is unplugged under a running program and the welding station has not seen it in {} s{at}",
                 SILENT.as_secs()
@@ -1016,6 +1127,31 @@ impl Run {
         }
         Ok(())
     }
+}
+
+/// One of `of`, drawn only where there is a choice (a cell of one welding
+/// station draws nothing, as before there could be two).
+fn pick(rng: &mut impl Rng, of: &[usize]) -> Option<usize> {
+    match of {
+        [one] => Some(*one),
+        many => many.choose(rng).copied(),
+    }
+}
+
+/// Workstation `n`'s welding parts (its robot's twin, its line).
+fn rcm(w: &mut World, n: Node) -> Option<&mut crate::cell::WeldingParts> {
+    let Role::Workstation(k) = n.role else {
+        return None;
+    };
+    w.part_mut(n.cell).welding_mut(k)
+}
+
+/// Workstation `n`'s transport parts (its conveyor's twin).
+fn conveyor(w: &mut World, n: Node) -> Option<&mut crate::cell::TransportParts> {
+    let Role::Workstation(k) = n.role else {
+        return None;
+    };
+    w.part_mut(n.cell).transport_mut(k)
 }
 
 /// The order cell `c`'s list runs, if any.

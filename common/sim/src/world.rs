@@ -11,17 +11,12 @@
 //! goes at once (and arrives after the bus's latency).
 
 use crate::bus::{Arrival, Bus, Link, Msg, Node, Role};
+use crate::cell::{Action, CellParts, Settled, Workstation};
 use crate::recipes::Shipped;
-use falc_control::cell_node::{CellAction, CellNode};
-use falc_control::controller::Controller;
-use falc_control::coordination::{workstation_domain, Awaiting, Reply, Stations};
+use falc_control::cell_node::CellAction;
+use falc_control::coordination::{workstation_domain, Awaiting, Reply};
 use falc_control::pass_on::PASS_LIMIT;
-use falc_control::workstation_node::{Linked, WorkstationAction, WorkstationNode};
-use falc_dnc::procedure::{Link as DncLink, Priority, Timing};
-use falc_dnc::robot::Robot;
-use falc_dnc::telegram::Mode;
-use falc_dnc::twin::{Note, RcmTwin};
-use falc_dnc::workstation::{self, LineEvent, Welding};
+use falc_dnc::procedure::Timing;
 use falc_factory::order_list::{CellCall, OrderList, Output as ListOutput, Ticket, CELL_LIMIT};
 use falc_factory::plant::{Plant, PlantOutput};
 use falc_factory::recipe_source::{RecipeSet, RecipeSource};
@@ -30,7 +25,6 @@ use falc_factory::records::shared::{plant, Shared};
 use falc_factory::records::Records;
 use falc_model::console::{ApiRequest, ApiResult};
 use falc_model::ids::{CellId, ObjectName, StationName};
-use falc_model::mms::association::Associations;
 use falc_model::mms::delivery::{Delivery, DeliveryStep, STEP_LIMIT};
 use falc_model::mms::domain::{content_hash, DomainState};
 use falc_model::mms::error::ServiceError;
@@ -41,15 +35,11 @@ use falc_model::mms::serving::{Action as Serve, Serving};
 use falc_model::mms::vmd::RECIPE_MEMORY;
 use falc_model::plant::Layout;
 use falc_model::topology::Topology;
-use falc_plc::conveyor::{Conveyor, Spot};
-use falc_plc::map::{Coil, Inputs, COILS};
-use falc_plc::workstation::{Pace, Plc, PlcCommand, PlcEvent, IDLE_POLL_MS, POLL_MS};
-use falc_recipe::commands::RecipeKind;
-use falc_recipe::engine::START_CONFIRM_LIMIT;
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use std::cell::RefCell;
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::path::Path;
 use std::rc::Rc;
 use std::time::Duration;
 
@@ -62,13 +52,7 @@ pub fn shipped_cell() -> Result<Layout, String> {
         .map(Layout::Cell)
         .map_err(|e| e.to_string())
 }
-/// How long one byte chunk takes on the serial line.
-const WIRE: Duration = Duration::from_millis(2);
-/// The transport's poll periods (the link's defaults).
-const POLL_BUSY: Duration = Duration::from_millis(POLL_MS);
-const POLL_IDLE: Duration = Duration::from_millis(IDLE_POLL_MS);
-/// Where carriers stand when an order may start.
-pub const HOME: [&str; 2] = ["W2", "W2"];
+pub use crate::cell::HOME;
 /// The wall time the virtual clock starts at (2026-01-01 00:00 UTC): the
 /// records are stamped with it plus the virtual time.
 pub const EPOCH_MS: i64 = 1_767_225_600_000;
@@ -139,135 +123,22 @@ struct Up {
     serving: Serving<(Node, u64)>,
 }
 
-/// The welding workstation: its node and its end of the line.
-struct WeldingNode {
-    /// The node around the robot.
-    node: WorkstationNode<Welding, (Node, u64)>,
-    link: DncLink,
-}
-
-/// The transport workstation: its node and its Modbus link (the poller
-/// `falc_node::plc_link` runs as a task).
-struct TransportNode {
-    /// The node around the PLC.
-    node: WorkstationNode<Plc, (Node, u64)>,
-    pace: Pace,
-    next_poll: Duration,
-    done: u64,
-    last: Option<Inputs>,
-    wrote: bool,
-}
-
 /// A cell's order list as `falc-operator` starts it.
-fn order_list(view: Shared, source: Shipped, set: RecipeSet) -> OrderList<Shared, Shipped> {
+fn order_list(
+    part: &CellParts,
+    view: Shared,
+    source: Shipped,
+    set: RecipeSet,
+) -> OrderList<Shared, Shipped> {
     OrderList::new(
-        name(Role::Operator),
-        name(Role::Cell),
+        part.name(Role::Operator).clone(),
+        part.name(Role::Cell).clone(),
         source.topology().clone(),
         view,
         source,
         set,
     )
     .clocked_from(EPOCH_MS)
-}
-
-/// The cell controller's node as `falc-cell` starts it.
-fn cell_node(topology: &Topology) -> CellNode<(Node, u64)> {
-    let me = name(Role::Cell);
-    let alone = Associations::of(topology, &me).runs_alone();
-    CellNode::new(
-        me,
-        Some(name(Role::Operator)),
-        vec![name(Role::Welding), name(Role::Transport)],
-        alone,
-    )
-}
-
-/// A workstation's node as `falc_node::controller_node` starts it.
-fn workstation_node<D: Linked>(
-    topology: &Topology,
-    role: Role,
-    kind: RecipeKind,
-    confirm_limit: Duration,
-    device: D,
-) -> WorkstationNode<D, (Node, u64)> {
-    let me = name(role);
-    let alone = Associations::of(topology, &me).runs_alone();
-    WorkstationNode::new(me, kind, confirm_limit, device, alone)
-}
-
-fn welding_node(topology: &Topology, now: Duration, timing: Timing) -> WeldingNode {
-    let device = Welding::new("sim-serial", &timing);
-    let limit = workstation::confirm_limit(&timing);
-    let mut node = workstation_node(topology, Role::Welding, RecipeKind::Welding, limit, device);
-    node.handle_link(now, LineEvent::Opened);
-    WeldingNode {
-        node,
-        link: DncLink::new(Priority::Low, timing).awaiting_answers(),
-    }
-}
-
-fn transport_node(topology: &Topology, now: Duration, coils: &[bool]) -> TransportNode {
-    let device = Plc::new("sim-plc:502".into());
-    let kind = RecipeKind::Transport;
-    let mut node = workstation_node(topology, Role::Transport, kind, START_CONFIRM_LIMIT, device);
-    let mut held = [false; COILS as usize];
-    for (h, c) in held.iter_mut().zip(coils) {
-        *h = *c;
-    }
-    let coils = Some(held);
-    node.handle_link(now, PlcEvent::Connected { coils });
-    TransportNode {
-        node,
-        pace: Pace::Idle,
-        next_poll: now,
-        done: 0,
-        last: None,
-        wrote: true,
-    }
-}
-
-/// The station name of `role` (the shipped topologies' names, checked
-/// when the world is built).
-fn name(role: Role) -> StationName {
-    // The four names are valid station names.
-    StationName::new(role.station()).unwrap_or_else(|e| unreachable!("{role:?}: {e}"))
-}
-
-fn station(n: Node) -> StationName {
-    name(n.role)
-}
-
-/// The cell topologies of `layout`, each checked to have the stations
-/// the simulation drives: an operator over a cell controller over a
-/// welding and a transport workstation.
-fn cell_topologies(layout: &Layout) -> Result<Vec<Topology>, String> {
-    let cells: Vec<Topology> = match layout {
-        Layout::Cell(t) => vec![t.clone()],
-        Layout::Plant(p) => p.cells().iter().map(|c| c.topology().clone()).collect(),
-    };
-    for t in &cells {
-        let mut names: Vec<&str> = t.stations().iter().map(|s| s.name.as_str()).collect();
-        names.sort_unstable();
-        let mut want: Vec<&str> = Role::ALL.iter().map(|r| r.station()).collect();
-        want.sort_unstable();
-        let shape = Role::ALL.iter().skip(1).all(|r| {
-            let commander = match r {
-                Role::Cell => Role::Operator,
-                _ => Role::Cell,
-            };
-            t.commander_of(&name(*r)) == Some(&name(commander))
-        });
-        if names != want || !shape {
-            return Err(format!(
-                "cell {}: the simulation drives an operator over a cell controller `cell` over \
-                 `welding` and `transport`; the topology has {}",
-                t.cell(),
-                names.join(", ")
-            ));
-        }
-    }
-    Ok(cells)
 }
 
 /// What a console hears while the operator's process is down.
@@ -279,65 +150,6 @@ fn order_of(argument: &str) -> Option<i64> {
         .strip_prefix("order ")
         .and_then(|s| s.split_whitespace().next())
         .and_then(|s| s.parse().ok())
-}
-
-/// One cell's processes and equipment (the operator's place in it is
-/// the plant's).
-pub struct CellParts {
-    /// Its topology.
-    topology: Topology,
-    /// The cell controller's node, as `falc-cell` runs it; a ticket is
-    /// the indication's sender and id.
-    cell: CellNode<(Node, u64)>,
-    /// The commander's Starts the cell has not answered yet: their
-    /// tickets, and the order each names (counted once answered).
-    starting: BTreeMap<(Node, u64), i64>,
-    /// The welding workstation.
-    welding: WeldingNode,
-    /// The transport workstation.
-    transport: TransportNode,
-    /// The robot controller's twin.
-    pub rcm: RcmTwin,
-    /// Bytes on the serial line: (arrival, towards the twin, bytes).
-    wire: VecDeque<(Duration, bool, Vec<u8>)>,
-    /// The serial line is plugged in.
-    pub plugged: bool,
-    /// The conveyor's twin.
-    pub conveyor: Conveyor,
-}
-
-impl CellParts {
-    fn new(topology: Topology, time_scale: f64, timing: Timing) -> Result<Self, String> {
-        let home: Vec<Spot> = HOME.iter().filter_map(|s| Spot::parse(s)).collect();
-        let conveyor = Conveyor::new(&home, time_scale)?;
-        let now = Duration::ZERO;
-        Ok(Self {
-            cell: cell_node(&topology),
-            starting: BTreeMap::new(),
-            welding: welding_node(&topology, now, timing),
-            transport: transport_node(&topology, now, conveyor.coils()),
-            rcm: RcmTwin::new(Robot::new(Mode::AutomaticExternal, time_scale), timing),
-            wire: VecDeque::new(),
-            plugged: true,
-            conveyor,
-            topology,
-        })
-    }
-
-    /// The cell controller's recipe runtime.
-    pub fn controller(&self) -> &Controller<Stations> {
-        self.cell.controller()
-    }
-
-    /// The welding workstation's recipe runtime (its robot: `.device`).
-    pub fn welding(&self) -> &Controller<Welding> {
-        self.welding.node.controller()
-    }
-
-    /// The transport workstation's recipe runtime (its PLC: `.device`).
-    pub fn transport(&self) -> &Controller<Plc> {
-        self.transport.node.controller()
-    }
 }
 
 /// The whole cell, or plant.
@@ -420,9 +232,19 @@ enum Parting {
 impl World {
     /// The cells of `layout` at rest at time zero, the twins at
     /// `time_scale`, the bus with `link` for every node (and uplink, in a
-    /// plant); `seed` drives every random choice.
-    pub fn new(layout: &Layout, seed: u64, time_scale: f64, link: Link) -> Result<Self, String> {
-        let topologies = cell_topologies(layout)?;
+    /// plant); the recipes of the tree `recipes` (None: the shipped ones);
+    /// `seed` drives every random choice.
+    pub fn new(
+        layout: &Layout,
+        recipes: Option<&Path>,
+        seed: u64,
+        time_scale: f64,
+        link: Link,
+    ) -> Result<Self, String> {
+        let topologies: Vec<Topology> = match layout {
+            Layout::Cell(t) => vec![t.clone()],
+            Layout::Plant(p) => p.cells().iter().map(|c| c.topology().clone()).collect(),
+        };
         let lease = topologies
             .first()
             .map(Topology::lease)
@@ -435,13 +257,18 @@ impl World {
         let mut durable = Vec::new();
         let mut cells = Vec::new();
         for (topology, mut view) in topologies.into_iter().zip(views) {
-            let source = Shipped::new(topology.clone(), name(Role::Cell));
+            let part = CellParts::new(topology.clone(), time_scale, timing)?;
+            let cell = part.name(Role::Cell).clone();
+            let source = match recipes {
+                None => Shipped::new(topology, cell),
+                Some(dir) => Shipped::read(dir, topology, cell)?,
+            };
             let set = source.load().map_err(|p| p.join("\n"))?;
             // What the list writes as it starts is stamped at the run's start.
             view.set_now(EPOCH_MS);
             durable.push((view.clone(), source.clone()));
-            lists.push(order_list(view, source, set));
-            cells.push(CellParts::new(topology, time_scale, timing)?);
+            lists.push(order_list(&part, view, source, set));
+            cells.push(part);
         }
         let uplinks = match layout {
             Layout::Cell(_) => 0,
@@ -481,11 +308,12 @@ impl World {
             runs: 0,
         };
         for c in 0..w.cells.len() {
-            for n in Node::all_of(c) {
+            for n in w.nodes_of(c) {
                 w.new_run(n);
             }
-            for r in [Role::Cell, Role::Welding, Role::Transport] {
-                w.list(c).handle_presence(now, name(r), true);
+            for n in w.stations_of(c) {
+                let name = w.name(n);
+                w.list(c).handle_presence(now, name, true);
             }
         }
         w.pump();
@@ -524,14 +352,52 @@ impl World {
             .unwrap_or_else(|| unreachable!("the plant has a list per cell"))
     }
 
-    /// Cell `c`'s welding workstation's recipe runtime.
-    pub fn welding(&self, c: usize) -> &Controller<Welding> {
-        self.part(c).welding()
+    /// Every node of cell `c`: the operator's place, the controller, the
+    /// workstations in the topology's order.
+    pub fn nodes_of(&self, c: usize) -> Vec<Node> {
+        let roles = self.part(c).roles();
+        roles.into_iter().map(|r| Node::new(c, r)).collect()
     }
 
-    /// Cell `c`'s transport workstation's recipe runtime.
-    pub fn transport(&self, c: usize) -> &Controller<Plc> {
-        self.part(c).transport()
+    /// Cell `c`'s stations the operator sees: the controller and the
+    /// workstations.
+    fn stations_of(&self, c: usize) -> Vec<Node> {
+        let mut v = self.nodes_of(c);
+        v.retain(|n| !n.is_operator());
+        v
+    }
+
+    /// Cell `c`'s workstations.
+    fn workstations_of(&self, c: usize) -> Vec<Node> {
+        let k = self.part(c).workstations();
+        k.map(|k| Node::workstation(c, k)).collect()
+    }
+
+    /// `n`'s station name.
+    fn name(&self, n: Node) -> StationName {
+        self.part(n.cell).name(n.role).clone()
+    }
+
+    /// The node of cell `c` that is station `name`.
+    fn node_of(&self, c: usize, name: &StationName) -> Option<Node> {
+        self.part(c).role_of(name).map(|r| Node::new(c, r))
+    }
+
+    /// `falc2/` before a line of cell `c`'s in a plant; nothing in a cell
+    /// of its own.
+    fn cell_tag(&self, c: usize) -> String {
+        match self.cells.len() {
+            1 => String::new(),
+            _ => format!("{}/", self.cell_id(c)),
+        }
+    }
+
+    /// `n` as the trace names it: its station, with its cell in a plant.
+    pub fn label(&self, n: Node) -> String {
+        match (self.cells.len(), n.role) {
+            (1, _) | (_, Role::Operator) => self.name(n).to_string(),
+            _ => format!("{}/{}", self.cell_id(n.cell), self.name(n)),
+        }
     }
 
     /// Cell `c`'s order list, to read.
@@ -607,7 +473,7 @@ impl World {
     /// `n`'s process as its peers know it: its station and session.
     fn peer(&self, n: Node) -> Peer {
         Peer {
-            station: station(n),
+            station: self.name(n),
             session: self
                 .ups
                 .get(&n)
@@ -631,19 +497,11 @@ impl World {
             self.bus.poll_timeout(),
             self.plant.poll_timeout().filter(|_| op),
         ];
-        let cells = self.cells.iter().enumerate().flat_map(|(c, p)| {
-            let cell = self.is_running(Node::new(c, Role::Cell));
-            [
-                p.cell.poll_timeout().filter(|_| cell),
-                p.welding.node.poll_timeout(),
-                p.welding.link.poll_timeout(),
-                p.rcm.poll_timeout(),
-                p.wire.iter().map(|w| w.0).min(),
-                p.transport.node.poll_timeout(),
-                Some(p.transport.next_poll),
-                p.conveyor.poll_timeout(),
-            ]
-        });
+        let cells = self
+            .cells
+            .iter()
+            .enumerate()
+            .map(|(c, p)| p.poll_timeout(self.is_running(Node::cell(c))));
         let rest = [
             self.pending.values().map(|p| p.deadline).min(),
             self.leases.iter().map(|l| l.0).min(),
@@ -717,75 +575,14 @@ impl World {
     /// Cell `c`'s timers due now.
     fn clocks(&mut self, c: usize) {
         let now = self.now;
-        let cell_runs = self.is_running(Node::new(c, Role::Cell));
-        let welding_runs = self.is_running(Node::new(c, Role::Welding));
-        let p = self.part_mut(c);
-        if cell_runs && p.cell.poll_timeout().is_some_and(|t| t <= now) {
-            p.cell.handle_timeout(now);
-        }
-        if p.welding.node.poll_timeout().is_some_and(|t| t <= now) {
-            p.welding.node.handle_timeout(now);
-        }
-        if p.welding.link.poll_timeout().is_some_and(|t| t <= now) {
-            p.welding.link.handle_timeout(now);
-        }
-        if p.rcm.poll_timeout().is_some_and(|t| t <= now) {
-            p.rcm.handle_timeout(now);
-        }
-        while let Some(i) = p.wire.iter().position(|w| w.0 <= now) {
-            let Some((_, to_twin, bytes)) = p.wire.remove(i) else {
-                break;
-            };
-            if !p.plugged {
-                continue;
-            }
-            if to_twin {
-                p.rcm.handle_bytes(now, &bytes);
-            } else if welding_runs {
-                p.welding.link.handle_bytes(now, &bytes);
-            }
-        }
-        if p.transport.node.poll_timeout().is_some_and(|t| t <= now) {
-            p.transport.node.handle_timeout(now);
-        }
-        if p.conveyor.poll_timeout().is_some_and(|t| t <= now) {
-            p.conveyor.handle_timeout(now);
-        }
-        if p.transport.next_poll <= now {
-            self.poll_plc(c);
-        }
-    }
-
-    /// Cell `c`'s transport's Modbus poll: the inputs as the PLC has them,
-    /// handed on when they changed or after a write (as
-    /// `falc_node::plc_link`).
-    fn poll_plc(&mut self, c: usize) {
-        let now = self.now;
-        let running = self.is_running(Node::new(c, Role::Transport));
-        let p = self.part_mut(c);
-        let t = &mut p.transport;
-        t.next_poll = now
-            + match t.pace {
-                Pace::Busy => POLL_BUSY,
-                Pace::Idle => POLL_IDLE,
-            };
-        if !running {
-            return;
-        }
-        p.conveyor.handle_timeout(now);
-        let inputs = p.conveyor.inputs();
-        if t.wrote || t.last != Some(inputs) {
-            t.wrote = false;
-            t.last = Some(inputs);
-            let commands_done = t.done;
-            t.node.handle_link(
-                now,
-                PlcEvent::Inputs {
-                    inputs,
-                    commands_done,
-                },
-            );
-        }
+        let running: BTreeSet<Role> = self
+            .nodes_of(c)
+            .into_iter()
+            .filter(|n| self.is_running(*n))
+            .map(|n| n.role)
+            .collect();
+        self.part_mut(c)
+            .handle_timeout(now, |r| running.contains(&r));
     }
 
     /// Carries what every core put out to where it goes, until all are
@@ -797,8 +594,9 @@ impl World {
             let mut busy = false;
             for c in 0..self.cells.len() {
                 busy |= self.pump_cell(c);
-                busy |= self.pump_welding(c);
-                busy |= self.pump_transport(c);
+                for n in self.workstations_of(c) {
+                    busy |= self.pump_workstation(n);
+                }
             }
             if !busy {
                 return;
@@ -864,7 +662,7 @@ impl World {
             .iter()
             .filter(|(n, _)| self.is_running(**n))
             .filter_map(|(n, log)| {
-                let (run, last, holes) = self.order_list(n.cell).filed(&station(*n))?;
+                let (run, last, holes) = self.order_list(n.cell).filed(&self.name(*n))?;
                 (run == log.run() && (last != log.last() || holes > 0)).then(|| {
                     format!(
                         "{n} made {} reports in run {run}; the list filed up to {last}, \
@@ -883,7 +681,7 @@ impl World {
         let run = format!("{n}-{}", self.runs);
         let session = format!("sim-{run}");
         let me = Peer {
-            station: station(n),
+            station: self.name(n),
             session: session.clone(),
         };
         let up = Up {
@@ -909,7 +707,7 @@ impl World {
         };
         let c = from.cell;
         let to: &[Node] = match from.role {
-            Role::Welding | Role::Transport => &[Node::operator(c), Node::new(c, Role::Cell)],
+            Role::Workstation(_) => &[Node::operator(c), Node::cell(c)],
             Role::Cell => &[Node::operator(c)],
             Role::Operator => &[],
         };
@@ -932,7 +730,7 @@ impl World {
                 }
                 PlantOutput::Cell(c, out) => (c, out),
             };
-            let (me, cell) = (Node::operator(c), Node::new(c, Role::Cell));
+            let (me, cell) = (Node::operator(c), Node::cell(c));
             match out {
                 ListOutput::Cell(CellCall::Associate) => self.associate(c),
                 ListOutput::Cell(call) => match call.request(&self.peer(me)) {
@@ -944,8 +742,8 @@ impl World {
                         Waiter::List(c),
                     ),
                     Err(d) => {
-                        let delivery =
-                            Delivery::new(name(Role::Cell), d.domain, &d.content, d.is_cell);
+                        let to = self.name(cell);
+                        let delivery = Delivery::new(to, d.domain, &d.content, d.is_cell);
                         self.deliver(me, delivery, Then::List(c));
                     }
                 },
@@ -962,10 +760,10 @@ impl World {
                         self.respond(me, cell, id, Err(e));
                     }
                 }
-                ListOutput::Say(line) => self.note(format!("operator: {line}")),
+                ListOutput::Say(line) => self.note(format!("{}operator: {line}", self.cell_tag(c))),
                 ListOutput::Changed => {}
                 ListOutput::ReadReports { station, after } => {
-                    if let Some(to) = Node::of(c, &station) {
+                    if let Some(to) = self.node_of(c, &station) {
                         let msg = move |id| Msg::ReadKept { id, after };
                         self.request(me, to, msg, CELL_LIMIT, Waiter::Kept(to));
                     }
@@ -975,7 +773,7 @@ impl World {
     }
 
     fn pump_cell(&mut self, c: usize) -> bool {
-        let me = Node::new(c, Role::Cell);
+        let me = Node::cell(c);
         if !self.is_running(me) {
             return false;
         }
@@ -988,7 +786,7 @@ impl World {
             any = true;
             match action {
                 CellAction::Request(cmd) => {
-                    let Some(to) = Node::of(c, &cmd.to) else {
+                    let Some(to) = self.node_of(c, &cmd.to) else {
                         let e = ServiceError::unreachable(format!("no station {}", cmd.to));
                         let reply = Reply {
                             awaiting: cmd.awaiting,
@@ -1017,7 +815,7 @@ impl World {
                     }
                     self.respond(me, to, id, result)
                 }
-                CellAction::Ask { id, to, request } => match Node::of(c, &to) {
+                CellAction::Ask { id, to, request } => match self.node_of(c, &to) {
                     Some(ws) => self.request(
                         me,
                         ws,
@@ -1034,133 +832,58 @@ impl World {
                     self.deliver(me, delivery, Then::Pass(c, id));
                 }
                 CellAction::Delivered { to, name } => {
-                    self.note(format!("{me}: {name} delivered to {to}"));
+                    self.note(format!("{}: {name} delivered to {to}", self.label(me)));
                 }
-                CellAction::Warn(text) => self.note(format!("{me}: {text}")),
+                CellAction::Warn(text) => self.note(format!("{}: {text}", self.label(me))),
                 CellAction::Publish(u) => self.publish(me, u),
             }
         }
         any
     }
 
-    /// Carries what cell `c`'s welding node decided: its telegrams over
-    /// the 3964R link to the line (as `falc_node::dnc_link`'s task), what
-    /// the link reports back to the node, until both are quiet.
-    fn pump_welding(&mut self, c: usize) -> bool {
-        let me = Node::new(c, Role::Welding);
-        if !self.is_running(me) {
+    /// Carries what workstation `n`'s node decided to its device's link
+    /// (the link tasks' job, [`crate::cell`]) and on the bus.
+    fn pump_workstation(&mut self, n: Node) -> bool {
+        let Role::Workstation(k) = n.role else {
+            return false;
+        };
+        if !self.is_running(n) {
             return false;
         }
-        let mut any = false;
         let now = self.now;
-        loop {
-            while let Some(a) = self.part_mut(c).welding.node.poll(now) {
-                any = true;
-                if let Some(t) = self.carry_workstation(me, a) {
-                    self.part_mut(c).welding.link.send(now, t.encode());
-                }
+        match self.part_mut(n.cell).workstation_mut(k) {
+            Some(Workstation::Welding(w)) => {
+                let out = w.settle(now);
+                self.carry_workstation(n, out)
             }
-            let p = self.part_mut(c);
-            let mut more = false;
-            while let Some(ev) = p.welding.link.poll_event() {
-                more = true;
-                p.welding.node.handle_link(now, LineEvent::Link(ev));
+            Some(Workstation::Transport(t)) => {
+                let out = t.settle(now);
+                self.carry_workstation(n, out)
             }
-            while let Some(bytes) = p.welding.link.poll_transmit() {
-                p.wire.push_back((now + WIRE, true, bytes));
-            }
-            if !more {
-                break;
-            }
+            None => false,
         }
-        let p = self.part_mut(c);
-        while let Some(bytes) = p.rcm.poll_transmit() {
-            p.wire.push_back((now + WIRE, false, bytes));
-        }
-        let mut troubles = Vec::new();
-        while let Some(note) = p.rcm.poll_note() {
-            // Each telegram received is too many lines for the trace.
-            if let Note::Trouble(why) = note {
-                troubles.push(why);
-            }
-        }
-        for why in troubles {
-            self.note(format!("rcm{}: {why}", at_cell(c)));
-        }
-        any
     }
 
-    /// Carries what cell `c`'s transport node decided: its commands to
-    /// the conveyor's twin (as `falc_node::plc_link`'s task writes coils
-    /// and sets its pace).
-    fn pump_transport(&mut self, c: usize) -> bool {
-        let me = Node::new(c, Role::Transport);
-        if !self.is_running(me) {
-            return false;
-        }
-        let mut any = false;
-        let now = self.now;
-        while let Some(a) = self.part_mut(c).transport.node.poll(now) {
-            any = true;
-            let command = self.carry_workstation(me, a);
-            let p = self.part_mut(c);
-            match command {
-                Some(PlcCommand::Write(coil, v)) => {
-                    write_coil(&mut p.conveyor, now, coil, v);
-                    p.transport.done += 1;
-                    p.transport.wrote = true;
-                }
-                Some(PlcCommand::WriteAll(values)) => {
-                    for (o, v) in values.iter().enumerate() {
-                        if let Some(coil) = Coil::at(o as u16) {
-                            write_coil(&mut p.conveyor, now, coil, *v);
-                        }
-                    }
-                    p.transport.done += 1;
-                    p.transport.wrote = true;
-                }
-                Some(PlcCommand::Pace(pace)) => {
-                    p.transport.pace = pace;
-                    if pace == Pace::Busy {
-                        p.transport.next_poll = p.transport.next_poll.min(now + POLL_BUSY);
-                    }
-                }
-                None => {}
+    /// Carries out a workstation's actions on the bus (answers,
+    /// publications, lines for the trace, in order) and its twin's lines;
+    /// whether the node did anything.
+    fn carry_workstation<C>(&mut self, at: Node, out: Settled<C>) -> bool {
+        for action in out.actions {
+            match action {
+                Action::Answer {
+                    ticket: (to, id),
+                    result,
+                } => self.respond(at, to, id, result),
+                Action::Publish(u) => self.publish(at, u),
+                Action::Event(line) => self.note(format!("{}: {line}", self.label(at))),
+                // Carried to the link while it settled.
+                Action::Command(_) => {}
             }
         }
-        let p = self.part_mut(c);
-        if p.transport.wrote {
-            // The link reads right after a write.
-            p.transport.next_poll = p.transport.next_poll.min(now + POLL_BUSY);
+        for note in out.notes {
+            self.note(format!("{}{note}", self.cell_tag(at.cell)));
         }
-        let mut notes = Vec::new();
-        while let Some(note) = p.conveyor.poll_note() {
-            notes.push(note);
-        }
-        for note in notes {
-            self.note(format!("plc{}: {note}", at_cell(c)));
-        }
-        any
-    }
-
-    /// Carries out a workstation's action on the bus (an answer, a
-    /// publication, a line for the trace); a command for its device's
-    /// link is returned, for the caller to carry.
-    fn carry_workstation<C>(
-        &mut self,
-        at: Node,
-        action: WorkstationAction<(Node, u64), C>,
-    ) -> Option<C> {
-        match action {
-            WorkstationAction::Answer {
-                ticket: (to, id),
-                result,
-            } => self.respond(at, to, id, result),
-            WorkstationAction::Publish(u) => self.publish(at, u),
-            WorkstationAction::Event(line) => self.note(format!("{at}: {line}")),
-            WorkstationAction::Command(c) => return Some(c),
-        }
-        None
+        out.any
     }
 
     /// A publication the bus carried to `to`, taken in.
@@ -1171,7 +894,7 @@ impl World {
                 .part_mut(to.cell)
                 .cell
                 .handle_publication(now, &p.message),
-            _ => {}
+            Role::Workstation(_) => {}
         }
     }
 
@@ -1199,14 +922,15 @@ impl World {
                     ..
                 }) = self.pending.remove(&id)
                 {
-                    let kept = heard::take_kept(&station(n), kept).map_err(|e| e.to_string());
-                    self.list(n.cell).handle_kept_reports(now, station(n), kept);
+                    let name = self.name(n);
+                    let kept = heard::take_kept(&name, kept).map_err(|e| e.to_string());
+                    self.list(n.cell).handle_kept_reports(now, name, kept);
                 }
             }
             // What a receiver takes in, as on the bus: the sender is the
             // station it came from, texts bounded.
             (to, Msg::Publish(p)) => {
-                if let Ok((p, _)) = heard::take_publication(&station(a.from), p) {
+                if let Ok((p, _)) = heard::take_publication(&self.name(a.from), p) {
                     self.heard(now, to, p);
                 }
             }
@@ -1236,8 +960,8 @@ impl World {
             }
             Waiter::Kept(n) => {
                 let why = result.err().map_or_else(String::new, |e| e.to_string());
-                self.list(n.cell)
-                    .handle_kept_reports(now, station(n), Err(why));
+                let name = self.name(n);
+                self.list(n.cell).handle_kept_reports(now, name, Err(why));
             }
             Waiter::Delivery(n) => {
                 if let Some(d) = self.deliveries.get_mut(&n) {
@@ -1274,7 +998,7 @@ impl World {
         match waiter {
             Waiter::List(c) | Waiter::Associate(c, _) => Node::operator(*c),
             Waiter::Kept(n) => Node::operator(n.cell),
-            Waiter::Cell(c, ..) | Waiter::Pass(c, _) => Node::new(*c, Role::Cell),
+            Waiter::Cell(c, ..) | Waiter::Pass(c, _) => Node::cell(*c),
             Waiter::Initiate(at, _) => *at,
             Waiter::Delivery(n) => self.deliveries.get(n).map_or(Node::operator(0), |d| d.from),
         }
@@ -1296,7 +1020,7 @@ impl World {
             self.list(c).handle_cell_answer(now, Err(e));
             return;
         };
-        let Some(to) = Node::of(c, &sub) else {
+        let Some(to) = self.node_of(c, &sub) else {
             let e = ServiceError::unreachable(format!("no station {sub}"));
             self.list(c).handle_cell_answer(now, Err(e));
             return;
@@ -1310,7 +1034,7 @@ impl World {
 
     /// Starts `delivery` from `from`; its outcome goes to `then`.
     fn deliver(&mut self, from: Node, delivery: Delivery, then: Then) {
-        let Some(to) = Node::of(from.cell, delivery.to()) else {
+        let Some(to) = self.node_of(from.cell, delivery.to()) else {
             let e = ServiceError::unreachable(format!("no station {}", delivery.to()));
             self.delivered(then, Err(e));
             return;
@@ -1363,9 +1087,9 @@ impl World {
         let name = d.delivery.name();
         let held = self.holds(d.to, name, d.delivery.content_hash());
         if !held && self.false_delivery.is_none() {
+            let to = self.label(d.to);
             let what = format!(
-                "the delivery of {name} to {} was confirmed, but {} does not hold it whole",
-                d.to, d.to
+                "the delivery of {name} to {to} was confirmed, but {to} does not hold it whole"
             );
             self.note(what.clone());
             self.false_delivery = Some(what);
@@ -1413,7 +1137,7 @@ impl World {
         {
             match action {
                 Serve::Respond((to, id), result) => self.respond(at, to, id, result),
-                Serve::Initiate { to, request, limit } => match Node::of(c, &to) {
+                Serve::Initiate { to, request, limit } => match self.node_of(c, &to) {
                     Some(sub) => {
                         let msg = |id| Msg::Request { id, request };
                         self.request(at, sub, msg, limit, Waiter::Initiate(at, to));
@@ -1426,7 +1150,7 @@ impl World {
                     }
                 },
                 Serve::Tell { to, request } => {
-                    if let Some(to) = Node::of(c, &to) {
+                    if let Some(to) = self.node_of(c, &to) {
                         self.next_id += 1;
                         let id = self.next_id;
                         self.bus
@@ -1452,27 +1176,26 @@ impl World {
                         }
                         p.cell.handle_indication((from, id), request);
                     }
-                    Role::Welding => {
-                        self.part_mut(c)
-                            .welding
-                            .node
-                            .handle_indication(now, (from, id), &request)
-                    }
-                    Role::Transport => {
-                        self.part_mut(c).transport.node.handle_indication(
-                            now,
-                            (from, id),
-                            &request,
-                        );
-                    }
+                    Role::Workstation(k) => match self.part_mut(c).workstation_mut(k) {
+                        Some(Workstation::Welding(w)) => {
+                            w.node_mut().handle_indication(now, (from, id), &request)
+                        }
+                        Some(Workstation::Transport(t)) => {
+                            t.node_mut().handle_indication(now, (from, id), &request)
+                        }
+                        None => {}
+                    },
                 },
                 Serve::Associated(p) => {
-                    self.note(format!("{at}: associated with {}", p.station));
+                    self.note(format!("{}: associated with {}", self.label(at), p.station));
                     let parts = self.part_mut(c);
                     match at.role {
                         Role::Cell => parts.cell.handle_associated(now),
-                        Role::Welding => parts.welding.node.handle_associated(now),
-                        Role::Transport => parts.transport.node.handle_associated(now),
+                        Role::Workstation(k) => match parts.workstation_mut(k) {
+                            Some(Workstation::Welding(w)) => w.node_mut().handle_associated(now),
+                            Some(Workstation::Transport(t)) => t.node_mut().handle_associated(now),
+                            None => {}
+                        },
                         Role::Operator => {}
                     }
                 }
@@ -1480,14 +1203,15 @@ impl World {
                     let (name, role) = (&ind.peer.station, ind.role);
                     match at.role {
                         Role::Cell => self.part_mut(c).cell.handle_abort(now, name, role),
-                        Role::Welding => {
-                            self.part_mut(c).welding.node.handle_abort(now, name, role)
-                        }
-                        Role::Transport => self
-                            .part_mut(c)
-                            .transport
-                            .node
-                            .handle_abort(now, name, role),
+                        Role::Workstation(k) => match self.part_mut(c).workstation_mut(k) {
+                            Some(Workstation::Welding(w)) => {
+                                w.node_mut().handle_abort(now, name, role)
+                            }
+                            Some(Workstation::Transport(t)) => {
+                                t.node_mut().handle_abort(now, name, role)
+                            }
+                            None => {}
+                        },
                         Role::Operator => self.list(c).handle_abort(now, &ind.reason),
                     }
                 }
@@ -1505,13 +1229,11 @@ impl World {
         if let Some(last) = self.last_started.get_mut(c) {
             *last = (*last).max(n);
         }
-        self.note(format!("{}: order {n} started", Node::new(c, Role::Cell)));
+        let cell = self.label(Node::cell(c));
+        self.note(format!("{cell}: order {n} started"));
         if let Some(what) = self.lacking(c).filter(|_| self.started_lacking.is_none()) {
             self.note(what.clone());
-            self.started_lacking = Some(format!(
-                "order {n} started at {} while {what}",
-                Node::new(c, Role::Cell)
-            ));
+            self.started_lacking = Some(format!("order {n} started at {cell} while {what}"));
         }
     }
 
@@ -1520,21 +1242,18 @@ impl World {
     /// version), said.
     fn lacking(&self, c: usize) -> Option<String> {
         let cell = self.part(c).controller().vmd();
-        let assoc = self
-            .ups
-            .get(&Node::new(c, Role::Cell))?
-            .serving
-            .associations();
-        for ws in [Node::new(c, Role::Welding), Node::new(c, Role::Transport)] {
-            if !self.is_running(ws) || assoc.subordinate(&station(ws)) != Some(&self.peer(ws)) {
+        let assoc = self.ups.get(&Node::cell(c))?.serving.associations();
+        for ws in self.workstations_of(c) {
+            let me = self.name(ws);
+            if !self.is_running(ws) || assoc.subordinate(&me) != Some(&self.peer(ws)) {
                 continue;
             }
             for d in cell.domains() {
                 let Some((to, name)) = workstation_domain(d.name()) else {
                     continue;
                 };
-                if to == station(ws) && !self.holds(ws, &name, content_hash(d.content())) {
-                    return Some(format!("{ws} lacks its recipe {name}"));
+                if to == me && !self.holds(ws, &name, content_hash(d.content())) {
+                    return Some(format!("{} lacks its recipe {name}", self.label(ws)));
                 }
             }
         }
@@ -1544,12 +1263,8 @@ impl World {
     /// Whether node `n`'s VMD holds domain `name` whole (loaded) with
     /// content hash `hash`.
     fn holds(&self, n: Node, name: &ObjectName, hash: u64) -> bool {
-        let p = self.part(n.cell);
-        let vmd = match n.role {
-            Role::Cell => p.controller().vmd(),
-            Role::Welding => p.welding().vmd(),
-            Role::Transport => p.transport().vmd(),
-            Role::Operator => return false,
+        let Some(vmd) = self.part(n.cell).vmd(n.role) else {
+            return false;
         };
         vmd.domain(name).is_some_and(|d| {
             matches!(d.state(), DomainState::Ready | DomainState::InUse)
@@ -1561,7 +1276,8 @@ impl World {
     /// is one for all its places.
     pub fn cut(&mut self, n: Node, cut: bool) {
         self.bus.set_cut(n, cut);
-        self.note(format!("bus: {n} {}", if cut { "cut off" } else { "back" }));
+        let what = if cut { "cut off" } else { "back" };
+        self.note(format!("bus: {} {what}", self.label(n)));
         if cut {
             let at = self.now + self.lease;
             self.leases.push((at, Parting::Node(n)));
@@ -1604,8 +1320,8 @@ impl World {
 
     /// The operator sees cell `c`'s stations it reaches again.
     fn seen_again(&mut self, c: usize) {
-        for r in [Role::Cell, Role::Welding, Role::Transport] {
-            self.present(Node::new(c, r));
+        for n in self.stations_of(c) {
+            self.present(n);
         }
     }
 
@@ -1614,7 +1330,8 @@ impl World {
     fn present(&mut self, n: Node) {
         let now = self.now;
         if self.bus.reachable(Node::operator(n.cell), n) && self.is_running(n) {
-            self.list(n.cell).handle_presence(now, station(n), true);
+            let name = self.name(n);
+            self.list(n.cell).handle_presence(now, name, true);
         }
     }
 
@@ -1652,29 +1369,30 @@ impl World {
     /// takes theirs. The operator's places all go together.
     fn lost(&mut self, n: Node) {
         let now = self.now;
-        self.note(format!("bus: {n} lost"));
+        self.note(format!("bus: {} lost", self.label(n)));
         for p in self.places(n) {
             self.finalize(p);
         }
-        let reason = format!("no connection with {n}");
+        let reason = format!("no connection with {}", self.label(n));
         let cells: Vec<usize> = match n.role {
             Role::Operator => (0..self.cells.len()).collect(),
             _ => vec![n.cell],
         };
         for c in cells {
-            let (op, cell) = (Node::operator(c), Node::new(c, Role::Cell));
+            let (op, cell) = (Node::operator(c), Node::cell(c));
             if n.is_operator() || n == cell {
                 self.sees_lost(cell, op, &reason);
                 self.sees_lost(op, cell, &reason);
             }
             let seen = match n.role {
-                Role::Operator => vec![Role::Cell, Role::Welding, Role::Transport],
-                other => vec![other],
+                Role::Operator => self.stations_of(c),
+                _ => vec![n],
             };
             for s in seen {
-                self.list(c).handle_presence(now, name(s), false);
+                let name = self.name(s);
+                self.list(c).handle_presence(now, name, false);
             }
-            for ws in [Node::new(c, Role::Welding), Node::new(c, Role::Transport)] {
+            for ws in self.workstations_of(c) {
                 if n == cell || n == ws {
                     self.sees_lost(cell, ws, &reason);
                     self.sees_lost(ws, cell, &reason);
@@ -1691,12 +1409,13 @@ impl World {
         self.finalize_where(|from, to| {
             (from.is_operator() != to.is_operator()) && from.cell == c && to.cell == c
         });
-        let (op, cell) = (Node::operator(c), Node::new(c, Role::Cell));
+        let (op, cell) = (Node::operator(c), Node::cell(c));
         let reason = format!("no connection with cell {}", self.cell_id(c));
         self.sees_lost(cell, op, &reason);
         self.sees_lost(op, cell, &reason);
-        for r in [Role::Cell, Role::Welding, Role::Transport] {
-            self.list(c).handle_presence(now, name(r), false);
+        for n in self.stations_of(c) {
+            let name = self.name(n);
+            self.list(c).handle_presence(now, name, false);
         }
     }
 
@@ -1710,23 +1429,22 @@ impl World {
         self.carry_serving(at);
     }
 
-    /// Random bytes on cell `c`'s serial line, towards both ends.
-    pub fn noise(&mut self, c: usize, bytes: Vec<u8>) {
-        let at = self.now + WIRE;
-        self.note(format!(
-            "serial{}: {} bytes of noise",
-            at_cell(c),
-            bytes.len()
-        ));
-        let p = self.part_mut(c);
-        p.wire.push_back((at, true, bytes.clone()));
-        p.wire.push_back((at, false, bytes));
+    /// Random bytes on the serial line of workstation `n` (a welding
+    /// one), towards both ends.
+    pub fn noise(&mut self, n: Node, bytes: Vec<u8>) {
+        let (now, len) = (self.now, bytes.len());
+        self.note(format!("{}: serial: {len} bytes of noise", self.label(n)));
+        if let Role::Workstation(k) = n.role {
+            if let Some(w) = self.part_mut(n.cell).welding_mut(k) {
+                w.noise(now, bytes);
+            }
+        }
     }
 
     /// Node `n`'s process dies: only the twins' state survives (and the
     /// operator's records).
     pub fn crash(&mut self, n: Node) {
-        self.note(format!("{n}: process killed"));
+        self.note(format!("{}: process killed", self.label(n)));
         let places = self.places(n);
         for p in &places {
             if let Some(up) = self.up(*p) {
@@ -1740,10 +1458,10 @@ impl World {
             // cells' queries to it; each cell runs its order on alone.
             self.indications.clear();
             self.lost_before = self.tickets;
-            let reason = format!("no connection with {n}");
+            let reason = format!("no connection with {}", self.label(n));
             for p in &places {
                 self.finalize(*p);
-                self.sees_lost(Node::new(p.cell, Role::Cell), *p, &reason);
+                self.sees_lost(Node::cell(p.cell), *p, &reason);
             }
         } else {
             // Its liveliness token goes with its session: seen at once.
@@ -1771,35 +1489,35 @@ impl World {
 
     fn apply_memory(&mut self, n: Node) {
         let bytes = self.memory.get(&n).copied().unwrap_or(RECIPE_MEMORY);
-        let p = self.part_mut(n.cell);
-        match n.role {
-            Role::Welding => p.welding.node.set_recipe_memory(bytes),
-            Role::Transport => p.transport.node.set_recipe_memory(bytes),
-            Role::Operator | Role::Cell => {}
+        let Role::Workstation(k) = n.role else {
+            return;
+        };
+        match self.part_mut(n.cell).workstation_mut(k) {
+            Some(Workstation::Welding(w)) => w.node_mut().set_recipe_memory(bytes),
+            Some(Workstation::Transport(t)) => t.node_mut().set_recipe_memory(bytes),
+            None => {}
         }
     }
 
     /// Node `n` starts again: empty, but for the operator's records.
     pub fn restart(&mut self, n: Node) {
         let now = self.now;
-        self.note(format!("{n}: process started again"));
-        let timing = self.timing;
+        self.note(format!("{}: process started again", self.label(n)));
+        let (timing, me) = (self.timing, self.name(n));
         let p = self.part_mut(n.cell);
         match n.role {
-            Role::Welding => {
-                p.welding = welding_node(&p.topology, now, timing);
-                p.wire.retain(|w| w.1);
-            }
-            Role::Cell => {
-                p.cell = cell_node(&p.topology);
-                p.starting.clear();
-            }
             Role::Operator => {
                 self.restart_operator();
                 return;
             }
-            Role::Transport => {
-                p.transport = transport_node(&p.topology, now, p.conveyor.coils());
+            Role::Cell => p.restart_cell(),
+            Role::Workstation(k) => {
+                let topology = p.topology.clone();
+                match p.workstation_mut(k) {
+                    Some(Workstation::Welding(w)) => w.restart(&topology, &me, now, timing),
+                    Some(Workstation::Transport(t)) => t.restart(&topology, &me, now),
+                    None => {}
+                }
             }
         }
         self.apply_memory(n);
@@ -1841,7 +1559,7 @@ impl World {
                     return;
                 }
             };
-            let mut list = order_list(view, source, set);
+            let mut list = order_list(self.part(i), view, source, set);
             let cell = list.cell().to_string();
             if let Some(k) = adopted
                 .iter()
@@ -1859,20 +1577,5 @@ impl World {
             self.seen_again(c);
         }
         self.pump();
-    }
-}
-
-/// ` at cell c` for cells past the first, for the trace.
-fn at_cell(c: usize) -> String {
-    match c {
-        0 => String::new(),
-        c => format!("@{c}"),
-    }
-}
-
-/// Writes `coil` on the conveyor's twin.
-fn write_coil(conveyor: &mut Conveyor, now: Duration, coil: Coil, v: bool) {
-    if let Some(o) = coil.offset() {
-        conveyor.write_coil(now, o, v);
     }
 }

@@ -120,8 +120,11 @@ fn a_plant_of_three_cells_keeps_the_invariants_across_cells() {
     }
 }
 
+/// The stations come from the topology: a plant whose cell names its
+/// welding station otherwise runs no shipped recipe, and is refused with
+/// every recipe that names a station it lacks, by file and line.
 #[test]
-fn a_plant_topology_that_the_simulation_cannot_drive_is_refused_naming_it() {
+fn a_plant_whose_recipes_name_a_station_it_lacks_is_refused_naming_file_and_line() {
     let dir = std::env::temp_dir().join(format!("falc-sim-topology-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("a temporary directory");
     let path = dir.join("plant.toml");
@@ -134,5 +137,90 @@ fn a_plant_topology_that_the_simulation_cannot_drive_is_refused_naming_it() {
     });
     let _ = std::fs::remove_dir_all(&dir);
     let e = refused.err().expect("refused");
-    assert!(e.contains("cell falc1") && e.contains("welder"), "{e}");
+    assert!(
+        e.contains("recipes/welding/droog_dik.rcp:1: station welding is not a workstation"),
+        "{e}"
+    );
+}
+
+/// Copies the recipe tree `from` into `to`, each station directory also
+/// as the stations named in `also` (`("welding", "welding2")`).
+fn recipe_tree(
+    from: &std::path::Path,
+    to: &std::path::Path,
+    also: &[(&str, &str)],
+) -> std::io::Result<()> {
+    for entry in std::fs::read_dir(from)? {
+        let dir = entry?.path();
+        let Some(station) = dir.file_name().and_then(|n| n.to_str()) else {
+            continue;
+        };
+        if !dir.is_dir() {
+            continue;
+        }
+        let mut names = vec![station];
+        names.extend(also.iter().filter(|(a, _)| *a == station).map(|(_, b)| *b));
+        for name in names {
+            std::fs::create_dir_all(to.join(name))?;
+            for file in std::fs::read_dir(&dir)? {
+                let file = file?.path();
+                if let Some(f) = file.file_name() {
+                    std::fs::copy(&file, to.join(name).join(f))?;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// A cell grown by two stanzas (`welding2`, `transport2`), its recipes a
+/// tree read at the start: the simulation builds the stations from the
+/// topology, an order that uses all four workstations runs beside the
+/// shipped ones, every fault comes, and the invariants hold for every
+/// workstation.
+#[test]
+fn a_cell_grown_by_two_stanzas_runs_its_second_robot_and_conveyor() {
+    let here = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let root = here.join("../..");
+    let dir = std::env::temp_dir().join(format!("falc-sim-grown-{}", std::process::id()));
+    let recipes = dir.join("recipes");
+    std::fs::create_dir_all(&recipes).expect("a temporary directory");
+    let grown = here.join("tests/fixtures/grown");
+    let topology = [
+        std::fs::read_to_string(root.join("launch/cell.toml")).expect("launch/cell.toml"),
+        std::fs::read_to_string(grown.join("more-stations.toml")).expect("the stanzas"),
+    ]
+    .concat();
+    std::fs::write(dir.join("cell.toml"), topology).expect("written");
+    let also = [("welding", "welding2"), ("transport", "transport2")];
+    recipe_tree(&root.join("recipes"), &recipes, &also).expect("the recipes copied");
+    std::fs::copy(grown.join("dubbel.rcp"), recipes.join("cell/dubbel.rcp")).expect("copied");
+    let cfg = Config {
+        topology: Some(dir.join("cell.toml")),
+        recipe_dir: Some(recipes),
+        recipes: vec!["dubbel".into(), "dikdroog".into()],
+        seed: 2,
+        orders: 120,
+        keep_journal: true,
+        ..Config::default()
+    };
+    let ran = Run::new(cfg).and_then(|r| r.run().map_err(|v| v.to_string()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let s = ran.unwrap_or_else(|e| panic!("{e}"));
+    println!("{s}");
+    assert_eq!(s.done + s.failed, 120, "{s}");
+    assert!(s.done > s.failed, "{s}");
+    let jobs = |who: &str, job: &str| {
+        s.lines
+            .iter()
+            .filter(|l| l.contains(&format!("{who}: job {job} ")) && l.ends_with("done"))
+            .count()
+    };
+    // Both robots and both conveyors did their jobs to the end.
+    assert!(jobs("welding2", "DROOG_DUN") > 20, "{}", s.lines.join("\n"));
+    assert!(jobs("welding", "DROOG_DIK") > 20, "{s}");
+    assert!(jobs("transport2", "UNLOAD") > 20, "{s}");
+    for f in [Fault::Crash, Fault::Jam, Fault::EStop, Fault::Memory] {
+        assert!(s.faults.get(&f).copied().unwrap_or(0) >= 3, "{f}: {s}");
+    }
 }
