@@ -31,7 +31,7 @@ mod support;
 
 use falc_bus::credentials;
 use falc_bus::{Bus, BusSettings};
-use falc_model::console::ApiRequest;
+use falc_model::api::ApiRequest;
 use falc_model::ids::{CellId, StationName};
 use falc_model::keys::KeySpace;
 use std::io::{BufRead, BufReader};

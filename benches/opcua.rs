@@ -23,7 +23,7 @@
 mod support;
 
 use falc_bus::Bus;
-use falc_model::console::{ApiReply, ApiRequest};
+use falc_model::api::{ApiReply, ApiRequest};
 use std::sync::mpsc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use support::opcua::{client, step};

@@ -30,7 +30,7 @@
 mod support;
 
 use falc_bus::Bus;
-use falc_model::console::{ApiReply, ApiRequest, Placement};
+use falc_model::api::{ApiReply, ApiRequest, Placement};
 use falc_model::ids::{CellId, StationName};
 use std::time::{Duration, Instant};
 use support::plant::TestPlant;

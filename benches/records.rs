@@ -28,10 +28,12 @@ mod stats;
 use database::Database;
 use falc_factory::figures;
 use falc_factory::records::Records;
-use falc_model::console::{Placement, RecipeFile};
-use falc_model::figures::{Calendar, FigureQuery};
+use falc_model::api::Placement;
+use falc_model::calendar::Calendar;
+use falc_model::figures::FigureQuery;
 use falc_model::ids::StationName;
 use falc_model::product::{UsedRecipe, VersionHash};
+use falc_model::recipe_file::RecipeFile;
 use rusqlite::params;
 use stats::{median, tail};
 use std::time::Instant;
@@ -179,7 +181,7 @@ fn main() {
         } else {
             without.push(d);
         }
-        db.end_order(o.id, falc_model::console::OrderState::Done, "done")
+        db.end_order(o.id, falc_model::records::OrderState::Done, "done")
             .expect("end");
     }
     println!(

@@ -16,7 +16,8 @@
 #[path = "../tests/support/mod.rs"]
 mod support;
 
-use falc_model::console::{ApiRequest, OrderState};
+use falc_model::api::ApiRequest;
+use falc_model::records::OrderState;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -52,7 +53,7 @@ fn main() {
                         .api(&operator, ApiRequest::Status, Duration::from_secs(5))
                         .await
                     {
-                        Ok(falc_model::console::ApiReply::Status(s)) => {
+                        Ok(falc_model::api::ApiReply::Status(s)) => {
                             answered.fetch_add(1, Ordering::Relaxed);
                             if s.stations.iter().any(|v| !v.connected) {
                                 off_bus.fetch_add(1, Ordering::Relaxed);

@@ -11,13 +11,14 @@
 //! done after. The seed is printed; `FUZZ_SEED=N` repeats a run.
 
 use crate::support::rig::rig;
-use falc_model::console::{ApiRequest, ApiResult, RecipeFile};
+use falc_model::api::{ApiRequest, ApiResult};
 use falc_model::envelope;
 use falc_model::ids::ObjectName;
 use falc_model::keys::KeySpace;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Request, Response};
 use falc_model::mode::{CellMode, ManualAction};
+use falc_model::recipe_file::RecipeFile;
 use rand::{Rng, SeedableRng};
 use std::time::Duration;
 

@@ -26,7 +26,7 @@ use crate::support::hosts::{Hosts, ROUTER_ADDRESS};
 use crate::support::rig::{rig_hosts, Rig};
 use crate::support::wait::{holds, wait_until};
 use crate::support::TestCell;
-use falc_model::console::OrderState;
+use falc_model::records::OrderState;
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 

@@ -12,10 +12,10 @@
 use crate::support::rig::{rig, Rig};
 use crate::support::st;
 use falc_model::alarm::{AlarmClass, Cause};
-use falc_model::console::OrderState;
 use falc_model::ids::ObjectName;
 use falc_model::mms::pdu::{JobEvent, Severity, Unconfirmed};
 use falc_model::mms::vmd::{RecipeState, VmdStatus};
+use falc_model::records::OrderState;
 use std::time::Duration;
 
 /// The forgeries a station with its own credentials may try: each names

@@ -13,7 +13,7 @@
 
 use crate::support::rig::{rig, rig_with_db, Rig};
 use crate::support::wait::{holds, wait_until};
-use falc_model::console::OrderState;
+use falc_model::records::OrderState;
 use std::os::unix::fs::PermissionsExt;
 use std::time::Duration;
 
@@ -234,7 +234,7 @@ fn malformed_requests_from_one_caller_are_a_line_not_a_flood() {
 /// a few zenoh lines and a summary, not thousands.
 #[test]
 fn a_router_mode_session_is_closed_and_the_zenoh_errors_it_causes_are_rate_limited() {
-    use falc_model::console::Call;
+    use falc_model::api::Call;
     use falc_model::keys::KeySpace;
     let mut rig = rig("20");
     let cell = &rig.cell;

@@ -10,7 +10,7 @@
 use crate::support::rig::{rig, Rig};
 use crate::support::wait::{holds, wait_until};
 use falc_model::alarm::AlarmClass;
-use falc_model::console::OrderState;
+use falc_model::records::OrderState;
 use std::time::Duration;
 
 /// Waits until `falc status` lists an alarm of `station` that `done`

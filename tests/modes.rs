@@ -11,8 +11,8 @@
 
 use crate::support::rig::{rig, Rig};
 use crate::support::wait::{holds, wait_until};
-use falc_model::console::{EntryKind, OrderState};
 use falc_model::mode::CellMode;
+use falc_model::records::{EntryKind, OrderState};
 use std::time::Duration;
 
 /// `falc --user maintainer manual welding home`, run to its end: the

@@ -316,7 +316,7 @@ fn the_gateway_rides_out_a_lost_operator_and_the_next_order_runs_through_it() {
     assert_eq!(e["order_state"], "done", "{e}");
     let orders = rig.orders();
     assert_eq!(orders.len(), 1, "{orders:?}");
-    assert_eq!(orders[0].state, falc_model::console::OrderState::Done);
+    assert_eq!(orders[0].state, falc_model::records::OrderState::Done);
     w.send("done");
 }
 

@@ -5,7 +5,8 @@
 
 use crate::support::rig::{rig, Rig};
 use crate::support::wait::{holds, wait_until};
-use falc_model::console::{EntryKind, ListState, OrderState};
+use falc_model::api::ListState;
+use falc_model::records::{EntryKind, OrderState};
 use std::time::{Duration, Instant};
 
 #[test]

@@ -380,7 +380,7 @@ async fn a_cell_router_links_up_again_by_itself() {
 #[test]
 fn two_cells_work_through_one_order_list_in_parallel() {
     use crate::support::plant::whole_plant;
-    use falc_model::console::OrderState;
+    use falc_model::records::OrderState;
     let plant = TestPlant::start_text(&whole_plant());
     let _one = plant.start_cell_nodes("falc1", "100");
     let _two = plant.start_cell_nodes("falc2", "100");
@@ -440,7 +440,7 @@ fn two_cells_work_through_one_order_list_in_parallel() {
 #[test]
 fn a_plant_on_the_secure_transport_runs_an_order_on_each_cell_and_keeps_cells_apart() {
     use crate::support::plant::whole_plant;
-    use falc_model::console::OrderState;
+    use falc_model::records::OrderState;
     let plant = TestPlant::start_secure(&whole_plant());
     assert!(
         plant.plant.router().starts_with("quic/"),
@@ -502,7 +502,8 @@ fn a_plant_on_the_secure_transport_runs_an_order_on_each_cell_and_keeps_cells_ap
 #[test]
 fn an_emergency_stop_in_one_cell_stops_that_cell_only_and_its_way_back_is_its_own() {
     use crate::support::plant::whole_plant;
-    use falc_model::console::{ListState, OrderState};
+    use falc_model::api::ListState;
+    use falc_model::records::OrderState;
     let plant = TestPlant::start_text(&whole_plant());
     let _one = plant.start_cell_nodes("falc1", "100");
     let mut two = plant.start_cell_nodes("falc2", "10");
@@ -582,7 +583,7 @@ fn an_emergency_stop_in_one_cell_stops_that_cell_only_and_its_way_back_is_its_ow
 fn the_opcua_gateway_serves_the_plant_and_each_cell_with_its_own_state_and_methods() {
     use crate::support::opcua::{client_of, step};
     use crate::support::{free_port, Proc};
-    use falc_model::console::OrderState;
+    use falc_model::records::OrderState;
     let plant = TestPlant::start_text(&crate::support::plant::whole_plant());
     let _one = plant.start_cell_nodes("falc1", "100");
     let _two = plant.start_cell_nodes("falc2", "100");
@@ -691,7 +692,7 @@ fn the_opcua_gateway_serves_the_plant_and_each_cell_with_its_own_state_and_metho
 }
 
 /// The plant's cells as `plant.status()` shows them: cell `cell`'s.
-fn cell_status(plant: &TestPlant, cell: &str) -> falc_model::console::CellStatus {
+fn cell_status(plant: &TestPlant, cell: &str) -> falc_model::api::CellStatus {
     plant
         .status()
         .cells
@@ -715,7 +716,8 @@ fn cell_status(plant: &TestPlant, cell: &str) -> falc_model::console::CellStatus
 #[test]
 fn three_cells_run_nine_orders_through_an_estop_in_one_and_a_cut_uplink_of_another() {
     use crate::support::plant::plant_text;
-    use falc_model::console::{Entry, ListState, OrderState};
+    use falc_model::api::ListState;
+    use falc_model::records::{Entry, OrderState};
     let whole: &[&str] = &["welding", "transport"];
     let text = plant_text(&[("falc1", whole), ("falc2", whole), ("falc3", whole)]);
     let plant = match TestPlant::start_in_namespaces(&text) {

@@ -7,9 +7,9 @@
 
 use crate::support::rig::{rig, Rig};
 use falc_model::alarm::AlarmClass;
-use falc_model::console::{Order, OrderState};
 use falc_model::figures::Figures;
 use falc_model::product::{OrderRecord, RecipeVersion};
+use falc_model::records::{Order, OrderState};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 fn now_ms() -> i64 {
@@ -22,7 +22,7 @@ fn now_ms() -> i64 {
 /// `ms` as `YYYY-MM-DDTHH:MM+00:00` (whole minutes, as `falc figures`
 /// reads them).
 fn minute_text(ms: i64) -> String {
-    let text = falc_model::console::utc_text(ms);
+    let text = falc_model::time::utc_text(ms);
     format!("{}T{}+00:00", &text[..10], &text[11..16])
 }
 

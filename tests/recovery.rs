@@ -7,8 +7,9 @@
 
 use crate::support::rig::{rig, rig_with_db, Rig};
 use crate::support::wait::wait_until;
-use falc_model::console::{Entry, EntryKind, ListState, OrderState};
+use falc_model::api::ListState;
 use falc_model::mms::vmd::{RobotStatusDetail, RobotVmdState};
+use falc_model::records::{Entry, EntryKind, OrderState};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Duration;

@@ -13,7 +13,7 @@
 
 use crate::support::rig::rig;
 use crate::support::wait::{holds, wait_until};
-use falc_model::console::OrderState;
+use falc_model::records::OrderState;
 use std::time::Duration;
 
 /// The buttons the conveyor's twin holds, as its `show` prints them.

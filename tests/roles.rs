@@ -8,7 +8,7 @@
 use crate::support::LaunchedCell;
 use falc_bus::operator_service::CallError;
 use falc_bus::{credentials, Bus, BusSettings};
-use falc_model::console::ApiRequest;
+use falc_model::api::ApiRequest;
 use falc_model::ids::StationName;
 use falc_model::keys::KeySpace;
 use falc_model::topology::Topology;

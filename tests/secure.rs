@@ -8,8 +8,9 @@
 
 use crate::support::rig::rig_secure;
 use crate::support::{copy_dir, run_falc, run_falc_with, TestCell};
-use falc_model::console::{Call, OrderState};
+use falc_model::api::Call;
 use falc_model::keys::KeySpace;
+use falc_model::records::OrderState;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 

@@ -7,7 +7,7 @@
 
 use crate::support::copy_dir;
 use crate::support::rig::rig_grown;
-use falc_model::console::OrderState;
+use falc_model::records::OrderState;
 use std::time::Duration;
 
 const MORE: &str = r#"

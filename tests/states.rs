@@ -60,7 +60,7 @@ fn the_recipe_states_go_pending_executing_wait_ack_error_and_back_over_an_alarm_
     let orders = rig.orders();
     assert_eq!(
         orders.last().map(|o| o.state),
-        Some(falc_model::console::OrderState::Done),
+        Some(falc_model::records::OrderState::Done),
         "{orders:?}"
     );
     rig.operator()

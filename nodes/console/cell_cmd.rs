@@ -9,26 +9,142 @@
 //! or the router's access control refused the call (zenoh cannot tell
 //! which; the text on stderr says both).
 
+use crate::call::{once, CALL_LIMIT};
 use crate::commands::{CellCommand, ConsoleArgs, OrderCommand, StoreCommand};
 use crate::edit;
 use crate::history;
 use crate::lines;
-use crate::output::print;
+use crate::output::{fail, print, refuse};
 use crate::tui::Screens;
 use crate::watch::{follow, watch};
-use falc_bus::operator_service::CallError;
 use falc_bus::Bus;
 use falc_model::alarm::Alarm;
-use falc_model::console::{ApiReply, ApiRequest, Entry, Placement, RecipeFile};
-use falc_model::ids::printable;
+use falc_model::api::{ApiReply, ApiRequest, Placement};
 use falc_model::ids::CellId;
 use falc_model::ids::StationName;
 use falc_model::plant::Layout;
+use falc_model::recipe_file::RecipeFile;
+use falc_model::records::Entry;
 use falc_model::topology::Topology;
 use falc_recipe::files::StationKinds;
 use std::process::ExitCode;
 
-pub use falc_bus::operator_service::CALL_LIMIT;
+/// Runs an operator API command.
+pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
+    let (bus, topology) = match connect(&args).await {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("falc: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let json = args.json;
+    let operator = topology.root().name.clone();
+    let req = match cmd {
+        CellCommand::Status { watch: true } => return watch(&bus, &operator, json).await,
+        CellCommand::Tui => {
+            // In a plant the plant overview first, or the cell `--cell`
+            // names.
+            let shown = match (Layout::load(&args.node.topology), &args.node.cell) {
+                (Ok(Layout::Plant(p)), Some(c)) => match p.cell(c) {
+                    Some(cell) => Screens::Cell(cell.topology().clone()),
+                    None => return refuse(&format!("the plant has no cell {c}")),
+                },
+                (Ok(Layout::Plant(p)), None) => Screens::Plant(p),
+                _ => Screens::Cell(topology),
+            };
+            return crate::tui::run(&bus, &operator, shown, args.user.clone()).await;
+        }
+        CellCommand::Messages {
+            follow: true,
+            station,
+            ..
+        } => return follow(&bus, &operator, json, station.as_ref()).await,
+        CellCommand::Status { watch: false } => ApiRequest::Status,
+        CellCommand::Order(OrderCommand::Add {
+            recipe,
+            cell,
+            priority,
+            due,
+            count,
+        }) => {
+            let due_ms = match due.as_deref().map(crate::clock::parse_due).transpose() {
+                Ok(d) => d,
+                Err(e) => return refuse(&e),
+            };
+            ApiRequest::OrderAdd {
+                recipe,
+                placement: Placement {
+                    cell,
+                    priority,
+                    due_ms,
+                },
+                count,
+            }
+        }
+        CellCommand::Order(OrderCommand::Rm { id }) => ApiRequest::OrderRemove { id },
+        CellCommand::Order(OrderCommand::List) => ApiRequest::OrderList,
+        CellCommand::Order(OrderCommand::Show { id }) => ApiRequest::OrderShow { id },
+        CellCommand::Start => ApiRequest::Start,
+        CellCommand::Stop => ApiRequest::Stop,
+        CellCommand::Ack { id } => ApiRequest::Ack { id },
+        CellCommand::Alarms { station } => {
+            return alarms(&bus, &operator, station.as_ref(), json).await
+        }
+        CellCommand::Answer { text } => ApiRequest::Answer { text },
+        CellCommand::Messages {
+            follow: false,
+            station,
+            last,
+            all,
+        } => {
+            let keep = |e: &Entry| station.as_ref().map_or(true, |s| e.who == s.as_str());
+            // By default one page, the newest; --all reads page after page.
+            let last = (!all).then_some(last);
+            return all_entries(&bus, &operator, json, keep, |after| {
+                (after == 0 || last.is_none()).then_some(ApiRequest::Messages { after, last })
+            })
+            .await;
+        }
+        CellCommand::Journal { order } => {
+            return all_entries(
+                &bus,
+                &operator,
+                json,
+                |_| true,
+                |after| {
+                    Some(ApiRequest::Journal {
+                        order,
+                        after,
+                        last: None,
+                    })
+                },
+            )
+            .await
+        }
+        CellCommand::Shutdown => ApiRequest::Shutdown,
+        CellCommand::Records(cmd) => return history::export(&bus, &operator, cmd).await,
+        CellCommand::Report { figures, out } => {
+            return report(&bus, &operator, &figures, &out).await
+        }
+        CellCommand::Figures(args) => match args.request(crate::clock::now_ms()) {
+            Ok(r) => r,
+            Err(e) => return refuse(&e),
+        },
+        CellCommand::Mode { mode, stations } => ApiRequest::Mode { mode, stations },
+        CellCommand::Step { station, to } => ApiRequest::Step { station, to },
+        CellCommand::Restart { order, from } => ApiRequest::Restart { order, from },
+        CellCommand::Manual { station, action } => ApiRequest::Manual {
+            station,
+            action: action.action(),
+        },
+        CellCommand::Store(cmd) => {
+            let kinds = StationKinds::of(&topology);
+            return store(&bus, &operator, cmd, json, &kinds).await;
+        }
+    };
+    once(&bus, &operator, req, json).await
+}
 
 /// `falc alarms [--station S]`: the list, highest priority first.
 async fn alarms(
@@ -201,161 +317,11 @@ async fn view(
     }
 }
 
-/// Says why and exits 1.
-pub(crate) fn refuse(why: &str) -> ExitCode {
-    eprintln!("falc: {}", printable(why));
-    ExitCode::FAILURE
-}
-
-/// Says why a call brought no reply and exits 1 if the operator refused
-/// it, 2 if the operator node could not be reached (or the router refused
-/// the call: zenoh cannot tell them apart).
-pub fn fail(why: &CallError) -> ExitCode {
-    eprintln!("falc: {}", printable(&why.to_string()));
-    match why {
-        CallError::Refused(_) => ExitCode::FAILURE,
-        CallError::NoReply(_) => ExitCode::from(2),
-    }
-}
-
-/// One call: printed, or the refusal on stderr.
-pub(crate) async fn once(
-    bus: &Bus,
-    operator: &StationName,
-    req: ApiRequest,
-    json: bool,
-) -> ExitCode {
-    match bus.api(operator, req, CALL_LIMIT).await {
-        Ok(reply) => {
-            print(&reply, json);
-            ExitCode::SUCCESS
-        }
-        Err(why) => fail(&why),
-    }
-}
-
-/// Runs an operator API command.
-pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
-    let (bus, topology) = match connect(&args).await {
-        Ok(c) => c,
-        Err(e) => {
-            eprintln!("falc: {e}");
-            return ExitCode::from(2);
-        }
-    };
-    let json = args.json;
-    let operator = topology.root().name.clone();
-    let req = match cmd {
-        CellCommand::Status { watch: true } => return watch(&bus, &operator, json).await,
-        CellCommand::Tui => {
-            // In a plant the plant overview first, or the cell `--cell`
-            // names.
-            let shown = match (Layout::load(&args.node.topology), &args.node.cell) {
-                (Ok(Layout::Plant(p)), Some(c)) => match p.cell(c) {
-                    Some(cell) => Screens::Cell(cell.topology().clone()),
-                    None => return refuse(&format!("the plant has no cell {c}")),
-                },
-                (Ok(Layout::Plant(p)), None) => Screens::Plant(p),
-                _ => Screens::Cell(topology),
-            };
-            return crate::tui::run(&bus, &operator, shown, args.user.clone()).await;
-        }
-        CellCommand::Messages {
-            follow: true,
-            station,
-            ..
-        } => return follow(&bus, &operator, json, station.as_ref()).await,
-        CellCommand::Status { watch: false } => ApiRequest::Status,
-        CellCommand::Order(OrderCommand::Add {
-            recipe,
-            cell,
-            priority,
-            due,
-            count,
-        }) => {
-            let due_ms = match due.as_deref().map(crate::clock::parse_due).transpose() {
-                Ok(d) => d,
-                Err(e) => return refuse(&e),
-            };
-            ApiRequest::OrderAdd {
-                recipe,
-                placement: Placement {
-                    cell,
-                    priority,
-                    due_ms,
-                },
-                count,
-            }
-        }
-        CellCommand::Order(OrderCommand::Rm { id }) => ApiRequest::OrderRemove { id },
-        CellCommand::Order(OrderCommand::List) => ApiRequest::OrderList,
-        CellCommand::Order(OrderCommand::Show { id }) => ApiRequest::OrderShow { id },
-        CellCommand::Start => ApiRequest::Start,
-        CellCommand::Stop => ApiRequest::Stop,
-        CellCommand::Ack { id } => ApiRequest::Ack { id },
-        CellCommand::Alarms { station } => {
-            return alarms(&bus, &operator, station.as_ref(), json).await
-        }
-        CellCommand::Answer { text } => ApiRequest::Answer { text },
-        CellCommand::Messages {
-            follow: false,
-            station,
-            last,
-            all,
-        } => {
-            let keep = |e: &Entry| station.as_ref().map_or(true, |s| e.who == s.as_str());
-            // By default one page, the newest; --all reads page after page.
-            let last = (!all).then_some(last);
-            return all_entries(&bus, &operator, json, keep, |after| {
-                (after == 0 || last.is_none()).then_some(ApiRequest::Messages { after, last })
-            })
-            .await;
-        }
-        CellCommand::Journal { order } => {
-            return all_entries(
-                &bus,
-                &operator,
-                json,
-                |_| true,
-                |after| {
-                    Some(ApiRequest::Journal {
-                        order,
-                        after,
-                        last: None,
-                    })
-                },
-            )
-            .await
-        }
-        CellCommand::Shutdown => ApiRequest::Shutdown,
-        CellCommand::Records(cmd) => return history::export(&bus, &operator, cmd).await,
-        CellCommand::Report { figures, out } => {
-            return report(&bus, &operator, &figures, &out).await
-        }
-        CellCommand::Figures(args) => match args.request(crate::clock::now_ms()) {
-            Ok(r) => r,
-            Err(e) => return refuse(&e),
-        },
-        CellCommand::Mode { mode, stations } => ApiRequest::Mode { mode, stations },
-        CellCommand::Step { station, to } => ApiRequest::Step { station, to },
-        CellCommand::Restart { order, from } => ApiRequest::Restart { order, from },
-        CellCommand::Manual { station, action } => ApiRequest::Manual {
-            station,
-            action: action.action(),
-        },
-        CellCommand::Store(cmd) => {
-            let kinds = StationKinds::of(&topology);
-            return store(&bus, &operator, cmd, json, &kinds).await;
-        }
-    };
-    once(&bus, &operator, req, json).await
-}
-
 /// `falc report`: the figures asked for, drawn into one HTML page.
 async fn report(
     bus: &Bus,
     operator: &StationName,
-    args: &crate::figures::FiguresArgs,
+    args: &crate::commands::FiguresArgs,
     out: &std::path::Path,
 ) -> ExitCode {
     let request = match args.request(crate::clock::now_ms()) {

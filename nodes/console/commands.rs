@@ -1,13 +1,16 @@
-//! The console's command line: how `falc` reaches the cell
-//! ([`ConsoleArgs`]) and every operator API command with its arguments
-//! ([`CellCommand`] and its subcommands), as clap reads them.
+//! The console's command line, as clap reads it: how `falc` reaches the
+//! cell ([`ConsoleArgs`]), every operator API command with its arguments
+//! ([`CellCommand`] and its subcommands), the recipe file tools
+//! ([`RecipeCommand`]), the store's versions ([`VersionCommand`]), the
+//! records ([`RecordsCommand`]) and their ranges ([`RangeArgs`]).
 
-use crate::history::{RecordsCommand, VersionCommand};
 use clap::{Args, Subcommand};
-use falc_model::console::RecipeFile;
 use falc_model::ids::{CellId, StationName};
 use falc_model::mode::{CellMode, ManualAction};
+use falc_model::recipe_file::RecipeFile;
 use falc_node::NodeArgs;
+use falc_recipe::commands::RecipeKind;
+use std::path::PathBuf;
 
 /// How the console reaches the cell.
 #[derive(Args, Debug)]
@@ -90,13 +93,13 @@ pub enum CellCommand {
     /// The ISO 22400-2 figures of a range: time elements, availability,
     /// effectiveness, quality, OEE (in total and per shift), cycle times,
     /// MTBF and MTTR per station, the alarm Pareto.
-    Figures(crate::figures::FiguresArgs),
+    Figures(crate::commands::FiguresArgs),
     /// The figures of a range as a self-contained HTML page with charts:
     /// OEE and its factors per shift or day, cycle-time histograms, the
     /// alarm Pareto, a Gantt chart of the last order runs.
     Report {
         #[command(flatten)]
-        figures: crate::figures::FiguresArgs,
+        figures: crate::commands::FiguresArgs,
         /// Where to write the page.
         #[arg(long, default_value = "report.html")]
         out: std::path::PathBuf,
@@ -309,4 +312,151 @@ impl StoreCommand {
             | Self::Edit { station, file } => Some(RecipeFile::new(station.clone(), file)),
         }
     }
+}
+
+/// `falc recipe check|verify|list|dot|view`: the file tools.
+#[derive(Subcommand, Debug)]
+pub enum RecipeCommand {
+    /// Check recipe files, station directories or a recipe tree; exit 1 and
+    /// print `file:line: state N: reason` per problem.
+    Check {
+        /// The kind of every file given (else the directory name tells).
+        #[arg(long)]
+        kind: Option<RecipeKind>,
+        /// Files or directories (default `recipes`).
+        paths: Vec<PathBuf>,
+    },
+    /// List the recipes of a recipe tree: station, name, states, file, and
+    /// whether it checks clean.
+    List {
+        /// Files or directories (default `recipes`).
+        paths: Vec<PathBuf>,
+    },
+    /// Verify a recipe tree across levels: each cell recipe explored with
+    /// the workstation recipes it starts (every outcome they can reach,
+    /// every answer, every time-out). Prints `file:line: state N: kind:
+    /// finding` with a trace for each (`note:` before those that are
+    /// allowed); exit 1 if any defect.
+    Verify {
+        /// Explore at most this many states per recipe.
+        #[arg(long, default_value_t = falc_recipe::verify::STATE_LIMIT)]
+        limit: usize,
+        /// Print the trace of finding N (from 1) as Graphviz DOT instead.
+        #[arg(long, value_name = "N")]
+        dot: Option<usize>,
+        /// A recipe tree or its station directories (default `recipes`).
+        paths: Vec<PathBuf>,
+    },
+    /// Print a recipe as a Graphviz DOT state diagram.
+    Dot {
+        /// The kind (else the directory name tells).
+        #[arg(long)]
+        kind: Option<RecipeKind>,
+        /// Highlight this state (a running recipe's).
+        #[arg(long)]
+        current: Option<u16>,
+        /// The recipe file.
+        file: PathBuf,
+    },
+    /// Draw a recipe's state diagram to SVG (no Graphviz needed) or PNG
+    /// (with Graphviz `dot`)
+    /// (default: next to the recipe, `FILE.svg`).
+    View {
+        /// The kind (else the directory name tells).
+        #[arg(long)]
+        kind: Option<RecipeKind>,
+        /// Highlight this state (a running recipe's).
+        #[arg(long)]
+        current: Option<u16>,
+        /// `svg` or `png`.
+        #[arg(long, default_value = "svg", value_parser = ["svg", "png"])]
+        format: String,
+        /// Where to write the drawing.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// The recipe file.
+        file: PathBuf,
+    },
+}
+
+/// The versions of a store recipe.
+#[derive(Subcommand, Debug)]
+pub enum VersionCommand {
+    /// Every saved version of a store recipe: number, hash, author, time,
+    /// message.
+    History {
+        /// The station's directory (`cell`, `welding`, `transport`).
+        station: StationName,
+        /// The file (`droog_dik.rcp`; `.rcp` may be left out).
+        file: String,
+    },
+    /// What changed from version V1 to V2 (default: the newest), line by
+    /// line (`-` only in V1, `+` only in V2).
+    Diff {
+        /// The station's directory.
+        station: StationName,
+        /// The file.
+        file: String,
+        /// The earlier version.
+        v1: u32,
+        /// The later version (default: the newest).
+        v2: Option<u32>,
+    },
+    /// Save version V's text again as the newest version (engineer):
+    /// checked with the whole set like any save; the cell gets it at the
+    /// next start. History is never rewritten: the rollback is a version
+    /// of its own.
+    Rollback {
+        /// The station's directory.
+        station: StationName,
+        /// The file.
+        file: String,
+        /// The version whose text comes back.
+        version: u32,
+        /// Why, for the version's record.
+        #[arg(long, short, default_value = "")]
+        message: String,
+    },
+}
+
+/// `falc records …`.
+#[derive(Subcommand, Debug)]
+pub enum RecordsCommand {
+    /// Every order that started in a range, with its recipe versions,
+    /// workstation jobs and alarms: JSON (one order record each, as `falc
+    /// --json order show`) or CSV (a row per order).
+    Export {
+        #[command(flatten)]
+        range: crate::commands::RangeArgs,
+        /// `csv` or `json`.
+        #[arg(long, default_value = "csv", value_parser = ["csv", "json"])]
+        format: String,
+        /// Where to write (default: standard output).
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+    },
+}
+
+/// A range of the records (`falc figures`, `report`, `records export`).
+#[derive(clap::Args, Debug)]
+pub struct RangeArgs {
+    /// From (`2026-11-23`, `2026-11-23 06:00`, with an offset, or in this
+    /// PC's time zone; default: a week before until).
+    #[arg(long)]
+    pub(crate) since: Option<String>,
+    /// Until (default: now).
+    #[arg(long)]
+    pub(crate) until: Option<String>,
+}
+
+/// `falc figures`' options.
+#[derive(clap::Args, Debug)]
+pub struct FiguresArgs {
+    #[command(flatten)]
+    pub(crate) range: RangeArgs,
+    /// A planned run time in seconds for a recipe (`dikdroog=300`;
+    /// repeat for more); a recipe not named has the median of its done
+    /// orders in the range.
+    #[arg(long = "planned", value_name = "RECIPE=SECONDS")]
+    pub(crate) planned: Vec<String>,
 }

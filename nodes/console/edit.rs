@@ -5,11 +5,12 @@
 //! and nobody changed the file meanwhile. The copy is kept until the text
 //! is saved, so nothing typed is lost when the checker has findings.
 
-use crate::cell_cmd::CALL_LIMIT;
+use crate::call::CALL_LIMIT;
 use falc_bus::operator_service::CallError;
 use falc_bus::Bus;
-use falc_model::console::{ApiReply, ApiRequest, RecipeFile, RecipeText};
+use falc_model::api::{ApiReply, ApiRequest};
 use falc_model::ids::StationName;
+use falc_model::recipe_file::{RecipeFile, RecipeText};
 use std::io::BufRead;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -189,7 +190,7 @@ pub fn run_editor(path: &Path) -> Result<(), String> {
 pub async fn interactive(bus: &Bus, operator: &StationName, file: &RecipeFile) -> ExitCode {
     let session = match Session::open(bus, operator, file).await {
         Ok(s) => s,
-        Err(OpenError::Call(e)) => return crate::cell_cmd::fail(&e),
+        Err(OpenError::Call(e)) => return crate::output::fail(&e),
         Err(e) => {
             eprintln!("falc: {e}");
             return ExitCode::FAILURE;

@@ -4,24 +4,13 @@
 //! recipe, MTBF and MTTR per station, the alarm Pareto.
 
 use crate::clock::{date_time, parse_due};
-use falc_model::console::ApiRequest;
+use crate::commands::{FiguresArgs, RangeArgs};
+use falc_model::api::ApiRequest;
 use falc_model::figures::{CellFigures, FigureQuery, Figures, Percent, Period};
 use falc_model::ids::printable;
 
 /// How far back `falc figures` looks by default: a week.
 const DEFAULT_RANGE_MS: i64 = 7 * 86_400_000;
-
-/// A range of the records (`falc figures`, `report`, `records export`).
-#[derive(clap::Args, Debug)]
-pub struct RangeArgs {
-    /// From (`2026-11-23`, `2026-11-23 06:00`, with an offset, or in this
-    /// PC's time zone; default: a week before until).
-    #[arg(long)]
-    since: Option<String>,
-    /// Until (default: now).
-    #[arg(long)]
-    until: Option<String>,
-}
 
 impl RangeArgs {
     /// From and until (None: now), ms since the Unix epoch.
@@ -33,18 +22,6 @@ impl RangeArgs {
         };
         Ok((since_ms, until_ms))
     }
-}
-
-/// `falc figures`' options.
-#[derive(clap::Args, Debug)]
-pub struct FiguresArgs {
-    #[command(flatten)]
-    range: RangeArgs,
-    /// A planned run time in seconds for a recipe (`dikdroog=300`;
-    /// repeat for more); a recipe not named has the median of its done
-    /// orders in the range.
-    #[arg(long = "planned", value_name = "RECIPE=SECONDS")]
-    planned: Vec<String>,
 }
 
 /// A day alone (`2026-11-23`) is its midnight.

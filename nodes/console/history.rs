@@ -5,59 +5,21 @@
 //! workstation job, its journal, its alarms), and of every order of a
 //! range as CSV or JSON.
 
-use crate::cell_cmd::{fail, CALL_LIMIT};
+use crate::call::CALL_LIMIT;
 use crate::clock::date_time;
+use crate::commands::{RecordsCommand, VersionCommand};
 use crate::lines;
+use crate::output::fail;
 use crate::output::show_entry;
-use clap::Subcommand;
 use falc_bus::Bus;
-use falc_model::console::{ApiReply, ApiRequest, RecipeFile};
+use falc_model::api::{ApiReply, ApiRequest};
 use falc_model::ids::{printable, StationName};
 use falc_model::product::{line_diff, OrderRecord, RecipeVersion};
+use falc_model::recipe_file::RecipeFile;
 use std::process::ExitCode;
 
 /// Lines of context around each change in a diff.
 const CONTEXT: usize = 2;
-
-/// The versions of a store recipe.
-#[derive(Subcommand, Debug)]
-pub enum VersionCommand {
-    /// Every saved version of a store recipe: number, hash, author, time,
-    /// message.
-    History {
-        /// The station's directory (`cell`, `welding`, `transport`).
-        station: StationName,
-        /// The file (`droog_dik.rcp`; `.rcp` may be left out).
-        file: String,
-    },
-    /// What changed from version V1 to V2 (default: the newest), line by
-    /// line (`-` only in V1, `+` only in V2).
-    Diff {
-        /// The station's directory.
-        station: StationName,
-        /// The file.
-        file: String,
-        /// The earlier version.
-        v1: u32,
-        /// The later version (default: the newest).
-        v2: Option<u32>,
-    },
-    /// Save version V's text again as the newest version (engineer):
-    /// checked with the whole set like any save; the cell gets it at the
-    /// next start. History is never rewritten: the rollback is a version
-    /// of its own.
-    Rollback {
-        /// The station's directory.
-        station: StationName,
-        /// The file.
-        file: String,
-        /// The version whose text comes back.
-        version: u32,
-        /// Why, for the version's record.
-        #[arg(long, short, default_value = "")]
-        message: String,
-    },
-}
 
 impl VersionCommand {
     fn file(&self) -> Result<RecipeFile, String> {
@@ -67,24 +29,6 @@ impl VersionCommand {
             | Self::Rollback { station, file, .. } => RecipeFile::new(station.clone(), file),
         }
     }
-}
-
-/// `falc records …`.
-#[derive(Subcommand, Debug)]
-pub enum RecordsCommand {
-    /// Every order that started in a range, with its recipe versions,
-    /// workstation jobs and alarms: JSON (one order record each, as `falc
-    /// --json order show`) or CSV (a row per order).
-    Export {
-        #[command(flatten)]
-        range: crate::figures::RangeArgs,
-        /// `csv` or `json`.
-        #[arg(long, default_value = "csv", value_parser = ["csv", "json"])]
-        format: String,
-        /// Where to write (default: standard output).
-        #[arg(long)]
-        out: Option<std::path::PathBuf>,
-    },
 }
 
 /// A CSV field, quoted when it must be (RFC 4180).
@@ -105,7 +49,7 @@ const CSV_HEADER: &str =
 /// each list `;`-separated.
 fn csv_row(r: &OrderRecord) -> String {
     let o = &r.order;
-    let utc = |ms: Option<i64>| ms.map(falc_model::console::utc_text).unwrap_or_default();
+    let utc = |ms: Option<i64>| ms.map(falc_model::time::utc_text).unwrap_or_default();
     let versions: Vec<String> = r
         .runs
         .iter()
@@ -152,12 +96,12 @@ pub async fn export(bus: &Bus, operator: &StationName, cmd: RecordsCommand) -> E
     let now = crate::clock::now_ms();
     let (since, until) = match range.range(now) {
         Ok((since, until)) => (since, until.unwrap_or(now)),
-        Err(e) => return crate::cell_cmd::refuse(&e),
+        Err(e) => return crate::output::refuse(&e),
     };
     let orders = match bus.api(operator, ApiRequest::OrderList, CALL_LIMIT).await {
         Ok(ApiReply::Orders(o)) => o,
         Ok(other) => {
-            return crate::cell_cmd::refuse(&format!("unexpected answer to order-list: {other:?}"))
+            return crate::output::refuse(&format!("unexpected answer to order-list: {other:?}"))
         }
         Err(e) => return fail(&e),
     };
@@ -172,7 +116,7 @@ pub async fn export(bus: &Bus, operator: &StationName, cmd: RecordsCommand) -> E
         {
             Ok(ApiReply::OrderRecord(r)) => records.push(*r),
             Ok(other) => {
-                return crate::cell_cmd::refuse(&format!(
+                return crate::output::refuse(&format!(
                     "unexpected answer to order-show: {other:?}"
                 ))
             }
@@ -182,7 +126,7 @@ pub async fn export(bus: &Bus, operator: &StationName, cmd: RecordsCommand) -> E
     let text = if format == "json" {
         match serde_json::to_string_pretty(&records) {
             Ok(t) => t,
-            Err(e) => return crate::cell_cmd::refuse(&format!("cannot write JSON: {e}")),
+            Err(e) => return crate::output::refuse(&format!("cannot write JSON: {e}")),
         }
     } else {
         std::iter::once(CSV_HEADER.to_string())
@@ -196,7 +140,7 @@ pub async fn export(bus: &Bus, operator: &StationName, cmd: RecordsCommand) -> E
                 crate::out!("{} orders to {}", records.len(), path.display());
                 ExitCode::SUCCESS
             }
-            Err(e) => crate::cell_cmd::refuse(&format!("cannot write {}: {e}", path.display())),
+            Err(e) => crate::output::refuse(&format!("cannot write {}: {e}", path.display())),
         },
         None => {
             crate::out!("{text}");
@@ -209,7 +153,7 @@ pub async fn export(bus: &Bus, operator: &StationName, cmd: RecordsCommand) -> E
 pub async fn run(bus: &Bus, operator: &StationName, cmd: VersionCommand, json: bool) -> ExitCode {
     let file = match cmd.file() {
         Ok(f) => f,
-        Err(e) => return crate::cell_cmd::refuse(&e),
+        Err(e) => return crate::output::refuse(&e),
     };
     let request = match cmd {
         VersionCommand::History { .. } => ApiRequest::RecipeHistory { file },
@@ -224,7 +168,7 @@ pub async fn run(bus: &Bus, operator: &StationName, cmd: VersionCommand, json: b
             return diff(bus, operator, file, v1, v2, json).await
         }
     };
-    crate::cell_cmd::once(bus, operator, request, json).await
+    crate::call::once(bus, operator, request, json).await
 }
 
 /// Version `version` of `file` and its text.
@@ -240,7 +184,7 @@ async fn fetch(
     };
     match bus.api(operator, request, CALL_LIMIT).await {
         Ok(ApiReply::RecipeAt { version, text }) => Ok((version, text)),
-        Ok(other) => Err(crate::cell_cmd::refuse(&format!(
+        Ok(other) => Err(crate::output::refuse(&format!(
             "unexpected answer to recipe-version: {other:?}"
         ))),
         Err(e) => Err(fail(&e)),
@@ -268,7 +212,7 @@ async fn diff(
         {
             Ok(ApiReply::Versions(v)) => v.last().map_or(v1, |v| v.version),
             Ok(other) => {
-                return crate::cell_cmd::refuse(&format!(
+                return crate::output::refuse(&format!(
                     "unexpected answer to recipe-history: {other:?}"
                 ))
             }

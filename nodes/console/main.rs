@@ -9,6 +9,7 @@
 //! an order's record (`history`); `falc figures` prints the ISO 22400-2
 //! figures (`figures`) and `falc report` draws them into HTML (`report`).
 
+mod call;
 mod cell_cmd;
 mod clock;
 mod commands;
@@ -52,9 +53,9 @@ enum Command {
 #[derive(Subcommand, Debug)]
 enum RecipeCommand {
     #[command(flatten)]
-    Files(recipe_cmd::RecipeCommand),
+    Files(commands::RecipeCommand),
     #[command(flatten)]
-    Versions(history::VersionCommand),
+    Versions(commands::VersionCommand),
 }
 
 /// `println!` that ends the program quietly when the reader of stdout has

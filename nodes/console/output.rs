@@ -5,8 +5,11 @@
 
 use crate::clock::time_of_day_ms;
 use crate::history;
-use falc_model::console::{ApiReply, CellStatus, Entry, Order, PlantStatus};
+use falc_bus::operator_service::CallError;
+use falc_model::api::{ApiReply, CellStatus, PlantStatus};
 use falc_model::ids::printable;
+use falc_model::records::{Entry, Order};
+use std::process::ExitCode;
 
 pub(crate) fn show_order(o: &Order) -> String {
     let mut line = format!(
@@ -211,5 +214,22 @@ pub(crate) fn print(reply: &ApiReply, json: bool) {
         ApiReply::Versions(v) => crate::out!("{}", history::show_versions(v)),
         ApiReply::OrderRecord(r) => crate::out!("{}", history::show_record(r)),
         ApiReply::Figures(f) => crate::out!("{}", crate::figures::show(f)),
+    }
+}
+
+/// Says why and exits 1.
+pub(crate) fn refuse(why: &str) -> ExitCode {
+    eprintln!("falc: {}", printable(why));
+    ExitCode::FAILURE
+}
+
+/// Says why a call brought no reply and exits 1 if the operator refused
+/// it, 2 if the operator node could not be reached (or the router refused
+/// the call: zenoh cannot tell them apart).
+pub(crate) fn fail(why: &CallError) -> ExitCode {
+    eprintln!("falc: {}", printable(&why.to_string()));
+    match why {
+        CallError::Refused(_) => ExitCode::FAILURE,
+        CallError::NoReply(_) => ExitCode::from(2),
     }
 }

@@ -1,77 +1,13 @@
 //! `falc recipe …`: check recipes (one line per problem, exit 1 if any),
 //! list them, and draw one as Graphviz DOT.
 
-use clap::Subcommand;
+use crate::commands::RecipeCommand;
 use falc_recipe::check::{check, check_set};
 use falc_recipe::commands::RecipeKind;
 use falc_recipe::dot::to_dot;
 use falc_recipe::files::{self, StationKinds};
 use std::path::PathBuf;
 use std::process::ExitCode;
-
-#[derive(Subcommand, Debug)]
-pub enum RecipeCommand {
-    /// Check recipe files, station directories or a recipe tree; exit 1 and
-    /// print `file:line: state N: reason` per problem.
-    Check {
-        /// The kind of every file given (else the directory name tells).
-        #[arg(long)]
-        kind: Option<RecipeKind>,
-        /// Files or directories (default `recipes`).
-        paths: Vec<PathBuf>,
-    },
-    /// List the recipes of a recipe tree: station, name, states, file, and
-    /// whether it checks clean.
-    List {
-        /// Files or directories (default `recipes`).
-        paths: Vec<PathBuf>,
-    },
-    /// Verify a recipe tree across levels: each cell recipe explored with
-    /// the workstation recipes it starts (every outcome they can reach,
-    /// every answer, every time-out). Prints `file:line: state N: kind:
-    /// finding` with a trace for each (`note:` before those that are
-    /// allowed); exit 1 if any defect.
-    Verify {
-        /// Explore at most this many states per recipe.
-        #[arg(long, default_value_t = falc_recipe::verify::STATE_LIMIT)]
-        limit: usize,
-        /// Print the trace of finding N (from 1) as Graphviz DOT instead.
-        #[arg(long, value_name = "N")]
-        dot: Option<usize>,
-        /// A recipe tree or its station directories (default `recipes`).
-        paths: Vec<PathBuf>,
-    },
-    /// Print a recipe as a Graphviz DOT state diagram.
-    Dot {
-        /// The kind (else the directory name tells).
-        #[arg(long)]
-        kind: Option<RecipeKind>,
-        /// Highlight this state (a running recipe's).
-        #[arg(long)]
-        current: Option<u16>,
-        /// The recipe file.
-        file: PathBuf,
-    },
-    /// Draw a recipe's state diagram to SVG (no Graphviz needed) or PNG
-    /// (with Graphviz `dot`)
-    /// (default: next to the recipe, `FILE.svg`).
-    View {
-        /// The kind (else the directory name tells).
-        #[arg(long)]
-        kind: Option<RecipeKind>,
-        /// Highlight this state (a running recipe's).
-        #[arg(long)]
-        current: Option<u16>,
-        /// `svg` or `png`.
-        #[arg(long, default_value = "svg", value_parser = ["svg", "png"])]
-        format: String,
-        /// Where to write the drawing.
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// The recipe file.
-        file: PathBuf,
-    },
-}
 
 /// The recipe kind of each station directory: from the topology at
 /// `path` when there is one (a second welding station's `welding2/` holds

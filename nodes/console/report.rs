@@ -366,8 +366,9 @@ mod tests {
     use super::*;
     use falc_factory::figures::{compute, AlarmSpan, FigureInputs, RunSpan};
     use falc_model::alarm::AlarmClass;
-    use falc_model::console::OrderState;
-    use falc_model::figures::{Calendar, FigureQuery};
+    use falc_model::calendar::Calendar;
+    use falc_model::figures::FigureQuery;
+    use falc_model::records::OrderState;
 
     #[test]
     fn the_report_holds_its_four_charts_as_inline_svg() {

@@ -2,10 +2,10 @@
 //! whenever the operator says its status changed, and every [`POLL`],
 //! until Ctrl-C.
 
-use crate::cell_cmd::CALL_LIMIT;
+use crate::call::CALL_LIMIT;
 use crate::output::print;
 use falc_bus::Bus;
-use falc_model::console::{ApiReply, ApiRequest};
+use falc_model::api::{ApiReply, ApiRequest};
 use falc_model::ids::StationName;
 use std::process::ExitCode;
 use std::time::Duration;

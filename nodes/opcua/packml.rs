@@ -16,8 +16,9 @@
 //! and the mode: auto → Production (1), maintenance → Maintenance (2),
 //! step → Manual (3).
 
-use falc_model::console::{CellStatus, ListState, OrderState};
+use falc_model::api::{CellStatus, ListState};
 use falc_model::mode::CellMode;
+use falc_model::records::OrderState;
 
 /// A PackML state: its number and name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -93,10 +94,11 @@ pub fn unit_mode(mode: CellMode) -> (i32, &'static str) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use falc_model::console::{Order, StationView};
+    use falc_model::api::StationView;
     use falc_model::ids::StationName;
     use falc_model::mms::vmd::VmdStatus;
     use falc_model::mode::HeldStep;
+    use falc_model::records::Order;
 
     fn idle() -> CellStatus {
         CellStatus {

@@ -10,7 +10,7 @@ use async_trait::async_trait;
 use falc_bus::credentials;
 use falc_bus::operator_service::{CallError, CALL_LIMIT};
 use falc_bus::Bus;
-use falc_model::console::{ApiReply, ApiRequest};
+use falc_model::api::{ApiReply, ApiRequest};
 use falc_model::ids::StationName;
 use opcua::server::address_space::{
     AddressSpace, EventNotifier, MethodBuilder, NodeType, ObjectBuilder, VariableBuilder,

@@ -31,10 +31,11 @@
 
 use crate::packml;
 use falc_model::alarm::{Alarm, AlarmClass};
-use falc_model::console::{ApiRequest, Call, CellStatus, Entry, Order, OrderState};
+use falc_model::api::{ApiRequest, Call, CellStatus};
 use falc_model::figures::CellFigures;
 use falc_model::ids::{CellId, StationName};
 use falc_model::mms::vmd::VmdStatus;
+use falc_model::records::{Entry, Order, OrderState};
 use falc_model::topology::StationKind;
 use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
 use std::time::{Duration, Instant};
@@ -860,7 +861,7 @@ impl Mirror {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use falc_model::console::{ListState, StationView};
+    use falc_model::api::{ListState, StationView};
     use falc_model::mms::vmd::{ProgramState, RobotStatusDetail, RobotVmdState};
 
     #[test]
@@ -1192,7 +1193,7 @@ mod tests {
         };
         let f = falc_factory::figures::compute(
             &inputs,
-            &falc_model::figures::Calendar::default(),
+            &falc_model::calendar::Calendar::default(),
             &["falc1"],
             &query,
             10_000,

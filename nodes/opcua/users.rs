@@ -12,7 +12,7 @@
 use crate::throttle::{self, LoginThrottle, Verdict};
 use async_trait::async_trait;
 use falc_bus::credentials::{self, CredentialsError};
-use falc_model::console::Call;
+use falc_model::api::Call;
 use falc_model::topology::{Role, Topology};
 use opcua::crypto::{SecurityPolicy, Thumbprint, X509};
 use opcua::server::address_space::AccessLevel;

@@ -12,12 +12,14 @@ use falc_factory::records::{
     RECORD_ENTRIES,
 };
 use falc_model::alarm::{Alarm, AlarmClass};
-use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement, RecipeFile};
+use falc_model::api::Placement;
 use falc_model::ids::StationName;
 use falc_model::mode::CellMode;
 use falc_model::product::{
     JobRecord, OrderRecord, OrderRun, RecipeVersion, UsedRecipe, VersionHash,
 };
+use falc_model::recipe_file::RecipeFile;
+use falc_model::records::{Entry, EntryKind, Order, OrderState};
 use rusqlite::{params, Connection, OptionalExtension, Row};
 use std::path::Path;
 use std::time::{SystemTime, UNIX_EPOCH};

@@ -31,13 +31,13 @@ use falc_factory::order_list::{CellCall, OrderList, Output, Ticket, CELL_LIMIT};
 use falc_factory::plant::{Plant, PlantOutput};
 use falc_factory::recipe_source::{Delivery, RecipeSet, RecipeSource};
 use falc_factory::records::Records;
-use falc_model::console::EntryKind;
 use falc_model::ids::StationName;
 use falc_model::keys::KeySpace;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::journal::{KeptReports, Publication};
 use falc_model::mms::pdu::{Request, Response};
 use falc_model::plant::Layout;
+use falc_model::records::EntryKind;
 use falc_model::topology::{StationKind, Topology};
 use falc_node::{init_tracing, lane, say, NodeArgs};
 use recipe_store::RecipeDir;
@@ -64,7 +64,7 @@ struct Cli {
     #[arg(long, default_value = "var/falc.db")]
     db: PathBuf,
     /// How many orders may wait in the order list; one more is refused.
-    #[arg(long, default_value_t = falc_model::console::MAX_QUEUED_ORDERS)]
+    #[arg(long, default_value_t = falc_model::api::MAX_QUEUED_ORDERS)]
     max_queued_orders: usize,
     /// Serve OpenMetrics for the plant's monitoring at
     /// `http://HOST:PORT/metrics` (orders, cycle times, alarms, seconds

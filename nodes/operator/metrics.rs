@@ -20,7 +20,8 @@
 use crate::database::Database;
 use falc_factory::figures;
 use falc_factory::records::Records;
-use falc_model::figures::{Calendar, FigureQuery, Figures};
+use falc_model::calendar::Calendar;
+use falc_model::figures::{FigureQuery, Figures};
 use prometheus_client::encoding::text::encode;
 use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
@@ -265,7 +266,7 @@ mod tests {
     use super::*;
     use falc_factory::figures::{AlarmSpan, FigureInputs, RunSpan};
     use falc_model::alarm::AlarmClass;
-    use falc_model::console::OrderState;
+    use falc_model::records::OrderState;
 
     #[test]
     fn the_figures_become_openmetrics_counters_a_histogram_and_state_seconds() {

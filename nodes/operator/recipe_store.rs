@@ -20,9 +20,9 @@
 //! build) at every start of every cell, on the operator's one loop.
 
 use falc_factory::recipe_source::{checked_set, PutError, RecipeSet, RecipeSource};
-use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::ids::StationName;
 use falc_model::mms::domain::content_hash;
+use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::topology::Topology;
 use falc_recipe::check::Entry;
 use falc_recipe::files::{self, StationKinds};

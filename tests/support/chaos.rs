@@ -8,7 +8,7 @@
 
 use super::rig::Rig;
 use crate::support::wait::{holds, poll_until, POLL};
-use falc_model::console::{EntryKind, OrderState};
+use falc_model::records::{EntryKind, OrderState};
 use rand::Rng;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::time::{Duration, Instant};

@@ -715,7 +715,7 @@ impl TestCell {
         let keys = KeySpace::new(self.topology.cell().clone());
         let key = keys.api(
             &self.topology.root().name,
-            falc_model::console::Call::Status,
+            falc_model::api::Call::Status,
             &settings.me,
         );
         let rt = tokio::runtime::Runtime::new().expect("runtime");

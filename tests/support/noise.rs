@@ -3,7 +3,7 @@
 //! line, both ways, while the whole list runs; what came of it.
 
 use super::rig::Rig;
-use falc_model::console::{EntryKind, OrderState};
+use falc_model::records::{EntryKind, OrderState};
 use std::time::Duration;
 
 /// What a list on a noisy line came to.

@@ -381,18 +381,18 @@ impl TestPlant {
     }
 
     /// The plant at a glance.
-    pub fn status(&self) -> falc_model::console::PlantStatus {
+    pub fn status(&self) -> falc_model::api::PlantStatus {
         self.reply(None, &["status"])
     }
 
     /// Every order of the plant.
-    pub fn orders(&self) -> Vec<falc_model::console::Order> {
+    pub fn orders(&self) -> Vec<falc_model::records::Order> {
         self.reply(None, &["order", "list"])
     }
 
     /// The journal holds one start of each of `orders`: none ran twice.
-    pub fn assert_each_started_once(&self, orders: &[falc_model::console::Order]) {
-        use falc_model::console::{Entry, EntryKind};
+    pub fn assert_each_started_once(&self, orders: &[falc_model::records::Order]) {
+        use falc_model::records::{Entry, EntryKind};
         let journal: Vec<Entry> = self.reply(None, &["journal"]);
         for o in orders {
             let starts = journal
@@ -410,7 +410,7 @@ impl TestPlant {
     /// Answers every cell's question with `answer` until no order is
     /// queued or running, or `within` passed; the questions answered.
     pub fn work_list(&self, answer: &str, within: Duration) -> Vec<(String, String)> {
-        use falc_model::console::OrderState;
+        use falc_model::records::OrderState;
         let mut asked = Vec::new();
         wait_until("the plant's list done", within, || {
             let status = self.status();

@@ -6,7 +6,8 @@
 
 use super::{Proc, TestCell};
 use crate::support::wait::{holds, wait_until};
-use falc_model::console::{CellStatus, Entry, EntryKind, ListState, Order};
+use falc_model::api::{CellStatus, ListState};
+use falc_model::records::{Entry, EntryKind, Order};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -340,7 +341,7 @@ impl Rig {
         assert!(
             orders
                 .iter()
-                .all(|o| o.state != falc_model::console::OrderState::Running),
+                .all(|o| o.state != falc_model::records::OrderState::Running),
             "{orders:?}"
         );
         orders
@@ -370,7 +371,7 @@ impl Rig {
         let orders = self.orders();
         assert_eq!(
             orders.last().map(|o| o.state),
-            Some(falc_model::console::OrderState::Done),
+            Some(falc_model::records::OrderState::Done),
             "{orders:?}"
         );
         orders

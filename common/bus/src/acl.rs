@@ -25,7 +25,7 @@
 //! or its commander, the operator commanding a workstation, anyone
 //! publishing on another station's keys.
 
-use falc_model::console::Call;
+use falc_model::api::Call;
 use falc_model::ids::StationName;
 use falc_model::keys::KeySpace;
 use falc_model::mms::pdu::ServiceName;

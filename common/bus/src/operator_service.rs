@@ -9,7 +9,7 @@
 //! answered with an error by the bus.
 
 use super::{declare_failed, Bus, BusError, Declaration};
-use falc_model::console::{ApiReply, ApiRequest, ApiResult, Call, MAX_REQUEST_BYTES};
+use falc_model::api::{ApiReply, ApiRequest, ApiResult, Call, MAX_REQUEST_BYTES};
 use falc_model::envelope;
 use falc_model::ids::{CellId, StationName};
 use std::time::Duration;

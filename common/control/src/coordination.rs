@@ -13,7 +13,7 @@
 
 use crate::controller::{Controller, Device, Happening};
 use falc_model::alarm::{AlarmClass, Cause};
-use falc_model::console::MAX_OUTPUT_LINES;
+use falc_model::api::MAX_OUTPUT_LINES;
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::error::{DefinitionError, ErrorClass, ServiceError};
 use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};

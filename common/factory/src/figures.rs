@@ -13,12 +13,13 @@
 //! [`Records::figure_inputs`]: crate::records::Records::figure_inputs
 
 use falc_model::alarm::AlarmClass;
-use falc_model::console::OrderState;
+use falc_model::calendar::Calendar;
 use falc_model::figures::{
-    Calendar, CellFigures, CycleTime, FigureQuery, Figures, ParetoLine, Period, PlannedBy,
-    Quantities, Reliability, RunBar, RunCount, TimeElements, MAX_PERIODS,
+    CellFigures, CycleTime, FigureQuery, Figures, ParetoLine, Period, PlannedBy, Quantities,
+    Reliability, RunBar, RunCount, TimeElements, MAX_PERIODS,
 };
 use falc_model::mode::CellMode;
+use falc_model::records::OrderState;
 use std::collections::{BTreeMap, BTreeSet};
 
 /// How many of the newest runs go with a cell's figures (the Gantt chart).
@@ -529,7 +530,7 @@ fn cell_figures(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use falc_model::figures::RawShift;
+    use falc_model::calendar::RawShift;
 
     const H: i64 = 3_600_000;
     const M: i64 = 60_000;
@@ -807,7 +808,7 @@ mod tests {
             runs: vec![run(1, WED + 7 * H, Some(WED + 8 * H), OrderState::Done)],
             ..Default::default()
         };
-        let latest = falc_model::console::LATEST_FIGURES_MS;
+        let latest = falc_model::api::LATEST_FIGURES_MS;
         let f = compute(&inputs, &two_shifts(), &[], &query(0, latest), 0);
         let c = &f.cells[0];
         assert_eq!(c.periods.len(), MAX_PERIODS);

@@ -23,7 +23,7 @@
 use crate::order_list::{OrderList, Output, Ticket};
 use crate::recipe_source::RecipeSource;
 use crate::records::Records;
-use falc_model::console::{ApiReply, ApiRequest, ApiResult, PlantStatus};
+use falc_model::api::{ApiReply, ApiRequest, ApiResult, PlantStatus};
 use falc_model::ids::{CellId, StationName};
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
@@ -363,10 +363,11 @@ mod tests {
     use crate::recipe_source::fake::{set, Source};
     use crate::records::shared::{self, Shared};
     use falc_model::alarm::{AlarmClass, Cause};
-    use falc_model::console::{ListState, OrderState, Placement};
+    use falc_model::api::{ListState, Placement};
     use falc_model::ids::ObjectName;
     use falc_model::mms::pdu::{JobEvent, Request, Response, Unconfirmed};
     use falc_model::mode::CellMode;
+    use falc_model::records::OrderState;
     use falc_model::topology::Topology;
 
     fn st(s: &str) -> StationName {

@@ -3,8 +3,8 @@
 //! the consoles. The operator node's recipe directory implements
 //! [`RecipeSource`] (`nodes/operator/recipe_store.rs`).
 
-use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::ids::{ObjectName, StationName};
+use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::topology::Topology;
 use falc_recipe::check::{check_set, Command, Entry, Job, Program};
 use falc_recipe::commands::RecipeKind;

@@ -8,10 +8,12 @@
 
 use crate::figures::FigureInputs;
 use falc_model::alarm::{Alarm, AlarmClass};
-use falc_model::console::{Entry, EntryKind, Order, OrderState, Placement, RecipeFile};
+use falc_model::api::Placement;
 use falc_model::ids::StationName;
 use falc_model::mode::CellMode;
 use falc_model::product::{JobRecord, OrderRecord, RecipeVersion, UsedRecipe};
+use falc_model::recipe_file::RecipeFile;
+use falc_model::records::{Entry, EntryKind, Order, OrderState};
 use std::fmt::Display;
 
 /// Which journal entries to read ([`Records::entries`]): those after
@@ -755,7 +757,7 @@ pub mod memory {
 pub mod shared {
     use super::memory::Memory;
     use super::*;
-    use falc_model::console::Placement;
+    use falc_model::api::Placement;
     use std::cell::RefCell;
     use std::collections::BTreeMap;
     use std::rc::Rc;
@@ -939,12 +941,12 @@ pub mod shared {
 mod tests {
     use super::memory::Memory;
     use super::Records;
-    use falc_model::console::Placement;
+    use falc_model::api::Placement;
     use falc_model::ids::CellId;
 
     #[test]
     fn a_restarted_operator_adopts_the_newest_running_order_of_its_cell_and_interrupts_the_rest() {
-        use falc_model::console::{EntryKind, OrderState};
+        use falc_model::records::{EntryKind, OrderState};
         let mut m = Memory::default();
         let p = Placement::default();
         let ids: Vec<i64> = (0..3)

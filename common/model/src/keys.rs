@@ -17,7 +17,7 @@
 //! abort indication always refers to the one session that was associated,
 //! even while a restarted node already holds a new token.
 
-use crate::console::Call;
+use crate::api::Call;
 use crate::ids::{CellId, StationName};
 use crate::mms::pdu::ServiceName;
 

@@ -100,7 +100,7 @@ struct RawPlant {
     utc_offset: Option<String>,
     /// The plant's shift calendar, every cell's (none: always).
     #[serde(rename = "shift", default)]
-    shifts: Vec<crate::figures::RawShift>,
+    shifts: Vec<crate::calendar::RawShift>,
 }
 
 /// One cell of the plant.

@@ -9,7 +9,8 @@
 //! store is a new version, never mistaken for an old one.
 
 use crate::alarm::Alarm;
-use crate::console::{Entry, Order, RecipeFile};
+use crate::recipe_file::RecipeFile;
+use crate::records::{Entry, Order};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::fmt;

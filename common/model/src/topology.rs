@@ -7,7 +7,7 @@
 //! complete at load time: a topology that loads is a tree with exactly one
 //! root, unique names and known commanders.
 
-use crate::figures::{Calendar, RawShift};
+use crate::calendar::{Calendar, RawShift};
 use crate::ids::{CellId, StationName};
 use serde::Deserialize;
 use std::collections::BTreeMap;

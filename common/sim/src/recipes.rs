@@ -5,9 +5,9 @@
 //! [`checked_set`] the operator node runs on its directory.
 
 use falc_factory::recipe_source::{checked_set, PutError, RecipeSet, RecipeSource};
-use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::ids::StationName;
 use falc_model::mms::domain::content_hash;
+use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::topology::Topology;
 use falc_recipe::files::{entry_in, StationKinds};
 use std::path::{Path, PathBuf};

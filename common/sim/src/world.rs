@@ -23,7 +23,7 @@ use falc_factory::recipe_source::{RecipeSet, RecipeSource};
 use falc_factory::records::memory::Memory;
 use falc_factory::records::shared::{plant, Shared};
 use falc_factory::records::Records;
-use falc_model::console::{ApiRequest, ApiResult};
+use falc_model::api::{ApiRequest, ApiResult};
 use falc_model::ids::{CellId, ObjectName, StationName};
 use falc_model::mms::delivery::{Delivery, DeliveryStep, STEP_LIMIT};
 use falc_model::mms::domain::{content_hash, DomainState};

@@ -1,7 +1,7 @@
 //! The simulation in CI: clean runs and runs with every fault, the
 //! invariants checked after every step.
 
-use falc_model::console::EntryKind;
+use falc_model::records::EntryKind;
 use falc_sim::{Config, Fault, Run};
 
 fn run(cfg: Config) -> falc_sim::Summary {

@@ -3,10 +3,11 @@
 //! or picked; keys in, [`Intent`]s out. The driver (`tui::run`) does the
 //! calls and feeds the answers back; `tui::view` draws it.
 
-use falc_model::console::{ApiReply, ApiRequest, CellStatus, Entry, Order, OrderState};
-use falc_model::console::{RecipeFile, RecipeInfo, RecipeText};
+use falc_model::api::{ApiReply, ApiRequest, CellStatus};
 use falc_model::ids::StationName;
 use falc_model::mode::{CellMode, HeldStep, ManualAction};
+use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
+use falc_model::records::{Entry, Order, OrderState};
 use falc_model::topology::{Role, StationKind, Topology};
 use falc_recipe::syntax::parse;
 use ratatui::crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
@@ -792,7 +793,7 @@ impl App {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use falc_model::console::ListState;
+    use falc_model::api::ListState;
 
     fn app() -> App {
         let t = Topology::load(
@@ -858,11 +859,11 @@ mod tests {
         }
     }
 
-    use falc_model::console::EntryKind;
+    use falc_model::records::EntryKind;
 
     #[test]
     fn enter_on_the_overview_carries_out_the_cells_step_first_then_a_workstations() {
-        use falc_model::console::StationView;
+        use falc_model::api::StationView;
         use falc_model::mms::vmd::VmdStatus;
         let view = |name: &str, state: Option<u16>| StationView {
             name: StationName::new(name).expect("valid"),

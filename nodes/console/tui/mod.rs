@@ -15,7 +15,7 @@ mod view;
 use crate::edit::Session;
 use app::{App, Intent, Pick};
 use falc_bus::Bus;
-use falc_model::console::{ApiReply, ApiRequest};
+use falc_model::api::{ApiReply, ApiRequest};
 use falc_model::ids::StationName;
 use falc_model::plant::Plant;
 use falc_model::topology::Topology;

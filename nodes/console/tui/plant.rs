@@ -5,7 +5,7 @@
 //! Esc there comes back here. The driver (`tui::run`) polls the status and
 //! draws it with `view::draw_plant`.
 
-use falc_model::console::{ApiReply, ListState, PlantStatus};
+use falc_model::api::{ApiReply, ListState, PlantStatus};
 use falc_model::ids::{CellId, StationName};
 use falc_model::plant::Plant;
 use falc_model::topology::{Role, StationKind};
@@ -143,7 +143,7 @@ impl PlantApp {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use falc_model::console::CellStatus;
+    use falc_model::api::CellStatus;
     use ratatui::crossterm::event::KeyEvent;
 
     fn key(code: KeyCode) -> KeyEvent {

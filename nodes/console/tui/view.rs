@@ -7,7 +7,7 @@
 use super::app::{App, Command, Layer, Pick};
 use super::plant::PlantApp;
 use crate::clock::time_of_day;
-use falc_model::console::CellStatus;
+use falc_model::api::CellStatus;
 use falc_model::ids::{printable, Place, PlcStation};
 use falc_model::mms::vmd::{PhysicalStatus, RecipeState};
 use falc_model::topology::StationKind;
@@ -630,8 +630,8 @@ fn messages(f: &mut Frame, app: &App, area: Rect) {
                 .iter()
                 .map(|e| {
                     let style = match e.kind {
-                        falc_model::console::EntryKind::Alarm => ALARM,
-                        falc_model::console::EntryKind::Question => BUSY,
+                        falc_model::records::EntryKind::Alarm => ALARM,
+                        falc_model::records::EntryKind::Question => BUSY,
                         _ => NORMAL,
                     };
                     Line::styled(
@@ -1011,8 +1011,10 @@ mod tests {
     #[test]
     fn f5_draws_the_figures_fetched_and_asks_for_them_again_when_the_journal_moved() {
         use falc_factory::figures::{compute, FigureInputs, RunSpan};
-        use falc_model::console::{ApiReply, OrderState};
-        use falc_model::figures::{Calendar, FigureQuery};
+        use falc_model::api::ApiReply;
+        use falc_model::calendar::Calendar;
+        use falc_model::figures::FigureQuery;
+        use falc_model::records::OrderState;
         use ratatui::crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
         let topology = Topology::load(
             &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("launch/cell.toml"),

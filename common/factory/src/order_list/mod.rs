@@ -28,11 +28,9 @@ use crate::alarm_list::{AlarmList, Raised};
 use crate::recipe_source::{Delivery, PutError, RecipeSet, RecipeSource};
 use crate::records::{EntryQuery, Records};
 use falc_model::alarm::{Alarm, AlarmClass};
-use falc_model::console::RecipeFile;
-use falc_model::console::{
-    ApiReply, ApiRequest, ApiResult, CellStatus, EntryKind, ListState, Order, OrderState,
-    Placement, StationView, MAX_OUTPUT_CHARS, MAX_OUTPUT_LINES, MAX_QUEUED_ORDERS,
-    QUESTION_WINDOW_LINES,
+use falc_model::api::{
+    ApiReply, ApiRequest, ApiResult, CellStatus, ListState, Placement, StationView,
+    MAX_OUTPUT_CHARS, MAX_OUTPUT_LINES, MAX_QUEUED_ORDERS, QUESTION_WINDOW_LINES,
 };
 use falc_model::ids::{CellId, ObjectName, StationName};
 use falc_model::mms::domain::content_hash;
@@ -42,6 +40,8 @@ use falc_model::mms::program::PiState;
 use falc_model::mms::vmd::{PhysicalStatus, RecipeState, VmdStatus};
 use falc_model::mode::{CellMode, ModeSetting};
 use falc_model::product::{RecipeVersion, UsedRecipe};
+use falc_model::recipe_file::RecipeFile;
+use falc_model::records::{EntryKind, Order, OrderState};
 use falc_model::topology::Topology;
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::time::Duration;
@@ -362,7 +362,7 @@ fn placed(order: &Order) -> String {
         v.push(format!("priority {}", order.priority));
     }
     if let Some(due) = order.due_ms {
-        v.push(format!("due {}", falc_model::console::utc_text(due)));
+        v.push(format!("due {}", falc_model::time::utc_text(due)));
     }
     if let Some(cell) = &order.wanted {
         v.push(format!("for {cell}"));

@@ -1126,7 +1126,7 @@ fn the_list_takes_at_most_its_limit_of_waiting_orders() {
 /// than the limit holds, are refused with nothing added.
 #[test]
 fn placed_orders_run_by_priority_and_due_time_and_a_foreign_cell_is_refused() {
-    use falc_model::console::Placement;
+    use falc_model::api::Placement;
     use falc_model::ids::CellId;
     let mut r = Rig::new();
     r.list = std::mem::replace(&mut r.list, Rig::new().list).with_max_queued(6);

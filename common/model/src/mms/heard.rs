@@ -21,7 +21,7 @@ use crate::ids::StationName;
 
 /// The longest text a station may publish in one field, in characters
 /// (the cell's output lines have the same bound).
-pub const MAX_PUBLISHED_CHARS: usize = crate::console::MAX_OUTPUT_CHARS;
+pub const MAX_PUBLISHED_CHARS: usize = crate::api::MAX_OUTPUT_CHARS;
 /// The most inputs a status may carry (the 1992 conveyor has 21).
 pub const MAX_INPUTS: usize = 256;
 /// The longest run name (a bus session id has 32 hex digits).

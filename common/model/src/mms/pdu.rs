@@ -278,9 +278,9 @@ pub enum Request {
 /// The longest text a request may carry in one field (an Abort's reason, a
 /// Start's argument, a discard's reason, an output line, a prompt), in
 /// characters.
-pub const MAX_REQUEST_TEXT_CHARS: usize = crate::console::MAX_OUTPUT_CHARS;
+pub const MAX_REQUEST_TEXT_CHARS: usize = crate::api::MAX_OUTPUT_CHARS;
 /// The most lines one Output may carry.
-pub const MAX_REQUEST_LINES: usize = crate::console::MAX_OUTPUT_LINES;
+pub const MAX_REQUEST_LINES: usize = crate::api::MAX_OUTPUT_LINES;
 /// The most stations a mode may name as stepping (more than any cell has).
 pub const MAX_STEPPING: usize = 64;
 

@@ -10,6 +10,8 @@ use crate::ids::{CellId, StationName};
 use crate::mms::vmd::VmdStatus;
 use crate::mode::{CellMode, ManualAction};
 use crate::product::{OrderRecord, RecipeVersion, MAX_VERSION_MESSAGE_CHARS};
+use crate::recipe_file::{RecipeFile, RecipeInfo, RecipeText, MAX_RECIPE_BYTES};
+use crate::records::{Entry, Order};
 use crate::topology::Role;
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -213,101 +215,6 @@ pub enum ApiRequest {
     },
 }
 
-/// A recipe file of the store: a station's directory and a file name
-/// (`welding`, `droog_dik.rcp`); validated so it never leaves its
-/// directory.
-#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(try_from = "RecipeFileWire", into = "RecipeFileWire")]
-pub struct RecipeFile {
-    station: StationName,
-    file: String,
-}
-
-#[derive(Serialize, Deserialize)]
-struct RecipeFileWire {
-    station: StationName,
-    file: String,
-}
-
-impl TryFrom<RecipeFileWire> for RecipeFile {
-    type Error = String;
-    fn try_from(w: RecipeFileWire) -> Result<Self, String> {
-        RecipeFile::new(w.station, &w.file)
-    }
-}
-
-impl From<RecipeFile> for RecipeFileWire {
-    fn from(r: RecipeFile) -> Self {
-        Self {
-            station: r.station,
-            file: r.file,
-        }
-    }
-}
-
-impl RecipeFile {
-    /// `file` must be `name.rcp` with a name of lowercase letters, digits,
-    /// `_` and `-` (at most 40); a name without `.rcp` gets it.
-    pub fn new(station: StationName, file: &str) -> Result<Self, String> {
-        let file = file.trim().to_lowercase();
-        let file = if file.ends_with(".rcp") {
-            file
-        } else {
-            format!("{file}.rcp")
-        };
-        let stem = &file[..file.len() - 4];
-        let ok = !stem.is_empty()
-            && stem.len() <= 40
-            && stem
-                .chars()
-                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_' || c == '-');
-        if ok {
-            Ok(Self { station, file })
-        } else {
-            Err(format!(
-                "recipe file name \"{}\": use letters, digits, _ and - (at most 40), ending in .rcp",
-                crate::ids::excerpt(&file)
-            ))
-        }
-    }
-
-    /// The station whose directory holds it.
-    pub fn station(&self) -> &StationName {
-        &self.station
-    }
-
-    /// The file name (`droog_dik.rcp`).
-    pub fn file(&self) -> &str {
-        &self.file
-    }
-}
-
-impl fmt::Display for RecipeFile {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}/{}", self.station, self.file)
-    }
-}
-
-/// One recipe of the store, as listed.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct RecipeInfo {
-    /// Its file.
-    pub file: RecipeFile,
-    /// Its name (`#NAME`, else the file name), if the text says.
-    pub name: Option<String>,
-}
-
-/// One recipe's text.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct RecipeText {
-    /// Its file.
-    pub file: RecipeFile,
-    /// The text.
-    pub text: String,
-    /// Its content hash (the `base` of a later `RecipePut`).
-    pub hash: u64,
-}
-
 /// The most bytes one API request may carry on the wire (a recipe text
 /// and its envelope); a larger one is refused before it is decoded.
 pub const MAX_REQUEST_BYTES: usize = MAX_RECIPE_BYTES + 4096;
@@ -351,9 +258,6 @@ pub const MAX_RECIPE_NAME_CHARS: usize = 32;
 pub const LATEST_FIGURES_MS: i64 = 4_102_444_800_000;
 /// The most planned run times one `figures` request may set.
 pub const MAX_PLANNED_RECIPES: usize = 100;
-/// The largest recipe file, in bytes (the thesis' recipes are under 2 KiB).
-pub const MAX_RECIPE_BYTES: usize = 64 * 1024;
-
 impl ApiRequest {
     /// Refuses a text beyond its limit (or an answer with control
     /// characters), quoting only a short excerpt of it.
@@ -474,210 +378,6 @@ impl ApiRequest {
     }
 }
 
-/// Where an order is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum OrderState {
-    /// Waiting in the list.
-    Queued,
-    /// Its recipe runs in the cell.
-    Running,
-    /// Ended normally.
-    Done,
-    /// Ended in alarm or with a failure criterion.
-    Failed,
-    /// Stopped by an operator.
-    Stopped,
-    /// Was running when the operator node died; never re-run by itself.
-    Interrupted,
-}
-
-impl OrderState {
-    /// The word stored and shown.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Queued => "queued",
-            Self::Running => "running",
-            Self::Done => "done",
-            Self::Failed => "failed",
-            Self::Stopped => "stopped",
-            Self::Interrupted => "interrupted",
-        }
-    }
-
-    /// Parses the stored word.
-    pub fn parse(word: &str) -> Option<Self> {
-        [
-            Self::Queued,
-            Self::Running,
-            Self::Done,
-            Self::Failed,
-            Self::Stopped,
-            Self::Interrupted,
-        ]
-        .into_iter()
-        .find(|s| s.as_str() == word)
-    }
-}
-
-impl fmt::Display for OrderState {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-/// One order.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Order {
-    /// Its id (also its position: lower runs first).
-    pub id: i64,
-    /// The cell recipe.
-    pub recipe: String,
-    /// Where it is.
-    pub state: OrderState,
-    /// Who added it.
-    pub added_by: String,
-    /// When it started (ms since the Unix epoch).
-    pub started_ms: Option<i64>,
-    /// When it ended (ms since the Unix epoch).
-    pub ended_ms: Option<i64>,
-    /// How it ended, in words.
-    pub result: Option<String>,
-    /// The cell it runs (ran) on; None while queued.
-    pub cell: Option<String>,
-    /// The only cell it may run on, if it was added for one.
-    pub wanted: Option<String>,
-    /// Its priority (higher runs first).
-    pub priority: i32,
-    /// When it is due (ms since the Unix epoch), if it is.
-    pub due_ms: Option<i64>,
-}
-
-/// `ms` since the Unix epoch as `YYYY-MM-DD HH:MM UTC`, for a record's
-/// text (consoles show times in their own zone; a journal line says it
-/// once for all).
-pub fn utc_text(ms: i64) -> String {
-    let minutes = ms.div_euclid(60_000);
-    let (days, minute) = (minutes.div_euclid(1440), minutes.rem_euclid(1440));
-    // Days to a civil date (H. Hinnant's algorithm).
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    format!(
-        "{year:04}-{month:02}-{day:02} {:02}:{:02} UTC",
-        minute / 60,
-        minute % 60
-    )
-}
-
-impl Order {
-    /// Its place among the queued orders: the smallest runs first (the
-    /// highest priority, then the one due first, one with no due time
-    /// after every one with, then the one added first).
-    pub fn dispatch_key(&self) -> (std::cmp::Reverse<i32>, bool, Option<i64>, i64) {
-        (
-            std::cmp::Reverse(self.priority),
-            self.due_ms.is_none(),
-            self.due_ms,
-            self.id,
-        )
-    }
-
-    /// Whether cell `cell` may run it.
-    pub fn may_run_on(&self, cell: &str) -> bool {
-        self.wanted.as_deref().map_or(true, |w| w == cell)
-    }
-}
-
-/// What a journal entry records.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum EntryKind {
-    /// An order started or ended.
-    Order,
-    /// An alarm.
-    Alarm,
-    /// A line the cell showed the operator (`output`).
-    Message,
-    /// A question the cell asked (`input`).
-    Question,
-    /// The answer given.
-    Answer,
-    /// A report from a station.
-    Report,
-    /// An operator's action.
-    Action,
-    /// The operator node itself (start, recovery, recipes).
-    System,
-}
-
-impl EntryKind {
-    /// Every kind.
-    pub const ALL: [EntryKind; 8] = [
-        Self::Order,
-        Self::Alarm,
-        Self::Message,
-        Self::Question,
-        Self::Answer,
-        Self::Report,
-        Self::Action,
-        Self::System,
-    ];
-
-    /// The word stored and shown.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Order => "order",
-            Self::Alarm => "alarm",
-            Self::Message => "message",
-            Self::Question => "question",
-            Self::Answer => "answer",
-            Self::Report => "report",
-            Self::Action => "action",
-            Self::System => "system",
-        }
-    }
-
-    /// Parses the stored word.
-    pub fn parse(word: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|k| k.as_str() == word)
-    }
-
-    /// Whether `falc messages` shows it (what the 1992 message screen showed).
-    pub fn is_message(self) -> bool {
-        matches!(
-            self,
-            Self::Alarm | Self::Message | Self::Question | Self::Answer | Self::Report
-        )
-    }
-}
-
-/// One journal entry.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Entry {
-    /// Its id (increasing).
-    pub id: i64,
-    /// When (ms since the Unix epoch).
-    pub at_ms: i64,
-    /// The order it belongs to.
-    pub order: Option<i64>,
-    /// What it records.
-    pub kind: EntryKind,
-    /// Who: a console user, or the station that reported.
-    pub who: String,
-    /// What, for a person.
-    pub text: String,
-    /// The cell it happened in (None: written before entries had one).
-    #[serde(default)]
-    pub cell: Option<String>,
-}
-
 /// What the order list does.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -796,15 +496,6 @@ mod tests {
     use super::*;
 
     #[test]
-    fn utc_text_is_the_civil_date_and_time() {
-        assert_eq!(utc_text(0), "1970-01-01 00:00 UTC");
-        // 2026-11-23 12:34:56.789 UTC.
-        assert_eq!(utc_text(1_795_437_296_789), "2026-11-23 12:34 UTC");
-        assert_eq!(utc_text(951_782_400_000), "2000-02-29 00:00 UTC");
-        assert_eq!(utc_text(-60_000), "1969-12-31 23:59 UTC");
-    }
-
-    #[test]
     fn an_order_add_names_a_count_and_a_priority_within_their_limits() {
         let add = |count: u16, priority: i32| ApiRequest::OrderAdd {
             recipe: "dikdroog".into(),
@@ -903,14 +594,6 @@ mod tests {
         assert_eq!(ApiRequest::Start.call(), Call::Start);
         assert_eq!(Call::Status.role(), Role::Observer);
         assert_eq!(Call::Answer.role(), Role::Operator);
-        for k in EntryKind::ALL {
-            assert_eq!(EntryKind::parse(k.as_str()), Some(k));
-        }
-        assert_eq!(
-            OrderState::parse("interrupted"),
-            Some(OrderState::Interrupted)
-        );
-        assert_eq!(OrderState::parse("lost"), None);
     }
 
     #[test]
@@ -919,28 +602,5 @@ mod tests {
             let wire = serde_json::to_string(&l).expect("serializes");
             assert_eq!(wire, format!("\"{}\"", l.as_str()));
         }
-    }
-
-    #[test]
-    fn recipe_files_stay_in_their_directory() {
-        let w = StationName::new("welding").expect("valid");
-        let f = RecipeFile::new(w.clone(), "Droog_Dik").expect("valid");
-        assert_eq!(f.to_string(), "welding/droog_dik.rcp");
-        for bad in [
-            "../x.rcp",
-            "a/b.rcp",
-            ".rcp",
-            "",
-            "x y.rcp",
-            "x.rcp.rcp.",
-            "ü.rcp",
-        ] {
-            assert!(RecipeFile::new(w.clone(), bad).is_err(), "{bad}");
-        }
-        // The same rule holds for what arrives on the wire.
-        let wire = r#"{"station":"welding","file":"../../etc/passwd"}"#;
-        assert!(serde_json::from_str::<RecipeFile>(wire).is_err());
-        let ok = r#"{"station":"welding","file":"store.rcp"}"#;
-        assert!(serde_json::from_str::<RecipeFile>(ok).is_ok());
     }
 }
