@@ -80,7 +80,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 
     /// Whether the cell's question waits for an answer.
     pub fn question_waiting(&self) -> bool {
-        self.question.is_some()
+        self.questions.prompt().is_some()
     }
 
     /// A station's status as the consoles see it: as it published it, with
@@ -146,7 +146,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             running: self.running.clone(),
             queued: self.db.queued()?,
             journal_head: self.db.journal_head()?,
-            question: self.question.as_ref().map(|q| q.prompt.clone()),
+            question: self.questions.prompt().map(str::to_string),
             shutdown_pending: self.shutdown_pending,
             mode: self.cell_mode(),
             stations: self
@@ -374,7 +374,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             }
             ApiRequest::Ack { id } => self.ack(who, id),
             ApiRequest::Answer { text } => {
-                let Some(q) = self.question.take() else {
+                let Some(q) = self.questions.take() else {
                     return Some(Err("no question is waiting for an answer".into()));
                 };
                 let order = self.running_id();

@@ -432,7 +432,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                         // Running before anything is written: a failed
                         // write halts it.
                         self.running = Some(order.clone());
-                        self.shown.clear();
+                        self.questions.new_order();
                         self.journal_mine(
                             EntryKind::Order,
                             Some(order.id),

@@ -160,6 +160,58 @@ struct Question {
     ticket: Ticket,
 }
 
+/// The cell's lines to the operator since its last question, and the
+/// question waiting. Its rules: at most one question waits (a newer one
+/// replaces it, handed back to be refused); the lines kept are the newest
+/// [`QUESTION_WINDOW_LINES`] (the journal has them all), and go with the
+/// next question.
+#[derive(Debug, Default)]
+struct Questions {
+    waiting: Option<Question>,
+    shown: Vec<String>,
+}
+
+impl Questions {
+    /// Lines the cell showed.
+    fn show(&mut self, lines: Vec<String>) {
+        self.shown.extend(lines);
+        let over = self.shown.len().saturating_sub(QUESTION_WINDOW_LINES);
+        self.shown.drain(..over);
+    }
+
+    /// The cell asks `prompt` (answered under `ticket`): the lines shown
+    /// since the last question go with it. The question it replaces, if
+    /// one waited.
+    fn ask(&mut self, prompt: &str, ticket: Ticket) -> Option<Question> {
+        let mut text = self.shown.join("\n");
+        if !text.is_empty() {
+            text.push('\n');
+        }
+        text.push_str(prompt);
+        self.shown.clear();
+        self.waiting.replace(Question {
+            prompt: text,
+            ticket,
+        })
+    }
+
+    /// The question waiting, taken (answered, refused or dropped).
+    fn take(&mut self) -> Option<Question> {
+        self.waiting.take()
+    }
+
+    /// What the waiting question shows, with the lines before it.
+    fn prompt(&self) -> Option<&str> {
+        self.waiting.as_ref().map(|q| q.prompt.as_str())
+    }
+
+    /// A new order starts: what the last one showed goes with no question
+    /// of this one.
+    fn new_order(&mut self) {
+        self.shown.clear();
+    }
+}
+
 /// The console request a job answers when it ends, and its user.
 #[derive(Debug)]
 struct Caller {
@@ -308,7 +360,8 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     running: Option<Order>,
     /// Set while the running order's run is not followed ([`Away`]).
     away: Option<Away>,
-    question: Option<Question>,
+    /// The cell's lines since its last question, and the question waiting.
+    questions: Questions,
     shutdown_pending: bool,
     /// The wall time (ms since the Unix epoch) at `now` = 0: what the
     /// records are stamped with ([`Self::clocked_from`]).
@@ -316,8 +369,6 @@ pub struct OrderList<R: Records, S: RecipeSource> {
     statuses: BTreeMap<StationName, VmdStatus>,
     /// The stations on the bus now.
     present: BTreeSet<StationName>,
-    /// Lines the cell showed since the last question (shown with it).
-    shown: Vec<String>,
     /// Order ends that could not be written: written before the next start
     /// (until then the order stays `running` in the records, which a
     /// restart turns into `interrupted`: never queued again).
@@ -419,12 +470,11 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             db_alarm: None,
             running: None,
             away: None,
-            question: None,
+            questions: Questions::default(),
             shutdown_pending: false,
             origin_ms: 0,
             statuses: BTreeMap::new(),
             present: BTreeSet::new(),
-            shown: Vec::new(),
             unwritten_ends: Vec::new(),
             last_ended: None,
             busy: None,

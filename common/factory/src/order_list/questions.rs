@@ -7,7 +7,7 @@ use super::*;
 impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// Answers the waiting question with `why` (its order no longer runs).
     pub(super) fn refuse_question(&mut self, why: &str) {
-        if let Some(q) = self.question.take() {
+        if let Some(q) = self.questions.take() {
             self.out.push_back(Output::Respond {
                 ticket: q.ticket,
                 result: Err(ServiceError::state_conflict(why)),
@@ -17,7 +17,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
 
     /// Drops the waiting question unanswered.
     pub(super) fn forget_question(&mut self) {
-        if let Some(q) = self.question.take() {
+        if let Some(q) = self.questions.take() {
             self.out.push_back(Output::Forget(q.ticket));
         }
     }
@@ -41,30 +41,23 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 for l in &lines {
                     self.journal_cell_message(now, EntryKind::Message, l);
                 }
-                self.shown.extend(lines);
-                // The window that goes with the next question; the journal
-                // has every line.
-                let over = self.shown.len().saturating_sub(QUESTION_WINDOW_LINES);
-                self.shown.drain(..over);
+                self.questions.show(lines);
                 self.out.push_back(Output::Respond {
                     ticket,
                     result: Ok(Response::Done),
                 });
             }
             Request::Input { prompt, .. } => {
-                let mut text = self.shown.join("\n");
-                if !text.is_empty() {
-                    text.push('\n');
-                }
-                text.push_str(&prompt);
-                self.shown.clear();
                 self.journal_cell_message(now, EntryKind::Question, &prompt);
                 self.say(format!("EVENT question {prompt}"));
-                self.refuse_question("a newer question replaced this one");
-                self.question = Some(Question {
-                    prompt: text,
-                    ticket,
-                });
+                if let Some(older) = self.questions.ask(&prompt, ticket) {
+                    self.out.push_back(Output::Respond {
+                        ticket: older.ticket,
+                        result: Err(ServiceError::state_conflict(
+                            "a newer question replaced this one",
+                        )),
+                    });
+                }
             }
             other => {
                 let e = ServiceError::undefined(format!(

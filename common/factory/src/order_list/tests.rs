@@ -1819,3 +1819,25 @@ fn numbers_at_the_end_of_their_range_from_a_station_crash_nothing() {
     assert_eq!(texts, ["one", "two"]);
     assert_eq!(r.list.filed(&st("welding")), Some(("a", u64::MAX, 0)));
 }
+
+#[test]
+fn one_question_waits_with_the_newest_lines_shown_before_it() {
+    let mut q = Questions::default();
+    q.show((0..25).map(|i| format!("line {i}")).collect());
+    assert!(q.ask("klopt het?", Ticket(1)).is_none());
+    let prompt = q.prompt().unwrap_or_default().to_string();
+    let lines: Vec<&str> = prompt.lines().collect();
+    assert_eq!(lines.len(), QUESTION_WINDOW_LINES + 1, "{prompt}");
+    assert_eq!(lines.first(), Some(&"line 5"));
+    assert_eq!(lines.last(), Some(&"klopt het?"));
+    // A newer question replaces it (handed back) and shows no old line.
+    let older = q.ask("nog eens?", Ticket(2));
+    assert_eq!(older.map(|o| o.ticket), Some(Ticket(1)));
+    assert_eq!(q.prompt(), Some("nog eens?"));
+    // A new order's question shows none of the last order's lines.
+    q.show(vec!["van de vorige".into()]);
+    q.new_order();
+    assert_eq!(q.take().map(|o| o.ticket), Some(Ticket(2)));
+    assert!(q.ask("ja?", Ticket(3)).is_none());
+    assert_eq!(q.prompt(), Some("ja?"));
+}
