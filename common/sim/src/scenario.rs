@@ -197,6 +197,9 @@ pub struct Summary {
     pub failed: usize,
     /// Faults injected, by kind.
     pub faults: BTreeMap<Fault, u32>,
+    /// Of the crashes and partitions, those of the operator's process or
+    /// link (which reach every cell).
+    pub operator_faults: u32,
     /// Steps taken.
     pub steps: u64,
     /// Virtual time of production.
@@ -232,11 +235,15 @@ impl fmt::Display for Summary {
             .collect();
         writeln!(
             f,
-            "faults: {}",
+            "faults: {}{}",
             if faults.is_empty() {
                 "none".into()
             } else {
                 faults.join(", ")
+            },
+            match self.operator_faults {
+                0 => String::new(),
+                n => format!(" ({n} of the crashes and partitions the operator's)"),
             }
         )?;
         if !self.cells.is_empty() {
@@ -322,18 +329,20 @@ struct Desk {
     /// no sooner than this.
     starting: bool,
     start_after: Duration,
-    /// Per welding workstation: since when a robot program runs with no
-    /// job, and since when its line is unplugged under a weld, unseen.
-    orphan_since: BTreeMap<usize, Option<Duration>>,
-    silent_since: BTreeMap<usize, Option<Duration>>,
-    /// Per transport workstation: since when a line button is held with
-    /// no job.
-    held_since: BTreeMap<usize, Option<Duration>>,
+    /// Per workstation (by number): since when a robot program runs with
+    /// no job, since when its line is unplugged under a weld, unseen, and
+    /// since when a line button is held with no job.
+    orphan_since: Vec<Option<Duration>>,
+    silent_since: Vec<Option<Duration>>,
+    held_since: Vec<Option<Duration>>,
     answered: Option<String>,
     /// Since when an order runs at the cell after a write for it failed.
     behind_since: Option<Duration>,
     /// The cell's writes refused before the disk last filled.
     refused: u64,
+    /// The records' refusals of every cell when last looked at, and this
+    /// cell's then (looked up again only when the first moved).
+    refused_seen: (u64, u64),
 }
 
 /// An order that must end done: it ran on a clean cell (no fault reached
@@ -792,6 +801,9 @@ impl Run {
             }
             Fault::Uplink => w.cut_uplink(c, true),
         }
+        if a.node.is_some_and(Node::is_operator) {
+            self.summary.operator_faults += 1;
+        }
         // Who it reaches; the orders it must spare.
         let reached: Vec<usize> = match a.plant_wide() {
             true => (0..self.desks.len()).collect(),
@@ -1032,9 +1044,17 @@ impl Run {
             return Ok(());
         };
         let p = w.part(c);
+        let n = p.workstations().end;
+        for v in [
+            &mut desk.held_since,
+            &mut desk.orphan_since,
+            &mut desk.silent_since,
+        ] {
+            v.resize(n, None);
+        }
         // No line button stays pressed while the conveyor is idle.
         let mut held = None;
-        for k in p.transports() {
+        for k in p.workstations() {
             let Some(t) = p.transport_parts(k) else {
                 continue;
             };
@@ -1047,13 +1067,13 @@ impl Run {
                     .and_then(|o| t.conveyor.coils().get(usize::from(o)).copied())
                     .unwrap_or(false)
             });
-            let since = desk.held_since.entry(k).or_default();
+            let since = &mut desk.held_since[k];
             if lasting(since, idle && line.is_some(), now) > HELD {
                 held = line.map(|l| (k, *l));
             }
         }
         let (mut orphan, mut silent) = (None, None);
-        for k in p.weldings() {
+        for k in p.workstations() {
             let Some(r) = p.welding_parts(k) else {
                 continue;
             };
@@ -1061,7 +1081,7 @@ impl Run {
             // No robot program runs without a job that owns it.
             let orphaned =
                 r.rcm.robot.running().is_some() && !(runs && r.controller().is_running());
-            if lasting(desk.orphan_since.entry(k).or_default(), orphaned, now) > ORPHAN {
+            if lasting(&mut desk.orphan_since[k], orphaned, now) > ORPHAN {
                 orphan = Some(k);
             }
             // A dead serial line is seen while a program of a job runs.
@@ -1069,7 +1089,7 @@ impl Run {
                 && runs
                 && r.controller().device.program().is_some()
                 && r.controller().status().physical != PhysicalStatus::Inoperable;
-            if lasting(desk.silent_since.entry(k).or_default(), unseen, now) > SILENT {
+            if lasting(&mut desk.silent_since[k], unseen, now) > SILENT {
                 silent = Some(k);
             }
         }
@@ -1077,7 +1097,11 @@ impl Run {
         // journal behind.
         let (refused, failing) = {
             let rec = w.records.borrow();
-            (rec.refused_of(w.cell_id(c).as_str()), rec.failing)
+            let total = rec.refused();
+            if total != desk.refused_seen.0 {
+                desk.refused_seen = (total, rec.refused_of(w.cell_id(c).as_str()));
+            }
+            (desk.refused_seen.1, rec.failing)
         };
         let behind = refused > desk.refused && p.controller().is_running();
         if !failing {

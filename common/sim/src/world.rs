@@ -38,7 +38,7 @@ use falc_model::topology::Topology;
 use rand::rngs::StdRng;
 use rand::SeedableRng;
 use std::cell::RefCell;
-use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::collections::{BTreeMap, VecDeque};
 use std::path::Path;
 use std::rc::Rc;
 use std::time::Duration;
@@ -575,14 +575,13 @@ impl World {
     /// Cell `c`'s timers due now.
     fn clocks(&mut self, c: usize) {
         let now = self.now;
-        let running: BTreeSet<Role> = self
-            .nodes_of(c)
-            .into_iter()
-            .filter(|n| self.is_running(*n))
-            .map(|n| n.role)
-            .collect();
-        self.part_mut(c)
-            .handle_timeout(now, |r| running.contains(&r));
+        // Borrowed apart: the processes' states to read, the cell's parts
+        // to change (every step: nothing allocated).
+        let ups = &self.ups;
+        let runs = |r| ups.get(&Node::new(c, r)).map_or(true, |u| u.running);
+        if let Some(p) = self.cells.get_mut(c) {
+            p.handle_timeout(now, runs);
+        }
     }
 
     /// Carries what every core put out to where it goes, until all are
@@ -594,8 +593,8 @@ impl World {
             let mut busy = false;
             for c in 0..self.cells.len() {
                 busy |= self.pump_cell(c);
-                for n in self.workstations_of(c) {
-                    busy |= self.pump_workstation(n);
+                for k in self.part(c).workstations() {
+                    busy |= self.pump_workstation(Node::workstation(c, k));
                 }
             }
             if !busy {
@@ -1276,29 +1275,35 @@ impl World {
     /// is one for all its places.
     pub fn cut(&mut self, n: Node, cut: bool) {
         self.bus.set_cut(n, cut);
-        let what = if cut { "cut off" } else { "back" };
-        self.note(format!("bus: {} {what}", self.label(n)));
-        if cut {
-            let at = self.now + self.lease;
-            self.leases.push((at, Parting::Node(n)));
-        } else {
-            self.back(n);
-        }
-        self.pump();
+        self.parting(Parting::Node(n), cut);
     }
 
     /// Cell `c`'s uplink to the factory router is cut (or joined again):
     /// the cell runs on, parted from the operator.
     pub fn cut_uplink(&mut self, c: usize, cut: bool) {
         self.bus.set_uplink_cut(c, cut);
-        let what = if cut { "cut" } else { "back" };
-        self.note(format!("bus: cell {} uplink {what}", self.cell_id(c)));
-        if cut {
-            let at = self.now + self.lease;
-            self.leases.push((at, Parting::Uplink(c)));
-        } else {
-            self.parted_cells.remove(&c);
-            self.seen_again(c);
+        self.parting(Parting::Uplink(c), cut);
+    }
+
+    /// What the bus's cut (or join) of `p` leads to: a cut is a loss once
+    /// the lease runs out; a join makes what was parted seen again.
+    fn parting(&mut self, p: Parting, cut: bool) {
+        let what = if cut { "cut off" } else { "back" };
+        let who = match p {
+            Parting::Node(n) => self.label(n),
+            Parting::Uplink(c) => format!("cell {} uplink", self.cell_id(c)),
+        };
+        self.note(format!("bus: {who} {what}"));
+        match (p, cut) {
+            (_, true) => {
+                let at = self.now + self.lease;
+                self.leases.push((at, p));
+            }
+            (Parting::Node(n), false) => self.back(n),
+            (Parting::Uplink(c), false) => {
+                self.parted_cells.remove(&c);
+                self.seen_again(c);
+            }
         }
         self.pump();
     }

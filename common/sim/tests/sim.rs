@@ -118,6 +118,9 @@ fn a_plant_of_three_cells_keeps_the_invariants_across_cells() {
     for f in [Fault::Uplink, Fault::Crash, Fault::Partition] {
         assert!(s.faults.get(&f).copied().unwrap_or(0) >= 3, "{f}: {s}");
     }
+    // The operator's process crashed or its link was cut, reaching every
+    // cell.
+    assert!(s.operator_faults >= 1, "{s}");
 }
 
 /// The stations come from the topology: a plant whose cell names its
