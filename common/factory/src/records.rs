@@ -306,6 +306,9 @@ pub mod memory {
         /// The time given ([`Records::set_now`]).
         now: i64,
         refused: std::cell::Cell<u64>,
+        /// Set: the alarms cannot be read (a row the records refuse),
+        /// with why.
+        pub unreadable_alarms: Option<String>,
         /// The cell the last write was for (a [`shared`] view sets it),
         /// and the writes refused per cell.
         pub(super) writer: String,
@@ -596,6 +599,9 @@ pub mod memory {
             Ok(())
         }
         fn listed_alarms(&self) -> Result<Vec<Alarm>, String> {
+            if let Some(why) = &self.unreadable_alarms {
+                return Err(why.clone());
+            }
             Ok(self.alarms.iter().filter(|a| a.listed()).cloned().collect())
         }
         fn add_version(

@@ -441,14 +441,14 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         recipes: RecipeSet,
     ) -> Self {
         let heard = replay::kept_filed(&db);
-        let alarms = match AlarmList::load(&db) {
-            Ok(l) => l,
-            Err(e) => {
-                tracing::error!("{e}; the alarm list starts empty");
-                AlarmList::default()
-            }
+        // Alarms that cannot be read are not silently gone: the list
+        // starts with an alarm saying so, which holds the cell until it
+        // is acknowledged.
+        let (alarms, unread) = match AlarmList::load(&db) {
+            Ok(l) => (l, None),
+            Err(e) => (AlarmList::default(), Some(e.to_string())),
         };
-        Self {
+        let list = Self {
             me,
             cell,
             topology,
@@ -488,7 +488,27 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             heard,
             replaying: None,
         }
-        .versioned()
+        .versioned();
+        match unread {
+            Some(why) => list.alarms_unread(&why),
+            None => list,
+        }
+    }
+
+    /// The records' alarms could not be read (`why`): said, and raised as
+    /// an alarm of the operator's own that holds the cell until someone
+    /// acknowledged it, since an alarm raised before this start may be
+    /// among them.
+    fn alarms_unread(mut self, why: &str) -> Self {
+        let text = format!(
+            "the alarm list could not be read from the records ({why}): an alarm raised \
+             before this start may not be shown; mend the records and start the operator \
+             again, or acknowledge this to go on without them"
+        );
+        tracing::error!("{text}");
+        let me = self.me.clone();
+        self.raise(&me, None, AlarmClass::Device, text);
+        self
     }
 
     /// Keeps each recipe of the set as a version ([`Self::version_set`]).

@@ -1841,3 +1841,34 @@ fn one_question_waits_with_the_newest_lines_shown_before_it() {
     assert!(q.ask("ja?", Ticket(3)).is_none());
     assert_eq!(q.prompt(), Some("ja?"));
 }
+
+/// An alarm row the records cannot read (a file edited by hand) does not
+/// leave the list silently empty: the list starts with an alarm of its
+/// own naming why, which holds `start` until it is acknowledged; then the
+/// list goes on.
+#[test]
+fn alarms_that_cannot_be_read_are_an_alarm_that_holds_the_start() {
+    let mut records = Memory::default();
+    records.unreadable_alarms = Some("alarm row 12: `Weld ing!` is no station name".into());
+    let mut r = Rig::with(records);
+    let s = r.status();
+    let a = s
+        .alarms
+        .iter()
+        .find(|a| a.text.contains("could not be read"))
+        .unwrap_or_else(|| panic!("no alarm: {s:?}"));
+    assert!(a.text.contains("alarm row 12"), "{}", a.text);
+    assert!(a.blocks_start(), "{a:?}");
+    assert_eq!(a.station, "operator");
+    assert!(
+        r.said
+            .iter()
+            .any(|l| l.starts_with("EVENT alarm") && l.contains("could not be read")),
+        "{:?}",
+        r.said
+    );
+    r.ask("console", ApiRequest::Ack { id: None })
+        .unwrap_or_else(|e| panic!("{e}"));
+    let s = r.status();
+    assert!(s.alarms.iter().all(|a| !a.blocks_start()), "{s:?}");
+}
