@@ -1845,7 +1845,7 @@ fn one_question_waits_with_the_newest_lines_shown_before_it() {
 /// An alarm row the records cannot read (a file edited by hand) does not
 /// leave the list silently empty: the list starts with an alarm of its
 /// own naming why, which holds `start` until it is acknowledged; then the
-/// list goes on.
+/// next order runs to done.
 #[test]
 fn alarms_that_cannot_be_read_are_an_alarm_that_holds_the_start() {
     let mut records = Memory::default();
@@ -1867,8 +1867,17 @@ fn alarms_that_cannot_be_read_are_an_alarm_that_holds_the_start() {
         "{:?}",
         r.said
     );
+    // It holds the cell: an order waits until someone acknowledged it.
+    r.add(1);
+    assert!(r.start().is_err(), "started over an unacknowledged alarm");
+    assert_eq!(r.order(1).state, OrderState::Queued);
+    // The way back: acknowledged, started, the next order done.
     r.ask("console", ApiRequest::Ack { id: None })
         .unwrap_or_else(|e| panic!("{e}"));
     let s = r.status();
     assert!(s.alarms.iter().all(|a| !a.blocks_start()), "{s:?}");
+    assert!(r.start().is_ok());
+    let out = r.job(JobEvent::Done);
+    assert!(said(&out, "EVENT order-ended id=1 state=done"), "{out:?}");
+    assert_eq!(r.order(1).state, OrderState::Done);
 }
