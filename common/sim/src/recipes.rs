@@ -68,7 +68,7 @@ pub const SHIPPED: &[(&str, &str)] = &[
 /// The recipes as a recipe store: read-only (a save is refused), so the
 /// set is checked and verified once, not at every start.
 #[derive(Debug, Clone)]
-pub struct Shipped {
+pub struct Recipes {
     /// The cell's topology.
     topology: Topology,
     /// The cell the set is for.
@@ -81,7 +81,7 @@ pub struct Shipped {
     checked: std::cell::OnceCell<Result<RecipeSet, Vec<String>>>,
 }
 
-impl Shipped {
+impl Recipes {
     /// The shipped recipes for `cell` of `topology`.
     pub fn new(topology: Topology, cell: StationName) -> Self {
         let texts = SHIPPED
@@ -151,7 +151,7 @@ impl Shipped {
     }
 }
 
-impl RecipeSource for Shipped {
+impl RecipeSource for Recipes {
     fn load(&self) -> Result<RecipeSet, Vec<String>> {
         self.checked.get_or_init(|| self.check()).clone()
     }

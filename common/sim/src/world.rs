@@ -12,7 +12,7 @@
 
 use crate::bus::{Arrival, Bus, Link, Msg, Node, Role};
 use crate::cell::{Action, CellParts, Settled, Workstation};
-use crate::recipes::Shipped;
+use crate::recipes::Recipes;
 use falc_control::cell_node::CellAction;
 use falc_control::coordination::{workstation_domain, Awaiting, Reply};
 use falc_control::pass_on::PASS_LIMIT;
@@ -127,9 +127,9 @@ struct Up {
 fn order_list(
     part: &CellParts,
     view: Shared,
-    source: Shipped,
+    source: Recipes,
     set: RecipeSet,
-) -> OrderList<Shared, Shipped> {
+) -> OrderList<Shared, Recipes> {
     OrderList::new(
         part.name(Role::Operator).clone(),
         part.name(Role::Cell).clone(),
@@ -166,10 +166,10 @@ pub struct World {
     pub records: Rc<RefCell<Memory>>,
     /// The operator's plant, as `falc-operator` runs it: a cell of its
     /// own is a plant of one (cell `c`'s order list: [`Self::order_list`]).
-    pub plant: Plant<Shared, Shipped>,
+    pub plant: Plant<Shared, Recipes>,
     /// A second handle on each cell's records and recipe store, for an
     /// operator started again.
-    durable: Vec<(Shared, Shipped)>,
+    durable: Vec<(Shared, Recipes)>,
     /// Console requests up to this ticket that were not answered when the
     /// operator died are refused (its API went with it).
     lost_before: u64,
@@ -260,8 +260,8 @@ impl World {
             let part = CellParts::new(topology.clone(), time_scale, timing)?;
             let cell = part.name(Role::Cell).clone();
             let source = match recipes {
-                None => Shipped::new(topology, cell),
-                Some(dir) => Shipped::read(dir, topology, cell)?,
+                None => Recipes::new(topology, cell),
+                Some(dir) => Recipes::read(dir, topology, cell)?,
             };
             let set = source.load().map_err(|p| p.join("\n"))?;
             // What the list writes as it starts is stamped at the run's start.
@@ -346,7 +346,7 @@ impl World {
     }
 
     /// Cell `c`'s order list in the operator's plant.
-    fn list(&mut self, c: usize) -> &mut OrderList<Shared, Shipped> {
+    fn list(&mut self, c: usize) -> &mut OrderList<Shared, Recipes> {
         self.plant
             .list(c)
             .unwrap_or_else(|| unreachable!("the plant has a list per cell"))
@@ -401,7 +401,7 @@ impl World {
     }
 
     /// Cell `c`'s order list, to read.
-    pub fn order_list(&self, c: usize) -> &OrderList<Shared, Shipped> {
+    pub fn order_list(&self, c: usize) -> &OrderList<Shared, Recipes> {
         self.plant
             .list_at(c)
             .unwrap_or_else(|| unreachable!("the plant has a list per cell"))
@@ -534,9 +534,12 @@ impl World {
         for id in late {
             if let Some(p) = self.pending.remove(&id) {
                 let e = if p.parted {
-                    ServiceError::unreachable(format!("no reply from {}: no route", p.to))
+                    ServiceError::unreachable(format!(
+                        "no reply from {}: no route",
+                        self.label(p.to)
+                    ))
                 } else {
-                    ServiceError::timeout(format!("no confirm from {} in time", p.to))
+                    ServiceError::timeout(format!("no confirm from {} in time", self.label(p.to)))
                 };
                 self.confirm(p.waiter, Err(e));
             }
@@ -910,7 +913,7 @@ impl World {
             // router ends a query to it at once, with no reply.
             (to, Msg::Request { id, .. } | Msg::ReadKept { id, .. }) if !self.is_running(to) => {
                 if let Some(p) = self.pending.remove(&id) {
-                    let e = ServiceError::unreachable(format!("no reply from {to}"));
+                    let e = ServiceError::unreachable(format!("no reply from {}", self.label(to)));
                     self.confirm(p.waiter, Err(e));
                 }
             }
@@ -1356,7 +1359,7 @@ impl World {
             if let Some(p) = self.pending.remove(&id) {
                 let e = ServiceError::unreachable(format!(
                     "no reply from {}: the session closed",
-                    p.to
+                    self.label(p.to)
                 ));
                 self.confirm(p.waiter, Err(e));
             }
