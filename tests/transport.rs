@@ -317,25 +317,36 @@ async fn the_map_sits_at_configurable_bases_and_a_wrong_one_is_a_clear_alarm() {
 /// A plain Modbus TCP server with the map's coils and inputs and no
 /// conveyor at all: the test plays the PLC by setting inputs itself.
 mod plain_plc {
-    use falc_plc::map::{COILS, INPUTS};
+    use falc_plc::equipment::Equipment;
     use std::future::Future;
     use std::pin::Pin;
     use std::sync::{Arc, Mutex};
     use tokio_modbus::server::tcp::{accept_tcp_connection, Server};
     use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
 
-    #[derive(Default)]
+    /// The coils and inputs of the 1992 conveyor's equipment file, by
+    /// address.
     pub struct Image {
-        pub coils: [bool; COILS as usize],
-        pub inputs: [bool; INPUTS as usize],
+        pub coils: Vec<bool>,
+        pub inputs: Vec<bool>,
+    }
+
+    impl Default for Image {
+        fn default() -> Self {
+            let e = Equipment::conveyor_1992();
+            Self {
+                coils: vec![false; usize::from(e.coil_span().1)],
+                inputs: vec![false; usize::from(e.input_span().1)],
+            }
+        }
     }
 
     #[derive(Clone)]
     struct Service(Arc<Mutex<Image>>);
 
-    fn range(addr: u16, n: usize, size: u16) -> Result<std::ops::Range<usize>, ExceptionCode> {
+    fn range(addr: u16, n: usize, size: usize) -> Result<std::ops::Range<usize>, ExceptionCode> {
         let (a, end) = (usize::from(addr), usize::from(addr) + n);
-        if n == 0 || end > usize::from(size) {
+        if n == 0 || end > size {
             return Err(ExceptionCode::IllegalDataAddress);
         }
         Ok(a..end)
@@ -350,16 +361,18 @@ mod plain_plc {
         fn call(&self, req: Self::Request) -> Self::Future {
             let mut img = self.0.lock().expect("image");
             let r = match req.request {
-                Request::ReadDiscreteInputs(a, n) => range(a, n.into(), INPUTS)
+                Request::ReadDiscreteInputs(a, n) => range(a, n.into(), img.inputs.len())
                     .map(|r| Response::ReadDiscreteInputs(img.inputs[r].to_vec())),
-                Request::WriteSingleCoil(a, v) => range(a, 1, COILS).map(|r| {
+                Request::WriteSingleCoil(a, v) => range(a, 1, img.coils.len()).map(|r| {
                     img.coils[r.start] = v;
                     Response::WriteSingleCoil(a, v)
                 }),
-                Request::WriteMultipleCoils(a, vs) => range(a, vs.len(), COILS).map(|r| {
-                    img.coils[r].copy_from_slice(&vs);
-                    Response::WriteMultipleCoils(a, vs.len() as u16)
-                }),
+                Request::WriteMultipleCoils(a, vs) => {
+                    range(a, vs.len(), img.coils.len()).map(|r| {
+                        img.coils[r].copy_from_slice(&vs);
+                        Response::WriteMultipleCoils(a, vs.len() as u16)
+                    })
+                }
                 _ => Err(ExceptionCode::IllegalFunction),
             };
             Box::pin(std::future::ready(r))
@@ -386,12 +399,17 @@ mod plain_plc {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_node_needs_nothing_but_the_documented_map() {
+    use falc_plc::equipment::Equipment;
     use falc_plc::map::{Coil, Input};
     use falc_recipe::check::{Button, Signal};
     use std::sync::{Arc, Mutex};
     let image = Arc::new(Mutex::new(plain_plc::Image::default()));
-    let offset = |i: Input| usize::from(i.offset().expect("in map"));
-    let coil = |c: Coil| usize::from(c.offset().expect("in map"));
+    let e = Equipment::conveyor_1992();
+    let offset = |i: Input| {
+        let spec = e.inputs().iter().find(|s| s.input == i);
+        usize::from(spec.expect("in the equipment file").address)
+    };
+    let coil = |c: Coil| usize::from(e.coil(c).expect("in the equipment file").address);
     image.lock().expect("image").inputs[offset(Input::Ready)] = true;
     let address = plain_plc::serve(image.clone()).await;
     let cell = TestCell::start();
@@ -473,4 +491,85 @@ async fn stop_then_resume_of_a_transport_job_continues_at_its_state() {
         "state 1 ran again"
     );
     assert_eq!(rig.carriers(), "carriers: 1@W3 2@W5");
+}
+
+/// A broken equipment file stops the transport node, the twin and `io
+/// --map` before they touch a PLC, each naming the file, the line and what
+/// exists; a good one of another layout is printed as its map.
+#[test]
+fn an_equipment_file_is_checked_before_anything_runs() {
+    use std::process::Command;
+    let dir = tempfile::tempdir().expect("temporary directory");
+    let good = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("equipment/conveyor-1992.toml"),
+    )
+    .expect("the shipped equipment file");
+    // Line K ends at a place this conveyor lacks.
+    let bad = good.replace(
+        "name = \"K\"\nfrom = \"W2\"\nto = \"W3\"",
+        "name = \"K\"\nfrom = \"W2\"\nto = \"W9\"",
+    );
+    assert_ne!(bad, good);
+    let line = bad
+        .lines()
+        .position(|l| l == "to = \"W9\"")
+        .expect("the changed line")
+        + 1;
+    let path = dir.path().join("broken.toml");
+    std::fs::write(&path, &bad).expect("write");
+    let file = path.display().to_string();
+    let want = format!(
+        "{file}:{line}: line K runs to `W9`, which is no place or station of this equipment \
+         (there are: W2, W3, W4, W5, W6, S1, S2, S3)"
+    );
+    for (bin, args) in [
+        (
+            env!("CARGO_BIN_EXE_falc-transport"),
+            vec!["io", "--map", "--equipment", &file],
+        ),
+        (
+            env!("CARGO_BIN_EXE_falc-plc-sim"),
+            vec!["--listen", "127.0.0.1:0", "--equipment", &file],
+        ),
+    ] {
+        let out = Command::new(bin).args(&args).output().expect("runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{bin} accepted {file}");
+        assert!(err.contains(&want), "{bin}: {err}");
+    }
+    // A conveyor of two places and one line each way: its own map.
+    let small = dir.path().join("small.toml");
+    std::fs::write(
+        &small,
+        "name = \"small\"\n\
+         [[place]]\nname = \"2\"\n[[place]]\nname = \"3\"\n\
+         [[line]]\nname = \"A\"\nfrom = \"W2\"\nto = \"W3\"\ntravel_s = 2\n\
+         [[line]]\nname = \"B\"\nfrom = \"W3\"\nto = \"W2\"\ntravel_s = 2\n\
+         [[coil]]\naddress = 100\nsignal = \"button line A\"\n\
+         [[coil]]\naddress = 101\nsignal = \"button line B\"\n\
+         [[coil]]\naddress = 110\nsignal = \"external control\"\n\
+         [[input]]\naddress = 7\nsignal = \"line A running\"\n\
+         [[input]]\naddress = 8\nsignal = \"line B running\"\n\
+         [[input]]\naddress = 9\nsignal = \"place 2 occupied\"\n\
+         [[input]]\naddress = 10\nsignal = \"place 3 occupied\"\n\
+         [[input]]\naddress = 11\nsignal = \"PLC ready\"\n\
+         [[input]]\naddress = 12\nsignal = \"emergency stop\"\n",
+    )
+    .expect("write");
+    let out = Command::new(env!("CARGO_BIN_EXE_falc-transport"))
+        .args(["io", "--map", "--equipment"])
+        .arg(&small)
+        .output()
+        .expect("runs");
+    let map = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{map}");
+    for row in [
+        "| coil | 100 | button line A | drop |",
+        "| coil | 110 | external control | hold |",
+        "| discrete input | 10 | place 3 occupied | |",
+        "| B | W3 | W2 | 2 s |",
+    ] {
+        assert!(map.contains(row), "{row} missing from:\n{map}");
+    }
+    assert!(!map.contains("line C"), "{map}");
 }

@@ -25,6 +25,7 @@ use falc_model::plant::Layout;
 use falc_model::records::{Entry, Order};
 use falc_model::topology::Topology;
 use falc_node::{say, NodeArgs, Shutdown};
+use falc_plc::equipment::Equipment;
 use space::{Part, Scope};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -149,16 +150,28 @@ async fn run(cli: Cli) -> Result<(), String> {
     let layout = Layout::load(&cli.node.topology).map_err(|e| e.to_string())?;
     let topology = cli.node.console_topology().map_err(|e| e.to_string())?;
     let (what, scopes) = match &layout {
-        Layout::Cell(t) => ("cell", Scope::one_cell(stations_of(t))),
-        Layout::Plant(p) => (
-            "plant",
-            Scope::plant(
+        Layout::Cell(t) => {
+            let equipment = Equipment::of_topology(t)?;
+            let scopes = Scope::one_cell(stations_of(t))
+                .into_iter()
+                .map(|s| s.with_equipment(equipment.clone()))
+                .collect();
+            ("cell", scopes)
+        }
+        Layout::Plant(p) => {
+            let mut scopes = Scope::plant(
                 p.cells()
                     .iter()
                     .map(|c| (c.id().clone(), stations_of(c.topology())))
                     .collect(),
-            ),
-        ),
+            );
+            // The plant's own scope first, then one per cell in order.
+            for (scope, cell) in scopes.iter_mut().skip(1).zip(p.cells()) {
+                let equipment = Equipment::of_topology(cell.topology())?;
+                *scope = scope.clone().with_equipment(equipment);
+            }
+            ("plant", scopes)
+        }
     };
     let me = topology.console(&cli.user).ok_or_else(|| {
         format!(

@@ -37,7 +37,10 @@ use falc_model::ids::{CellId, StationName};
 use falc_model::mms::vmd::VmdStatus;
 use falc_model::records::{Entry, Order, OrderState};
 use falc_model::topology::StationKind;
+use falc_plc::equipment::Equipment;
+use falc_plc::map::Inputs;
 use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// The prefix of every node id of the gateway's namespace.
@@ -64,6 +67,8 @@ pub enum Part {
         id: Option<CellId>,
         /// Its stations.
         stations: Vec<(StationName, StationKind)>,
+        /// Its transport stations' equipment (absent: the 1992 conveyor).
+        equipment: BTreeMap<StationName, Arc<Equipment>>,
     },
     /// The plant above these cells.
     Plant {
@@ -77,7 +82,11 @@ impl Scope {
     pub fn one_cell(stations: Vec<(StationName, StationKind)>) -> Vec<Scope> {
         vec![Scope {
             root: ROOT.into(),
-            part: Part::Cell { id: None, stations },
+            part: Part::Cell {
+                id: None,
+                stations,
+                equipment: BTreeMap::new(),
+            },
         }]
     }
 
@@ -98,10 +107,20 @@ impl Scope {
                 part: Part::Cell {
                     id: Some(id),
                     stations,
+                    equipment: BTreeMap::new(),
                 },
             });
         }
         out
+    }
+
+    /// The same with `equipment` as its transport stations' (a cell; a
+    /// plant has none of its own).
+    pub fn with_equipment(mut self, equipment: BTreeMap<StationName, Arc<Equipment>>) -> Self {
+        if let Part::Cell { equipment: e, .. } = &mut self.part {
+            *e = equipment;
+        }
+        self
     }
 
     /// The cell its operator API calls are for (None: the plant, or the
@@ -389,7 +408,11 @@ pub struct Look {
 /// look.
 pub fn values(scope: &Scope, look: &Look) -> Vec<(String, Value)> {
     match &scope.part {
-        Part::Cell { id, stations } => cell_values(scope, id.as_ref(), stations, look),
+        Part::Cell {
+            id,
+            stations,
+            equipment,
+        } => cell_values(scope, id.as_ref(), stations, equipment, look),
         Part::Plant { cells } => plant_values(scope, cells, look),
     }
 }
@@ -518,6 +541,7 @@ fn cell_values(
     scope: &Scope,
     cell: Option<&CellId>,
     stations: &[(StationName, StationKind)],
+    equipment: &BTreeMap<StationName, Arc<Equipment>>,
     look: &Look,
 ) -> Vec<(String, Value)> {
     let mut out: Vec<(String, Value)> = Vec::new();
@@ -647,7 +671,13 @@ fn cell_values(
             }),
         );
         match kind {
-            StationKind::Transport => station_inputs(vmd, &id, &mut put),
+            StationKind::Transport => {
+                let e = equipment
+                    .get(name)
+                    .cloned()
+                    .unwrap_or_else(Equipment::conveyor_1992);
+                station_inputs(vmd, &e, &id, &mut put)
+            }
             StationKind::Welding => {
                 let robot = vmd.and_then(|v| v.additional);
                 put(
@@ -674,17 +704,14 @@ fn text_of<T>(v: Option<T>, f: impl FnOnce(T) -> String) -> Value {
 /// name.
 fn station_inputs(
     vmd: Option<&VmdStatus>,
+    equipment: &Arc<Equipment>,
     id: &dyn Fn(&str) -> String,
     put: &mut dyn FnMut(String, Value),
 ) {
     let bits = vmd.map_or(Vec::new(), |v| v.inputs.clone());
-    let lit = bits
-        .iter()
-        .enumerate()
-        .filter(|(_, on)| **on)
-        .filter_map(|(i, _)| falc_plc::map::Input::at(u16::try_from(i).ok()?))
-        .map(|input| input.to_string())
-        .collect();
+    let lit = Inputs::from_bits(equipment, &bits)
+        .map(|i| i.lit().map(|input| input.to_string()).collect())
+        .unwrap_or_default();
     put(id("Inputs"), Value::Bools(bits));
     put(id("LitInputs"), Value::Texts(lit));
 }

@@ -1,9 +1,10 @@
 //! `falc-plc-sim`: the digital twin of the conveyor PLC, a Modbus TCP
-//! server (tokio-modbus) that honours FALC's I/O map (`falc_plc::map`)
-//! and moves two carriers over the conveyor map of `falc_plc::conveyor`, travel times
-//! divided by `--time-scale`.
+//! server (tokio-modbus) that plays the conveyor of an equipment file
+//! (`--equipment FILE`, default the 1992 conveyor): its I/O map
+//! (`falc_plc::map`), its carriers moved over its lines by
+//! `falc_plc::conveyor`, travel times divided by `--time-scale`.
 //!
-//! On stdout: `falc-plc-sim listening on HOST:PORT`, then one line per
+//! On stdout: `falc-plc-sim of <equipment> listening on HOST:PORT`, then one line per
 //! event (coil writes with the time since the last input change as
 //! `reaction_us`, carriers leaving and arriving, lines stopping).
 //!
@@ -12,6 +13,9 @@
 //! `unstuck <place>`, `offline` (connections dropped and refused),
 //! `online`, `mute` (requests get no answer), `unmute`, `layout <spot>…`
 //! (carrier 1 first, e.g. `layout W2 W2`, `layout S3 W3`), `show`.
+//!
+//! A read or write must lie within the span of the equipment's coils (or
+//! inputs); an address in a gap between them reads 0 and ignores writes.
 
 use anyhow::{Context as _, Result};
 use clap::Parser;
@@ -19,7 +23,8 @@ use falc_model::ids::Place;
 use falc_node::plc_link::MapArgs;
 use falc_node::say;
 use falc_plc::conveyor::{Control, Conveyor, Spot};
-use falc_plc::map::{IoMap, COILS, INPUTS, LINES};
+use falc_plc::equipment::Equipment;
+use falc_plc::map::IoMap;
 use std::future::Future;
 use std::net::SocketAddr;
 use std::pin::Pin;
@@ -45,9 +50,10 @@ struct Cli {
     /// Travel times are divided by this (10 = ten times faster).
     #[arg(long, default_value_t = 1.0)]
     time_scale: f64,
-    /// Where the carriers start, carrier 1 first (W2–W6 places, S1–S3 stations).
-    #[arg(long, default_value = "W2 W2")]
-    layout: String,
+    /// Where the carriers start, carrier 1 first (`W3` a place, `S1` a
+    /// station); default: the equipment file's `[twin] carriers`.
+    #[arg(long)]
+    layout: Option<String>,
     #[command(flatten)]
     map: MapArgs,
 }
@@ -55,7 +61,7 @@ struct Cli {
 fn parse_layout(s: &str) -> Result<Vec<Spot>, String> {
     s.split_whitespace()
         .map(|w| {
-            Spot::parse(w).ok_or_else(|| format!("`{w}` is not a place W2–W6 or station S1–S3"))
+            Spot::parse(w).ok_or_else(|| format!("`{w}` is not a place (`W3`) or a station (`S1`)"))
         })
         .collect()
 }
@@ -113,25 +119,48 @@ impl Twin {
         let now = self.now();
         self.conveyor.handle_timeout(now);
         let r = match req {
-            Request::ReadDiscreteInputs(addr, n) => in_range(addr, n, self.map.input_base, INPUTS)
-                .map(|o| {
-                    let bits = self.conveyor.inputs();
-                    Response::ReadDiscreteInputs(bits.bits()[o..o + usize::from(n)].to_vec())
-                }),
-            Request::ReadCoils(addr, n) => in_range(addr, n, self.map.coil_base, COILS).map(|o| {
-                Response::ReadCoils(self.conveyor.coils()[o..o + usize::from(n)].to_vec())
+            Request::ReadDiscreteInputs(addr, n) => {
+                in_range(addr, n, self.map.input_span()).map(|()| {
+                    let inputs = self.conveyor.inputs();
+                    let mut bits = vec![false; usize::from(n)];
+                    let e = self.map.equipment();
+                    for (spec, on) in e.inputs().iter().zip(inputs.bits()) {
+                        let a = self.map.input_base + spec.address;
+                        if let Some(b) = a
+                            .checked_sub(addr)
+                            .and_then(|o| bits.get_mut(usize::from(o)))
+                        {
+                            *b = *on;
+                        }
+                    }
+                    Response::ReadDiscreteInputs(bits)
+                })
+            }
+            Request::ReadCoils(addr, n) => in_range(addr, n, self.map.coil_span()).map(|()| {
+                let bits = (addr..addr + n)
+                    .map(|a| {
+                        self.map
+                            .coil_at(a)
+                            .is_some_and(|c| self.conveyor.coil_value(c))
+                    })
+                    .collect();
+                Response::ReadCoils(bits)
             }),
             Request::WriteSingleCoil(addr, v) => {
-                in_range(addr, 1, self.map.coil_base, COILS).map(|o| {
-                    self.conveyor.write_coil(now, o as u16, v);
+                in_range(addr, 1, self.map.coil_span()).map(|()| {
+                    if let Some(c) = self.map.coil_at(addr) {
+                        self.conveyor.write_coil(now, c, v);
+                    }
                     Response::WriteSingleCoil(addr, v)
                 })
             }
             Request::WriteMultipleCoils(addr, values) => {
                 let n = u16::try_from(values.len()).unwrap_or(u16::MAX);
-                in_range(addr, n, self.map.coil_base, COILS).map(|o| {
-                    for (i, v) in values.iter().enumerate() {
-                        self.conveyor.write_coil(now, (o + i) as u16, *v);
+                in_range(addr, n, self.map.coil_span()).map(|()| {
+                    for (a, v) in (addr..).zip(values.iter()) {
+                        if let Some(c) = self.map.coil_at(a) {
+                            self.conveyor.write_coil(now, c, *v);
+                        }
                     }
                     Response::WriteMultipleCoils(addr, n)
                 })
@@ -148,15 +177,15 @@ fn lock(twin: &Mutex<Twin>) -> Result<std::sync::MutexGuard<'_, Twin>> {
         .map_err(|_| anyhow::anyhow!("the twin's state is poisoned (a thread panicked)"))
 }
 
-/// The offset of `addr..addr+n` inside a block of `size` at `base`.
-fn in_range(addr: u16, n: u16, base: u16, size: u16) -> Result<usize, ExceptionCode> {
+/// Whether `addr..addr+n` lies inside the span `(base, size)`.
+fn in_range(addr: u16, n: u16, (base, size): (u16, u16)) -> Result<(), ExceptionCode> {
     let o = addr
         .checked_sub(base)
         .ok_or(ExceptionCode::IllegalDataAddress)?;
     if n == 0 || u32::from(o) + u32::from(n) > u32::from(size) {
         return Err(ExceptionCode::IllegalDataAddress);
     }
-    Ok(usize::from(o))
+    Ok(())
 }
 
 #[derive(Clone)]
@@ -210,16 +239,37 @@ async fn go_online(addr: SocketAddr, service: Service) -> Result<(SocketAddr, Jo
     Ok((local, task))
 }
 
-fn parse_control(line: &str) -> Result<Ctl, String> {
+fn parse_control(line: &str, equipment: &Equipment) -> Result<Ctl, String> {
     let words: Vec<&str> = line.split_whitespace().collect();
     let line_letter = |s: &str| {
         let c = s.chars().next().map(|c| c.to_ascii_uppercase());
         match c {
-            Some(c) if s.len() == 1 && LINES.contains(&c) => Ok(c),
-            _ => Err(format!("`{s}` is not a line (A–H, J–L)")),
+            Some(c) if s.len() == 1 && equipment.line(c).is_some() => Ok(c),
+            _ => Err(format!(
+                "`{s}` is not a line of {} ({})",
+                equipment.name(),
+                equipment
+                    .lines()
+                    .iter()
+                    .map(|l| l.line.to_string())
+                    .collect::<Vec<_>>()
+                    .join(" ")
+            )),
         }
     };
-    let place = Place::parse;
+    let place = |s: &str| match Place::parse(s) {
+        Ok(p) if equipment.place(p).is_some() => Ok(p),
+        _ => Err(format!(
+            "`{s}` is not a place of {} ({})",
+            equipment.name(),
+            equipment
+                .places()
+                .iter()
+                .map(|p| p.place.to_string())
+                .collect::<Vec<_>>()
+                .join(" ")
+        )),
+    };
     Ok(match words.as_slice() {
         ["estop"] => Ctl::Conveyor(Control::EStop),
         ["estop-clear"] => Ctl::Conveyor(Control::EStopClear),
@@ -257,12 +307,18 @@ enum Ctl {
 async fn main() -> Result<()> {
     falc_node::init_tracing();
     let cli = Cli::parse();
-    let layout = parse_layout(&cli.layout).map_err(anyhow::Error::msg)?;
-    let conveyor = Conveyor::new(&layout, cli.time_scale).map_err(anyhow::Error::msg)?;
+    let map = cli.map.map(None).map_err(anyhow::Error::msg)?;
+    let equipment = map.equipment().clone();
+    let layout = match &cli.layout {
+        Some(l) => parse_layout(l).map_err(anyhow::Error::msg)?,
+        None => equipment.carriers().to_vec(),
+    };
+    let conveyor =
+        Conveyor::new(equipment.clone(), &layout, cli.time_scale).map_err(anyhow::Error::msg)?;
     let twin = Arc::new(Mutex::new(Twin {
         conveyor,
         origin: Instant::now(),
-        map: cli.map.map()?,
+        map,
         mute: false,
     }));
     let changed = Arc::new(Notify::new());
@@ -272,7 +328,11 @@ async fn main() -> Result<()> {
     };
     let (addr, task) = go_online(cli.listen, service.clone()).await?;
     let mut server = Some(task);
-    say(&format!("falc-plc-sim listening on {addr}"));
+    // The address last: scripts take the line's last word.
+    say(&format!(
+        "falc-plc-sim of {} listening on {addr}",
+        equipment.name()
+    ));
     let mut stdin = BufReader::new(tokio::io::stdin()).lines();
     let mut stdin_open = true;
     let mut shutdown = falc_node::Shutdown::new();
@@ -290,7 +350,7 @@ async fn main() -> Result<()> {
                 Ok(Some(line)) if line.trim().is_empty() => {}
                 Ok(Some(line)) => {
                     let line = line.trim();
-                    let answer = match parse_control(line) {
+                    let answer = match parse_control(line, &equipment) {
                         Ok(Ctl::Offline) => {
                             if let Some(task) = server.take() {
                                 task.abort();

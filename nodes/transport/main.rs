@@ -55,7 +55,8 @@ enum Cmd {
         /// Keep showing every change, with its time, until Ctrl-C.
         #[arg(long)]
         watch: bool,
-        /// Print the I/O map (addresses at the given bases) and exit.
+        /// Print the equipment's I/O map (addresses at the given bases) and
+        /// its layout, and exit.
         #[arg(long)]
         map: bool,
         /// The station whose `device` is the PLC's address.
@@ -74,10 +75,10 @@ fn plc_settings(
     topology: Option<&Topology>,
     station: &StationName,
 ) -> Result<PlcSettings> {
-    let device = topology
-        .and_then(|t| t.station(station))
-        .and_then(|s| s.device.clone());
-    plc.settings(device).map_err(anyhow::Error::msg)
+    let stanza = topology.and_then(|t| t.station(station));
+    let device = stanza.and_then(|s| s.device.clone());
+    let equipment = stanza.and_then(|s| s.equipment.as_deref());
+    plc.settings(device, equipment).map_err(anyhow::Error::msg)
 }
 
 /// `io`: show the inputs once, or every change with `--watch`.
@@ -146,11 +147,18 @@ async fn main() -> Result<()> {
         plc,
     }) = &cli.command
     {
+        let topology = Topology::load(topology).ok();
         if *map {
-            print!("{}", plc.map.map()?.table());
+            let stanza = topology
+                .as_ref()
+                .and_then(|t| t.station(station))
+                .and_then(|s| s.equipment.as_deref());
+            let map = plc.map.map(stanza).map_err(anyhow::Error::msg)?;
+            let e = map.equipment();
+            println!("{} ({}): {}\n", e.name(), e.origin(), e.title());
+            print!("{}\n{}", map.table(), e.layout_table());
             return Ok(());
         }
-        let topology = Topology::load(topology).ok();
         return io(plc_settings(plc, topology.as_ref(), station)?, *watch).await;
     }
     let topology = cli.node.topology()?;
@@ -159,16 +167,18 @@ async fn main() -> Result<()> {
         plc_settings(&cli.plc, Some(&topology), &cli.station).context("no PLC address")?;
     let address = plc_settings.address.clone();
     let poll = plc_settings.poll;
+    let equipment = plc_settings.map.equipment().clone();
     let station = Station::open(settings, &topology).await?;
     let mut link = plc_link::spawn(plc_settings);
-    let plc = Plc::new(address.clone());
+    let plc = Plc::new(address.clone(), equipment.clone());
     let mut ws = ControllerNode::new(station, RecipeKind::Transport, START_CONFIRM_LIMIT, plc);
     ws.node.set_recipe_memory(cli.memory.recipe_memory);
     ws.carry(|c| send_command(&link.commands, c)).await;
     say(&format!(
-        "EVENT ready station={} plc={address} poll_ms={}",
+        "EVENT ready station={} plc={address} poll_ms={} equipment={}",
         cli.station,
-        poll.as_millis()
+        poll.as_millis(),
+        equipment.name()
     ));
     let mut shutdown = falc_node::Shutdown::new();
     loop {

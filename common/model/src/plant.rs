@@ -174,6 +174,7 @@ impl Plant {
             kind: StationKind::Operator,
             commander: None,
             device: None,
+            equipment: None,
             host: raw.operator.host,
         };
         if raw.cells.is_empty() {

@@ -12,7 +12,7 @@ use crate::ids::{CellId, StationName};
 use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::net::IpAddr;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 /// The kind of controller a station runs; decides its command set.
@@ -64,6 +64,12 @@ pub struct Station {
     /// Its device address (serial port, Modbus endpoint), if it has one.
     #[serde(default)]
     pub device: Option<String>,
+    /// A transport station's equipment file (its conveyor: layout,
+    /// signals, feedback, twin timings), relative to the working directory
+    /// like the recipe directory; absent: the 1992 conveyor,
+    /// `equipment/conveyor-1992.toml`, built into every node.
+    #[serde(default)]
+    pub equipment: Option<PathBuf>,
     /// The IP address of the PC it runs on, for the router's firewall
     /// (`falc-router firewall`); absent in an all-in-one cell.
     #[serde(default)]
@@ -300,6 +306,13 @@ impl Topology {
             }
         }
         for st in &raw.stations {
+            if st.equipment.is_some() && st.kind != StationKind::Transport {
+                return Err(fail(format!(
+                    "station `{}` names an equipment file, but only a transport station \
+                     drives equipment of its own",
+                    st.name
+                )));
+            }
             if let Some(cmd) = &st.commander {
                 if !index.contains_key(cmd) {
                     return Err(fail(format!(
@@ -527,6 +540,31 @@ device = "/dev/ttyS0"
                 .contains("painting")
         );
         assert!(refusal(&CELL.replace("name = \"cell\"", "name = \"c ell\"")).contains("c ell"));
+    }
+
+    #[test]
+    fn only_a_transport_station_names_an_equipment_file() {
+        let transport = "[[station]]\nname = \"transport\"\nkind = \"transport\"\n\
+                         commander = \"cell\"\nequipment = \"equipment/small.toml\"\n";
+        let t = Topology::parse(&format!("{CELL}{transport}"), "t.toml").expect("valid");
+        let stanza = t
+            .station(&StationName::new("transport").expect("valid"))
+            .expect("there");
+        assert_eq!(
+            stanza.equipment.as_deref(),
+            Some(Path::new("equipment/small.toml"))
+        );
+        let welding = CELL.replace(
+            "device = \"/dev/ttyS0\"",
+            "device = \"/dev/ttyS0\"\nequipment = \"equipment/small.toml\"",
+        );
+        assert!(
+            refusal(&welding).contains(
+                "station `welding` names an equipment file, but only a transport station"
+            ),
+            "{}",
+            refusal(&welding)
+        );
     }
 
     #[test]

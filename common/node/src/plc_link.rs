@@ -9,9 +9,12 @@
 //! its read began, so a reader can tell a reading taken before its own last
 //! coil write from one taken after.
 
-use falc_plc::map::{Inputs, IoMap, MapError, COILS, INPUTS};
+use falc_plc::equipment::{Equipment, Problems};
+use falc_plc::map::{Coils, Inputs, IoMap, MapError};
 use falc_plc::workstation::{Pace, PlcCommand, PlcEvent};
 use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::mpsc;
 use tokio_modbus::client::{Client, Context, Reader, Writer};
@@ -20,21 +23,35 @@ use tokio_modbus::Slave;
 /// How long to wait before retrying after a fault.
 pub const RETRY: Duration = Duration::from_secs(1);
 
-/// Where the map sits in the PLC (shared by the transport node and the twin).
+/// The equipment and where its map sits in the PLC (shared by the
+/// transport node and the twin).
 #[derive(Debug, Clone, clap::Args)]
 pub struct MapArgs {
-    /// Modbus address of the first coil of the map (button of line A).
+    /// The equipment file (the conveyor's layout, signals and addresses);
+    /// default: the station's `equipment` in the topology, else the 1992
+    /// conveyor (`equipment/conveyor-1992.toml`, built in).
+    #[arg(long)]
+    pub equipment: Option<PathBuf>,
+    /// Added to every coil address of the equipment file (for a PLC whose
+    /// FALC area starts elsewhere).
     #[arg(long, default_value_t = 0)]
     pub coil_base: u16,
-    /// Modbus address of the first discrete input of the map (line A running).
+    /// Added to every discrete input address of the equipment file.
     #[arg(long, default_value_t = 0)]
     pub input_base: u16,
 }
 
 impl MapArgs {
-    /// The map.
-    pub fn map(&self) -> Result<IoMap, MapError> {
-        IoMap::new(self.coil_base, self.input_base)
+    /// The equipment: `--equipment`, else `stanza` (the topology's), else
+    /// the 1992 conveyor. Every problem of the file names its line.
+    pub fn equipment(&self, stanza: Option<&Path>) -> Result<Arc<Equipment>, Problems> {
+        Equipment::of_stanza(self.equipment.as_deref().or(stanza))
+    }
+
+    /// The map of the equipment ([`MapArgs::equipment`]).
+    pub fn map(&self, stanza: Option<&Path>) -> Result<IoMap, String> {
+        let equipment = self.equipment(stanza).map_err(|e| e.to_string())?;
+        IoMap::new(equipment, self.coil_base, self.input_base).map_err(|e: MapError| e.to_string())
     }
 }
 
@@ -81,8 +98,13 @@ pub struct PlcSettings {
 }
 
 impl PlcArgs {
-    /// The settings, with `device` (the topology's) as the default address.
-    pub fn settings(&self, device: Option<String>) -> Result<PlcSettings, String> {
+    /// The settings, with `device` and `equipment` (the topology's) as
+    /// the defaults.
+    pub fn settings(
+        &self,
+        device: Option<String>,
+        equipment: Option<&Path>,
+    ) -> Result<PlcSettings, String> {
         let address = self
             .plc
             .clone()
@@ -94,7 +116,7 @@ impl PlcArgs {
         Ok(PlcSettings {
             address,
             unit: self.unit,
-            map: self.map.map().map_err(|e| e.to_string())?,
+            map: self.map.map(equipment)?,
             poll: Duration::from_millis(self.poll_ms),
             idle_poll: Duration::from_millis(self.idle_poll_ms.max(self.poll_ms)),
             timeout: Duration::from_millis(self.modbus_timeout_ms.max(1)),
@@ -232,7 +254,7 @@ impl Link {
     }
 
     async fn write(&self, ctx: &mut Context, c: &PlcCommand) -> Result<(), Failure> {
-        let map = self.s.map;
+        let map = &self.s.map;
         match c {
             PlcCommand::Write(coil, value) => {
                 let Some(addr) = map.coil(*coil) else {
@@ -246,46 +268,50 @@ impl Link {
             }
             PlcCommand::Pace(_) => Ok(()),
             PlcCommand::WriteAll(values) => {
-                let what = format!(
-                    "the write of all coils {}..{}",
-                    map.coil_base,
-                    map.coil_base + COILS - 1
-                );
-                self.call(what, ctx.write_multiple_coils(map.coil_base, values))
-                    .await
+                // One write per run of consecutive addresses: an address
+                // between the equipment's coils is not FALC's to write.
+                let runs = map.coil_runs(values);
+                let all = if runs.len() == 1 {
+                    "all coils"
+                } else {
+                    "coils"
+                };
+                for (start, run) in runs {
+                    let what = format!(
+                        "the write of {all} {start}..{}",
+                        usize::from(start) + run.len() - 1
+                    );
+                    self.call(what, ctx.write_multiple_coils(start, &run))
+                        .await?;
+                }
+                Ok(())
             }
         }
     }
 
     /// The coils of the map as the PLC holds them.
-    async fn read_coils(&self, ctx: &mut Context) -> Result<[bool; COILS as usize], Failure> {
-        let base = self.s.map.coil_base;
-        let what = format!("the read of coils {base}..{}", base + COILS - 1);
-        let bits = self.call(what, ctx.read_coils(base, COILS)).await?;
-        let mut coils = [false; COILS as usize];
-        if bits.len() < coils.len() {
-            return Err(Failure {
-                why: format!(
-                    "the conveyor PLC at {} answered the read of {COILS} coils with {}",
-                    self.s.address,
-                    bits.len()
-                ),
-                connection_lost: false,
-            });
-        }
-        let n = coils.len();
-        coils.copy_from_slice(&bits[..n]);
-        Ok(coils)
+    async fn read_coils(&self, ctx: &mut Context) -> Result<Coils, Failure> {
+        let (base, n) = self.s.map.coil_span();
+        let what = format!(
+            "the read of coils {base}..{}",
+            usize::from(base) + usize::from(n) - 1
+        );
+        let bits = self.call(what, ctx.read_coils(base, n)).await?;
+        self.s.map.coils_from_wire(&bits).map_err(|e| Failure {
+            why: format!("the conveyor PLC at {}: {e}", self.s.address),
+            connection_lost: false,
+        })
     }
 
     async fn read(&self, ctx: &mut Context) -> Result<Inputs, Failure> {
-        let base = self.s.map.input_base;
-        let what = format!("the read of discrete inputs {base}..{}", base + INPUTS - 1);
-        let bits = self
-            .call(what, ctx.read_discrete_inputs(base, INPUTS))
-            .await?;
-        Inputs::from_bits(&bits).map_err(|e| Failure {
-            why: format!("{} at {}: {e}", "the conveyor PLC", self.s.address),
+        let (base, n) = self.s.map.input_span();
+        let what = format!(
+            "the read of discrete inputs {base}..{}",
+            usize::from(base) + usize::from(n) - 1
+        );
+        let bits = self.call(what, ctx.read_discrete_inputs(base, n)).await?;
+        self.s.map.inputs_from_wire(&bits).map_err(|e| Failure {
+            why: format!("the conveyor PLC at {}: {e}", self.s.address),
             connection_lost: false,
         })
     }
@@ -383,8 +409,8 @@ impl Link {
                 match self.read(&mut ctx).await {
                     Ok(inputs) => {
                         self.fault = None;
-                        if wrote || self.last != Some(inputs) {
-                            self.last = Some(inputs);
+                        if wrote || self.last.as_ref() != Some(&inputs) {
+                            self.last = Some(inputs.clone());
                             if !self.emit(PlcEvent::Inputs {
                                 inputs,
                                 commands_done: done,

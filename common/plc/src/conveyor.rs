@@ -1,29 +1,15 @@
-//! The conveyor, sans-I/O: where the two carriers are, which lines run,
-//! and what the PLC's inputs show, driven by coil writes, control faults and
-//! an injected clock (`handle_timeout(now)` / `poll_timeout()`).
+//! The conveyor, sans-I/O: where the carriers are, which lines run, and
+//! what the PLC's inputs show, driven by coil writes, control faults and an
+//! injected clock (`handle_timeout(now)` / `poll_timeout()`). It plays
+//! whatever the equipment file describes ([`crate::equipment`]): its
+//! lines' routes and travel times, its stations' feed places and cycle
+//! times, its places' capacities; the times are divided by a time scale.
 //!
-//! The map (seconds of travel at time scale 1):
-//!
-//! | line | from | to | s |      | station | fed from | s |
-//! |---|---|---|---|---|---|---|---|
-//! | A | W6 | W2 | 8 |  | 1 | W6 | 3 |
-//! | B | W2 | W6 | 8 |  | 2 | W3 | 3 |
-//! | C | S1 | W6 | 4 |  | 3 (manipulator table) | W5 | 3 |
-//! | D | W4 | W2 | 6 |
-//! | E | W2 | W5 | 10 |
-//! | F | S3 | W4 | 5 |
-//! | G | W5 | W4 | 4 |
-//! | H | W3 | W5 | 6 |
-//! | J | S2 | W3 | 4 |
-//! | K | W2 | W3 | 8 |
-//! | L | W3 | W4 | 5 |
-//!
-//! W2 (the start place) holds two carriers, every other place and station
-//! one. With external control on and no emergency stop, pressing a line's
-//! button (a rising edge) sends the front carrier at its start along it; the
+//! A place holds its `capacity` of carriers, a station one. With external
+//! control on and no emergency stop, pressing a line's button (a rising edge) sends the front carrier at its start along it; the
 //! line runs until the carrier reaches its end (the button may be released
 //! meanwhile). Pressed with no carrier at its start, the line runs empty
-//! for up to 20 s, and a carrier that arrives at its start goes straight on.
+//! for the file's `run_empty_s`, and a carrier that arrives at its start goes straight on.
 //! A station's button takes the carrier from its feed place onto the
 //! station, which is busy while it holds one; a carrier leaves a station
 //! only once its button is released. A carrier whose end is full waits at
@@ -32,83 +18,15 @@
 //! pressed again after the stop is cleared); a jammed line keeps running
 //! but its carrier does not move; a stuck sensor shows a fixed value.
 
-use crate::map::{Coil, Input, Inputs, COILS};
+use crate::equipment::Equipment;
+use crate::map::{Coil, Coils, Input, Inputs};
 use falc_model::ids::{Place, PlcStation};
 use falc_recipe::check::{Button, Signal};
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
-use std::fmt;
+use std::sync::Arc;
 use std::time::Duration;
 
 pub use crate::map::Spot;
-use crate::map::{feed, ROUTES, W};
-
-impl Spot {
-    fn capacity(self) -> usize {
-        if self == W(2) {
-            2
-        } else {
-            1
-        }
-    }
-
-    /// Parses `W2`…`W6`, `S1`…`S3`.
-    pub fn parse(s: &str) -> Option<Spot> {
-        let s = s.to_ascii_uppercase();
-        let n: u8 = s.get(1..)?.parse().ok()?;
-        match s.chars().next()? {
-            'W' => Place::new(n).map(Spot::Place),
-            'S' => PlcStation::new(n).map(Spot::Station),
-            _ => None,
-        }
-    }
-}
-
-impl fmt::Display for Spot {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Spot::Place(n) => write!(f, "W{n}"),
-            Spot::Station(n) => write!(f, "S{n}"),
-        }
-    }
-}
-
-struct Segment {
-    line: char,
-    from: Spot,
-    to: Spot,
-    seconds: f64,
-}
-
-/// A line of the conveyor's routes ([`ROUTES`]) with its travel time.
-const fn seg((line, from, to): (char, Spot, Spot), seconds: f64) -> Segment {
-    Segment {
-        line,
-        from,
-        to,
-        seconds,
-    }
-}
-
-const SEGMENTS: [Segment; 11] = [
-    seg(ROUTES[0], 8.0),
-    seg(ROUTES[1], 8.0),
-    seg(ROUTES[2], 4.0),
-    seg(ROUTES[3], 6.0),
-    seg(ROUTES[4], 10.0),
-    seg(ROUTES[5], 5.0),
-    seg(ROUTES[6], 4.0),
-    seg(ROUTES[7], 6.0),
-    seg(ROUTES[8], 4.0),
-    seg(ROUTES[9], 8.0),
-    seg(ROUTES[10], 5.0),
-];
-
-const TRANSFER_S: f64 = 3.0;
-const RUN_EMPTY_S: f64 = 20.0;
-
-fn segment(line: char) -> Option<&'static Segment> {
-    SEGMENTS.iter().find(|s| s.line == line)
-}
 
 /// How a carrier travels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -163,10 +81,12 @@ pub enum Control {
 
 /// The conveyor.
 pub struct Conveyor {
+    equipment: Arc<Equipment>,
     scale: f64,
     carriers: Vec<Carrier>,
     lines: BTreeMap<char, Line>,
-    coils: [bool; COILS as usize],
+    /// In the equipment's coil order.
+    coils: Vec<bool>,
     estop: bool,
     jammed: BTreeSet<char>,
     stuck: BTreeMap<Place, bool>,
@@ -176,14 +96,19 @@ pub struct Conveyor {
 }
 
 impl Conveyor {
-    /// A conveyor with carriers at `layout` (carrier 1 first), travel times
-    /// divided by `scale`.
-    pub fn new(layout: &[Spot], scale: f64) -> Result<Self, String> {
+    /// The conveyor of `equipment` with carriers at `layout` (carrier 1
+    /// first), travel times divided by `scale`.
+    pub fn new(equipment: Arc<Equipment>, layout: &[Spot], scale: f64) -> Result<Self, String> {
         let mut c = Self {
             scale: if scale > 0.0 { scale } else { 1.0 },
             carriers: Vec::new(),
-            lines: SEGMENTS.iter().map(|s| (s.line, Line::default())).collect(),
-            coils: [false; COILS as usize],
+            lines: equipment
+                .lines()
+                .iter()
+                .map(|s| (s.line, Line::default()))
+                .collect(),
+            coils: vec![false; equipment.coils().len()],
+            equipment,
             estop: false,
             jammed: BTreeSet::new(),
             stuck: BTreeMap::new(),
@@ -198,12 +123,20 @@ impl Conveyor {
     /// Puts the carriers at `layout` (all lines stopped, coils kept).
     pub fn set_layout(&mut self, layout: &[Spot]) -> Result<(), String> {
         for spot in layout {
-            let n = layout.iter().filter(|s| *s == spot).count();
-            if n > spot.capacity() {
+            let known = match spot {
+                Spot::Place(p) => self.equipment.place(*p).is_some(),
+                Spot::Station(s) => self.equipment.station(*s).is_some(),
+            };
+            if !known {
                 return Err(format!(
-                    "{spot} holds {} carrier(s), not {n}",
-                    spot.capacity()
+                    "{spot} is no place or station of {}",
+                    self.equipment.name()
                 ));
+            }
+            let n = layout.iter().filter(|s| *s == spot).count();
+            let capacity = self.equipment.capacity(*spot);
+            if n > capacity {
+                return Err(format!("{spot} holds {capacity} carrier(s), not {n}"));
             }
         }
         self.carriers = layout
@@ -221,8 +154,13 @@ impl Conveyor {
         Ok(())
     }
 
-    fn secs(&self, s: f64) -> Duration {
-        Duration::from_secs_f64(s / self.scale)
+    fn scaled(&self, d: Duration) -> Duration {
+        d.div_f64(self.scale)
+    }
+
+    /// The equipment it plays.
+    pub fn equipment(&self) -> &Arc<Equipment> {
+        &self.equipment
     }
 
     fn note(&mut self, s: String) {
@@ -256,16 +194,18 @@ impl Conveyor {
 
     /// The PLC's inputs now.
     pub fn inputs(&self) -> Inputs {
-        let mut i = Inputs::default();
+        let mut i = Inputs::new(&self.equipment);
         for (c, l) in &self.lines {
             i.set(Input::Signal(Signal::Line(*c)), l.running);
         }
-        for n in Place::all() {
+        for p in self.equipment.places() {
+            let n = p.place;
             let real = self.count_at(Spot::Place(n)) > 0;
             let shown = self.stuck.get(&n).copied().unwrap_or(real);
             i.set(Input::Signal(Signal::Place(n)), shown);
         }
-        for n in PlcStation::all() {
+        for s in self.equipment.stations() {
+            let n = s.station;
             i.set(
                 Input::Signal(Signal::Station(n)),
                 self.count_at(Spot::Station(n)) > 0,
@@ -276,20 +216,36 @@ impl Conveyor {
         i
     }
 
-    /// The coils as last written.
-    pub fn coils(&self) -> &[bool] {
-        &self.coils
+    /// The coils as last written, in the equipment's order.
+    pub fn coils(&self) -> Coils {
+        self.equipment
+            .coils()
+            .iter()
+            .zip(&self.coils)
+            .map(|(c, v)| (c.coil, *v))
+            .collect()
+    }
+
+    /// The value of `coil` (false for one the equipment lacks).
+    pub fn coil_value(&self, coil: Coil) -> bool {
+        self.equipment
+            .coil_index(coil)
+            .and_then(|i| self.coils.get(i))
+            .copied()
+            .unwrap_or(false)
     }
 
     /// The buttons held (coils on), as the twin's `show` prints them:
     /// `buttons held: none`, `buttons held: A 3`.
     pub fn held(&self) -> String {
-        let held: Vec<String> = (0..COILS)
-            .filter(|&o| self.coils[usize::from(o)])
-            .filter_map(|o| match Coil::at(o) {
-                Some(Coil::Button(Button::Line(l))) => Some(l.to_string()),
-                Some(Coil::Button(Button::Station(n))) => Some(n.to_string()),
-                _ => None,
+        let held: Vec<String> = self
+            .coils()
+            .into_iter()
+            .filter(|(_, on)| *on)
+            .filter_map(|(c, _)| match c {
+                Coil::Button(Button::Line(l)) => Some(l.to_string()),
+                Coil::Button(Button::Station(n)) => Some(n.to_string()),
+                Coil::ExternalControl => None,
             })
             .collect();
         if held.is_empty() {
@@ -319,11 +275,7 @@ impl Conveyor {
     }
 
     fn coil(&self, b: Button) -> bool {
-        Coil::Button(b)
-            .offset()
-            .and_then(|o| self.coils.get(usize::from(o)))
-            .copied()
-            .unwrap_or(false)
+        self.coil_value(Coil::Button(b))
     }
 
     /// Runs `f`, and if the inputs changed, remembers `at` as the time of
@@ -336,14 +288,14 @@ impl Conveyor {
         }
     }
 
-    /// A coil write; false if `offset` is outside the map.
-    pub fn write_coil(&mut self, now: Duration, offset: u16, value: bool) -> bool {
-        let Some(coil) = Coil::at(offset) else {
+    /// A coil write; false if the equipment has no such coil.
+    pub fn write_coil(&mut self, now: Duration, coil: Coil, value: bool) -> bool {
+        let Some(index) = self.equipment.coil_index(coil) else {
             return false;
         };
         self.handle_timeout(now);
-        let old = self.coils[usize::from(offset)];
-        self.coils[usize::from(offset)] = value;
+        let old = self.coils[index];
+        self.coils[index] = value;
         if old == value {
             return true;
         }
@@ -352,7 +304,7 @@ impl Conveyor {
             .map(|t| format!(" reaction_us={}", now.saturating_sub(t).as_micros()))
             .unwrap_or_default();
         self.note(format!("coil {coil} {}{reaction}", u8::from(value)));
-        let external = self.coils[usize::from(Coil::ExternalControl.offset().unwrap_or(14))];
+        let external = self.coil_value(Coil::ExternalControl);
         if self.estop || !external {
             if value && matches!(coil, Coil::Button(_)) {
                 self.note(format!(
@@ -376,7 +328,9 @@ impl Conveyor {
     }
 
     fn press_line(&mut self, now: Duration, l: char) {
-        let Some(seg) = segment(l) else { return };
+        let Some(seg) = self.equipment.line(l).cloned() else {
+            return;
+        };
         if let Some(i) = self.on(Via::Line(l)) {
             if let Pos::Moving {
                 due: None, left, ..
@@ -400,10 +354,10 @@ impl Conveyor {
         match ready {
             Some(i) => {
                 line.empty_until = None;
-                self.depart(now, i, Via::Line(l), seg.to, seg.seconds);
+                self.depart(now, i, Via::Line(l), seg.to, seg.travel);
             }
             None => {
-                line.empty_until = Some(now + Duration::from_secs_f64(RUN_EMPTY_S / self.scale));
+                line.empty_until = Some(now + self.equipment.run_empty().div_f64(self.scale));
                 self.note(format!("line {l} runs empty: no carrier at {}", seg.from));
             }
         }
@@ -421,30 +375,41 @@ impl Conveyor {
             }
             return;
         }
-        let Some(from) = feed(n) else { return };
+        let Some((from, cycle)) = self
+            .equipment
+            .station(n)
+            .map(|s| (Spot::Place(s.takes_from), s.cycle))
+        else {
+            return;
+        };
         if self.count_at(Spot::Station(n)) > 0 {
             return;
         }
         match self.front_at(from) {
-            Some(i) => self.depart(now, i, Via::Station(n), Spot::Station(n), TRANSFER_S),
+            Some(i) => self.depart(now, i, Via::Station(n), Spot::Station(n), cycle),
             None => self.note(format!("station {n}: no carrier at {from}")),
         }
     }
 
     fn release_station(&mut self, now: Duration, n: PlcStation) {
         // A line waiting empty at this station takes its carrier now.
-        let waiting = SEGMENTS.iter().find(|s| {
-            s.from == Spot::Station(n)
-                && self
-                    .lines
-                    .get(&s.line)
-                    .is_some_and(|l| l.empty_until.is_some())
-        });
+        let waiting = self
+            .equipment
+            .lines()
+            .iter()
+            .find(|s| {
+                s.from == Spot::Station(n)
+                    && self
+                        .lines
+                        .get(&s.line)
+                        .is_some_and(|l| l.empty_until.is_some())
+            })
+            .cloned();
         if let (Some(seg), Some(i)) = (waiting, self.front_at(Spot::Station(n))) {
             if let Some(l) = self.lines.get_mut(&seg.line) {
                 l.empty_until = None;
             }
-            self.depart(now, i, Via::Line(seg.line), seg.to, seg.seconds);
+            self.depart(now, i, Via::Line(seg.line), seg.to, seg.travel);
         }
     }
 
@@ -454,11 +419,11 @@ impl Conveyor {
         }
     }
 
-    fn depart(&mut self, now: Duration, i: usize, via: Via, to: Spot, seconds: f64) {
+    fn depart(&mut self, now: Duration, i: usize, via: Via, to: Spot, time: Duration) {
         let Pos::At(from) = self.carriers[i].pos else {
             return;
         };
-        let travel = self.secs(seconds);
+        let travel = self.scaled(time);
         let jammed = matches!(via, Via::Line(l) if self.jammed.contains(&l));
         self.carriers[i].pos = Pos::Moving {
             via,
@@ -490,7 +455,7 @@ impl Conveyor {
         let Pos::Moving { via, to, .. } = self.carriers[i].pos else {
             return;
         };
-        if self.count_at(to) >= to.capacity() {
+        if self.count_at(to) >= self.equipment.capacity(to) {
             self.carriers[i].pos = Pos::Moving {
                 via,
                 to,
@@ -512,19 +477,24 @@ impl Conveyor {
         }
         self.note(format!("carrier {} at {to}", i + 1));
         // A line running empty from here takes it straight on.
-        let onward = SEGMENTS.iter().find(|s| {
-            s.from == to
-                && matches!(to, Spot::Place(_))
-                && self
-                    .lines
-                    .get(&s.line)
-                    .is_some_and(|l| l.empty_until.is_some())
-        });
+        let onward = self
+            .equipment
+            .lines()
+            .iter()
+            .find(|s| {
+                s.from == to
+                    && matches!(to, Spot::Place(_))
+                    && self
+                        .lines
+                        .get(&s.line)
+                        .is_some_and(|l| l.empty_until.is_some())
+            })
+            .cloned();
         if let Some(seg) = onward {
             if let Some(l) = self.lines.get_mut(&seg.line) {
                 l.empty_until = None;
             }
-            self.depart(now, i, Via::Line(seg.line), seg.to, seg.seconds);
+            self.depart(now, i, Via::Line(seg.line), seg.to, seg.travel);
         }
     }
 
@@ -620,7 +590,11 @@ impl Conveyor {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::map::S;
+    use crate::map::{S, W};
+
+    fn new(layout: &[Spot]) -> Result<Conveyor, String> {
+        Conveyor::new(Equipment::conveyor_1992(), layout, 1.0)
+    }
 
     fn ms(n: u64) -> Duration {
         Duration::from_millis(n)
@@ -628,14 +602,13 @@ mod tests {
 
     /// A conveyor at scale 1 with external control on.
     fn conveyor(layout: &[Spot]) -> Conveyor {
-        let mut c = Conveyor::new(layout, 1.0).expect("layout");
-        assert!(c.write_coil(ms(0), 14, true));
+        let mut c = new(layout).expect("layout");
+        assert!(c.write_coil(ms(0), Coil::ExternalControl, true));
         c
     }
 
     fn press(c: &mut Conveyor, t: Duration, b: Button, v: bool) {
-        let o = Coil::Button(b).offset().expect("in map");
-        assert!(c.write_coil(t, o, v));
+        assert!(c.write_coil(t, Coil::Button(b), v));
     }
 
     fn place(c: &Conveyor, n: u8) -> bool {
@@ -720,10 +693,10 @@ mod tests {
 
     #[test]
     fn buttons_need_external_control_and_no_emergency_stop() {
-        let mut c = Conveyor::new(&[W(2), W(2)], 1.0).expect("layout");
+        let mut c = new(&[W(2), W(2)]).expect("layout");
         press(&mut c, ms(0), Button::Line('K'), true);
         assert!(!line(&c, 'K'), "external control is off");
-        assert!(c.write_coil(ms(0), 14, true));
+        assert!(c.write_coil(ms(0), Coil::ExternalControl, true));
         press(&mut c, ms(0), Button::Line('K'), false);
         c.control(ms(0), Control::EStop);
         assert!(c.inputs().get(Input::EStop) && !c.inputs().get(Input::Ready));
@@ -787,8 +760,8 @@ mod tests {
 
     #[test]
     fn layouts_are_checked() {
-        assert!(Conveyor::new(&[W(3), W(3)], 1.0).is_err());
-        assert!(Conveyor::new(&[W(2), W(2)], 1.0).is_ok());
+        assert!(new(&[W(3), W(3)]).is_err());
+        assert!(new(&[W(2), W(2)]).is_ok());
         assert_eq!(Spot::parse("s3"), Some(S(3)));
         assert_eq!(Spot::parse("W7"), None);
         assert_eq!(Spot::parse("X"), None);

@@ -6,5 +6,6 @@
 //! over Modbus TCP.
 
 pub mod conveyor;
+pub mod equipment;
 pub mod map;
 pub mod workstation;

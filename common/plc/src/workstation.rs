@@ -14,9 +14,9 @@
 //! that lights while no line runs towards its place is *unrequested
 //! feedback*; one that goes dark while no line runs away from its place
 //! and no station takes its carrier is *lost feedback*. Each is an alarm
-//! at once, in the reading that shows it, naming the sensor; the map says
-//! per sensor whether it needs an acknowledgement
-//! ([`crate::map::FEEDBACK_NEEDS_ACK`]).
+//! at once, in the reading that shows it, naming the sensor; the
+//! equipment file says per place whether it needs an acknowledgement (its
+//! `sensor_fault`). The routes are the file's too.
 //!
 //! The buttons' state is defined at every step (docs/plc.md's wiring guide
 //! states the same rule):
@@ -34,11 +34,13 @@
 //!   already holds (a station button kept across an alarm, say) is
 //!   released and pressed again, so the PLC never waits for an edge that
 //!   cannot come;
-//! - **after an alarm, a failed job, or a stop or kill by the commander**
-//!   the line buttons are released (nothing moves) and the station buttons
-//!   stay (a workpiece stays clamped on its station while people look);
-//! - **when the commander is lost** every button is released (the cell's
-//!   whole job is gone, the weld stopped with it);
+//! - **after an alarm, a failed job, or a stop or kill by the commander**,
+//!   **when the commander is lost**, **when the node stops** and **on its
+//!   first connection after a restart**, each coil goes to its safe state
+//!   for that occasion, as the equipment file says ([`crate::equipment::SafeStates`]):
+//!   for the 1992 conveyor the line buttons are released (nothing moves)
+//!   and the station buttons stay (a workpiece stays clamped on its
+//!   station while people look, the robot may still weld it);
 //! - **after `ack`** nothing is written: the operator sets the carriers
 //!   back by hand and the next job's `activate` presses afresh.
 //!
@@ -47,7 +49,8 @@
 //! the simulation to the twin's map); readings and the link's state come in
 //! through [`Plc::connected`], [`Plc::reading`] and [`Plc::link_down`].
 
-use crate::map::{self, Coil, Input, Inputs, SafeState, SignalName, Spot, COILS};
+use crate::equipment::{Equipment, FaultClass, Occasion};
+use crate::map::{Coil, Coils, Input, Inputs, SafeState, SignalName, Spot};
 use falc_control::controller::{Controller, Device, Happening, Reading};
 use falc_control::workstation_node::Linked;
 use falc_model::alarm::{AlarmClass, Cause};
@@ -58,6 +61,7 @@ use falc_model::mode::{CellMode, ManualAction};
 use falc_recipe::check::{Button, Signal};
 use falc_recipe::engine::{Action, Event, Outcome};
 use std::collections::VecDeque;
+use std::sync::Arc;
 use std::time::Duration;
 
 /// What the link to the PLC is asked to do.
@@ -65,8 +69,8 @@ use std::time::Duration;
 pub enum PlcCommand {
     /// Write one coil.
     Write(Coil, bool),
-    /// Write every coil of the map at once (offset order).
-    WriteAll([bool; COILS as usize]),
+    /// Write every coil of the map at once.
+    WriteAll(Coils),
     /// Poll at the busy or the idle period from now on (no Modbus request).
     Pace(Pace),
 }
@@ -75,11 +79,10 @@ pub enum PlcCommand {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum PlcEvent {
     /// Connected (again), with the coils the PLC holds as it reads them
-    /// back (offset order), or None if it would not say (a Modbus
-    /// exception to the read).
+    /// back, or None if it would not say (a Modbus exception to the read).
     Connected {
         /// The coils, read back.
-        coils: Option<[bool; COILS as usize]>,
+        coils: Option<Coils>,
     },
     /// A reading of the inputs (sent when it differs from the last one, and
     /// after every coil write).
@@ -120,6 +123,7 @@ struct Watch {
 /// The conveyor PLC behind its link.
 pub struct Plc {
     address: String,
+    equipment: Arc<Equipment>,
     /// Commands for the link, oldest first ([`Plc::poll_command`]).
     commands: VecDeque<PlcCommand>,
     issued: u64,
@@ -144,8 +148,8 @@ pub struct Plc {
     /// reported ([`Device::poll_report`]).
     reports: VecDeque<(Severity, String)>,
     /// Per place sensor, whether its feedback fault needs an
-    /// acknowledgement ([`map::FEEDBACK_NEEDS_ACK`]).
-    feedback_ack: Vec<(u8, bool)>,
+    /// acknowledgement (the equipment's `sensor_fault`, unless set).
+    feedback_ack: Vec<(Place, bool)>,
     /// Feedback is supervised between readings both taken after this
     /// many commands: the running job's first write. What changed before
     /// (carriers set by hand just before a start, seen late at the idle
@@ -154,10 +158,17 @@ pub struct Plc {
 }
 
 impl Plc {
-    /// A PLC at `address` (for messages), not connected yet.
-    pub fn new(address: String) -> Self {
+    /// The PLC of `equipment` at `address` (for messages), not connected
+    /// yet.
+    pub fn new(address: String, equipment: Arc<Equipment>) -> Self {
         Self {
             address,
+            feedback_ack: equipment
+                .places()
+                .iter()
+                .map(|p| (p.place, p.sensor_fault == FaultClass::Alarm))
+                .collect(),
+            equipment,
             commands: VecDeque::new(),
             issued: 0,
             down: Some("not connected to the conveyor PLC yet".into()),
@@ -170,7 +181,6 @@ impl Plc {
             busy: false,
             manual_line: None,
             reports: VecDeque::new(),
-            feedback_ack: map::FEEDBACK_NEEDS_ACK.to_vec(),
             supervise_from: 0,
         }
     }
@@ -179,8 +189,8 @@ impl Plc {
     /// acknowledgement or not (a warning, which does not hold the list
     /// back).
     pub fn with_feedback_ack(mut self, place: Place, needs_ack: bool) -> Self {
-        self.feedback_ack.retain(|(p, _)| *p != place.number());
-        self.feedback_ack.push((place.number(), needs_ack));
+        self.feedback_ack.retain(|(p, _)| *p != place);
+        self.feedback_ack.push((place, needs_ack));
         self
     }
 
@@ -227,38 +237,41 @@ impl Plc {
     /// adopted on the process's first connection, corrected to this node's
     /// own state on a later one; unknown, every button is released and
     /// external control taken, in one write.
-    pub fn connected(&mut self, held: Option<[bool; COILS as usize]>) {
+    pub fn connected(&mut self, held: Option<Coils>) {
         self.down = None;
         let first = !self.known;
         self.known = true;
         let Some(held) = held else {
             self.pressed.clear();
-            let mut all = [false; COILS as usize];
-            if let Some(o) = Coil::ExternalControl.offset() {
-                all[usize::from(o)] = true;
-            }
+            let all = self
+                .equipment
+                .coils()
+                .iter()
+                .map(|c| (c.coil, c.coil == Coil::ExternalControl))
+                .collect();
             self.send(PlcCommand::WriteAll(all));
             return;
         };
-        let on = |c: Coil| c.offset().is_some_and(|o| held[usize::from(o)]);
+        let on = |c: Coil| held.iter().any(|(h, v)| *h == c && *v);
         if first {
-            self.pressed = (0..COILS)
-                .filter_map(Coil::at)
-                .filter_map(|c| match c {
-                    Coil::Button(b) if on(c) => Some(b),
+            self.pressed = held
+                .iter()
+                .filter_map(|(c, v)| match c {
+                    Coil::Button(b) if *v => Some(*b),
                     _ => None,
                 })
                 .collect();
-            // A line the dead process ran has no job now: released, so
+            // What the dead process held goes to its safe state after a
+            // crash: a line it ran has no job now and is released, so
             // nothing moves unsupervised (found by falc-sim: a transport
             // killed mid-move left its line running after the restart).
-            self.go_safe();
+            self.go_safe(Occasion::Crash);
         } else {
-            for coil in (0..COILS).filter_map(Coil::at) {
-                if let Coil::Button(b) = coil {
+            for (coil, _) in &held {
+                if let Coil::Button(b) = *coil {
                     let want = self.pressed.contains(&b);
-                    if on(coil) != want {
-                        self.send(PlcCommand::Write(coil, want));
+                    if on(*coil) != want {
+                        self.send(PlcCommand::Write(*coil, want));
                     }
                 }
             }
@@ -278,15 +291,15 @@ impl Plc {
     /// alarm if the PLC went into emergency stop (safety) or out of ready
     /// (device).
     fn inputs(&mut self, inputs: Inputs, commands_done: u64) -> (Vec<Event>, Option<Cause>) {
-        let before = self.inputs.replace(inputs);
+        let before = self.inputs.replace(inputs.clone());
         let before_after = std::mem::replace(&mut self.inputs_after, commands_done);
         let supervised = self.busy && before_after >= self.supervise_from;
         // A carrier arriving: a place sensor lighting (an edge, not every
         // poll; not the first reading, which finds carriers standing).
         // While a job runs, each edge must have a cause.
         let mut feedback = None;
-        if let Some(b) = before {
-            for p in Place::all() {
+        if let Some(b) = &before {
+            for p in self.equipment.places().iter().map(|p| p.place) {
                 let s = Signal::Place(p);
                 let (was, is) = (b.signal(s), inputs.signal(s));
                 if is && !was {
@@ -294,7 +307,7 @@ impl Plc {
                         .push_back((Severity::Info, format!("carrier arrived at W{p}")));
                 }
                 if was != is && supervised && feedback.is_none() {
-                    feedback = self.feedback_fault(p, is, &b, &inputs);
+                    feedback = self.feedback_fault(p, is, b, &inputs);
                 }
             }
         }
@@ -303,7 +316,7 @@ impl Plc {
             self.watch = None;
             events.push(Event::InputReached);
         }
-        let was = |i: Input| before.is_some_and(|b| b.get(i));
+        let was = |i: Input| before.as_ref().is_some_and(|b| b.get(i));
         let alarm = if inputs.get(Input::EStop) && !was(Input::EStop) {
             Some(Cause::new(
                 AlarmClass::Safety,
@@ -340,7 +353,7 @@ impl Plc {
         let runs = |l: char| before.signal(Signal::Line(l)) || now.signal(Signal::Line(l));
         let sensor = format!("sensor `place {place} occupied` (W{place})");
         let text = if lit {
-            if map::moves_towards(place).any(runs) {
+            if self.equipment.moves_towards(place).any(runs) {
                 return None;
             }
             format!(
@@ -350,10 +363,10 @@ impl Plc {
             )
         } else {
             let taken = self.pressed.iter().any(|b| match b {
-                Button::Station(n) => map::feed(*n) == Some(Spot::Place(place)),
+                Button::Station(n) => self.equipment.feed(*n) == Some(Spot::Place(place)),
                 Button::Line(_) => false,
             });
-            if taken || map::moves_away(place).any(runs) {
+            if taken || self.equipment.moves_away(place).any(runs) {
                 return None;
             }
             format!(
@@ -365,7 +378,7 @@ impl Plc {
         let needs_ack = self
             .feedback_ack
             .iter()
-            .find(|(p, _)| *p == place.number())
+            .find(|(p, _)| *p == place)
             .map_or(true, |(_, ack)| *ack);
         let class = if needs_ack {
             AlarmClass::Device
@@ -391,17 +404,18 @@ impl Plc {
     }
 
     fn watch_met(&self) -> bool {
-        match (self.watch, self.inputs) {
+        match (self.watch, &self.inputs) {
             (Some(w), Some(i)) => self.inputs_after >= w.after && i.signal(w.signal) == w.level,
             _ => false,
         }
     }
 
-    /// Brings every button this node holds to its safe state
-    /// ([`Coil::safe_state`]): the lines stop, the clamps hold their
-    /// workpiece (the robot may still weld it).
-    fn go_safe(&mut self) {
-        self.release(|b| Coil::Button(*b).safe_state() == SafeState::Off);
+    /// Brings every button this node holds to its safe state on
+    /// `occasion` (the equipment's `safe`): for the 1992 conveyor the lines
+    /// stop, the clamps hold their workpiece (the robot may still weld it).
+    fn go_safe(&mut self, occasion: Occasion) {
+        let equipment = self.equipment.clone();
+        self.release(|b| equipment.safe(Coil::Button(*b), occasion) == SafeState::Off);
     }
 
     /// Releases the buttons this node holds that `which` selects.
@@ -418,20 +432,43 @@ impl Plc {
     /// PLC's panel does not take the clamps over).
     pub fn shutdown(&mut self) {
         if self.down.is_none() {
-            let mut all = [false; COILS as usize];
-            for (o, v) in (0..COILS).zip(all.iter_mut()) {
-                *v = Coil::at(o).is_some_and(|c| {
-                    c.safe_state() == SafeState::Hold
-                        && match c {
+            let stop = |c: Coil| self.equipment.safe(c, Occasion::Stop);
+            let all = self
+                .equipment
+                .coils()
+                .iter()
+                .map(|c| {
+                    let keep = c.safe.stop == SafeState::Hold
+                        && match c.coil {
                             Coil::Button(b) => self.pressed.contains(&b),
                             Coil::ExternalControl => true,
-                        }
-                });
-            }
+                        };
+                    (c.coil, keep)
+                })
+                .collect();
             self.pressed
-                .retain(|b| Coil::Button(*b).safe_state() == SafeState::Hold);
+                .retain(|b| stop(Coil::Button(*b)) == SafeState::Hold);
             self.send(PlcCommand::WriteAll(all));
         }
+    }
+
+    /// Ok if the equipment has `button`, else why not, naming what it has.
+    fn known_button(&self, button: Button) -> Result<(), String> {
+        if self.equipment.has_button(button) {
+            return Ok(());
+        }
+        let has: Vec<String> = self
+            .equipment
+            .coils()
+            .iter()
+            .filter(|c| matches!(c.coil, Coil::Button(_)))
+            .map(|c| c.coil.to_string())
+            .collect();
+        Err(format!(
+            "{} has no {button} (it has: {})",
+            self.equipment.name(),
+            has.join(", ")
+        ))
     }
 
     /// Commands issued so far (to wait until the link carried them out).
@@ -485,7 +522,7 @@ impl Plc {
             // robot may still weld): the next job's `activate` or `reset`
             // sets it, or `home`.
             self.manual_line = None;
-            self.go_safe();
+            self.go_safe(Occasion::Error);
         }
     }
 
@@ -500,7 +537,7 @@ impl Plc {
 
     fn halt(&mut self) {
         self.watch = None;
-        self.go_safe();
+        self.go_safe(Occasion::Error);
     }
 
     fn lost(&mut self) {
@@ -508,14 +545,14 @@ impl Plc {
         // still welds (its workstation may not have heard yet, or may be
         // cut off too). Every output to its safe state: the lines stop, a
         // clamp holds until a command after the robot's stop releases it.
-        self.go_safe();
+        self.go_safe(Occasion::Loss);
     }
 
     fn finished(&mut self, outcome: &Outcome) {
         self.watch = None;
         self.pace(false);
         if *outcome != Outcome::Done {
-            self.go_safe();
+            self.go_safe(Occasion::Error);
         }
         self.last_line = None;
     }
@@ -538,7 +575,7 @@ impl Device for Plc {
         if let Some(why) = &self.down {
             return Some(why.clone());
         }
-        let Some(i) = self.inputs else {
+        let Some(i) = &self.inputs else {
             return Some(format!(
                 "no reading from the conveyor PLC at {} yet",
                 self.address
@@ -567,6 +604,7 @@ impl Device for Plc {
         match action {
             ManualAction::Press(b) | ManualAction::Release(b) => {
                 let button: Button = b.parse()?;
+                self.known_button(button)?;
                 let press = matches!(action, ManualAction::Press(_));
                 self.write(button, press);
                 if press {
@@ -585,6 +623,7 @@ impl Device for Plc {
                 let Ok(Button::Line(l)) = line.parse::<Button>() else {
                     return Err(format!("`{line}` is not a conveyor line (A–H, J–L)"));
                 };
+                self.known_button(Button::Line(l))?;
                 if !(1..=600).contains(seconds) {
                     return Err(format!("{seconds} s: a line runs by hand for 1–600 s"));
                 }
@@ -613,7 +652,7 @@ impl Device for Plc {
 
     fn explain_timeout(&self, now: Duration) -> Option<String> {
         let w = self.watch?;
-        let Some(i) = self.inputs else {
+        let Some(i) = &self.inputs else {
             return Some(format!(
                 "{} not seen: no reading from the conveyor PLC",
                 SignalName(w.signal)
@@ -665,7 +704,11 @@ impl Device for Plc {
         } else {
             PhysicalStatus::Operational
         };
-        status.inputs = self.inputs.map(|i| i.bits().to_vec()).unwrap_or_default();
+        status.inputs = self
+            .inputs
+            .as_ref()
+            .map(|i| i.bits().to_vec())
+            .unwrap_or_default();
     }
 }
 
@@ -712,11 +755,11 @@ mod tests {
     use super::*;
     use falc_model::ids::{Place, PlcStation};
     fn plc() -> Plc {
-        Plc::new("plc:502".into())
+        Plc::new("plc:502".into(), Equipment::conveyor_1992())
     }
 
     fn ready() -> Inputs {
-        let mut i = Inputs::default();
+        let mut i = Inputs::new(&Equipment::conveyor_1992());
         i.set(Input::Ready, true);
         i
     }
@@ -739,7 +782,7 @@ mod tests {
         let mut at_w3 = ready();
         at_w3.set(Input::Signal(Signal::Place(Place::of(3))), true);
         for n in 1..=5 {
-            p.reading(at_w3, n);
+            p.reading(at_w3.clone(), n);
         }
         let reports: Vec<(Severity, String)> = std::iter::from_fn(|| p.poll_report()).collect();
         assert_eq!(
@@ -818,8 +861,7 @@ mod tests {
         let mut p = plc();
         assert!(p.unavailable().is_some());
         p.connected(None);
-        let mut all = [false; 15];
-        all[14] = true;
+        let all = holding(&[Coil::ExternalControl]);
         assert_eq!(
             drain(&mut p),
             vec![PlcCommand::WriteAll(all)],
@@ -834,7 +876,7 @@ mod tests {
         let mut stop = ready();
         stop.set(Input::EStop, true);
         stop.set(Input::Ready, false);
-        let (_, alarm) = p.inputs(stop, 1);
+        let (_, alarm) = p.inputs(stop.clone(), 1);
         assert_eq!(
             alarm,
             Some(Cause::new(
@@ -956,18 +998,22 @@ mod tests {
     fn the_node_stopping_stops_the_lines_and_holds_the_clamp_and_external_control() {
         let mut p = clamped_and_moving();
         p.shutdown();
-        let mut want = [false; COILS as usize];
-        for c in [
+        let want = holding(&[
             Coil::Button(Button::Station(PlcStation::of(3))),
             Coil::ExternalControl,
-        ] {
-            want[usize::from(c.offset().expect("mapped"))] = true;
-        }
+        ]);
         assert_eq!(drain(&mut p), vec![PlcCommand::WriteAll(want)]);
-        // Each output's safe state is the map's.
-        assert_eq!(Coil::Button(Button::Line('A')).safe_state(), SafeState::Off);
+        // Each output's safe state is the equipment file's.
+        let e = Equipment::conveyor_1992();
         assert_eq!(
-            Coil::Button(Button::Station(PlcStation::of(1))).safe_state(),
+            e.safe(Coil::Button(Button::Line('A')), Occasion::Stop),
+            SafeState::Off
+        );
+        assert_eq!(
+            e.safe(
+                Coil::Button(Button::Station(PlcStation::of(1))),
+                Occasion::Stop
+            ),
             SafeState::Hold
         );
     }
@@ -1039,12 +1085,12 @@ mod tests {
     }
 
     /// The coils as a PLC holding `on` reads them back.
-    fn holding(on: &[Coil]) -> [bool; COILS as usize] {
-        let mut held = [false; COILS as usize];
-        for c in on {
-            held[usize::from(c.offset().expect("in the map"))] = true;
-        }
-        held
+    fn holding(on: &[Coil]) -> Coils {
+        Equipment::conveyor_1992()
+            .coils()
+            .iter()
+            .map(|c| (c.coil, on.contains(&c.coil)))
+            .collect()
     }
 
     #[test]
@@ -1062,7 +1108,6 @@ mod tests {
     #[test]
     fn a_restarted_workstation_adopts_the_coils_and_a_reconnected_one_restores_its_own() {
         let mut p = plc();
-        let at = |c: Coil| usize::from(c.offset().expect("in the map"));
         let station_3 = Coil::Button(Button::Station(PlcStation::of(3)));
         let line_e = Coil::Button(Button::Line('E'));
         // A restart mid-weld: the PLC holds station 3 and external control.
@@ -1076,16 +1121,14 @@ mod tests {
         assert!(p.pressed.contains(&Button::Station(PlcStation::of(3))));
         // A fresh PLC (external control off): only that is written.
         let mut q = plc();
-        q.connected(Some([false; COILS as usize]));
+        q.connected(Some(holding(&[])));
         assert_eq!(
             drain(&mut q),
             vec![PlcCommand::Write(Coil::ExternalControl, true)]
         );
         // The link comes back later: the node's own state stands, and only
         // what the PLC holds otherwise is written.
-        let mut back = held;
-        back[at(line_e)] = true;
-        back[at(station_3)] = false;
+        let back = holding(&[line_e, Coil::ExternalControl]);
         p.connected(Some(back));
         let mut written = drain(&mut p);
         written.sort_by_key(|c| format!("{c:?}"));

@@ -20,7 +20,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
 
 /// A PLC button: a conveyor line or a station.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Button {
     /// Line A–H, J–L (upper case).
     Line(char),
@@ -29,7 +29,7 @@ pub enum Button {
 }
 
 /// A PLC input to wait for.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Signal {
     /// Line A–H, J–L running.
     Line(char),
@@ -167,7 +167,9 @@ fn seconds(s: &str) -> Result<Duration, String> {
     }
 }
 
-fn line_letter(s: &str) -> Result<char, String> {
+/// A conveyor line's name as recipes write it: one letter A–H, J–L (any
+/// case; I is left out, it reads like 1).
+pub fn line_letter(s: &str) -> Result<char, String> {
     let mut it = s.chars();
     match (it.next().map(|c| c.to_ascii_uppercase()), it.next()) {
         (Some(c @ ('A'..='H' | 'J'..='L')), None) => Ok(c),

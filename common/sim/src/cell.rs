@@ -19,12 +19,14 @@ use falc_model::ids::StationName;
 use falc_model::mms::association::Associations;
 use falc_model::mms::vmd::Vmd;
 use falc_model::topology::{StationKind, Topology};
-use falc_plc::conveyor::{Conveyor, Spot};
-use falc_plc::map::{Coil, Inputs, COILS};
+use falc_plc::conveyor::Conveyor;
+use falc_plc::equipment::Equipment;
+use falc_plc::map::{Coils, Inputs};
 use falc_plc::workstation::{Pace, Plc, PlcCommand, PlcEvent, IDLE_POLL_MS, POLL_MS};
 use falc_recipe::commands::RecipeKind;
 use falc_recipe::engine::START_CONFIRM_LIMIT;
 use std::collections::{BTreeMap, VecDeque};
+use std::sync::Arc;
 use std::time::Duration;
 
 /// How long one byte chunk takes on the serial line.
@@ -32,8 +34,6 @@ const WIRE: Duration = Duration::from_millis(2);
 /// The transport's poll periods (the link's defaults).
 const POLL_BUSY: Duration = Duration::from_millis(POLL_MS);
 const POLL_IDLE: Duration = Duration::from_millis(IDLE_POLL_MS);
-/// Where carriers stand when an order may start.
-pub const HOME: [&str; 2] = ["W2", "W2"];
 
 /// A ticket of the nodes: the indication's sender and request id.
 pub type Ticket = (Node, u64);
@@ -121,15 +121,12 @@ fn transport_node(
     topology: &Topology,
     me: &StationName,
     now: Duration,
-    coils: &[bool],
+    equipment: Arc<Equipment>,
+    held: Coils,
 ) -> WorkstationNode<Plc, Ticket> {
-    let device = Plc::new("sim-plc:502".into());
+    let device = Plc::new("sim-plc:502".into(), equipment);
     let kind = RecipeKind::Transport;
     let mut node = workstation_node(topology, me, kind, START_CONFIRM_LIMIT, device);
-    let mut held = [false; COILS as usize];
-    for (h, c) in held.iter_mut().zip(coils) {
-        *h = *c;
-    }
     node.handle_link(now, PlcEvent::Connected { coils: Some(held) });
     node
 }
@@ -189,9 +186,11 @@ impl CellParts {
                     }))
                 }
                 StationKind::Transport => {
-                    let home: Vec<Spot> = HOME.iter().filter_map(|s| Spot::parse(s)).collect();
-                    let conveyor = Conveyor::new(&home, time_scale)?;
-                    let node = transport_node(&topology, &s.name, now, conveyor.coils());
+                    let equipment = Equipment::of_stanza(s.equipment.as_deref())
+                        .map_err(|e| format!("station {}: {e}", s.name))?;
+                    let home = equipment.carriers().to_vec();
+                    let conveyor = Conveyor::new(equipment.clone(), &home, time_scale)?;
+                    let node = transport_node(&topology, &s.name, now, equipment, conveyor.coils());
                     Workstation::Transport(Box::new(TransportParts {
                         node,
                         pace: Pace::Idle,
@@ -498,9 +497,9 @@ impl TransportParts {
         }
         self.conveyor.handle_timeout(now);
         let inputs = self.conveyor.inputs();
-        if self.wrote || self.last != Some(inputs) {
+        if self.wrote || self.last.as_ref() != Some(&inputs) {
             self.wrote = false;
-            self.last = Some(inputs);
+            self.last = Some(inputs.clone());
             let commands_done = self.done;
             self.node.handle_link(
                 now,
@@ -522,15 +521,13 @@ impl TransportParts {
             out.any = true;
             match a {
                 WorkstationAction::Command(PlcCommand::Write(coil, v)) => {
-                    write_coil(&mut self.conveyor, now, coil, v);
+                    self.conveyor.write_coil(now, coil, v);
                     self.done += 1;
                     self.wrote = true;
                 }
                 WorkstationAction::Command(PlcCommand::WriteAll(values)) => {
-                    for (o, v) in values.iter().enumerate() {
-                        if let Some(coil) = Coil::at(o as u16) {
-                            write_coil(&mut self.conveyor, now, coil, *v);
-                        }
+                    for (coil, v) in values {
+                        self.conveyor.write_coil(now, coil, v);
                     }
                     self.done += 1;
                     self.wrote = true;
@@ -556,7 +553,8 @@ impl TransportParts {
 
     /// The process starts again: a new node that reads the coils back.
     pub(crate) fn restart(&mut self, topology: &Topology, me: &StationName, now: Duration) {
-        self.node = transport_node(topology, me, now, self.conveyor.coils());
+        let equipment = self.conveyor.equipment().clone();
+        self.node = transport_node(topology, me, now, equipment, self.conveyor.coils());
         self.pace = Pace::Idle;
         self.next_poll = now;
         self.done = 0;
@@ -583,13 +581,6 @@ impl<C> Default for Settled<C> {
             actions: Vec::new(),
             notes: Vec::new(),
         }
-    }
-}
-
-/// Writes `coil` on the conveyor's twin.
-fn write_coil(conveyor: &mut Conveyor, now: Duration, coil: Coil, v: bool) {
-    if let Some(o) = coil.offset() {
-        conveyor.write_coil(now, o, v);
     }
 }
 

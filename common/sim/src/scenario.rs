@@ -6,7 +6,7 @@
 //! a plant too. The same seed gives the same run.
 
 use crate::bus::{Link, Node, Role};
-use crate::world::{shipped_cell, World, HOME};
+use crate::world::{shipped_cell, World};
 use falc_control::controller::Device;
 use falc_dnc::robot::Control as Rcm;
 use falc_factory::order_list::Ticket;
@@ -16,8 +16,8 @@ use falc_model::ids::Place;
 use falc_model::mms::vmd::PhysicalStatus;
 use falc_model::plant::Layout;
 use falc_model::records::{Entry, EntryKind, Order, OrderState};
-use falc_plc::conveyor::{Control as Plc, Spot};
-use falc_plc::map::{Coil, LINES};
+use falc_plc::conveyor::Control as Plc;
+use falc_plc::map::Coil;
 use rand::seq::SliceRandom;
 use rand::Rng;
 use std::collections::{BTreeMap, BTreeSet};
@@ -647,7 +647,6 @@ impl Run {
         }
         if desk.way_back {
             // Carriers home, then ack, then start.
-            let home: Vec<Spot> = HOME.iter().filter_map(|h| Spot::parse(h)).collect();
             desk.way_back = false;
             let last = self.world.last_started.get(c).copied().unwrap_or(0);
             desk.production_since = Some((self.world.now, desk.hits, last));
@@ -656,6 +655,7 @@ impl Run {
                 let Some(t) = self.world.part_mut(c).transport_mut(k) else {
                     continue;
                 };
+                let home = t.conveyor.equipment().carriers().to_vec();
                 if let Err(e) = t.conveyor.set_layout(&home) {
                     self.world.note(format!("operator: carriers not home: {e}"));
                 }
@@ -763,12 +763,23 @@ impl Run {
                     self.active = Some(a);
                     return;
                 };
+                let Some(equipment) = conveyor(w, n).map(|t| t.conveyor.equipment().clone()) else {
+                    return;
+                };
                 let control = if fault == Fault::Jam {
-                    let l = *LINES.choose(&mut w.rng).unwrap_or(&'A');
+                    let l = equipment.lines().choose(&mut w.rng).map_or('A', |l| l.line);
                     a.line = Some(l);
                     Plc::Jam(l)
                 } else {
-                    let p = Place::of(w.rng.gen_range(2..=6));
+                    let places = equipment.places();
+                    // One draw from as many as there are places (the same
+                    // draw as `2..=6` over the 1992 conveyor's five).
+                    let k = w
+                        .rng
+                        .gen_range(0..u8::try_from(places.len()).unwrap_or(u8::MAX));
+                    let Some(p) = places.get(usize::from(k)).map(|p| p.place) else {
+                        return;
+                    };
                     let v = w.rng.gen_bool(0.5);
                     a.place = Some(p);
                     Plc::Stuck(p, v)
@@ -1061,15 +1072,13 @@ impl Run {
             let idle = w.is_running(Node::workstation(c, k))
                 && !t.controller().is_running()
                 && t.controller().device.unavailable().is_none();
-            let line = LINES.iter().find(|l| {
-                Coil::Button(falc_recipe::check::Button::Line(**l))
-                    .offset()
-                    .and_then(|o| t.conveyor.coils().get(usize::from(o)).copied())
-                    .unwrap_or(false)
+            let line = t.conveyor.equipment().lines().iter().find_map(|l| {
+                let coil = Coil::Button(falc_recipe::check::Button::Line(l.line));
+                t.conveyor.coil_value(coil).then_some(l.line)
             });
             let since = &mut desk.held_since[k];
             if lasting(since, idle && line.is_some(), now) > HELD {
-                held = line.map(|l| (k, *l));
+                held = line.map(|l| (k, l));
             }
         }
         let (mut orphan, mut silent) = (None, None);

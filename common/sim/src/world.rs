@@ -52,7 +52,6 @@ pub fn shipped_cell() -> Result<Layout, String> {
         .map(Layout::Cell)
         .map_err(|e| e.to_string())
 }
-pub use crate::cell::HOME;
 /// The wall time the virtual clock starts at (2026-01-01 00:00 UTC): the
 /// records are stamped with it plus the virtual time.
 pub const EPOCH_MS: i64 = 1_767_225_600_000;

@@ -9,8 +9,12 @@ use falc_model::mode::{CellMode, HeldStep, ManualAction};
 use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::records::{Entry, Order, OrderState};
 use falc_model::topology::{Role, StationKind, Topology};
+use falc_plc::equipment::Equipment;
+use falc_plc::map::Inputs;
 use falc_recipe::syntax::parse;
 use ratatui::crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
+use std::collections::BTreeMap;
+use std::sync::Arc;
 
 /// The layers of the 1992 interface, and the recipe view.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -201,6 +205,9 @@ pub struct App {
     pub role: Role,
     /// The cell's stations (panes, overview boxes).
     pub topology: Topology,
+    /// Its transport stations' equipment (what their inputs are), or why
+    /// a file of it did not load.
+    pub equipment: Result<BTreeMap<StationName, Arc<Equipment>>, String>,
     /// The layer shown.
     pub layer: Layer,
     /// The last status, if any.
@@ -263,6 +270,7 @@ impl App {
         Self {
             user,
             role,
+            equipment: Equipment::of_topology(&topology),
             topology,
             layer: Layer::Overview,
             status: None,
@@ -285,6 +293,23 @@ impl App {
             pending: None,
             pending_station: None,
         }
+    }
+
+    /// The last reading of transport station `t`'s inputs, if any; Err:
+    /// its equipment file did not load, and why.
+    pub fn inputs_of(&self, t: &StationName) -> Result<Option<Inputs>, String> {
+        let equipment = match &self.equipment {
+            Ok(e) => e
+                .get(t)
+                .ok_or_else(|| format!("{t} is not a transport station"))?,
+            Err(why) => return Err(why.clone()),
+        };
+        Ok(self
+            .status
+            .as_ref()
+            .and_then(|s| s.stations.iter().find(|v| &v.name == t))
+            .and_then(|v| v.status.as_ref())
+            .and_then(|s| Inputs::from_bits(equipment, &s.inputs)))
     }
 
     /// Whether any pane has unread messages (F2's label lights).

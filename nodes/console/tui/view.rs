@@ -8,10 +8,10 @@ use super::app::{App, Command, Layer, Pick};
 use super::plant::PlantApp;
 use crate::clock::time_of_day;
 use falc_model::api::CellStatus;
-use falc_model::ids::{printable, Place, PlcStation};
+use falc_model::ids::{printable, PlcStation};
 use falc_model::mms::vmd::{PhysicalStatus, RecipeState};
 use falc_model::topology::StationKind;
-use falc_plc::map::{Input, Inputs, LINES};
+use falc_plc::map::Input;
 use falc_recipe::check::Signal;
 use ratatui::layout::{Constraint, Layout, Rect};
 use ratatui::style::{Color, Modifier, Style};
@@ -381,26 +381,35 @@ fn lamp(on: bool) -> &'static str {
 /// The box of transport station `transport`'s conveyor: its PLC's inputs
 /// and the recipe it runs.
 fn conveyor_box<'a>(app: &App, transport: Option<&falc_model::ids::StationName>) -> Paragraph<'a> {
-    let inputs = transport
-        .and_then(|t| app.status.as_ref()?.stations.iter().find(|v| &v.name == t))
-        .and_then(|v| v.status.as_ref())
-        .and_then(|s| Inputs::from_bits(&s.inputs).ok());
+    let inputs = transport.map(|t| app.inputs_of(t)).transpose();
     let t_look = transport.map_or(Look::Off, |t| look(app, t));
     let mut lines = Vec::new();
     match inputs {
-        Some(i) => {
-            let places: Vec<String> = Place::all()
-                .map(|p| format!("W{p} {}", lamp(i.signal(Signal::Place(p)))))
+        Ok(Some(Some(i))) => {
+            let e = i.equipment();
+            let places: Vec<String> = e
+                .places()
+                .iter()
+                .map(|p| format!("W{} {}", p.place, lamp(i.signal(Signal::Place(p.place)))))
                 .collect();
             lines.push(Line::from(format!("places    {}", places.join("  "))));
-            let st: Vec<String> = PlcStation::all()
-                .map(|s| format!("S{s} {}", lamp(i.signal(Signal::Station(s)))))
+            let st: Vec<String> = e
+                .stations()
+                .iter()
+                .map(|s| {
+                    format!(
+                        "S{} {}",
+                        s.station,
+                        lamp(i.signal(Signal::Station(s.station)))
+                    )
+                })
                 .collect();
             lines.push(Line::from(format!("stations  {}", st.join("  "))));
-            let running: Vec<String> = LINES
+            let running: Vec<String> = e
+                .lines()
                 .iter()
-                .filter(|l| i.signal(Signal::Line(**l)))
-                .map(|l| l.to_string())
+                .filter(|l| i.signal(Signal::Line(l.line)))
+                .map(|l| l.line.to_string())
                 .collect();
             lines.push(Line::from(format!(
                 "lines running: {}",
@@ -420,7 +429,8 @@ fn conveyor_box<'a>(app: &App, transport: Option<&falc_model::ids::StationName>)
             }
             lines.push(Line::from(plc));
         }
-        None => lines.push(Line::from("no reading of the conveyor PLC")),
+        Ok(_) => lines.push(Line::from("no reading of the conveyor PLC")),
+        Err(why) => lines.push(Line::styled(why, ALARM)),
     }
     if let Some((p, s)) = transport.and_then(|t| app.running_program(t)) {
         lines.push(Line::from(format!("recipe {p}, state {s}")));
@@ -448,9 +458,7 @@ fn overview(f: &mut Frame, app: &App, area: Rect) {
     let transport = of_kind(StationKind::Transport).into_iter().next();
     let inputs = transport
         .as_ref()
-        .and_then(|t| app.status.as_ref()?.stations.iter().find(|v| &v.name == t))
-        .and_then(|v| v.status.as_ref())
-        .and_then(|s| Inputs::from_bits(&s.inputs).ok());
+        .and_then(|t| app.inputs_of(t).ok().flatten());
 
     // Robot(s) and the manipulator table, side by side.
     let robots = of_kind(StationKind::Welding);
