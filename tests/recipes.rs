@@ -467,3 +467,45 @@ fn falc_recipe_verify_finds_the_printed_time_limits() {
         "{dot}"
     );
 }
+
+/// A transport recipe may name only what its station's conveyor has: the
+/// checker and the verifier take each transport station's equipment file
+/// from the topology, and name the file, the line and what exists.
+#[test]
+fn a_recipe_naming_a_line_the_equipment_lacks_is_refused() {
+    let dir = tempfile::tempdir().expect("temporary directory");
+    let small = root().join("common/equipment/tests/fixtures/small.toml");
+    let cell = std::fs::read_to_string(root().join("launch/cell.toml")).expect("cell.toml");
+    let topology = cell.replace(
+        "device = \"127.0.0.1:5020\"\n",
+        &format!(
+            "device = \"127.0.0.1:5020\"\nequipment = \"{}\"\n",
+            small.display()
+        ),
+    );
+    assert_ne!(topology, cell);
+    let path = dir.path().join("cell.toml");
+    std::fs::write(&path, topology).expect("write");
+    let t = path.display().to_string();
+    let (code, out) = falc(&["--topology", &t, "recipe", "check", "recipes/transport"]);
+    assert_eq!(code, 1, "{out}");
+    // STORE: `activate k` on line 8 of the file; the small conveyor has A, B.
+    assert!(
+        out.lines()
+            .any(|l| l
+                == "recipes/transport/store.rcp:8: state 1: small has no line K (lines: A, B)"),
+        "{out}"
+    );
+    assert!(
+        out.lines()
+            .any(|l| l.starts_with("recipes/transport/move_to_man.rcp:")
+                && l.contains("small has no place 5 (places: 2, 3)")),
+        "{out}"
+    );
+    let (code, out) = falc(&["--topology", &t, "recipe", "verify", "recipes"]);
+    assert_eq!(code, 1, "{out}");
+    assert!(out.contains("small has no line K (lines: A, B)"), "{out}");
+    // The shipped topology (no `equipment`: the 1992 conveyor) has them all.
+    let (code, out) = falc(&["recipe", "check", "recipes"]);
+    assert_eq!((code, out.as_str()), (0, ""));
+}

@@ -2,10 +2,12 @@
 //! list them, and draw one as Graphviz DOT.
 
 use crate::commands::RecipeCommand;
+use falc_equipment::Equipment;
 use falc_recipe::check::{check, check_set};
 use falc_recipe::commands::RecipeKind;
 use falc_recipe::dot::to_dot;
 use falc_recipe::files::{self, StationKinds};
+use falc_recipe::problem::Problem;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -23,6 +25,35 @@ fn station_kinds(path: &std::path::Path) -> StationKinds {
             StationKinds::default()
         }
     }
+}
+
+/// What the set's transport recipes name that their station's equipment
+/// lacks: each transport station's file as the topology at `path` names
+/// it (absent, or no topology: the 1992 conveyor), as the recipe store
+/// checks it.
+fn equipment_problems(
+    path: &std::path::Path,
+    programs: &[(falc_model::ids::StationName, falc_recipe::check::Program)],
+) -> Result<Vec<Problem>, String> {
+    let stations = if path.exists() {
+        match falc_model::topology::Topology::load(path) {
+            Ok(t) => Equipment::of_topology(&t)?,
+            Err(_) => Default::default(),
+        }
+    } else {
+        Default::default()
+    };
+    Ok(programs
+        .iter()
+        .filter(|(_, p)| p.kind == RecipeKind::Transport)
+        .flat_map(|(station, p)| {
+            stations
+                .get(station)
+                .cloned()
+                .unwrap_or_else(Equipment::conveyor_1992)
+                .check_program(p)
+        })
+        .collect())
 }
 
 /// The DOT text of one recipe file, or every reason it has none.
@@ -205,7 +236,14 @@ pub fn run(cmd: RecipeCommand, topology: &std::path::Path) -> ExitCode {
             let Some(entries) = load_or_say(paths, kind, &kinds, |e| crate::out!("{e}")) else {
                 return ExitCode::FAILURE;
             };
-            let (programs, problems) = check_set(&entries);
+            let (programs, mut problems) = check_set(&entries);
+            match equipment_problems(topology, &programs) {
+                Ok(found) => problems.extend(found),
+                Err(e) => {
+                    crate::out!("{e}");
+                    return ExitCode::FAILURE;
+                }
+            }
             for p in &problems {
                 crate::out!("{p}");
             }
@@ -221,7 +259,7 @@ pub fn run(cmd: RecipeCommand, topology: &std::path::Path) -> ExitCode {
                 ExitCode::FAILURE
             }
         }
-        RecipeCommand::Verify { limit, dot, paths } => verify(paths, limit, dot, &kinds),
+        RecipeCommand::Verify { limit, dot, paths } => verify(paths, limit, dot, &kinds, topology),
         RecipeCommand::Dot {
             kind,
             current,
@@ -241,11 +279,24 @@ pub fn run(cmd: RecipeCommand, topology: &std::path::Path) -> ExitCode {
 
 /// `falc recipe verify`: checks the set first (verification needs clean
 /// recipes), then verifies it across levels.
-fn verify(paths: Vec<PathBuf>, limit: usize, dot: Option<usize>, kinds: &StationKinds) -> ExitCode {
+fn verify(
+    paths: Vec<PathBuf>,
+    limit: usize,
+    dot: Option<usize>,
+    kinds: &StationKinds,
+    topology: &std::path::Path,
+) -> ExitCode {
     let Some(entries) = load_or_say(paths, None, kinds, |e| crate::out!("{e}")) else {
         return ExitCode::FAILURE;
     };
-    let (programs, problems) = check_set(&entries);
+    let (programs, mut problems) = check_set(&entries);
+    match equipment_problems(topology, &programs) {
+        Ok(found) => problems.extend(found),
+        Err(e) => {
+            crate::out!("{e}");
+            return ExitCode::FAILURE;
+        }
+    }
     if !problems.is_empty() {
         for p in &problems {
             crate::out!("{p}");

@@ -16,9 +16,12 @@
 //! The files are read again at every start (the store may have changed);
 //! checking and verifying them again is skipped while what was read is
 //! what was last checked clean (the result is a function of the texts,
-//! the topology and the cell alone). Verifying took about 5 ms (debug
+//! the transport stations' equipment files, the topology and the cell
+//! alone). A transport recipe may name only the lines, places and stations
+//! of its station's equipment file. Verifying took about 5 ms (debug
 //! build) at every start of every cell, on the operator's one loop.
 
+use falc_equipment::Equipment;
 use falc_factory::recipe_source::{checked_set, PutError, RecipeSet, RecipeSource};
 use falc_model::ids::StationName;
 use falc_model::mms::domain::content_hash;
@@ -26,6 +29,7 @@ use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::topology::Topology;
 use falc_recipe::check::Entry;
 use falc_recipe::files::{self, StationKinds};
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, PoisonError};
 
@@ -57,8 +61,9 @@ impl RecipeDir {
 /// One file as read: its station, origin and text.
 type Read = (StationName, String, String);
 
-/// A set checked clean, with the files it was checked from.
-type Checked = (Vec<Read>, RecipeSet);
+/// A set checked clean, with the files and equipment it was checked
+/// against.
+type Checked = (Vec<Read>, BTreeMap<StationName, Arc<Equipment>>, RecipeSet);
 
 impl RecipeSource for RecipeDir {
     /// Reads and checks the recipe tree against the topology: the cell
@@ -72,14 +77,15 @@ impl RecipeSource for RecipeDir {
             .iter()
             .map(|e| (e.station.clone(), e.recipe.origin.clone(), e.text.clone()))
             .collect();
+        let equipment = equipment(&self.topology)?;
         let mut checked = self.checked.lock().unwrap_or_else(PoisonError::into_inner);
-        if let Some((texts, set)) = checked.as_ref() {
-            if *texts == read {
+        if let Some((texts, with, set)) = checked.as_ref() {
+            if *texts == read && *with == equipment {
                 return Ok(set.clone());
             }
         }
-        let set = checked_set(&entries, &self.topology, &self.cell)?;
-        *checked = Some((read, set.clone()));
+        let set = checked_set(&entries, &self.topology, &self.cell, &equipment)?;
+        *checked = Some((read, equipment, set.clone()));
         Ok(set)
     }
     fn list(&self) -> Result<Vec<RecipeInfo>, String> {
@@ -91,6 +97,13 @@ impl RecipeSource for RecipeDir {
     fn put(&self, file: &RecipeFile, text: &str, base: Option<u64>) -> Result<(), PutError> {
         put(&self.dir, &self.topology, &self.cell, file, text, base)
     }
+}
+
+/// The equipment of the topology's transport stations, read at every
+/// check like the recipes (a transport recipe may name only what its
+/// station's conveyor has).
+fn equipment(topology: &Topology) -> Result<BTreeMap<StationName, Arc<Equipment>>, Vec<String>> {
+    Equipment::of_topology(topology).map_err(|e| vec![e])
 }
 
 /// Reads and parses every recipe file under `dir`.
@@ -196,7 +209,8 @@ fn put(
     entries.retain(|e| e.recipe.origin != origin);
     entries
         .push(files::entry_in(&path, None, &kinds, text.to_string()).map_err(PutError::Refused)?);
-    checked_set(&entries, topology, cell).map_err(PutError::Findings)?;
+    let equipment = equipment(topology).map_err(PutError::Findings)?;
+    checked_set(&entries, topology, cell, &equipment).map_err(PutError::Findings)?;
     write_atomically(&path, text.as_bytes())
         .map_err(|e| PutError::Refused(format!("cannot save recipe {file}: {e}")))
 }

@@ -33,9 +33,10 @@ use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::program::{PiCompletion, PiRequest, PiState};
 use falc_model::mms::vmd::{Identity, ProgramState, RecipeState, Transition, Vmd, VmdStatus};
 use falc_model::mode::{CellMode, HeldStep, ManualAction, ModeSetting};
-use falc_recipe::check::check;
+use falc_recipe::check::{check, Program};
 use falc_recipe::commands::RecipeKind;
 use falc_recipe::engine::{Action, Engine, Event, JobEnd, Outcome};
+use falc_recipe::problem::Problem;
 use falc_recipe::syntax::{parse, StateNo};
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -111,6 +112,12 @@ pub trait Device {
     /// a program found running that nobody started).
     fn poll_report(&mut self) -> Option<(Severity, String)> {
         None
+    }
+    /// What `program` names that this device lacks (a conveyor line its
+    /// equipment does not have), as problems at their lines: a start of
+    /// it is refused with them. Nothing, for a device that names nothing.
+    fn check_program(&self, _program: &Program) -> Vec<Problem> {
+        Vec::new()
     }
     /// A manual operation (maintenance mode, no recipe running; the
     /// controller checked both): what was done, or why not.
@@ -563,13 +570,18 @@ impl<D: Device> Controller<D> {
                 ServiceError::undefined(format!("program invocation {name} has no recipe domain"))
             })?;
         let recipe = parse(&text, name.as_str());
-        let program = check(&recipe, self.kind).map_err(|problems| {
+        let refuse = |problems: Vec<Problem>| {
             let lines: Vec<String> = problems.iter().map(|p| p.to_string()).collect();
             ServiceError::new(
                 ErrorClass::Definition(DefinitionError::ObjectAttributeInconsistent),
                 format!("error in recipe {name}: {}", lines.join("; ")),
             )
-        })?;
+        };
+        let program = check(&recipe, self.kind).map_err(refuse)?;
+        let lacking = self.device.check_program(&program);
+        if !lacking.is_empty() {
+            return Err(refuse(lacking));
+        }
         Ok(Engine::new(Arc::new(program)).with_confirm_limit(self.confirm_limit))
     }
 

@@ -3,12 +3,15 @@
 //! the consoles. The operator node's recipe directory implements
 //! [`RecipeSource`] (`nodes/operator/recipe_store.rs`).
 
+use falc_equipment::Equipment;
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::topology::Topology;
 use falc_recipe::check::{check_set, Command, Entry, Job, Program};
 use falc_recipe::commands::RecipeKind;
+use std::collections::BTreeMap;
 use std::path::Path;
+use std::sync::Arc;
 
 /// One recipe as delivered to the cell.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -76,15 +79,23 @@ pub trait RecipeSource {
 
 /// Checks a whole set of read recipes against `topology`: the cell
 /// recipes go to `cell`, workstation recipes must belong to one of its
-/// workstations, and the set must verify across levels. Returns the set
-/// (workstation recipes first), or every problem (`file:line: reason`).
+/// workstations, a transport recipe may name only what its station's
+/// equipment has (`equipment`, by station: [`Equipment::of_topology`]),
+/// and the set must verify across levels. Returns the set (workstation
+/// recipes first), or every problem (`file:line: reason`).
 pub fn checked_set(
     entries: &[Entry],
     topology: &Topology,
     cell: &StationName,
+    equipment: &BTreeMap<StationName, Arc<Equipment>>,
 ) -> Result<RecipeSet, Vec<String>> {
     let (programs, problems) = check_set(entries);
     let mut errors: Vec<String> = problems.iter().map(ToString::to_string).collect();
+    for (station, program) in &programs {
+        if let Some(e) = equipment.get(station) {
+            errors.extend(e.check_program(program).iter().map(ToString::to_string));
+        }
+    }
     let workstations = topology.subordinates_of(cell);
     let mut cells = Vec::new();
     let mut stations = Vec::new();

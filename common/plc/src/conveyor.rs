@@ -18,8 +18,8 @@
 //! pressed again after the stop is cleared); a jammed line keeps running
 //! but its carrier does not move; a stuck sensor shows a fixed value.
 
-use crate::equipment::Equipment;
 use crate::map::{Coil, Coils, Input, Inputs};
+use falc_equipment::file::Equipment;
 use falc_model::ids::{Place, PlcStation};
 use falc_recipe::check::{Button, Signal};
 use std::collections::{BTreeMap, BTreeSet, VecDeque};

@@ -6,6 +6,8 @@
 //! over Modbus TCP.
 
 pub mod conveyor;
-pub mod equipment;
 pub mod map;
 pub mod workstation;
+
+/// The equipment file's reader ([`falc_equipment`]), as the PLC's parts use it.
+pub use falc_equipment::file as equipment;

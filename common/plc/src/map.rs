@@ -6,110 +6,11 @@
 //! twin and docs/plc.md (`falc-transport io --map` prints it), so a real
 //! PLC can be wired to it.
 
-use crate::equipment::Equipment;
-use falc_model::ids::{Place, PlcStation};
-use falc_recipe::check::{Button, Signal};
+pub use falc_equipment::signal::{Coil, Input, SafeState, SignalName, Spot, S, W};
+use falc_equipment::Equipment;
+use falc_recipe::check::Signal;
 use std::fmt;
 use std::sync::Arc;
-
-/// A place on the conveyor or a station: where a line begins and ends.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
-pub enum Spot {
-    /// Place W2–W6.
-    Place(Place),
-    /// Station 1–3.
-    Station(PlcStation),
-}
-
-/// Place `Wn` (for tests and examples).
-#[allow(non_snake_case)]
-pub const fn W(n: u8) -> Spot {
-    Spot::Place(Place::of(n))
-}
-
-/// Station `Sn` (for tests and examples).
-#[allow(non_snake_case)]
-pub const fn S(n: u8) -> Spot {
-    Spot::Station(PlcStation::of(n))
-}
-
-impl fmt::Display for Spot {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Spot::Place(n) => write!(f, "W{n}"),
-            Spot::Station(n) => write!(f, "S{n}"),
-        }
-    }
-}
-
-/// A coil: a button FALC presses on the PLC.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum Coil {
-    /// A line or station button.
-    Button(Button),
-    /// External control: 1 = the PLC takes its buttons from these coils.
-    ExternalControl,
-}
-
-/// A discrete input: a lamp FALC reads.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum Input {
-    /// A line, place or station signal a recipe can wait for.
-    Signal(Signal),
-    /// The PLC is running and accepts buttons.
-    Ready,
-    /// An emergency stop is active.
-    EStop,
-}
-
-/// What an output goes to when the workstation can no longer know whether
-/// acting on it is safe (the equipment file says it per coil and occasion:
-/// [`crate::equipment::SafeStates`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum SafeState {
-    /// Released (`drop`): a conveyor line stops (nothing moves
-    /// unsupervised).
-    Off,
-    /// Kept as it is (`hold`): a station's clamp holds its workpiece, since
-    /// the robot may still weld it; only a command that comes after the
-    /// robot is known to have stopped (the next job's, a maintainer's)
-    /// releases it.
-    Hold,
-}
-
-impl fmt::Display for Coil {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Coil::Button(Button::Line(c)) => write!(f, "button line {c}"),
-            Coil::Button(Button::Station(n)) => write!(f, "button station {n}"),
-            Coil::ExternalControl => f.write_str("external control"),
-        }
-    }
-}
-
-impl fmt::Display for Input {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Input::Signal(s) => write!(f, "{}", SignalName(*s)),
-            Input::Ready => f.write_str("PLC ready"),
-            Input::EStop => f.write_str("emergency stop"),
-        }
-    }
-}
-
-/// A recipe signal named for people: `line E running`, `place 5 occupied`.
-#[derive(Debug, Clone, Copy)]
-pub struct SignalName(pub Signal);
-
-impl fmt::Display for SignalName {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self.0 {
-            Signal::Line(c) => write!(f, "line {c} running"),
-            Signal::Place(n) => write!(f, "place {n} occupied"),
-            Signal::Station(n) => write!(f, "station {n} busy"),
-        }
-    }
-}
 
 /// The equipment's map placed in the PLC's address space (0-based Modbus
 /// addresses, as on the wire): the file's addresses, each moved by a base
@@ -414,6 +315,8 @@ impl fmt::Display for Inputs {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use falc_model::ids::{Place, PlcStation};
+    use falc_recipe::check::Button;
     use proptest::prelude::*;
 
     #[test]

@@ -49,17 +49,18 @@
 //! the simulation to the twin's map); readings and the link's state come in
 //! through [`Plc::connected`], [`Plc::reading`] and [`Plc::link_down`].
 
-use crate::equipment::{Equipment, FaultClass, Occasion};
 use crate::map::{Coil, Coils, Input, Inputs, SafeState, SignalName, Spot};
 use falc_control::controller::{Controller, Device, Happening, Reading};
 use falc_control::workstation_node::Linked;
+use falc_equipment::file::{Equipment, FaultClass, Occasion};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::Place;
 use falc_model::mms::pdu::Severity;
 use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
 use falc_model::mode::{CellMode, ManualAction};
-use falc_recipe::check::{Button, Signal};
+use falc_recipe::check::{Button, Program, Signal};
 use falc_recipe::engine::{Action, Event, Outcome};
+use falc_recipe::problem::Problem;
 use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::Duration;
@@ -595,6 +596,10 @@ impl Device for Plc {
 
     fn poll_report(&mut self) -> Option<(Severity, String)> {
         self.reports.pop_front()
+    }
+
+    fn check_program(&self, program: &Program) -> Vec<Problem> {
+        self.equipment.check_program(program)
     }
 
     fn manual(&mut self, now: Duration, action: &ManualAction) -> Result<String, String> {

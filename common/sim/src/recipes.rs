@@ -9,6 +9,7 @@ use falc_model::ids::StationName;
 use falc_model::mms::domain::content_hash;
 use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::topology::Topology;
+use falc_plc::equipment::Equipment;
 use falc_recipe::files::{entry_in, StationKinds};
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
@@ -147,7 +148,8 @@ impl Recipes {
             let path = self.root.join(file);
             entries.push(entry_in(&path, None, &kinds, text.clone()).map_err(|e| vec![e])?);
         }
-        checked_set(&entries, &self.topology, &self.cell)
+        let equipment = Equipment::of_topology(&self.topology).map_err(|e| vec![e])?;
+        checked_set(&entries, &self.topology, &self.cell, &equipment)
     }
 }
 

@@ -18,7 +18,7 @@
 //! `equipment/conveyor-1992.toml` (the default, [`Equipment::conveyor_1992`])
 //! as the example.
 
-use crate::map::{Coil, Input, SafeState, Spot};
+use crate::signal::{Coil, Input, SafeState, Spot};
 use falc_model::ids::{Place, PlcStation, StationName};
 use falc_model::topology::{StationKind, Topology};
 use falc_recipe::check::{Button, Signal};
@@ -1284,7 +1284,7 @@ fn input_thing(i: Input) -> Thing {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::map::{S, W};
+    use crate::signal::{S, W};
 
     fn problems(text: &str) -> Vec<String> {
         match Equipment::parse(text, "eq.toml") {
@@ -1294,76 +1294,7 @@ mod tests {
     }
 
     /// A small conveyor: two places, one line each way, one station.
-    const SMALL: &str = r#"name = "small"
-
-[[place]]
-name = "2"
-capacity = 2
-
-[[place]]
-name = "3"
-
-[[line]]
-name = "A"
-from = "W2"
-to = "W3"
-travel_s = 2
-
-[[line]]
-name = "B"
-from = "place 3"
-to = "place 2"
-travel_s = 2
-
-[[station]]
-name = "1"
-takes_from = "W3"
-cycle_s = 1
-
-[[coil]]
-address = 0
-signal = "button line A"
-
-[[coil]]
-address = 1
-signal = "button line B"
-
-[[coil]]
-address = 2
-signal = "button station 1"
-
-[[coil]]
-address = 8
-signal = "external control"
-
-[[input]]
-address = 0
-signal = "line A running"
-
-[[input]]
-address = 1
-signal = "line B running"
-
-[[input]]
-address = 2
-signal = "place 2 occupied"
-
-[[input]]
-address = 3
-signal = "place 3 occupied"
-
-[[input]]
-address = 4
-signal = "station 1 busy"
-
-[[input]]
-address = 5
-signal = "PLC ready"
-
-[[input]]
-address = 6
-signal = "emergency stop"
-"#;
+    const SMALL: &str = include_str!("../tests/fixtures/small.toml");
 
     #[test]
     fn the_1992_conveyor_is_the_built_in_file() {

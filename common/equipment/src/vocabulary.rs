@@ -1,0 +1,132 @@
+//! What a transport recipe may name on a station with this equipment: the
+//! lines, places and stations of its file. The recipe checker knows the
+//! recipe language (a line is a letter, a place a number); this says
+//! whether the station's conveyor has what a recipe names, and when not,
+//! names what it has. The recipe store runs it on every transport recipe
+//! against its station's equipment, and the transport node on every
+//! recipe it is asked to start.
+
+use crate::file::Equipment;
+use crate::signal::SignalName;
+use falc_recipe::check::{Button, Command, Program, Signal};
+use falc_recipe::problem::{Problem, ProblemKind};
+
+impl Equipment {
+    /// Every command of `program` that names a line, place or station
+    /// this equipment lacks, as a problem at its state's line.
+    pub fn check_program(&self, program: &Program) -> Vec<Problem> {
+        let mut out = Vec::new();
+        for state in program.states.values() {
+            let missing = match &state.command {
+                Command::Activate(b) | Command::Reset(b) => self.lacks_button(*b),
+                Command::WaitInput { signal, .. } => self.lacks_signal(*signal),
+                _ => None,
+            };
+            if let Some(message) = missing {
+                out.push(Problem {
+                    origin: program.origin.clone(),
+                    line: state.line,
+                    state: Some(state.no),
+                    kind: ProblemKind::BadArgument,
+                    message,
+                });
+            }
+        }
+        out
+    }
+
+    /// Why a recipe may not press `b` here, if it may not.
+    pub fn lacks_button(&self, b: Button) -> Option<String> {
+        if self.has_button(b) {
+            return None;
+        }
+        Some(match b {
+            Button::Line(l) => self.no_line(l),
+            Button::Station(s) => format!(
+                "{} has no station {s} (stations: {})",
+                self.name(),
+                list(self.stations().iter().map(|x| x.station))
+            ),
+        })
+    }
+
+    /// Why a recipe may not wait for `s` here, if it may not.
+    pub fn lacks_signal(&self, s: Signal) -> Option<String> {
+        if self.has_signal(s) {
+            return None;
+        }
+        Some(match s {
+            Signal::Line(l) => self.no_line(l),
+            Signal::Place(p) => format!(
+                "{} has no place {p} (places: {})",
+                self.name(),
+                list(self.places().iter().map(|x| x.place))
+            ),
+            Signal::Station(_) => format!(
+                "{} has no input `{}` (stations: {})",
+                self.name(),
+                SignalName(s),
+                list(self.stations().iter().map(|x| x.station))
+            ),
+        })
+    }
+
+    fn no_line(&self, l: char) -> String {
+        format!(
+            "{} has no line {l} (lines: {})",
+            self.name(),
+            list(self.lines().iter().map(|x| x.line))
+        )
+    }
+}
+
+fn list<T: std::fmt::Display>(items: impl Iterator<Item = T>) -> String {
+    let v: Vec<String> = items.map(|x| x.to_string()).collect();
+    if v.is_empty() {
+        "none".into()
+    } else {
+        v.join(", ")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use falc_recipe::check::check;
+    use falc_recipe::commands::RecipeKind;
+    use falc_recipe::syntax::parse;
+
+    const SMALL: &str = include_str!("../tests/fixtures/small.toml");
+
+    #[test]
+    fn a_recipe_naming_what_the_conveyor_lacks_is_refused_naming_what_it_has() {
+        let e = Equipment::parse(SMALL, "small.toml").expect("loads");
+        let text = "#AWAY
+-1 | activate c       | | | 2
+-2 | waitplace 3 1 40 | | klaar | 3
+-2 | waitplace 3 1 40 | | tijdlimiet | 0
+-3 | reset c          | | | 4
+-4 | waitplace 6 1 40 | | klaar | 0
+-4 | waitplace 6 1 40 | | tijdlimiet | 0
+";
+        let program = check(&parse(text, "transport/away.rcp"), RecipeKind::Transport)
+            .expect("the language allows it");
+        let found: Vec<String> = e
+            .check_program(&program)
+            .iter()
+            .map(Problem::to_string)
+            .collect();
+        assert_eq!(
+            found,
+            [
+                "transport/away.rcp:2: state 1: small has no line C (lines: A, B)",
+                "transport/away.rcp:5: state 3: small has no line C (lines: A, B)",
+                "transport/away.rcp:6: state 4: small has no place 6 (places: 2, 3)",
+            ]
+        );
+        // The 1992 conveyor has them all.
+        assert!(Equipment::conveyor_1992()
+            .check_program(&program)
+            .is_empty());
+    }
+}
