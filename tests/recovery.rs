@@ -640,3 +640,75 @@ fn unrequested_and_lost_feedback_are_device_alarms_naming_the_sensor_and_the_way
         lost.as_secs_f64() * 1e3
     );
 }
+
+/// Issue 43, item 4, end to end: actuator feedback supervision as the
+/// equipment file pairs them (`equipment/conveyor-1992.toml`: each line's
+/// button and its running lamp, 1,000 ms). The twin's stuck running lamp
+/// (button K on, lamp dark) fails the order with a device alarm naming the
+/// actuator and the signal, within the file's time plus a poll; a lamp
+/// lit with no button between jobs is one too. Each time the way back
+/// (the lamp mended, carriers home, `ack`, `start`) runs the next order to
+/// done. (That the alarm comes exactly at the file's time after the press,
+/// at the first clock tick or poll past it, is the unit test's on a
+/// virtual clock: `a_running_lamp_that_does_not_follow_its_button_is_a_fault_on_the_clock`.)
+#[test]
+fn a_stuck_running_lamp_and_a_lamp_lit_without_its_button_are_alarms_naming_the_actuator() {
+    let mut rig = rig("20");
+    rig.cell.falc(&["order", "add", "--count", "2", "dikdroog"]);
+    // Line K's lamp stays dark, and its carrier stays on it (the twin's
+    // line takes 0.4 s: without the jam the carrier would arrive before
+    // the feedback's 1 s ran out).
+    rig.plc.control("stuck-lamp K 0");
+    rig.plc.control("jam K");
+    rig.cell.falc(&["start"]);
+    until_line_runs(&mut rig, 'K');
+    let pressed = std::time::Instant::now();
+    let needle = "feedback: `line K running` not on 1000 ms after `button line K` was pressed";
+    let transport = rig.transport.as_mut().expect("transport node");
+    let line = transport.expect_line(needle, Duration::from_secs(5));
+    let stuck = pressed.elapsed();
+    assert!(line.contains("severity=Alarm(Device)"), "{line}");
+    rig.operator().expect_line(
+        "EVENT order-ended id=1 state=failed",
+        Duration::from_secs(20),
+    );
+    let s = rig.status();
+    assert!(
+        s.alarms.iter().any(|a| a.text.contains(needle)
+            && a.station.as_str() == "transport"
+            && a.class == falc_model::alarm::AlarmClass::Device),
+        "{:#?}",
+        s.alarms
+    );
+    assert!(s.alarm.is_some(), "a device alarm holds the list back");
+    rig.plc.control("unstuck-lamp K");
+    rig.plc.control("unjam K");
+    rig.way_back();
+    assert_eq!(rig.orders()[1].state, OrderState::Done);
+
+    // Between jobs: line A's lamp lights with no button.
+    let transport = rig.transport.as_mut().expect("transport node");
+    transport.forget("feedback: ");
+    let lit = std::time::Instant::now();
+    rig.plc.control("stuck-lamp A 1");
+    let needle = "feedback: `line A running` on for 1000 ms without `button line A`";
+    let transport = rig.transport.as_mut().expect("transport node");
+    let line = transport.expect_line(needle, Duration::from_secs(5));
+    let unasked = lit.elapsed();
+    assert!(line.contains("severity=Alarm(Device)"), "{line}");
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    let (code, out) = rig.cell.falc_as("console", &["start"]);
+    assert_eq!(code, 1, "the alarm holds the start back: {out}");
+    rig.plc.control("unstuck-lamp A");
+    rig.way_back();
+    let orders = rig.orders();
+    assert_eq!(
+        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
+        [OrderState::Failed, OrderState::Done, OrderState::Done]
+    );
+    println!(
+        "actuator feedback alarms {:.0} ms after line K was pressed (lamp stuck dark) and {:.0} ms after line A's lamp lit unasked, between jobs (the file's time 1000 ms; polls 10 ms busy, 100 ms idle)",
+        stuck.as_secs_f64() * 1e3,
+        unasked.as_secs_f64() * 1e3
+    );
+}

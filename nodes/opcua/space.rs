@@ -992,10 +992,9 @@ mod tests {
                 StationView {
                     name: st("transport"),
                     status: Some(VmdStatus {
-                        inputs: vec![
-                            true, false, false, false, false, false, false, false, false, false,
-                            false, true,
-                        ],
+                        // The 1992 conveyor's 21 inputs: line A running,
+                        // place 2 occupied.
+                        inputs: (0..21).map(|i| i == 0 || i == 11).collect(),
                         ..VmdStatus::default()
                     }),
                     connected: false,

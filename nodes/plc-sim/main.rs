@@ -10,7 +10,8 @@
 //!
 //! Control lines on stdin (answered `ok …` or `error …`): `estop`,
 //! `estop-clear`, `jam <line>`, `unjam <line>`, `stuck <place> 0|1`,
-//! `unstuck <place>`, `offline` (connections dropped and refused),
+//! `unstuck <place>`, `stuck-lamp <line> 0|1` (its running lamp shows
+//! that), `unstuck-lamp <line>`, `offline` (connections dropped and refused),
 //! `online`, `mute` (requests get no answer), `unmute`, `layout <spot>…`
 //! (carrier 1 first, e.g. `layout W2 W2`, `layout S3 W3`), `show`.
 //!
@@ -284,6 +285,15 @@ fn parse_control(line: &str, equipment: &Equipment) -> Result<Ctl, String> {
             },
         )),
         ["unstuck", p] => Ctl::Conveyor(Control::Unstuck(place(p)?)),
+        ["stuck-lamp", l, v] => Ctl::Conveyor(Control::StuckLamp(
+            line_letter(l)?,
+            match *v {
+                "0" => false,
+                "1" => true,
+                _ => return Err(format!("`{v}` is not 0 or 1")),
+            },
+        )),
+        ["unstuck-lamp", l] => Ctl::Conveyor(Control::UnstuckLamp(line_letter(l)?)),
         ["offline"] => Ctl::Offline,
         ["online"] => Ctl::Online,
         ["mute"] => Ctl::Mute(true),

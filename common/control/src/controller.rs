@@ -113,6 +113,12 @@ pub trait Device {
     fn poll_report(&mut self) -> Option<(Severity, String)> {
         None
     }
+    /// A fault the device's own supervision found on the clock
+    /// ([`Happening::Clock`]): the running recipe ends in it, and it goes
+    /// up as an alarm (also when no recipe runs).
+    fn poll_fault(&mut self) -> Option<Cause> {
+        None
+    }
     /// What `program` names that this device lacks (a conveyor line its
     /// equipment does not have), as problems at their lines: a start of
     /// it is refused with them. Nothing, for a device that names nothing.
@@ -294,6 +300,9 @@ impl<D: Device> Controller<D> {
             let mut out = Vec::new();
             self.device.handle(now, Happening::Clock, &mut out);
             self.feed(now, out);
+            while let Some(cause) = self.device.poll_fault() {
+                self.fault(cause);
+            }
         }
         let due = self
             .running

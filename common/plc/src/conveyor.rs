@@ -16,7 +16,8 @@
 //! the end of its line, the line running. An emergency stop halts every
 //! line and freezes carriers in travel (they go on when their line is
 //! pressed again after the stop is cleared); a jammed line keeps running
-//! but its carrier does not move; a stuck sensor shows a fixed value.
+//! but its carrier does not move; a stuck sensor or running lamp shows a
+//! fixed value.
 
 use crate::map::{Coil, Coils, Input, Inputs};
 use falc_equipment::file::Equipment;
@@ -77,6 +78,10 @@ pub enum Control {
     Stuck(Place, bool),
     /// … shows the truth again.
     Unstuck(Place),
+    /// This line's running lamp shows this value whatever the line does.
+    StuckLamp(char, bool),
+    /// … shows the truth again.
+    UnstuckLamp(char),
 }
 
 /// The conveyor.
@@ -90,6 +95,7 @@ pub struct Conveyor {
     estop: bool,
     jammed: BTreeSet<char>,
     stuck: BTreeMap<Place, bool>,
+    stuck_lamps: BTreeMap<char, bool>,
     seq: u64,
     last_change: Option<Duration>,
     notes: VecDeque<String>,
@@ -112,6 +118,7 @@ impl Conveyor {
             estop: false,
             jammed: BTreeSet::new(),
             stuck: BTreeMap::new(),
+            stuck_lamps: BTreeMap::new(),
             seq: 0,
             last_change: None,
             notes: VecDeque::new(),
@@ -196,7 +203,8 @@ impl Conveyor {
     pub fn inputs(&self) -> Inputs {
         let mut i = Inputs::new(&self.equipment);
         for (c, l) in &self.lines {
-            i.set(Input::Signal(Signal::Line(*c)), l.running);
+            let shown = self.stuck_lamps.get(c).copied().unwrap_or(l.running);
+            i.set(Input::Signal(Signal::Line(*c)), shown);
         }
         for p in self.equipment.places() {
             let n = p.place;
@@ -582,6 +590,12 @@ impl Conveyor {
             }
             Control::Unstuck(p) => {
                 c.stuck.remove(&p);
+            }
+            Control::StuckLamp(l, v) => {
+                c.stuck_lamps.insert(l, v);
+            }
+            Control::UnstuckLamp(l) => {
+                c.stuck_lamps.remove(&l);
             }
         });
     }

@@ -49,6 +49,7 @@
 //! the simulation to the twin's map); readings and the link's state come in
 //! through [`Plc::connected`], [`Plc::reading`] and [`Plc::link_down`].
 
+use crate::feedback::Supervision;
 use crate::map::{Coil, Coils, Input, Inputs, SafeState, SignalName, Spot};
 use falc_control::controller::{Controller, Device, Happening, Reading};
 use falc_control::workstation_node::Linked;
@@ -151,6 +152,13 @@ pub struct Plc {
     /// Per place sensor, whether its feedback fault needs an
     /// acknowledgement (the equipment's `sensor_fault`, unless set).
     feedback_ack: Vec<(Place, bool)>,
+    /// The actuators' feedback ([`crate::feedback`]), also between jobs.
+    actuators: Supervision,
+    /// A fault the actuators' supervision found on the clock, for the
+    /// controller ([`Device::poll_fault`]).
+    fault: Option<Cause>,
+    /// The time of what is being handled (a write's, a reading's).
+    clock: Duration,
     /// Feedback is supervised between readings both taken after this
     /// many commands: the running job's first write. What changed before
     /// (carriers set by hand just before a start, seen late at the idle
@@ -164,6 +172,9 @@ impl Plc {
     pub fn new(address: String, equipment: Arc<Equipment>) -> Self {
         Self {
             address,
+            actuators: Supervision::new(equipment.feedback()),
+            fault: None,
+            clock: Duration::ZERO,
             feedback_ack: equipment
                 .places()
                 .iter()
@@ -220,6 +231,7 @@ impl Plc {
     }
 
     fn write(&mut self, b: Button, value: bool) {
+        self.actuators.wrote(Coil::Button(b), value, self.clock);
         if value && self.pressed.contains(&b) {
             // Held already: released first, so the PLC sees a rising edge.
             self.send(PlcCommand::Write(Coil::Button(b), false));
@@ -244,6 +256,7 @@ impl Plc {
         self.known = true;
         let Some(held) = held else {
             self.pressed.clear();
+            self.actuators.rest();
             let all = self
                 .equipment
                 .coils()
@@ -293,6 +306,13 @@ impl Plc {
     /// (device).
     fn inputs(&mut self, inputs: Inputs, commands_done: u64) -> (Vec<Event>, Option<Cause>) {
         let before = self.inputs.replace(inputs.clone());
+        if self.unavailable().is_some() {
+            self.actuators.rest();
+        } else {
+            let pressed = &self.pressed;
+            self.actuators
+                .reading(&inputs, self.clock, |c| holds(pressed, c));
+        }
         let before_after = std::mem::replace(&mut self.inputs_after, commands_done);
         let supervised = self.busy && before_after >= self.supervise_from;
         // A carrier arriving: a place sensor lighting (an edge, not every
@@ -335,7 +355,7 @@ impl Plc {
                 ),
             ))
         } else {
-            feedback
+            feedback.or_else(|| self.actuator_fault())
         };
         (events, alarm)
     }
@@ -387,6 +407,17 @@ impl Plc {
             AlarmClass::Warning
         };
         Some(Cause::new(class, text))
+    }
+
+    /// A mismatch of an actuator and its feedback due now, if the PLC can
+    /// act ([`Supervision::check`]).
+    fn actuator_fault(&mut self) -> Option<Cause> {
+        if self.unavailable().is_some() {
+            return None;
+        }
+        let pressed = &self.pressed;
+        self.actuators
+            .check(self.clock, |c| holds(pressed, c), &self.address)
     }
 
     /// A new reading as a driver takes it: `Plc::inputs`, and the line
@@ -478,6 +509,14 @@ impl Plc {
     }
 }
 
+/// Whether FALC holds `coil` (external control: always, once connected).
+fn holds(pressed: &[Button], coil: Coil) -> bool {
+    match coil {
+        Coil::Button(b) => pressed.contains(&b),
+        Coil::ExternalControl => true,
+    }
+}
+
 fn on_off(v: bool) -> &'static str {
     if v {
         "on"
@@ -534,6 +573,9 @@ impl Plc {
                 self.write(Button::Line(l), false);
             }
         }
+        if let Some(cause) = self.actuator_fault() {
+            self.fault = Some(cause);
+        }
     }
 
     fn halt(&mut self) {
@@ -561,6 +603,7 @@ impl Plc {
 
 impl Device for Plc {
     fn handle(&mut self, now: Duration, what: Happening<'_>, out: &mut Vec<Event>) {
+        self.clock = now;
         match what {
             Happening::Act(action) => self.act(now, action, out),
             Happening::Mode(mode) => self.mode_changed(mode),
@@ -603,6 +646,7 @@ impl Device for Plc {
     }
 
     fn manual(&mut self, now: Duration, action: &ManualAction) -> Result<String, String> {
+        self.clock = now;
         if let Some(why) = self.unavailable() {
             return Err(why);
         }
@@ -646,7 +690,20 @@ impl Device for Plc {
     }
 
     fn poll_timeout(&self) -> Option<Duration> {
-        self.manual_line.map(|(_, until)| until)
+        let line = self.manual_line.map(|(_, until)| until);
+        let feedback = self
+            .unavailable()
+            .is_none()
+            .then(|| self.actuators.poll_timeout())
+            .flatten();
+        match (line, feedback) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    fn poll_fault(&mut self) -> Option<Cause> {
+        self.fault.take()
     }
 
     fn settling(&self) -> bool {
@@ -742,6 +799,7 @@ impl Linked for Plc {
                 inputs,
                 commands_done,
             } => {
+                ctl.device.clock = now;
                 let reading = ctl.device.reading(inputs, commands_done);
                 ctl.take_reading(now, reading)
                     .then(|| "plc-ready".to_string())
@@ -777,6 +835,31 @@ mod tests {
         let mut out = Vec::new();
         p.handle(Duration::from_secs(now), Happening::Act(a), &mut out);
         out
+    }
+
+    #[test]
+    fn a_running_lamp_that_does_not_follow_its_button_is_a_fault_on_the_clock() {
+        let mut p = plc();
+        p.connected(None);
+        p.reading(ready(), 0);
+        drain(&mut p);
+        act(&mut p, 10, Action::Activate(Button::Line('K')));
+        p.clock = Duration::from_millis(10_010);
+        p.reading(ready(), p.issued());
+        assert_eq!(p.poll_timeout(), Some(Duration::from_secs(11)));
+        let mut out = Vec::new();
+        p.handle(Duration::from_millis(10_999), Happening::Clock, &mut out);
+        assert_eq!(p.poll_fault(), None);
+        p.handle(Duration::from_secs(11), Happening::Clock, &mut out);
+        let fault = p.poll_fault().expect("the lamp did not follow");
+        assert_eq!(fault.class, AlarmClass::Device);
+        assert!(
+            fault.text.starts_with(
+                "feedback: `line K running` not on 1000 ms after `button line K` was pressed"
+            ),
+            "{}",
+            fault.text
+        );
     }
 
     #[test]
@@ -835,6 +918,14 @@ mod tests {
             p.manual(Duration::from_secs(1), &run("b", 5)).as_deref(),
             Ok("line B runs for 5 s")
         );
+        // Line B's lamp is due first (the file's 1 s after the press);
+        // once a reading shows it and station 3 busy, the line's end.
+        assert_eq!(p.poll_timeout(), Some(Duration::from_secs(2)));
+        let mut lit = ready();
+        lit.set(Input::Signal(Signal::Line('B')), true);
+        lit.set(Input::Signal(Signal::Station(PlcStation::of(3))), true);
+        p.clock = Duration::from_secs(1);
+        p.reading(lit, p.issued());
         assert_eq!(p.poll_timeout(), Some(Duration::from_secs(6)));
         let line_b = Coil::Button(Button::Line('B'));
         let station_3 = Coil::Button(Button::Station(PlcStation::of(3)));
