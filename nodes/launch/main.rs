@@ -455,11 +455,14 @@ async fn start_stations(
                         own
                     }
                     .unwrap_or_else(|| "127.0.0.1:0".into());
-                    let id = cell.spawn(
-                        &twin("plc", name),
-                        "falc-plc-sim",
-                        &["--listen".into(), at, "--time-scale".into(), scale.clone()],
-                    )?;
+                    // The twin plays the station's equipment file (the
+                    // node reads the same stanza).
+                    let mut plc_args =
+                        vec!["--listen".into(), at, "--time-scale".into(), scale.clone()];
+                    if let Some(e) = &st.equipment {
+                        plc_args.extend(["--equipment".into(), e.display().to_string()]);
+                    }
+                    let id = cell.spawn(&twin("plc", name), "falc-plc-sim", &plc_args)?;
                     let line = cell.wait_for(id, "listening on ", LIMIT).await?;
                     let address = line.rsplit(' ').next().unwrap_or_default().to_string();
                     args.extend(["--plc".into(), address]);
