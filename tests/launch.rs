@@ -4,7 +4,7 @@
 //! own as soon as one node dies.
 
 use crate::support::wait::{holds, wait_until};
-use crate::support::{children, launcher, Proc};
+use crate::support::{children, copy_dir, free_port, launcher, launcher_of, Proc};
 use nix::sys::signal::{kill, Signal};
 use nix::unistd::Pid;
 use std::path::Path;
@@ -111,6 +111,80 @@ fn the_launched_cell_runs_an_order_and_ctrl_c_stops_every_node() {
         Duration::from_secs(5),
         || holds(!l.launcher.alive(), || "still running"),
     );
+}
+
+/// Issue 43: the in/out cell of `launch/cell-inout.toml`, defined by data
+/// alone (its equipment file, topology and recipe tree), runs three orders
+/// to done with every process of its own: router, both twins (the
+/// conveyor's playing its equipment file), both workstations, cell and
+/// operator. The 1992 cell runs on unchanged beside it in
+/// `the_launched_cell_runs_an_order_and_ctrl_c_stops_every_node`.
+#[test]
+fn the_in_out_cell_defined_by_data_runs_three_orders_to_done() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let shipped = std::fs::read_to_string(root.join("launch/cell-inout.toml")).expect("topology");
+    let equipment = root.join("equipment/conveyor-inout.toml");
+    let topology = shipped
+        .replace(
+            "router = \"tcp/127.0.0.1:7447\"",
+            &format!("router = \"tcp/127.0.0.1:{}\"", free_port()),
+        )
+        .replace(
+            "equipment = \"equipment/conveyor-inout.toml\"",
+            &format!("equipment = \"{}\"", equipment.display()),
+        );
+    assert!(
+        topology.contains(&equipment.display().to_string()),
+        "{topology}"
+    );
+    std::fs::write(dir.path().join("cell.toml"), topology).expect("write");
+    let recipes = dir.path().join("recipes");
+    for sub in ["cell", "welding", "transport"] {
+        copy_dir(&root.join("recipes-inout").join(sub), &recipes.join(sub));
+    }
+    let cmd = launcher_of(dir.path(), &dir.path().join("cell.toml"), &recipes, "50");
+    let mut launcher = Proc::spawn("falc-launch", cmd);
+    launcher.expect_line("falc-launch: cell ready in", Duration::from_secs(60));
+    launcher.expect_line(
+        "falc-plc-sim of conveyor-inout listening on",
+        Duration::ZERO,
+    );
+    launcher.expect_line("equipment=conveyor-inout", Duration::ZERO);
+    let l = Launched { dir, launcher };
+    l.falc(&["order", "add", "--count", "3", "inoutlas"]);
+    l.falc(&["start"]);
+    let mut answered = 0;
+    wait_until("three orders done", Duration::from_secs(120), || {
+        let status = l.falc(&["status"]);
+        if status.contains("QUESTION") {
+            l.falc(&["answer", "ja"]);
+            answered += 1;
+        }
+        let list = l.falc(&["order", "list"]);
+        holds(
+            status.contains("list idle") && list.matches("(done)").count() == 3,
+            || format!("{status}\n{list}"),
+        )
+    });
+    // Each order asked twice: hand the part in, take it out.
+    assert!(answered >= 6, "{answered} answers");
+    let list = l.falc(&["order", "list"]);
+    assert!(!list.contains("failed"), "{list}");
+    let journal = l.falc(&["journal"]);
+    for line in [
+        "LOAD",
+        "TO_TABLE",
+        "TO_OUT",
+        "UNLOAD",
+        "line A runs",
+        "line D runs",
+    ] {
+        assert!(
+            journal.contains(line),
+            "{line} missing from the journal:\n{journal}"
+        );
+    }
 }
 
 #[test]

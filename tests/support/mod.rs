@@ -363,13 +363,24 @@ pub fn launcher(dir: &std::path::Path, time_scale: &str) -> (Command, String) {
     let topology = dir.join("cell.toml");
     std::fs::write(&topology, TOPOLOGY.replace("ROUTER", &endpoint)).expect("topology");
     let recipes = copy_recipes(dir);
+    (launcher_of(dir, &topology, &recipes, time_scale), endpoint)
+}
+
+/// A `falc-launch` command for the cell of `topology` with the recipe tree
+/// `recipes`, credentials and database in `dir`, the twins at `time_scale`.
+pub fn launcher_of(
+    dir: &std::path::Path,
+    topology: &std::path::Path,
+    recipes: &std::path::Path,
+    time_scale: &str,
+) -> Command {
     let bin_dir = std::path::Path::new(env!("CARGO_BIN_EXE_falc"))
         .parent()
         .expect("bin dir")
         .to_path_buf();
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_falc-launch"));
     cmd.arg("--topology")
-        .arg(&topology)
+        .arg(topology)
         .arg("--credentials-dir")
         .arg(dir.join("credentials"))
         .arg("--db")
@@ -379,7 +390,7 @@ pub fn launcher(dir: &std::path::Path, time_scale: &str) -> (Command, String) {
         .arg("--bin-dir")
         .arg(bin_dir)
         .args(["--plc-listen", "127.0.0.1:0", "--time-scale", time_scale]);
-    (cmd, endpoint)
+    cmd
 }
 
 /// Runs `falc` with `cell` (how to reach the cell, as whom) and `args`:

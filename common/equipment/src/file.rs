@@ -1469,7 +1469,7 @@ mod tests {
     }
 
     #[test]
-    fn the_io_table_in_docs_plc_md_is_the_1992_files() {
+    fn the_tables_in_docs_plc_md_are_the_shipped_files() {
         let doc = include_str!("../../../docs/plc.md");
         let table = Equipment::conveyor_1992().table(0, 0);
         assert!(
@@ -1481,5 +1481,17 @@ mod tests {
             doc.contains(&layout),
             "docs/plc.md must carry the layout table of the 1992 conveyor:\n{layout}"
         );
+        // The second shipped layout, the in/out cell's.
+        let inout = Equipment::parse(
+            include_str!("../../../equipment/conveyor-inout.toml"),
+            "equipment/conveyor-inout.toml",
+        )
+        .unwrap_or_else(|p| panic!("{p}"));
+        for table in [inout.table(0, 0), inout.layout_table()] {
+            assert!(
+                doc.contains(&table),
+                "docs/plc.md must carry the in/out conveyor's table:\n{table}"
+            );
+        }
     }
 }

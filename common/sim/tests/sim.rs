@@ -227,3 +227,52 @@ fn a_cell_grown_by_two_stanzas_runs_its_second_robot_and_conveyor() {
         assert!(s.faults.get(&f).copied().unwrap_or(0) >= 3, "{f}: {s}");
     }
 }
+
+/// The in/out cell of `launch/cell-inout.toml`, defined by data alone
+/// (its conveyor `equipment/conveyor-inout.toml`, its recipes
+/// `recipes-inout/`): 1,000 orders with every fault a cell has, the
+/// invariants holding after every step, on its own layout (one carrier,
+/// an in/out station, four lines).
+#[test]
+fn the_in_out_cell_keeps_the_invariants_with_every_fault() {
+    let here = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let root = here.join("../..");
+    let dir = std::env::temp_dir().join(format!("falc-sim-inout-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a temporary directory");
+    let equipment = root.join("equipment/conveyor-inout.toml");
+    let topology = std::fs::read_to_string(root.join("launch/cell-inout.toml"))
+        .expect("launch/cell-inout.toml")
+        .replace(
+            "equipment = \"equipment/conveyor-inout.toml\"",
+            &format!("equipment = \"{}\"", equipment.display()),
+        );
+    std::fs::write(dir.join("cell.toml"), topology).expect("written");
+    let cfg = Config {
+        topology: Some(dir.join("cell.toml")),
+        recipe_dir: Some(root.join("recipes-inout")),
+        recipes: vec!["inoutlas".into()],
+        seed: 1,
+        orders: 1000,
+        keep_journal: true,
+        ..Config::default()
+    };
+    let ran = Run::new(cfg).and_then(|r| r.run().map_err(|v| v.to_string()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let s = ran.unwrap_or_else(|e| panic!("{e}"));
+    println!("{s}");
+    assert_eq!(s.done + s.failed, 1000, "{s}");
+    assert!(s.done > s.failed, "{s}");
+    for f in Fault::ALL.into_iter().filter(|f| *f != Fault::Uplink) {
+        let n = s.faults.get(&f).copied().unwrap_or(0);
+        assert!(n >= 40, "{f} injected {n} times: {s}");
+    }
+    let jobs = |job: &str| {
+        s.lines
+            .iter()
+            .filter(|l| l.contains(&format!("transport: job {job} ")) && l.ends_with("done"))
+            .count()
+    };
+    for job in ["LOAD", "TO_TABLE", "TO_OUT", "UNLOAD"] {
+        assert!(jobs(job) > 500, "{job}: {}", jobs(job));
+    }
+}
