@@ -573,3 +573,37 @@ fn an_equipment_file_is_checked_before_anything_runs() {
     }
     assert!(!map.contains("line C"), "{map}");
 }
+
+/// Issue 43: a PLC nobody here wrote. Python's pymodbus serves a simple
+/// conveyor set up from the equipment file alone (its addresses, lines,
+/// places and stations: `tests/fixtures/foreign_plc.py`); the transport
+/// node runs STORE against it to done. The file is all a PLC programmer
+/// needs. (`.ci/test` installs pymodbus beside asyncua, `FALC_PYTHON`.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_foreign_plc_set_up_from_the_equipment_file_runs_store() {
+    let python = std::env::var("FALC_PYTHON").unwrap_or_else(|_| "python3".into());
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let script = root.join("tests/fixtures/foreign_plc.py");
+    let equipment = root.join("equipment/conveyor-1992.toml");
+    let port = crate::support::free_port().to_string();
+    let (script, equipment) = (
+        script.display().to_string(),
+        equipment.display().to_string(),
+    );
+    let (mut plc, address) = twin(
+        &python,
+        &[&script, &equipment, &port, SCALE],
+        "listening on ",
+    );
+    let cell = TestCell::start();
+    let mut node = transport(&cell, &address, &[]);
+    node.expect_line("EVENT plc-ready", Duration::from_secs(20));
+    let mut commander = Commander::associate(&cell, "transport").await;
+    commander.load("store", &shipped("store")).await;
+    commander.start("store").await;
+    assert_eq!(commander.job(RUN).await, JobEvent::Done);
+    plc.expect_line(
+        "carrier ('place', '2') -> ('place', '3') on line k",
+        Duration::from_secs(5),
+    );
+}
