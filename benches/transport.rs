@@ -84,12 +84,7 @@ async fn main() {
     for _ in 0..500 {
         let t = Instant::now();
         let _ = ctx
-            .read_discrete_inputs(
-                0,
-                falc_plc::equipment::Equipment::conveyor_1992()
-                    .input_span()
-                    .1,
-            )
+            .read_discrete_inputs(0, falc_equipment::Equipment::conveyor_1992().input_span().1)
             .await
             .expect("read");
         rtt.push(t.elapsed().as_secs_f64() * 1000.0);

@@ -317,7 +317,7 @@ async fn the_map_sits_at_configurable_bases_and_a_wrong_one_is_a_clear_alarm() {
 /// A plain Modbus TCP server with the map's coils and inputs and no
 /// conveyor at all: the test plays the PLC by setting inputs itself.
 mod plain_plc {
-    use falc_plc::equipment::Equipment;
+    use falc_equipment::Equipment;
     use std::future::Future;
     use std::pin::Pin;
     use std::sync::{Arc, Mutex};
@@ -399,7 +399,7 @@ mod plain_plc {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_node_needs_nothing_but_the_documented_map() {
-    use falc_plc::equipment::Equipment;
+    use falc_equipment::Equipment;
     use falc_plc::map::{Coil, Input};
     use falc_recipe::check::{Button, Signal};
     use std::sync::{Arc, Mutex};

@@ -30,6 +30,7 @@
 //! ```
 
 use crate::packml;
+use falc_equipment::Equipment;
 use falc_model::alarm::{Alarm, AlarmClass};
 use falc_model::api::{ApiRequest, Call, CellStatus};
 use falc_model::figures::CellFigures;
@@ -37,7 +38,6 @@ use falc_model::ids::{CellId, StationName};
 use falc_model::mms::vmd::VmdStatus;
 use falc_model::records::{Entry, Order, OrderState};
 use falc_model::topology::StationKind;
-use falc_plc::equipment::Equipment;
 use falc_plc::map::Inputs;
 use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
 use std::sync::Arc;

@@ -20,11 +20,11 @@
 
 use anyhow::{Context as _, Result};
 use clap::Parser;
+use falc_equipment::Equipment;
 use falc_model::ids::Place;
 use falc_node::plc_link::MapArgs;
 use falc_node::say;
 use falc_plc::conveyor::{Control, Conveyor, Spot};
-use falc_plc::equipment::Equipment;
 use falc_plc::map::IoMap;
 use std::future::Future;
 use std::net::SocketAddr;

@@ -622,7 +622,7 @@ impl Equipment {
         let mut stations: Vec<StationSpec> = Vec::new();
         // Every name defined, also of a part refused for another reason
         // (so that its signals are not refused as well).
-        let mut declared: Vec<Thing> = Vec::new();
+        let mut declared: Vec<Thing> = places.iter().map(|p| Thing::Place(p.place)).collect();
         for s in &raw.stations {
             let Ok(station) = PlcStation::parse(s.name.get_ref()) else {
                 r.add(
@@ -752,16 +752,8 @@ impl Equipment {
                 );
                 continue;
             };
-            let exists = match coil {
-                Coil::Button(Button::Line(l)) => declared.contains(&Thing::Line(l)),
-                Coil::Button(Button::Station(s)) => declared.contains(&Thing::Station(s)),
-                Coil::ExternalControl => true,
-            };
-            if !exists {
-                r.add(
-                    &c.signal,
-                    Self::no_such(coil_thing(coil), &lines, &places, &stations),
-                );
+            if let Some(thing) = coil_thing(coil).filter(|t| !declared.contains(t)) {
+                r.add(&c.signal, Self::no_such(thing, &lines, &places, &stations));
                 continue;
             }
             let address = *c.address.get_ref();
@@ -822,17 +814,8 @@ impl Equipment {
                 );
                 continue;
             };
-            let exists = match input {
-                Input::Signal(Signal::Line(l)) => declared.contains(&Thing::Line(l)),
-                Input::Signal(Signal::Place(p)) => places.iter().any(|x| x.place == p),
-                Input::Signal(Signal::Station(s)) => declared.contains(&Thing::Station(s)),
-                Input::Ready | Input::EStop => true,
-            };
-            if !exists {
-                r.add(
-                    &i.signal,
-                    Self::no_such(input_thing(input), &lines, &places, &stations),
-                );
+            if let Some(thing) = input_thing(input).filter(|t| !declared.contains(t)) {
+                r.add(&i.signal, Self::no_such(thing, &lines, &places, &stations));
                 continue;
             }
             let address = *i.address.get_ref();
@@ -1264,20 +1247,22 @@ enum Thing {
     Station(PlcStation),
 }
 
-fn coil_thing(c: Coil) -> Thing {
+/// The part of the layout coil `c` belongs to (none: the PLC's own).
+fn coil_thing(c: Coil) -> Option<Thing> {
     match c {
-        Coil::Button(Button::Line(l)) => Thing::Line(l),
-        Coil::Button(Button::Station(s)) => Thing::Station(s),
-        Coil::ExternalControl => Thing::Line(' '),
+        Coil::Button(Button::Line(l)) => Some(Thing::Line(l)),
+        Coil::Button(Button::Station(s)) => Some(Thing::Station(s)),
+        Coil::ExternalControl => None,
     }
 }
 
-fn input_thing(i: Input) -> Thing {
+/// The part of the layout input `i` belongs to (none: the PLC's own).
+fn input_thing(i: Input) -> Option<Thing> {
     match i {
-        Input::Signal(Signal::Line(l)) => Thing::Line(l),
-        Input::Signal(Signal::Place(p)) => Thing::Place(p),
-        Input::Signal(Signal::Station(s)) => Thing::Station(s),
-        Input::Ready | Input::EStop => Thing::Line(' '),
+        Input::Signal(Signal::Line(l)) => Some(Thing::Line(l)),
+        Input::Signal(Signal::Place(p)) => Some(Thing::Place(p)),
+        Input::Signal(Signal::Station(s)) => Some(Thing::Station(s)),
+        Input::Ready | Input::EStop => None,
     }
 }
 

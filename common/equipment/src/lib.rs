@@ -1,6 +1,6 @@
 //! Equipment in data: a conveyor described by a file (`equipment/*.toml`)
 //! rather than by code, so that a cell of another layout needs a file, not
-//! Rust. [`file`] reads and checks it (every problem with file and line),
+//! Rust. [`mod@file`] reads and checks it (every problem with file and line),
 //! [`signal`] names what it holds. The transport workstation, its twin
 //! (`falc_plc`), the recipe store and the consoles read the same file.
 

@@ -61,7 +61,7 @@ pub enum Input {
 
 /// What an output goes to when the workstation can no longer know whether
 /// acting on it is safe (the equipment file says it per coil and occasion:
-/// [`crate::equipment::SafeStates`]).
+/// [`crate::file::SafeStates`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SafeState {
     /// Released (`drop`): a conveyor line stops (nothing moves

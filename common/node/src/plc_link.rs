@@ -9,7 +9,7 @@
 //! its read began, so a reader can tell a reading taken before its own last
 //! coil write from one taken after.
 
-use falc_plc::equipment::{Equipment, Problems};
+use falc_equipment::{Equipment, Problems};
 use falc_plc::map::{Coils, Inputs, IoMap, MapError};
 use falc_plc::workstation::{Pace, PlcCommand, PlcEvent};
 use std::net::SocketAddr;

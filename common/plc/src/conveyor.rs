@@ -1,7 +1,7 @@
 //! The conveyor, sans-I/O: where the carriers are, which lines run, and
 //! what the PLC's inputs show, driven by coil writes, control faults and an
 //! injected clock (`handle_timeout(now)` / `poll_timeout()`). It plays
-//! whatever the equipment file describes ([`crate::equipment`]): its
+//! whatever the equipment file describes ([`falc_equipment::file`]): its
 //! lines' routes and travel times, its stations' feed places and cycle
 //! times, its places' capacities; the times are divided by a time scale.
 //!

@@ -10,6 +10,3 @@ pub mod conveyor;
 pub mod feedback;
 pub mod map;
 pub mod workstation;
-
-/// The equipment file's reader ([`falc_equipment`]), as the PLC's parts use it.
-pub use falc_equipment::file as equipment;

@@ -1,6 +1,6 @@
 //! The conveyor PLC's I/O map: which coil is which button and which
 //! discrete input is which lamp. The addresses come from the equipment
-//! file ([`crate::equipment`]); [`IoMap`] places them in the PLC (moved by
+//! file ([`falc_equipment::file`]); [`IoMap`] places them in the PLC (moved by
 //! a base, for a PLC whose FALC area starts elsewhere), [`Inputs`] is one
 //! reading of every discrete input. One map for the transport node, the
 //! twin and docs/plc.md (`falc-transport io --map` prints it), so a real

@@ -37,7 +37,7 @@
 //! - **after an alarm, a failed job, or a stop or kill by the commander**,
 //!   **when the commander is lost**, **when the node stops** and **on its
 //!   first connection after a restart**, each coil goes to its safe state
-//!   for that occasion, as the equipment file says ([`crate::equipment::SafeStates`]):
+//!   for that occasion, as the equipment file says ([`falc_equipment::file::SafeStates`]):
 //!   for the 1992 conveyor the line buttons are released (nothing moves)
 //!   and the station buttons stay (a workpiece stays clamped on its
 //!   station while people look, the robot may still weld it);

@@ -4,12 +4,12 @@
 //! other stations); checked and verified across levels by the same
 //! [`checked_set`] the operator node runs on its directory.
 
+use falc_equipment::Equipment;
 use falc_factory::recipe_source::{checked_set, PutError, RecipeSet, RecipeSource};
 use falc_model::ids::StationName;
 use falc_model::mms::domain::content_hash;
 use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::topology::Topology;
-use falc_plc::equipment::Equipment;
 use falc_recipe::files::{entry_in, StationKinds};
 use std::path::{Path, PathBuf};
 use std::rc::Rc;

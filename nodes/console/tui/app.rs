@@ -3,13 +3,13 @@
 //! or picked; keys in, [`Intent`]s out. The driver (`tui::run`) does the
 //! calls and feeds the answers back; `tui::view` draws it.
 
+use falc_equipment::Equipment;
 use falc_model::api::{ApiReply, ApiRequest, CellStatus};
 use falc_model::ids::StationName;
 use falc_model::mode::{CellMode, HeldStep, ManualAction};
 use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::records::{Entry, Order, OrderState};
 use falc_model::topology::{Role, StationKind, Topology};
-use falc_plc::equipment::Equipment;
 use falc_plc::map::Inputs;
 use falc_recipe::syntax::parse;
 use ratatui::crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
