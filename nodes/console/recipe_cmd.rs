@@ -56,6 +56,27 @@ fn equipment_problems(
         .collect())
 }
 
+/// The programs of a checked set by station, and every problem found.
+type Checked = (
+    Vec<(falc_model::ids::StationName, falc_recipe::check::Program)>,
+    Vec<Problem>,
+);
+
+/// The set checked, and its transport recipes against their stations'
+/// equipment ([`equipment_problems`]): the programs and every problem; None
+/// (said on stdout) if an equipment file does not load.
+fn checked(entries: &[falc_recipe::check::Entry], topology: &std::path::Path) -> Option<Checked> {
+    let (programs, mut problems) = check_set(entries);
+    match equipment_problems(topology, &programs) {
+        Ok(found) => problems.extend(found),
+        Err(e) => {
+            crate::out!("{e}");
+            return None;
+        }
+    }
+    Some((programs, problems))
+}
+
 /// The DOT text of one recipe file, or every reason it has none.
 fn dot_of(
     file: &std::path::Path,
@@ -236,14 +257,9 @@ pub fn run(cmd: RecipeCommand, topology: &std::path::Path) -> ExitCode {
             let Some(entries) = load_or_say(paths, kind, &kinds, |e| crate::out!("{e}")) else {
                 return ExitCode::FAILURE;
             };
-            let (programs, mut problems) = check_set(&entries);
-            match equipment_problems(topology, &programs) {
-                Ok(found) => problems.extend(found),
-                Err(e) => {
-                    crate::out!("{e}");
-                    return ExitCode::FAILURE;
-                }
-            }
+            let Some((programs, problems)) = checked(&entries, topology) else {
+                return ExitCode::FAILURE;
+            };
             for p in &problems {
                 crate::out!("{p}");
             }
@@ -289,14 +305,9 @@ fn verify(
     let Some(entries) = load_or_say(paths, None, kinds, |e| crate::out!("{e}")) else {
         return ExitCode::FAILURE;
     };
-    let (programs, mut problems) = check_set(&entries);
-    match equipment_problems(topology, &programs) {
-        Ok(found) => problems.extend(found),
-        Err(e) => {
-            crate::out!("{e}");
-            return ExitCode::FAILURE;
-        }
-    }
+    let Some((programs, problems)) = checked(&entries, topology) else {
+        return ExitCode::FAILURE;
+    };
     if !problems.is_empty() {
         for p in &problems {
             crate::out!("{p}");

@@ -271,28 +271,19 @@ fn parse_control(line: &str, equipment: &Equipment) -> Result<Ctl, String> {
                 .join(" ")
         )),
     };
+    let level = |v: &str| match v {
+        "0" => Ok(false),
+        "1" => Ok(true),
+        _ => Err(format!("`{v}` is not 0 or 1")),
+    };
     Ok(match words.as_slice() {
         ["estop"] => Ctl::Conveyor(Control::EStop),
         ["estop-clear"] => Ctl::Conveyor(Control::EStopClear),
         ["jam", l] => Ctl::Conveyor(Control::Jam(line_letter(l)?)),
         ["unjam", l] => Ctl::Conveyor(Control::Unjam(line_letter(l)?)),
-        ["stuck", p, v] => Ctl::Conveyor(Control::Stuck(
-            place(p)?,
-            match *v {
-                "0" => false,
-                "1" => true,
-                _ => return Err(format!("`{v}` is not 0 or 1")),
-            },
-        )),
+        ["stuck", p, v] => Ctl::Conveyor(Control::Stuck(place(p)?, level(v)?)),
         ["unstuck", p] => Ctl::Conveyor(Control::Unstuck(place(p)?)),
-        ["stuck-lamp", l, v] => Ctl::Conveyor(Control::StuckLamp(
-            line_letter(l)?,
-            match *v {
-                "0" => false,
-                "1" => true,
-                _ => return Err(format!("`{v}` is not 0 or 1")),
-            },
-        )),
+        ["stuck-lamp", l, v] => Ctl::Conveyor(Control::StuckLamp(line_letter(l)?, level(v)?)),
         ["unstuck-lamp", l] => Ctl::Conveyor(Control::UnstuckLamp(line_letter(l)?)),
         ["offline"] => Ctl::Offline,
         ["online"] => Ctl::Online,
