@@ -151,7 +151,8 @@ pub enum CellCommand {
 /// `falc manual STATION …`.
 #[derive(Subcommand, Debug)]
 pub enum ManualCommand {
-    /// Press a conveyor button: a line A–H, J–L or a station 1–3.
+    /// Press a conveyor button: a line (a letter) or a station (a number) of
+    /// the station's equipment file.
     Press {
         /// The button.
         button: String,
@@ -163,7 +164,7 @@ pub enum ManualCommand {
     },
     /// Run one conveyor line for a while (pressed, then released).
     Line {
-        /// The line A–H, J–L.
+        /// The line (a letter).
         line: String,
         /// For how many seconds (1–600).
         #[arg(default_value_t = 10)]

@@ -682,7 +682,7 @@ impl Equipment {
                 r.add(
                     &l.name,
                     format!(
-                        "`{}` is not a line name: lines are the letters A–H, J–L",
+                        "`{}` is not a line name: a line is a letter A–Z but I and O",
                         l.name.get_ref()
                     ),
                 );
@@ -1303,8 +1303,8 @@ mod tests {
                 ('L', W(3), W(4)),
             ]
         );
-        let feeds: Vec<Option<Spot>> = PlcStation::all().map(|s| e.feed(s)).collect();
-        assert_eq!(feeds, [Some(W(6)), Some(W(3)), Some(W(5))]);
+        let feeds: Vec<Option<Spot>> = (1..=4).map(|s| e.feed(PlcStation::of(s))).collect();
+        assert_eq!(feeds, [Some(W(6)), Some(W(3)), Some(W(5)), None]);
         assert_eq!(e.capacity(W(2)), 2);
         assert_eq!(e.capacity(W(3)), 1);
         assert_eq!(e.coil_span(), (0, 15));

@@ -14,7 +14,7 @@ use std::fmt;
 pub enum Spot {
     /// Place W2–W6.
     Place(Place),
-    /// Station 1–3.
+    /// Station 1–99.
     Station(PlcStation),
 }
 

@@ -129,4 +129,61 @@ mod tests {
             .check_program(&program)
             .is_empty());
     }
+
+    /// Four lines and eight places, a station numbered 12, a line M: more
+    /// than the 1992 conveyor has, as a file says.
+    #[test]
+    fn a_conveyor_of_eight_places_is_a_file() {
+        let mut text = String::from("name = \"eight\"\n");
+        for p in 1..=8 {
+            text += &format!("[[place]]\nname = \"{p}\"\n");
+            text += &format!("[[input]]\naddress = {p}\nsignal = \"place {p} occupied\"\n");
+        }
+        for (i, (l, from, to)) in [('A', 1, 8), ('B', 8, 1), ('C', 2, 7), ('M', 7, 2)]
+            .into_iter()
+            .enumerate()
+        {
+            text += &format!(
+                "[[line]]\nname = \"{l}\"\nfrom = \"W{from}\"\nto = \"W{to}\"\ntravel_s = 2\n\
+                 [[coil]]\naddress = {i}\nsignal = \"button line {l}\"\n\
+                 [[input]]\naddress = {}\nsignal = \"line {l} running\"\n",
+                20 + i
+            );
+        }
+        text += "[[station]]\nname = \"12\"\ntakes_from = \"W8\"\ncycle_s = 1\n\
+                 [[coil]]\naddress = 9\nsignal = \"button station 12\"\n\
+                 [[input]]\naddress = 30\nsignal = \"station 12 busy\"\n\
+                 [[coil]]\naddress = 10\nsignal = \"external control\"\n\
+                 [[input]]\naddress = 31\nsignal = \"PLC ready\"\n\
+                 [[input]]\naddress = 32\nsignal = \"emergency stop\"\n";
+        let e = Equipment::parse(&text, "eight.toml").unwrap_or_else(|p| panic!("{p}"));
+        assert_eq!(
+            (e.lines().len(), e.places().len(), e.stations().len()),
+            (4, 8, 1)
+        );
+        let text = "#FAR
+-1 | activate m       | | | 2
+-2 | waitplace 2 1 40 | | klaar | 3
+-2 | waitplace 2 1 40 | | tijdlimiet | 3
+-3 | reset m          | | | 4
+-4 | activate 12      | | | 5
+-5 | waitplace 8 0 40 | | klaar | 0
+-5 | waitplace 8 0 40 | | tijdlimiet | 0
+";
+        let program = check(&parse(text, "transport/far.rcp"), RecipeKind::Transport)
+            .expect("the language allows it");
+        assert!(e.check_program(&program).is_empty());
+        let found: Vec<String> = Equipment::conveyor_1992()
+            .check_program(&program)
+            .iter()
+            .map(Problem::to_string)
+            .collect();
+        for want in [
+            "transport/far.rcp:7: state 5: conveyor-1992 has no place 8 (places: 2, 3, 4, 5, 6)",
+            "transport/far.rcp:6: state 4: conveyor-1992 has no station 12 (stations: 1, 2, 3)",
+            "transport/far.rcp:2: state 1: conveyor-1992 has no line M (lines: A, B, C, D, E, F, G, H, J, K, L)",
+        ] {
+            assert!(found.iter().any(|f| f == want), "{want}: {found:?}");
+        }
+    }
 }

@@ -385,15 +385,17 @@ number_newtype!(
 );
 
 number_newtype!(
-    /// A conveyor place with a presence sensor, 2–6 (`W2`–`W6` on the
+    /// A conveyor place with a presence sensor, 1–99 (`W2`–`W6` on the
     /// thesis' layout): what a transport recipe waits for and the PLC map
-    /// reads.
-    Place(u8), 2..=6, "a place"
+    /// reads. Which places a conveyor has is its equipment file's.
+    Place(u8), 1..=99, "a place"
 );
 
 number_newtype!(
-    /// A conveyor station with a button and a busy lamp, 1–3 (`S1`–`S3`).
-    PlcStation(u8), 1..=3, "a station"
+    /// A conveyor station with a button and a busy lamp, 1–99 (`S1`–`S3`
+    /// on the thesis' layout); which stations a conveyor has is its
+    /// equipment file's.
+    PlcStation(u8), 1..=99, "a station"
 );
 
 #[cfg(test)]
@@ -408,13 +410,13 @@ mod number_tests {
             Err("`1000` is not a robot program number (1–999)".into())
         );
         assert!(RobotProgram::parse("0").is_err() && RobotProgram::parse("x").is_err());
-        assert_eq!(Place::parse("7"), Err("`7` is not a place (2–6)".into()));
         assert_eq!(
-            Place::all().map(Place::number).collect::<Vec<_>>(),
-            [2, 3, 4, 5, 6]
+            Place::parse("100"),
+            Err("`100` is not a place (1–99)".into())
         );
+        assert_eq!(Place::all().count(), 99);
         assert_eq!(PlcStation::new(0), None);
-        assert_eq!(PlcStation::MAX.to_string(), "3");
+        assert_eq!(PlcStation::MAX.to_string(), "99");
     }
 
     #[test]

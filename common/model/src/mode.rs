@@ -109,13 +109,14 @@ pub struct HeldStep {
 /// names what it cannot.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub enum ManualAction {
-    /// Press a conveyor button (coil): a line A–H, J–L, or a station 1–3.
+    /// Press a conveyor button (coil): a line (a letter) or a station (a
+    /// number), of the station's equipment.
     Press(String),
     /// Release a conveyor button.
     Release(String),
     /// Run one conveyor line for a number of seconds (press, then release).
     RunLine {
-        /// The line A–H, J–L.
+        /// The line (a letter).
         line: String,
         /// For how long, 1–600 s.
         seconds: u32,

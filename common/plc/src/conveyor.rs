@@ -777,7 +777,9 @@ mod tests {
         assert!(new(&[W(3), W(3)]).is_err());
         assert!(new(&[W(2), W(2)]).is_ok());
         assert_eq!(Spot::parse("s3"), Some(S(3)));
-        assert_eq!(Spot::parse("W7"), None);
+        assert_eq!(Spot::parse("W100"), None);
         assert_eq!(Spot::parse("X"), None);
+        let e = new(&[W(7)]).err().unwrap_or_default();
+        assert_eq!(e, "W7 is no place or station of conveyor-1992");
     }
 }

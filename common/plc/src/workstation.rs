@@ -670,7 +670,7 @@ impl Device for Plc {
             }
             ManualAction::RunLine { line, seconds } => {
                 let Ok(Button::Line(l)) = line.parse::<Button>() else {
-                    return Err(format!("`{line}` is not a conveyor line (A–H, J–L)"));
+                    return Err(format!("`{line}` is not a conveyor line (a letter)"));
                 };
                 self.known_button(Button::Line(l))?;
                 if !(1..=600).contains(seconds) {

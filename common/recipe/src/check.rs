@@ -22,20 +22,20 @@ use std::time::Duration;
 /// A PLC button: a conveyor line or a station.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Button {
-    /// Line A–H, J–L (upper case).
+    /// Line A–Z but I and O (upper case).
     Line(char),
-    /// Station 1–3.
+    /// Station 1–99.
     Station(PlcStation),
 }
 
 /// A PLC input to wait for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Signal {
-    /// Line A–H, J–L running.
+    /// Line A–Z (but I and O) running.
     Line(char),
-    /// Place 2–6 occupied.
+    /// Place 1–99 occupied.
     Place(Place),
-    /// Station 1–3 busy.
+    /// Station 1–99 busy.
     Station(PlcStation),
 }
 
@@ -167,21 +167,22 @@ fn seconds(s: &str) -> Result<Duration, String> {
     }
 }
 
-/// A conveyor line's name as recipes write it: one letter A–H, J–L (any
-/// case; I is left out, it reads like 1).
+/// A conveyor line's name as recipes write it: one letter A–Z (any case;
+/// I and O are left out, they read like 1 and 0). Which lines a conveyor
+/// has is its equipment file's (the 1992 one's: A–H, J–L).
 pub fn line_letter(s: &str) -> Result<char, String> {
     let mut it = s.chars();
     match (it.next().map(|c| c.to_ascii_uppercase()), it.next()) {
-        (Some(c @ ('A'..='H' | 'J'..='L')), None) => Ok(c),
+        (Some(c @ 'A'..='Z'), None) if c != 'I' && c != 'O' => Ok(c),
         _ => Err(format!(
-            "`{}` is not a conveyor line (A–H, J–L)",
+            "`{}` is not a conveyor line (a letter A–Z but I and O)",
             excerpt(s)
         )),
     }
 }
 
 /// Checks the texts of a manual operation as a recipe's arguments are
-/// checked: a button is a line A–H, J–L or a station 1–3, a line a line,
+/// checked: a button is a line (a letter) or a station (a number), a line a line,
 /// a recipe a valid name. The refusal quotes an excerpt, never the whole
 /// text, so a maintainer's typo (or a 60 KB argument) is refused in a line.
 pub fn check_manual(action: &ManualAction) -> Result<(), String> {
@@ -200,8 +201,8 @@ pub fn check_manual(action: &ManualAction) -> Result<(), String> {
 
 impl std::str::FromStr for Button {
     type Err = String;
-    /// A line A–H, J–L, or a station 1–3, as a recipe (or a maintainer)
-    /// writes it.
+    /// A line (a letter) or a station (a number), as a recipe (or a
+    /// maintainer) writes it.
     fn from_str(s: &str) -> Result<Self, String> {
         match s.parse::<u8>() {
             Ok(_) => Ok(Button::Station(PlcStation::parse(s)?)),
@@ -812,10 +813,17 @@ mod tests {
         );
         only(
             RecipeKind::Transport,
-            "#T\n-1 | waitplace 7 1 10 | | klaar | 0\n-1 | waitplace 7 1 10 | | tijdlimiet | 0\n",
+            "#T\n-1 | waitplace 100 1 10 | | klaar | 0\n-1 | waitplace 100 1 10 | | tijdlimiet | 0\n",
             Some(1),
             ProblemKind::BadArgument,
         );
+        // A place the language allows but a conveyor may lack is its
+        // equipment file's to refuse (`falc_equipment::vocabulary`).
+        assert!(problems(
+            RecipeKind::Transport,
+            "#T\n-1 | waitplace 7 1 10 | | klaar | 0\n-1 | waitplace 7 1 10 | | tijdlimiet | 0\n",
+        )
+        .is_empty());
     }
 
     #[test]

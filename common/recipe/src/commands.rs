@@ -66,13 +66,13 @@ pub enum Arg {
     Seconds,
     /// An optional time limit in seconds, last.
     OptSeconds,
-    /// A conveyor line button A–H, J–L, or station button 1–3.
+    /// A conveyor line button (a letter), or a station button (a number).
     Button,
-    /// A conveyor line A–H, J–L.
+    /// A conveyor line (a letter A–Z but I and O).
     Line,
-    /// A place with a presence sensor, 2–6.
+    /// A place with a presence sensor, 1–99.
     Place,
-    /// A station 1–3.
+    /// A station 1–99.
     StationNo,
     /// 1 (active, occupied, busy) or 0 (not).
     Level,
