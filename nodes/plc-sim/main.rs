@@ -26,6 +26,7 @@ use falc_node::plc_link::MapArgs;
 use falc_node::say;
 use falc_plc::conveyor::{Control, Conveyor, Spot};
 use falc_plc::map::IoMap;
+use falc_recipe::check::Signal;
 use std::future::Future;
 use std::net::SocketAddr;
 use std::pin::Pin;
@@ -242,34 +243,14 @@ async fn go_online(addr: SocketAddr, service: Service) -> Result<(SocketAddr, Jo
 
 fn parse_control(line: &str, equipment: &Equipment) -> Result<Ctl, String> {
     let words: Vec<&str> = line.split_whitespace().collect();
+    // A name the recipe language allows, and the equipment has.
     let line_letter = |s: &str| {
-        let c = s.chars().next().map(|c| c.to_ascii_uppercase());
-        match c {
-            Some(c) if s.len() == 1 && equipment.line(c).is_some() => Ok(c),
-            _ => Err(format!(
-                "`{s}` is not a line of {} ({})",
-                equipment.name(),
-                equipment
-                    .lines()
-                    .iter()
-                    .map(|l| l.line.to_string())
-                    .collect::<Vec<_>>()
-                    .join(" ")
-            )),
-        }
+        let c = falc_recipe::check::line_letter(s)?;
+        equipment.lacks_signal(Signal::Line(c)).map_or(Ok(c), Err)
     };
-    let place = |s: &str| match Place::parse(s) {
-        Ok(p) if equipment.place(p).is_some() => Ok(p),
-        _ => Err(format!(
-            "`{s}` is not a place of {} ({})",
-            equipment.name(),
-            equipment
-                .places()
-                .iter()
-                .map(|p| p.place.to_string())
-                .collect::<Vec<_>>()
-                .join(" ")
-        )),
+    let place = |s: &str| {
+        let p = Place::parse(s)?;
+        equipment.lacks_signal(Signal::Place(p)).map_or(Ok(p), Err)
     };
     let level = |v: &str| match v {
         "0" => Ok(false),

@@ -19,6 +19,7 @@
 //! as the example.
 
 use crate::signal::{Coil, Input, SafeState, Spot};
+use falc_model::alarm::AlarmClass;
 use falc_model::ids::{Place, PlcStation, StationName};
 use falc_model::topology::{StationKind, Topology};
 use falc_recipe::check::{Button, Signal};
@@ -74,6 +75,16 @@ pub enum FaultClass {
     Alarm,
     /// A warning: listed until acknowledged, holds nothing.
     Warning,
+}
+
+impl FaultClass {
+    /// The alarm class a fault of this class is.
+    pub fn alarm_class(self) -> AlarmClass {
+        match self {
+            FaultClass::Alarm => AlarmClass::Device,
+            FaultClass::Warning => AlarmClass::Warning,
+        }
+    }
 }
 
 /// When a coil goes to its safe state.

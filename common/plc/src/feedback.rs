@@ -20,8 +20,8 @@
 //! alarm. Each mismatch is raised once, until it clears.
 
 use crate::map::{Coil, Inputs};
-use falc_equipment::file::{FaultClass, FeedbackSpec};
-use falc_model::alarm::{AlarmClass, Cause};
+use falc_equipment::file::FeedbackSpec;
+use falc_model::alarm::Cause;
 use std::time::Duration;
 
 #[derive(Debug, Clone, Copy, Default)]
@@ -141,11 +141,7 @@ impl Supervision {
                 _ => continue,
             };
             w.raised = true;
-            let class = match s.fault {
-                FaultClass::Alarm => AlarmClass::Device,
-                FaultClass::Warning => AlarmClass::Warning,
-            };
-            return Some(Cause::new(class, text));
+            return Some(Cause::new(s.fault.alarm_class(), text));
         }
         None
     }
@@ -155,7 +151,9 @@ impl Supervision {
 mod tests {
     use super::*;
     use crate::map::Input;
+    use falc_equipment::file::FaultClass;
     use falc_equipment::Equipment;
+    use falc_model::alarm::AlarmClass;
     use falc_recipe::check::{Button, Signal};
     use std::sync::Arc;
 

@@ -53,7 +53,7 @@ use crate::feedback::Supervision;
 use crate::map::{Coil, Coils, Input, Inputs, SafeState, SignalName, Spot};
 use falc_control::controller::{Controller, Device, Happening, Reading};
 use falc_control::workstation_node::Linked;
-use falc_equipment::file::{Equipment, FaultClass, Occasion};
+use falc_equipment::file::{Equipment, Occasion};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::Place;
 use falc_model::mms::pdu::Severity;
@@ -149,9 +149,6 @@ pub struct Plc {
     /// What the conveyor did (a line run, a carrier arriving), not yet
     /// reported ([`Device::poll_report`]).
     reports: VecDeque<(Severity, String)>,
-    /// Per place sensor, whether its feedback fault needs an
-    /// acknowledgement (the equipment's `sensor_fault`, unless set).
-    feedback_ack: Vec<(Place, bool)>,
     /// The actuators' feedback ([`crate::feedback`]), also between jobs.
     actuators: Supervision,
     /// A fault the actuators' supervision found on the clock, for the
@@ -175,11 +172,6 @@ impl Plc {
             actuators: Supervision::new(equipment.feedback()),
             fault: None,
             clock: Duration::ZERO,
-            feedback_ack: equipment
-                .places()
-                .iter()
-                .map(|p| (p.place, p.sensor_fault == FaultClass::Alarm))
-                .collect(),
             equipment,
             commands: VecDeque::new(),
             issued: 0,
@@ -195,15 +187,6 @@ impl Plc {
             reports: VecDeque::new(),
             supervise_from: 0,
         }
-    }
-
-    /// The same with place `place`'s feedback fault needing an
-    /// acknowledgement or not (a warning, which does not hold the list
-    /// back).
-    pub fn with_feedback_ack(mut self, place: Place, needs_ack: bool) -> Self {
-        self.feedback_ack.retain(|(p, _)| *p != place);
-        self.feedback_ack.push((place, needs_ack));
-        self
     }
 
     /// Polls fast while a recipe runs, slowly while the node is idle.
@@ -396,16 +379,11 @@ impl Plc {
                 self.address
             )
         };
-        let needs_ack = self
-            .feedback_ack
-            .iter()
-            .find(|(p, _)| *p == place)
-            .map_or(true, |(_, ack)| *ack);
-        let class = if needs_ack {
-            AlarmClass::Device
-        } else {
-            AlarmClass::Warning
-        };
+        // The place's `sensor_fault` (a place the file lacks: an alarm).
+        let class = self
+            .equipment
+            .place(place)
+            .map_or(AlarmClass::Device, |p| p.sensor_fault.alarm_class());
         Some(Cause::new(class, text))
     }
 
@@ -482,25 +460,6 @@ impl Plc {
                 .retain(|b| stop(Coil::Button(*b)) == SafeState::Hold);
             self.send(PlcCommand::WriteAll(all));
         }
-    }
-
-    /// Ok if the equipment has `button`, else why not, naming what it has.
-    fn known_button(&self, button: Button) -> Result<(), String> {
-        if self.equipment.has_button(button) {
-            return Ok(());
-        }
-        let has: Vec<String> = self
-            .equipment
-            .coils()
-            .iter()
-            .filter(|c| matches!(c.coil, Coil::Button(_)))
-            .map(|c| c.coil.to_string())
-            .collect();
-        Err(format!(
-            "{} has no {button} (it has: {})",
-            self.equipment.name(),
-            has.join(", ")
-        ))
     }
 
     /// Commands issued so far (to wait until the link carried them out).
@@ -653,7 +612,7 @@ impl Device for Plc {
         match action {
             ManualAction::Press(b) | ManualAction::Release(b) => {
                 let button: Button = b.parse()?;
-                self.known_button(button)?;
+                self.equipment.lacks_button(button).map_or(Ok(()), Err)?;
                 let press = matches!(action, ManualAction::Press(_));
                 self.write(button, press);
                 if press {
@@ -672,7 +631,9 @@ impl Device for Plc {
                 let Ok(Button::Line(l)) = line.parse::<Button>() else {
                     return Err(format!("`{line}` is not a conveyor line (a letter)"));
                 };
-                self.known_button(Button::Line(l))?;
+                self.equipment
+                    .lacks_button(Button::Line(l))
+                    .map_or(Ok(()), Err)?;
                 if !(1..=600).contains(seconds) {
                     return Err(format!("{seconds} s: a line runs by hand for 1–600 s"));
                 }
@@ -816,6 +777,7 @@ impl Linked for Plc {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use falc_equipment::file::FaultClass;
     use falc_model::ids::{Place, PlcStation};
     fn plc() -> Plc {
         Plc::new("plc:502".into(), Equipment::conveyor_1992())
@@ -1252,7 +1214,18 @@ mod tests {
     #[test]
     fn feedback_nothing_asked_for_and_feedback_lost_while_a_job_runs_are_alarms_naming_the_sensor()
     {
-        let mut p = plc().with_feedback_ack(Place::of(2), false);
+        // Place 2's sensor fault a warning, as its file says.
+        let text = include_str!("../../../equipment/conveyor-1992.toml").replacen(
+            "name = \"2\"\ncapacity = 2        # the start place: both carriers wait here\nsensor_fault = \"alarm\"",
+            "name = \"2\"\ncapacity = 2\nsensor_fault = \"warning\"",
+            1,
+        );
+        let e = Equipment::parse(&text, "w2-warning.toml").expect("loads");
+        assert_eq!(
+            e.place(Place::of(2)).map(|p| p.sensor_fault),
+            Some(FaultClass::Warning)
+        );
+        let mut p = Plc::new("plc:502".into(), Arc::new(e));
         p.connected(None);
         // Between jobs a carrier set by hand is no fault.
         p.inputs(showing(&[2], &[]), 1);
