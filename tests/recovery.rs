@@ -647,8 +647,8 @@ fn unrequested_and_lost_feedback_are_device_alarms_naming_the_sensor_and_the_way
 /// (button K on, lamp dark) fails the order with a device alarm naming the
 /// actuator and the signal, within the file's time plus a poll; a lamp
 /// lit with no button between jobs is one too. Each time the way back
-/// (the lamp mended, carriers home, `ack`, `start`) runs the next order to
-/// done. (That the alarm comes exactly at the file's time after the press,
+/// (the lamp mended, `ack`, `falc manual transport goto home`, `start`)
+/// runs the next order to done. (That the alarm comes exactly at the file's time after the press,
 /// at the first clock tick or poll past it, is the unit test's on a
 /// virtual clock: `a_running_lamp_that_does_not_follow_its_button_is_a_fault_on_the_clock`.)
 #[test]
@@ -683,7 +683,7 @@ fn a_stuck_running_lamp_and_a_lamp_lit_without_its_button_are_alarms_naming_the_
     assert!(s.alarm.is_some(), "a device alarm holds the list back");
     rig.plc.control("unstuck-lamp K");
     rig.plc.control("unjam K");
-    rig.way_back();
+    rig.way_back_by_goto();
     assert_eq!(rig.orders()[1].state, OrderState::Done);
 
     // Between jobs: line A's lamp lights with no button.
@@ -700,7 +700,7 @@ fn a_stuck_running_lamp_and_a_lamp_lit_without_its_button_are_alarms_naming_the_
     let (code, out) = rig.cell.falc_as("console", &["start"]);
     assert_eq!(code, 1, "the alarm holds the start back: {out}");
     rig.plc.control("unstuck-lamp A");
-    rig.way_back();
+    rig.way_back_by_goto();
     let orders = rig.orders();
     assert_eq!(
         orders.iter().map(|o| o.state).collect::<Vec<_>>(),

@@ -94,6 +94,24 @@ impl Rig {
         assert_eq!(self.carriers(), "carriers: 1@W3 2@W2");
     }
 
+    /// Waits until the node's published status shows the equipment in
+    /// named state `want`; returns it.
+    async fn equipment_state_becomes(&mut self, want: &str) -> String {
+        let within = Duration::from_secs(10);
+        let end = tokio::time::Instant::now() + within;
+        let mut seen = false;
+        loop {
+            match self.commander.status_after(end, seen).await {
+                Some(s) if s.equipment_state.as_deref() == Some(want) => return want.to_string(),
+                Some(_) => seen = true,
+                None => panic!(
+                    "the status did not show `{want}` within {within:?}: {:?}",
+                    self.commander.last_status
+                ),
+            }
+        }
+    }
+
     async fn run(&mut self, name: &str) -> JobEvent {
         self.commander.start(name).await;
         self.commander.job(RUN).await
@@ -606,4 +624,107 @@ async fn a_foreign_plc_set_up_from_the_equipment_file_runs_store() {
         "carrier ('place', '2') -> ('place', '3') on line k",
         Duration::from_secs(5),
     );
+}
+
+/// The equipment's named states (`[[state]]`), end to end on the twin:
+/// `goto home` in maintenance mode runs, from a carrier left mid-conveyor
+/// (W5) and one on the table (S3), over the layout's routes to `home`
+/// (both at W2), and the station's status shows the state before and
+/// after; from a carrier where no route starts (place 7 of a conveyor
+/// that has one) it is refused naming the carrier, and nothing is pressed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn goto_home_runs_from_carriers_left_mid_conveyor_or_refuses_naming_the_carrier() {
+    use falc_model::mode::{CellMode, ManualAction, ModeSetting};
+    let dir = tempfile::tempdir().expect("temporary directory");
+    // The 1992 conveyor and a dead end: place 7, no line leaves it.
+    let text = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("equipment/conveyor-1992.toml"),
+    )
+    .expect("the shipped equipment file")
+    .replace(
+        "# A line runs a carrier",
+        "[[place]]\nname = \"7\"\n\n[[line]]\nname = \"M\"\nfrom = \"W6\"\nto = \"W7\"\ntravel_s = 3\n\n# A line runs a carrier",
+    )
+    .replace(
+        "[[coil]]\naddress = 0\n",
+        "[[coil]]\naddress = 40\nsignal = \"button line M\"\n\n[[input]]\naddress = 40\nsignal = \"line M running\"\n\n[[input]]\naddress = 41\nsignal = \"place 7 occupied\"\n\n[[coil]]\naddress = 0\n",
+    )
+    .replace(
+        "\"place 6 occupied\",\n",
+        "\"place 6 occupied\", \"place 7 occupied\",\n",
+    );
+    let path = dir.path().join("dead-end.toml");
+    std::fs::write(&path, &text).expect("write");
+    let file = path.display().to_string();
+    let mut rig = rig_with(&["--equipment", &file], &["--equipment", &file]).await;
+    rig.transport
+        .expect_line("EVENT plc-ready", Duration::from_secs(10));
+    let by = |action: ManualAction| Request::Manual {
+        station: falc_model::ids::StationName::new("transport").expect("name"),
+        action,
+        by: "maintainer".into(),
+    };
+    let goto = || by(ManualAction::Goto("home".into()));
+    // Outside maintenance mode: refused.
+    let r = rig.commander.call(goto()).await;
+    assert!(
+        r.as_ref().is_err_and(|e| e
+            .to_string()
+            .contains("manual operation needs maintenance mode")),
+        "{r:?}"
+    );
+    let maintenance = Request::Mode(ModeSetting {
+        mode: CellMode::Maintenance,
+        stepping: Vec::new(),
+    });
+    assert!(rig.commander.call(maintenance).await.is_ok());
+
+    // A carrier at W5 (MOVE_TO_MAN left it there) and one on the table.
+    rig.plc.control("layout W5 S3");
+    let state = rig.equipment_state_becomes("no named state").await;
+    assert_eq!(state, "no named state");
+    let r = rig.commander.call(goto()).await;
+    assert!(matches!(r, Ok(Response::Done)), "{r:?}");
+    let started = rig
+        .commander
+        .report("GOTO_HOME started", Duration::from_secs(5))
+        .await;
+    assert!(
+        started.contains("the way to home from carriers seen at W5, S3:"),
+        "{started}"
+    );
+    assert_eq!(rig.commander.job(RUN).await, JobEvent::Done);
+    rig.carriers_become("1@W2 2@W2").await;
+    rig.equipment_state_becomes("home").await;
+    // Nothing left pressed.
+    rig.plc.control("show");
+    rig.plc
+        .expect_line("buttons held: none", Duration::from_secs(5));
+
+    // From place 7, where no line starts: refused, naming the carrier.
+    rig.plc.control("layout W2 W7");
+    rig.equipment_state_becomes("no named state").await;
+    rig.plc.forget("coil button");
+    let r = rig.commander.call(goto()).await;
+    let why = r.expect_err("refused").to_string();
+    assert!(
+        why.contains(
+            "the carrier at W7 cannot reach state home: no route from W7 leads to W2 \
+             (no line or station starts at W7)"
+        ),
+        "{why}"
+    );
+    assert!(
+        rig.plc
+            .wait_line("coil button", Duration::from_millis(500))
+            .is_none(),
+        "a refused goto presses nothing"
+    );
+    // A state the file lacks: refused, naming the ones it has.
+    let r = rig
+        .commander
+        .call(by(ManualAction::Goto("lunch".into())))
+        .await;
+    let why = r.expect_err("refused").to_string();
+    assert!(why.contains("has no state `lunch` (it has: home)"), "{why}");
 }

@@ -97,7 +97,7 @@ fn an_operator_runs_dikdroog_from_the_tui() {
     let args = cell.falc_args("console").join(" ");
     let tmux = Tmux::start(&format!("{} {args} tui", env!("CARGO_BIN_EXE_falc")));
     let s = tmux.wait_for(
-        &["F1 overview", "cell IDLE", "PLC ready"],
+        &["F1 overview", "cell IDLE", "PLC ready  state home"],
         Duration::from_secs(20),
     );
     assert!(s.contains("no recipe chosen"), "{s}");

@@ -188,6 +188,12 @@ pub enum ManualCommand {
     },
     /// Run the station's home recipe: back to the starting layout.
     Home,
+    /// Bring the equipment to one of its named states (`home`), from the
+    /// state its inputs show, over its routes; or be told why not.
+    Goto {
+        /// The state, as its equipment file names it.
+        state: String,
+    },
 }
 
 impl ManualCommand {
@@ -202,6 +208,7 @@ impl ManualCommand {
             Self::Confirm => ManualAction::ConfirmAlarm,
             Self::Run { recipe } => ManualAction::RunRecipe(recipe),
             Self::Home => ManualAction::RunRecipe("home".into()),
+            Self::Goto { state } => ManualAction::Goto(state),
         }
     }
 }

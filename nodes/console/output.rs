@@ -149,11 +149,14 @@ pub(crate) fn show_status(s: &CellStatus) -> String {
         out.push(match &st.status {
             _ if !st.connected => format!("  {:<10} NO CONNECTION", st.name.as_str()),
             Some(v) => format!(
-                "  {:<10} {:?}, {:?}, recipe {}{}",
+                "  {:<10} {:?}, {:?}, recipe {}{}{}",
                 st.name.as_str(),
                 v.physical,
                 v.logical,
                 v.local_detail,
+                v.equipment_state
+                    .as_ref()
+                    .map_or(String::new(), |s| format!(", equipment: {}", printable(s))),
                 v.unready
                     .as_ref()
                     .map_or(String::new(), |why| format!(", not ready: {why}"))

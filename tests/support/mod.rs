@@ -786,6 +786,9 @@ pub struct Commander {
     pub bus: Bus,
     station: StationName,
     events: tokio::sync::mpsc::UnboundedReceiver<Publication>,
+    /// The last status the station published (kept while other waits
+    /// read past it).
+    pub last_status: Option<falc_model::mms::vmd::VmdStatus>,
     _subs: Vec<falc_bus::Declaration>,
 }
 
@@ -814,7 +817,47 @@ impl Commander {
             bus,
             station: st(station),
             events,
+            last_status: None,
             _subs: subs,
+        }
+    }
+
+    /// The next publication before `end`, noting a status.
+    async fn next(
+        &mut self,
+        end: tokio::time::Instant,
+    ) -> Result<Option<Publication>, tokio::time::error::Elapsed> {
+        let p = tokio::time::timeout_at(end, self.events.recv()).await;
+        if let Ok(Some(Publication {
+            message: Unconfirmed::Status { status, .. },
+            ..
+        })) = &p
+        {
+            self.last_status = Some(status.clone());
+        }
+        p
+    }
+
+    /// The last status published, or the next one before `end`.
+    pub async fn status_after(
+        &mut self,
+        end: tokio::time::Instant,
+        seen: bool,
+    ) -> Option<falc_model::mms::vmd::VmdStatus> {
+        if !seen {
+            if let Some(s) = &self.last_status {
+                return Some(s.clone());
+            }
+        }
+        loop {
+            match self.next(end).await {
+                Ok(Some(Publication {
+                    message: Unconfirmed::Status { status, .. },
+                    ..
+                })) => return Some(status),
+                Ok(Some(_)) => continue,
+                _ => return None,
+            }
         }
     }
 
@@ -891,7 +934,7 @@ impl Commander {
     pub async fn try_job(&mut self, within: Duration) -> Option<JobEvent> {
         let end = tokio::time::Instant::now() + within;
         loop {
-            match tokio::time::timeout_at(end, self.events.recv()).await {
+            match self.next(end).await {
                 Ok(Some(Publication {
                     message: Unconfirmed::Job { event, .. },
                     ..
@@ -915,7 +958,7 @@ impl Commander {
     pub async fn report(&mut self, needle: &str, within: Duration) -> String {
         let end = tokio::time::Instant::now() + within;
         loop {
-            match tokio::time::timeout_at(end, self.events.recv()).await {
+            match self.next(end).await {
                 Ok(Some(Publication {
                     message: Unconfirmed::Report { text, .. },
                     ..

@@ -330,6 +330,42 @@ impl Rig {
         out
     }
 
+    /// The way back after a conveyor fault as docs/operation.md gives it:
+    /// once the conveyor stands still (what the maintainer sees: no
+    /// carrier on a line), `ack`; the cell in maintenance mode; `falc
+    /// manual transport goto home` (asked again while a line still runs
+    /// out), run to its end; back to auto; `start`, the list worked with
+    /// `ja`.
+    pub fn way_back_by_goto(&mut self) {
+        wait_until("the conveyor still", Duration::from_secs(30), || {
+            self.plc.control("show");
+            let carriers = self.plc.take_line("carriers: ", Duration::from_secs(5));
+            holds(!carriers.contains('>'), || carriers)
+        });
+        self.cell.falc(&["ack"]);
+        self.cell.falc(&["mode", "maintenance"]);
+        wait_until("goto home taken", Duration::from_secs(30), || {
+            let (code, out) = self
+                .cell
+                .falc_as("maintainer", &["manual", "transport", "goto", "home"]);
+            holds(code == 0, || out)
+        });
+        self.transport
+            .as_mut()
+            .expect("transport node")
+            .expect_line(
+                "EVENT job program=GOTO_HOME event=Done",
+                Duration::from_secs(120),
+            );
+        wait_until("falc status shows home", Duration::from_secs(5), || {
+            let status = self.cell.falc(&["status"]);
+            holds(status.contains(", equipment: home"), || status)
+        });
+        self.cell.falc(&["mode", "auto"]);
+        self.cell.falc(&["start"]);
+        self.work_list("ja", Duration::from_secs(120));
+    }
+
     /// The way back once a node was started again: `ack` and `start`,
     /// repeated while it reassociates (30 s at most), then the list worked
     /// with `ja`; its last order must end done, none left running. Returns

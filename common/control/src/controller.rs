@@ -132,6 +132,12 @@ pub trait Device {
             "{action}: this station has no such manual operation"
         ))
     }
+    /// The way to the device's named state `state` from what it shows
+    /// now, as a recipe of this level (`#GOTO_<STATE>`) and a line saying
+    /// what it does; or why there is none. No named states: none.
+    fn way_to(&self, state: &str) -> Result<(String, String), String> {
+        Err(format!("this station has no named state `{state}`"))
+    }
 }
 
 /// What the controller publishes, in order.
@@ -578,7 +584,13 @@ impl<D: Device> Controller<D> {
             .ok_or_else(|| {
                 ServiceError::undefined(format!("program invocation {name} has no recipe domain"))
             })?;
-        let recipe = parse(&text, name.as_str());
+        self.engine_of(name, &text)
+    }
+
+    /// An engine for recipe `text`, checked as the recipes of this level
+    /// and against the device (named `name` in problems).
+    fn engine_of(&self, name: &ObjectName, text: &str) -> Result<Engine, ServiceError> {
+        let recipe = parse(text, name.as_str());
         let refuse = |problems: Vec<Problem>| {
             let lines: Vec<String> = problems.iter().map(|p| p.to_string()).collect();
             ServiceError::new(
@@ -777,6 +789,25 @@ impl<D: Device> Controller<D> {
         Ok(())
     }
 
+    /// Runs a recipe the device made (a way to a named state), not a
+    /// program invocation of the store: it runs, reports and ends like
+    /// one, and is gone when it ended.
+    fn launch_engine(&mut self, now: Duration, name: ObjectName, mut engine: Engine) {
+        engine.set_stepping(now, self.mode.steps(&self.me));
+        engine.start(now);
+        self.running = Some(Running {
+            name: name.clone(),
+            engine,
+            timed_out: None,
+            paused_for_step: false,
+        });
+        self.alarmed = false;
+        self.out.push_back(Output::Job {
+            program: name,
+            event: JobEvent::Started,
+        });
+    }
+
     /// Resets program invocation `name` if a Stop left it stopped (its kept
     /// run is dropped): a Start begins anew.
     fn reset_stopped(&mut self, name: &ObjectName) {
@@ -886,6 +917,18 @@ impl<D: Device> Controller<D> {
                 let done = self.start_invocation(now, &start, &t, None)?;
                 let _ = self.vmd.complete(&t.name, done);
                 format!("{name} started")
+            }
+            ManualAction::Goto(state) => {
+                let (text, what) = self
+                    .device
+                    .way_to(state)
+                    .map_err(|e| ServiceError::state_conflict(format!("{action}: {e}")))?;
+                let name = ObjectName::new(&format!("GOTO_{}", state.trim().to_uppercase()))
+                    .map_err(|e| ServiceError::malformed(format!("state `{state}`: {e}")))?;
+                let engine = self.engine_of(&name, &text)?;
+                self.launch_engine(now, name.clone(), engine);
+                tracing::info!(program = %name, "{what}");
+                format!("{name} started: the way {what}")
             }
             other => self
                 .device

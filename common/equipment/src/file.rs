@@ -19,6 +19,7 @@
 //! as the example.
 
 use crate::signal::{Coil, Input, SafeState, Spot};
+use crate::states::NamedState;
 use falc_model::alarm::AlarmClass;
 use falc_model::ids::{Place, PlcStation, StationName};
 use falc_model::topology::{StationKind, Topology};
@@ -239,6 +240,7 @@ pub struct Equipment {
     /// By address.
     inputs: Vec<InputSpec>,
     feedback: Vec<FeedbackSpec>,
+    states: Vec<NamedState>,
     carriers: Vec<Spot>,
     run_empty: Duration,
     /// Index into `inputs` by [`input_key`] (`NONE`: not in the file): a
@@ -304,8 +306,22 @@ struct RawFile {
     inputs: Vec<RawInput>,
     #[serde(rename = "feedback", default)]
     feedback: Vec<RawFeedback>,
+    #[serde(rename = "state", default)]
+    states: Vec<RawNamedState>,
     #[serde(default)]
     twin: Option<RawTwin>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawNamedState {
+    name: Spanned<String>,
+    #[serde(default)]
+    title: String,
+    #[serde(default)]
+    on: Vec<Spanned<String>>,
+    #[serde(default)]
+    off: Vec<Spanned<String>>,
 }
 
 #[derive(Deserialize)]
@@ -956,6 +972,7 @@ impl Equipment {
                 });
             }
         }
+        let states = Self::named_states(r, &raw.states, &inputs);
         // The twin.
         let mut carriers = Vec::new();
         let mut run_empty = Duration::from_secs(20);
@@ -993,9 +1010,84 @@ impl Equipment {
             coils,
             inputs,
             feedback,
+            states,
             carriers,
             run_empty,
         }
+    }
+
+    /// The `[[state]]` tables: a name each (a lower-case word, once), and
+    /// inputs of this equipment, each on or off, none both.
+    fn named_states(
+        r: &mut Reader<'_>,
+        raw: &[RawNamedState],
+        inputs: &[InputSpec],
+    ) -> Vec<NamedState> {
+        let mut out: Vec<NamedState> = Vec::new();
+        for s in raw {
+            let name = s.name.get_ref().trim().to_string();
+            let word = !name.is_empty()
+                && name.len() <= 32
+                && name.starts_with(|c: char| c.is_ascii_lowercase())
+                && name
+                    .chars()
+                    .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_');
+            if !word {
+                r.add(
+                    &s.name,
+                    format!(
+                        "`{name}` is not a state name: a lower-case word (a-z, 0-9, _; at \
+                         most 32), like `home`"
+                    ),
+                );
+                continue;
+            }
+            if out.iter().any(|x| x.name == name) {
+                r.add(&s.name, format!("state {name} is defined twice"));
+                continue;
+            }
+            let read = |list: &[Spanned<String>], r: &mut Reader<'_>| -> Vec<Input> {
+                let mut got = Vec::new();
+                for i in list {
+                    match Input::parse(i.get_ref()).filter(|x| inputs.iter().any(|y| y.input == *x))
+                    {
+                        Some(x) => got.push(x),
+                        None => r.add(
+                            i,
+                            format!(
+                                "state {name}: `{}` is no input of this equipment (inputs: {})",
+                                i.get_ref(),
+                                names(inputs.iter().map(|x| x.input))
+                            ),
+                        ),
+                    }
+                }
+                got
+            };
+            let on = read(&s.on, r);
+            let off = read(&s.off, r);
+            if let Some(both) = on.iter().find(|i| off.contains(i)) {
+                r.add(
+                    &s.name,
+                    format!("state {name} lists `{both}` both on and off"),
+                );
+                continue;
+            }
+            if s.on.is_empty() && s.off.is_empty() {
+                r.add(
+                    &s.name,
+                    format!("state {name} lists no input: give `on` and `off`"),
+                );
+                continue;
+            }
+            out.push(NamedState {
+                name,
+                title: s.title.clone(),
+                on,
+                off,
+            });
+        }
+        out
     }
 
     fn no_such(
@@ -1023,6 +1115,11 @@ impl Equipment {
     /// Its `name`.
     pub fn name(&self) -> &str {
         &self.name
+    }
+
+    /// Its named states (`[[state]]`), in file order.
+    pub fn states(&self) -> &[NamedState] {
+        &self.states
     }
 
     /// Its `title`.
@@ -1198,7 +1295,8 @@ impl Equipment {
     }
 
     /// The layout as Markdown: each line's route and twin travel time,
-    /// each station's place and cycle time.
+    /// each station's place and cycle time, each place's capacity and
+    /// sensor fault, each named state's inputs.
     pub fn layout_table(&self) -> String {
         let mut out = String::from("| line | from | to | travel |\n|---|---|---|---|\n");
         for l in &self.lines {
@@ -1230,6 +1328,13 @@ impl Equipment {
                     FaultClass::Warning => "warning",
                 }
             );
+        }
+        if !self.states.is_empty() {
+            out += "\n| state | on | off |\n|---|---|---|\n";
+            for s in &self.states {
+                let list = |v: &[Input]| names(v.iter());
+                out += &format!("| {} | {} | {} |\n", s.name, list(&s.on), list(&s.off));
+            }
         }
         out
     }
@@ -1449,6 +1554,60 @@ mod tests {
             p.iter()
                 .any(|p| p.starts_with("eq.toml:65: `ready lamp` is not an input signal: write")),
             "{p:?}"
+        );
+    }
+
+    #[test]
+    fn named_states_name_inputs_of_the_file_each_on_or_off() {
+        let base = SMALL.lines().count();
+        let text = format!(
+            "{SMALL}\n[[state]]\nname = \"home\"\non = [\"place 2 occupied\"]\n\
+             off = [\"place 3 occupied\", \"line C running\"]\n\
+             \n[[state]]\nname = \"Home Base\"\non = [\"place 2 occupied\"]\n\
+             \n[[state]]\nname = \"both\"\non = [\"place 2 occupied\"]\noff = [\"place 2 occupied\"]\n\
+             \n[[state]]\nname = \"home\"\non = [\"place 3 occupied\"]\n\
+             \n[[state]]\nname = \"blank\"\n"
+        );
+        let p = problems(&text);
+        let at = |n: usize| format!("eq.toml:{}: ", base + n);
+        assert_eq!(
+            p,
+            [
+                format!(
+                    "{}state home: `line C running` is no input of this equipment (inputs: \
+                     line A running, line B running, place 2 occupied, place 3 occupied, \
+                     station 1 busy, PLC ready, emergency stop)",
+                    at(5)
+                ),
+                format!(
+                    "{}`Home Base` is not a state name: a lower-case word (a-z, 0-9, _; at \
+                     most 32), like `home`",
+                    at(8)
+                ),
+                format!(
+                    "{}state both lists `place 2 occupied` both on and off",
+                    at(12)
+                ),
+                format!("{}state home is defined twice", at(17)),
+                format!("{}state blank lists no input: give `on` and `off`", at(21)),
+            ]
+        );
+        let good = format!(
+            "{SMALL}\n[[state]]\nname = \"home\"\ntitle = \"at W2\"\non = [\"place 2 occupied\"]\n\
+             off = [\"place 3 occupied\", \"line A running\"]\n"
+        );
+        let e = Equipment::parse(&good, "eq.toml").expect("loads");
+        assert_eq!(
+            e.states(),
+            [NamedState {
+                name: "home".into(),
+                title: "at W2".into(),
+                on: vec![Input::Signal(Signal::Place(Place::of(2)))],
+                off: vec![
+                    Input::Signal(Signal::Place(Place::of(3))),
+                    Input::Signal(Signal::Line('A'))
+                ],
+            }]
         );
     }
 

@@ -132,6 +132,9 @@ pub enum ManualAction {
     /// Run one of the station's own recipes (its `home` recipe brings it
     /// to the starting layout).
     RunRecipe(String),
+    /// Bring the station's equipment to one of its named states (a
+    /// conveyor's `home`), from the state its inputs show.
+    Goto(String),
 }
 
 impl fmt::Display for ManualAction {
@@ -145,6 +148,7 @@ impl fmt::Display for ManualAction {
             Self::StopProgram => f.write_str("stop the robot program"),
             Self::ConfirmAlarm => f.write_str("confirm the robot alarm"),
             Self::RunRecipe(r) => write!(f, "run recipe {r}"),
+            Self::Goto(s) => write!(f, "go to state {s}"),
         }
     }
 }

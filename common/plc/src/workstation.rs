@@ -732,6 +732,29 @@ impl Device for Plc {
             .as_ref()
             .map(|i| i.bits().to_vec())
             .unwrap_or_default();
+        status.equipment_state = self
+            .inputs
+            .as_ref()
+            .filter(|_| !self.equipment.states().is_empty())
+            .map(|i| {
+                self.equipment
+                    .state_shown(|s| i.get(s))
+                    .map_or_else(|| "no named state".to_string(), |s| s.name.clone())
+            });
+    }
+
+    fn way_to(&self, state: &str) -> Result<(String, String), String> {
+        if let Some(why) = self.unavailable() {
+            return Err(why);
+        }
+        let Some(inputs) = &self.inputs else {
+            return Err(format!(
+                "no reading from the conveyor PLC at {} yet",
+                self.address
+            ));
+        };
+        let way = self.equipment.way_to(state, |i| inputs.get(i))?;
+        Ok((way.recipe(&self.equipment), way.to_string()))
     }
 }
 

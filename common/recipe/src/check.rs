@@ -183,7 +183,7 @@ pub fn line_letter(s: &str) -> Result<char, String> {
 
 /// Checks the texts of a manual operation as a recipe's arguments are
 /// checked: a button is a line (a letter) or a station (a number), a line a line,
-/// a recipe a valid name. The refusal quotes an excerpt, never the whole
+/// a recipe a valid name, a state a word. The refusal quotes an excerpt, never the whole
 /// text, so a maintainer's typo (or a 60 KB argument) is refused in a line.
 pub fn check_manual(action: &ManualAction) -> Result<(), String> {
     match action {
@@ -191,6 +191,19 @@ pub fn check_manual(action: &ManualAction) -> Result<(), String> {
         ManualAction::RunLine { line, .. } => line_letter(line).map(|_| ()),
         ManualAction::RunRecipe(name) => {
             ObjectName::new(name).map(|_| ()).map_err(|e| e.to_string())
+        }
+        ManualAction::Goto(state) => {
+            let word = !state.is_empty()
+                && state.len() <= 32
+                && state.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+            if word {
+                Ok(())
+            } else {
+                Err(format!(
+                    "`{}` is not a state name (a word like `home`)",
+                    excerpt(state)
+                ))
+            }
         }
         ManualAction::SelectProgram(_)
         | ManualAction::StartProgram

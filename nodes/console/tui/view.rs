@@ -427,6 +427,13 @@ fn conveyor_box<'a>(app: &App, transport: Option<&falc_model::ids::StationName>)
             if i.get(Input::EStop) {
                 plc.push(Span::styled("  EMERGENCY STOP", ALARM));
             }
+            if !e.states().is_empty() {
+                // The equipment file's named state the inputs show.
+                plc.push(Span::raw(match e.state_shown(|x| i.get(x)) {
+                    Some(s) => format!("  state {}", s.name),
+                    None => "  no named state".to_string(),
+                }));
+            }
             lines.push(Line::from(plc));
         }
         Ok(_) => lines.push(Line::from("no reading of the conveyor PLC")),

@@ -336,7 +336,8 @@ impl Request {
                     crate::mode::ManualAction::Press(t)
                     | crate::mode::ManualAction::Release(t)
                     | crate::mode::ManualAction::RunLine { line: t, .. }
-                    | crate::mode::ManualAction::RunRecipe(t) => text("operand", t),
+                    | crate::mode::ManualAction::RunRecipe(t)
+                    | crate::mode::ManualAction::Goto(t) => text("operand", t),
                     _ => Ok(()),
                 }
             }

@@ -138,6 +138,11 @@ pub struct VmdStatus {
     /// stop): the cell refuses a start while a workstation says so.
     #[serde(default)]
     pub unready: Option<String>,
+    /// The named state the device's inputs show (a conveyor's `home`),
+    /// or `no named state`; None for a device without named states or
+    /// with no reading.
+    #[serde(default)]
+    pub equipment_state: Option<String>,
 }
 
 /// A running program invocation and its recipe's current state.
@@ -161,6 +166,7 @@ impl Default for VmdStatus {
             mode: CellMode::Auto,
             held: None,
             unready: None,
+            equipment_state: None,
         }
     }
 }
