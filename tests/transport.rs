@@ -97,15 +97,27 @@ impl Rig {
     /// Waits until the node's published status shows the equipment in
     /// named state `want`; returns it.
     async fn equipment_state_becomes(&mut self, want: &str) -> String {
+        self.status_becomes(want, |s| s.equipment_state.as_deref() == Some(want))
+            .await;
+        want.to_string()
+    }
+
+    /// Waits until the node publishes a status that `holds` (`what`, for
+    /// the failure).
+    async fn status_becomes(
+        &mut self,
+        what: &str,
+        holds: impl Fn(&falc_model::mms::vmd::VmdStatus) -> bool,
+    ) {
         let within = Duration::from_secs(10);
         let end = tokio::time::Instant::now() + within;
         let mut seen = false;
         loop {
             match self.commander.status_after(end, seen).await {
-                Some(s) if s.equipment_state.as_deref() == Some(want) => return want.to_string(),
+                Some(s) if holds(&s) => return,
                 Some(_) => seen = true,
                 None => panic!(
-                    "the status did not show `{want}` within {within:?}: {:?}",
+                    "the status did not show {what} within {within:?}: {:?}",
                     self.commander.last_status
                 ),
             }
@@ -727,4 +739,83 @@ async fn goto_home_runs_from_carriers_left_mid_conveyor_or_refuses_naming_the_ca
         .await;
     let why = r.expect_err("refused").to_string();
     assert!(why.contains("has no state `lunch` (it has: home)"), "{why}");
+}
+
+/// Plain inputs and outputs by name (`set`, `waitinput`), end to end on
+/// the in/out conveyor's twin: with the guard door open the job that
+/// waits for it ends in an alarm naming the input; closed, the lock is
+/// set and its feedback (the twin's, after half the file's 500 ms) is
+/// waited for, and the beacon lights; a recipe naming an output the file
+/// lacks is refused at its Start, naming those it has. The way back is
+/// the door closed and the job started again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn plain_inputs_and_outputs_are_set_and_waited_for_by_name() {
+    let file = format!(
+        "{}/equipment/conveyor-inout.toml",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let mut rig = rig_with(&["--equipment", &file], &["--equipment", &file]).await;
+    rig.transport
+        .expect_line("EVENT plc-ready", Duration::from_secs(10));
+    let lock = "#LOCK
+The guard door closed, locked, the beacon lit.
+
+-1 | waitinput door_closed 1 2 |       | klaar      | 2
+-1 | waitinput door_closed 1 2 |       | tijdlimiet | 9
+-2 | set door_lock 1           |       |            | 3
+-3 | waitinput door_locked 1 2 |       | klaar      | 4
+-3 | waitinput door_locked 1 2 |       | tijdlimiet | 9
+-4 | set beacon 1              |       |            | 0
+-9 |                           | alarm |            | 0
+";
+    rig.commander.load("lock", lock).await;
+    // The door open (once the node read it): the job ends in an alarm
+    // naming the input.
+    let equipment = falc_equipment::Equipment::load(std::path::Path::new(&file)).expect("loads");
+    let door = equipment
+        .input_index(falc_equipment::signal::Input::Signal(
+            falc_recipe::check::Signal::Input(
+                falc_model::ids::IoName::parse("door_closed").expect("a name"),
+            ),
+        ))
+        .expect("the door's input");
+    rig.plc.control("input door_closed 0");
+    rig.status_becomes("the door open", |s| s.inputs.get(door) == Some(&false))
+        .await;
+    let alarm = match rig.run("lock").await {
+        JobEvent::Alarm(cause) => cause.text,
+        other => panic!("expected an alarm, got {other:?}"),
+    };
+    assert!(
+        alarm.contains("input door_closed = 1") && alarm.contains("input door_closed still off"),
+        "{alarm}"
+    );
+    if let Some(l) = rig.plc.wait_line("coil output door_lock 1", Duration::ZERO) {
+        panic!("locked with the door open: {l}");
+    }
+    // The way back: the door closed, the job again.
+    rig.plc.control("input door_closed 1");
+    rig.status_becomes("the door closed", |s| s.inputs.get(door) == Some(&true))
+        .await;
+    assert_eq!(rig.run("lock").await, JobEvent::Done);
+    rig.plc
+        .expect_line("coil output door_lock 1", Duration::from_secs(5));
+    rig.plc
+        .expect_line("input door_locked 1", Duration::from_secs(5));
+    rig.plc
+        .expect_line("coil output beacon 1", Duration::from_secs(5));
+    rig.plc.control("show");
+    let inputs = rig.plc.take_line("inputs: ", Duration::from_secs(5));
+    assert!(inputs.ends_with("| on door_closed door_locked"), "{inputs}");
+    rig.plc
+        .expect_line("buttons held: beacon door_lock", Duration::from_secs(5));
+    // An output the file lacks: the Start is refused naming those it has.
+    let horn = "#HORN\n-1 | set horn 1 | | | 0\n";
+    rig.commander.load("horn", horn).await;
+    let refused = rig.commander.try_start("horn").await;
+    let why = refused.expect_err("refused").to_string();
+    assert!(
+        why.contains("conveyor-inout has no output horn (outputs: beacon, door_lock)"),
+        "{why}"
+    );
 }

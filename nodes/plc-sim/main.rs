@@ -11,7 +11,8 @@
 //! Control lines on stdin (answered `ok …` or `error …`): `estop`,
 //! `estop-clear`, `jam <line>`, `unjam <line>`, `stuck <place> 0|1`,
 //! `unstuck <place>`, `stuck-lamp <line> 0|1` (its running lamp shows
-//! that), `unstuck-lamp <line>`, `offline` (connections dropped and refused),
+//! that), `unstuck-lamp <line>`, `input <name> 0|1` (a plain input set
+//! by hand: a door closed), `offline` (connections dropped and refused),
 //! `online`, `mute` (requests get no answer), `unmute`, `layout <spot>…`
 //! (carrier 1 first, e.g. `layout W2 W2`, `layout S3 W3`), `show`.
 //!
@@ -21,7 +22,7 @@
 use anyhow::{Context as _, Result};
 use clap::Parser;
 use falc_equipment::Equipment;
-use falc_model::ids::Place;
+use falc_model::ids::{IoName, Place};
 use falc_node::plc_link::MapArgs;
 use falc_node::say;
 use falc_plc::conveyor::{Control, Conveyor, Spot};
@@ -266,6 +267,13 @@ fn parse_control(line: &str, equipment: &Equipment) -> Result<Ctl, String> {
         ["unstuck", p] => Ctl::Conveyor(Control::Unstuck(place(p)?)),
         ["stuck-lamp", l, v] => Ctl::Conveyor(Control::StuckLamp(line_letter(l)?, level(v)?)),
         ["unstuck-lamp", l] => Ctl::Conveyor(Control::UnstuckLamp(line_letter(l)?)),
+        ["input", n, v] => {
+            let name = IoName::parse(n)?;
+            equipment
+                .lacks_signal(Signal::Input(name))
+                .map_or(Ok(()), Err)?;
+            Ctl::Conveyor(Control::Input(name, level(v)?))
+        }
         ["offline"] => Ctl::Offline,
         ["online"] => Ctl::Online,
         ["mute"] => Ctl::Mute(true),

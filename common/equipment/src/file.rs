@@ -21,7 +21,7 @@
 use crate::signal::{Coil, Input, SafeState, Spot};
 use crate::states::NamedState;
 use falc_model::alarm::AlarmClass;
-use falc_model::ids::{Place, PlcStation, StationName};
+use falc_model::ids::{IoName, Place, PlcStation, StationName};
 use falc_model::topology::{StationKind, Topology};
 use falc_recipe::check::{Button, Signal};
 use serde::Deserialize;
@@ -243,6 +243,7 @@ pub struct Equipment {
     states: Vec<NamedState>,
     carriers: Vec<Spot>,
     run_empty: Duration,
+    inputs_on: Vec<IoName>,
     /// Index into `inputs` by [`input_key`] (`NONE`: not in the file): a
     /// reading is looked up at every poll and every twin step.
     input_keys: Vec<u16>,
@@ -253,9 +254,10 @@ pub struct Equipment {
 const NONE: u16 = u16::MAX;
 const KEYS: usize = 26 + 256 + 256 + 2;
 
-/// A dense number for every input there can be.
-fn input_key(i: Input) -> usize {
-    match i {
+/// A dense number for every input there can be but a plain one (`None`:
+/// looked up by name).
+fn input_key(i: Input) -> Option<usize> {
+    Some(match i {
         Input::Signal(Signal::Line(c)) => {
             usize::from(c as u8).saturating_sub(usize::from(b'A')) % 26
         }
@@ -263,22 +265,24 @@ fn input_key(i: Input) -> usize {
         Input::Signal(Signal::Station(s)) => 26 + 256 + usize::from(s.number()),
         Input::Ready => 26 + 512,
         Input::EStop => 26 + 513,
-    }
+        Input::Signal(Signal::Input(_)) => return None,
+    })
 }
 
-/// A dense number for every coil there can be.
-fn coil_key(c: Coil) -> usize {
+/// The same for every coil.
+fn coil_key(c: Coil) -> Option<usize> {
     match c {
         Coil::Button(Button::Line(l)) => input_key(Input::Signal(Signal::Line(l))),
         Coil::Button(Button::Station(s)) => input_key(Input::Signal(Signal::Station(s))),
-        Coil::ExternalControl => 26 + 512,
+        Coil::ExternalControl => Some(26 + 512),
+        Coil::Button(Button::Output(_)) => None,
     }
 }
 
-fn keys<T>(items: &[T], key: impl Fn(&T) -> usize) -> Vec<u16> {
+fn keys<T>(items: &[T], key: impl Fn(&T) -> Option<usize>) -> Vec<u16> {
     let mut out = vec![NONE; KEYS];
     for (i, x) in items.iter().enumerate() {
-        if let (Some(slot), Ok(i)) = (out.get_mut(key(x)), u16::try_from(i)) {
+        if let (Some(slot), Ok(i)) = (key(x).and_then(|k| out.get_mut(k)), u16::try_from(i)) {
             *slot = i;
         }
     }
@@ -412,6 +416,8 @@ struct RawTwin {
     carriers: Option<Spanned<Vec<String>>>,
     #[serde(default)]
     run_empty_s: Option<Spanned<f64>>,
+    #[serde(default)]
+    inputs_on: Vec<Spanned<String>>,
 }
 
 /// Gathers problems with their lines.
@@ -494,6 +500,9 @@ impl Coil {
                 .ok()
                 .map(|n| Coil::Button(Button::Station(n))),
             ["external", "control"] => Some(Coil::ExternalControl),
+            ["output", n] => IoName::parse(n)
+                .ok()
+                .map(|n| Coil::Button(Button::Output(n))),
             _ => None,
         }
     }
@@ -516,14 +525,18 @@ impl Input {
                 .map(|n| Input::Signal(Signal::Station(n))),
             ["plc", "ready"] => Some(Input::Ready),
             ["emergency", "stop"] => Some(Input::EStop),
+            ["input", n] => IoName::parse(n)
+                .ok()
+                .map(|n| Input::Signal(Signal::Input(n))),
             _ => None,
         }
     }
 }
 
-const COIL_FORMS: &str = "`button line <line>`, `button station <station>` or `external control`";
+const COIL_FORMS: &str = "`button line <line>`, `button station <station>`, \
+     `external control` or `output <name>`";
 const INPUT_FORMS: &str = "`line <line> running`, `place <place> occupied`, \
-     `station <station> busy`, `PLC ready` or `emergency stop`";
+     `station <station> busy`, `PLC ready`, `emergency stop` or `input <name>`";
 
 impl Equipment {
     /// The 1992 cell's conveyor (`equipment/conveyor-1992.toml`, built in).
@@ -802,8 +815,10 @@ impl Equipment {
                 );
                 continue;
             }
+            // A line stops and a plain output goes off; a clamp and
+            // external control stay.
             let default = match coil {
-                Coil::Button(Button::Line(_)) => SafeState::Off,
+                Coil::Button(Button::Line(_) | Button::Output(_)) => SafeState::Off,
                 _ => SafeState::Hold,
             };
             let safe = match c.safe {
@@ -976,6 +991,7 @@ impl Equipment {
         // The twin.
         let mut carriers = Vec::new();
         let mut run_empty = Duration::from_secs(20);
+        let mut inputs_on = Vec::new();
         if let Some(t) = &raw.twin {
             if let Some(c) = &t.carriers {
                 for w in c.get_ref() {
@@ -995,6 +1011,29 @@ impl Equipment {
             if let Some(s) = &t.run_empty_s {
                 run_empty = r.seconds(s, "run_empty_s");
             }
+            for n in &t.inputs_on {
+                match Input::parse(&format!("input {}", n.get_ref())) {
+                    Some(Input::Signal(Signal::Input(name)))
+                        if inputs
+                            .iter()
+                            .any(|i| i.input == Input::Signal(Signal::Input(name))) =>
+                    {
+                        inputs_on.push(name)
+                    }
+                    _ => r.add(
+                        n,
+                        format!(
+                            "the twin's `inputs_on` names `{}`, which is no plain input of this \
+                             equipment (plain inputs: {})",
+                            n.get_ref(),
+                            names(inputs.iter().filter_map(|i| match i.input {
+                                Input::Signal(Signal::Input(x)) => Some(x),
+                                _ => None,
+                            }))
+                        ),
+                    ),
+                }
+            }
         }
         coils.sort_by_key(|c| c.address);
         inputs.sort_by_key(|i| i.address);
@@ -1013,6 +1052,7 @@ impl Equipment {
             states,
             carriers,
             run_empty,
+            inputs_on,
         }
     }
 
@@ -1115,6 +1155,11 @@ impl Equipment {
     /// Its `name`.
     pub fn name(&self) -> &str {
         &self.name
+    }
+
+    /// The plain inputs the twin starts with on (`[twin] inputs_on`).
+    pub fn inputs_on(&self) -> &[IoName] {
+        &self.inputs_on
     }
 
     /// Its named states (`[[state]]`), in file order.
@@ -1223,7 +1268,10 @@ impl Equipment {
 
     /// The index of `coil` among [`Equipment::coils`].
     pub fn coil_index(&self, coil: Coil) -> Option<usize> {
-        match self.coil_keys.get(coil_key(coil)) {
+        let Some(key) = coil_key(coil) else {
+            return self.coils.iter().position(|c| c.coil == coil);
+        };
+        match self.coil_keys.get(key) {
             Some(&i) if i != NONE => Some(usize::from(i)),
             _ => None,
         }
@@ -1239,7 +1287,10 @@ impl Equipment {
 
     /// The index of `input` among [`Equipment::inputs`].
     pub fn input_index(&self, input: Input) -> Option<usize> {
-        match self.input_keys.get(input_key(input)) {
+        let Some(key) = input_key(input) else {
+            return self.inputs.iter().position(|i| i.input == input);
+        };
+        match self.input_keys.get(key) {
             Some(&i) if i != NONE => Some(usize::from(i)),
             _ => None,
         }
@@ -1368,7 +1419,7 @@ fn coil_thing(c: Coil) -> Option<Thing> {
     match c {
         Coil::Button(Button::Line(l)) => Some(Thing::Line(l)),
         Coil::Button(Button::Station(s)) => Some(Thing::Station(s)),
-        Coil::ExternalControl => None,
+        Coil::Button(Button::Output(_)) | Coil::ExternalControl => None,
     }
 }
 
@@ -1378,7 +1429,7 @@ fn input_thing(i: Input) -> Option<Thing> {
         Input::Signal(Signal::Line(l)) => Some(Thing::Line(l)),
         Input::Signal(Signal::Place(p)) => Some(Thing::Place(p)),
         Input::Signal(Signal::Station(s)) => Some(Thing::Station(s)),
-        Input::Ready | Input::EStop => None,
+        Input::Signal(Signal::Input(_)) | Input::Ready | Input::EStop => None,
     }
 }
 

@@ -42,7 +42,7 @@ impl fmt::Display for Spot {
 /// A coil: a button FALC presses on the PLC.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Coil {
-    /// A line or station button.
+    /// A line or station button, or a plain output.
     Button(Button),
     /// External control: 1 = the PLC takes its buttons from these coils.
     ExternalControl,
@@ -51,7 +51,8 @@ pub enum Coil {
 /// A discrete input: a lamp FALC reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Input {
-    /// A line, place or station signal a recipe can wait for.
+    /// A line, place or station signal, or a plain input: what a recipe
+    /// can wait for.
     Signal(Signal),
     /// The PLC is running and accepts buttons.
     Ready,
@@ -79,6 +80,7 @@ impl fmt::Display for Coil {
         match self {
             Coil::Button(Button::Line(c)) => write!(f, "button line {c}"),
             Coil::Button(Button::Station(n)) => write!(f, "button station {n}"),
+            Coil::Button(Button::Output(n)) => write!(f, "output {n}"),
             Coil::ExternalControl => f.write_str("external control"),
         }
     }
@@ -104,6 +106,7 @@ impl fmt::Display for SignalName {
             Signal::Line(c) => write!(f, "line {c} running"),
             Signal::Place(n) => write!(f, "place {n} occupied"),
             Signal::Station(n) => write!(f, "station {n} busy"),
+            Signal::Input(n) => write!(f, "input {n}"),
         }
     }
 }

@@ -395,16 +395,18 @@ impl fmt::Display for Way {
 }
 
 impl Way {
-    /// The way as a transport recipe named `GOTO_<STATE>`: every button
-    /// of `equipment` released and every line waited for to stand still;
+    /// The way as a transport recipe named `GOTO_<STATE>`: every line
+    /// and station button of `equipment` released and every line waited for to stand still;
     /// each move pressed, waited for and released; at last each input the
     /// state lists waited for (5 s), an alarm naming the first that is not
     /// as the state says.
     pub fn recipe(&self, equipment: &Equipment) -> String {
         // The states in order, each a command and whether it waits.
         let mut states: Vec<(String, bool)> = Vec::new();
+        // The buttons of lines and stations (a plain output, a beacon or a
+        // lock, is not the way's to touch).
         for c in equipment.coils() {
-            if let Coil::Button(b) = c.coil {
+            if let Coil::Button(b @ (Button::Line(_) | Button::Station(_))) = c.coil {
                 states.push((format!("reset {}", word(b)), false));
             }
         }
@@ -478,6 +480,7 @@ fn word(b: Button) -> String {
     match b {
         Button::Line(l) => l.to_ascii_lowercase().to_string(),
         Button::Station(s) => s.to_string(),
+        Button::Output(n) => n.to_string(),
     }
 }
 
@@ -487,6 +490,7 @@ fn wait_of(s: Signal) -> String {
         Signal::Line(l) => format!("waitline {}", l.to_ascii_lowercase()),
         Signal::Place(p) => format!("waitplace {p}"),
         Signal::Station(n) => format!("waitstation {n}"),
+        Signal::Input(n) => format!("waitinput {n}"),
     }
 }
 
@@ -521,6 +525,7 @@ mod tests {
             Input::Signal(Signal::Place(p)) => spots.contains(&Spot::Place(p)),
             Input::Signal(Signal::Station(s)) => spots.contains(&Spot::Station(s)),
             Input::Signal(Signal::Line(l)) => running.contains(&l),
+            Input::Signal(Signal::Input(_)) => false,
             Input::Ready => true,
             Input::EStop => false,
         }

@@ -1,5 +1,5 @@
 //! What a transport recipe may name on a station with this equipment: the
-//! lines, places and stations of its file. The recipe checker knows the
+//! lines, places, stations and plain inputs and outputs of its file. The recipe checker knows the
 //! recipe language (a line is a letter, a place a number); this says
 //! whether the station's conveyor has what a recipe names, and when not,
 //! names what it has. The recipe store runs it on every transport recipe
@@ -7,7 +7,7 @@
 //! recipe it is asked to start.
 
 use crate::file::Equipment;
-use crate::signal::SignalName;
+use crate::signal::{Coil, Input, SignalName};
 use falc_recipe::check::{Button, Command, Program, Signal};
 use falc_recipe::problem::{Problem, ProblemKind};
 
@@ -47,6 +47,14 @@ impl Equipment {
                 self.name(),
                 list(self.stations().iter().map(|x| x.station))
             ),
+            Button::Output(n) => format!(
+                "{} has no output {n} (outputs: {})",
+                self.name(),
+                list(self.coils().iter().filter_map(|c| match c.coil {
+                    Coil::Button(Button::Output(o)) => Some(o),
+                    _ => None,
+                }))
+            ),
         })
     }
 
@@ -67,6 +75,14 @@ impl Equipment {
                 self.name(),
                 SignalName(s),
                 list(self.stations().iter().map(|x| x.station))
+            ),
+            Signal::Input(n) => format!(
+                "{} has no input {n} (inputs: {})",
+                self.name(),
+                list(self.inputs().iter().filter_map(|i| match i.input {
+                    Input::Signal(Signal::Input(o)) => Some(o),
+                    _ => None,
+                }))
             ),
         })
     }
@@ -92,7 +108,7 @@ fn list<T: std::fmt::Display>(items: impl Iterator<Item = T>) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use falc_recipe::check::check;
+    use falc_recipe::check::{check, Command};
     use falc_recipe::commands::RecipeKind;
     use falc_recipe::syntax::parse;
 
@@ -128,6 +144,64 @@ mod tests {
         assert!(Equipment::conveyor_1992()
             .check_program(&program)
             .is_empty());
+    }
+
+    /// Plain inputs and outputs (`output beacon`, `input door_closed`):
+    /// `set` and `waitinput` name them, the checker reads them as a
+    /// button and a signal, and a name the file lacks is refused naming
+    /// those it has.
+    #[test]
+    fn plain_inputs_and_outputs_are_set_and_waited_for_by_name() {
+        let e = Equipment::parse(
+            include_str!("../../../equipment/conveyor-inout.toml"),
+            "inout.toml",
+        )
+        .expect("loads");
+        let text = "#DOOR
+-1 | set Beacon 1               | | | 2
+-2 | waitinput door_closed 1 30 | | klaar | 3
+-2 | waitinput door_closed 1 30 | | tijdlimiet | 0
+-3 | set horn 0                 | | | 4
+-4 | waitinput smoke 0 5        | | klaar | 0
+-4 | waitinput smoke 0 5        | | tijdlimiet | 0
+";
+        let program =
+            check(&parse(text, "transport/door.rcp"), RecipeKind::Transport).expect("checks");
+        let commands: Vec<&Command> = program.states.values().map(|s| &s.command).collect();
+        let beacon = falc_model::ids::IoName::parse("beacon").expect("a name");
+        let door = falc_model::ids::IoName::parse("door_closed").expect("a name");
+        assert_eq!(commands[0], &Command::Activate(Button::Output(beacon)));
+        assert!(matches!(
+            commands[1],
+            Command::WaitInput { signal: Signal::Input(n), level: true, .. } if *n == door
+        ));
+        let found: Vec<String> = e
+            .check_program(&program)
+            .iter()
+            .map(Problem::to_string)
+            .collect();
+        assert_eq!(
+            found,
+            [
+                "transport/door.rcp:5: state 3: conveyor-inout has no output horn (outputs: beacon, door_lock)",
+                "transport/door.rcp:6: state 4: conveyor-inout has no input smoke (inputs: door_closed, door_locked)",
+            ]
+        );
+        // Names the language refuses, at the line.
+        let bad = "#BAD\n-1 | set 2beacon 1 | | | 2\n-2 | set beacon on | | | 0\n";
+        let problems: Vec<String> = check(&parse(bad, "bad.rcp"), RecipeKind::Transport)
+            .expect_err("refused")
+            .iter()
+            .map(Problem::to_string)
+            .collect();
+        assert!(
+            problems[0].contains("`2beacon` is not an input or output name"),
+            "{problems:?}"
+        );
+        assert!(
+            problems[1].contains("`on` is not a level (1 or 0)"),
+            "{problems:?}"
+        );
     }
 
     /// Four lines and eight places, a station numbered 12, a line M: more

@@ -302,6 +302,21 @@ mod tests {
     }
 
     #[test]
+    fn io_names_are_short_lower_case_words() {
+        assert_eq!(
+            IoName::parse("Door_Closed").map(|n| n.to_string()),
+            Ok("door_closed".into())
+        );
+        assert!(IoName::parse("2door").is_err());
+        assert!(IoName::parse("door closed").is_err());
+        assert!(IoName::parse("").is_err());
+        assert!(IoName::parse("a_very_long_name_x")
+            .unwrap_err()
+            .contains("at most 16"));
+        assert_eq!(IoName::parse("beacon"), IoName::parse("BEACON"));
+    }
+
+    #[test]
     fn object_names_are_upper_case() {
         assert_eq!(
             ObjectName::new("droog_dik").map(|s| s.0),
@@ -376,6 +391,66 @@ macro_rules! number_newtype {
             }
         }
     };
+}
+
+/// The name of a plain input or output of a conveyor PLC (`door_closed`,
+/// `beacon`): a lower-case word, a letter first, then letters, digits and
+/// `_`, at most 16 characters. What a transport recipe's `set` and
+/// `waitinput` name, and the equipment file's `output NAME` / `input
+/// NAME`. Kept inline (it is `Copy`, like a line letter or a place), so
+/// that a signal of any kind is a small value.
+#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct IoName {
+    len: u8,
+    bytes: [u8; IoName::MAX_LEN],
+}
+
+impl IoName {
+    /// The longest name.
+    pub const MAX_LEN: usize = 16;
+
+    /// Parses a name as a recipe or a file writes it (any case; kept in
+    /// lower case); the error says what it is not.
+    pub fn parse(s: &str) -> Result<Self, String> {
+        let lower = s.trim().to_ascii_lowercase();
+        let ok = lower.len() <= Self::MAX_LEN
+            && lower.starts_with(|c: char| c.is_ascii_lowercase())
+            && lower
+                .chars()
+                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_');
+        if !ok {
+            return Err(format!(
+                "`{}` is not an input or output name (a word: a letter, then letters, digits \
+                 or _, at most {} characters)",
+                excerpt(s),
+                Self::MAX_LEN
+            ));
+        }
+        let mut bytes = [0u8; Self::MAX_LEN];
+        bytes[..lower.len()].copy_from_slice(lower.as_bytes());
+        Ok(Self {
+            len: lower.len() as u8,
+            bytes,
+        })
+    }
+
+    /// The name.
+    pub fn as_str(&self) -> &str {
+        // Only ASCII is ever stored (`parse`).
+        std::str::from_utf8(&self.bytes[..usize::from(self.len)]).unwrap_or("")
+    }
+}
+
+impl fmt::Display for IoName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl fmt::Debug for IoName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "IoName({})", self.as_str())
+    }
 }
 
 number_newtype!(

@@ -17,11 +17,14 @@
 //! line and freezes carriers in travel (they go on when their line is
 //! pressed again after the stop is cleared); a jammed line keeps running
 //! but its carrier does not move; a stuck sensor or running lamp shows a
-//! fixed value.
+//! fixed value. A plain input follows the plain output the file's
+//! `[[feedback]]` pairs it with, after half the feedback's time; one
+//! paired with none is set by hand (`Control::Input`), and those the
+//! file's `[twin] inputs_on` names start on.
 
 use crate::map::{Coil, Coils, Input, Inputs};
 use falc_equipment::file::Equipment;
-use falc_model::ids::{Place, PlcStation};
+use falc_model::ids::{IoName, Place, PlcStation};
 use falc_recipe::check::{Button, Signal};
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
@@ -82,6 +85,8 @@ pub enum Control {
     StuckLamp(char, bool),
     /// … shows the truth again.
     UnstuckLamp(char),
+    /// A plain input set by hand (a door closed, a part handed in).
+    Input(IoName, bool),
 }
 
 /// The conveyor.
@@ -99,6 +104,11 @@ pub struct Conveyor {
     seq: u64,
     last_change: Option<Duration>,
     notes: VecDeque<String>,
+    /// The plain inputs that are on.
+    plain_on: BTreeSet<IoName>,
+    /// Plain inputs following their output ([`Equipment::feedback`]):
+    /// the value each takes, and when.
+    following: Vec<(IoName, bool, Duration)>,
 }
 
 impl Conveyor {
@@ -122,7 +132,10 @@ impl Conveyor {
             seq: 0,
             last_change: None,
             notes: VecDeque::new(),
+            plain_on: BTreeSet::new(),
+            following: Vec::new(),
         };
+        c.plain_on = c.equipment.inputs_on().iter().copied().collect();
         c.set_layout(layout)?;
         Ok(c)
     }
@@ -219,6 +232,9 @@ impl Conveyor {
                 self.count_at(Spot::Station(n)) > 0,
             );
         }
+        for n in &self.plain_on {
+            i.set(Input::Signal(Signal::Input(*n)), true);
+        }
         i.set(Input::Ready, !self.estop);
         i.set(Input::EStop, self.estop);
         i
@@ -253,6 +269,7 @@ impl Conveyor {
             .filter_map(|(c, _)| match c {
                 Coil::Button(Button::Line(l)) => Some(l.to_string()),
                 Coil::Button(Button::Station(n)) => Some(n.to_string()),
+                Coil::Button(Button::Output(n)) => Some(n.to_string()),
                 Coil::ExternalControl => None,
             })
             .collect();
@@ -330,9 +347,22 @@ impl Conveyor {
             (Coil::Button(Button::Line(l)), true) => c.press_line(now, l),
             (Coil::Button(Button::Station(n)), true) => c.press_station(now, n),
             (Coil::Button(Button::Station(n)), false) => c.release_station(now, n),
+            (Coil::Button(Button::Output(_)), _) => c.follow(now, coil, value),
             _ => {}
         });
         true
+    }
+
+    /// A plain output set: each plain input the equipment's feedback
+    /// pairs with it follows after half the feedback's time.
+    fn follow(&mut self, now: Duration, coil: Coil, value: bool) {
+        for f in self.equipment.feedback() {
+            if let (true, Input::Signal(Signal::Input(n))) = (f.output == coil, f.input) {
+                let at = now + self.scaled(f.within / 2);
+                self.following.retain(|(m, _, _)| *m != n);
+                self.following.push((n, value, at));
+            }
+        }
     }
 
     fn press_line(&mut self, now: Duration, l: char) {
@@ -513,12 +543,25 @@ impl Conveyor {
             Pos::At(_) => None,
         });
         let empty = self.lines.values().filter_map(|l| l.empty_until);
-        arrivals.chain(empty).min()
+        let following = self.following.iter().map(|(_, _, at)| *at);
+        arrivals.chain(empty).chain(following).min()
     }
 
     /// Carries out everything due by `now`, in time order.
     pub fn handle_timeout(&mut self, now: Duration) {
         while let Some(t) = self.poll_timeout().filter(|t| *t <= now) {
+            if let Some(k) = self.following.iter().position(|(_, _, at)| *at == t) {
+                let (n, value, _) = self.following.remove(k);
+                self.changing(t, |c| {
+                    if value {
+                        c.plain_on.insert(n);
+                    } else {
+                        c.plain_on.remove(&n);
+                    }
+                });
+                self.note(format!("input {n} {}", u8::from(value)));
+                continue;
+            }
             let arriving = self
                 .carriers
                 .iter()
@@ -596,6 +639,13 @@ impl Conveyor {
             }
             Control::UnstuckLamp(l) => {
                 c.stuck_lamps.remove(&l);
+            }
+            Control::Input(n, v) => {
+                if v {
+                    c.plain_on.insert(n);
+                } else {
+                    c.plain_on.remove(&n);
+                }
             }
         });
     }
@@ -770,6 +820,39 @@ mod tests {
         press(&mut c, ms(14_000), Button::Line('D'), true);
         assert_eq!(c.describe(), "carriers: 1@D>W2 2@W4");
         assert!(!line(&c, 'G'));
+    }
+
+    /// The in/out conveyor's plain I/O: the guard door starts closed
+    /// (`[twin] inputs_on`), the lock's feedback follows the lock after
+    /// half the file's 500 ms, and a door opened by hand shows.
+    #[test]
+    fn a_plain_input_follows_its_output_and_can_be_set_by_hand() {
+        let e = Arc::new(
+            Equipment::parse(
+                include_str!("../../../equipment/conveyor-inout.toml"),
+                "inout.toml",
+            )
+            .expect("loads"),
+        );
+        let mut c = Conveyor::new(e, &[W(2)], 1.0).expect("layout");
+        assert!(c.write_coil(ms(0), Coil::ExternalControl, true));
+        let name = |n: &str| IoName::parse(n).expect("a name");
+        let input = |c: &Conveyor, n: &str| c.inputs().signal(Signal::Input(name(n)));
+        assert!(input(&c, "door_closed") && !input(&c, "door_locked"));
+        let lock = Coil::Button(Button::Output(name("door_lock")));
+        assert!(c.write_coil(ms(1000), lock, true));
+        assert_eq!(c.poll_timeout(), Some(ms(1250)));
+        c.handle_timeout(ms(1249));
+        assert!(!input(&c, "door_locked"));
+        c.handle_timeout(ms(1250));
+        assert!(input(&c, "door_locked"));
+        assert_eq!(c.held(), "buttons held: door_lock");
+        assert!(c.write_coil(ms(2000), lock, false));
+        c.handle_timeout(ms(2250));
+        assert!(!input(&c, "door_locked"));
+        c.control(ms(3000), Control::Input(name("door_closed"), false));
+        assert!(!input(&c, "door_closed"));
+        assert!(c.inputs().to_string().ends_with("| on -"), "{}", c.inputs());
     }
 
     #[test]

@@ -284,11 +284,13 @@ impl fmt::Display for Inputs {
             }
         };
         let (mut lines, mut places, mut stations) = (Vec::new(), Vec::new(), Vec::new());
+        let mut plain = Vec::new();
         for i in self.lit() {
             match i {
                 Input::Signal(Signal::Line(c)) => lines.push(c.to_string()),
                 Input::Signal(Signal::Place(n)) => places.push(n.to_string()),
                 Input::Signal(Signal::Station(n)) => stations.push(n.to_string()),
+                Input::Signal(Signal::Input(n)) => plain.push(n.to_string()),
                 Input::Ready | Input::EStop => {}
             }
         }
@@ -308,7 +310,17 @@ impl fmt::Display for Inputs {
             } else {
                 ""
             },
-        )
+        )?;
+        // Plain inputs, for an equipment that has them.
+        if self
+            .equipment
+            .inputs()
+            .iter()
+            .any(|i| matches!(i.input, Input::Signal(Signal::Input(_))))
+        {
+            write!(f, " | on {}", on(plain))?;
+        }
+        Ok(())
     }
 }
 

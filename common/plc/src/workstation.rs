@@ -215,8 +215,10 @@ impl Plc {
 
     fn write(&mut self, b: Button, value: bool) {
         self.actuators.wrote(Coil::Button(b), value, self.clock);
-        if value && self.pressed.contains(&b) {
-            // Held already: released first, so the PLC sees a rising edge.
+        // A button held already is released first, so the PLC sees a
+        // rising edge; a plain output set on again just stays on.
+        let edge = !matches!(b, Button::Output(_));
+        if value && edge && self.pressed.contains(&b) {
             self.send(PlcCommand::Write(Coil::Button(b), false));
         }
         self.pressed.retain(|p| *p != b);
@@ -368,7 +370,7 @@ impl Plc {
         } else {
             let taken = self.pressed.iter().any(|b| match b {
                 Button::Station(n) => self.equipment.feed(*n) == Some(Spot::Place(place)),
-                Button::Line(_) => false,
+                Button::Line(_) | Button::Output(_) => false,
             });
             if taken || self.equipment.moves_away(place).any(runs) {
                 return None;
@@ -706,6 +708,10 @@ impl Device for Plc {
             ),
             (Signal::Line(l), false) => format!(
                 "line {l} still running: carrier jammed on line {l}, or its end place full?"
+            ),
+            (Signal::Input(n), v) => format!(
+                "input {n} still {}: does the equipment give it? (its wiring, its sensor)",
+                if v { "off" } else { "on" }
             ),
             (Signal::Station(n), v) => format!(
                 "station {n} still {} (button station {n} {})",

@@ -14,18 +14,21 @@
 use super::commands::{lookup, Arg, CommandSpec, Criteria, Handler, RecipeKind};
 use super::problem::{Problem, ProblemKind};
 use super::syntax::{CommandText, Criterion, Recipe, Report, Row, StateNo};
-use falc_model::ids::{excerpt, ObjectName, Place, PlcStation, RobotProgram, StationName};
+use falc_model::ids::{excerpt, IoName, ObjectName, Place, PlcStation, RobotProgram, StationName};
 use falc_model::mode::ManualAction;
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
 
-/// A PLC button: a conveyor line or a station.
+/// A PLC output a recipe writes: a conveyor line's or a station's
+/// button, or a plain output of the equipment.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum Button {
     /// Line A–Z but I and O (upper case).
     Line(char),
     /// Station 1–99.
     Station(PlcStation),
+    /// A plain output (`set beacon 1`).
+    Output(IoName),
 }
 
 /// A PLC input to wait for.
@@ -37,6 +40,8 @@ pub enum Signal {
     Place(Place),
     /// Station 1–99 busy.
     Station(PlcStation),
+    /// A plain input on (`waitinput door_closed 1 30`).
+    Input(IoName),
 }
 
 /// What a `start` starts.
@@ -214,13 +219,18 @@ pub fn check_manual(action: &ManualAction) -> Result<(), String> {
 
 impl std::str::FromStr for Button {
     type Err = String;
-    /// A line (a letter) or a station (a number), as a recipe (or a
-    /// maintainer) writes it.
+    /// A line (a letter), a station (a number) or a plain output (a
+    /// longer word), as a recipe (or a maintainer) writes it.
     fn from_str(s: &str) -> Result<Self, String> {
-        match s.parse::<u8>() {
-            Ok(_) => Ok(Button::Station(PlcStation::parse(s)?)),
-            Err(_) => Ok(Button::Line(line_letter(s)?)),
+        if s.parse::<u8>().is_ok() {
+            return Ok(Button::Station(PlcStation::parse(s)?));
         }
+        if s.chars().count() > 1 {
+            if let Ok(n) = IoName::parse(s) {
+                return Ok(Button::Output(n));
+            }
+        }
+        Ok(Button::Line(line_letter(s)?))
     }
 }
 
@@ -229,7 +239,17 @@ impl std::fmt::Display for Button {
         match self {
             Self::Line(l) => write!(f, "line button {l}"),
             Self::Station(s) => write!(f, "station button {s}"),
+            Self::Output(n) => write!(f, "output {n}"),
         }
+    }
+}
+
+/// A level as a recipe writes it: 1 or 0.
+fn level(s: &str) -> Result<bool, String> {
+    match s {
+        "1" => Ok(true),
+        "0" => Ok(false),
+        other => Err(format!("`{}` is not a level (1 or 0)", excerpt(other))),
     }
 }
 
@@ -295,17 +315,22 @@ fn build_command(spec: &CommandSpec, c: &CommandText) -> Result<Command, String>
                 Command::Reset(b)
             }
         }
+        Handler::Set => {
+            let b = Button::Output(IoName::parse(a(0))?);
+            if level(a(1))? {
+                Command::Activate(b)
+            } else {
+                Command::Reset(b)
+            }
+        }
         Handler::WaitInput => {
             let signal = match spec.args[0] {
                 Arg::Line => Signal::Line(line_letter(a(0))?),
                 Arg::Place => Signal::Place(Place::parse(a(0))?),
+                Arg::InputName => Signal::Input(IoName::parse(a(0))?),
                 _ => Signal::Station(PlcStation::parse(a(0))?),
             };
-            let level = match a(1) {
-                "1" => true,
-                "0" => false,
-                other => return Err(format!("`{other}` is not a level (1 or 0)")),
-            };
+            let level = level(a(1))?;
             Command::WaitInput {
                 signal,
                 level,

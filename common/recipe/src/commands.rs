@@ -74,6 +74,10 @@ pub enum Arg {
     Place,
     /// A station 1–99.
     StationNo,
+    /// A plain output of the equipment (a word: `beacon`).
+    OutputName,
+    /// A plain input of the equipment (a word: `door_closed`).
+    InputName,
     /// 1 (active, occupied, busy) or 0 (not).
     Level,
     /// Free text (the rest of the column).
@@ -95,6 +99,8 @@ pub enum Handler {
     Activate,
     /// Release a button on the PLC; no criterion.
     Reset,
+    /// Set a plain output on (1) or off (0); no criterion.
+    Set,
     /// Wait for a PLC input to reach a level; done / timeout.
     WaitInput,
     /// Wait until the robot is ready for DNC commands (automatic-external
@@ -272,6 +278,20 @@ const TRANSPORT: &[CommandSpec] = &[
         criteria: Criteria::DoneOrTimeout,
         handler: Handler::WaitInput,
         usage: "waitstation <station 1-99> <1 busy|0 not> <max_s>",
+    },
+    CommandSpec {
+        name: "set",
+        args: &[Arg::OutputName, Arg::Level],
+        criteria: Criteria::None,
+        handler: Handler::Set,
+        usage: "set <output> <1 on|0 off>",
+    },
+    CommandSpec {
+        name: "waitinput",
+        args: &[Arg::InputName, Arg::Level, Arg::Seconds],
+        criteria: Criteria::DoneOrTimeout,
+        handler: Handler::WaitInput,
+        usage: "waitinput <input> <1 on|0 off> <max_s>",
     },
 ];
 

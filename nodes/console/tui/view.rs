@@ -419,6 +419,19 @@ fn conveyor_box<'a>(app: &App, transport: Option<&falc_model::ids::StationName>)
                     running.join(", ")
                 }
             )));
+            let plain: Vec<String> = e
+                .inputs()
+                .iter()
+                .filter_map(|x| match x.input {
+                    Input::Signal(s @ Signal::Input(n)) => {
+                        Some(format!("{n} {}", lamp(i.signal(s))))
+                    }
+                    _ => None,
+                })
+                .collect();
+            if !plain.is_empty() {
+                lines.push(Line::from(format!("inputs    {}", plain.join("  "))));
+            }
             let mut plc = vec![Span::raw(if i.get(Input::Ready) {
                 "PLC ready"
             } else {
