@@ -1050,6 +1050,8 @@ mod tests {
         alarms: std::collections::VecDeque<Cause>,
         /// The manual operations carried out.
         manual: Vec<ManualAction>,
+        /// What `way_to` answers.
+        way: Option<Result<(String, String), String>>,
     }
 
     impl Device for Fake {
@@ -1090,6 +1092,11 @@ mod tests {
         fn manual(&mut self, _now: Duration, action: &ManualAction) -> Result<String, String> {
             self.manual.push(action.clone());
             Ok(format!("{action} done"))
+        }
+        fn way_to(&self, state: &str) -> Result<(String, String), String> {
+            self.way
+                .clone()
+                .unwrap_or_else(|| Err(format!("no state {state}")))
         }
     }
 
@@ -1286,6 +1293,55 @@ mod tests {
         assert!(c.is_running());
         let e = c.handle_request(secs(8), &press).unwrap_err();
         assert!(e.description.contains("recipe DROOG_DIK runs"), "{e}");
+    }
+
+    /// `goto`: the device's way runs as a recipe of the station's own
+    /// (`GOTO_HOME`), reported and ended like any job, and is gone after
+    /// it; the device's refusal is the operation's, and so is a way that
+    /// does not check.
+    #[test]
+    fn a_way_to_a_named_state_runs_as_a_recipe_of_its_own() {
+        let mut c = Controller::new(RecipeKind::Transport, secs(10), Fake::default());
+        c.handle_request(secs(0), &mode(CellMode::Maintenance, &[]))
+            .unwrap();
+        outputs(&mut c);
+        let goto = Request::Manual {
+            station: StationName::new("transport").unwrap(),
+            action: ManualAction::Goto("home".into()),
+            by: "maint".into(),
+        };
+        c.device.way = Some(Err("the carrier at W7 cannot reach state home".into()));
+        let e = c.handle_request(secs(1), &goto).unwrap_err();
+        assert!(
+            e.description
+                .contains("go to state home: the carrier at W7 cannot reach state home"),
+            "{e}"
+        );
+        assert!(!c.is_running() && c.device.acts.is_empty());
+        c.device.way = Some(Ok((
+            "#GOTO_HOME\n-1 | activate i | | | 0\n".into(),
+            "x".into(),
+        )));
+        let e = c.handle_request(secs(1), &goto).unwrap_err();
+        assert!(e.description.contains("error in recipe GOTO_HOME"), "{e}");
+        c.device.way = Some(Ok((
+            "#GOTO_HOME\n-1 | activate a | | | 2\n-2 | reset a | | | 0\n".into(),
+            "to home from carriers seen at W6: line A to W2".into(),
+        )));
+        c.handle_request(secs(2), &goto).unwrap();
+        assert_eq!(
+            c.device.acts,
+            [
+                Action::Activate(falc_recipe::check::Button::Line('A')),
+                Action::Reset(falc_recipe::check::Button::Line('A'))
+            ]
+        );
+        let outs = outputs(&mut c);
+        assert_eq!(job_events(&outs), vec![JobEvent::Started, JobEvent::Done]);
+        assert!(outs.iter().any(|o| matches!(o, Output::Report { text, .. }
+            if text == "manual, by maint: GOTO_HOME started: the way to home from carriers seen at W6: line A to W2")));
+        assert!(!c.is_running());
+        assert!(c.vmd().program(&name("goto_home")).is_none());
     }
 
     #[test]
