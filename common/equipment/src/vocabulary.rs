@@ -114,6 +114,14 @@ mod tests {
 
     const SMALL: &str = include_str!("../tests/fixtures/small.toml");
 
+    /// What `program` names that `e` lacks, as printed.
+    fn lacking(e: &Equipment, program: &Program) -> Vec<String> {
+        e.check_program(program)
+            .iter()
+            .map(Problem::to_string)
+            .collect()
+    }
+
     #[test]
     fn a_recipe_naming_what_the_conveyor_lacks_is_refused_naming_what_it_has() {
         let e = Equipment::parse(SMALL, "small.toml").expect("loads");
@@ -127,11 +135,7 @@ mod tests {
 ";
         let program = check(&parse(text, "transport/away.rcp"), RecipeKind::Transport)
             .expect("the language allows it");
-        let found: Vec<String> = e
-            .check_program(&program)
-            .iter()
-            .map(Problem::to_string)
-            .collect();
+        let found = lacking(&e, &program);
         assert_eq!(
             found,
             [
@@ -175,11 +179,7 @@ mod tests {
             commands[1],
             Command::WaitInput { signal: Signal::Input(n), level: true, .. } if *n == door
         ));
-        let found: Vec<String> = e
-            .check_program(&program)
-            .iter()
-            .map(Problem::to_string)
-            .collect();
+        let found = lacking(&e, &program);
         assert_eq!(
             found,
             [
