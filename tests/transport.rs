@@ -819,3 +819,68 @@ The guard door closed, locked, the beacon lit.
         "{why}"
     );
 }
+
+/// `#PRE` and `#POST` end to end (issue 44, item 1, on the transport):
+/// with a carrier where the precondition says there is none, the Start
+/// is refused naming the term and no coil is written (the twin's log);
+/// with the carriers home the job runs to done; a sensor stuck dark
+/// breaks the postcondition, and the job ends in an alarm naming it;
+/// the sensor mended and the carriers home, the next run is done.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_precondition_refuses_the_start_and_a_postcondition_fails_the_job() {
+    let mut rig = rig().await;
+    let park = "#PARK
+One carrier from W2 to W3 along K.
+#PRE place 2 occupied, place 3 empty
+#POST place 3 occupied, line K stopped
+
+-1 | activate k      |       |            | 2
+-2 | reset k         |       |            | 3
+-3 | waitline k 0 30 |       | klaar      | 0
+-3 | waitline k 0 30 |       | tijdlimiet | 4
+-4 |                 | alarm |            | 0
+";
+    rig.commander.load("park", park).await;
+    let equipment = falc_equipment::Equipment::conveyor_1992();
+    let w3 = equipment
+        .input_index(falc_equipment::signal::Input::Signal(
+            falc_recipe::check::Signal::Place(falc_model::ids::Place::of(3)),
+        ))
+        .expect("place 3's sensor");
+    // A carrier at W3 already: refused, nothing written.
+    rig.plc.control("layout W2 W3");
+    rig.status_becomes("W3 occupied", |s| s.inputs.get(w3) == Some(&true))
+        .await;
+    rig.plc.forget("coil button");
+    let refused = rig.commander.try_start("park").await;
+    let why = refused.expect_err("refused").to_string();
+    assert!(
+        why.contains("precondition of PARK: place 3 empty is false"),
+        "{why}"
+    );
+    if let Some(l) = rig.plc.wait_line("coil button", Duration::from_millis(500)) {
+        panic!("a refused start wrote {l}");
+    }
+    // Carriers home: done, and the postcondition holds.
+    rig.plc.control("layout W2 W2");
+    rig.status_becomes("W3 empty", |s| s.inputs.get(w3) == Some(&false))
+        .await;
+    assert_eq!(rig.run("park").await, JobEvent::Done);
+    assert_eq!(rig.carriers(), "carriers: 1@W3 2@W2");
+    // W3's sensor stuck dark: the carrier arrives unseen, the job fails
+    // naming the postcondition.
+    rig.plc.control("layout W2 W2");
+    rig.status_becomes("W3 empty", |s| s.inputs.get(w3) == Some(&false))
+        .await;
+    rig.plc.control("stuck 3 0");
+    rig.commander.start("park").await;
+    let alarm = rig.commander.alarm(RUN).await;
+    assert_eq!(alarm, "postcondition of PARK: place 3 occupied is false");
+    assert_eq!(rig.carriers(), "carriers: 1@W3 2@W2");
+    // The way back: the sensor mended, the carriers home, the next run.
+    rig.plc.control("unstuck 3");
+    rig.plc.control("layout W2 W2");
+    rig.status_becomes("W3 empty", |s| s.inputs.get(w3) == Some(&false))
+        .await;
+    assert_eq!(rig.run("park").await, JobEvent::Done);
+}

@@ -33,8 +33,9 @@ use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::program::{PiCompletion, PiRequest, PiState};
 use falc_model::mms::vmd::{Identity, ProgramState, RecipeState, Transition, Vmd, VmdStatus};
 use falc_model::mode::{CellMode, HeldStep, ManualAction, ModeSetting};
-use falc_recipe::check::{check, Program};
+use falc_recipe::check::{check, Program, Signal};
 use falc_recipe::commands::RecipeKind;
+use falc_recipe::condition::unmet;
 use falc_recipe::engine::{Action, Engine, Event, JobEnd, Outcome};
 use falc_recipe::problem::Problem;
 use falc_recipe::syntax::{parse, StateNo};
@@ -131,6 +132,12 @@ pub trait Device {
         Err(format!(
             "{action}: this station has no such manual operation"
         ))
+    }
+    /// What the device observes of recipe signal `signal` now (a place
+    /// occupied, a line running), for a recipe's `#PRE` and `#POST`; None
+    /// when it cannot tell (no reading, no such input).
+    fn observes(&self, _signal: Signal) -> Option<bool> {
+        None
     }
     /// The way to the device's named state `state` from what it shows
     /// now, as a recipe of this level (`#GOTO_<STATE>`) and a line saying
@@ -510,6 +517,29 @@ impl<D: Device> Controller<D> {
             .and_then(|r| r.engine.outcome().cloned())
             .filter(|o| *o != Outcome::Done || !self.device.settling());
         if let Some(outcome) = ended {
+            // A job done must leave what its postcondition says.
+            let outcome = match (
+                &outcome,
+                self.running
+                    .as_ref()
+                    .and_then(|r| Some((r, r.engine.program().post.as_ref()?))),
+            ) {
+                (Outcome::Done, Some((r, post))) => {
+                    let false_terms = unmet(&post.terms, |s| self.device.observes(s));
+                    if false_terms.is_empty() {
+                        outcome
+                    } else {
+                        let cause = Cause::process(format!(
+                            "postcondition of {}: {} is false",
+                            r.name,
+                            false_terms.join(", ")
+                        ));
+                        self.report(Severity::Alarm(cause.class), cause.text.clone());
+                        Outcome::Alarm(cause)
+                    }
+                }
+                _ => outcome,
+            };
             // Only now, with the outcome known, is the job taken out.
             if let Some(r) = self.running.take() {
                 self.device
@@ -773,6 +803,17 @@ impl<D: Device> Controller<D> {
             return Ok(());
         }
         let mut engine = self.engine_for(name)?;
+        // A new run from its first state: its precondition must hold, or
+        // the Start is refused before anything is written.
+        if let (None, Some(pre)) = (from, &engine.program().pre) {
+            let false_terms = unmet(&pre.terms, |s| self.device.observes(s));
+            if !false_terms.is_empty() {
+                return Err(ServiceError::state_conflict(format!(
+                    "precondition of {name}: {} is false",
+                    false_terms.join(", ")
+                )));
+            }
+        }
         engine.set_stepping(now, steps);
         match from {
             Some(state) => engine
@@ -1052,6 +1093,8 @@ mod tests {
         manual: Vec<ManualAction>,
         /// What `way_to` answers.
         way: Option<Result<(String, String), String>>,
+        /// What it observes (`observes`).
+        seen: std::collections::BTreeMap<Signal, bool>,
     }
 
     impl Device for Fake {
@@ -1092,6 +1135,9 @@ mod tests {
         fn manual(&mut self, _now: Duration, action: &ManualAction) -> Result<String, String> {
             self.manual.push(action.clone());
             Ok(format!("{action} done"))
+        }
+        fn observes(&self, signal: Signal) -> Option<bool> {
+            self.seen.get(&signal).copied()
         }
         fn way_to(&self, state: &str) -> Result<(String, String), String> {
             self.way
@@ -1342,6 +1388,64 @@ mod tests {
             if text == "manual, by maint: GOTO_HOME started: the way to home from carriers seen at W6: line A to W2")));
         assert!(!c.is_running());
         assert!(c.vmd().program(&name("goto_home")).is_none());
+    }
+
+    /// `#PRE` and `#POST`: a Start whose precondition the device does
+    /// not observe is refused naming the terms, before anything is
+    /// written; a job done whose postcondition does not hold ends in an
+    /// alarm naming them; both holding, it is done. A start `from` a
+    /// state (a restart) is not a new run from the first: no PRE.
+    #[test]
+    fn a_precondition_refuses_the_start_and_a_postcondition_fails_the_job() {
+        use falc_model::ids::Place;
+        let mut c = Controller::new(RecipeKind::Transport, secs(10), Fake::default());
+        load(
+            &mut c,
+            "park",
+            "#PARK\n\
+             #PRE place 2 occupied, place 3 empty\n\
+             #POST line K stopped\n\
+             -1 | activate k | | | 2\n\
+             -2 | reset k    | | | 0\n",
+        );
+        let go = |a: &str| Request::Start {
+            name: name("park"),
+            argument: a.into(),
+        };
+        let place = |n| Signal::Place(Place::of(n));
+        c.device.seen.insert(place(2), false);
+        c.device.seen.insert(place(3), true);
+        let e = c.handle_request(secs(0), &go("order 1")).unwrap_err();
+        assert_eq!(
+            e.description,
+            "precondition of PARK: place 2 occupied, place 3 empty is false"
+        );
+        assert!(c.device.acts.is_empty() && !c.is_running());
+        // An input the device cannot tell is no term that holds.
+        c.device.seen.clear();
+        c.device.seen.insert(place(2), true);
+        let e = c.handle_request(secs(0), &go("order 1")).unwrap_err();
+        assert!(e.description.contains("place 3 empty is false"), "{e}");
+        c.device.seen.insert(place(3), false);
+        c.device.seen.insert(Signal::Line('K'), true);
+        outputs(&mut c);
+        c.handle_request(secs(1), &go("order 1")).unwrap();
+        let outs = outputs(&mut c);
+        let text = "postcondition of PARK: line K stopped is false";
+        assert_eq!(
+            job_events(&outs).last(),
+            Some(&JobEvent::Alarm(Cause::process(text.to_string())))
+        );
+        assert!(outs
+            .iter()
+            .any(|o| matches!(o, Output::Report { text: t, .. } if t == text)));
+        c.device.seen.insert(Signal::Line('K'), false);
+        c.handle_request(secs(2), &go("order 2")).unwrap();
+        assert_eq!(job_events(&outputs(&mut c)).last(), Some(&JobEvent::Done));
+        // From state 2 (a restart): the precondition is the first state's.
+        c.device.seen.insert(place(2), false);
+        c.handle_request(secs(3), &go("order 2 from 2")).unwrap();
+        assert_eq!(job_events(&outputs(&mut c)).last(), Some(&JobEvent::Done));
     }
 
     #[test]

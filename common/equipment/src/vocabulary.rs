@@ -32,6 +32,22 @@ impl Equipment {
                 });
             }
         }
+        // Its conditions name inputs too.
+        for (which, c) in [("#PRE", &program.pre), ("#POST", &program.post)] {
+            let Some(c) = c else { continue };
+            for t in &c.terms {
+                if let Some(why) = self.lacks_signal(t.signal) {
+                    out.push(Problem {
+                        origin: program.origin.clone(),
+                        line: c.line,
+                        state: None,
+                        kind: ProblemKind::BadArgument,
+                        message: format!("{which} `{t}`: {why}"),
+                    });
+                }
+            }
+        }
+        out.sort_by_key(|p| p.line);
         out
     }
 
@@ -201,6 +217,22 @@ mod tests {
         assert!(
             problems[1].contains("`on` is not a level (1 or 0)"),
             "{problems:?}"
+        );
+    }
+
+    /// A recipe's conditions name inputs of its equipment too.
+    #[test]
+    fn conditions_naming_what_the_conveyor_lacks_are_refused_at_their_line() {
+        let e = Equipment::parse(SMALL, "small.toml").expect("loads");
+        let text = "#PARK\n#PRE place 2 occupied, place 6 empty\n#POST line C stopped\n\
+                    -1 | activate a | | | 0\n";
+        let program = check(&parse(text, "park.rcp"), RecipeKind::Transport).expect("checks");
+        assert_eq!(
+            lacking(&e, &program),
+            [
+                "park.rcp:2: #PRE `place 6 empty`: small has no place 6 (places: 2, 3)",
+                "park.rcp:3: #POST `line C stopped`: small has no line C (lines: A, B)",
+            ]
         );
     }
 

@@ -749,6 +749,13 @@ impl Device for Plc {
             });
     }
 
+    fn observes(&self, signal: Signal) -> Option<bool> {
+        if self.unavailable().is_some() || !self.equipment.has_signal(signal) {
+            return None;
+        }
+        self.inputs.as_ref().map(|i| i.signal(signal))
+    }
+
     fn way_to(&self, state: &str) -> Result<(String, String), String> {
         if let Some(why) = self.unavailable() {
             return Err(why);

@@ -12,6 +12,7 @@
 //! workstation defines, and two workstation recipes with one name.
 
 use super::commands::{lookup, Arg, CommandSpec, Criteria, Handler, RecipeKind};
+use super::condition::{parse_terms, Conditions};
 use super::problem::{Problem, ProblemKind};
 use super::syntax::{CommandText, Criterion, Recipe, Report, Row, StateNo};
 use falc_model::ids::{excerpt, IoName, ObjectName, Place, PlcStation, RobotProgram, StationName};
@@ -143,6 +144,11 @@ pub struct Program {
     pub first: StateNo,
     /// Every state.
     pub states: BTreeMap<StateNo, State>,
+    /// What its station must observe for a Start to be taken (`#PRE`).
+    pub pre: Option<Conditions>,
+    /// What its station must observe when the job ended, for it to be
+    /// done (`#POST`).
+    pub post: Option<Conditions>,
 }
 
 struct Ctx<'a> {
@@ -646,6 +652,35 @@ pub fn check(recipe: &Recipe, kind: RecipeKind) -> Result<Program, Vec<Problem>>
             }
         }
     }
+    let mut condition = |which: &str, raw: &Option<(String, usize)>| {
+        let (text, line) = raw.as_ref()?;
+        if kind != RecipeKind::Transport {
+            cx.add(
+                *line,
+                None,
+                ProblemKind::BadArgument,
+                format!(
+                    "#{which}: a {kind} recipe has no conditions (a transport recipe's name \
+                     its station's inputs)"
+                ),
+            );
+            return None;
+        }
+        match parse_terms(text) {
+            Ok(terms) => Some(Conditions { terms, line: *line }),
+            Err(e) => {
+                cx.add(
+                    *line,
+                    None,
+                    ProblemKind::BadArgument,
+                    format!("#{which}: {e}"),
+                );
+                None
+            }
+        }
+    };
+    let pre = condition("PRE", &recipe.pre);
+    let post = condition("POST", &recipe.post);
     if cx.problems.is_empty() {
         Ok(Program {
             kind,
@@ -653,6 +688,8 @@ pub fn check(recipe: &Recipe, kind: RecipeKind) -> Result<Program, Vec<Problem>>
             origin: recipe.origin.clone(),
             first,
             states,
+            pre,
+            post,
         })
     } else {
         cx.problems.sort_by_key(|p| (p.line, p.kind));
@@ -780,6 +817,48 @@ mod tests {
         let p = check(&parse(OK_WELDING, "t"), RecipeKind::Welding).expect("clean");
         assert_eq!(p.first, StateNo(1));
         assert_eq!(p.states.len(), 3);
+    }
+
+    /// `#PRE` and `#POST` lines: read into the program for a transport
+    /// recipe; refused, at their line, for another kind, with a term that
+    /// is none, or given twice.
+    #[test]
+    fn conditions_are_a_transport_recipes_and_name_their_line() {
+        let text = "#PARK\n#PRE place 2 occupied, line K stopped\n#POST place 3 occupied\n\
+                    -1 | activate k | | | 0\n";
+        let p = check(&parse(text, "park.rcp"), RecipeKind::Transport).expect("clean");
+        let pre = p.pre.expect("a precondition");
+        assert_eq!(
+            (pre.line, pre.to_string().as_str()),
+            (2, "place 2 occupied, line K stopped")
+        );
+        assert_eq!(p.post.map(|c| c.line), Some(3));
+        let problems_of = |kind, text: &str| -> Vec<String> {
+            check(&parse(text, "r.rcp"), kind)
+                .err()
+                .unwrap_or_default()
+                .iter()
+                .map(Problem::to_string)
+                .collect()
+        };
+        let on_welding = OK_WELDING.replace("#W\n", "#W\n#PRE place 2 occupied\n");
+        assert_eq!(
+            problems_of(RecipeKind::Welding, &on_welding),
+            ["r.rcp:2: #PRE: a welding recipe has no conditions (a transport recipe's name its station's inputs)"]
+        );
+        let bad = text.replace("line K stopped", "line K halted");
+        let found = problems_of(RecipeKind::Transport, &bad);
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert!(
+            found[0].starts_with("r.rcp:2: #PRE: `line K halted` is not a condition"),
+            "{found:?}"
+        );
+        let twice = text.replace("#POST", "#PRE");
+        let found = problems_of(RecipeKind::Transport, &twice);
+        assert!(
+            found[0].starts_with("r.rcp:3: a second #PRE line; the first is on line 2"),
+            "{found:?}"
+        );
     }
 
     #[test]

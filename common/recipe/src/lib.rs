@@ -8,6 +8,7 @@
 
 pub mod check;
 pub mod commands;
+pub mod condition;
 pub mod dot;
 pub mod engine;
 pub mod files;

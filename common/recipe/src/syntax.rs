@@ -134,6 +134,10 @@ pub struct Recipe {
     pub origin: String,
     /// The `#NAME` and its line.
     pub name: Option<(ObjectName, usize)>,
+    /// The `#PRE` line's text and line, if any.
+    pub pre: Option<(String, usize)>,
+    /// The `#POST` line's text and line, if any.
+    pub post: Option<(String, usize)>,
     /// The table rows, in file order.
     pub rows: Vec<Row>,
     /// Lines that did not parse.
@@ -182,6 +186,8 @@ pub fn parse(text: &str, origin: &str) -> Recipe {
     let mut recipe = Recipe {
         origin: origin.to_string(),
         name: None,
+        pre: None,
+        post: None,
         rows: Vec::new(),
         problems: Vec::new(),
     };
@@ -198,6 +204,33 @@ pub fn parse(text: &str, origin: &str) -> Recipe {
             })
         };
         if let Some(rest) = trimmed.strip_prefix('#') {
+            // `#PRE …` / `#POST …`: the recipe's conditions (checked by
+            // the checker, `crate::condition`).
+            let word = rest.split_whitespace().next().unwrap_or("");
+            if word.eq_ignore_ascii_case("pre") || word.eq_ignore_ascii_case("post") {
+                let text = rest.get(word.len()..).unwrap_or("").trim().to_string();
+                let slot = if word.eq_ignore_ascii_case("pre") {
+                    &mut recipe.pre
+                } else {
+                    &mut recipe.post
+                };
+                match slot {
+                    Some((_, at)) => {
+                        let at = *at;
+                        problem(
+                            None,
+                            ProblemKind::MalformedLine,
+                            format!(
+                                "a second #{} line; the first is on line {at} (list every term \
+                                 on one line, separated by commas)",
+                                word.to_uppercase()
+                            ),
+                        )
+                    }
+                    None => *slot = Some((text, line)),
+                }
+                continue;
+            }
             if rest.starts_with(|c: char| c.is_ascii_alphabetic()) {
                 let word = rest.split_whitespace().next().unwrap_or(rest);
                 match (ObjectName::new(word), &recipe.name) {
