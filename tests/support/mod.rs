@@ -789,6 +789,9 @@ pub struct Commander {
     /// The last status the station published (kept while other waits
     /// read past it).
     pub last_status: Option<falc_model::mms::vmd::VmdStatus>,
+    /// Publications read ahead (to find the newest status) and not yet
+    /// taken, statuses but for the newest dropped, oldest first.
+    ahead: std::collections::VecDeque<Publication>,
     _subs: Vec<falc_bus::Declaration>,
 }
 
@@ -818,15 +821,20 @@ impl Commander {
             station: st(station),
             events,
             last_status: None,
+            ahead: std::collections::VecDeque::new(),
             _subs: subs,
         }
     }
 
-    /// The next publication before `end`, noting a status.
+    /// The next publication before `end` (one read ahead first), noting
+    /// a status.
     async fn next(
         &mut self,
         end: tokio::time::Instant,
     ) -> Result<Option<Publication>, tokio::time::error::Elapsed> {
+        if let Some(p) = self.ahead.pop_front() {
+            return Ok(Some(p));
+        }
         let p = tokio::time::timeout_at(end, self.events.recv()).await;
         if let Ok(Some(Publication {
             message: Unconfirmed::Status { status, .. },
@@ -838,13 +846,22 @@ impl Commander {
         p
     }
 
-    /// The last status published, or the next one before `end`.
+    /// With `seen` false, the newest status published so far (what came
+    /// already is read ahead: its statuses noted, the rest kept for the
+    /// other waits); else, or if none came yet, the next status before
+    /// `end`.
     pub async fn status_after(
         &mut self,
         end: tokio::time::Instant,
         seen: bool,
     ) -> Option<falc_model::mms::vmd::VmdStatus> {
         if !seen {
+            while let Ok(p) = self.events.try_recv() {
+                match p.message {
+                    Unconfirmed::Status { status, .. } => self.last_status = Some(status),
+                    _ => self.ahead.push_back(p),
+                }
+            }
             if let Some(s) = &self.last_status {
                 return Some(s.clone());
             }
