@@ -35,7 +35,7 @@ use falc_model::mms::vmd::{Identity, ProgramState, RecipeState, Transition, Vmd,
 use falc_model::mode::{CellMode, HeldStep, ManualAction, ModeSetting};
 use falc_recipe::check::{check, Program, Signal};
 use falc_recipe::commands::RecipeKind;
-use falc_recipe::condition::unmet;
+use falc_recipe::condition::{unmet, Conditions};
 use falc_recipe::engine::{Action, Engine, Event, JobEnd, Outcome};
 use falc_recipe::problem::Problem;
 use falc_recipe::syntax::{parse, StateNo};
@@ -195,6 +195,16 @@ struct Running {
 }
 
 impl Running {
+    /// A run of `engine` as recipe `name`, just started.
+    fn new(name: ObjectName, engine: Engine) -> Self {
+        Self {
+            name,
+            engine,
+            timed_out: None,
+            paused_for_step: false,
+        }
+    }
+
     /// State `s`'s command as the recipe gives it (empty for none).
     fn command_of(&self, s: StateNo) -> &str {
         self.engine
@@ -518,27 +528,18 @@ impl<D: Device> Controller<D> {
             .filter(|o| *o != Outcome::Done || !self.device.settling());
         if let Some(outcome) = ended {
             // A job done must leave what its postcondition says.
-            let outcome = match (
-                &outcome,
-                self.running
-                    .as_ref()
-                    .and_then(|r| Some((r, r.engine.program().post.as_ref()?))),
-            ) {
-                (Outcome::Done, Some((r, post))) => {
-                    let false_terms = unmet(&post.terms, |s| self.device.observes(s));
-                    if false_terms.is_empty() {
-                        outcome
-                    } else {
-                        let cause = Cause::process(format!(
-                            "postcondition of {}: {} is false",
-                            r.name,
-                            false_terms.join(", ")
-                        ));
-                        self.report(Severity::Alarm(cause.class), cause.text.clone());
-                        Outcome::Alarm(cause)
-                    }
+            let broken = self
+                .running
+                .as_ref()
+                .filter(|_| outcome == Outcome::Done)
+                .and_then(|r| self.unmet("postcondition", &r.name, &r.engine.program().post));
+            let outcome = match broken {
+                Some(why) => {
+                    let cause = Cause::process(why);
+                    self.report(Severity::Alarm(cause.class), cause.text.clone());
+                    Outcome::Alarm(cause)
                 }
-                _ => outcome,
+                None => outcome,
             };
             // Only now, with the outcome known, is the job taken out.
             if let Some(r) = self.running.take() {
@@ -805,13 +806,9 @@ impl<D: Device> Controller<D> {
         let mut engine = self.engine_for(name)?;
         // A new run from its first state: its precondition must hold, or
         // the Start is refused before anything is written.
-        if let (None, Some(pre)) = (from, &engine.program().pre) {
-            let false_terms = unmet(&pre.terms, |s| self.device.observes(s));
-            if !false_terms.is_empty() {
-                return Err(ServiceError::state_conflict(format!(
-                    "precondition of {name}: {} is false",
-                    false_terms.join(", ")
-                )));
+        if from.is_none() {
+            if let Some(why) = self.unmet("precondition", name, &engine.program().pre) {
+                return Err(ServiceError::state_conflict(why));
             }
         }
         engine.set_stepping(now, steps);
@@ -821,13 +818,21 @@ impl<D: Device> Controller<D> {
                 .map_err(|e| ServiceError::undefined(format!("{name}: {e}")))?,
             None => engine.start(now),
         }
-        self.running = Some(Running {
-            name: name.clone(),
-            engine,
-            timed_out: None,
-            paused_for_step: false,
-        });
+        self.running = Some(Running::new(name.clone(), engine));
         Ok(())
+    }
+
+    /// The terms of `condition` (recipe `name`'s `#PRE` or `#POST`, the
+    /// `which`) the device does not observe to hold, as the refusal or
+    /// alarm names them; None when it holds (or there is none).
+    fn unmet(
+        &self,
+        which: &str,
+        name: &ObjectName,
+        condition: &Option<Conditions>,
+    ) -> Option<String> {
+        let terms = unmet(&condition.as_ref()?.terms, |s| self.device.observes(s));
+        (!terms.is_empty()).then(|| format!("{which} of {name}: {} is false", terms.join(", ")))
     }
 
     /// Runs a recipe the device made (a way to a named state), not a
@@ -836,12 +841,7 @@ impl<D: Device> Controller<D> {
     fn launch_engine(&mut self, now: Duration, name: ObjectName, mut engine: Engine) {
         engine.set_stepping(now, self.mode.steps(&self.me));
         engine.start(now);
-        self.running = Some(Running {
-            name: name.clone(),
-            engine,
-            timed_out: None,
-            paused_for_step: false,
-        });
+        self.running = Some(Running::new(name.clone(), engine));
         self.alarmed = false;
         self.out.push_back(Output::Job {
             program: name,

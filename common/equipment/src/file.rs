@@ -458,7 +458,8 @@ fn line_name(s: &str) -> Option<char> {
     falc_recipe::check::line_letter(s).ok()
 }
 
-fn names<T: fmt::Display>(items: impl Iterator<Item = T>) -> String {
+/// `items` for a message: comma-separated, or `none`.
+pub(crate) fn names<T: fmt::Display>(items: impl Iterator<Item = T>) -> String {
     let v: Vec<String> = items.map(|x| x.to_string()).collect();
     if v.is_empty() {
         "none".into()
@@ -1026,10 +1027,7 @@ impl Equipment {
                             "the twin's `inputs_on` names `{}`, which is no plain input of this \
                              equipment (plain inputs: {})",
                             n.get_ref(),
-                            names(inputs.iter().filter_map(|i| match i.input {
-                                Input::Signal(Signal::Input(x)) => Some(x),
-                                _ => None,
-                            }))
+                            names(inputs.iter().filter_map(|i| plain_input(i.input)))
                         ),
                     ),
                 }
@@ -1155,6 +1153,19 @@ impl Equipment {
     /// Its `name`.
     pub fn name(&self) -> &str {
         &self.name
+    }
+
+    /// Its plain inputs (`input NAME`), by address.
+    pub fn plain_inputs(&self) -> impl Iterator<Item = IoName> + '_ {
+        self.inputs.iter().filter_map(|i| plain_input(i.input))
+    }
+
+    /// Its plain outputs (`output NAME`), by address.
+    pub fn plain_outputs(&self) -> impl Iterator<Item = IoName> + '_ {
+        self.coils.iter().filter_map(|c| match c.coil {
+            Coil::Button(Button::Output(n)) => Some(n),
+            _ => None,
+        })
     }
 
     /// The plain inputs the twin starts with on (`[twin] inputs_on`).
@@ -1403,6 +1414,14 @@ fn span(addresses: impl Iterator<Item = u16>) -> (u16, u16) {
         (lo, hi - lo + 1)
     } else {
         (0, 0)
+    }
+}
+
+/// The name of `i` if it is a plain input.
+fn plain_input(i: Input) -> Option<IoName> {
+    match i {
+        Input::Signal(Signal::Input(n)) => Some(n),
+        _ => None,
     }
 }
 

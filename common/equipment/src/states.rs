@@ -18,7 +18,7 @@
 //! every input the state lists, so that the engine that runs every recipe
 //! runs this one too, with its limits and alarms.
 
-use crate::file::Equipment;
+use crate::file::{names, Equipment};
 use crate::signal::{Coil, Input, Spot};
 use falc_model::ids::{Place, PlcStation};
 use falc_recipe::check::{Button, Signal};
@@ -43,7 +43,7 @@ pub struct NamedState {
 impl NamedState {
     /// Whether the inputs `seen` show this state.
     pub fn shown_by(&self, seen: impl Fn(Input) -> bool) -> bool {
-        self.on.iter().all(|&i| seen(i)) && self.off.iter().all(|&i| !seen(i))
+        self.unmet(seen).is_empty()
     }
 
     /// The inputs that `seen` shows otherwise than this state, named
@@ -174,6 +174,27 @@ impl Equipment {
                 ));
             }
         }
+        // … nor change an input no carrier shows (a plain input, the
+        // PLC's own): the state's as it is, or no way.
+        let carried = |i: Input| {
+            matches!(
+                i,
+                Input::Signal(Signal::Place(_) | Signal::Station(_) | Signal::Line(_))
+            )
+        };
+        let beyond = NamedState {
+            on: Vec::new(),
+            off: state.off.iter().copied().filter(|&i| !carried(i)).collect(),
+            ..state.clone()
+        }
+        .unmet(&seen);
+        if !beyond.is_empty() {
+            return Err(format!(
+                "state {} needs what no carrier's move makes: {}",
+                state.name,
+                beyond.join(", ")
+            ));
+        }
         if let Some(l) = self
             .lines()
             .iter()
@@ -245,8 +266,8 @@ impl Equipment {
                         "state {} needs a carrier at {}, and none is seen that may leave \
                          where it stands (carriers seen at: {})",
                         state.name,
-                        names(&empty_need),
-                        names(&count.keys().copied().collect::<Vec<_>>())
+                        names(empty_need.iter()),
+                        names(count.keys())
                     ));
                 }
                 (spare, empty_need)
@@ -285,7 +306,7 @@ impl Equipment {
                             if goals.is_empty() {
                                 "a place with room".to_string()
                             } else {
-                                names(&goals)
+                                names(goals.iter())
                             },
                             match edges.iter().filter(|e| e.from == c).count() {
                                 0 => format!("no line or station starts at {c}"),
@@ -308,9 +329,9 @@ impl Equipment {
                 return Err(format!(
                     "the carriers at {} cannot move towards state {}: every route is blocked \
                      by a carrier standing on it (carriers seen at: {})",
-                    names(&movers),
+                    names(movers.iter()),
                     state.name,
-                    names(&count.keys().copied().collect::<Vec<_>>())
+                    names(count.keys())
                 ));
             };
             if let (Some(first), Some(last)) = (path.first(), path.last()) {
@@ -325,7 +346,7 @@ impl Equipment {
             "no way to state {} found in {} moves (carriers seen at: {})",
             state.name,
             moves.len(),
-            names(&from)
+            names(from.iter())
         ))
     }
 }
@@ -362,17 +383,6 @@ fn route(
     None
 }
 
-fn names(spots: &[Spot]) -> String {
-    if spots.is_empty() {
-        return "nowhere".into();
-    }
-    spots
-        .iter()
-        .map(|s| s.to_string())
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
 impl fmt::Display for Way {
     /// `to home from W5, S3: line G to W4, line D to W2, …`.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -380,7 +390,7 @@ impl fmt::Display for Way {
             f,
             "to {} from carriers seen at {}: ",
             self.state.name,
-            names(&self.from)
+            names(self.from.iter())
         )?;
         if self.moves.is_empty() {
             return f.write_str("no move needed");
@@ -592,6 +602,21 @@ mod tests {
         let e = Equipment::conveyor_1992();
         let why = e.way_to("home", seen(&[W(2)], &['G'])).unwrap_err();
         assert!(why.starts_with("line G is running"), "{why}");
+        // An input no move of a carrier changes: refused at once, naming it.
+        let text = include_str!("../../../equipment/conveyor-inout.toml").replace(
+            "\"station 1 busy\", \"station 3 busy\",",
+            "\"station 1 busy\", \"station 3 busy\", \"input door_locked\",",
+        );
+        let inout = Equipment::parse(&text, "inout.toml").expect("loads");
+        let locked = |i: Input| {
+            i == Input::Signal(Signal::Input(
+                falc_model::ids::IoName::parse("door_locked").expect("a name"),
+            )) || seen(&[W(3)], &[])(i)
+        };
+        assert_eq!(
+            inout.way_to("home", locked).unwrap_err(),
+            "state home needs what no carrier's move makes: input door_locked is on"
+        );
         let why = e.way_to("lunch", seen(&[W(2)], &[])).unwrap_err();
         assert_eq!(why, "conveyor-1992 has no state `lunch` (it has: home)");
         // A dead end: place 7 where no line starts.

@@ -6,8 +6,9 @@
 //! against its station's equipment, and the transport node on every
 //! recipe it is asked to start.
 
+use crate::file::names;
 use crate::file::Equipment;
-use crate::signal::{Coil, Input, SignalName};
+use crate::signal::SignalName;
 use falc_recipe::check::{Button, Command, Program, Signal};
 use falc_recipe::problem::{Problem, ProblemKind};
 
@@ -61,15 +62,12 @@ impl Equipment {
             Button::Station(s) => format!(
                 "{} has no station {s} (stations: {})",
                 self.name(),
-                list(self.stations().iter().map(|x| x.station))
+                names(self.stations().iter().map(|x| x.station))
             ),
             Button::Output(n) => format!(
                 "{} has no output {n} (outputs: {})",
                 self.name(),
-                list(self.coils().iter().filter_map(|c| match c.coil {
-                    Coil::Button(Button::Output(o)) => Some(o),
-                    _ => None,
-                }))
+                names(self.plain_outputs())
             ),
         })
     }
@@ -84,21 +82,18 @@ impl Equipment {
             Signal::Place(p) => format!(
                 "{} has no place {p} (places: {})",
                 self.name(),
-                list(self.places().iter().map(|x| x.place))
+                names(self.places().iter().map(|x| x.place))
             ),
             Signal::Station(_) => format!(
                 "{} has no input `{}` (stations: {})",
                 self.name(),
                 SignalName(s),
-                list(self.stations().iter().map(|x| x.station))
+                names(self.stations().iter().map(|x| x.station))
             ),
             Signal::Input(n) => format!(
                 "{} has no input {n} (inputs: {})",
                 self.name(),
-                list(self.inputs().iter().filter_map(|i| match i.input {
-                    Input::Signal(Signal::Input(o)) => Some(o),
-                    _ => None,
-                }))
+                names(self.plain_inputs())
             ),
         })
     }
@@ -107,17 +102,8 @@ impl Equipment {
         format!(
             "{} has no line {l} (lines: {})",
             self.name(),
-            list(self.lines().iter().map(|x| x.line))
+            names(self.lines().iter().map(|x| x.line))
         )
-    }
-}
-
-fn list<T: std::fmt::Display>(items: impl Iterator<Item = T>) -> String {
-    let v: Vec<String> = items.map(|x| x.to_string()).collect();
-    if v.is_empty() {
-        "none".into()
-    } else {
-        v.join(", ")
     }
 }
 

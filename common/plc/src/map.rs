@@ -312,12 +312,7 @@ impl fmt::Display for Inputs {
             },
         )?;
         // Plain inputs, for an equipment that has them.
-        if self
-            .equipment
-            .inputs()
-            .iter()
-            .any(|i| matches!(i.input, Input::Signal(Signal::Input(_))))
-        {
+        if self.equipment.plain_inputs().next().is_some() {
             write!(f, " | on {}", on(plain))?;
         }
         Ok(())

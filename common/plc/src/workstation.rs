@@ -57,7 +57,7 @@ use falc_equipment::file::{Equipment, Occasion};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::Place;
 use falc_model::mms::pdu::Severity;
-use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
+use falc_model::mms::vmd::{PhysicalStatus, VmdStatus, NO_NAMED_STATE};
 use falc_model::mode::{CellMode, ManualAction};
 use falc_recipe::check::{Button, Program, Signal};
 use falc_recipe::engine::{Action, Event, Outcome};
@@ -464,6 +464,17 @@ impl Plc {
         }
     }
 
+    /// The last reading, while the PLC can act on what it shows; else
+    /// why not ([`Device::unavailable`]).
+    fn live(&self) -> Result<&Inputs, String> {
+        match (self.unavailable(), &self.inputs) {
+            (None, Some(inputs)) => Ok(inputs),
+            (why, _) => Err(why.unwrap_or_else(|| {
+                format!("no reading from the conveyor PLC at {} yet", self.address)
+            })),
+        }
+    }
+
     /// Commands issued so far (to wait until the link carried them out).
     pub fn issued(&self) -> u64 {
         self.issued
@@ -745,27 +756,19 @@ impl Device for Plc {
             .map(|i| {
                 self.equipment
                     .state_shown(|s| i.get(s))
-                    .map_or_else(|| "no named state".to_string(), |s| s.name.clone())
+                    .map_or_else(|| NO_NAMED_STATE.to_string(), |s| s.name.clone())
             });
     }
 
     fn observes(&self, signal: Signal) -> Option<bool> {
-        if self.unavailable().is_some() || !self.equipment.has_signal(signal) {
-            return None;
-        }
-        self.inputs.as_ref().map(|i| i.signal(signal))
+        let inputs = self.live().ok()?;
+        self.equipment
+            .has_signal(signal)
+            .then(|| inputs.signal(signal))
     }
 
     fn way_to(&self, state: &str) -> Result<(String, String), String> {
-        if let Some(why) = self.unavailable() {
-            return Err(why);
-        }
-        let Some(inputs) = &self.inputs else {
-            return Err(format!(
-                "no reading from the conveyor PLC at {} yet",
-                self.address
-            ));
-        };
+        let inputs = self.live()?;
         let way = self.equipment.way_to(state, |i| inputs.get(i))?;
         Ok((way.recipe(&self.equipment), way.to_string()))
     }

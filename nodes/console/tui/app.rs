@@ -312,6 +312,20 @@ impl App {
             .and_then(|s| Inputs::from_bits(equipment, &s.inputs)))
     }
 
+    /// The named state transport station `t` says its equipment is in
+    /// ([`falc_model::mms::vmd::VmdStatus::equipment_state`]).
+    pub fn equipment_state_of(&self, t: &StationName) -> Option<&str> {
+        self.status
+            .as_ref()?
+            .stations
+            .iter()
+            .find(|v| &v.name == t)?
+            .status
+            .as_ref()?
+            .equipment_state
+            .as_deref()
+    }
+
     /// Whether any pane has unread messages (F2's label lights).
     pub fn unread(&self) -> bool {
         self.panes.iter().any(|p| p.unread > 0)

@@ -9,7 +9,7 @@ use super::plant::PlantApp;
 use crate::clock::time_of_day;
 use falc_model::api::CellStatus;
 use falc_model::ids::{printable, PlcStation};
-use falc_model::mms::vmd::{PhysicalStatus, RecipeState};
+use falc_model::mms::vmd::{PhysicalStatus, RecipeState, NO_NAMED_STATE};
 use falc_model::topology::StationKind;
 use falc_plc::map::Input;
 use falc_recipe::check::Signal;
@@ -420,14 +420,8 @@ fn conveyor_box<'a>(app: &App, transport: Option<&falc_model::ids::StationName>)
                 }
             )));
             let plain: Vec<String> = e
-                .inputs()
-                .iter()
-                .filter_map(|x| match x.input {
-                    Input::Signal(s @ Signal::Input(n)) => {
-                        Some(format!("{n} {}", lamp(i.signal(s))))
-                    }
-                    _ => None,
-                })
+                .plain_inputs()
+                .map(|n| format!("{n} {}", lamp(i.signal(Signal::Input(n)))))
                 .collect();
             if !plain.is_empty() {
                 lines.push(Line::from(format!("inputs    {}", plain.join("  "))));
@@ -440,12 +434,11 @@ fn conveyor_box<'a>(app: &App, transport: Option<&falc_model::ids::StationName>)
             if i.get(Input::EStop) {
                 plc.push(Span::styled("  EMERGENCY STOP", ALARM));
             }
-            if !e.states().is_empty() {
-                // The equipment file's named state the inputs show.
-                plc.push(Span::raw(match e.state_shown(|x| i.get(x)) {
-                    Some(s) => format!("  state {}", s.name),
-                    None => "  no named state".to_string(),
-                }));
+            // The named state the station says its inputs show.
+            match transport.and_then(|t| app.equipment_state_of(t)) {
+                Some(NO_NAMED_STATE) => plc.push(Span::raw(format!("  {NO_NAMED_STATE}"))),
+                Some(name) => plc.push(Span::raw(format!("  state {name}"))),
+                None => {}
             }
             lines.push(Line::from(plc));
         }

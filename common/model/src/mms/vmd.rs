@@ -139,11 +139,15 @@ pub struct VmdStatus {
     #[serde(default)]
     pub unready: Option<String>,
     /// The named state the device's inputs show (a conveyor's `home`),
-    /// or `no named state`; None for a device without named states or
+    /// or [`NO_NAMED_STATE`]; None for a device without named states or
     /// with no reading.
     #[serde(default)]
     pub equipment_state: Option<String>,
 }
+
+/// [`VmdStatus::equipment_state`] of equipment in none of its named
+/// states (a state's name is a word: this cannot be one).
+pub const NO_NAMED_STATE: &str = "no named state";
 
 /// A running program invocation and its recipe's current state.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
