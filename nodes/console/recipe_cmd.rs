@@ -43,17 +43,7 @@ fn equipment_problems(
     } else {
         Default::default()
     };
-    Ok(programs
-        .iter()
-        .filter(|(_, p)| p.kind == RecipeKind::Transport)
-        .flat_map(|(station, p)| {
-            stations
-                .get(station)
-                .cloned()
-                .unwrap_or_else(Equipment::conveyor_1992)
-                .check_program(p)
-        })
-        .collect())
+    Ok(falc_equipment::vocabulary::lacking_in(&stations, programs))
 }
 
 /// The programs of a checked set by station, and every problem found.

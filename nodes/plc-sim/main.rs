@@ -27,7 +27,7 @@ use falc_node::plc_link::MapArgs;
 use falc_node::say;
 use falc_plc::conveyor::{Control, Conveyor, Spot};
 use falc_plc::map::IoMap;
-use falc_recipe::check::Signal;
+use falc_recipe::check::{level, Signal};
 use std::future::Future;
 use std::net::SocketAddr;
 use std::pin::Pin;
@@ -252,11 +252,6 @@ fn parse_control(line: &str, equipment: &Equipment) -> Result<Ctl, String> {
     let place = |s: &str| {
         let p = Place::parse(s)?;
         equipment.lacks_signal(Signal::Place(p)).map_or(Ok(p), Err)
-    };
-    let level = |v: &str| match v {
-        "0" => Ok(false),
-        "1" => Ok(true),
-        _ => Err(format!("`{v}` is not 0 or 1")),
     };
     Ok(match words.as_slice() {
         ["estop"] => Ctl::Conveyor(Control::EStop),

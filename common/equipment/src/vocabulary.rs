@@ -9,8 +9,33 @@
 use crate::file::names;
 use crate::file::Equipment;
 use crate::signal::SignalName;
+use falc_model::ids::StationName;
 use falc_recipe::check::{Button, Command, Program, Signal};
+use falc_recipe::commands::RecipeKind;
 use falc_recipe::problem::{Problem, ProblemKind};
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+/// What the transport recipes of a set name that their station's
+/// equipment lacks (`equipment` by station; a station it has no file for
+/// has the 1992 conveyor, the default), as the recipe store, `falc recipe
+/// check` and `verify` refuse it.
+pub fn lacking_in(
+    equipment: &BTreeMap<StationName, Arc<Equipment>>,
+    programs: &[(StationName, Program)],
+) -> Vec<Problem> {
+    programs
+        .iter()
+        .filter(|(_, p)| p.kind == RecipeKind::Transport)
+        .flat_map(|(station, p)| {
+            equipment
+                .get(station)
+                .cloned()
+                .unwrap_or_else(Equipment::conveyor_1992)
+                .check_program(p)
+        })
+        .collect()
+}
 
 impl Equipment {
     /// Every command of `program` that names a line, place or station

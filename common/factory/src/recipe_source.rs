@@ -3,6 +3,7 @@
 //! the consoles. The operator node's recipe directory implements
 //! [`RecipeSource`] (`nodes/operator/recipe_store.rs`).
 
+use falc_equipment::vocabulary::lacking_in;
 use falc_equipment::Equipment;
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
@@ -91,11 +92,11 @@ pub fn checked_set(
 ) -> Result<RecipeSet, Vec<String>> {
     let (programs, problems) = check_set(entries);
     let mut errors: Vec<String> = problems.iter().map(ToString::to_string).collect();
-    for (station, program) in &programs {
-        if let Some(e) = equipment.get(station) {
-            errors.extend(e.check_program(program).iter().map(ToString::to_string));
-        }
-    }
+    errors.extend(
+        lacking_in(equipment, &programs)
+            .iter()
+            .map(ToString::to_string),
+    );
     let workstations = topology.subordinates_of(cell);
     let mut cells = Vec::new();
     let mut stations = Vec::new();

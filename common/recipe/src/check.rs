@@ -250,8 +250,8 @@ impl std::fmt::Display for Button {
     }
 }
 
-/// A level as a recipe writes it: 1 or 0.
-fn level(s: &str) -> Result<bool, String> {
+/// A level as a recipe (or a twin's control) writes it: 1 or 0.
+pub fn level(s: &str) -> Result<bool, String> {
     match s {
         "1" => Ok(true),
         "0" => Ok(false),
