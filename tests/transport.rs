@@ -861,7 +861,9 @@ One carrier from W2 to W3 along K.
     if let Some(l) = rig.plc.wait_line("coil button", Duration::from_millis(500)) {
         panic!("a refused start wrote {l}");
     }
-    // Carriers home: done, and the postcondition holds.
+    // Carriers home: done, and the postcondition holds. (Each wait for
+    // W3 empty follows one for W3 occupied: a status showing it empty is
+    // then the node's reading after the layout, not one from before.)
     rig.plc.control("layout W2 W2");
     rig.status_becomes("W3 empty", |s| s.inputs.get(w3) == Some(&false))
         .await;
@@ -869,6 +871,8 @@ One carrier from W2 to W3 along K.
     assert_eq!(rig.carriers(), "carriers: 1@W3 2@W2");
     // W3's sensor stuck dark: the carrier arrives unseen, the job fails
     // naming the postcondition.
+    rig.status_becomes("W3 occupied", |s| s.inputs.get(w3) == Some(&true))
+        .await;
     rig.plc.control("layout W2 W2");
     rig.status_becomes("W3 empty", |s| s.inputs.get(w3) == Some(&false))
         .await;
@@ -879,6 +883,8 @@ One carrier from W2 to W3 along K.
     assert_eq!(rig.carriers(), "carriers: 1@W3 2@W2");
     // The way back: the sensor mended, the carriers home, the next run.
     rig.plc.control("unstuck 3");
+    rig.status_becomes("W3 occupied", |s| s.inputs.get(w3) == Some(&true))
+        .await;
     rig.plc.control("layout W2 W2");
     rig.status_becomes("W3 empty", |s| s.inputs.get(w3) == Some(&false))
         .await;
