@@ -20,6 +20,11 @@
 //!   the router's and the TUI's with one `falc tui` open (if tmux is
 //!   installed).
 //!
+//! - first, in process on the controller core: a transport Start run to
+//!   its end with its `#PRE` and `#POST` evaluated, next to the same
+//!   recipe without them, p50 per start and the ratio (interleaved, one
+//!   run).
+//!
 //! Run: `cargo bench --bench cell`. Prints figures; asserts nothing about
 //! time.
 
@@ -145,8 +150,91 @@ fn union(mut v: Vec<(Instant, Instant)>) -> Duration {
     total
 }
 
+/// A conveyor as the controller core sees it: every input at the level
+/// the conditions below need, every write taken at once.
+struct Conveyor;
+
+impl falc_control::controller::Device for Conveyor {
+    fn handle(
+        &mut self,
+        _now: Duration,
+        _what: falc_control::controller::Happening<'_>,
+        _out: &mut Vec<falc_recipe::engine::Event>,
+    ) {
+    }
+    fn unavailable(&self) -> Option<String> {
+        None
+    }
+    fn status(&self, _status: &mut falc_model::mms::vmd::VmdStatus) {}
+    fn observes(&self, fact: falc_recipe::condition::Fact) -> Option<bool> {
+        use falc_recipe::check::Signal;
+        use falc_recipe::condition::Fact;
+        match fact {
+            Fact::Signal(Signal::Place(p)) => Some(p.number() != 3),
+            Fact::Signal(_) => Some(false),
+            Fact::Robot(_) => None,
+        }
+    }
+}
+
+/// p50 of a Start run to done on the controller core (with the status
+/// published after it, as the node does), for `recipe` named PARK.
+fn starts_p50(with: &str, without: &str, n: usize) -> (f64, f64) {
+    use falc_control::controller::Controller;
+    use falc_model::ids::ObjectName;
+    use falc_model::mms::delivery::{Delivery, DeliveryStep};
+    use falc_model::mms::pdu::Request;
+    use falc_recipe::commands::RecipeKind;
+    let controller = |text: &str| {
+        let mut c = Controller::new(RecipeKind::Transport, Duration::from_secs(5), Conveyor);
+        let name = ObjectName::new("park").expect("name");
+        let me = StationName::new("transport").expect("station");
+        let mut d = Delivery::new(me, name, text.as_bytes(), true);
+        let mut step = d.start();
+        while let DeliveryStep::Send(req) = step {
+            step = d.answered(c.handle_request(Duration::ZERO, &req));
+        }
+        assert_eq!(step, DeliveryStep::Done(Ok(())), "delivered");
+        c
+    };
+    let (mut a, mut b) = (controller(with), controller(without));
+    let start = Request::Start {
+        name: ObjectName::new("park").expect("name"),
+        argument: "order 1".into(),
+    };
+    let run = |c: &mut Controller<Conveyor>, told: &mut Option<_>| {
+        let t = Instant::now();
+        c.handle_request(Duration::ZERO, &start).expect("started");
+        while c.poll_output().is_some() {}
+        c.publications(told);
+        assert!(!c.is_running(), "ran to its end");
+        t.elapsed().as_secs_f64() * 1e6
+    };
+    let (mut ta, mut tb) = (None, None);
+    let (mut va, mut vb) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for _ in 0..n {
+        va.push(run(&mut a, &mut ta));
+        vb.push(run(&mut b, &mut tb));
+    }
+    (median(&va), median(&vb))
+}
+
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() {
+    // 0. A start with its conditions evaluated, next to one without.
+    let body = "-1 | activate k | | | 2\n-2 | reset k | | | 3\n-3 | activate l | | | 4\n-4 | reset l | | | 0\n";
+    let with = format!(
+        "#PARK\n#PRE place 2 occupied, place 3 empty, line K stopped\n#POST place 2 occupied\n{body}"
+    );
+    let without = format!("#PARK\n{body}");
+    let (p_with, p_without) = starts_p50(&with, &without, 20_000);
+    println!(
+        "a transport Start run to its end on the controller core (4 steps, status published): with #PRE (3 terms) and #POST evaluated p50 {p_with:.2} µs, without {p_without:.2} µs; ratio {:.3}; per step {:.2} µs vs {:.2} µs (n=20000 each, interleaved; goal: within 5 %)",
+        p_with / p_without,
+        p_with / 4.0,
+        p_without / 4.0
+    );
+
     // 1. Start-up to ready.
     let mut starts = Vec::new();
     for _ in 0..STARTS {

@@ -300,9 +300,41 @@ fn a_failed_order_restarted_from_a_chosen_state_runs_to_done() {
     assert!(text.contains("dikdroog has no state 25"), "{text}");
     let (code, text) = rig.cell.falc_as("observer", &["restart", "1"]);
     assert_eq!(code, 2, "an observer may not: {text}");
+    // State 9 starts STORE: with no carrier at W2 and one at W3 its
+    // #PRE is false, the transport says so in its status, and the restart
+    // is refused naming it, the order left failed.
+    let unmet_of_store = |s: &falc_model::api::CellStatus| {
+        s.stations
+            .iter()
+            .find(|v| v.name.as_str() == "transport")
+            .and_then(|v| v.status.as_ref())
+            .and_then(|st| st.unmet.iter().find(|(n, _)| n.as_str() == "STORE"))
+            .map(|(_, why)| why.clone())
+    };
+    rig.plc.control("layout W3 W4");
+    // (Its carriers were on their way when the order failed: place 2
+    // was empty before, so the wait is for the new reading's place 3.)
+    rig.until_status(Duration::from_secs(10), "STORE's #PRE false", |s| {
+        unmet_of_store(s).is_some_and(|why| why.contains("place 3 empty"))
+    });
+    let (code, text) = rig
+        .cell
+        .falc_as("console", &["restart", "1", "--from", "9"]);
+    assert_eq!(code, 1, "{text}");
+    assert!(
+        text.contains(
+            "state 9 starts transport's STORE, and transport says: precondition of STORE: \
+             place 2 occupied, place 3 empty is false"
+        ),
+        "{text}"
+    );
+    assert_eq!(rig.orders()[0].state, OrderState::Failed);
     // The carriers where state 9 expects them, then from state 9 (the
     // first transport job): no greeting, no question.
     rig.plc.control("layout W2 W2");
+    rig.until_status(Duration::from_secs(10), "STORE's #PRE true", |s| {
+        unmet_of_store(s).is_none()
+    });
     let out = rig.cell.falc(&["restart", "1", "--from", "9"]);
     assert!(out.contains("order 1 (dikdroog) started"), "{out}");
     let questions = rig.work_list("ja", Duration::from_secs(120));

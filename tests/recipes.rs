@@ -509,3 +509,79 @@ fn a_recipe_naming_a_line_the_equipment_lacks_is_refused() {
     let (code, out) = falc(&["recipe", "check", "recipes"]);
     assert_eq!((code, out.as_str()), (0, ""));
 }
+
+/// `falc recipe verify` chains the workstation recipes' `#PRE` and
+/// `#POST` across a cell recipe: the shipped dikdroog's jobs on two
+/// stations that its conditions do not order are notes (could run in
+/// parallel); a cell recipe that runs STORE twice (its POST leaves place
+/// 3 occupied, its PRE needs it empty) is a defect with its trace.
+#[test]
+fn falc_recipe_verify_chains_pre_and_postconditions() {
+    let (code, out) = falc(&["recipe", "verify"]);
+    assert_eq!(code, 0, "{out}");
+    let parallel: Vec<&str> = out
+        .lines()
+        .filter(|l| {
+            l.starts_with("recipes/cell/dikdroog.rcp") && l.contains("could run in parallel")
+        })
+        .collect();
+    assert_eq!(parallel.len(), 2, "{out}");
+    assert!(
+        parallel[0].contains("state 13")
+            && parallel[0]
+                .contains("welding's DROOG_DIK could start before transport's MOVE_TO_MAN ends"),
+        "{parallel:?}"
+    );
+    assert!(
+        parallel[1].contains("state 17")
+            && parallel[1]
+                .contains("transport's UNLOAD could start before welding's DROOG_DIK ends"),
+        "{parallel:?}"
+    );
+
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let tree = crate::support::copy_recipes(tmp.path());
+    std::fs::write(
+        tree.join("cell/twice.rcp"),
+        "twice.rcp: STORE, then STORE again.\n\n\
+         -1 | start transport store | | gestart    | 2\n\
+         -1 | start transport store | | tijdlimiet | 9\n\
+         -2 | wait transport 60     | | klaar      | 3\n\
+         -2 | wait transport 60     | | tijdlimiet | 9\n\
+         -3 | start transport store | | gestart    | 4\n\
+         -3 | start transport store | | tijdlimiet | 9\n\
+         -4 | wait transport 60     | | klaar      | 0\n\
+         -4 | wait transport 60     | | tijdlimiet | 9\n\
+         -9 | output er is wat mis  | alarm |      | 0\n",
+    )
+    .expect("write");
+    let (code, out) = falc(&["recipe", "verify", &tree.display().to_string()]);
+    assert_eq!(code, 1, "{out}");
+    let line = out
+        .lines()
+        .find(|l| l.contains("twice.rcp:") && l.contains("precondition cannot hold"))
+        .unwrap_or_else(|| panic!("{out}"));
+    assert!(
+        line.contains("state 3:")
+            && line.contains("the precondition of transport's STORE (")
+            && line.contains(
+                "cannot hold: `place 3 empty`, but STORE, done in state 2, leaves place 3 occupied"
+            ),
+        "{line}"
+    );
+    let at = out.find(line).expect("the finding");
+    let trace: Vec<&str> = out[at..]
+        .lines()
+        .skip(1)
+        .take_while(|l| l.starts_with("    "))
+        .collect();
+    assert!(
+        trace
+            .iter()
+            .any(|l| l.contains("cell state 2: transport ended done → 3"))
+            && trace
+                .last()
+                .is_some_and(|l| l.contains("cell state 3: transport started → 4")),
+        "{trace:?}"
+    );
+}

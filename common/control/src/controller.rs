@@ -33,13 +33,13 @@ use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::program::{PiCompletion, PiRequest, PiState};
 use falc_model::mms::vmd::{Identity, ProgramState, RecipeState, Transition, Vmd, VmdStatus};
 use falc_model::mode::{CellMode, HeldStep, ManualAction, ModeSetting};
-use falc_recipe::check::{check, Program, Signal};
+use falc_recipe::check::{check, Program};
 use falc_recipe::commands::RecipeKind;
-use falc_recipe::condition::{unmet, Conditions};
+use falc_recipe::condition::{unmet, Conditions, Fact};
 use falc_recipe::engine::{Action, Engine, Event, JobEnd, Outcome};
 use falc_recipe::problem::Problem;
 use falc_recipe::syntax::{parse, StateNo};
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -133,10 +133,10 @@ pub trait Device {
             "{action}: this station has no such manual operation"
         ))
     }
-    /// What the device observes of recipe signal `signal` now (a place
-    /// occupied, a line running), for a recipe's `#PRE` and `#POST`; None
+    /// What the device observes of `fact` now (a place occupied, a line
+    /// running, the robot ready), for a recipe's `#PRE` and `#POST`; None
     /// when it cannot tell (no reading, no such input).
-    fn observes(&self, _signal: Signal) -> Option<bool> {
+    fn observes(&self, _fact: Fact) -> Option<bool> {
         None
     }
     /// The way to the device's named state `state` from what it shows
@@ -247,6 +247,10 @@ pub struct Controller<D> {
     /// commander resets a program invocation.
     alarmed: bool,
     out: VecDeque<Output>,
+    /// Each loaded program invocation's `#PRE`, with a hash of the recipe
+    /// text it was read from ([`Self::publications`] reads a changed one
+    /// again), for the status's [`VmdStatus::unmet`].
+    preconditions: BTreeMap<ObjectName, (u64, Option<Conditions>)>,
 }
 
 impl<D: Device> Controller<D> {
@@ -271,6 +275,7 @@ impl<D: Device> Controller<D> {
             runs_on_alone: false,
             alarmed: false,
             out: VecDeque::new(),
+            preconditions: BTreeMap::new(),
         }
     }
 
@@ -397,6 +402,7 @@ impl<D: Device> Controller<D> {
     /// status the driver last published, which it then becomes; none:
     /// publish it whatever it is).
     pub fn publications(&mut self, told: &mut Option<VmdStatus>) -> Vec<Unconfirmed> {
+        self.read_preconditions();
         let mut out: Vec<Unconfirmed> = std::iter::from_fn(|| self.out.pop_front())
             .map(|o| o.publication(self.me.clone()))
             .collect();
@@ -438,6 +444,33 @@ impl<D: Device> Controller<D> {
         }
     }
 
+    /// Reads the `#PRE` of every loaded program invocation whose recipe
+    /// text is new or changed (and forgets those gone), for the status.
+    fn read_preconditions(&mut self) {
+        use std::hash::{Hash, Hasher};
+        let mut now = BTreeMap::new();
+        for pi in self.vmd.programs() {
+            let name = pi.name().clone();
+            let Some(text) = pi.domains().first().and_then(|d| self.vmd.domain(d)) else {
+                continue;
+            };
+            let mut h = std::collections::hash_map::DefaultHasher::new();
+            text.content().hash(&mut h);
+            let hash = h.finish();
+            let pre = match self.preconditions.remove(&name) {
+                Some((known, pre)) if known == hash => pre,
+                // A recipe that does not check has no precondition to
+                // show: its Start is refused for what is wrong with it.
+                _ => self
+                    .engine_of(&name, &String::from_utf8_lossy(text.content()))
+                    .ok()
+                    .and_then(|e| e.program().pre.clone()),
+            };
+            now.insert(name, (hash, pre));
+        }
+        self.preconditions = now;
+    }
+
     /// The status as it is now (the driver publishes it when it changed).
     pub fn status(&self) -> VmdStatus {
         // Asked once: a device's reason is a formatted text.
@@ -457,6 +490,13 @@ impl<D: Device> Controller<D> {
                     command: r.command_of(state).to_string(),
                 })
             }),
+            unmet: self
+                .preconditions
+                .iter()
+                .filter_map(|(name, (_, pre))| {
+                    Some((name.clone(), self.unmet("precondition", name, pre)?))
+                })
+                .collect(),
             ..VmdStatus::default()
         };
         self.device.status(&mut status);
@@ -1072,7 +1112,7 @@ mod tests {
     use super::*;
     use falc_model::ids::RobotProgram;
     use falc_model::mms::program::PiState;
-    use falc_recipe::check::Job;
+    use falc_recipe::check::{Job, Signal};
 
     use super::testing::DROOG_DIK;
 
@@ -1094,7 +1134,7 @@ mod tests {
         /// What `way_to` answers.
         way: Option<Result<(String, String), String>>,
         /// What it observes (`observes`).
-        seen: std::collections::BTreeMap<Signal, bool>,
+        seen: std::collections::BTreeMap<Fact, bool>,
     }
 
     impl Device for Fake {
@@ -1136,8 +1176,8 @@ mod tests {
             self.manual.push(action.clone());
             Ok(format!("{action} done"))
         }
-        fn observes(&self, signal: Signal) -> Option<bool> {
-            self.seen.get(&signal).copied()
+        fn observes(&self, fact: Fact) -> Option<bool> {
+            self.seen.get(&fact).copied()
         }
         fn way_to(&self, state: &str) -> Result<(String, String), String> {
             self.way
@@ -1412,7 +1452,7 @@ mod tests {
             name: name("park"),
             argument: a.into(),
         };
-        let place = |n| Signal::Place(Place::of(n));
+        let place = |n| Fact::Signal(Signal::Place(Place::of(n)));
         c.device.seen.insert(place(2), false);
         c.device.seen.insert(place(3), true);
         let e = c.handle_request(secs(0), &go("order 1")).unwrap_err();
@@ -1421,13 +1461,24 @@ mod tests {
             "precondition of PARK: place 2 occupied, place 3 empty is false"
         );
         assert!(c.device.acts.is_empty() && !c.is_running());
+        // The status says so beforehand, for a restart to be refused.
+        let status_of = |c: &mut Controller<Fake>| {
+            let mut told = None;
+            c.publications(&mut told);
+            told.map(|s| s.unmet).unwrap_or_default()
+        };
+        assert_eq!(
+            status_of(&mut c).get(&name("park")).map(String::as_str),
+            Some("precondition of PARK: place 2 occupied, place 3 empty is false")
+        );
         // An input the device cannot tell is no term that holds.
         c.device.seen.clear();
         c.device.seen.insert(place(2), true);
         let e = c.handle_request(secs(0), &go("order 1")).unwrap_err();
         assert!(e.description.contains("place 3 empty is false"), "{e}");
         c.device.seen.insert(place(3), false);
-        c.device.seen.insert(Signal::Line('K'), true);
+        c.device.seen.insert(Fact::Signal(Signal::Line('K')), true);
+        assert!(status_of(&mut c).is_empty());
         outputs(&mut c);
         c.handle_request(secs(1), &go("order 1")).unwrap();
         let outs = outputs(&mut c);
@@ -1439,7 +1490,7 @@ mod tests {
         assert!(outs
             .iter()
             .any(|o| matches!(o, Output::Report { text: t, .. } if t == text)));
-        c.device.seen.insert(Signal::Line('K'), false);
+        c.device.seen.insert(Fact::Signal(Signal::Line('K')), false);
         c.handle_request(secs(2), &go("order 2")).unwrap();
         assert_eq!(job_events(&outputs(&mut c)).last(), Some(&JobEvent::Done));
         // From state 2 (a restart): the precondition is the first state's.

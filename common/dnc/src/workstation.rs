@@ -27,6 +27,7 @@ use falc_model::mms::pdu::Severity;
 use falc_model::mms::vmd::{PhysicalStatus, RobotStatusDetail, VmdStatus};
 use falc_model::mode::ManualAction;
 use falc_recipe::check::Job;
+use falc_recipe::condition::{Fact, RobotFact};
 use falc_recipe::engine::{Action, Event, Outcome};
 use std::collections::VecDeque;
 use std::time::Duration;
@@ -347,6 +348,19 @@ impl Device for Welding {
 
     fn poll_report(&mut self) -> Option<(Severity, String)> {
         self.reports.pop_front()
+    }
+
+    /// The robot's facts as the link knows them: ready when it takes DNC
+    /// commands; running while a program of ours runs (unknown while
+    /// the line is closed or the robot has not answered).
+    fn observes(&self, fact: Fact) -> Option<bool> {
+        match fact {
+            Fact::Robot(RobotFact::Ready) => Some(self.readiness().is_ok()),
+            Fact::Robot(RobotFact::Running) => {
+                (self.host.is_open() && self.host.answered()).then(|| self.host.running().is_some())
+            }
+            Fact::Signal(_) => None,
+        }
     }
 
     fn status(&self, status: &mut VmdStatus) {

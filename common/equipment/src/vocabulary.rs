@@ -12,6 +12,7 @@ use crate::signal::SignalName;
 use falc_model::ids::StationName;
 use falc_recipe::check::{Button, Command, Program, Signal};
 use falc_recipe::commands::RecipeKind;
+use falc_recipe::condition::Fact;
 use falc_recipe::problem::{Problem, ProblemKind};
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -62,7 +63,10 @@ impl Equipment {
         for (which, c) in [("#PRE", &program.pre), ("#POST", &program.post)] {
             let Some(c) = c else { continue };
             for t in &c.terms {
-                if let Some(why) = self.lacks_signal(t.signal) {
+                let Fact::Signal(signal) = t.fact else {
+                    continue;
+                };
+                if let Some(why) = self.lacks_signal(signal) {
                     out.push(Problem {
                         origin: program.origin.clone(),
                         line: c.line,

@@ -60,6 +60,7 @@ use falc_model::mms::pdu::Severity;
 use falc_model::mms::vmd::{PhysicalStatus, VmdStatus, NO_NAMED_STATE};
 use falc_model::mode::{CellMode, ManualAction};
 use falc_recipe::check::{Button, Program, Signal};
+use falc_recipe::condition::Fact;
 use falc_recipe::engine::{Action, Event, Outcome};
 use falc_recipe::problem::Problem;
 use std::collections::VecDeque;
@@ -760,7 +761,10 @@ impl Device for Plc {
             });
     }
 
-    fn observes(&self, signal: Signal) -> Option<bool> {
+    fn observes(&self, fact: Fact) -> Option<bool> {
+        let Fact::Signal(signal) = fact else {
+            return None;
+        };
         let inputs = self.live().ok()?;
         self.equipment
             .has_signal(signal)

@@ -12,7 +12,7 @@
 //! workstation defines, and two workstation recipes with one name.
 
 use super::commands::{lookup, Arg, CommandSpec, Criteria, Handler, RecipeKind};
-use super::condition::{parse_terms, Conditions};
+use super::condition::{parse_terms, Condition, Conditions, Fact};
 use super::problem::{Problem, ProblemKind};
 use super::syntax::{CommandText, Criterion, Recipe, Report, Row, StateNo};
 use falc_model::ids::{excerpt, IoName, ObjectName, Place, PlcStation, RobotProgram, StationName};
@@ -149,6 +149,34 @@ pub struct Program {
     /// What its station must observe when the job ended, for it to be
     /// done (`#POST`).
     pub post: Option<Conditions>,
+}
+
+impl Program {
+    /// The workstation recipe a run from `state` starts first, when it
+    /// gets there without waiting (through states that only show text or
+    /// press buttons): the station and the recipe. None when it waits,
+    /// asks or ends first.
+    pub fn job_started_from(&self, state: StateNo) -> Option<(&StationName, &ObjectName)> {
+        let mut at = state;
+        for _ in 0..=self.states.len() {
+            let st = self.states.get(&at)?;
+            match &st.command {
+                Command::Start {
+                    target,
+                    job: Job::Recipe(name),
+                    ..
+                } => return Some((target, name)),
+                Command::Nothing
+                | Command::Output(_)
+                | Command::Activate(_)
+                | Command::Reset(_) => {
+                    at = st.branches.first()?.1;
+                }
+                _ => return None,
+            }
+        }
+        None
+    }
 }
 
 struct Ctx<'a> {
@@ -654,27 +682,39 @@ pub fn check(recipe: &Recipe, kind: RecipeKind) -> Result<Program, Vec<Problem>>
     }
     let mut condition = |which: &str, raw: &Option<(String, usize)>| {
         let (text, line) = raw.as_ref()?;
-        if kind != RecipeKind::Transport {
-            cx.add(
-                *line,
-                None,
-                ProblemKind::BadArgument,
-                format!(
-                    "#{which}: a {kind} recipe has no conditions (a transport recipe's name \
-                     its station's inputs)"
-                ),
-            );
-            return None;
-        }
+        let mut bad = |message: String| cx.add(*line, None, ProblemKind::BadArgument, message);
+        // A station's terms are over what it observes: the conveyor's
+        // inputs for transport, the robot's facts for welding.
+        let fits = |c: &Condition| {
+            matches!(
+                (kind, c.fact),
+                (RecipeKind::Transport, Fact::Signal(_)) | (RecipeKind::Welding, Fact::Robot(_))
+            )
+        };
         match parse_terms(text) {
-            Ok(terms) => Some(Conditions { terms, line: *line }),
+            Ok(_) if kind == RecipeKind::Cell => {
+                bad(format!(
+                    "#{which}: a cell recipe has no conditions (its workstation recipes state \
+                     theirs)"
+                ));
+                None
+            }
+            Ok(terms) => match terms.iter().find(|c| !fits(c)) {
+                Some(c) => {
+                    let what = match kind {
+                        RecipeKind::Welding => "the robot's facts (`robot ready`, `robot idle`)",
+                        _ => "the conveyor's inputs (`place 2 occupied`, `line K stopped`)",
+                    };
+                    bad(format!(
+                        "#{which}: `{c}` is not something a {kind} station observes: its \
+                         terms name {what}"
+                    ));
+                    None
+                }
+                None => Some(Conditions { terms, line: *line }),
+            },
             Err(e) => {
-                cx.add(
-                    *line,
-                    None,
-                    ProblemKind::BadArgument,
-                    format!("#{which}: {e}"),
-                );
+                bad(format!("#{which}: {e}"));
                 None
             }
         }
@@ -819,11 +859,12 @@ mod tests {
         assert_eq!(p.states.len(), 3);
     }
 
-    /// `#PRE` and `#POST` lines: read into the program for a transport
-    /// recipe; refused, at their line, for another kind, with a term that
-    /// is none, or given twice.
+    /// `#PRE` and `#POST` lines: read into the program of a transport
+    /// recipe (conveyor terms) and of a welding recipe (robot terms);
+    /// refused, at their line, for a cell recipe, with a term its station
+    /// does not observe, with a term that is none, or given twice.
     #[test]
-    fn conditions_are_a_transport_recipes_and_name_their_line() {
+    fn conditions_are_a_workstation_recipes_and_name_their_line() {
         let text = "#PARK\n#PRE place 2 occupied, line K stopped\n#POST place 3 occupied\n\
                     -1 | activate k | | | 0\n";
         let p = check(&parse(text, "park.rcp"), RecipeKind::Transport).expect("clean");
@@ -844,7 +885,27 @@ mod tests {
         let on_welding = OK_WELDING.replace("#W\n", "#W\n#PRE place 2 occupied\n");
         assert_eq!(
             problems_of(RecipeKind::Welding, &on_welding),
-            ["r.rcp:2: #PRE: a welding recipe has no conditions (a transport recipe's name its station's inputs)"]
+            [
+                "r.rcp:2: #PRE: `place 2 occupied` is not something a welding station observes: \
+              its terms name the robot's facts (`robot ready`, `robot idle`)"
+            ]
+        );
+        let robot = OK_WELDING.replace(
+            "#W\n",
+            "#W\n#PRE robot ready, robot idle\n#POST robot idle\n",
+        );
+        let p = check(&parse(&robot, "w.rcp"), RecipeKind::Welding).expect("robot terms");
+        assert_eq!(
+            p.pre.map(|c| c.to_string()).as_deref(),
+            Some("robot ready, robot idle")
+        );
+        let on_transport = text.replace("line K stopped", "robot idle");
+        assert!(problems_of(RecipeKind::Transport, &on_transport)[0]
+            .contains("`robot idle` is not something a transport station observes"));
+        let on_cell = "#PRE robot idle\n-1 | output hi | | | 0\n";
+        assert_eq!(
+            problems_of(RecipeKind::Cell, on_cell),
+            ["r.rcp:1: #PRE: a cell recipe has no conditions (its workstation recipes state theirs)"]
         );
         let bad = text.replace("line K stopped", "line K halted");
         let found = problems_of(RecipeKind::Transport, &bad);

@@ -23,7 +23,16 @@
 //!   allow (its own limit then never fires first);
 //! - no progress: states from which no combination reaches the end, and
 //!   loops made of time-outs alone (nothing but the clock moves);
-//! - states that no combination reaches.
+//! - states that no combination reaches;
+//! - a workstation recipe's `#PRE` that cannot hold where the cell starts
+//!   it: a term the `#POST` of a job done before on the same station
+//!   contradicts (a station's facts are what its last job done left;
+//!   anything else a job ends with, or a job stopped, leaves them
+//!   unknown, and unknown is never a finding);
+//! - as notes, jobs the cell runs one after the other on two stations
+//!   whose conditions do not order them (both state `#PRE`/`#POST`, over
+//!   different stations' facts): they could run in parallel, as far as
+//!   their conditions say.
 //!
 //! Every finding carries a [`Trace`] the engine can follow ([`replay`]):
 //! the cell's states, the events between them and, for a job's end, the
@@ -31,6 +40,7 @@
 //! with a clear message ([`Report::bounded`]).
 
 use crate::check::{Command, Job, Program};
+use crate::condition::Fact;
 use crate::engine::{Action, Engine, Event as EngineEvent, JobEnd, Outcome, START_CONFIRM_LIMIT};
 use crate::syntax::{Criterion, Report as RowReport, StateNo};
 use falc_model::alarm::Cause;
@@ -262,6 +272,11 @@ pub enum FindingKind {
     Unreached,
     /// The recipe ends while a job it started may still run.
     LeftRunning,
+    /// A job's `#PRE` that what ran before on its station contradicts.
+    Precondition,
+    /// Two jobs run one after the other that their conditions do not
+    /// order (a note).
+    Parallel,
 }
 
 impl fmt::Display for FindingKind {
@@ -274,6 +289,8 @@ impl fmt::Display for FindingKind {
             FindingKind::NoProgress => "no progress",
             FindingKind::Unreached => "unreached",
             FindingKind::LeftRunning => "job left running",
+            FindingKind::Precondition => "precondition cannot hold",
+            FindingKind::Parallel => "could run in parallel",
         })
     }
 }
@@ -361,7 +378,7 @@ pub fn verify_with_limit(programs: &[(StationName, Program)], limit: usize) -> R
         let device = |_: &StationName, _: &Job| -> Vec<(End, Option<Trace>)> {
             End::DEVICE.iter().map(|e| (*e, None)).collect()
         };
-        let run = explore(station, p, &device, limit);
+        let run = explore(station, p, &device, &HashMap::new(), limit);
         let mut ends = Vec::new();
         for (ending, trace) in &run.endings {
             ends.push((ending.as_end(), trace.clone()));
@@ -377,6 +394,11 @@ pub fn verify_with_limit(programs: &[(StationName, Program)], limit: usize) -> R
         .iter()
         .filter_map(|(s, p)| Some(((s.clone(), p.name.clone()?), longest(p))))
         .collect();
+    let workstation: HashMap<(StationName, ObjectName), &Program> = programs
+        .iter()
+        .filter(|(_, p)| p.kind.is_workstation())
+        .filter_map(|(s, p)| Some(((s.clone(), p.name.clone()?), p)))
+        .collect();
     let mut cell_findings = Vec::new();
     for (station, p) in programs.iter().filter(|(_, p)| !p.kind.is_workstation()) {
         let jobs = |target: &StationName, job: &Job| -> Vec<(End, Option<Trace>)> {
@@ -388,7 +410,7 @@ pub fn verify_with_limit(programs: &[(StationName, Program)], limit: usize) -> R
                 Job::Program(_) => End::DEVICE.iter().map(|e| (*e, None)).collect(),
             }
         };
-        let mut run = explore(station, p, &jobs, limit);
+        let mut run = explore(station, p, &jobs, &workstation, limit);
         run.findings.extend(time_limits(p, &run, &durations));
         record(&mut report, run, &mut cell_findings);
     }
@@ -413,8 +435,8 @@ enum JobStatus {
         job: JobKey,
         limit: Option<Duration>,
     },
-    /// Over: how it ended, and why it is over.
-    Over { end: End, why: Over },
+    /// Over: which job, how it ended, and why it is over.
+    Over { job: JobKey, end: End, why: Over },
 }
 
 #[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -463,9 +485,14 @@ enum Node {
         at: StateNo,
         jobs: BTreeMap<StationName, JobStatus>,
         alarm: bool,
+        facts: Facts,
     },
     Ended(Ending),
 }
+
+/// What is known of each station's facts: the level, and the job done
+/// whose `#POST` says so with the cell state that waited for it.
+type Facts = BTreeMap<(StationName, Fact), (bool, ObjectName, StateNo)>;
 
 /// One recipe explored.
 struct Run {
@@ -484,6 +511,8 @@ struct Explorer<'a> {
     level: &'a StationName,
     program: &'a Program,
     below: &'a Below<'a>,
+    /// The workstation recipes the cell starts, for their conditions.
+    recipes: &'a HashMap<(StationName, ObjectName), &'a Program>,
     nodes: Vec<Node>,
     index: HashMap<Node, usize>,
     /// How each node was first reached: (parent, step), None for the start.
@@ -498,11 +527,18 @@ struct Explorer<'a> {
 /// A finding noticed while entering states: kind, state, message.
 type Noticed = (FindingKind, StateNo, String);
 
-fn explore(level: &StationName, program: &Program, below: &Below<'_>, limit: usize) -> Run {
+fn explore(
+    level: &StationName,
+    program: &Program,
+    below: &Below<'_>,
+    recipes: &HashMap<(StationName, ObjectName), &Program>,
+    limit: usize,
+) -> Run {
     let mut x = Explorer {
         level,
         program,
         below,
+        recipes,
         nodes: Vec::new(),
         index: HashMap::new(),
         parent: Vec::new(),
@@ -517,6 +553,7 @@ fn explore(level: &StationName, program: &Program, below: &Below<'_>, limit: usi
     let first = x.enter(
         BTreeMap::new(),
         false,
+        Facts::new(),
         program.first,
         &mut start,
         &mut noticed,
@@ -531,6 +568,11 @@ fn explore(level: &StationName, program: &Program, below: &Below<'_>, limit: usi
     let mut waits = Vec::new();
     let mut bounded = None;
     let mut unhandled: BTreeMap<StateNo, (String, Vec<End>, Trace)> = BTreeMap::new();
+    // Jobs on two stations one after the other (the earlier done and
+    // waited for when the later starts), with the first start seen, and
+    // those seen running side by side.
+    let mut one_after: BTreeMap<(JobOn, JobOn), (StateNo, usize)> = BTreeMap::new();
+    let mut side_by_side: BTreeSet<(JobOn, JobOn)> = BTreeSet::new();
     while let Some(n) = queue.pop_front() {
         if x.nodes.len() > limit {
             bounded = Some(format!(
@@ -539,14 +581,49 @@ fn explore(level: &StationName, program: &Program, below: &Below<'_>, limit: usi
             ));
             break;
         }
-        let Node::Waiting { at, jobs, alarm } = x.nodes[n].clone() else {
+        let Node::Waiting {
+            at,
+            jobs,
+            alarm,
+            facts,
+        } = x.nodes[n].clone()
+        else {
             continue;
         };
-        for (event, below_trace, next_jobs, criterion, noticed, wait) in x.successors(at, &jobs) {
+        if let Some(later) = x.started_at(at) {
+            for (station, j) in &jobs {
+                match j {
+                    JobStatus::Running { job, .. } if *station != later.0 => {
+                        side_by_side.insert(((station.clone(), job.clone()), later.clone()));
+                    }
+                    JobStatus::Over {
+                        job,
+                        end: End::Done,
+                        why: Over::Waited,
+                    } if *station != later.0 => {
+                        one_after
+                            .entry(((station.clone(), job.clone()), later.clone()))
+                            .or_insert((at, n));
+                    }
+                    _ => {}
+                }
+            }
+        }
+        for (event, below_trace, next_jobs, criterion, noticed, wait) in
+            x.successors(at, &jobs, &facts)
+        {
             let mut entered = Vec::new();
             let mut more = noticed;
+            let next_facts = x.facts_after(at, &event, &jobs, &next_jobs, &facts);
             let node = match criterion {
-                Next::Criterion(c) => x.take(at, &c, next_jobs, alarm, &mut entered, &mut more),
+                Next::Criterion(c) => x.take(
+                    at,
+                    &c,
+                    (next_jobs, next_facts),
+                    alarm,
+                    &mut entered,
+                    &mut more,
+                ),
                 Next::Ended(ending) => Node::Ended(ending),
             };
             let timeout = event == Event::TimedOut;
@@ -612,6 +689,30 @@ fn explore(level: &StationName, program: &Program, below: &Below<'_>, limit: usi
             trace,
         });
     }
+    for ((earlier, later), (state, n)) in one_after {
+        if side_by_side.contains(&(earlier.clone(), later.clone())) {
+            continue;
+        }
+        if !(x.states_conditions(&earlier) && x.states_conditions(&later)) {
+            continue;
+        }
+        let trace = x.trace(n);
+        x.findings.push(Finding {
+            kind: FindingKind::Parallel,
+            severity: Severity::Note,
+            origin: program.origin.clone(),
+            line: x.line_of(state),
+            state,
+            message: format!(
+                "{} could start before {} ends: their #PRE and #POST are over different \
+                 stations' facts, so they do not order them (a need neither states, such as a \
+                 part on the table, still may)",
+                job_on(&later),
+                job_on(&earlier)
+            ),
+            trace,
+        });
+    }
     if bounded.is_none() {
         x.no_progress();
         x.unreached();
@@ -659,7 +760,112 @@ type Successor = (
     Option<(StationName, ObjectName, Duration)>,
 );
 
+/// A workstation recipe on its station, as the cell starts it.
+type JobOn = (StationName, JobKey);
+
+fn job_on((station, job): &JobOn) -> String {
+    format!("{station}'s {}", key_name(job))
+}
+
 impl Explorer<'_> {
+    /// The job the state `at` starts, if it starts one.
+    fn started_at(&self, at: StateNo) -> Option<JobOn> {
+        match &self.program.states.get(&at)?.command {
+            Command::Start { target, job, .. } => Some((target.clone(), JobKey::of(job))),
+            _ => None,
+        }
+    }
+
+    /// Whether a workstation recipe the cell starts states a `#PRE` or a
+    /// `#POST`.
+    fn states_conditions(&self, (station, job): &JobOn) -> bool {
+        let JobKey::Recipe(name) = job else {
+            return false;
+        };
+        self.recipes
+            .get(&(station.clone(), name.clone()))
+            .is_some_and(|p| p.pre.is_some() || p.post.is_some())
+    }
+
+    /// The terms of the `#PRE` of `job` on `target` that the facts known
+    /// at its start contradict, as a finding.
+    fn contradicted(
+        &self,
+        at: StateNo,
+        target: &StationName,
+        job: &Job,
+        facts: &Facts,
+    ) -> Option<Noticed> {
+        let Job::Recipe(name) = job else {
+            return None;
+        };
+        let p = self.recipes.get(&(target.clone(), name.clone()))?;
+        let pre = p.pre.as_ref()?;
+        let why: Vec<String> = pre
+            .terms
+            .iter()
+            .filter_map(|t| {
+                let (level, by, when) = facts.get(&(target.clone(), t.fact))?;
+                (*level != t.level).then(|| {
+                    let left = crate::condition::Condition {
+                        fact: t.fact,
+                        level: *level,
+                    };
+                    format!("`{t}`, but {by}, done in state {when}, leaves {left}")
+                })
+            })
+            .collect();
+        (!why.is_empty()).then(|| {
+            (
+                FindingKind::Precondition,
+                at,
+                format!(
+                    "the precondition of {target}'s {name} ({}:{}) cannot hold: {}",
+                    p.origin,
+                    pre.line,
+                    why.join("; ")
+                ),
+            )
+        })
+    }
+
+    /// The facts after `event` at waiting state `at`: a station whose job
+    /// ended (or was stopped) has what its `#POST` says if it ended done,
+    /// else nothing known.
+    fn facts_after(
+        &self,
+        at: StateNo,
+        event: &Event,
+        before: &BTreeMap<StationName, JobStatus>,
+        after: &BTreeMap<StationName, JobStatus>,
+        facts: &Facts,
+    ) -> Facts {
+        let mut out = facts.clone();
+        for (station, was) in before {
+            let JobStatus::Running { job, .. } = was else {
+                continue;
+            };
+            if after.get(station) == Some(was) {
+                continue;
+            }
+            out.retain(|(s, _), _| s != station);
+            let (Event::Ended(s, End::Done), JobKey::Recipe(name)) = (event, job) else {
+                continue;
+            };
+            if s != station {
+                continue;
+            }
+            let post = self
+                .recipes
+                .get(&(station.clone(), name.clone()))
+                .and_then(|p| p.post.as_ref());
+            for t in post.iter().flat_map(|c| &c.terms) {
+                out.insert((station.clone(), t.fact), (t.level, name.clone(), at));
+            }
+        }
+        out
+    }
+
     fn add(&mut self, node: Node, parent: Option<(usize, Step)>) -> usize {
         let i = self.nodes.len();
         self.index.insert(node.clone(), i);
@@ -713,7 +919,12 @@ impl Explorer<'_> {
     }
 
     /// What can happen in waiting state `at`.
-    fn successors(&self, at: StateNo, jobs: &BTreeMap<StationName, JobStatus>) -> Vec<Successor> {
+    fn successors(
+        &self,
+        at: StateNo,
+        jobs: &BTreeMap<StationName, JobStatus>,
+        facts: &Facts,
+    ) -> Vec<Successor> {
         let Some(st) = self.program.states.get(&at) else {
             return Vec::new();
         };
@@ -767,6 +978,7 @@ impl Explorer<'_> {
                         ),
                     ));
                 }
+                let contradicted = self.contradicted(at, target, job, facts);
                 let mut started = jobs.clone();
                 started.insert(
                     target.clone(),
@@ -780,13 +992,14 @@ impl Explorer<'_> {
                     None,
                     started,
                     Next::Criterion(Criterion::Started),
-                    noticed.clone(),
+                    noticed.iter().cloned().chain(contradicted).collect(),
                     None,
                 ));
                 let mut refused = jobs.clone();
                 refused.insert(
                     target.clone(),
                     JobStatus::Over {
+                        job: JobKey::of(job),
                         end: End::FailedSafe,
                         why: Over::Refused,
                     },
@@ -823,6 +1036,7 @@ impl Explorer<'_> {
                             after.insert(
                                 target.clone(),
                                 JobStatus::Over {
+                                    job: job.clone(),
                                     end,
                                     why: Over::Waited,
                                 },
@@ -873,7 +1087,7 @@ impl Explorer<'_> {
         &mut self,
         at: StateNo,
         c: &Criterion,
-        jobs: BTreeMap<StationName, JobStatus>,
+        (jobs, facts): (BTreeMap<StationName, JobStatus>, Facts),
         alarm: bool,
         entered: &mut Vec<StateNo>,
         noticed: &mut Vec<Noticed>,
@@ -885,7 +1099,7 @@ impl Explorer<'_> {
             .and_then(|s| s.branches.iter().find(|(b, _)| b.as_ref() == Some(c)))
             .map(|(_, n)| *n);
         match next {
-            Some(n) => self.enter(jobs, alarm, n, entered, noticed),
+            Some(n) => self.enter(jobs, alarm, facts, n, entered, noticed),
             None => Node::Ended(Ending::Alarm),
         }
     }
@@ -896,6 +1110,7 @@ impl Explorer<'_> {
         &mut self,
         mut jobs: BTreeMap<StationName, JobStatus>,
         mut alarm: bool,
+        mut facts: Facts,
         mut next: StateNo,
         entered: &mut Vec<StateNo>,
         noticed: &mut Vec<Noticed>,
@@ -925,9 +1140,12 @@ impl Explorer<'_> {
             entered.push(next);
             if st.report == Some(RowReport::Alarm) {
                 alarm = true;
-                for j in jobs.values_mut() {
-                    if matches!(j, JobStatus::Running { .. }) {
+                for (station, j) in jobs.iter_mut() {
+                    if let JobStatus::Running { job, .. } = j {
+                        // Stopped part way: what it leaves is unknown.
+                        facts.retain(|(s, _), _| s != station);
                         *j = JobStatus::Over {
+                            job: job.clone(),
                             end: End::FailedSafe,
                             why: Over::Stopped,
                         };
@@ -948,6 +1166,7 @@ impl Explorer<'_> {
                         at: next,
                         jobs,
                         alarm,
+                        facts,
                     }
                 }
                 Command::Wait { target, .. } => match jobs.get(target).cloned() {
@@ -959,7 +1178,7 @@ impl Explorer<'_> {
                         ));
                         return Node::Ended(Ending::Alarm);
                     }
-                    Some(JobStatus::Over { end, why }) => {
+                    Some(JobStatus::Over { end, why, .. }) => {
                         noticed.push((
                             FindingKind::WaitNotRunning,
                             next,
@@ -980,6 +1199,7 @@ impl Explorer<'_> {
                             at: next,
                             jobs,
                             alarm,
+                            facts,
                         }
                     }
                 },
@@ -1391,8 +1611,112 @@ mod tests {
             .collect()
     }
 
+    /// The findings' kinds, states and severities, but for the notes of
+    /// jobs that could run in parallel (STORE and DROOG_DIK, one after
+    /// the other in most of these recipes: the tests below check those).
     fn kinds(f: &[Finding]) -> Vec<(FindingKind, u16, Severity)> {
-        f.iter().map(|f| (f.kind, f.state.0, f.severity)).collect()
+        f.iter()
+            .filter(|f| f.kind != FindingKind::Parallel)
+            .map(|f| (f.kind, f.state.0, f.severity))
+            .collect()
+    }
+
+    /// A start whose `#PRE` the `#POST` of the job done before on the
+    /// same station contradicts: STORE twice (its POST leaves place 3
+    /// occupied, its PRE needs it empty) is a defect, with the trace to
+    /// the second start; a first STORE that did not end done leaves the
+    /// place unknown, which is no finding.
+    #[test]
+    fn a_precondition_an_earlier_postcondition_contradicts_is_a_defect() {
+        let twice = "\
+-1 | start transport store | | gestart    | 2
+-1 | start transport store | | tijdlimiet | 9
+-2 | wait transport 40     | | klaar      | 3
+-2 | wait transport 40     | | tijdlimiet | 9
+-3 | start transport store | | gestart    | 4
+-3 | start transport store | | tijdlimiet | 9
+-4 | wait transport 40     | | klaar      | 0
+-4 | wait transport 40     | | tijdlimiet | 9
+-9 | output er is wat mis  | alarm |      | 0
+";
+        let f = findings(twice);
+        let pre: Vec<&Finding> = f
+            .iter()
+            .filter(|f| f.kind == FindingKind::Precondition)
+            .collect();
+        assert_eq!(pre.len(), 1, "{f:#?}");
+        assert_eq!(
+            (pre[0].state, pre[0].severity),
+            (StateNo(3), Severity::Defect)
+        );
+        assert_eq!(
+            pre[0].message,
+            "the precondition of transport's STORE (store.rcp:2) cannot hold: `place 3 empty`, \
+             but STORE, done in state 2, leaves place 3 occupied"
+        );
+        let lines = pre[0].trace.lines();
+        assert_eq!(
+            lines.last().map(String::as_str),
+            Some("cell state 3: transport started → 4"),
+            "{lines:#?}"
+        );
+        assert!(lines
+            .iter()
+            .any(|l| l == "cell state 2: transport ended done → 3"));
+        // A first STORE that timed out (not done) leaves place 3 unknown:
+        // only the path where it ended done is a finding.
+        let after_a_failure = twice.replace(
+            "-2 | wait transport 40     | | tijdlimiet | 9",
+            "-2 | wait transport 40     | | tijdlimiet | 3",
+        );
+        let pre_after: Vec<_> = findings(&after_a_failure)
+            .into_iter()
+            .filter(|f| f.kind == FindingKind::Precondition)
+            .collect();
+        assert_eq!(pre_after.len(), 1, "{pre_after:#?}");
+        assert!(pre_after[0]
+            .trace
+            .lines()
+            .iter()
+            .any(|l| l.contains("ended done → 3")));
+    }
+
+    /// Jobs the cell runs one after the other on two stations, both with
+    /// conditions over their own station's facts, are notes (could run in
+    /// parallel); the same jobs run side by side are not.
+    #[test]
+    fn jobs_one_after_the_other_no_condition_orders_are_notes() {
+        let f = findings(GOOD);
+        let parallel: Vec<String> = f
+            .iter()
+            .filter(|f| f.kind == FindingKind::Parallel)
+            .map(|f| format!("{} {:?}: {}", f.state, f.severity, f.message))
+            .collect();
+        assert_eq!(
+            parallel,
+            [
+                "3 Note: welding's DROOG_DIK could start before transport's STORE ends: their \
+              #PRE and #POST are over different stations' facts, so they do not order them (a \
+              need neither states, such as a part on the table, still may)"
+            ]
+        );
+        // Started side by side (the weld first, then STORE): no note.
+        let side_by_side = "\
+-1 | start welding droog_dik 180 | | gestart    | 2
+-1 | start welding droog_dik 180 | | tijdlimiet | 9
+-2 | start transport store       | | gestart    | 3
+-2 | start transport store       | | tijdlimiet | 9
+-3 | wait transport 40           | | klaar      | 4
+-3 | wait transport 40           | | tijdlimiet | 9
+-4 | wait welding                | | klaar      | 0
+-4 | wait welding                | | bad_product | 9
+-4 | wait welding                | | failed_safe | 9
+-4 | wait welding                | | failed_danger | 9
+-4 | wait welding                | | tijdlimiet | 9
+-9 | output er is wat mis        | alarm |      | 0
+";
+        let f = findings(side_by_side);
+        assert!(!f.iter().any(|f| f.kind == FindingKind::Parallel), "{f:#?}");
     }
 
     const GOOD: &str = "\
@@ -1520,7 +1844,8 @@ mod tests {
                 "-4 | wait welding                |",
                 "-4 | wait welding 100            |",
             );
-        let f = findings(&cell);
+        let mut f = findings(&cell);
+        f.retain(|f| f.kind != FindingKind::Parallel);
         assert_eq!(
             kinds(&f),
             [(FindingKind::TimeLimit, 4, Severity::Defect)],

@@ -60,6 +60,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         if let Some(f) = from {
             let text = String::from_utf8_lossy(&delivery.content);
             let recipe = falc_recipe::syntax::parse(&text, &order.recipe);
+            self.precondition_of(&recipe, f)?;
             let mut states: Vec<u16> = recipe.rows.iter().map(|r| r.state.0).collect();
             states.sort_unstable();
             states.dedup();
@@ -90,6 +91,28 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 (order, CellCall::Start { name, argument }, what)
             }
         })
+    }
+
+    /// Refuses a restart from state `f` of cell recipe `recipe` when the
+    /// job it starts first has a `#PRE` its station last said does not
+    /// hold (the station checks again at the Start: this refuses before
+    /// anything runs, with what to set right).
+    fn precondition_of(&self, recipe: &falc_recipe::syntax::Recipe, f: u16) -> Result<(), String> {
+        let Ok(program) =
+            falc_recipe::check::check(recipe, falc_recipe::commands::RecipeKind::Cell)
+        else {
+            return Ok(());
+        };
+        let Some((station, job)) = program.job_started_from(falc_recipe::syntax::StateNo(f)) else {
+            return Ok(());
+        };
+        match self.statuses.get(station).and_then(|s| s.unmet.get(job)) {
+            Some(why) => Err(format!(
+                "state {f} starts {station}'s {job}, and {station} says: {why} (set it right, \
+                 or restart from another state)"
+            )),
+            None => Ok(()),
+        }
     }
 
     pub(super) fn begin_restart(&mut self, by: Caller, id: i64, from: Option<u16>) {

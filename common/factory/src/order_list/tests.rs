@@ -36,14 +36,25 @@ impl Rig {
 
     /// The list over `records` (an operator started again on its file).
     fn with(records: Memory) -> Self {
+        Self::with_recipes(records, set())
+    }
+
+    /// The list over `records`, delivering `recipes` (each also the
+    /// source's text, should the list read them again).
+    fn with_recipes(records: Memory, recipes: crate::recipe_source::RecipeSet) -> Self {
+        let source = Source::default();
+        for d in &recipes.deliveries {
+            let text = String::from_utf8_lossy(&d.content).into_owned();
+            source.saved.borrow_mut().push((d.file.clone(), text));
+        }
         let topology = Topology::parse(TOPOLOGY, "test").expect("topology");
         let list = OrderList::new(
             st("operator"),
             st("cell"),
             topology,
             records,
-            Source::default(),
-            set(),
+            source,
+            recipes,
         );
         Self {
             list,
@@ -1034,6 +1045,72 @@ fn a_stopped_order_resumes_at_the_cell_and_a_refused_restart_leaves_it_as_it_was
     assert!(e.contains("there is no order 7"), "{e}");
     let e = r.ask("observer", restart(1, None)).unwrap_err();
     assert!(e.contains("needs Operator"), "{e}");
+}
+
+/// `falc restart N --from S` where state S starts a workstation job
+/// whose `#PRE` its station last said does not hold is refused naming
+/// it, the order left as it was; once the station says it holds, the
+/// same restart goes to the cell.
+#[test]
+fn a_restart_from_a_state_whose_job_s_precondition_is_false_is_refused() {
+    let mut recipes = set();
+    for d in recipes.deliveries.iter_mut().filter(|d| d.is_cell) {
+        d.content = include_bytes!("../../../../recipes/cell/dikdroog.rcp").to_vec();
+    }
+    let mut r = Rig::with_recipes(Memory::default(), recipes);
+    r.add(1);
+    assert!(r.start().is_ok());
+    let (_, _) = r.api("console", ApiRequest::Stop);
+    r.answer(Ok(()));
+    assert_eq!(r.order(1).state, OrderState::Stopped);
+    let why = "precondition of UNSTORE: place 3 occupied is false";
+    let transport = |unmet: &[(&str, &str)]| Unconfirmed::Status {
+        station: st("transport"),
+        status: VmdStatus {
+            unmet: unmet
+                .iter()
+                .map(|(n, w)| (name(n), w.to_string()))
+                .collect(),
+            ..VmdStatus::default()
+        },
+    };
+    r.publish(transport(&[("UNSTORE", why)]));
+    // State 14 of dikdroog starts transport's UNSTORE.
+    let restart = ApiRequest::Restart {
+        order: 1,
+        from: Some(14),
+    };
+    let e = r.ask("console", restart.clone()).unwrap_err();
+    assert_eq!(
+        e,
+        format!(
+            "state 14 starts transport's UNSTORE, and transport says: {why} (set it right, or \
+             restart from another state)"
+        )
+    );
+    assert_eq!(r.order(1).state, OrderState::Stopped);
+    // Another job's precondition, or a state that waits first: no matter.
+    let (_, out) = r.api(
+        "console",
+        ApiRequest::Restart {
+            order: 1,
+            from: Some(1),
+        },
+    );
+    assert!(
+        matches!(call(&out), Some(CellCall::Start { .. })),
+        "{out:?}"
+    );
+    r.answer(Err("refused for the test"));
+    r.publish(transport(&[]));
+    let (_, out) = r.api("console", restart);
+    assert_eq!(
+        call(&out),
+        Some(CellCall::Start {
+            name: name("dikdroog"),
+            argument: "order 1 from 14".into()
+        })
+    );
 }
 
 #[test]

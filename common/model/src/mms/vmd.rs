@@ -143,6 +143,12 @@ pub struct VmdStatus {
     /// with no reading.
     #[serde(default)]
     pub equipment_state: Option<String>,
+    /// The loaded recipes whose `#PRE` does not hold now, each with the
+    /// refusal a Start of it would get ("precondition of UNSTORE: place 3
+    /// occupied is false"): a restart from a state that starts one is
+    /// refused before anything runs.
+    #[serde(default)]
+    pub unmet: BTreeMap<ObjectName, String>,
 }
 
 /// [`VmdStatus::equipment_state`] of equipment in none of its named
@@ -171,6 +177,7 @@ impl Default for VmdStatus {
             held: None,
             unready: None,
             equipment_state: None,
+            unmet: BTreeMap::new(),
         }
     }
 }
