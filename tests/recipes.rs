@@ -493,7 +493,7 @@ fn a_recipe_naming_a_line_the_equipment_lacks_is_refused() {
     assert!(
         out.lines()
             .any(|l| l
-                == "recipes/transport/store.rcp:8: state 1: small has no line K (lines: A, B)"),
+                == "recipes/transport/store.rcp:10: state 1: small has no line K (lines: A, B)"),
         "{out}"
     );
     assert!(

@@ -89,7 +89,7 @@ impl Rig {
         self.transport
             .expect_line("EVENT plc-ready", Duration::from_secs(5));
         self.transport.forget("EVENT plc-ready");
-        self.plc.control("layout W2 W2");
+        self.layout_for("W2 W2", "store").await;
         assert_eq!(self.run("store").await, JobEvent::Done);
         assert_eq!(self.carriers(), "carriers: 1@W3 2@W2");
     }
@@ -122,6 +122,20 @@ impl Rig {
                 ),
             }
         }
+    }
+
+    /// Sets the twin's carriers (`layout …`) for recipe `name`, and waits
+    /// until the node's status shows its #PRE holds: the node evaluates
+    /// a precondition on a reading at most one busy poll old, and one
+    /// taken just before a layout set within that poll would miss it
+    /// (as an operator checks `falc status` before `start`).
+    async fn layout_for(&mut self, spots: &str, name: &str) {
+        self.plc.control(&format!("layout {spots}"));
+        let recipe = name.to_uppercase();
+        self.status_becomes(&format!("{recipe}'s #PRE true"), |s| {
+            !s.unmet.keys().any(|k| k.as_str() == recipe)
+        })
+        .await;
     }
 
     async fn run(&mut self, name: &str) -> JobEvent {
@@ -159,7 +173,7 @@ async fn the_five_shipped_recipes_do_what_their_names_say() {
     );
     // Unload and load: the welded carrier leaves the table, the stored one
     // takes its place.
-    rig.plc.control("layout S3 W3");
+    rig.layout_for("S3 W3", "unload_and_load").await;
     assert_eq!(rig.run("unload_and_load").await, JobEvent::Done);
     rig.carriers_become("1@W2 2@S3").await;
     // The buttons the recipes pressed: each one released again, but
@@ -441,6 +455,9 @@ async fn the_node_needs_nothing_but_the_documented_map() {
     };
     let coil = |c: Coil| usize::from(e.coil(c).expect("in the equipment file").address);
     image.lock().expect("image").inputs[offset(Input::Ready)] = true;
+    // A carrier at W2, as STORE's #PRE needs.
+    image.lock().expect("image").inputs
+        [offset(Input::Signal(Signal::Place(falc_model::ids::Place::of(2))))] = true;
     let address = plain_plc::serve(image.clone()).await;
     let cell = TestCell::start();
     let mut node = transport(&cell, &address, &[]);

@@ -36,7 +36,7 @@ use falc_model::mode::{CellMode, HeldStep, ManualAction, ModeSetting};
 use falc_recipe::check::{check, Program};
 use falc_recipe::commands::RecipeKind;
 use falc_recipe::condition::{unmet, Conditions, Fact};
-use falc_recipe::engine::{Action, Engine, Event, JobEnd, Outcome};
+use falc_recipe::engine::{Action, Awaited, Engine, Event, JobEnd, Outcome};
 use falc_recipe::problem::Problem;
 use falc_recipe::syntax::{parse, StateNo};
 use std::collections::{BTreeMap, VecDeque};
@@ -132,6 +132,18 @@ pub trait Device {
         Err(format!(
             "{action}: this station has no such manual operation"
         ))
+    }
+    /// A precondition is about to be evaluated at `now`: when the device's
+    /// reading may be older than what it observes (a poll period), it
+    /// asks for a fresh one and answers true; the controller then holds
+    /// the Start until [`Device::has_fresh_reading`]. False: evaluate now.
+    fn ask_fresh_reading(&mut self, _now: Duration) -> bool {
+        false
+    }
+    /// Whether the reading [`Device::ask_fresh_reading`] asked for came
+    /// (or can no longer come).
+    fn has_fresh_reading(&self) -> bool {
+        true
     }
     /// What the device observes of `fact` now (a place occupied, a line
     /// running, the robot ready), for a recipe's `#PRE` and `#POST`; None
@@ -418,21 +430,26 @@ impl<D: Device> Controller<D> {
     }
 
     /// The recipe state this level is in (the local detail of its
-    /// status): EXECUTING while a recipe runs; ERROR after an alarm until
-    /// a run starts or a program invocation is reset; READY with a recipe
-    /// loaded that a Start would run now (the device available, not in
-    /// maintenance mode); LOADED with one loaded that could not start now;
-    /// else IDLE. WAIT_ACK and PENDING are the operator's to add: it keeps
-    /// the acknowledgements and the starts under way
-    /// (`order_list::OrderList::status`).
+    /// status), as the thesis defines them, for its own recipe: while one
+    /// runs, WAIT_ACK while a Start it sent waits for its confirm, PENDING
+    /// while it waits for a job below to end (`wait`), else EXECUTING;
+    /// ERROR after an alarm until a run starts or a program invocation is
+    /// reset; READY with a recipe loaded that a Start would run now (the
+    /// device available, not in maintenance mode); LOADED with one loaded
+    /// that could not start now; else IDLE. An alarm waiting for its
+    /// acknowledgement is the alarm list's, not a recipe state.
     pub fn recipe_state(&self) -> RecipeState {
         self.recipe_state_with(|| self.device.unready().is_some())
     }
 
     /// [`Self::recipe_state`], asking `unready` only when it matters.
     fn recipe_state_with(&self, unready: impl FnOnce() -> bool) -> RecipeState {
-        if self.running.is_some() {
-            RecipeState::Executing
+        if let Some(r) = &self.running {
+            match r.engine.awaiting() {
+                Some(Awaited::Confirm) => RecipeState::WaitAck,
+                Some(Awaited::End) => RecipeState::Pending,
+                None => RecipeState::Executing,
+            }
         } else if self.alarmed {
             RecipeState::Error
         } else if self.vmd.programs().next().is_none() {
@@ -860,6 +877,32 @@ impl<D: Device> Controller<D> {
         }
         self.running = Some(Running::new(name.clone(), engine));
         Ok(())
+    }
+
+    /// Whether Start `req` must wait for a fresh reading of the device
+    /// before it is taken: a new run of a recipe with a `#PRE`, which the
+    /// device evaluates on readings older than now (the device is asked
+    /// for one). The driver holds the Start until
+    /// [`Self::has_fresh_reading`], then hands it on.
+    pub fn holds_for_reading(&mut self, now: Duration, req: &Request) -> bool {
+        let Request::Start { name, argument } = req else {
+            return false;
+        };
+        if self.running.is_some()
+            || self.mode.mode == CellMode::Maintenance
+            || !matches!(restart_state(argument), Ok(None))
+        {
+            return false;
+        }
+        let has_pre = self
+            .engine_for(name)
+            .is_ok_and(|e| e.program().pre.is_some());
+        has_pre && self.device.ask_fresh_reading(now)
+    }
+
+    /// Whether the reading a held Start waits for came.
+    pub fn has_fresh_reading(&self) -> bool {
+        self.device.has_fresh_reading()
     }
 
     /// The terms of `condition` (recipe `name`'s `#PRE` or `#POST`, the
@@ -1605,7 +1648,7 @@ mod tests {
     }
 
     #[test]
-    fn the_recipe_state_is_loaded_ready_executing_and_error_until_reset() {
+    fn the_recipe_state_is_loaded_ready_wait_ack_pending_and_error_until_reset() {
         let mut c = Controller::new(RecipeKind::Welding, secs(30), Fake::default());
         assert_eq!(c.status().local_detail, RecipeState::Idle);
         load(&mut c, "droog_dik", DROOG_DIK);
@@ -1620,14 +1663,19 @@ mod tests {
         c.handle_request(secs(0), &mode(CellMode::Auto, &[]))
             .unwrap();
         start(&mut c, secs(1)).unwrap();
-        assert_eq!(c.status().local_detail, RecipeState::Executing);
+        // `start rcm 65` waits for the robot's confirm, `wait rcm` for
+        // the program's end.
+        assert_eq!(c.status().local_detail, RecipeState::WaitAck);
+        c.feed(secs(1), vec![Event::Started(rcm())]);
+        c.settle(secs(1));
+        assert_eq!(c.status().local_detail, RecipeState::Pending);
         // An alarm ends the run: ERROR until the next run starts.
         c.fault(Cause::new(AlarmClass::Safety, "emergency stop".to_string()));
         c.settle(secs(2));
         assert!(!c.is_running());
         assert_eq!(c.status().local_detail, RecipeState::Error);
         start(&mut c, secs(3)).unwrap();
-        assert_eq!(c.recipe_state(), RecipeState::Executing);
+        assert_eq!(c.recipe_state(), RecipeState::WaitAck);
         c.feed(secs(4), vec![Event::Started(rcm())]);
         c.feed(secs(5), vec![Event::Ended(rcm(), JobEnd::Done)]);
         c.settle(secs(5));
@@ -1637,7 +1685,7 @@ mod tests {
         c.fault(Cause::new(AlarmClass::Device, "line open".to_string()));
         assert_eq!(c.recipe_state(), RecipeState::Error);
         start(&mut c, secs(7)).unwrap();
-        assert_eq!(c.recipe_state(), RecipeState::Executing);
+        assert_eq!(c.recipe_state(), RecipeState::WaitAck);
         c.feed(secs(8), vec![Event::Started(rcm())]);
         c.feed(secs(9), vec![Event::Ended(rcm(), JobEnd::BadProduct)]);
         c.settle(secs(9));

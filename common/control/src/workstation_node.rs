@@ -77,7 +77,17 @@ pub struct WorkstationNode<D: Linked, T> {
     /// The status last published (none: publish it at the next poll).
     told: Option<VmdStatus>,
     out: VecDeque<WorkstationAction<T, D::Command>>,
+    /// Indications held, in order, while a Start waits for a fresh
+    /// reading for its precondition ([`Controller::holds_for_reading`]),
+    /// and since when.
+    held: VecDeque<(T, Request)>,
+    held_since: Duration,
 }
+
+/// How long a Start waits for the fresh reading its precondition asked
+/// for: then it is evaluated on what the device has (a link that
+/// answers no more is its own alarm).
+pub const FRESH_READING_LIMIT: Duration = Duration::from_secs(1);
 
 impl<D: Linked, T> WorkstationNode<D, T> {
     /// Workstation `me` of `kind` around `device`; a `start` in its
@@ -97,6 +107,8 @@ impl<D: Linked, T> WorkstationNode<D, T> {
             ctl,
             told: None,
             out: VecDeque::new(),
+            held: VecDeque::new(),
+            held_since: Duration::ZERO,
         }
     }
 
@@ -113,11 +125,36 @@ impl<D: Linked, T> WorkstationNode<D, T> {
     /// The commander's indication (an association service aside), with
     /// the driver's handle `ticket` on it: answered at the next poll,
     /// after what it changed is published.
+    /// A Start whose precondition needs a fresh reading is held (and
+    /// what comes after it, in order) until the reading came.
     pub fn handle_indication(&mut self, now: Duration, ticket: T, request: &Request) {
+        if self.held.is_empty() {
+            if !self.ctl.holds_for_reading(now, request) {
+                return self.answer(now, ticket, request);
+            }
+            self.held_since = now;
+        }
+        self.held.push_back((ticket, request.clone()));
+    }
+
+    fn answer(&mut self, now: Duration, ticket: T, request: &Request) {
         let result = self.ctl.handle_request(now, request);
         self.publish();
         self.out
             .push_back(WorkstationAction::Answer { ticket, result });
+    }
+
+    /// Answers the held indications once the reading came (or its limit
+    /// passed).
+    fn release(&mut self, now: Duration) {
+        if self.held.is_empty()
+            || !(self.ctl.has_fresh_reading() || now >= self.held_since + FRESH_READING_LIMIT)
+        {
+            return;
+        }
+        while let Some((ticket, request)) = self.held.pop_front() {
+            self.answer(now, ticket, &request);
+        }
     }
 
     /// The commander associated: the status is published again.
@@ -137,6 +174,7 @@ impl<D: Linked, T> WorkstationNode<D, T> {
         if let Some(line) = D::take_link_event(&mut self.ctl, now, ev) {
             self.out.push_back(WorkstationAction::Event(line));
         }
+        self.release(now);
     }
 
     /// The device failed outside its link's reports (its link's task
@@ -148,12 +186,17 @@ impl<D: Linked, T> WorkstationNode<D, T> {
 
     /// When [`Self::handle_timeout`] is due next.
     pub fn poll_timeout(&self) -> Option<Duration> {
-        self.ctl.poll_timeout()
+        let held = (!self.held.is_empty()).then(|| self.held_since + FRESH_READING_LIMIT);
+        match (self.ctl.poll_timeout(), held) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
     }
 
     /// The clock reached `now`.
     pub fn handle_timeout(&mut self, now: Duration) {
         self.ctl.handle_timeout(now);
+        self.release(now);
     }
 
     /// The next thing to do; none when all is done.

@@ -266,7 +266,7 @@ impl Link {
                 let what = format!("the write of {coil} := {} (coil {addr})", u8::from(*value));
                 self.call(what, ctx.write_single_coil(addr, *value)).await
             }
-            PlcCommand::Pace(_) => Ok(()),
+            PlcCommand::Pace(_) | PlcCommand::Read => Ok(()),
             PlcCommand::WriteAll(values) => {
                 // One write per run of consecutive addresses: an address
                 // between the equipment's coils is not FALC's to write.

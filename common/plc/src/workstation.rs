@@ -76,6 +76,9 @@ pub enum PlcCommand {
     WriteAll(Coils),
     /// Poll at the busy or the idle period from now on (no Modbus request).
     Pace(Pace),
+    /// Read the inputs now (no write): counted as a command carried out,
+    /// so the reading after it says it was taken after it.
+    Read,
 }
 
 /// What the link reports.
@@ -162,7 +165,17 @@ pub struct Plc {
     /// (carriers set by hand just before a start, seen late at the idle
     /// pace) is the job's starting point, not a fault.
     supervise_from: u64,
+    /// When the last reading came.
+    read_at: Option<Duration>,
+    /// A precondition waits for a reading taken after this many commands
+    /// ([`Device::ask_fresh_reading`]).
+    fresh_from: Option<u64>,
 }
+
+/// A reading that came this recently, taken after every command issued,
+/// is fresh enough for a precondition: the busy poll period (a start
+/// right after the previous job's end needs no read of its own).
+pub const FRESH: Duration = Duration::from_millis(10);
 
 impl Plc {
     /// The PLC of `equipment` at `address` (for messages), not connected
@@ -187,6 +200,8 @@ impl Plc {
             manual_line: None,
             reports: VecDeque::new(),
             supervise_from: 0,
+            read_at: None,
+            fresh_from: None,
         }
     }
 
@@ -761,6 +776,27 @@ impl Device for Plc {
             });
     }
 
+    /// A reading older than [`FRESH`], or taken before a command, may
+    /// miss what changed since (carriers set by hand at the idle pace):
+    /// ask one now.
+    fn ask_fresh_reading(&mut self, now: Duration) -> bool {
+        if self.live().is_err() {
+            return false;
+        }
+        let recent = self.read_at.is_some_and(|t| now.saturating_sub(t) <= FRESH);
+        if recent && self.inputs_after >= self.issued {
+            return false;
+        }
+        self.send(PlcCommand::Read);
+        self.fresh_from = Some(self.issued);
+        true
+    }
+
+    /// The reading asked for came, or none can (the link is down).
+    fn has_fresh_reading(&self) -> bool {
+        self.down.is_some() || self.fresh_from.map_or(true, |n| self.inputs_after >= n)
+    }
+
     fn observes(&self, fact: Fact) -> Option<bool> {
         let Fact::Signal(signal) = fact else {
             return None;
@@ -804,6 +840,7 @@ impl Linked for Plc {
                 commands_done,
             } => {
                 ctl.device.clock = now;
+                ctl.device.read_at = Some(now);
                 let reading = ctl.device.reading(inputs, commands_done);
                 ctl.take_reading(now, reading)
                     .then(|| "plc-ready".to_string())
@@ -840,6 +877,137 @@ mod tests {
         let mut out = Vec::new();
         p.handle(Duration::from_secs(now), Happening::Act(a), &mut out);
         out
+    }
+
+    /// A Start of a recipe with a `#PRE` is held until a reading taken
+    /// after it came (a carrier set by hand just before is seen), then
+    /// answered; right after a job's end the last reading is fresh and it
+    /// is answered at once; a reading that never comes holds it at most
+    /// [`FRESH_READING_LIMIT`].
+    #[test]
+    fn a_precondition_is_evaluated_on_a_reading_taken_after_the_start() {
+        use falc_control::workstation_node::{
+            WorkstationAction, WorkstationNode, FRESH_READING_LIMIT,
+        };
+        use falc_model::ids::{ObjectName, StationName};
+        use falc_model::mms::delivery::{Delivery, DeliveryStep};
+        use falc_model::mms::pdu::{Request, Response};
+        use falc_recipe::commands::RecipeKind;
+        let ms = Duration::from_millis;
+        let mut node: WorkstationNode<Plc, u32> = WorkstationNode::new(
+            StationName::new("transport").expect("name"),
+            RecipeKind::Transport,
+            Duration::from_secs(5),
+            plc(),
+            false,
+        );
+        let name = ObjectName::new("park").expect("name");
+        let text = "#PARK\n#PRE place 2 occupied\n-1 | activate k | | | 2\n-2 | reset k | | | 0\n";
+        let mut d = Delivery::new(
+            StationName::new("cell").expect("name"),
+            name.clone(),
+            text.as_bytes(),
+            true,
+        );
+        let mut step = d.start();
+        let mut ticket = 0;
+        while let DeliveryStep::Send(req) = step {
+            ticket += 1;
+            node.handle_indication(Duration::ZERO, ticket, &req);
+            let answer = std::iter::from_fn(|| node.poll(Duration::ZERO)).find_map(|a| match a {
+                WorkstationAction::Answer { result, .. } => Some(result),
+                _ => None,
+            });
+            step = d.answered(answer.expect("answered"));
+        }
+        assert_eq!(step, DeliveryStep::Done(Ok(())));
+        node.handle_link(ms(0), PlcEvent::Connected { coils: None });
+        let settle = |node: &mut WorkstationNode<Plc, u32>, now| {
+            let mut answers = Vec::new();
+            let mut reads = 0;
+            while let Some(a) = node.poll(now) {
+                match a {
+                    WorkstationAction::Answer { result, .. } => answers.push(result),
+                    WorkstationAction::Command(PlcCommand::Read) => reads += 1,
+                    _ => {}
+                }
+            }
+            (answers, reads)
+        };
+        let reading = |place2: bool| {
+            let mut i = ready();
+            i.set(Input::Signal(Signal::Place(Place::of(2))), place2);
+            i
+        };
+        node.handle_link(
+            ms(0),
+            PlcEvent::Inputs {
+                inputs: reading(false),
+                commands_done: 0,
+            },
+        );
+        settle(&mut node, ms(0));
+        let start = Request::Start {
+            name: name.clone(),
+            argument: "order 1".into(),
+        };
+        // The carrier set on W2 at 900 ms, the Start at 1 s: held, a read
+        // asked.
+        node.handle_indication(ms(1000), 1, &start);
+        let (answers, reads) = settle(&mut node, ms(1000));
+        assert!(answers.is_empty(), "{answers:?}");
+        assert_eq!(reads, 1);
+        let mut done = node.controller().device.issued();
+        node.handle_link(
+            ms(1005),
+            PlcEvent::Inputs {
+                inputs: reading(true),
+                commands_done: done,
+            },
+        );
+        let (answers, _) = settle(&mut node, ms(1005));
+        assert!(
+            matches!(
+                answers.as_slice(),
+                [Ok(Response::ProgramInvocationState(_))]
+            ),
+            "{answers:?}"
+        );
+        // The job: K pressed, released; the reading after the writes ends it.
+        done = node.controller().device.issued();
+        node.handle_link(
+            ms(1020),
+            PlcEvent::Inputs {
+                inputs: reading(true),
+                commands_done: done,
+            },
+        );
+        settle(&mut node, ms(1020));
+        assert!(!node.controller().is_running());
+        // Right after, the last reading is fresh: answered at once.
+        node.handle_indication(ms(1025), 2, &start);
+        let (answers, reads) = settle(&mut node, ms(1025));
+        assert_eq!((answers.len(), reads), (1, 0), "{answers:?}");
+        done = node.controller().device.issued();
+        node.handle_link(
+            ms(1040),
+            PlcEvent::Inputs {
+                inputs: reading(false),
+                commands_done: done,
+            },
+        );
+        settle(&mut node, ms(1040));
+        // A read that never comes: the Start waits its limit, then is
+        // evaluated on what there is (W2 empty now): refused.
+        node.handle_indication(ms(5000), 3, &start);
+        assert_eq!(settle(&mut node, ms(5000)).0.len(), 0);
+        assert_eq!(node.poll_timeout(), Some(ms(5000) + FRESH_READING_LIMIT));
+        node.handle_timeout(ms(5000) + FRESH_READING_LIMIT);
+        let (answers, _) = settle(&mut node, ms(5000) + FRESH_READING_LIMIT);
+        assert!(
+            matches!(answers.as_slice(), [Err(e)] if e.description == "precondition of PARK: place 2 occupied is false"),
+            "{answers:?}"
+        );
     }
 
     #[test]

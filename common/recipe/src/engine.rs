@@ -122,6 +122,15 @@ pub enum Outcome {
     Failed(JobEnd),
 }
 
+/// What a run waits for from the level below ([`Engine::awaiting`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Awaited {
+    /// The confirm of a Start it sent (`start`).
+    Confirm,
+    /// The end of a job it started (`wait`).
+    End,
+}
+
 #[derive(Debug, Clone, PartialEq, Eq)]
 enum JobState {
     Starting,
@@ -303,6 +312,16 @@ impl Engine {
     /// States entered so far.
     pub fn steps(&self) -> u64 {
         self.steps
+    }
+
+    /// What the run waits for from the level below, if it waits for it:
+    /// the confirm of a Start it sent, or the end of a job it started.
+    pub fn awaiting(&self) -> Option<Awaited> {
+        match self.phase {
+            Phase::AwaitStart { .. } => Some(Awaited::Confirm),
+            Phase::AwaitJob { .. } => Some(Awaited::End),
+            _ => None,
+        }
     }
 
     /// The outcome, once ended.

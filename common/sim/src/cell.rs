@@ -532,6 +532,11 @@ impl TransportParts {
                     self.done += 1;
                     self.wrote = true;
                 }
+                WorkstationAction::Command(PlcCommand::Read) => {
+                    // Read at once: the reading after it is emitted.
+                    self.done += 1;
+                    self.wrote = true;
+                }
                 WorkstationAction::Command(PlcCommand::Pace(pace)) => {
                     self.pace = pace;
                     if pace == Pace::Busy {

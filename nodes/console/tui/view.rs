@@ -113,11 +113,12 @@ fn look_in(s: &CellStatus, name: &falc_model::ids::StationName, is_cell: bool) -
     else {
         return Look::Off;
     };
-    if v.physical == PhysicalStatus::Inoperable
-        || matches!(v.local_detail, RecipeState::Error | RecipeState::WaitAck)
-    {
+    if v.physical == PhysicalStatus::Inoperable || v.local_detail == RecipeState::Error {
         Look::Alarm
-    } else if v.local_detail == RecipeState::Executing {
+    } else if matches!(
+        v.local_detail,
+        RecipeState::Executing | RecipeState::WaitAck | RecipeState::Pending
+    ) {
         Look::Busy
     } else {
         Look::Idle

@@ -83,58 +83,6 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         self.questions.prompt().is_some()
     }
 
-    /// A station's status as the consoles see it: as it published it, with
-    /// the recipe state the operator adds ([`Self::recipe_state_of`]).
-    fn shown_status(&self, station: &StationName) -> Option<VmdStatus> {
-        let mut status = self.statuses.get(station)?.clone();
-        status.local_detail = self.recipe_state_of(station, status.local_detail);
-        Some(status)
-    }
-
-    /// The recipe state of `station`, whose own is `own` (IDLE, LOADED,
-    /// READY, EXECUTING or ERROR, produced by its controller): WAIT_ACK
-    /// while an alarm of it waits for acknowledgement here (for the cell:
-    /// any alarm that holds the list back), and for the
-    /// cell PENDING while a start waits (association, deliveries, the
-    /// Start's confirm, then the cell's word that it executes), unless a
-    /// recipe executes.
-    pub(super) fn recipe_state_of(&self, station: &StationName, own: RecipeState) -> RecipeState {
-        if own == RecipeState::Executing {
-            return own;
-        }
-        let starting = matches!(
-            self.busy,
-            Some(
-                Busy::Starting { .. }
-                    | Busy::Initiating(Some(_))
-                    | Busy::Associating { start: Some(_) }
-                    | Busy::Delivering { start: Some(_), .. }
-                    | Busy::Asking { start: Some(_) }
-            )
-        );
-        // Confirmed, but the cell's status saying so not here yet.
-        let confirmed = self.running.is_some() && self.away.is_none();
-        if *station == self.cell && (starting || confirmed) {
-            return RecipeState::Pending;
-        }
-        // The cell waits for every alarm that holds the list back (its
-        // order's end alarm is often a workstation's, listed once, under
-        // that workstation); a workstation for its own.
-        let unacked = if *station == self.cell {
-            self.alarms.blocking().is_some()
-        } else {
-            self.alarms
-                .listed()
-                .iter()
-                .any(|a| a.station == *station && a.blocks_start())
-        };
-        if unacked {
-            RecipeState::WaitAck
-        } else {
-            own
-        }
-    }
-
     /// The cell at a glance, as `status` answers it.
     pub fn status(&self) -> Result<CellStatus, R::Error> {
         Ok(CellStatus {
@@ -156,7 +104,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                 .filter(|s| s.commander.is_some())
                 .map(|s| StationView {
                     name: s.name.clone(),
-                    status: self.shown_status(&s.name),
+                    status: self.statuses.get(&s.name).cloned(),
                     connected: self.present.contains(&s.name),
                 })
                 .collect(),

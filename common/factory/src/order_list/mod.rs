@@ -37,7 +37,7 @@ use falc_model::mms::domain::content_hash;
 use falc_model::mms::error::{ErrorClass, ServiceError};
 use falc_model::mms::pdu::{JobEvent, Peer, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::program::PiState;
-use falc_model::mms::vmd::{PhysicalStatus, RecipeState, VmdStatus};
+use falc_model::mms::vmd::{PhysicalStatus, VmdStatus};
 use falc_model::mode::{CellMode, ModeSetting};
 use falc_model::product::{RecipeVersion, UsedRecipe};
 use falc_model::recipe_file::RecipeFile;

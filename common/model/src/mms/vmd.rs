@@ -42,16 +42,27 @@ pub enum PhysicalStatus {
     NeedsCommissioning,
 }
 
-/// The recipe state: the local detail of the VMD status.
+/// The recipe state: the local detail of the VMD status, each
+/// controller's own for its own recipe.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[allow(missing_docs)]
 pub enum RecipeState {
+    /// No recipe loaded.
     Idle,
+    /// A recipe loaded that a Start could not run now (maintenance mode,
+    /// the device not ready).
     Loaded,
+    /// A recipe loaded that a Start would run now.
     Ready,
+    /// A recipe runs, waiting for nothing from the level below.
     Executing,
+    /// A recipe runs and waits for a job it started one level down to
+    /// end (`wait`).
     Pending,
+    /// After an alarm until a run starts or a program invocation is
+    /// reset.
     Error,
+    /// A recipe runs and waits for the confirm of a Start it sent one
+    /// level down (`start`).
     WaitAck,
 }
 
