@@ -199,3 +199,111 @@ async fn an_unplugged_line_fails_after_six_attempts_and_recovers_when_replugged(
     send(&h, Telegram::StatusRequest);
     assert!(matches!(next(&mut h).await, Telegram::ProgramStatus { .. }));
 }
+
+/// The program-transfer telegrams over a real pty: a program delivered
+/// (`D`, `T` lines, `F`), listed (`N`), uploaded as it went, run with its
+/// own steps (the twin's log shows each), a download of the program that
+/// runs refused (`04`), and a text with a wrong hash refused (`08`), the
+/// stored one kept.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_program_delivered_over_the_line_is_stored_listed_uploaded_and_run() {
+    use falc_dnc::program::text_hash;
+    let (mut rcm, path) = twin(&["--time-scale", "10"]);
+    let mut h = connect(&path, Timing::default());
+    let text = "program 65\n# delivered\nmove approach 2\nweld seam_2 30\nmove home 2";
+    let deliver = |h: &DncHandle, text: &str, hash: u32| {
+        let lines: Vec<&str> = text.lines().collect();
+        send(
+            h,
+            Telegram::Text {
+                program: p(65),
+                lines: lines.len() as u16,
+                hash,
+            },
+        );
+        for (l, no) in lines.iter().zip(1u16..) {
+            send(
+                h,
+                Telegram::Line {
+                    no,
+                    text: (*l).to_string(),
+                },
+            );
+        }
+        send(h, Telegram::TextEnd(p(65)));
+    };
+    let ack_of =
+        |code: u8| move |t: &Telegram| matches!(t, Telegram::Ack { of, .. } if *of == code);
+    deliver(&h, text, text_hash(text));
+    assert_eq!(
+        until(&mut h, ack_of(b'F')).await,
+        Telegram::Ack {
+            of: b'F',
+            error: None
+        }
+    );
+    rcm.expect_line("program 65 stored: 3 steps, 34.0 s", WAIT);
+    send(&h, Telegram::List);
+    assert_eq!(
+        next(&mut h).await,
+        Telegram::Stored {
+            program: p(65),
+            lines: 5,
+            hash: text_hash(text)
+        }
+    );
+    send(&h, Telegram::Upload(p(65)));
+    let mut uploaded = Vec::new();
+    loop {
+        match next(&mut h).await {
+            Telegram::Line { text, .. } => uploaded.push(text),
+            Telegram::TextEnd(q) => {
+                assert_eq!(q, p(65));
+                break;
+            }
+            _ => {}
+        }
+    }
+    assert_eq!(uploaded.join("\n"), text);
+    // Run: 0.2 s, 3 s, 0.2 s at time scale 10.
+    send(&h, Telegram::SelectProgram(p(65)));
+    send(&h, Telegram::StartProgram);
+    rcm.expect_line("program 65 step 1/3: move approach 2 s", WAIT);
+    rcm.expect_line("program 65 step 2/3: weld seam_2 30 s", WAIT);
+    // While it runs, a new text is refused.
+    deliver(
+        &h,
+        &text.replace("30", "31"),
+        text_hash(&text.replace("30", "31")),
+    );
+    assert_eq!(
+        until(&mut h, ack_of(b'D')).await,
+        Telegram::Ack {
+            of: b'D',
+            error: Some(AckError::ProgramRunning)
+        }
+    );
+    rcm.expect_line("program 65 step 3/3: move home 2 s", WAIT);
+    assert_eq!(
+        until(&mut h, |t| matches!(t, Telegram::ProgramEnd { .. })).await,
+        Telegram::ProgramEnd {
+            program: p(65),
+            result: EndResult::Complete
+        }
+    );
+    // A wrong hash: refused, the first text kept.
+    deliver(&h, text, 7);
+    assert_eq!(
+        until(&mut h, ack_of(b'F')).await,
+        Telegram::Ack {
+            of: b'F',
+            error: Some(AckError::TextRefused)
+        }
+    );
+    rcm.control("programs");
+    let line = rcm.expect_line("programs delivered:", WAIT);
+    assert!(
+        line.contains(&format!("65 (5 lines, hash {:08X})", text_hash(text))),
+        "{line}"
+    );
+}

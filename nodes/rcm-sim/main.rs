@@ -73,6 +73,7 @@ enum Line {
     Flips(f64),
     Unplug,
     Replug,
+    Programs,
 }
 
 fn parse_control(line: &str) -> Result<Line, String> {
@@ -102,6 +103,7 @@ fn parse_control(line: &str) -> Result<Line, String> {
         ),
         ["unplug"] => Line::Unplug,
         ["replug"] => Line::Replug,
+        ["programs"] => Line::Programs,
         _ => return Err(format!("unknown control `{line}`")),
     })
 }
@@ -144,6 +146,7 @@ async fn main() -> Result<()> {
                 // One line per telegram received, for tests and people.
                 Note::Received(t) => say(&format!("rx {}", String::from_utf8_lossy(&t.encode()))),
                 Note::Trouble(why) => tracing::warn!("{why}"),
+                Note::Robot(what) => say(&what),
             }
         }
         if let Some(bytes) = twin.poll_transmit() {
@@ -189,6 +192,15 @@ async fn main() -> Result<()> {
                     Ok(Line::Replug) => {
                         plugged = true;
                         say("ok replug");
+                    }
+                    Ok(Line::Programs) => {
+                        let stored: Vec<String> = twin
+                            .robot
+                            .delivered()
+                            .map(|(p, lines, hash)| format!("{} ({lines} lines, hash {hash:08X})", p.number()))
+                            .collect();
+                        say(&format!("programs delivered: {}", if stored.is_empty() { "none".to_string() } else { stored.join(", ") }));
+                        say("ok programs");
                     }
                     Err(e) => say(&format!("error {e}")),
                 },

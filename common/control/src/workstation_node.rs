@@ -166,6 +166,10 @@ impl<D: Linked, T> WorkstationNode<D, T> {
     /// The association with `peer` was lost (`role`: what it was to this
     /// station).
     pub fn handle_abort(&mut self, now: Duration, peer: &StationName, role: Role) {
+        if role == Role::Commander {
+            // What it asked is no more: a held Start is not taken.
+            self.held.clear();
+        }
         self.ctl.handle_abort(now, peer, role);
     }
 

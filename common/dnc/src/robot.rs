@@ -1,10 +1,15 @@
-//! The robot controller's behaviour, sans-I/O: modes, the program table,
-//! the running program on an injected clock, and the faults a test or a
-//! person injects. Telegrams in, telegrams out.
+//! The robot controller's behaviour, sans-I/O: modes, the program table
+//! and the programs delivered to it over DNC (stored, listed, uploaded,
+//! run step by step with each step's time from its text), the running
+//! program on an injected clock, and the faults a test or a person
+//! injects. Telegrams in, telegrams out; what it does for a person
+//! watching it ([`Robot::poll_note`]).
 
+use crate::program::{text_hash, ProgramText};
 use crate::telegram::{AckError, EndResult, Mode, ProgramState, Telegram};
 use falc_model::ids::RobotProgram;
 use std::collections::BTreeMap;
+use std::collections::VecDeque;
 use std::time::Duration;
 
 /// A fault or event injected through the control interface.
@@ -40,6 +45,41 @@ struct Run {
     program: RobotProgram,
     left: Duration,
     since: Option<Duration>,
+    /// A delivered program's steps (label, scaled time); empty for one of
+    /// the built-in table.
+    steps: Vec<(String, Duration)>,
+    /// Its whole time, scaled.
+    total: Duration,
+    /// The steps begun (and noted) so far.
+    begun: usize,
+}
+
+impl Run {
+    /// How far the program got at `now`.
+    fn elapsed(&self, now: Duration) -> Duration {
+        let ran = self.since.map_or(Duration::ZERO, |s| now.saturating_sub(s));
+        self.total.saturating_sub(self.left.saturating_sub(ran))
+    }
+
+    /// When the next step begins (None when paused, or none is left).
+    fn next_step_at(&self) -> Option<Duration> {
+        let since = self.since?;
+        if self.begun >= self.steps.len() {
+            return None;
+        }
+        let offset: Duration = self.steps.iter().take(self.begun).map(|s| s.1).sum();
+        let done_at_since = self.total.saturating_sub(self.left);
+        Some(since + offset.saturating_sub(done_at_since))
+    }
+}
+
+/// A program text being downloaded.
+#[derive(Debug, Clone)]
+struct Download {
+    program: RobotProgram,
+    lines: u16,
+    hash: u32,
+    got: Vec<String>,
 }
 
 /// The robot controller.
@@ -56,6 +96,15 @@ pub struct Robot {
     stopped: bool,
     lose_end: bool,
     lose_ack: bool,
+    /// The time scale the program table and delivered programs run at.
+    scale: f64,
+    /// The programs delivered over DNC, by number: they replace the
+    /// table's.
+    delivered: BTreeMap<u16, ProgramText>,
+    /// A download under way.
+    download: Option<Download>,
+    /// What it did, for a person watching it.
+    notes: VecDeque<String>,
 }
 
 /// The program table: number → duration at time scale 1.
@@ -71,9 +120,10 @@ pub fn program_table() -> BTreeMap<u16, Duration> {
 impl Robot {
     /// A robot in `mode` with the program table scaled by `time_scale`.
     pub fn new(mode: Mode, time_scale: f64) -> Self {
+        let scale = time_scale.max(1e-6);
         let programs = program_table()
             .into_iter()
-            .map(|(n, d)| (n, d.div_f64(time_scale.max(1e-6))))
+            .map(|(n, d)| (n, d.div_f64(scale)))
             .collect();
         Self {
             mode,
@@ -84,6 +134,136 @@ impl Robot {
             stopped: false,
             lose_end: false,
             lose_ack: false,
+            scale,
+            delivered: BTreeMap::new(),
+            download: None,
+            notes: VecDeque::new(),
+        }
+    }
+
+    /// What it did since last asked, for a person watching it: programs
+    /// stored, each step of a delivered program as it begins.
+    pub fn poll_note(&mut self) -> Option<String> {
+        self.notes.pop_front()
+    }
+
+    /// The programs delivered to it: number, lines, text hash.
+    pub fn delivered(&self) -> impl Iterator<Item = (RobotProgram, usize, u32)> + '_ {
+        self.delivered
+            .values()
+            .map(|p| (p.number, p.lines().len(), p.hash()))
+    }
+
+    fn known(&self, n: u16) -> bool {
+        self.delivered.contains_key(&n) || self.programs.contains_key(&n)
+    }
+
+    /// A download's telegram (`D`, `T`, `F`): the acknowledgement. A
+    /// program that runs is never replaced.
+    fn transfer(&mut self, t: Telegram) -> Option<AckError> {
+        match t {
+            Telegram::Text {
+                program,
+                lines,
+                hash,
+            } => {
+                if self.running() == Some(program) {
+                    self.download = None;
+                    return Some(AckError::ProgramRunning);
+                }
+                self.download = Some(Download {
+                    program,
+                    lines,
+                    hash,
+                    got: Vec::new(),
+                });
+                None
+            }
+            Telegram::Line { no, text } => {
+                let Some(d) = &mut self.download else {
+                    return Some(AckError::NoDownload);
+                };
+                if usize::from(no) != d.got.len() + 1 || d.got.len() >= usize::from(d.lines) {
+                    self.download = None;
+                    return Some(AckError::TextRefused);
+                }
+                d.got.push(text);
+                None
+            }
+            Telegram::TextEnd(program) => {
+                let Some(d) = self.download.take() else {
+                    return Some(AckError::NoDownload);
+                };
+                let text = d.got.join("\n");
+                let complete = d.program == program
+                    && d.got.len() == usize::from(d.lines)
+                    && text_hash(&text) == d.hash;
+                if !complete || self.running() == Some(program) {
+                    self.notes.push_back(format!(
+                        "program {} refused: {}",
+                        program.number(),
+                        if complete {
+                            "it runs"
+                        } else {
+                            "its text is incomplete or its hash wrong"
+                        }
+                    ));
+                    return Some(if complete {
+                        AckError::ProgramRunning
+                    } else {
+                        AckError::TextRefused
+                    });
+                }
+                match ProgramText::parse(&text, &format!("program {:03}", program.number())) {
+                    Ok(p) if p.number == program => {
+                        self.notes.push_back(format!(
+                            "program {} stored: {} steps, {:.1} s, hash {:08X}",
+                            program.number(),
+                            p.steps.len(),
+                            p.duration().as_secs_f64(),
+                            p.hash()
+                        ));
+                        self.delivered.insert(program.number(), p);
+                        None
+                    }
+                    Ok(p) => {
+                        self.notes.push_back(format!(
+                            "program {} refused: its text says program {}",
+                            program.number(),
+                            p.number.number()
+                        ));
+                        Some(AckError::TextRefused)
+                    }
+                    Err(problems) => {
+                        self.notes.push_back(format!(
+                            "program {} refused: {}",
+                            program.number(),
+                            problems.join("; ")
+                        ));
+                        Some(AckError::TextRefused)
+                    }
+                }
+            }
+            _ => Some(AckError::Malformed),
+        }
+    }
+
+    /// Notes each step of the running program that began by `now`.
+    fn note_steps(&mut self, now: Duration) {
+        let Some(r) = &mut self.run else { return };
+        let elapsed = r.elapsed(now);
+        let mut start = Duration::ZERO;
+        for (i, (label, time)) in r.steps.iter().enumerate() {
+            if i >= r.begun && start <= elapsed {
+                self.notes.push_back(format!(
+                    "program {} step {}/{}: {label}",
+                    r.program.number(),
+                    i + 1,
+                    r.steps.len()
+                ));
+                r.begun = i + 1;
+            }
+            start += *time;
         }
     }
 
@@ -135,11 +315,43 @@ impl Robot {
             Telegram::InitiateDnc | Telegram::CloseDnc | Telegram::ConfirmAlarm(_) => {
                 vec![ack(None)]
             }
+            t @ (Telegram::Text { .. } | Telegram::Line { .. } | Telegram::TextEnd(_)) => {
+                vec![ack(self.transfer(t))]
+            }
+            Telegram::Upload(p) => match self.delivered.get(&p.number()) {
+                Some(text) => {
+                    let lines = text.lines();
+                    let mut out = vec![Telegram::Text {
+                        program: p,
+                        lines: u16::try_from(lines.len()).unwrap_or(u16::MAX),
+                        hash: text.hash(),
+                    }];
+                    out.extend(lines.iter().zip(1u16..).map(|(l, no)| Telegram::Line {
+                        no,
+                        text: (*l).to_string(),
+                    }));
+                    out.push(Telegram::TextEnd(p));
+                    out
+                }
+                None => vec![ack(Some(AckError::UnknownProgram))],
+            },
+            Telegram::List => {
+                let mut out: Vec<Telegram> = self
+                    .delivered()
+                    .map(|(program, lines, hash)| Telegram::Stored {
+                        program,
+                        lines: u16::try_from(lines).unwrap_or(u16::MAX),
+                        hash,
+                    })
+                    .collect();
+                out.push(ack(None));
+                out
+            }
             Telegram::StatusRequest => vec![self.status()],
             Telegram::SelectProgram(p) => {
                 if self.run.is_some() {
                     vec![ack(Some(AckError::ProgramRunning))]
-                } else if !self.programs.contains_key(&p.number()) {
+                } else if !self.known(p.number()) {
                     vec![ack(Some(AckError::UnknownProgram))]
                 } else {
                     self.selected = Some(p);
@@ -152,12 +364,30 @@ impl Robot {
                 (None, None) => vec![ack(Some(AckError::NoProgramSelected))],
                 (Some(p), None) => {
                     self.stopped = false;
-                    let left = self.programs.get(&p.number()).copied().unwrap_or_default();
+                    let (steps, total) = match self.delivered.get(&p.number()) {
+                        Some(text) => {
+                            let steps: Vec<(String, Duration)> = text
+                                .steps
+                                .iter()
+                                .map(|s| (s.to_string(), s.time.div_f64(self.scale)))
+                                .collect();
+                            let total = steps.iter().map(|s| s.1).sum();
+                            (steps, total)
+                        }
+                        None => (
+                            Vec::new(),
+                            self.programs.get(&p.number()).copied().unwrap_or_default(),
+                        ),
+                    };
                     self.run = Some(Run {
                         program: p,
-                        left,
+                        left: total,
                         since: Some(now),
+                        steps,
+                        total,
+                        begun: 0,
                     });
+                    self.note_steps(now);
                     let mut out = self.acked(ack(None));
                     out.push(self.status());
                     out
@@ -178,6 +408,7 @@ impl Robot {
             Telegram::Ack { .. }
             | Telegram::ProgramStatus { .. }
             | Telegram::ProgramEnd { .. }
+            | Telegram::Stored { .. }
             | Telegram::Alarm(_) => {
                 vec![ack(Some(AckError::Malformed))]
             }
@@ -193,25 +424,32 @@ impl Robot {
         }
     }
 
-    /// When the running program ends (None when paused or idle).
+    /// When the running program's next step begins or it ends (None when
+    /// paused or idle).
     pub fn poll_timeout(&self) -> Option<Duration> {
-        self.run.as_ref().and_then(|r| r.since.map(|s| s + r.left))
+        let r = self.run.as_ref()?;
+        let end = r.since.map(|s| s + r.left)?;
+        Some(r.next_step_at().map_or(end, |t| t.min(end)))
     }
 
-    /// The clock reached `now`: a program that is due ends.
+    /// The clock reached `now`: a step that is due begins, a program that
+    /// is due ends.
     pub fn handle_timeout(&mut self, now: Duration) -> Vec<Telegram> {
-        if self.poll_timeout().is_some_and(|t| t <= now) {
-            if let Some(r) = self.run.take() {
-                if std::mem::take(&mut self.lose_end) {
-                    return Vec::new();
-                }
-                return vec![Telegram::ProgramEnd {
-                    program: r.program,
-                    result: EndResult::Complete,
-                }];
-            }
+        self.note_steps(now);
+        let end = self.run.as_ref().and_then(|r| r.since.map(|s| s + r.left));
+        if !end.is_some_and(|t| t <= now) {
+            return Vec::new();
         }
-        Vec::new()
+        let Some(r) = self.run.take() else {
+            return Vec::new();
+        };
+        if std::mem::take(&mut self.lose_end) {
+            return Vec::new();
+        }
+        vec![Telegram::ProgramEnd {
+            program: r.program,
+            result: EndResult::Complete,
+        }]
     }
 
     /// An injected fault or event; the telegrams it causes.
@@ -436,6 +674,202 @@ mod tests {
                 error: Some(AckError::EmergencyStop)
             }]
         );
+    }
+
+    /// The telegrams that deliver `text` as program `n` (its hash, or
+    /// `hash` instead), and the robot's answers to each.
+    fn deliver(
+        r: &mut Robot,
+        at: Duration,
+        n: u16,
+        text: &str,
+        hash: Option<u32>,
+    ) -> Vec<Telegram> {
+        let lines: Vec<&str> = text.lines().collect();
+        let mut out = r.handle(
+            at,
+            Telegram::Text {
+                program: p(n),
+                lines: lines.len() as u16,
+                hash: hash.unwrap_or_else(|| text_hash(text)),
+            },
+        );
+        for (l, no) in lines.iter().zip(1u16..) {
+            out.extend(r.handle(
+                at,
+                Telegram::Line {
+                    no,
+                    text: (*l).to_string(),
+                },
+            ));
+        }
+        out.extend(r.handle(at, Telegram::TextEnd(p(n))));
+        out
+    }
+
+    fn acks(out: &[Telegram]) -> Vec<(char, Option<AckError>)> {
+        out.iter()
+            .filter_map(|t| match t {
+                Telegram::Ack { of, error } => Some((*of as char, *error)),
+                _ => None,
+            })
+            .collect()
+    }
+
+    const P65: &str = "program 65\n# delivered\nmove approach 2\nweld seam_1 6\nmove home 2";
+
+    /// A delivered program is stored, listed, uploaded as it came, and
+    /// runs its own steps with their times (each step noted as it
+    /// begins), in place of the table's; a program that runs is never
+    /// replaced, and a text incomplete, with a wrong hash or not a
+    /// program is refused, the stored one kept.
+    #[test]
+    fn a_delivered_program_is_stored_listed_uploaded_and_run_step_by_step() {
+        let mut r = Robot::new(Mode::AutomaticExternal, 2.0);
+        let out = deliver(&mut r, secs(0), 65, P65, None);
+        assert!(acks(&out).iter().all(|(_, e)| e.is_none()), "{out:?}");
+        let stored = r.poll_note().expect("noted");
+        assert_eq!(
+            stored,
+            format!(
+                "program 65 stored: 3 steps, 10.0 s, hash {:08X}",
+                text_hash(P65)
+            )
+        );
+        let listed = r.handle(secs(0), Telegram::List);
+        assert_eq!(
+            listed,
+            [
+                Telegram::Stored {
+                    program: p(65),
+                    lines: 5,
+                    hash: text_hash(P65)
+                },
+                Telegram::Ack {
+                    of: b'L',
+                    error: None
+                }
+            ]
+        );
+        let up = r.handle(secs(0), Telegram::Upload(p(65)));
+        assert_eq!(up.len(), 7, "{up:?}");
+        assert_eq!(
+            up[2],
+            Telegram::Line {
+                no: 2,
+                text: "# delivered".into()
+            }
+        );
+        assert_eq!(up[6], Telegram::TextEnd(p(65)));
+        assert_eq!(
+            acks(&r.handle(secs(0), Telegram::Upload(p(66)))),
+            [('U', Some(AckError::UnknownProgram))]
+        );
+        // Run at time scale 2: 1 s, 3 s, 1 s.
+        r.handle(secs(10), Telegram::SelectProgram(p(65)));
+        r.handle(secs(10), Telegram::StartProgram);
+        let notes: Vec<String> = std::iter::from_fn(|| r.poll_note()).collect();
+        assert_eq!(notes, ["program 65 step 1/3: move approach 2 s"]);
+        assert_eq!(r.poll_timeout(), Some(secs(11)));
+        // Delivered again while it runs: refused, the running one kept.
+        let again = deliver(&mut r, secs(10), 65, &P65.replace("6", "7"), None);
+        assert_eq!(acks(&again)[0], ('D', Some(AckError::ProgramRunning)));
+        assert_eq!(r.handle_timeout(secs(11)), []);
+        assert_eq!(
+            r.poll_note().as_deref(),
+            Some("program 65 step 2/3: weld seam_1 6 s")
+        );
+        assert_eq!(r.poll_timeout(), Some(secs(14)));
+        assert_eq!(r.handle_timeout(secs(14)), []);
+        assert_eq!(
+            r.poll_note().as_deref(),
+            Some("program 65 step 3/3: move home 2 s")
+        );
+        assert_eq!(
+            r.handle_timeout(secs(15)),
+            [Telegram::ProgramEnd {
+                program: p(65),
+                result: EndResult::Complete
+            }]
+        );
+        // Refused texts: a wrong hash, not a program, another number, a
+        // line out of order, a line with no download open.
+        let wrong_hash = deliver(&mut r, secs(20), 65, P65, Some(1));
+        assert_eq!(
+            acks(&wrong_hash).last(),
+            Some(&('F', Some(AckError::TextRefused)))
+        );
+        let not_a_program = deliver(&mut r, secs(20), 65, "program 65\njump 3", None);
+        assert_eq!(
+            acks(&not_a_program).last(),
+            Some(&('F', Some(AckError::TextRefused)))
+        );
+        assert!(std::iter::from_fn(|| r.poll_note()).any(|n| n.contains("`jump 3` is not a step")));
+        let other = deliver(&mut r, secs(20), 65, "program 66\nmove a 1", None);
+        assert_eq!(
+            acks(&other).last(),
+            Some(&('F', Some(AckError::TextRefused)))
+        );
+        r.handle(
+            secs(20),
+            Telegram::Text {
+                program: p(65),
+                lines: 2,
+                hash: 0,
+            },
+        );
+        assert_eq!(
+            acks(&r.handle(
+                secs(20),
+                Telegram::Line {
+                    no: 2,
+                    text: "x".into()
+                }
+            )),
+            [('T', Some(AckError::TextRefused))]
+        );
+        assert_eq!(
+            acks(&r.handle(
+                secs(20),
+                Telegram::Line {
+                    no: 1,
+                    text: "x".into()
+                }
+            )),
+            [('T', Some(AckError::NoDownload))]
+        );
+        // The stored text is the first one still.
+        assert!(matches!(
+            r.handle(secs(20), Telegram::List).first(),
+            Some(Telegram::Stored { hash, .. }) if *hash == text_hash(P65)
+        ));
+        while r.poll_note().is_some() {}
+        // A program the table has and nobody delivered still runs.
+        r.handle(secs(30), Telegram::SelectProgram(p(66)));
+        r.handle(secs(30), Telegram::StartProgram);
+        assert_eq!(r.poll_timeout(), Some(secs(90)), "120 s at time scale 2");
+        assert_eq!(r.poll_note(), None, "no steps to note");
+    }
+
+    /// A pause holds the steps too: the next begins later by as long.
+    #[test]
+    fn a_pause_delays_the_next_step() {
+        let mut r = Robot::new(Mode::AutomaticExternal, 1.0);
+        deliver(&mut r, secs(0), 65, P65, None);
+        while r.poll_note().is_some() {}
+        r.handle(secs(0), Telegram::SelectProgram(p(65)));
+        r.handle(secs(0), Telegram::StartProgram);
+        r.control(secs(1), Control::PersonIn);
+        assert_eq!(r.poll_timeout(), None);
+        r.control(secs(5), Control::PersonOut);
+        assert_eq!(r.poll_timeout(), Some(secs(6)), "step 2 at 2 s of running");
+        r.handle_timeout(secs(6));
+        let notes: Vec<String> = std::iter::from_fn(|| r.poll_note()).collect();
+        assert_eq!(
+            notes.last().map(String::as_str),
+            Some("program 65 step 2/3: weld seam_1 6 s")
+        );
+        assert_eq!(r.poll_timeout(), Some(secs(12)));
     }
 
     #[test]

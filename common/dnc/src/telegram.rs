@@ -14,6 +14,15 @@
 //! | `P` | RCM → host | program status | program, 3 digits; state, 1 letter (`I` idle, `L` selected, `R` running, `P` paused, `S` stopped); mode, 1 letter (`M` manual, `A` automatic, `E` automatic-external with DNC) |
 //! | `E` | RCM → host | program end | program, 3 digits; result, 1 letter (`O` complete, `B` weld aborted: bad product) |
 //! | `M` | RCM → host | alarm message | code, 3 digits |
+//! | `D` | both | program text follows (a download, or an upload's answer) | program, 3 digits; lines, 3 digits; text hash, 8 hex digits |
+//! | `T` | both | one line of the text | line number, 3 digits (from 001); the line, 0–60 bytes of printable ASCII |
+//! | `F` | both | the text is complete: store it (download) / end of the text (upload) | program, 3 digits |
+//! | `U` | host → RCM | upload a program's text | program, 3 digits |
+//! | `L` | host → RCM | list the stored programs | — |
+//! | `N` | RCM → host | one stored program (one per program, then `A L 00`) | program, 3 digits; lines, 3 digits; text hash, 8 hex digits |
+//!
+//! The program-transfer telegrams (`D` … `N`) are FALC's, not the 1992
+//! set's: docs/dnc.md specifies them.
 //!
 //! Acknowledgement errors: see [`AckError`]; each maps to an ISO 9506
 //! error in [`AckError::to_service_error`].
@@ -75,6 +84,11 @@ pub enum AckError {
     EmergencyStop,
     /// `07`: the telegram was not understood.
     Malformed,
+    /// `08`: a program text refused (lines missing, its hash wrong, not a
+    /// program).
+    TextRefused,
+    /// `09`: a line or an end with no download open.
+    NoDownload,
     /// Any other code.
     Other(u8),
 }
@@ -89,6 +103,8 @@ impl AckError {
             Self::NotRunning => 5,
             Self::EmergencyStop => 6,
             Self::Malformed => 7,
+            Self::TextRefused => 8,
+            Self::NoDownload => 9,
             Self::Other(n) => n,
         }
     }
@@ -103,6 +119,8 @@ impl AckError {
             5 => Self::NotRunning,
             6 => Self::EmergencyStop,
             7 => Self::Malformed,
+            8 => Self::TextRefused,
+            9 => Self::NoDownload,
             n => Self::Other(n),
         })
     }
@@ -149,6 +167,14 @@ impl AckError {
             Self::Malformed => (
                 ErrorClass::Service(ServiceErrorCode::Other),
                 "the RCM did not understand the telegram",
+            ),
+            Self::TextRefused => (
+                ErrorClass::Definition(DefinitionError::ObjectAttributeInconsistent),
+                "the RCM refused the program text",
+            ),
+            Self::NoDownload => (
+                ErrorClass::Service(ServiceErrorCode::ObjectStateConflict),
+                "no program download is open on the RCM",
             ),
             Self::Other(_) => (
                 ErrorClass::VmdState(VmdStateError::Other),
@@ -201,7 +227,41 @@ pub enum Telegram {
     },
     /// `M`.
     Alarm(u16),
+    /// `D`: a program's text follows.
+    Text {
+        /// The program.
+        program: RobotProgram,
+        /// How many lines (`T`) follow.
+        lines: u16,
+        /// The text's hash ([`crate::program::text_hash`]).
+        hash: u32,
+    },
+    /// `T`: one line of a text.
+    Line {
+        /// Its number, from 1.
+        no: u16,
+        /// The line.
+        text: String,
+    },
+    /// `F`: the text of the program is complete.
+    TextEnd(RobotProgram),
+    /// `U`: send me the program's text.
+    Upload(RobotProgram),
+    /// `L`: list the stored programs.
+    List,
+    /// `N`: one stored program.
+    Stored {
+        /// The program.
+        program: RobotProgram,
+        /// Its lines.
+        lines: u16,
+        /// Its text's hash.
+        hash: u32,
+    },
 }
+
+/// The longest line a `T` telegram carries.
+pub const MAX_LINE: usize = crate::program::MAX_LINE;
 
 /// Why bytes are not a telegram.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -294,6 +354,20 @@ impl Telegram {
                 }
             ),
             Self::Alarm(c) => format!("M{:03}", c.min(&999)),
+            Self::Text {
+                program,
+                lines,
+                hash,
+            } => format!("D{:03}{:03}{hash:08X}", program.number(), lines.min(&999)),
+            Self::Line { no, text } => format!("T{:03}{text}", no.min(&999)),
+            Self::TextEnd(p) => format!("F{:03}", p.number()),
+            Self::Upload(p) => format!("U{:03}", p.number()),
+            Self::List => "L".to_string(),
+            Self::Stored {
+                program,
+                lines,
+                hash,
+            } => format!("N{:03}{:03}{hash:08X}", program.number(), lines.min(&999)),
         };
         s.into_bytes()
     }
@@ -398,6 +472,61 @@ impl Telegram {
                 Self::ProgramEnd {
                     program: program(&[p0, p1, p2])?,
                     result,
+                }
+            }
+            b'L' => len(1).map(|()| Self::List)?,
+            b'F' => {
+                len(4)?;
+                Self::TextEnd(program(rest)?)
+            }
+            b'U' => {
+                len(4)?;
+                Self::Upload(program(rest)?)
+            }
+            b'D' | b'N' => {
+                len(15)?;
+                let (p, more) = rest.split_at(3);
+                let (lines, hash) = more.split_at(3);
+                let program = program(p)?;
+                let lines = digits(c, "lines", lines)?;
+                let hash = std::str::from_utf8(hash)
+                    .ok()
+                    .filter(|h| h.bytes().all(|b| b.is_ascii_hexdigit()))
+                    .and_then(|h| u32::from_str_radix(h, 16).ok())
+                    .ok_or_else(|| field("hash", hash))?;
+                if code == b'D' {
+                    Self::Text {
+                        program,
+                        lines,
+                        hash,
+                    }
+                } else {
+                    Self::Stored {
+                        program,
+                        lines,
+                        hash,
+                    }
+                }
+            }
+            b'T' => {
+                if b.len() < 4 || b.len() > 4 + MAX_LINE {
+                    return Err(TelegramError::Length {
+                        code: c,
+                        expected: if b.len() < 4 { 4 } else { 4 + MAX_LINE },
+                        found: b.len(),
+                    });
+                }
+                let (no, text) = rest.split_at(3);
+                let no = digits(c, "line number", no)?;
+                if no == 0 {
+                    return Err(field("line number", b"000"));
+                }
+                if !text.iter().all(|b| b.is_ascii_graphic() || *b == b' ') {
+                    return Err(field("line", text));
+                }
+                Self::Line {
+                    no,
+                    text: String::from_utf8_lossy(text).into_owned(),
                 }
             }
             other => return Err(TelegramError::UnknownCode(other)),
@@ -509,9 +638,117 @@ mod tests {
         );
     }
 
+    /// The program-transfer telegrams: their framing, a line's length
+    /// and characters, a hash that is not hex, a line numbered 0, and the
+    /// RCM's refusals as ISO 9506 errors.
+    #[test]
+    fn the_program_transfer_telegrams_frame_and_refuse_what_is_wrong() {
+        let all = [
+            Telegram::Text {
+                program: p(65),
+                lines: 5,
+                hash: 0x0A1B_2C3D,
+            },
+            Telegram::Line {
+                no: 1,
+                text: "program 65".into(),
+            },
+            Telegram::Line {
+                no: 999,
+                text: String::new(),
+            },
+            Telegram::TextEnd(p(65)),
+            Telegram::Upload(p(7)),
+            Telegram::List,
+            Telegram::Stored {
+                program: p(65),
+                lines: 5,
+                hash: 0xFFFF_FFFF,
+            },
+            Telegram::Ack {
+                of: b'F',
+                error: Some(AckError::TextRefused),
+            },
+            Telegram::Ack {
+                of: b'T',
+                error: Some(AckError::NoDownload),
+            },
+        ];
+        for t in all {
+            assert_eq!(Telegram::decode(&t.encode()), Ok(t.clone()), "{t:?}");
+        }
+        let text = Telegram::Text {
+            program: p(65),
+            lines: 5,
+            hash: 0x0A1B_2C3D,
+        };
+        assert_eq!(text.encode(), b"D0650050A1B2C3D");
+        assert_eq!(
+            Telegram::Line {
+                no: 3,
+                text: "weld seam_1 100".into()
+            }
+            .encode(),
+            b"T003weld seam_1 100"
+        );
+        // Bad lengths.
+        assert_eq!(
+            Telegram::decode(b"D065005A1B2C3D"),
+            Err(TelegramError::Length {
+                code: 'D',
+                expected: 15,
+                found: 14
+            })
+        );
+        assert!(matches!(
+            Telegram::decode(b"T01"),
+            Err(TelegramError::Length { code: 'T', .. })
+        ));
+        let long = format!("T001{}", "x".repeat(MAX_LINE + 1));
+        assert_eq!(
+            Telegram::decode(long.as_bytes()),
+            Err(TelegramError::Length {
+                code: 'T',
+                expected: 4 + MAX_LINE,
+                found: 5 + MAX_LINE
+            })
+        );
+        assert!(matches!(
+            Telegram::decode(b"L1"),
+            Err(TelegramError::Length { code: 'L', .. })
+        ));
+        // Bad fields.
+        assert!(matches!(
+            Telegram::decode(b"D065005ZZ1B2C3D"),
+            Err(TelegramError::Field { field: "hash", .. })
+        ));
+        assert!(matches!(
+            Telegram::decode(b"T000move a 1"),
+            Err(TelegramError::Field {
+                field: "line number",
+                ..
+            })
+        ));
+        assert!(matches!(
+            Telegram::decode(b"T001move\ta 1"),
+            Err(TelegramError::Field { field: "line", .. })
+        ));
+        assert!(matches!(
+            Telegram::decode(b"F000"),
+            Err(TelegramError::Field {
+                field: "program",
+                ..
+            })
+        ));
+        assert_eq!(
+            AckError::TextRefused.to_service_error().to_string(),
+            "definition/object-attribute-inconsistent: the RCM refused the program text (DNC error 08)"
+        );
+    }
+
     proptest! {
         #[test]
-        fn decode_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..12)) {
+        fn decode_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..70)) {
             if let Ok(t) = Telegram::decode(&bytes) {
                 // Whatever decodes, re-encodes to bytes that decode the same.
                 prop_assert_eq!(Telegram::decode(&t.encode()), Ok(t));

@@ -20,6 +20,9 @@ pub enum Note {
     Received(Telegram),
     /// Something went wrong on the line (a telegram undecodable or lost).
     Trouble(String),
+    /// What the robot did: a program stored, a step of a delivered
+    /// program begun ([`Robot::poll_note`]).
+    Robot(String),
 }
 
 /// The robot controller and its end of the link.
@@ -78,7 +81,9 @@ impl RcmTwin {
 
     /// The next note for the twin's log.
     pub fn poll_note(&mut self) -> Option<Note> {
-        self.notes.pop_front()
+        self.notes
+            .pop_front()
+            .or_else(|| self.robot.poll_note().map(Note::Robot))
     }
 
     fn events(&mut self, now: Duration) {
