@@ -10,6 +10,7 @@ mod support;
 
 mod cell;
 mod chaos;
+mod conditions;
 mod dnc;
 mod fuzz;
 mod hierarchy;

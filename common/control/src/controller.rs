@@ -259,10 +259,16 @@ pub struct Controller<D> {
     /// commander resets a program invocation.
     alarmed: bool,
     out: VecDeque<Output>,
-    /// Each loaded program invocation's `#PRE`, with a hash of the recipe
-    /// text it was read from ([`Self::publications`] reads a changed one
-    /// again), for the status's [`VmdStatus::unmet`].
-    preconditions: BTreeMap<ObjectName, (u64, Option<Conditions>)>,
+    /// Each loaded program invocation's recipe, checked (or why it does
+    /// not check), with a hash of the text it was read from: what a Start
+    /// runs, and whose `#PRE` the status's [`VmdStatus::unmet`] lists.
+    programs: BTreeMap<ObjectName, (u64, Result<Arc<Program>, ServiceError>)>,
+    /// A recipe came or went since the programs were read.
+    programs_stale: bool,
+    /// The status's `unmet`, and what the device observed of every term
+    /// when it was made (made again only when that changed).
+    unmet: BTreeMap<ObjectName, String>,
+    unmet_seen: Option<Vec<Option<bool>>>,
 }
 
 impl<D: Device> Controller<D> {
@@ -287,7 +293,10 @@ impl<D: Device> Controller<D> {
             runs_on_alone: false,
             alarmed: false,
             out: VecDeque::new(),
-            preconditions: BTreeMap::new(),
+            programs: BTreeMap::new(),
+            programs_stale: false,
+            unmet: BTreeMap::new(),
+            unmet_seen: None,
         }
     }
 
@@ -414,11 +423,20 @@ impl<D: Device> Controller<D> {
     /// status the driver last published, which it then becomes; none:
     /// publish it whatever it is).
     pub fn publications(&mut self, told: &mut Option<VmdStatus>) -> Vec<Unconfirmed> {
-        self.read_preconditions();
+        let reread = self.read_programs();
         let mut out: Vec<Unconfirmed> = std::iter::from_fn(|| self.out.pop_front())
             .map(|o| o.publication(self.me.clone()))
             .collect();
-        let status = self.status();
+        let mut status = self.status();
+        if !reread && told.as_ref() == Some(&status) {
+            return out;
+        }
+        // What the preconditions' terms observe shows in the rest of the
+        // status (the inputs, the link, the robot's state): evaluated
+        // again only when that changed.
+        if self.read_unmet() {
+            status.unmet = self.unmet.clone();
+        }
         if told.as_ref() != Some(&status) {
             *told = Some(status.clone());
             out.push(Unconfirmed::Status {
@@ -461,10 +479,14 @@ impl<D: Device> Controller<D> {
         }
     }
 
-    /// Reads the `#PRE` of every loaded program invocation whose recipe
-    /// text is new or changed (and forgets those gone), for the status.
-    fn read_preconditions(&mut self) {
+    /// Reads and checks the recipe of every loaded program invocation
+    /// whose text is new or changed (and forgets those gone), once a
+    /// recipe came or went. Whether they were read again.
+    fn read_programs(&mut self) -> bool {
         use std::hash::{Hash, Hasher};
+        if !std::mem::take(&mut self.programs_stale) {
+            return false;
+        }
         let mut now = BTreeMap::new();
         for pi in self.vmd.programs() {
             let name = pi.name().clone();
@@ -474,18 +496,49 @@ impl<D: Device> Controller<D> {
             let mut h = std::collections::hash_map::DefaultHasher::new();
             text.content().hash(&mut h);
             let hash = h.finish();
-            let pre = match self.preconditions.remove(&name) {
-                Some((known, pre)) if known == hash => pre,
-                // A recipe that does not check has no precondition to
-                // show: its Start is refused for what is wrong with it.
-                _ => self
-                    .engine_of(&name, &String::from_utf8_lossy(text.content()))
-                    .ok()
-                    .and_then(|e| e.program().pre.clone()),
+            let program = match self.programs.remove(&name) {
+                Some((known, program)) if known == hash => program,
+                _ => self.program_of(&name, &String::from_utf8_lossy(text.content())),
             };
-            now.insert(name, (hash, pre));
+            now.insert(name, (hash, program));
         }
-        self.preconditions = now;
+        self.programs = now;
+        self.unmet_seen = None;
+        true
+    }
+
+    /// Makes the status's `unmet` again if what the device observes of
+    /// the preconditions' terms changed; whether it did.
+    fn read_unmet(&mut self) -> bool {
+        // While a recipe runs no Start would be taken anyway: none is
+        // listed (its inputs change at every step).
+        if self.running.is_some() {
+            let had = !self.unmet.is_empty();
+            self.unmet.clear();
+            self.unmet_seen = None;
+            return had;
+        }
+        // A recipe that does not check has no precondition to show: its
+        // Start is refused for what is wrong with it.
+        let seen: Vec<Option<bool>> = self
+            .programs
+            .values()
+            .filter_map(|(_, p)| p.as_ref().ok()?.pre.as_ref())
+            .flat_map(|c| c.terms.iter().map(|t| self.device.observes(t.fact)))
+            .collect();
+        if self.unmet_seen.as_ref() == Some(&seen) {
+            return false;
+        }
+        self.unmet = self
+            .programs
+            .iter()
+            .filter_map(|(name, (_, p))| {
+                let pre = &p.as_ref().ok()?.pre;
+                Some((name.clone(), self.unmet("precondition", name, pre)?))
+            })
+            .collect();
+        self.unmet_seen = Some(seen);
+        true
     }
 
     /// The status as it is now (the driver publishes it when it changed).
@@ -507,13 +560,7 @@ impl<D: Device> Controller<D> {
                     command: r.command_of(state).to_string(),
                 })
             }),
-            unmet: self
-                .preconditions
-                .iter()
-                .filter_map(|(name, (_, pre))| {
-                    Some((name.clone(), self.unmet("precondition", name, pre)?))
-                })
-                .collect(),
+            unmet: self.unmet.clone(),
             ..VmdStatus::default()
         };
         self.device.status(&mut status);
@@ -661,23 +708,30 @@ impl<D: Device> Controller<D> {
             .handle(now, Happening::Associated, &mut Vec::new());
     }
 
-    /// Builds the engine for program invocation `name` from its domain.
-    fn engine_for(&self, name: &ObjectName) -> Result<Engine, ServiceError> {
-        let text = self
-            .vmd
-            .program(name)
-            .and_then(|p| p.domains().first())
-            .and_then(|d| self.vmd.domain(d))
-            .map(|d| String::from_utf8_lossy(d.content()).into_owned())
-            .ok_or_else(|| {
-                ServiceError::undefined(format!("program invocation {name} has no recipe domain"))
-            })?;
-        self.engine_of(name, &text)
+    /// Builds the engine for program invocation `name` from its domain's
+    /// recipe, checked when it came.
+    fn engine_for(&mut self, name: &ObjectName) -> Result<Engine, ServiceError> {
+        self.read_programs();
+        let program = match self.programs.get(name) {
+            Some((_, program)) => program.clone()?,
+            None => {
+                return Err(ServiceError::undefined(format!(
+                    "program invocation {name} has no recipe domain"
+                )))
+            }
+        };
+        Ok(Engine::new(program).with_confirm_limit(self.confirm_limit))
     }
 
-    /// An engine for recipe `text`, checked as the recipes of this level
-    /// and against the device (named `name` in problems).
+    /// An engine for recipe `text` ([`Self::program_of`]).
     fn engine_of(&self, name: &ObjectName, text: &str) -> Result<Engine, ServiceError> {
+        let program = self.program_of(name, text)?;
+        Ok(Engine::new(program).with_confirm_limit(self.confirm_limit))
+    }
+
+    /// Recipe `text` checked as the recipes of this level and against the
+    /// device (named `name` in problems).
+    fn program_of(&self, name: &ObjectName, text: &str) -> Result<Arc<Program>, ServiceError> {
         let recipe = parse(text, name.as_str());
         let refuse = |problems: Vec<Problem>| {
             let lines: Vec<String> = problems.iter().map(|p| p.to_string()).collect();
@@ -691,7 +745,7 @@ impl<D: Device> Controller<D> {
         if !lacking.is_empty() {
             return Err(refuse(lacking));
         }
-        Ok(Engine::new(Arc::new(program)).with_confirm_limit(self.confirm_limit))
+        Ok(Arc::new(program))
     }
 
     /// The object store (domains, program invocations).
@@ -701,6 +755,7 @@ impl<D: Device> Controller<D> {
 
     /// Takes a domain back out (a delivery that failed).
     pub fn discard_domain(&mut self, name: &ObjectName) {
+        self.programs_stale = true;
         let _ = self.vmd.handle(&Request::DeleteDomain {
             domain: name.clone(),
         });
@@ -713,6 +768,14 @@ impl<D: Device> Controller<D> {
         now: Duration,
         req: &Request,
     ) -> Result<Response, ServiceError> {
+        // A recipe that came or went: its precondition is read again.
+        self.programs_stale |= matches!(
+            req,
+            Request::TerminateDownloadSequence { .. }
+                | Request::DeleteDomain { .. }
+                | Request::CreateProgramInvocation { .. }
+                | Request::DeleteProgramInvocation { .. }
+        );
         match req {
             Request::Mode(setting) => return self.set_mode(now, setting),
             Request::Step { station, to } => {
@@ -894,9 +957,11 @@ impl<D: Device> Controller<D> {
         {
             return false;
         }
+        self.read_programs();
         let has_pre = self
-            .engine_for(name)
-            .is_ok_and(|e| e.program().pre.is_some());
+            .programs
+            .get(name)
+            .is_some_and(|(_, p)| p.as_ref().is_ok_and(|p| p.pre.is_some()));
         has_pre && self.device.ask_fresh_reading(now)
     }
 

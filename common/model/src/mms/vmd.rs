@@ -157,7 +157,8 @@ pub struct VmdStatus {
     /// The loaded recipes whose `#PRE` does not hold now, each with the
     /// refusal a Start of it would get ("precondition of UNSTORE: place 3
     /// occupied is false"): a restart from a state that starts one is
-    /// refused before anything runs.
+    /// refused before anything runs. Empty while the station runs a
+    /// recipe (no Start is taken then).
     #[serde(default)]
     pub unmet: BTreeMap<ObjectName, String>,
 }
