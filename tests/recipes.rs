@@ -398,6 +398,16 @@ fn falc_recipe_view_draws_svg_without_graphviz_with_every_state() {
     assert!(!out.exists());
 }
 
+/// The trace `falc recipe verify` prints under finding `line` of `out`.
+fn trace_under<'a>(out: &'a str, line: &str) -> Vec<&'a str> {
+    let at = out.find(line).expect("the finding");
+    out[at..]
+        .lines()
+        .skip(1)
+        .take_while(|l| l.starts_with("    "))
+        .collect()
+}
+
 /// `falc recipe verify`: the shipped set has no defect across levels (its
 /// notes are the statuses passed up on purpose and limits with room to
 /// spare); with the thesis' printed dikdroog and dundroog in it, the weld's
@@ -443,12 +453,7 @@ fn falc_recipe_verify_finds_the_printed_time_limits() {
         "{dun}"
     );
     // The trace under the finding goes from the start to the wait.
-    let at = out.find(dik).expect("the finding");
-    let trace: Vec<&str> = out[at..]
-        .lines()
-        .skip(1)
-        .take_while(|l| l.starts_with("    "))
-        .collect();
+    let trace = trace_under(&out, dik);
     assert!(
         trace
             .first()
@@ -569,12 +574,7 @@ fn falc_recipe_verify_chains_pre_and_postconditions() {
             ),
         "{line}"
     );
-    let at = out.find(line).expect("the finding");
-    let trace: Vec<&str> = out[at..]
-        .lines()
-        .skip(1)
-        .take_while(|l| l.starts_with("    "))
-        .collect();
+    let trace = trace_under(&out, line);
     assert!(
         trace
             .iter()
