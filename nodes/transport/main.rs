@@ -170,7 +170,7 @@ async fn main() -> Result<()> {
     let equipment = plc_settings.map.equipment().clone();
     let station = Station::open(settings, &topology).await?;
     let mut link = plc_link::spawn(plc_settings);
-    let plc = Plc::new(address.clone(), equipment.clone());
+    let plc = Plc::new(address.clone(), equipment.clone()).with_busy_poll(poll);
     let mut ws = ControllerNode::new(station, RecipeKind::Transport, START_CONFIRM_LIMIT, plc);
     ws.node.set_recipe_memory(cli.memory.recipe_memory);
     ws.carry(|c| send_command(&link.commands, c)).await;

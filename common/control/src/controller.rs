@@ -28,6 +28,7 @@
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::{ObjectName, StationName};
 use falc_model::mms::association::Role;
+use falc_model::mms::domain::content_hash;
 use falc_model::mms::error::{DefinitionError, ErrorClass, ServiceError};
 use falc_model::mms::pdu::{JobEvent, Request, Response, Severity, Unconfirmed};
 use falc_model::mms::program::{PiCompletion, PiRequest, PiState};
@@ -483,7 +484,6 @@ impl<D: Device> Controller<D> {
     /// whose text is new or changed (and forgets those gone), once a
     /// recipe came or went. Whether they were read again.
     fn read_programs(&mut self) -> bool {
-        use std::hash::{Hash, Hasher};
         if !std::mem::take(&mut self.programs_stale) {
             return false;
         }
@@ -493,9 +493,7 @@ impl<D: Device> Controller<D> {
             let Some(text) = pi.domains().first().and_then(|d| self.vmd.domain(d)) else {
                 continue;
             };
-            let mut h = std::collections::hash_map::DefaultHasher::new();
-            text.content().hash(&mut h);
-            let hash = h.finish();
+            let hash = content_hash(text.content());
             let program = match self.programs.remove(&name) {
                 Some((known, program)) if known == hash => program,
                 _ => self.program_of(&name, &String::from_utf8_lossy(text.content())),
@@ -946,15 +944,13 @@ impl<D: Device> Controller<D> {
     /// before it is taken: a new run of a recipe with a `#PRE`, which the
     /// device evaluates on readings older than now (the device is asked
     /// for one). The driver holds the Start until
-    /// [`Self::has_fresh_reading`], then hands it on.
+    /// [`Self::has_fresh_reading`], then hands it on; whether it is then
+    /// taken at all is [`Self::handle_request`]'s to decide.
     pub fn holds_for_reading(&mut self, now: Duration, req: &Request) -> bool {
         let Request::Start { name, argument } = req else {
             return false;
         };
-        if self.running.is_some()
-            || self.mode.mode == CellMode::Maintenance
-            || !matches!(restart_state(argument), Ok(None))
-        {
+        if !matches!(restart_state(argument), Ok(None)) {
             return false;
         }
         self.read_programs();

@@ -20,6 +20,7 @@
 //! printable ASCII, so that each goes over the line in one telegram.
 
 use falc_model::ids::RobotProgram;
+use falc_model::mms::domain::content_hash;
 use std::fmt;
 use std::time::Duration;
 
@@ -155,30 +156,20 @@ impl ProgramText {
         self.text.lines().collect()
     }
 
-    /// The text's content hash as DNC names it (32 bits of the FNV-1a
-    /// hash): what a download carries and a listing shows.
+    /// The text's hash as DNC names it ([`text_hash`]): what a download
+    /// carries and a listing shows.
     pub fn hash(&self) -> u32 {
         text_hash(&self.text)
     }
 }
 
-/// 32-bit FNV-1a of `text`'s lines joined by `\n` (line ends as the line
-/// carries them: without the last one).
+/// The text's hash as a program transfer carries it: the low 32 bits of
+/// its content hash as a domain ([`content_hash`], FNV-1a 64) over its
+/// lines joined by `\n` (line ends as the line carries them: none after
+/// the last).
 pub fn text_hash(text: &str) -> u32 {
-    let mut h: u32 = 0x811c_9dc5;
-    let mut first = true;
-    for line in text.lines() {
-        if !first {
-            h ^= u32::from(b'\n');
-            h = h.wrapping_mul(0x0100_0193);
-        }
-        first = false;
-        for b in line.bytes() {
-            h ^= u32::from(b);
-            h = h.wrapping_mul(0x0100_0193);
-        }
-    }
-    h
+    let joined = text.lines().collect::<Vec<_>>().join("\n");
+    (content_hash(joined.as_bytes()) & u64::from(u32::MAX)) as u32
 }
 
 fn step_name(s: &str) -> Result<String, String> {

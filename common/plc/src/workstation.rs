@@ -170,12 +170,12 @@ pub struct Plc {
     /// A precondition waits for a reading taken after this many commands
     /// ([`Device::ask_fresh_reading`]).
     fresh_from: Option<u64>,
+    /// The link's poll period while a recipe runs: a reading that came
+    /// this recently, taken after every command issued, is fresh enough
+    /// for a precondition (a start right after the previous job's end
+    /// needs no read of its own).
+    busy_poll: Duration,
 }
-
-/// A reading that came this recently, taken after every command issued,
-/// is fresh enough for a precondition: the busy poll period (a start
-/// right after the previous job's end needs no read of its own).
-pub const FRESH: Duration = Duration::from_millis(10);
 
 impl Plc {
     /// The PLC of `equipment` at `address` (for messages), not connected
@@ -202,7 +202,15 @@ impl Plc {
             supervise_from: 0,
             read_at: None,
             fresh_from: None,
+            busy_poll: Duration::from_millis(POLL_MS),
         }
+    }
+
+    /// Its link polls every `period` while a recipe runs (the node's
+    /// `--poll-ms`; default [`POLL_MS`]).
+    pub fn with_busy_poll(mut self, period: Duration) -> Self {
+        self.busy_poll = period;
+        self
     }
 
     /// Polls fast while a recipe runs, slowly while the node is idle.
@@ -776,14 +784,16 @@ impl Device for Plc {
             });
     }
 
-    /// A reading older than [`FRESH`], or taken before a command, may
-    /// miss what changed since (carriers set by hand at the idle pace):
-    /// ask one now.
+    /// A reading older than the busy poll period, or taken before a
+    /// command, may miss what changed since (carriers set by hand at the
+    /// idle pace): ask one now.
     fn ask_fresh_reading(&mut self, now: Duration) -> bool {
         if self.live().is_err() {
             return false;
         }
-        let recent = self.read_at.is_some_and(|t| now.saturating_sub(t) <= FRESH);
+        let recent = self
+            .read_at
+            .is_some_and(|t| now.saturating_sub(t) <= self.busy_poll);
         if recent && self.inputs_after >= self.issued {
             return false;
         }
