@@ -5,7 +5,9 @@
 //! the alarm clears by itself when the station is back on the bus (no
 //! `start` needed), and `ack` + `start` run the next order to done. A
 //! workstation lost mid-order: the cell's "no connection with station"
-//! alarm clears when the station returns, not at the next start.
+//! alarm clears when the station returns, not at the next start. A
+//! workstation started again and again faster than its recipes can be
+//! delivered is reached at the next start.
 
 use crate::support::rig::{rig, Rig};
 use crate::support::wait::{holds, wait_until};
@@ -93,4 +95,41 @@ fn the_cells_no_connection_alarm_clears_when_the_station_returns() {
     let orders = rig.orders();
     assert_eq!(orders[0].state, OrderState::Failed, "{orders:?}");
     assert_eq!(orders[1].state, OrderState::Done, "{orders:?}");
+}
+
+/// A workstation killed and started again 25 times in a row, faster than
+/// the cell can deliver its recipes: a delivery under way to a node that
+/// is gone ends at once instead of waiting out its 10 s deadline, a
+/// catch-up queued for it is dropped, and what a later catch-up delivered
+/// is owed no more. The next `ack` + `start` is taken at once and the
+/// order ends done.
+#[test]
+fn a_workstation_started_again_and_again_gets_its_recipes_and_the_next_start_is_taken() {
+    let mut rig = rig("20");
+    let transport_is = |rig: &Rig, on: bool| {
+        wait_until(
+            "the transport's connection",
+            Duration::from_secs(10),
+            || {
+                let s = rig.status();
+                let seen = s
+                    .stations
+                    .iter()
+                    .any(|v| v.name.as_str() == "transport" && v.connected == on);
+                holds(seen, || s.stations.clone())
+            },
+        );
+    };
+    for _ in 0..25 {
+        drop(rig.transport.take());
+        transport_is(&rig, false);
+        rig.start_transport();
+        transport_is(&rig, true);
+    }
+    rig.cell.falc(&["ack"]);
+    rig.cell.falc(&["order", "add", "dikdroog"]);
+    let (code, out) = rig.cell.falc_as("console", &["start"]);
+    assert_eq!(code, 0, "the first start after the restarts: {out}");
+    rig.work_list("ja", Duration::from_secs(120));
+    rig.last_order_done();
 }

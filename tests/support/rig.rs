@@ -403,7 +403,7 @@ impl Rig {
     }
 
     /// The orders, the last of which must be done.
-    fn last_order_done(&self) -> Vec<Order> {
+    pub fn last_order_done(&self) -> Vec<Order> {
         let orders = self.orders();
         assert_eq!(
             orders.last().map(|o| o.state),

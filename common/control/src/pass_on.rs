@@ -24,9 +24,13 @@
 //!   comes back empty: when the workstations are associated again, every
 //!   recipe one should hold is sent again, and each that cannot be is a
 //!   communication alarm, and owed: sent again before the commander's next
-//!   indication is taken (the way back's `start`). A Start or Resume that
-//!   finds a recipe still owed once that is done is refused naming it and
-//!   why: an order never starts on a workstation that lacks its recipes.
+//!   indication is taken (the way back's `start`), also one held behind a
+//!   delivery. A recipe delivered is owed no more. A workstation lost
+//!   during a delivery ends it at once (no waiting for a confirm that
+//!   cannot come): the commander's download is refused, a catch-up of its
+//!   recipes waits for its return. A Start or Resume that finds a recipe
+//!   still owed once that is done is refused naming it and why: an order
+//!   never starts on a workstation that lacks its recipes.
 //! - **Order.** Deliveries run one at a time in the order asked; while one
 //!   runs, the commander's further indications are held and taken in
 //!   order once it ended, as if the cell had waited (a Start must not
@@ -170,8 +174,9 @@ pub struct PassOn<T> {
     holds: BTreeMap<(StationName, ObjectName), u64>,
     /// Deliveries asked and not ended, the first under way.
     jobs: VecDeque<Job<T>>,
-    /// The commander's indications held while a delivery runs.
-    held: VecDeque<(T, Request)>,
+    /// The commander's indications held while a delivery runs, each with
+    /// whether the recipes owed were sent again for it already.
+    held: VecDeque<(T, Request, bool)>,
     /// Indications for the cell's controller.
     here: VecDeque<Here<T>>,
     /// Recipes a returned workstation could not be given (a communication
@@ -226,15 +231,13 @@ impl<T> PassOn<T> {
     /// Recipes owed to a workstation are sent first (the indication waits
     /// for them).
     pub fn handle_indication(&mut self, ticket: T, request: Request) {
-        if !self.owed.is_empty() && !self.busy() {
-            let todo = std::mem::take(&mut self.owed)
-                .into_iter()
-                .map(|(r, _)| r)
-                .collect();
-            self.deliver(None, todo);
+        let sent = !self.owed.is_empty() && !self.busy();
+        if sent {
+            self.send_owed();
         }
         if self.busy() || !self.held.is_empty() {
-            self.held.push_back((ticket, request));
+            // Sent again for it now, or else once the deliveries ended.
+            self.held.push_back((ticket, request, sent));
         } else {
             self.route(ticket, request);
         }
@@ -301,7 +304,14 @@ impl<T> PassOn<T> {
     /// no delivery runs.
     pub fn poll_here(&mut self) -> Option<Here<T>> {
         while self.here.is_empty() && !self.busy() {
-            let (ticket, request) = self.held.pop_front()?;
+            let (ticket, request, retried) = self.held.pop_front()?;
+            if !retried && !self.owed.is_empty() {
+                // Held behind a delivery that left recipes owed: they go
+                // again first, as for an indication that finds them owed.
+                self.held.push_front((ticket, request, true));
+                self.send_owed();
+                continue;
+            }
             self.route(ticket, request);
         }
         self.here.pop_front()
@@ -518,6 +528,15 @@ impl<T> PassOn<T> {
         }
     }
 
+    /// Sends every recipe owed again (one catch-up delivery).
+    fn send_owed(&mut self) {
+        let todo = std::mem::take(&mut self.owed)
+            .into_iter()
+            .map(|(r, _)| r)
+            .collect();
+        self.deliver(None, todo);
+    }
+
     /// Queues a delivery of `todo` (for the commander's `download`, or
     /// none: recipes owed or caught up) and goes on with the deliveries.
     fn deliver(&mut self, download: Option<(T, ObjectName)>, todo: VecDeque<Recipe>) {
@@ -573,6 +592,10 @@ impl<T> PassOn<T> {
                 None => {
                     for (recipe, e) in job.failed {
                         self.out.push_back(Todo::Alarm(e.description.clone()));
+                        // The latest failure stands for the recipe.
+                        self.owed.retain(|(r, _)| {
+                            (&r.station, &r.name) != (&recipe.station, &recipe.name)
+                        });
                         self.owed.push((recipe, e));
                     }
                 }
@@ -595,6 +618,9 @@ impl<T> PassOn<T> {
         let key = (recipe.station.clone(), recipe.name.clone());
         match result {
             Ok(()) => {
+                // Delivered: no longer owed, whatever failed before.
+                self.owed
+                    .retain(|(r, _)| (&r.station, &r.name) != (&recipe.station, &recipe.name));
                 self.holds.insert(key, content_hash(&recipe.content));
                 self.out.push_back(Todo::Delivered {
                     to: recipe.station,
@@ -611,9 +637,34 @@ impl<T> PassOn<T> {
     }
 
     /// Workstation `station`'s association was lost: it will come back
-    /// empty.
+    /// empty. A delivery to it under way fails now (its confirm, if one
+    /// still comes, is stale), and the catch-ups queued for it are dropped:
+    /// when it is associated again it is sent everything it should hold.
     pub fn handle_lost(&mut self, station: &StationName) {
         self.holds.retain(|(st, _), _| st != station);
+        for job in self.jobs.iter_mut().filter(|j| j.download.is_none()) {
+            job.todo.retain(|r| &r.station != station);
+        }
+        let Some(job) = self.jobs.front_mut() else {
+            return;
+        };
+        if job
+            .sending
+            .as_ref()
+            .is_some_and(|(_, r)| &r.station == station)
+        {
+            // A catch-up's recipe goes again at the next association; the
+            // commander's download is refused.
+            if let Some((_, recipe)) = job.sending.take().filter(|_| job.download.is_some()) {
+                let e = ServiceError::unreachable(format!(
+                    "recipe {} not delivered to {station}: the association was lost during the \
+                     delivery",
+                    recipe.name
+                ));
+                job.failed.push((recipe, e));
+            }
+            self.next_delivery();
+        }
     }
 
     /// The workstations were associated (again): each gets every recipe of
@@ -1066,7 +1117,8 @@ mod tests {
             })
             .collect();
         assert_eq!(modes.len(), 2);
-        // Indications wait for the catch-up.
+        // Indications wait for the catch-up, and for the owed recipe sent
+        // again once it failed.
         p.handle_indication(5, Request::Status);
         assert!(p.poll_here().is_none());
         p.handle_delivered(id, Err(ServiceError::timeout("no confirm from welding")));
@@ -1074,7 +1126,17 @@ mod tests {
             todos(&mut p),
             vec![Todo::Alarm("no confirm from welding".into())]
         );
+        assert!(p.poll_here().is_none(), "taken before the owed recipe");
+        let (id, ..) = delivery(&todos(&mut p)).expect("the owed recipe again");
+        p.handle_delivered(id, Err(ServiceError::timeout("no confirm from welding")));
         assert_eq!(answer_here(&mut p, &vmd), vec![5]);
+        let out = todos(&mut p);
+        assert_eq!(
+            out.first(),
+            Some(&Todo::Alarm("no confirm from welding".into())),
+            "{out:?}"
+        );
+        assert_eq!(answers(&out), vec![(5, Ok(Response::Done))]);
         // A start that finds it owed still is refused, naming it.
         let start = Request::Start {
             name: ObjectName::new("DIKDROOG").expect("valid"),
@@ -1120,6 +1182,67 @@ mod tests {
         assert!(
             out.contains(&Todo::Warn("mode: welding: busy".into())),
             "{out:?}"
+        );
+    }
+
+    #[test]
+    fn a_workstation_lost_during_a_delivery_ends_it_at_once_and_owes_nothing_delivered_later() {
+        let (mut p, mut vmd) = rig();
+        cell_with(&mut vmd, "welding$weld1", b"1 start rcm 1");
+        let start = Request::Start {
+            name: name("DIKDROOG"),
+            argument: String::new(),
+        };
+        // A catch-up under way when welding goes: it ends now, nothing is
+        // owed and no alarm raised (welding gets it when it is back).
+        p.handle_associated(&vmd, &ModeSetting::default());
+        let (first, ..) = delivery(&todos(&mut p)).expect("a catch-up");
+        p.handle_lost(&st("welding"));
+        assert!(!p.busy(), "a delivery waits for a workstation that is gone");
+        assert!(todos(&mut p).is_empty());
+        // Back: the catch-up again, and a start held behind it.
+        p.handle_associated(&vmd, &ModeSetting::default());
+        let (second, ..) = delivery(&todos(&mut p)).expect("the catch-up again");
+        p.handle_indication(1, start.clone());
+        assert!(p.poll_here().is_none(), "the start overtook the catch-up");
+        // The first delivery's confirm, late, is stale.
+        p.handle_delivered(first, Err(ServiceError::timeout("no confirm")));
+        assert!(p.busy());
+        p.handle_delivered(second, Ok(()));
+        assert_eq!(answer_here(&mut p, &vmd), vec![1]);
+
+        // A catch-up that fails leaves the recipe owed; a start held behind
+        // it has it sent again first, and runs once it is delivered.
+        p.handle_lost(&st("welding"));
+        p.handle_associated(&vmd, &ModeSetting::default());
+        let (id, ..) = delivery(&todos(&mut p)).expect("a catch-up");
+        p.handle_indication(2, start.clone());
+        p.handle_delivered(id, Err(ServiceError::timeout("no confirm from welding")));
+        assert!(p.poll_here().is_none(), "started with a recipe owed");
+        let out = todos(&mut p);
+        assert!(out.contains(&Todo::Alarm("no confirm from welding".into())));
+        let (id, to, recipe) = delivery(&out).expect("the owed recipe again");
+        assert_eq!((to.as_str(), recipe.as_str()), ("welding", "WELD1"));
+        p.handle_delivered(id, Ok(()));
+        assert_eq!(answer_here(&mut p, &vmd), vec![2]);
+
+        // The commander's download to a workstation lost during it is
+        // refused at once, and the cell drops its copy.
+        cell_with(&mut vmd, "welding$weld2", b"1 start rcm 2");
+        p.handle_indication(3, terminate("welding$weld2"));
+        assert_eq!(answer_here(&mut p, &vmd), vec![3]);
+        assert!(delivery(&todos(&mut p)).is_some());
+        p.handle_lost(&st("welding"));
+        let out = todos(&mut p);
+        assert!(
+            out.contains(&Todo::Discard(name("welding$weld2"))),
+            "{out:?}"
+        );
+        let e = answers(&out)[0].1.clone().unwrap_err();
+        assert!(
+            e.description
+                .contains("recipe WELD2 not delivered to welding: the association was lost"),
+            "{e}"
         );
     }
 
