@@ -207,7 +207,7 @@ async fn an_unplugged_line_fails_after_six_attempts_and_recovers_when_replugged(
 /// stored one kept.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_program_delivered_over_the_line_is_stored_listed_uploaded_and_run() {
-    use falc_dnc::program::text_hash;
+    use falc_recipe::robot_program::text_hash;
     let (mut rcm, path) = twin(&["--time-scale", "10"]);
     let mut h = connect(&path, Timing::default());
     let text = "program 65\n# delivered\nmove approach 2\nweld seam_2 30\nmove home 2";

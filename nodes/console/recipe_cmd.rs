@@ -53,9 +53,15 @@ type Checked = (
 );
 
 /// The set checked, and its transport recipes against their stations'
-/// equipment ([`equipment_problems`]): the programs and every problem; None
-/// (said on stdout) if an equipment file does not load.
-fn checked(entries: &[falc_recipe::check::Entry], topology: &std::path::Path) -> Option<Checked> {
+/// equipment ([`equipment_problems`]); where a recipe tree of `paths` has
+/// a `robot/` directory, its programs are checked and every `start rcm N`
+/// must name one of them. The programs and every problem; None (said on
+/// stdout) if an equipment file or a robot program does not load.
+fn checked(
+    entries: &[falc_recipe::check::Entry],
+    paths: &[PathBuf],
+    topology: &std::path::Path,
+) -> Option<Checked> {
     let (programs, mut problems) = check_set(entries);
     match equipment_problems(topology, &programs) {
         Ok(found) => problems.extend(found),
@@ -64,7 +70,32 @@ fn checked(entries: &[falc_recipe::check::Entry], topology: &std::path::Path) ->
             return None;
         }
     }
+    let mut held = None;
+    for tree in trees(paths).iter().filter(|p| p.is_dir()) {
+        match files::load_robot(tree) {
+            Ok(Some(robot)) => held
+                .get_or_insert_with(std::collections::BTreeSet::new)
+                .extend(robot.iter().map(|r| r.program.number)),
+            Ok(None) => {}
+            Err(errors) => {
+                errors.iter().for_each(|e| crate::out!("{e}"));
+                return None;
+            }
+        }
+    }
+    if let Some(held) = held {
+        problems.extend(falc_recipe::robot_program::lacking(&programs, &held));
+    }
     Some((programs, problems))
+}
+
+/// The paths a command reads: those given, else `recipes`.
+fn trees(paths: &[PathBuf]) -> Vec<PathBuf> {
+    if paths.is_empty() {
+        vec![PathBuf::from("recipes")]
+    } else {
+        paths.to_vec()
+    }
 }
 
 /// The DOT text of one recipe file, or every reason it has none.
@@ -163,17 +194,12 @@ pub fn graphviz(dot: &str, format: &str, out: &std::path::Path) -> Result<(), St
 
 /// Loads `paths` (default `recipes`); on failure says each error with `say`.
 fn load_or_say(
-    paths: Vec<PathBuf>,
+    paths: &[PathBuf],
     kind: Option<RecipeKind>,
     kinds: &StationKinds,
     say: impl Fn(&str),
 ) -> Option<Vec<falc_recipe::check::Entry>> {
-    let paths = if paths.is_empty() {
-        vec![PathBuf::from("recipes")]
-    } else {
-        paths
-    };
-    match files::load_in(&paths, kind, kinds) {
+    match files::load_in(&trees(paths), kind, kinds) {
         Ok(e) => Some(e),
         Err(errors) => {
             errors.iter().for_each(|e| say(e));
@@ -213,7 +239,7 @@ pub fn run(cmd: RecipeCommand, topology: &std::path::Path) -> ExitCode {
             }
         }
         RecipeCommand::List { paths } => {
-            let Some(entries) = load_or_say(paths, None, &kinds, |e| eprintln!("{e}")) else {
+            let Some(entries) = load_or_say(&paths, None, &kinds, |e| eprintln!("{e}")) else {
                 return ExitCode::FAILURE;
             };
             let (_, problems) = check_set(&entries);
@@ -244,10 +270,10 @@ pub fn run(cmd: RecipeCommand, topology: &std::path::Path) -> ExitCode {
         }
         RecipeCommand::Check { kind, paths } => {
             // Problems go to stdout, one per line, for scripts.
-            let Some(entries) = load_or_say(paths, kind, &kinds, |e| crate::out!("{e}")) else {
+            let Some(entries) = load_or_say(&paths, kind, &kinds, |e| crate::out!("{e}")) else {
                 return ExitCode::FAILURE;
             };
-            let Some((programs, problems)) = checked(&entries, topology) else {
+            let Some((programs, problems)) = checked(&entries, &paths, topology) else {
                 return ExitCode::FAILURE;
             };
             for p in &problems {
@@ -292,10 +318,10 @@ fn verify(
     kinds: &StationKinds,
     topology: &std::path::Path,
 ) -> ExitCode {
-    let Some(entries) = load_or_say(paths, None, kinds, |e| crate::out!("{e}")) else {
+    let Some(entries) = load_or_say(&paths, None, kinds, |e| crate::out!("{e}")) else {
         return ExitCode::FAILURE;
     };
-    let Some((programs, problems)) = checked(&entries, topology) else {
+    let Some((programs, problems)) = checked(&entries, &paths, topology) else {
         return ExitCode::FAILURE;
     };
     if !problems.is_empty() {

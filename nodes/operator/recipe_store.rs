@@ -25,10 +25,11 @@ use falc_equipment::Equipment;
 use falc_factory::recipe_source::{checked_set, PutError, RecipeSet, RecipeSource};
 use falc_model::ids::StationName;
 use falc_model::mms::domain::content_hash;
-use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
+use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText, ROBOT_DIR};
 use falc_model::topology::Topology;
 use falc_recipe::check::Entry;
 use falc_recipe::files::{self, StationKinds};
+use falc_recipe::robot_program::RobotFile;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -61,9 +62,14 @@ impl RecipeDir {
 /// One file as read: its station, origin and text.
 type Read = (StationName, String, String);
 
-/// A set checked clean, with the files and equipment it was checked
-/// against.
-type Checked = (Vec<Read>, BTreeMap<StationName, Arc<Equipment>>, RecipeSet);
+/// A set checked clean, with the files (recipes, robot programs) and
+/// equipment it was checked against.
+type Checked = (
+    Vec<Read>,
+    Option<Vec<RobotFile>>,
+    BTreeMap<StationName, Arc<Equipment>>,
+    RecipeSet,
+);
 
 impl RecipeSource for RecipeDir {
     /// Reads and checks the recipe tree against the topology: the cell
@@ -77,15 +83,22 @@ impl RecipeSource for RecipeDir {
             .iter()
             .map(|e| (e.station.clone(), e.recipe.origin.clone(), e.text.clone()))
             .collect();
+        let robot = files::load_robot(&self.dir)?;
         let equipment = equipment(&self.topology)?;
         let mut checked = self.checked.lock().unwrap_or_else(PoisonError::into_inner);
-        if let Some((texts, with, set)) = checked.as_ref() {
-            if *texts == read && *with == equipment {
+        if let Some((texts, programs, with, set)) = checked.as_ref() {
+            if *texts == read && *programs == robot && *with == equipment {
                 return Ok(set.clone());
             }
         }
-        let set = checked_set(&entries, &self.topology, &self.cell, &equipment)?;
-        *checked = Some((read, equipment, set.clone()));
+        let set = checked_set(
+            &entries,
+            robot.as_deref(),
+            &self.topology,
+            &self.cell,
+            &equipment,
+        )?;
+        *checked = Some((read, robot, equipment, set.clone()));
         Ok(set)
     }
     fn list(&self) -> Result<Vec<RecipeInfo>, String> {
@@ -123,10 +136,25 @@ fn path_of(dir: &Path, file: &RecipeFile) -> PathBuf {
     dir.join(file.station().as_str()).join(file.file())
 }
 
-/// Every recipe file under `dir`, with its name where the text gives one.
+/// Every recipe file under `dir`, with its name where the text gives one;
+/// the robot programs (named `program N`) first.
 fn list(dir: &Path, topology: &Topology, cell: &StationName) -> Result<Vec<RecipeInfo>, String> {
     let mut out = Vec::new();
     let kinds = StationKinds::of(topology);
+    let robot = StationName::new(ROBOT_DIR).map_err(|e| e.to_string())?;
+    if let Ok(read) = std::fs::read_dir(dir.join(ROBOT_DIR)) {
+        let mut files: Vec<RecipeFile> = read
+            .filter_map(Result::ok)
+            .filter_map(|e| e.file_name().into_string().ok())
+            .filter(|n| n.ends_with(".prg"))
+            .filter_map(|n| RecipeFile::new(robot.clone(), &n).ok())
+            .collect();
+        files.sort();
+        out.extend(files.into_iter().map(|file| RecipeInfo {
+            name: file.robot_program().map(|p| format!("program {p}")),
+            file,
+        }));
+    }
     for station in stations(topology, cell) {
         let sub = dir.join(station.as_str());
         let Ok(read) = std::fs::read_dir(&sub) else {
@@ -181,7 +209,8 @@ fn put(
     text: &str,
     base: Option<u64>,
 ) -> Result<(), PutError> {
-    if !stations(topology, cell).contains(file.station()) {
+    let is_program = file.robot_program().is_some();
+    if !is_program && !stations(topology, cell).contains(file.station()) {
         return Err(PutError::Refused(format!(
             "{} is neither the cell nor one of its workstations in the topology",
             file.station()
@@ -205,12 +234,22 @@ fn put(
     let kinds = StationKinds::of(topology);
     let mut entries =
         files::load_in(&[PathBuf::from(dir)], None, &kinds).map_err(PutError::Findings)?;
+    let mut robot = files::load_robot(dir).map_err(PutError::Findings)?;
     let origin = path.display().to_string();
-    entries.retain(|e| e.recipe.origin != origin);
-    entries
-        .push(files::entry_in(&path, None, &kinds, text.to_string()).map_err(PutError::Refused)?);
+    if is_program {
+        let saved = RobotFile::read(&origin, file.file(), text).map_err(PutError::Findings)?;
+        let robot = robot.get_or_insert_with(Vec::new);
+        robot.retain(|r| r.file != *file);
+        robot.push(saved);
+    } else {
+        entries.retain(|e| e.recipe.origin != origin);
+        entries.push(
+            files::entry_in(&path, None, &kinds, text.to_string()).map_err(PutError::Refused)?,
+        );
+    }
     let equipment = equipment(topology).map_err(PutError::Findings)?;
-    checked_set(&entries, topology, cell, &equipment).map_err(PutError::Findings)?;
+    checked_set(&entries, robot.as_deref(), topology, cell, &equipment)
+        .map_err(PutError::Findings)?;
     write_atomically(&path, text.as_bytes())
         .map_err(|e| PutError::Refused(format!("cannot save recipe {file}: {e}")))
 }
@@ -219,7 +258,8 @@ fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     use std::io::Write;
     let dir = path.parent().unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir)?;
-    let tmp = path.with_extension("rcp.saving");
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+    let tmp = path.with_extension(format!("{ext}.saving"));
     let mut f = std::fs::File::create(&tmp)?;
     f.write_all(bytes)?;
     f.sync_all()?;
@@ -250,13 +290,98 @@ mod tests {
             .any(|d| d.domain.as_str() == "WELDING$DROOG_DIK"));
         let first_cell = set.deliveries.iter().position(|d| d.is_cell);
         assert_eq!(first_cell, Some(10));
+        let programs: Vec<String> = set.programs.iter().map(|r| r.file.to_string()).collect();
+        assert_eq!(
+            programs,
+            [
+                "robot/010.prg",
+                "robot/064.prg",
+                "robot/065.prg",
+                "robot/066.prg"
+            ]
+        );
+    }
+
+    /// Robot programs are listed, fetched and saved like recipes: a save
+    /// is checked as a program and with the whole set; a recipe may start
+    /// only a program the store holds.
+    #[test]
+    fn robot_programs_are_kept_like_recipes_and_recipes_start_only_those_held() {
+        let tmp = shipped_copy();
+        let (t, cell) = (topology(), StationName::new("cell").expect("valid"));
+        let robot = StationName::new(ROBOT_DIR).expect("valid");
+        let p65 = RecipeFile::new(robot.clone(), "65").expect("valid");
+        let listed = list(tmp.path(), &t, &cell).expect("list");
+        assert!(listed
+            .iter()
+            .any(|r| r.file == p65 && r.name.as_deref() == Some("program 65")));
+        let got = get(tmp.path(), &p65).expect("get");
+        // A step the DNC line cannot carry, and another program's number:
+        // refused with file and line, the file unchanged.
+        let bad = got.text.replace("weld seam_1 45", "weld seam_1 forty");
+        match put(tmp.path(), &t, &cell, &p65, &bad, Some(got.hash)) {
+            Err(PutError::Findings(f)) => assert!(
+                f.iter()
+                    .any(|l| l.contains("065.prg:4:") && l.contains("`forty` is not a time")),
+                "{f:?}"
+            ),
+            other => panic!("{other:?}"),
+        }
+        let other = got.text.replace("program 65", "program 66");
+        match put(tmp.path(), &t, &cell, &p65, &other, Some(got.hash)) {
+            Err(PutError::Findings(f)) => {
+                assert!(f[0].contains("065.prg:1: the text is program 66"), "{f:?}")
+            }
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(get(tmp.path(), &p65).expect("get").text, got.text);
+        let edited = got.text.replace("weld seam_1 45", "weld seam_1 50");
+        put(tmp.path(), &t, &cell, &p65, &edited, Some(got.hash)).expect("saved");
+        assert_eq!(get(tmp.path(), &p65).expect("get").text, edited);
+        // A welding recipe that starts a program the store lacks is
+        // refused; once the program is saved, it is taken.
+        let ws =
+            RecipeFile::new(StationName::new("welding").expect("v"), "droog_dik.rcp").expect("v");
+        let recipe = get(tmp.path(), &ws).expect("get");
+        let rcm67 = recipe.text.replace("start rcm 65", "start rcm 67");
+        match put(tmp.path(), &t, &cell, &ws, &rcm67, Some(recipe.hash)) {
+            Err(PutError::Findings(f)) => assert!(
+                f.iter().any(|l| l.contains(
+                    "droog_dik.rcp:8: state 1: the recipe store has no \
+                                 robot program 67 (robot/067.prg)"
+                )),
+                "{f:?}"
+            ),
+            other => panic!("{other:?}"),
+        }
+        let p67 = RecipeFile::new(robot, "067.prg").expect("valid");
+        put(
+            tmp.path(),
+            &t,
+            &cell,
+            &p67,
+            &edited.replace("program 65", "program 67"),
+            None,
+        )
+        .expect("a new program");
+        put(tmp.path(), &t, &cell, &ws, &rcm67, Some(recipe.hash)).expect("now it is held");
+        let set = RecipeDir::new(tmp.path().to_path_buf(), t.clone(), cell.clone())
+            .load()
+            .expect("clean");
+        assert_eq!(set.programs.len(), 5);
+        // A store without a robot directory runs the robot's own programs.
+        std::fs::remove_dir_all(tmp.path().join(ROBOT_DIR)).expect("rm");
+        let set = RecipeDir::new(tmp.path().to_path_buf(), t, cell)
+            .load()
+            .expect("clean");
+        assert!(set.programs.is_empty());
     }
 
     /// A copy of the shipped recipe tree.
     fn shipped_copy() -> tempfile::TempDir {
         let tmp = tempfile::tempdir().expect("tempdir");
         let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes");
-        for sub in ["cell", "welding", "transport"] {
+        for sub in ["cell", "welding", "transport", "robot"] {
             std::fs::create_dir_all(tmp.path().join(sub)).expect("mkdir");
             for f in std::fs::read_dir(src.join(sub)).expect("dir") {
                 let f = f.expect("entry").path();
@@ -274,7 +399,7 @@ mod tests {
         let ws = |f: &str| RecipeFile::new(StationName::new("transport").expect("v"), f);
         let store = ws("store.rcp").expect("valid");
         let listed = list(tmp.path(), &t, &cell).expect("list");
-        assert_eq!(listed.len(), 13);
+        assert_eq!(listed.len(), 13 + 4, "13 recipes and 4 robot programs");
         assert!(listed
             .iter()
             .any(|r| r.file == store && r.name.as_deref() == Some("STORE")));

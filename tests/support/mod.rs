@@ -339,7 +339,7 @@ fn twin_from(cmd: Command, bin: &str, announces: &str) -> (Proc, String) {
 pub fn copy_recipes(dir: &std::path::Path) -> PathBuf {
     let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes");
     let to = dir.join("recipes");
-    for sub in ["cell", "welding", "transport"] {
+    for sub in ["cell", "welding", "transport", "robot"] {
         copy_dir(&src.join(sub), &to.join(sub));
     }
     to

@@ -1,7 +1,7 @@
 //! The DNC link between the welding workstation and the robot controller
 //! (RCM 815), sans-I/O: the 3964R procedure ([`procedure`]), the DNC
-//! telegrams on top ([`telegram`]), a robot program's text as it is kept
-//! and delivered ([`program`]), the table that turns RCM message
+//! telegrams on top ([`telegram`]) that also deliver a robot program's
+//! text (`falc_recipe::robot_program`), the table that turns RCM message
 //! numbers into `RobotStatusDetail` and recipe criteria ([`alarms`]); the
 //! welding workstation's side of the link ([`host`]) and its device as
 //! welding recipes see it ([`workstation`], poll-style), the robot
@@ -16,7 +16,6 @@
 pub mod alarms;
 pub mod host;
 pub mod procedure;
-pub mod program;
 pub mod robot;
 pub mod telegram;
 pub mod twin;

@@ -5,9 +5,9 @@
 //! injects. Telegrams in, telegrams out; what it does for a person
 //! watching it ([`Robot::poll_note`]).
 
-use crate::program::{text_hash, ProgramText};
 use crate::telegram::{AckError, EndResult, Mode, ProgramState, Telegram};
 use falc_model::ids::RobotProgram;
+use falc_recipe::robot_program::{text_hash, ProgramText};
 use std::collections::BTreeMap;
 use std::collections::VecDeque;
 use std::time::Duration;

@@ -233,7 +233,7 @@ pub enum Telegram {
         program: RobotProgram,
         /// How many lines (`T`) follow.
         lines: u16,
-        /// The text's hash ([`crate::program::text_hash`]).
+        /// The text's hash ([`falc_recipe::robot_program::text_hash`]).
         hash: u32,
     },
     /// `T`: one line of a text.
@@ -261,7 +261,7 @@ pub enum Telegram {
 }
 
 /// The longest line a `T` telegram carries.
-pub const MAX_LINE: usize = crate::program::MAX_LINE;
+pub const MAX_LINE: usize = falc_recipe::robot_program::MAX_LINE;
 
 /// Why bytes are not a telegram.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

@@ -5,12 +5,13 @@
 
 use falc_equipment::vocabulary::lacking_in;
 use falc_equipment::Equipment;
-use falc_model::ids::{ObjectName, StationName};
+use falc_model::ids::{ObjectName, RobotProgram, StationName};
 use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
 use falc_model::topology::Topology;
 use falc_recipe::check::{check_set, Command, Entry, Job, Program};
 use falc_recipe::commands::RecipeKind;
-use std::collections::BTreeMap;
+use falc_recipe::robot_program::{self, RobotFile};
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::sync::Arc;
 
@@ -37,6 +38,9 @@ pub struct Delivery {
 pub struct RecipeSet {
     /// Every recipe, in delivery order.
     pub deliveries: Vec<Delivery>,
+    /// The store's robot programs (none when it keeps none: the robot
+    /// controller's own programs run).
+    pub programs: Vec<RobotFile>,
 }
 
 impl RecipeSet {
@@ -82,10 +86,13 @@ pub trait RecipeSource {
 /// recipes go to `cell`, workstation recipes must belong to one of its
 /// workstations, a transport recipe may name only what its station's
 /// equipment has (`equipment`, by station: [`Equipment::of_topology`]),
-/// and the set must verify across levels. Returns the set (workstation
-/// recipes first), or every problem (`file:line: reason`).
+/// and the set must verify across levels. Where the store keeps robot
+/// programs (`robot`: its `robot/` directory, read), every `start rcm N`
+/// must name one of them. Returns the set (workstation recipes first), or
+/// every problem (`file:line: reason`).
 pub fn checked_set(
     entries: &[Entry],
+    robot: Option<&[RobotFile]>,
     topology: &Topology,
     cell: &StationName,
     equipment: &BTreeMap<StationName, Arc<Equipment>>,
@@ -97,6 +104,14 @@ pub fn checked_set(
             .iter()
             .map(ToString::to_string),
     );
+    if let Some(robot) = robot {
+        let held: BTreeSet<RobotProgram> = robot.iter().map(|r| r.program.number).collect();
+        errors.extend(
+            robot_program::lacking(&programs, &held)
+                .iter()
+                .map(ToString::to_string),
+        );
+    }
     let workstations = topology.subordinates_of(cell);
     let mut cells = Vec::new();
     let mut stations = Vec::new();
@@ -173,6 +188,7 @@ pub fn checked_set(
     stations.extend(cells);
     Ok(RecipeSet {
         deliveries: stations,
+        programs: robot.map(<[RobotFile]>::to_vec).unwrap_or_default(),
     })
 }
 
@@ -247,6 +263,7 @@ pub(crate) mod fake {
         };
         RecipeSet {
             deliveries: vec![d("WELDING$DROOG_DIK", false), d("DIKDROOG", true)],
+            programs: Vec::new(),
         }
     }
 

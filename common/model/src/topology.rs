@@ -253,6 +253,13 @@ impl Topology {
             if index.insert(st.name.clone(), i).is_some() {
                 return Err(fail(format!("station `{}` is defined twice", st.name)));
             }
+            if st.name.as_str() == crate::recipe_file::ROBOT_DIR {
+                return Err(fail(format!(
+                    "a station may not be named `{}`: the recipe store keeps the robot programs \
+                     in that directory",
+                    st.name
+                )));
+            }
         }
         let names = raw
             .stations
@@ -526,6 +533,10 @@ device = "/dev/ttyS0"
             "{CELL}[[station]]\nname=\"welding\"\nkind=\"welding\"\ncommander=\"cell\"\n"
         ))
         .contains("defined twice"));
+        assert!(
+            refusal(&CELL.replace("name = \"welding\"", "name = \"robot\""))
+                .contains("may not be named `robot`")
+        );
         assert!(
             refusal(&CELL.replace("commander = \"cell\"", "commander = \"nobody\""))
                 .contains("`nobody`, which is not defined")

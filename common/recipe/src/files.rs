@@ -3,11 +3,14 @@
 //! per station: `cell/`, `welding/`, `transport/`, `welding2/` …). The
 //! directory a file sits in names its station; the station's kind comes
 //! from the topology ([`StationKinds`]), else from the directory's name.
+//! A tree's `robot/` directory holds its robot programs ([`load_robot`]).
 
 use super::check::Entry;
 use super::commands::RecipeKind;
+use super::robot_program::RobotFile;
 use super::syntax::parse;
 use falc_model::ids::StationName;
+use falc_model::recipe_file::ROBOT_DIR;
 use falc_model::topology::{StationKind, Topology};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -114,14 +117,55 @@ pub fn entry_in(
 }
 
 fn rcp_files(dir: &Path) -> Result<Vec<PathBuf>, String> {
+    files_ending(dir, "rcp")
+}
+
+fn files_ending(dir: &Path, ext: &str) -> Result<Vec<PathBuf>, String> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(|e| format!("{}: {e}", dir.display()))?
         .filter_map(Result::ok)
         .map(|e| e.path())
-        .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("rcp")))
+        .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case(ext)))
         .collect();
     v.sort();
     Ok(v)
+}
+
+/// The robot programs of recipe tree `tree` (every `robot/*.prg`), each
+/// checked; None when the tree has no `robot/` directory (the robot
+/// controller's own programs are run, as in 1992). Every problem as
+/// `file:line: reason`.
+pub fn load_robot(tree: &Path) -> Result<Option<Vec<RobotFile>>, Vec<String>> {
+    let dir = tree.join(ROBOT_DIR);
+    if !dir.is_dir() {
+        return Ok(None);
+    }
+    let mut out = Vec::new();
+    let mut errors = Vec::new();
+    for path in files_ending(&dir, "prg").map_err(|e| vec![e])? {
+        let origin = path.display().to_string();
+        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        let read = std::fs::read(&path)
+            .map_err(|e| vec![format!("{origin}: {e}")])
+            .and_then(|b| {
+                String::from_utf8(b).map_err(|e| {
+                    vec![format!(
+                        "{origin}: not UTF-8 text (byte {} is invalid)",
+                        e.utf8_error().valid_up_to()
+                    )]
+                })
+            })
+            .and_then(|text| RobotFile::read(&origin, name, &text));
+        match read {
+            Ok(r) => out.push(r),
+            Err(mut e) => errors.append(&mut e),
+        }
+    }
+    if errors.is_empty() {
+        Ok(Some(out))
+    } else {
+        Err(errors)
+    }
 }
 
 /// Loads every recipe under `paths` (files, station directories or recipe
@@ -195,6 +239,35 @@ name = "welding2"
 kind = "welding"
 commander = "cell"
 "#;
+
+    #[test]
+    fn a_tree_s_robot_programs_are_read_and_checked_with_file_and_line() {
+        let tmp = tempfile::tempdir().expect("tempdir");
+        assert_eq!(load_robot(tmp.path()), Ok(None), "no robot directory");
+        let dir = tmp.path().join("robot");
+        std::fs::create_dir_all(&dir).expect("mkdir");
+        assert_eq!(load_robot(tmp.path()), Ok(Some(Vec::new())));
+        std::fs::write(dir.join("065.prg"), "program 65\nmove home 2\n").expect("write");
+        std::fs::write(dir.join("notes.txt"), "not a program").expect("write");
+        let read = load_robot(tmp.path()).expect("clean").expect("a directory");
+        assert_eq!(read.len(), 1);
+        assert_eq!(read[0].file.to_string(), "robot/065.prg");
+        assert_eq!(read[0].program.steps.len(), 1);
+        std::fs::write(dir.join("home.prg"), "program 1\nmove home 2\n").expect("write");
+        std::fs::write(dir.join("002.prg"), "program 2\nmove home\n").expect("write");
+        std::fs::write(dir.join("003.prg"), [b'p', 0xff]).expect("write");
+        let errors = load_robot(tmp.path()).expect_err("three bad files");
+        assert_eq!(errors.len(), 3, "{errors:?}");
+        assert!(errors[0].ends_with("002.prg:2: `move home` is not a step: write `move NAME SECONDS` or `weld NAME SECONDS`"), "{errors:?}");
+        assert!(
+            errors[1].contains("003.prg: not UTF-8 text (byte 1"),
+            "{errors:?}"
+        );
+        assert!(
+            errors[2].contains("home.prg:1: robot program file name \"home.prg\""),
+            "{errors:?}"
+        );
+    }
 
     #[test]
     fn a_station_directory_s_kind_comes_from_the_topology() {

@@ -13,5 +13,6 @@ pub mod dot;
 pub mod engine;
 pub mod files;
 pub mod problem;
+pub mod robot_program;
 pub mod syntax;
 pub mod verify;

@@ -8,9 +8,10 @@ use falc_equipment::Equipment;
 use falc_factory::recipe_source::{checked_set, PutError, RecipeSet, RecipeSource};
 use falc_model::ids::StationName;
 use falc_model::mms::domain::content_hash;
-use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
+use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText, ROBOT_DIR};
 use falc_model::topology::Topology;
 use falc_recipe::files::{entry_in, StationKinds};
+use falc_recipe::robot_program::RobotFile;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
@@ -64,6 +65,22 @@ pub const SHIPPED: &[(&str, &str)] = &[
         "cell/pipdroog.rcp",
         include_str!("../../../recipes/cell/pipdroog.rcp"),
     ),
+    (
+        "robot/010.prg",
+        include_str!("../../../recipes/robot/010.prg"),
+    ),
+    (
+        "robot/064.prg",
+        include_str!("../../../recipes/robot/064.prg"),
+    ),
+    (
+        "robot/065.prg",
+        include_str!("../../../recipes/robot/065.prg"),
+    ),
+    (
+        "robot/066.prg",
+        include_str!("../../../recipes/robot/066.prg"),
+    ),
 ];
 
 /// The recipes as a recipe store: read-only (a save is refused), so the
@@ -77,8 +94,12 @@ pub struct Recipes {
     /// Where the files are (`recipes` for the shipped ones), named in
     /// every problem found.
     root: PathBuf,
-    /// Each file under the root (`welding/droog_dik.rcp`) and its text.
+    /// Each file under the root (`welding/droog_dik.rcp`, `robot/065.prg`)
+    /// and its text.
     texts: Rc<Vec<(String, String)>>,
+    /// Whether the tree has a robot directory (its programs are the
+    /// only ones recipes may start).
+    robot_dir: bool,
     checked: std::cell::OnceCell<Result<RecipeSet, Vec<String>>>,
 }
 
@@ -94,20 +115,28 @@ impl Recipes {
             cell,
             root: PathBuf::from("recipes"),
             texts: Rc::new(texts),
+            robot_dir: true,
             checked: std::cell::OnceCell::new(),
         }
     }
 
     /// The recipe tree `dir` for `cell` of `topology`: the `.rcp` files in
-    /// the directory of the cell and of each of its workstations, read now
-    /// (checked when loaded). A directory that cannot be read is refused,
-    /// naming it; a station without one has no recipes.
+    /// the directory of the cell and of each of its workstations, and the
+    /// `.prg` files of its `robot/` directory, read now (checked when
+    /// loaded). A directory that cannot be read is refused, naming it; a
+    /// station without one has no recipes.
     pub fn read(dir: &Path, topology: Topology, cell: StationName) -> Result<Self, String> {
-        let mut stations = vec![cell.clone()];
-        stations.extend(topology.subordinates_of(&cell).into_iter().cloned());
+        let mut dirs: Vec<(String, &str)> = vec![(cell.to_string(), "rcp")];
+        dirs.extend(
+            topology
+                .subordinates_of(&cell)
+                .into_iter()
+                .map(|s| (s.to_string(), "rcp")),
+        );
+        dirs.push((ROBOT_DIR.to_string(), "prg"));
         let mut texts = Vec::new();
-        for station in stations {
-            let sub = dir.join(station.as_str());
+        for (station, ext) in dirs {
+            let sub = dir.join(&station);
             if !sub.is_dir() {
                 continue;
             }
@@ -115,7 +144,7 @@ impl Recipes {
             let mut files: Vec<PathBuf> = read
                 .filter_map(Result::ok)
                 .map(|e| e.path())
-                .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("rcp")))
+                .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case(ext)))
                 .collect();
             files.sort();
             for path in files {
@@ -132,6 +161,7 @@ impl Recipes {
             cell,
             root: dir.to_path_buf(),
             texts: Rc::new(texts),
+            robot_dir: dir.join(ROBOT_DIR).is_dir(),
             checked: std::cell::OnceCell::new(),
         })
     }
@@ -144,12 +174,22 @@ impl Recipes {
     fn check(&self) -> Result<RecipeSet, Vec<String>> {
         let kinds = StationKinds::of(&self.topology);
         let mut entries = Vec::new();
+        let mut robot = Vec::new();
         for (file, text) in self.texts.iter() {
             let path = self.root.join(file);
-            entries.push(entry_in(&path, None, &kinds, text.clone()).map_err(|e| vec![e])?);
+            match file
+                .strip_prefix(ROBOT_DIR)
+                .and_then(|f| f.strip_prefix('/'))
+            {
+                Some(name) => robot.push(RobotFile::read(&path.display().to_string(), name, text)?),
+                None => {
+                    entries.push(entry_in(&path, None, &kinds, text.clone()).map_err(|e| vec![e])?)
+                }
+            }
         }
         let equipment = Equipment::of_topology(&self.topology).map_err(|e| vec![e])?;
-        checked_set(&entries, &self.topology, &self.cell, &equipment)
+        let robot = self.robot_dir.then_some(robot.as_slice());
+        checked_set(&entries, robot, &self.topology, &self.cell, &equipment)
     }
 }
 

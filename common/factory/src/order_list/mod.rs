@@ -523,12 +523,27 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     /// journals each new one.
     fn version_set(&mut self) {
         let mut versions = BTreeMap::new();
-        for d in &self.recipes.deliveries.clone() {
-            let text = String::from_utf8_lossy(&d.content);
+        // The recipes by domain, then the robot programs (by file alone).
+        let files: Vec<(RecipeFile, String, Option<ObjectName>)> = self
+            .recipes
+            .deliveries
+            .iter()
+            .map(|d| {
+                let text = String::from_utf8_lossy(&d.content).into_owned();
+                (d.file.clone(), text, Some(d.domain.clone()))
+            })
+            .chain(
+                self.recipes
+                    .programs
+                    .iter()
+                    .map(|r| (r.file.clone(), r.program.text.clone(), None)),
+            )
+            .collect();
+        for (file, text, domain) in files {
             let me = self.me.to_string();
             match self
                 .db
-                .add_version(&d.file, &text, &me, "found in the recipe store")
+                .add_version(&file, &text, &me, "found in the recipe store")
             {
                 Ok((v, new)) => {
                     if new {
@@ -540,7 +555,9 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
                         );
                         self.journal_mine(EntryKind::System, None, &line);
                     }
-                    versions.insert(d.domain.clone(), v);
+                    if let Some(domain) = domain {
+                        versions.insert(domain, v);
+                    }
                 }
                 Err(e) => return self.db_failed(&e),
             }

@@ -19,8 +19,12 @@
 //! step, at most [`MAX_STEPS`]; every line at most [`MAX_LINE`] bytes of
 //! printable ASCII, so that each goes over the line in one telegram.
 
-use falc_model::ids::RobotProgram;
+use crate::check::{Command, Job, Program};
+use crate::problem::{Problem, ProblemKind};
+use falc_model::ids::{RobotProgram, StationName};
 use falc_model::mms::domain::content_hash;
+use falc_model::recipe_file::RecipeFile;
+use std::collections::BTreeSet;
 use std::fmt;
 use std::time::Duration;
 
@@ -161,6 +165,79 @@ impl ProgramText {
     pub fn hash(&self) -> u32 {
         text_hash(&self.text)
     }
+}
+
+/// A robot program of the recipe store (`robot/065.prg`), read and checked.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RobotFile {
+    /// Its file in the store.
+    pub file: RecipeFile,
+    /// Where it was read from (for errors).
+    pub origin: String,
+    /// The program.
+    pub program: ProgramText,
+}
+
+impl RobotFile {
+    /// Reads `text` as the program of the file at `origin`, whose name
+    /// (`065.prg`) is `file_name`: the text must check clean and be the
+    /// program its file is named for.
+    pub fn read(origin: &str, file_name: &str, text: &str) -> Result<Self, Vec<String>> {
+        let robot = StationName::new(falc_model::recipe_file::ROBOT_DIR)
+            .map_err(|e| vec![format!("{origin}:1: {e}")])?;
+        let file =
+            RecipeFile::new(robot, file_name).map_err(|e| vec![format!("{origin}:1: {e}")])?;
+        let program = ProgramText::parse(text, origin)?;
+        if file.robot_program() != Some(program.number) {
+            let at = text
+                .lines()
+                .position(|l| l.trim_start().starts_with("program"))
+                .map_or(1, |i| i + 1);
+            return Err(vec![format!(
+                "{origin}:{at}: the text is program {}, its file {}: a program's file is named \
+                 by its number ({:03}.prg)",
+                program.number,
+                file.file(),
+                program.number.number()
+            )]);
+        }
+        Ok(Self {
+            file,
+            origin: origin.to_string(),
+            program,
+        })
+    }
+}
+
+/// Every `start rcm N` of `programs` whose program N the store does not
+/// hold (`held`: the numbers of its robot directory), as a problem at its
+/// state's line.
+pub fn lacking(programs: &[(StationName, Program)], held: &BTreeSet<RobotProgram>) -> Vec<Problem> {
+    let mut out = Vec::new();
+    for (_, program) in programs {
+        for state in program.states.values() {
+            let Command::Start {
+                job: Job::Program(p),
+                ..
+            } = &state.command
+            else {
+                continue;
+            };
+            if !held.contains(p) {
+                out.push(Problem {
+                    origin: program.origin.clone(),
+                    line: state.line,
+                    state: Some(state.no),
+                    kind: ProblemKind::BadArgument,
+                    message: format!(
+                        "the recipe store has no robot program {p} (robot/{:03}.prg)",
+                        p.number()
+                    ),
+                });
+            }
+        }
+    }
+    out
 }
 
 /// The text's hash as a program transfer carries it: the low 32 bits of
