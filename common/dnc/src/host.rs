@@ -1,7 +1,10 @@
 //! The welding workstation's side of the DNC link, sans-I/O: turns the
 //! recipe engine's `start rcm N` / stop into telegrams (select, then start),
 //! and the RCM's acknowledgements, program ends and alarm messages into
-//! engine events and robot status (through the alarm table).
+//! engine events and robot status (through the alarm table). It also
+//! delivers a robot program's text ([`Host::deliver`]: `D`, the `T` lines,
+//! `F`, each acknowledged before the next goes), never the program a job
+//! of ours runs.
 
 use crate::alarms::{self, Effect};
 use crate::procedure::Timing;
@@ -9,9 +12,12 @@ use crate::telegram::{EndResult, Mode, ProgramState, Telegram};
 use falc_model::alarm::{AlarmClass, Cause};
 use falc_model::ids::RobotProgram;
 use falc_model::ids::StationName;
+use falc_model::mms::error::ServiceError;
 use falc_model::mms::vmd::RobotStatusDetail;
 use falc_model::mode::ManualAction;
 use falc_recipe::engine::{Event, JobEnd};
+use falc_recipe::robot_program::ProgramText;
+use std::collections::VecDeque;
 use std::time::Duration;
 
 /// How often the RCM's status is asked while a program runs. A dead line
@@ -38,6 +44,30 @@ pub enum Out {
     /// Tell the commander: something no job owns went wrong (a report of
     /// that class, not a job event).
     Alarm(Cause),
+    /// A delivery ([`Host::deliver`]) ended: the RCM stored the program,
+    /// or why not.
+    Delivered(RobotProgram, Result<(), ServiceError>),
+}
+
+/// A program's text on its way to the RCM: one telegram at a time, each
+/// acknowledged before the next goes.
+#[derive(Debug)]
+struct Transfer {
+    program: RobotProgram,
+    /// The telegram whose acknowledgement is awaited.
+    awaiting: Telegram,
+    /// When the link delivered it (None: not yet).
+    since: Option<Duration>,
+    /// The telegrams still to go (the `T` lines, then `F`).
+    rest: VecDeque<Telegram>,
+}
+
+impl Transfer {
+    /// The code letter of the awaited telegram, as its acknowledgement
+    /// names it.
+    fn code(&self) -> u8 {
+        self.awaiting.encode().first().copied().unwrap_or(0)
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -127,6 +157,8 @@ pub struct Host {
     /// ([`crate::telegram::AckError::may_be_noise`]) or a lost
     /// acknowledgement.
     reselected: bool,
+    /// A program's text under way to the RCM.
+    transfer: Option<Transfer>,
 }
 
 /// The warning for program `program` found `state` on the RCM on `line`
@@ -172,6 +204,7 @@ impl Host {
             last_alarm: None,
             by_hand: false,
             reselected: false,
+            transfer: None,
         }
     }
 
@@ -281,6 +314,128 @@ impl Host {
                 step.ack = AckWait::Since(now);
             }
         }
+        if let Some(t) = &mut self.transfer {
+            if t.since.is_none() && telegram == t.awaiting.encode() {
+                t.since = Some(now);
+            }
+        }
+    }
+
+    /// Delivers `program`'s text to the RCM: `D`, then each line as `T`,
+    /// then `F`, each sent once the one before was acknowledged; ends with
+    /// [`Out::Delivered`]. Refused while the line is not open, while
+    /// another delivery is under way, and for the program a job of ours
+    /// runs or is starting (the RCM would refuse it, `04`: it is delivered
+    /// after the job).
+    pub fn deliver(&mut self, program: &ProgramText) -> Result<Vec<Out>, ServiceError> {
+        let p = program.number;
+        if !self.open {
+            return Err(ServiceError::unreachable(format!(
+                "robot program {p} not delivered: the DNC line on {} is not open",
+                self.line
+            )));
+        }
+        if let Some(t) = &self.transfer {
+            return Err(ServiceError::state_conflict(format!(
+                "robot program {p} not delivered: program {} is being delivered",
+                t.program
+            )));
+        }
+        let job = self.pending.map(|s| match s.what {
+            Pending::Select(q) | Pending::Start(q) => q,
+        });
+        if self.running == Some(p) || job == Some(p) {
+            return Err(ServiceError::state_conflict(format!(
+                "robot program {p} runs on the RCM: it is replaced after its job ends"
+            )));
+        }
+        let lines = program.lines();
+        let count = u16::try_from(lines.len())
+            .ok()
+            .filter(|n| *n <= 999)
+            .ok_or_else(|| {
+                ServiceError::malformed(format!(
+                    "robot program {p}: {} lines, a transfer carries at most 999",
+                    lines.len()
+                ))
+            })?;
+        let rest = lines
+            .iter()
+            .zip(1u16..)
+            .map(|(text, no)| Telegram::Line {
+                no,
+                text: (*text).to_string(),
+            })
+            .chain(std::iter::once(Telegram::TextEnd(p)))
+            .collect();
+        let first = Telegram::Text {
+            program: p,
+            lines: count,
+            hash: program.hash(),
+        };
+        self.transfer = Some(Transfer {
+            program: p,
+            awaiting: first.clone(),
+            since: None,
+            rest,
+        });
+        Ok(vec![Out::Telegram(first)])
+    }
+
+    /// Whether a delivery is under way.
+    pub fn delivering(&self) -> bool {
+        self.transfer.is_some()
+    }
+
+    /// The RCM acknowledged the awaited telegram of the delivery under way
+    /// (`error`: refused): the next telegram, or the delivery's end.
+    fn transfer_ack(&mut self, error: Option<crate::telegram::AckError>) -> Vec<Out> {
+        let Some(mut t) = self.transfer.take() else {
+            return Vec::new();
+        };
+        if let Some(e) = error {
+            let code = char::from(t.code());
+            let e = e.to_service_error();
+            return vec![Out::Delivered(
+                t.program,
+                Err(ServiceError {
+                    description: format!(
+                        "robot program {} not delivered: the RCM refused its `{code}`: {}",
+                        t.program, e.description
+                    ),
+                    ..e
+                }),
+            )];
+        }
+        match t.rest.pop_front() {
+            Some(next) => {
+                t.awaiting = next.clone();
+                t.since = None;
+                self.transfer = Some(t);
+                vec![Out::Telegram(next)]
+            }
+            None => vec![
+                Out::Info(format!("robot program {} delivered to the RCM", t.program)),
+                Out::Delivered(t.program, Ok(())),
+            ],
+        }
+    }
+
+    /// The delivery under way fails (`why`).
+    fn transfer_failed(&mut self, why: &str) -> Vec<Out> {
+        self.transfer
+            .take()
+            .map(|t| {
+                Out::Delivered(
+                    t.program,
+                    Err(ServiceError::unreachable(format!(
+                        "robot program {} not delivered: {why}",
+                        t.program
+                    ))),
+                )
+            })
+            .into_iter()
+            .collect()
     }
 
     /// How long the acknowledgement of a delivered select or start is
@@ -347,21 +502,33 @@ impl Host {
     pub fn link_failed(&mut self, why: String) -> Vec<Out> {
         let job = self.pending.take().is_some() | self.running.take().is_some();
         self.probing = true;
+        let mut out = self.transfer_failed(&why);
         let cause = Cause::new(AlarmClass::Communication, why);
-        vec![if job {
+        out.push(if job {
             Out::Engine(Event::Ended(self.rcm.clone(), JobEnd::Alarm(cause)))
         } else {
             Out::Alarm(cause)
-        }]
+        });
+        out
     }
 
     /// When the host next needs the clock: the next status request, or
     /// the end of the wait for its answer.
     pub fn poll_timeout(&self) -> Option<Duration> {
-        [self.supervision_timeout(), self.ack_timeout()]
-            .into_iter()
-            .flatten()
-            .min()
+        [
+            self.supervision_timeout(),
+            self.ack_timeout(),
+            self.transfer_timeout(),
+        ]
+        .into_iter()
+        .flatten()
+        .min()
+    }
+
+    /// When the acknowledgement of the delivery's telegram counts as lost.
+    fn transfer_timeout(&self) -> Option<Duration> {
+        let at = self.transfer.as_ref()?.since?;
+        self.open.then(|| at + self.ack_limit())
     }
 
     /// The next status request, or the end of the wait for its answer,
@@ -391,6 +558,13 @@ impl Host {
 
     /// The clock reached [`Self::poll_timeout`].
     pub fn handle_timeout(&mut self, now: Duration) -> Vec<Out> {
+        if self.transfer_timeout().is_some_and(|t| t <= now) {
+            let code = self.transfer.as_ref().map_or('?', |t| char::from(t.code()));
+            let limit = self.ack_limit().as_secs_f64();
+            return self.transfer_failed(&format!(
+                "the RCM did not acknowledge its `{code}` within {limit:.2} s"
+            ));
+        }
         if self.ack_timeout().is_some_and(|t| t <= now) {
             // The acknowledgement is lost: the status tells whether the
             // step was done ([`Self::step_by_status`]).
@@ -605,6 +779,11 @@ impl Host {
     /// A telegram from the RCM, at `now`.
     pub fn telegram(&mut self, now: Duration, t: Telegram) -> Vec<Out> {
         self.heard = now;
+        if let Telegram::Ack { of, error } = &t {
+            if self.transfer.as_ref().is_some_and(|tr| tr.code() == *of) {
+                return self.transfer_ack(*error);
+            }
+        }
         let rcm = self.rcm.clone();
         // A held select never went: no acknowledgement is of it.
         let sent = self.pending.filter(|s| s.ack != AckWait::Held);
@@ -813,6 +992,121 @@ mod tests {
         h.telegram(s(t), ack(b'S'));
         h.telegram(s(t), ack(b'G'));
         h
+    }
+
+    /// Hands the host's telegrams to the twin and the twin's answers back
+    /// (each delivered at once) until neither has more; the host's other
+    /// outputs.
+    fn exchange(h: &mut Host, robot: &mut crate::robot::Robot, first: Vec<Out>) -> Vec<Out> {
+        let mut queue: VecDeque<Out> = first.into();
+        let mut rest = Vec::new();
+        while let Some(o) = queue.pop_front() {
+            let Out::Telegram(t) = o else {
+                rest.push(o);
+                continue;
+            };
+            h.sent(s(0), &t.encode());
+            for answer in robot.handle(s(0), t) {
+                queue.extend(h.telegram(s(0), answer));
+            }
+        }
+        rest
+    }
+
+    fn program(text: &str) -> ProgramText {
+        ProgramText::parse(text, "test.prg").expect("a clean program")
+    }
+
+    #[test]
+    fn a_program_is_delivered_line_by_line_and_the_one_that_runs_is_not_replaced() {
+        let mut robot = crate::robot::Robot::new(Mode::AutomaticExternal, 1.0);
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
+        let p = program("program 65\n# two steps\nmove approach 1\nweld seam_1 2\n");
+        // The line closed: refused at once.
+        let e = h.deliver(&p).expect_err("no line");
+        assert!(e.description.contains("not open"), "{e}");
+        h.connected(s(0));
+        h.telegram(s(0), status(None, ProgramState::Idle));
+        let first = h.deliver(&p).expect("a delivery");
+        assert_eq!(
+            first,
+            vec![Out::Telegram(Telegram::Text {
+                program: p65(),
+                lines: 4,
+                hash: p.hash()
+            })]
+        );
+        assert!(h.delivering());
+        // A second one waits its turn.
+        assert!(h.deliver(&p).is_err());
+        let out = exchange(&mut h, &mut robot, first);
+        assert_eq!(out.last(), Some(&Out::Delivered(p65(), Ok(()))), "{out:?}");
+        assert!(!h.delivering());
+        assert_eq!(
+            robot.delivered().collect::<Vec<_>>(),
+            vec![(p65(), 4, p.hash())]
+        );
+        // While a job of ours runs program 65, it is not delivered.
+        let mut h = running(0);
+        let e = h.deliver(&p).expect_err("it runs");
+        assert!(e.description.contains("replaced after its job ends"), "{e}");
+    }
+
+    #[test]
+    fn a_delivery_the_rcm_refuses_or_never_acknowledges_fails_naming_why() {
+        let p = program("program 65\nmove approach 1\n");
+        let mut h = Host::new("/dev/ttyS0", &Timing::default());
+        h.connected(s(0));
+        h.telegram(s(0), status(None, ProgramState::Idle));
+        // Refused at `F` (as the twin refuses a wrong hash: 08), after `D` and two lines.
+        h.deliver(&p).expect("a delivery");
+        for code in [b'D', b'T', b'T'] {
+            let out = h.telegram(s(0), ack(code));
+            assert!(matches!(out[..], [Out::Telegram(_)]), "{out:?}");
+        }
+        let out = h.telegram(
+            s(0),
+            Telegram::Ack {
+                of: b'F',
+                error: Some(AckError::TextRefused),
+            },
+        );
+        let [Out::Delivered(q, Err(e))] = &out[..] else {
+            panic!("{out:?}")
+        };
+        assert_eq!(*q, p65());
+        assert!(
+            e.description
+                .starts_with("robot program 65 not delivered: the RCM refused its `F`"),
+            "{e}"
+        );
+        // A `D` delivered and never acknowledged: lost after the limit.
+        h.deliver(&p).expect("again");
+        h.sent(
+            s(1_000),
+            &Telegram::Text {
+                program: p65(),
+                lines: 2,
+                hash: p.hash(),
+            }
+            .encode(),
+        );
+        let at = h.poll_timeout().expect("the acknowledgement's limit");
+        assert_eq!(at, s(1_000) + h.ack_limit());
+        assert!(h.handle_timeout(at - s(1)).is_empty());
+        let out = h.handle_timeout(at);
+        let [Out::Delivered(_, Err(e))] = &out[..] else {
+            panic!("{out:?}")
+        };
+        assert!(e.description.contains("did not acknowledge its `D`"), "{e}");
+        // The line lost mid-delivery ends it too, beside the alarm.
+        h.deliver(&p).expect("again");
+        let out = h.closed("the line closed".into());
+        assert!(
+            matches!(&out[0], Out::Delivered(_, Err(e)) if e.description.contains("the line closed")),
+            "{out:?}"
+        );
+        assert!(!h.delivering());
     }
 
     #[test]

@@ -12,6 +12,9 @@
 //! a robot known to be in another mode, or a line that is not open, makes
 //! the workstation unavailable, so a Start is refused naming it.
 //!
+//! A robot program's text is delivered through [`Welding::deliver`], its
+//! end polled with [`Welding::poll_delivered`].
+//!
 //! The host's link asks the robot's status at open and while a program
 //! runs, not while idle: a mode changed at the robot's panel is known at
 //! the next status (a `waitready`, `falc manual welding home`, asks one).
@@ -23,12 +26,15 @@ use crate::procedure::{LinkEvent, Timing};
 use crate::telegram::Telegram;
 use falc_control::controller::{Controller, Device, Happening};
 use falc_control::workstation_node::Linked;
+use falc_model::ids::RobotProgram;
+use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::Severity;
 use falc_model::mms::vmd::{PhysicalStatus, RobotStatusDetail, VmdStatus};
 use falc_model::mode::ManualAction;
 use falc_recipe::check::Job;
 use falc_recipe::condition::{Fact, RobotFact};
 use falc_recipe::engine::{Action, Event, Outcome};
+use falc_recipe::robot_program::ProgramText;
 use std::collections::VecDeque;
 use std::time::Duration;
 
@@ -55,6 +61,8 @@ pub struct Welding {
     reports: VecDeque<(Severity, String)>,
     /// A `waitready` waits until the robot is ready.
     watching_ready: bool,
+    /// Deliveries of robot programs that ended ([`Welding::poll_delivered`]).
+    delivered: VecDeque<(RobotProgram, Result<(), ServiceError>)>,
 }
 
 impl Welding {
@@ -67,7 +75,25 @@ impl Welding {
             detail: None,
             reports: VecDeque::new(),
             watching_ready: false,
+            delivered: VecDeque::new(),
         }
+    }
+
+    /// Delivers `program`'s text to the robot ([`Host::deliver`]); how it
+    /// ended comes out of [`Self::poll_delivered`]. Refused at once (no
+    /// telegram sent) while the line is not open, another delivery is under
+    /// way, or a job of ours runs that program.
+    pub fn deliver(&mut self, program: &ProgramText) -> Result<(), ServiceError> {
+        let outs = self.host.deliver(program)?;
+        // Only telegrams: no engine event comes of a delivery's start.
+        let mut none = Vec::new();
+        self.apply(outs, &mut none);
+        Ok(())
+    }
+
+    /// A delivery that ended: the program, and whether the robot stored it.
+    pub fn poll_delivered(&mut self) -> Option<(RobotProgram, Result<(), ServiceError>)> {
+        self.delivered.pop_front()
     }
 
     /// Whether the robot takes DNC commands now: the line open, the RCM
@@ -140,6 +166,12 @@ impl Welding {
                     tracing::warn!("{cause}");
                     self.reports
                         .push_back((Severity::Alarm(cause.class), cause.text));
+                }
+                Out::Delivered(program, result) => {
+                    if let Err(e) = &result {
+                        tracing::warn!("{e}");
+                    }
+                    self.delivered.push_back((program, result));
                 }
             }
         }
@@ -394,6 +426,52 @@ mod tests {
 
     fn drain(w: &mut Welding) -> Vec<Telegram> {
         std::iter::from_fn(|| w.poll_telegram()).collect()
+    }
+
+    /// A delivery's telegrams go out of the outbox one at a time, each
+    /// after its acknowledgement came over the link; its end is polled.
+    #[test]
+    fn a_delivered_program_goes_out_line_by_line_and_its_end_is_polled() {
+        let mut w = Welding::new("/dev/ttyS0", &Timing::default());
+        let text = "program 10\nmove home 1\n";
+        let p = ProgramText::parse(text, "010.prg").expect("clean");
+        assert!(w.deliver(&p).is_err(), "a closed line");
+        w.opened(Duration::ZERO);
+        w.link_event(Duration::ZERO, status_of(Mode::AutomaticExternal));
+        drain(&mut w);
+        w.deliver(&p).expect("a delivery");
+        let mut sent = Vec::new();
+        while let Some(t) = w.poll_telegram() {
+            let code = t.encode().first().copied().unwrap_or(0);
+            sent.push(t);
+            let ack = Telegram::Ack {
+                of: code,
+                error: None,
+            };
+            w.link_event(Duration::ZERO, LinkEvent::Received(ack.encode()));
+        }
+        let ten = RobotProgram::of(10);
+        assert_eq!(
+            sent,
+            vec![
+                Telegram::Text {
+                    program: ten,
+                    lines: 2,
+                    hash: p.hash()
+                },
+                Telegram::Line {
+                    no: 1,
+                    text: "program 10".into()
+                },
+                Telegram::Line {
+                    no: 2,
+                    text: "move home 1".into()
+                },
+                Telegram::TextEnd(ten),
+            ]
+        );
+        assert_eq!(w.poll_delivered(), Some((ten, Ok(()))));
+        assert_eq!(w.poll_delivered(), None);
     }
 
     #[test]
