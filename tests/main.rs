@@ -25,6 +25,7 @@ mod noise;
 mod opcua;
 mod operator;
 mod plant;
+mod programs;
 mod recipes;
 mod records;
 mod recovery;

@@ -109,7 +109,7 @@ fn five_orders_keep_their_recipe_versions_and_the_figures_match_the_records() {
             .iter()
             .find(|u| u.domain == "WELDING$DROOG_DIK")
             .map(|u| u.starts.clone()),
-        Some(vec!["program 65".to_string()])
+        Some(vec!["WELDING$PROGRAM_065".to_string()])
     );
     // Each workstation job of order 3, with start, end and outcome: the
     // conveyor moves and the weld.

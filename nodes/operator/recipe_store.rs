@@ -281,7 +281,9 @@ mod tests {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("recipes");
         let cell = StationName::new("cell").expect("valid");
         let set = RecipeDir::new(dir, topology(), cell).load().expect("clean");
-        assert_eq!(set.deliveries.len(), 13);
+        // 13 recipes and 4 robot programs for the one welding station.
+        assert_eq!(set.deliveries.len(), 13 + 4);
+        assert_eq!(set.deliveries[0].domain.as_str(), "WELDING$PROGRAM_010");
         let names: Vec<&str> = set.cell_recipes().iter().map(|n| n.as_str()).collect();
         assert_eq!(names.len(), 3, "{names:?}");
         assert!(set
@@ -289,7 +291,9 @@ mod tests {
             .iter()
             .any(|d| d.domain.as_str() == "WELDING$DROOG_DIK"));
         let first_cell = set.deliveries.iter().position(|d| d.is_cell);
-        assert_eq!(first_cell, Some(10));
+        assert_eq!(first_cell, Some(14));
+        let dik = set.get("WELDING$DROOG_DIK").expect("DROOG_DIK");
+        assert_eq!(dik.starts, ["WELDING$PROGRAM_065"]);
         let programs: Vec<String> = set.programs.iter().map(|r| r.file.to_string()).collect();
         assert_eq!(
             programs,
@@ -365,6 +369,17 @@ mod tests {
         )
         .expect("a new program");
         put(tmp.path(), &t, &cell, &ws, &rcm67, Some(recipe.hash)).expect("now it is held");
+        // A recipe may not take a robot program's domain name.
+        let new = RecipeFile::new(StationName::new("welding").expect("v"), "p65").expect("v");
+        let named = rcm67.replacen("#DROOG_DIK", "#PROGRAM_065", 1);
+        match put(tmp.path(), &t, &cell, &new, &named, None) {
+            Err(PutError::Findings(f)) => assert!(
+                f.iter()
+                    .any(|l| l.contains("p65.rcp:1: the name PROGRAM_065 is kept for a robot")),
+                "{f:?}"
+            ),
+            other => panic!("{other:?}"),
+        }
         let set = RecipeDir::new(tmp.path().to_path_buf(), t.clone(), cell.clone())
             .load()
             .expect("clean");

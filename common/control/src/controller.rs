@@ -26,7 +26,7 @@
 //! the status.
 
 use falc_model::alarm::{AlarmClass, Cause};
-use falc_model::ids::{ObjectName, StationName};
+use falc_model::ids::{ObjectName, RobotProgram, StationName};
 use falc_model::mms::association::Role;
 use falc_model::mms::domain::content_hash;
 use falc_model::mms::error::{DefinitionError, ErrorClass, ServiceError};
@@ -39,6 +39,7 @@ use falc_recipe::commands::RecipeKind;
 use falc_recipe::condition::{unmet, Conditions, Fact};
 use falc_recipe::engine::{Action, Awaited, Engine, Event, JobEnd, Outcome};
 use falc_recipe::problem::Problem;
+use falc_recipe::robot_program::ProgramText;
 use falc_recipe::syntax::{parse, StateNo};
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
@@ -157,6 +158,19 @@ pub trait Device {
     /// what it does; or why there is none. No named states: none.
     fn way_to(&self, state: &str) -> Result<(String, String), String> {
         Err(format!("this station has no named state `{state}`"))
+    }
+    /// Delivers a robot program's text (a domain `PROGRAM_065` the
+    /// commander downloaded) to the device's robot; how it ended comes
+    /// out of [`Device::poll_delivered`]. A device without a robot refuses.
+    fn deliver_program(&mut self, program: &ProgramText) -> Result<(), ServiceError> {
+        Err(ServiceError::undefined(format!(
+            "robot program {} cannot be delivered here: this station has no robot",
+            program.number
+        )))
+    }
+    /// A delivery of [`Device::deliver_program`] that ended.
+    fn poll_delivered(&mut self) -> Option<(RobotProgram, Result<(), ServiceError>)> {
+        None
     }
 }
 
@@ -490,6 +504,10 @@ impl<D: Device> Controller<D> {
         let mut now = BTreeMap::new();
         for pi in self.vmd.programs() {
             let name = pi.name().clone();
+            // A robot program's invocation runs no recipe here.
+            if RobotProgram::of_domain(&name).is_some() {
+                continue;
+            }
             let Some(text) = pi.domains().first().and_then(|d| self.vmd.domain(d)) else {
                 continue;
             };
@@ -725,6 +743,49 @@ impl<D: Device> Controller<D> {
     fn engine_of(&self, name: &ObjectName, text: &str) -> Result<Engine, ServiceError> {
         let program = self.program_of(name, text)?;
         Ok(Engine::new(program).with_confirm_limit(self.confirm_limit))
+    }
+
+    /// Delivers domain `domain`, a robot program's text the commander
+    /// downloaded ([`RobotProgram::of_domain`]), to the device: the text
+    /// is checked first. Refused (and the domain taken back out) when it
+    /// is no program of that number, or the device refuses it; else the
+    /// commander's confirm waits for [`Device::poll_delivered`].
+    pub fn deliver_program(&mut self, domain: &ObjectName) -> Result<RobotProgram, ServiceError> {
+        let delivered = self.check_and_deliver(domain);
+        if delivered.is_err() {
+            self.discard_domain(domain);
+        }
+        delivered
+    }
+
+    fn check_and_deliver(&mut self, domain: &ObjectName) -> Result<RobotProgram, ServiceError> {
+        let Some(number) = RobotProgram::of_domain(domain) else {
+            return Err(ServiceError::undefined(format!(
+                "{domain} is no robot program's domain (PROGRAM_NNN)"
+            )));
+        };
+        let content = self
+            .vmd
+            .domain(domain)
+            .map(|d| String::from_utf8_lossy(d.content()).into_owned())
+            .ok_or_else(|| ServiceError::undefined(format!("no domain {domain}")))?;
+        let refuse = |why: String| {
+            ServiceError::new(
+                ErrorClass::Definition(DefinitionError::ObjectAttributeInconsistent),
+                why,
+            )
+        };
+        let program = ProgramText::parse(&content, domain.as_str()).map_err(|problems| {
+            refuse(format!("error in robot program: {}", problems.join("; ")))
+        })?;
+        if program.number != number {
+            return Err(refuse(format!(
+                "domain {domain} holds robot program {}",
+                program.number
+            )));
+        }
+        self.device.deliver_program(&program)?;
+        Ok(number)
     }
 
     /// Recipe `text` checked as the recipes of this level and against the

@@ -18,7 +18,7 @@
 
 use crate::controller::{Controller, Device};
 use falc_model::alarm::Cause;
-use falc_model::ids::StationName;
+use falc_model::ids::{ObjectName, RobotProgram, StationName};
 use falc_model::mms::association::Role;
 use falc_model::mms::error::ServiceError;
 use falc_model::mms::pdu::{Request, Response, Unconfirmed};
@@ -82,6 +82,9 @@ pub struct WorkstationNode<D: Linked, T> {
     /// and since when.
     held: VecDeque<(T, Request)>,
     held_since: Duration,
+    /// Downloads of robot programs (`PROGRAM_065`) whose confirm waits
+    /// until the device delivered the program to its robot.
+    delivering: Vec<(T, RobotProgram, ObjectName)>,
 }
 
 /// How long a Start waits for the fresh reading its precondition asked
@@ -109,6 +112,7 @@ impl<D: Linked, T> WorkstationNode<D, T> {
             out: VecDeque::new(),
             held: VecDeque::new(),
             held_since: Duration::ZERO,
+            delivering: Vec::new(),
         }
     }
 
@@ -138,10 +142,48 @@ impl<D: Linked, T> WorkstationNode<D, T> {
     }
 
     fn answer(&mut self, now: Duration, ticket: T, request: &Request) {
-        let result = self.ctl.handle_request(now, request);
+        let mut result = self.ctl.handle_request(now, request);
+        // A robot program's text, complete: its confirm waits until the
+        // device delivered it to the robot.
+        if let (
+            Ok(_),
+            Request::TerminateDownloadSequence {
+                domain,
+                discard: None,
+            },
+        ) = (&result, request)
+        {
+            if RobotProgram::of_domain(domain).is_some() {
+                match self.ctl.deliver_program(domain) {
+                    Ok(program) => {
+                        self.delivering.push((ticket, program, domain.clone()));
+                        self.publish();
+                        return;
+                    }
+                    Err(e) => result = Err(e),
+                }
+            }
+        }
         self.publish();
         self.out
             .push_back(WorkstationAction::Answer { ticket, result });
+    }
+
+    /// Answers the downloads whose delivery to the robot ended; one that
+    /// failed is taken back out.
+    fn delivered(&mut self) {
+        while let Some((program, result)) = self.ctl.device.poll_delivered() {
+            let Some(at) = self.delivering.iter().position(|(_, p, _)| *p == program) else {
+                continue;
+            };
+            let (ticket, _, domain) = self.delivering.remove(at);
+            if result.is_err() {
+                self.ctl.discard_domain(&domain);
+            }
+            let result = result.map(|()| Response::Done);
+            self.out
+                .push_back(WorkstationAction::Answer { ticket, result });
+        }
     }
 
     /// Answers the held indications once the reading came (or its limit
@@ -178,6 +220,7 @@ impl<D: Linked, T> WorkstationNode<D, T> {
         if let Some(line) = D::take_link_event(&mut self.ctl, now, ev) {
             self.out.push_back(WorkstationAction::Event(line));
         }
+        self.delivered();
         self.release(now);
     }
 
@@ -200,6 +243,7 @@ impl<D: Linked, T> WorkstationNode<D, T> {
     /// The clock reached `now`.
     pub fn handle_timeout(&mut self, now: Duration) {
         self.ctl.handle_timeout(now);
+        self.delivered();
         self.release(now);
     }
 

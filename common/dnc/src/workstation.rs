@@ -81,9 +81,17 @@ impl Welding {
 
     /// Delivers `program`'s text to the robot ([`Host::deliver`]); how it
     /// ended comes out of [`Self::poll_delivered`]. Refused at once (no
-    /// telegram sent) while the line is not open, another delivery is under
-    /// way, or a job of ours runs that program.
+    /// telegram sent) while the line is not open, the robot is known not to
+    /// be in AUE, another delivery is under way, or a job of ours runs that
+    /// program.
     pub fn deliver(&mut self, program: &ProgramText) -> Result<(), ServiceError> {
+        // A robot known not to take DNC commands would refuse it (`01`).
+        if let Some(why) = self.unready() {
+            return Err(ServiceError::state_conflict(format!(
+                "robot program {} not delivered: {why}",
+                program.number
+            )));
+        }
         let outs = self.host.deliver(program)?;
         // Only telegrams: no engine event comes of a delivery's start.
         let mut none = Vec::new();
@@ -332,6 +340,12 @@ impl Linked for Welding {
 }
 
 impl Device for Welding {
+    fn deliver_program(&mut self, program: &ProgramText) -> Result<(), ServiceError> {
+        self.deliver(program)
+    }
+    fn poll_delivered(&mut self) -> Option<(RobotProgram, Result<(), ServiceError>)> {
+        Welding::poll_delivered(self)
+    }
     fn handle(&mut self, now: Duration, what: Happening<'_>, out: &mut Vec<Event>) {
         match what {
             Happening::Act(action) => self.act(now, action, out),

@@ -7,7 +7,7 @@ use falc_equipment::vocabulary::lacking_in;
 use falc_equipment::Equipment;
 use falc_model::ids::{ObjectName, RobotProgram, StationName};
 use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText};
-use falc_model::topology::Topology;
+use falc_model::topology::{StationKind, Topology};
 use falc_recipe::check::{check_set, Command, Entry, Job, Program};
 use falc_recipe::commands::RecipeKind;
 use falc_recipe::robot_program::{self, RobotFile};
@@ -136,7 +136,7 @@ pub fn checked_set(
                 continue;
             }
         };
-        let starts = starts_of(program);
+        let starts = starts_of(station, program, robot.is_some());
         if program.kind == RecipeKind::Cell {
             cells.push(Delivery {
                 domain: name,
@@ -148,6 +148,11 @@ pub fn checked_set(
         } else if !workstations.contains(&station) {
             errors.push(format!(
                 "{origin}:1: station {station} is not a workstation of {cell} in the topology"
+            ));
+        } else if RobotProgram::of_domain(&name).is_some() {
+            errors.push(format!(
+                "{origin}:1: the name {name} is kept for a robot program's domain: name the \
+                 recipe otherwise"
             ));
         } else {
             let domain = format!("{}${name}", station.as_str().to_uppercase());
@@ -185,9 +190,35 @@ pub fn checked_set(
     if !defects.is_empty() {
         return Err(defects);
     }
-    stations.extend(cells);
+    // Each welding workstation gets every robot program, before the
+    // recipes that start them.
+    let mut deliveries = Vec::new();
+    for w in &workstations {
+        if topology.station(w).map(|s| s.kind) != Some(StationKind::Welding) {
+            continue;
+        }
+        for r in robot.unwrap_or_default() {
+            let domain = format!(
+                "{}${}",
+                w.as_str().to_uppercase(),
+                r.program.number.domain()
+            );
+            match ObjectName::new(&domain) {
+                Ok(domain) => deliveries.push(Delivery {
+                    domain,
+                    is_cell: false,
+                    content: r.program.text.clone().into_bytes(),
+                    file: r.file.clone(),
+                    starts: Vec::new(),
+                }),
+                Err(e) => return Err(vec![format!("{}:1: {e}", r.origin)]),
+            }
+        }
+    }
+    deliveries.extend(stations);
+    deliveries.extend(cells);
     Ok(RecipeSet {
-        deliveries: stations,
+        deliveries,
         programs: robot.map(<[RobotFile]>::to_vec).unwrap_or_default(),
     })
 }
@@ -208,10 +239,12 @@ fn file_of(origin: &str) -> Result<RecipeFile, String> {
     )
 }
 
-/// What `program` starts one level down: each workstation recipe's
-/// domain (`WELDING$DROOG_DIK`), each robot program (`program 12`), once,
-/// in the order of its states.
-fn starts_of(program: &Program) -> Vec<String> {
+/// What `program` (of `station`) starts one level down: each workstation
+/// recipe's domain (`WELDING$DROOG_DIK`), each robot program, once, in the
+/// order of its states: its domain as the cell holds it
+/// (`WELDING$PROGRAM_012`) when the store delivers the programs
+/// (`delivered`), else `program 12` (the robot's own).
+fn starts_of(station: &StationName, program: &Program, delivered: bool) -> Vec<String> {
     let mut out: Vec<String> = Vec::new();
     for state in program.states.values() {
         let Command::Start { target, job, .. } = &state.command else {
@@ -219,6 +252,9 @@ fn starts_of(program: &Program) -> Vec<String> {
         };
         let s = match job {
             Job::Recipe(name) => format!("{}${name}", target.as_str().to_uppercase()),
+            Job::Program(p) if delivered => {
+                format!("{}${}", station.as_str().to_uppercase(), p.domain())
+            }
             Job::Program(p) => format!("program {}", p.number()),
         };
         if !out.contains(&s) {

@@ -459,6 +459,23 @@ number_newtype!(
     RobotProgram(u16), 1..=999, "a robot program number"
 );
 
+impl RobotProgram {
+    /// Its domain at a welding station (`PROGRAM_065`): a robot program
+    /// from the recipe store is delivered as a domain of that name, which
+    /// the welding station passes on to its robot controller.
+    pub fn domain(self) -> ObjectName {
+        ObjectName(format!("PROGRAM_{:03}", self.0))
+    }
+
+    /// The program whose domain is `name`, if it is one ([`Self::domain`]).
+    pub fn of_domain(name: &ObjectName) -> Option<Self> {
+        let digits = name.as_str().strip_prefix("PROGRAM_")?;
+        (digits.len() == 3 && digits.bytes().all(|b| b.is_ascii_digit()))
+            .then(|| digits.parse().ok().and_then(Self::new))
+            .flatten()
+    }
+}
+
 number_newtype!(
     /// A conveyor place with a presence sensor, 1–99 (`W2`–`W6` on the
     /// thesis' layout): what a transport recipe waits for and the PLC map
@@ -480,6 +497,19 @@ mod number_tests {
     #[test]
     fn ranges_are_checked_in_one_place() {
         assert_eq!(RobotProgram::parse("65").map(RobotProgram::number), Ok(65));
+        let d = RobotProgram::of(65).domain();
+        assert_eq!(d.as_str(), "PROGRAM_065");
+        assert_eq!(RobotProgram::of_domain(&d), Some(RobotProgram::of(65)));
+        for other in [
+            "PROGRAM_65",
+            "PROGRAM_000",
+            "PROGRAM_0651",
+            "DROOG_DIK",
+            "WELDING$PROGRAM_065",
+        ] {
+            let name = ObjectName::new(other).expect("a name");
+            assert_eq!(RobotProgram::of_domain(&name), None, "{other}");
+        }
         assert_eq!(
             RobotProgram::parse("1000"),
             Err("`1000` is not a robot program number (1–999)".into())

@@ -98,7 +98,9 @@ pub struct UsedRecipe {
     /// The SHA-256 of its text.
     pub hash: VersionHash,
     /// What its text starts one level down: workstation recipes of a cell
-    /// recipe, robot program numbers (`program 12`) of a welding recipe.
+    /// recipe, robot programs of a welding recipe (their domains,
+    /// `WELDING$PROGRAM_012`, where the store delivers them; else the
+    /// robot's own, `program 12`).
     pub starts: Vec<String>,
 }
 

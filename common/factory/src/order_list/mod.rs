@@ -566,7 +566,8 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
     }
 
     /// The recipe versions an order of cell recipe `recipe` runs: the
-    /// cell recipe, then each workstation recipe it starts.
+    /// cell recipe, each workstation recipe it starts, and the robot
+    /// programs those start (where the store delivers them).
     fn used_by(&self, recipe: &str) -> Vec<UsedRecipe> {
         let used = |domain: &str| {
             let d = self.recipes.get(domain)?;
@@ -585,8 +586,25 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
         let Some(cell) = used(name.as_str()) else {
             return Vec::new();
         };
-        let below = cell.starts.iter().filter_map(|s| used(s));
-        std::iter::once(cell.clone()).chain(below).collect()
+        // The cell recipe, each workstation recipe it starts, then each
+        // robot program those start, each once.
+        let mut out = vec![cell];
+        let mut at = 0;
+        while at < out.len() {
+            let more: Vec<UsedRecipe> = out[at]
+                .starts
+                .iter()
+                .filter(|s| !out.iter().any(|u| &u.domain == *s))
+                .filter_map(|s| used(s))
+                .collect();
+            for u in more {
+                if !out.iter().any(|o| o.domain == u.domain) {
+                    out.push(u);
+                }
+            }
+            at += 1;
+        }
+        out
     }
 
     /// Takes over `order`, which was running on this cell when this node
