@@ -7,7 +7,7 @@
 //! puts the old text back at the twin.
 
 use crate::support::rig::{rig, Rig};
-use falc_model::product::OrderRecord;
+use falc_model::product::{OrderRecord, RecipeVersion};
 use std::time::Duration;
 
 const WAIT: Duration = Duration::from_secs(30);
@@ -109,4 +109,24 @@ fn a_robot_program_is_delivered_run_replaced_after_its_weld_named_in_the_record_
     rig.rcm
         .expect_line("program 65 step 2/5: weld seam_1 45 s", WAIT);
     assert_eq!(program_versions(&rig, 3), vec![3]);
+
+    // Its history says who changed it and why; the diff, what.
+    let history: Vec<RecipeVersion> = rig.reply(&["store", "history", "robot", "065"]);
+    assert_eq!(
+        history
+            .iter()
+            .map(|v| (v.version, v.author.as_str(), v.message.as_str()))
+            .collect::<Vec<_>>(),
+        vec![
+            (1, "operator", "found in the recipe store"),
+            (2, "engineer", "longer first seam"),
+            (3, "engineer", "back"),
+        ]
+    );
+    assert_eq!(history[0].hash, history[2].hash, "the rollback's text");
+    let diff = rig.cell.falc(&["store", "diff", "robot", "065", "1", "2"]);
+    assert!(
+        diff.contains("-weld seam_1 45") && diff.contains("+weld seam_1 50"),
+        "{diff}"
+    );
 }
