@@ -11,8 +11,7 @@
 //! - the journal's directory, made open to all before, is private (0700)
 //!   after the operator starts.
 
-use crate::support::rig::{rig, rig_with_db, Rig};
-use crate::support::wait::{holds, wait_until};
+use crate::support::rig::{rig, rig_with_db};
 use falc_model::records::OrderState;
 use std::os::unix::fs::PermissionsExt;
 use std::time::Duration;
@@ -290,26 +289,11 @@ fn a_router_mode_session_is_closed_and_the_zenoh_errors_it_causes_are_rate_limit
     // A workstation leaves and comes back three times: its liveliness token
     // passes the observer's denied subscriptions and the closed session's
     // attempts to come back.
-    let transport_is = |rig: &Rig, on: bool| {
-        let what = if on {
-            "the transport back"
-        } else {
-            "the transport gone"
-        };
-        wait_until(what, Duration::from_secs(10), || {
-            let s = rig.status();
-            let seen = s
-                .stations
-                .iter()
-                .any(|v| v.name.as_str() == "transport" && v.connected == on);
-            holds(seen, || s.stations.clone())
-        });
-    };
     for _ in 0..3 {
         drop(rig.transport.take());
-        transport_is(&rig, false);
+        rig.station_connected("transport", false);
         rig.start_transport();
-        transport_is(&rig, true);
+        rig.station_connected("transport", true);
     }
     // The fewest connections in ten looks over two seconds: a session
     // that comes back for a moment before it is closed again is no lasting

@@ -106,25 +106,11 @@ fn the_cells_no_connection_alarm_clears_when_the_station_returns() {
 #[test]
 fn a_workstation_started_again_and_again_gets_its_recipes_and_the_next_start_is_taken() {
     let mut rig = rig("20");
-    let transport_is = |rig: &Rig, on: bool| {
-        wait_until(
-            "the transport's connection",
-            Duration::from_secs(10),
-            || {
-                let s = rig.status();
-                let seen = s
-                    .stations
-                    .iter()
-                    .any(|v| v.name.as_str() == "transport" && v.connected == on);
-                holds(seen, || s.stations.clone())
-            },
-        );
-    };
     for _ in 0..25 {
         drop(rig.transport.take());
-        transport_is(&rig, false);
+        rig.station_connected("transport", false);
         rig.start_transport();
-        transport_is(&rig, true);
+        rig.station_connected("transport", true);
     }
     rig.cell.falc(&["ack"]);
     rig.cell.falc(&["order", "add", "dikdroog"]);

@@ -285,6 +285,31 @@ impl Rig {
         self.reply(&["status"])
     }
 
+    /// Waits (10 s at most) until `falc status` shows `station` connected
+    /// (`on`) or not.
+    pub fn station_connected(&self, station: &str, on: bool) {
+        let what = format!("{station} connected: {on}");
+        wait_until(&what, Duration::from_secs(10), || {
+            let s = self.status();
+            let seen = s
+                .stations
+                .iter()
+                .any(|v| v.name.as_str() == station && v.connected == on);
+            holds(seen, || s.stations.clone())
+        });
+    }
+
+    /// `falc store history STATION FILE`: each version's number, author
+    /// and message.
+    pub fn history(&self, station: &str, file: &str) -> Vec<(u32, String, String)> {
+        let versions: Vec<falc_model::product::RecipeVersion> =
+            self.reply(&["store", "history", station, file]);
+        versions
+            .into_iter()
+            .map(|v| (v.version, v.author, v.message))
+            .collect()
+    }
+
     pub fn orders(&self) -> Vec<Order> {
         self.reply(&["order", "list"])
     }
