@@ -857,6 +857,13 @@ impl<D: Device> Controller<D> {
             // A Start of a program invocation a Stop left stopped begins
             // anew: it is reset first and the kept run dropped (ISO 9506
             // would refuse it; a commander that starts means to start).
+            Request::Start { name, .. } if RobotProgram::of_domain(name).is_some() => {
+                return Err(ServiceError::state_conflict(format!(
+                    "{name} is a robot program delivered to the robot: a welding recipe runs it \
+                     (start rcm {})",
+                    RobotProgram::of_domain(name).map_or(0, RobotProgram::number)
+                )))
+            }
             Request::Start { name, .. } => self.reset_stopped(name),
             _ => {}
         }

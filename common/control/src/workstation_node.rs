@@ -300,6 +300,9 @@ mod tests {
     #[derive(Default)]
     struct Robot {
         queued: VecDeque<String>,
+        /// Programs being delivered, and those whose delivery ended.
+        delivering: Vec<RobotProgram>,
+        delivered: VecDeque<(RobotProgram, Result<(), ServiceError>)>,
     }
 
     impl Device for Robot {
@@ -316,6 +319,20 @@ mod tests {
             None
         }
         fn status(&self, _status: &mut VmdStatus) {}
+        fn deliver_program(
+            &mut self,
+            program: &falc_recipe::robot_program::ProgramText,
+        ) -> Result<(), ServiceError> {
+            if program.number.number() == 66 {
+                return Err(ServiceError::state_conflict("program 66 runs"));
+            }
+            self.queued.push_back(format!("deliver {}", program.number));
+            self.delivering.push(program.number);
+            Ok(())
+        }
+        fn poll_delivered(&mut self) -> Option<(RobotProgram, Result<(), ServiceError>)> {
+            self.delivered.pop_front()
+        }
     }
 
     impl Linked for Robot {
@@ -339,6 +356,16 @@ mod tests {
             match ev {
                 "started" => ctl.feed(now, vec![Event::Started(rcm)]),
                 "ended" => ctl.feed(now, vec![Event::Ended(rcm, JobEnd::Done)]),
+                "stored" | "refused" => {
+                    let r = if ev == "stored" {
+                        Ok(())
+                    } else {
+                        Err(ServiceError::unreachable("the line closed"))
+                    };
+                    for p in std::mem::take(&mut ctl.device.delivering) {
+                        ctl.device.delivered.push_back((p, r.clone()));
+                    }
+                }
                 other => return Some(other.to_string()),
             }
             None
@@ -379,6 +406,110 @@ mod tests {
         acts.iter()
             .filter(|a| matches!(a, WorkstationAction::Publish(Unconfirmed::Status { .. })))
             .count()
+    }
+
+    /// The answers to `ticket` among `acts`.
+    fn answers_to(acts: &[Action_], ticket: u32) -> Vec<Result<Response, ServiceError>> {
+        acts.iter()
+            .filter_map(|a| match a {
+                WorkstationAction::Answer { ticket: t, result } if *t == ticket => {
+                    Some(result.clone())
+                }
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Downloads `text` as domain `name`; the terminate's ticket is 99.
+    fn download(n: &mut WorkstationNode<Robot, u32>, name: &str, text: &str) -> Vec<Action_> {
+        let name = ObjectName::new(name).expect("name");
+        let steps = falc_model::mms::domain::download_steps(&name, text.as_bytes());
+        let last = steps.len() - 1;
+        for (i, r) in steps.iter().enumerate() {
+            let ticket = if i == last { 99 } else { i as u32 };
+            n.handle_indication(Duration::ZERO, ticket, r);
+        }
+        drain(n, Duration::ZERO)
+    }
+
+    #[test]
+    fn a_robot_programs_download_is_confirmed_once_the_robot_stored_it() {
+        let mut n = node();
+        let _ = drain(&mut n, Duration::ZERO);
+        let p65 = ObjectName::new("PROGRAM_065").expect("name");
+        let acts = download(&mut n, "PROGRAM_065", "program 65\nmove home 2\n");
+        assert!(
+            answers_to(&acts, 99).is_empty(),
+            "confirmed early: {acts:?}"
+        );
+        assert!(
+            acts.iter()
+                .any(|a| matches!(a, WorkstationAction::Command(c) if c == "deliver 65")),
+            "{acts:?}"
+        );
+        n.handle_link(Duration::ZERO, "stored");
+        let acts = drain(&mut n, Duration::ZERO);
+        assert_eq!(answers_to(&acts, 99), vec![Ok(Response::Done)]);
+        assert!(n.controller().vmd().domain(&p65).is_some());
+        // Its program invocation runs no recipe here.
+        n.handle_indication(
+            Duration::ZERO,
+            5,
+            &Request::Start {
+                name: p65.clone(),
+                argument: String::new(),
+            },
+        );
+        let e = answers_to(&drain(&mut n, Duration::ZERO), 5)
+            .pop()
+            .expect("answered")
+            .expect_err("refused");
+        assert!(e.description.contains("start rcm 65"), "{e}");
+
+        // Not a program, another program's number, refused by the device,
+        // lost on the way: refused, and the domain taken back out.
+        for (name, text, then, why) in [
+            (
+                "PROGRAM_064",
+                "program 64\nmove home\n",
+                None,
+                "is not a step",
+            ),
+            (
+                "PROGRAM_064",
+                "program 63\nmove home 1\n",
+                None,
+                "holds robot program 63",
+            ),
+            (
+                "PROGRAM_066",
+                "program 66\nmove home 1\n",
+                None,
+                "program 66 runs",
+            ),
+            (
+                "PROGRAM_064",
+                "program 64\nmove home 1\n",
+                Some("refused"),
+                "the line closed",
+            ),
+        ] {
+            let mut acts = download(&mut n, name, text);
+            if let Some(ev) = then {
+                n.handle_link(Duration::ZERO, ev);
+                acts.extend(drain(&mut n, Duration::ZERO));
+            }
+            let e = answers_to(&acts, 99)
+                .pop()
+                .unwrap_or_else(|| panic!("{name} unanswered: {acts:?}"))
+                .expect_err("refused");
+            assert!(e.description.contains(why), "{name}: {e}");
+            let domain = ObjectName::new(name).expect("name");
+            assert!(
+                n.controller().vmd().domain(&domain).is_none(),
+                "{name} kept"
+            );
+        }
     }
 
     #[test]
