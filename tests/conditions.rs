@@ -41,6 +41,14 @@ fn a_false_precondition_refuses_the_start_and_a_false_postcondition_fails_the_jo
                     .is_some_and(|st| st.unmet.keys().any(|k| k.as_str() == "STORE"))
         })
     });
+    // `falc status` says so too, in words.
+    let text = rig.cell.falc(&["status"]);
+    assert!(
+        text.contains(
+            "not startable: precondition of STORE: place 2 occupied, place 3 empty is false"
+        ),
+        "{text}"
+    );
     rig.plc.forget("coil ");
     rig.cell.falc(&["order", "add", "--count", "2", "dikdroog"]);
     rig.cell.falc(&["start"]);

@@ -163,6 +163,12 @@ pub(crate) fn show_status(s: &CellStatus) -> String {
             ),
             None => format!("  {:<10} no status seen", st.name.as_str()),
         });
+        // Its recipes a Start would refuse now, and why.
+        if let Some(v) = st.status.as_ref().filter(|_| st.connected) {
+            for why in v.unmet.values() {
+                out.push(format!("  {:<10} not startable: {}", "", printable(why)));
+            }
+        }
     }
     out.join("\n")
 }
