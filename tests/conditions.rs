@@ -69,12 +69,7 @@ fn a_false_precondition_refuses_the_start_and_a_false_postcondition_fails_the_jo
     }
     // The way back: carriers home, ack, start: the next order done.
     rig.way_back();
-    let orders = rig.orders();
-    assert_eq!(
-        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
-        [OrderState::Failed, OrderState::Done],
-        "{orders:?}"
-    );
+    rig.orders_are(&[OrderState::Failed, OrderState::Done]);
 
     // UNSTORE leaves its carrier at W2; W2's sensor stuck dark from the
     // weld's start (the other carrier left W2 before it) keeps it unseen:
@@ -97,15 +92,10 @@ fn a_false_precondition_refuses_the_start_and_a_false_postcondition_fails_the_jo
     // The way back: the sensor mended, carriers home, ack, start.
     rig.plc.control("unstuck 2");
     rig.way_back();
-    let orders = rig.orders();
-    assert_eq!(
-        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
-        [
-            OrderState::Failed,
-            OrderState::Done,
-            OrderState::Failed,
-            OrderState::Done
-        ],
-        "{orders:?}"
-    );
+    rig.orders_are(&[
+        OrderState::Failed,
+        OrderState::Done,
+        OrderState::Failed,
+        OrderState::Done,
+    ]);
 }

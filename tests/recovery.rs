@@ -624,16 +624,12 @@ fn unrequested_and_lost_feedback_are_device_alarms_naming_the_sensor_and_the_way
     );
     rig.plc.control("unstuck 3");
     rig.way_back();
-    let orders = rig.orders();
-    assert_eq!(
-        orders.iter().map(|o| o.state).collect::<Vec<_>>(),
-        [
-            OrderState::Failed,
-            OrderState::Done,
-            OrderState::Failed,
-            OrderState::Done
-        ]
-    );
+    rig.orders_are(&[
+        OrderState::Failed,
+        OrderState::Done,
+        OrderState::Failed,
+        OrderState::Done,
+    ]);
     println!(
         "feedback alarms at the transport {:.0} ms (unrequested, W6) and {:.0} ms (lost, W3) after the twin's sensor changed (the busy poll is 10 ms)",
         unrequested.as_secs_f64() * 1e3,

@@ -142,12 +142,11 @@ fn list(dir: &Path, topology: &Topology, cell: &StationName) -> Result<Vec<Recip
     let mut out = Vec::new();
     let kinds = StationKinds::of(topology);
     let robot = StationName::new(ROBOT_DIR).map_err(|e| e.to_string())?;
-    if let Ok(read) = std::fs::read_dir(dir.join(ROBOT_DIR)) {
-        let mut files: Vec<RecipeFile> = read
-            .filter_map(Result::ok)
-            .filter_map(|e| e.file_name().into_string().ok())
-            .filter(|n| n.ends_with(".prg"))
-            .filter_map(|n| RecipeFile::new(robot.clone(), &n).ok())
+    if let Ok(paths) = files::files_ending(&dir.join(ROBOT_DIR), "prg") {
+        let mut files: Vec<RecipeFile> = paths
+            .iter()
+            .filter_map(|p| p.file_name()?.to_str())
+            .filter_map(|n| RecipeFile::new(robot.clone(), n).ok())
             .collect();
         files.sort();
         out.extend(files.into_iter().map(|file| RecipeInfo {

@@ -314,6 +314,16 @@ impl Rig {
         self.reply(&["order", "list"])
     }
 
+    /// Asserts the orders of the list are in `states`, in order.
+    pub fn orders_are(&self, states: &[falc_model::records::OrderState]) {
+        let orders = self.orders();
+        assert_eq!(
+            orders.iter().map(|o| o.state).collect::<Vec<_>>(),
+            states,
+            "{orders:?}"
+        );
+    }
+
     pub fn journal(&self, order: Option<i64>) -> Vec<Entry> {
         let id = order.map(|o| o.to_string());
         let mut args = vec!["journal"];

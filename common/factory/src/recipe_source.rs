@@ -155,8 +155,7 @@ pub fn checked_set(
                  recipe otherwise"
             ));
         } else {
-            let domain = format!("{}${name}", station.as_str().to_uppercase());
-            match ObjectName::new(&domain) {
+            match ObjectName::new(&at_cell(station, name.as_str())) {
                 Ok(domain) => stations.push(Delivery {
                     domain,
                     is_cell: false,
@@ -198,12 +197,7 @@ pub fn checked_set(
             continue;
         }
         for r in robot.unwrap_or_default() {
-            let domain = format!(
-                "{}${}",
-                w.as_str().to_uppercase(),
-                r.program.number.domain()
-            );
-            match ObjectName::new(&domain) {
+            match ObjectName::new(&at_cell(w, r.program.number.domain().as_str())) {
                 Ok(domain) => deliveries.push(Delivery {
                     domain,
                     is_cell: false,
@@ -239,6 +233,12 @@ fn file_of(origin: &str) -> Result<RecipeFile, String> {
     )
 }
 
+/// The cell's domain name of workstation `station`'s domain `name`
+/// (`WELDING$DROOG_DIK`), which the cell passes on to it.
+fn at_cell(station: &StationName, name: &str) -> String {
+    format!("{}${name}", station.as_str().to_uppercase())
+}
+
 /// What `program` (of `station`) starts one level down: each workstation
 /// recipe's domain (`WELDING$DROOG_DIK`), each robot program, once, in the
 /// order of its states: its domain as the cell holds it
@@ -251,10 +251,8 @@ fn starts_of(station: &StationName, program: &Program, delivered: bool) -> Vec<S
             continue;
         };
         let s = match job {
-            Job::Recipe(name) => format!("{}${name}", target.as_str().to_uppercase()),
-            Job::Program(p) if delivered => {
-                format!("{}${}", station.as_str().to_uppercase(), p.domain())
-            }
+            Job::Recipe(name) => at_cell(target, name.as_str()),
+            Job::Program(p) if delivered => at_cell(station, p.domain().as_str()),
             Job::Program(p) => format!("program {}", p.number()),
         };
         if !out.contains(&s) {

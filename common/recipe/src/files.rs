@@ -120,7 +120,9 @@ fn rcp_files(dir: &Path) -> Result<Vec<PathBuf>, String> {
     files_ending(dir, "rcp")
 }
 
-fn files_ending(dir: &Path, ext: &str) -> Result<Vec<PathBuf>, String> {
+/// The files of `dir` whose extension is `ext` (any case), sorted; the
+/// directory that cannot be read named in the error.
+pub fn files_ending(dir: &Path, ext: &str) -> Result<Vec<PathBuf>, String> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(|e| format!("{}: {e}", dir.display()))?
         .filter_map(Result::ok)

@@ -10,7 +10,7 @@ use falc_model::ids::StationName;
 use falc_model::mms::domain::content_hash;
 use falc_model::recipe_file::{RecipeFile, RecipeInfo, RecipeText, ROBOT_DIR};
 use falc_model::topology::Topology;
-use falc_recipe::files::{entry_in, StationKinds};
+use falc_recipe::files::{entry_in, files_ending, StationKinds};
 use falc_recipe::robot_program::RobotFile;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
@@ -140,14 +140,7 @@ impl Recipes {
             if !sub.is_dir() {
                 continue;
             }
-            let read = std::fs::read_dir(&sub).map_err(|e| format!("{}: {e}", sub.display()))?;
-            let mut files: Vec<PathBuf> = read
-                .filter_map(Result::ok)
-                .map(|e| e.path())
-                .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case(ext)))
-                .collect();
-            files.sort();
-            for path in files {
+            for path in files_ending(&sub, ext)? {
                 let text = std::fs::read_to_string(&path)
                     .map_err(|e| format!("{}: {e}", path.display()))?;
                 let Some(name) = path.file_name().and_then(|n| n.to_str()) else {
