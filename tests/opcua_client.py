@@ -21,12 +21,17 @@ asserts on them.
       a plant's gateway: browse the plant object FALC and cell CELL's
       object FALC.CELL; one order through CELL's own methods to done, cell
       OTHER's state watched meanwhile; the plant's orders with their cells.
+  opcua_client.py siege URL CREDENTIALS_DIR WORK_DIR ATTACKER N
+      N wrong passwords for user `opcua` from address ATTACKER (a second
+      loopback address) while the real `opcua` logs in from 127.0.0.1 once
+      a second, each login timed; how the attacker was refused.
   opcua_client.py watch URL CREDENTIALS_DIR WORK_DIR NODE...
       prints every data change of the nodes (FALC.* ids) with the time it
       arrived, until a line (or the end) on stdin.
 """
 
 import asyncio
+import contextvars
 import json
 import shutil
 import socket
@@ -394,7 +399,7 @@ async def throttle(url, creds: Path, work: Path, lockout: float):
             await c.connect()
             await c.disconnect()
             refused = None
-        except ua.UaStatusCodeError as e:
+        except Exception as e:  # the front refuses with an OPC UA Error message
             refused = type(e).__name__
         return refused, round((time.monotonic() - began) * 1000)
 
@@ -404,6 +409,65 @@ async def throttle(url, creds: Path, work: Path, lockout: float):
     await asyncio.sleep(lockout + 0.5)
     after, _ = await attempt(right)
     say(step="locked", locked=locked, after=after)
+
+
+# The address a connection is made from (None: the system's choice): the
+# siege's attacker connects from a second loopback address.
+SOURCE = contextvars.ContextVar("source", default=None)
+
+
+def connect_from_source():
+    create = asyncio.BaseEventLoop.create_connection
+
+    async def from_source(self, factory, host=None, port=None, **kw):
+        if SOURCE.get() is not None and "local_addr" not in kw:
+            kw["local_addr"] = (SOURCE.get(), 0)
+        return await create(self, factory, host, port, **kw)
+
+    asyncio.BaseEventLoop.create_connection = from_source
+
+
+async def siege(url, creds: Path, work: Path, attacker: str, n: int):
+    connect_from_source()
+    await admit(url, creds, work)
+    right = users(creds)["opcua"]
+    done = asyncio.Event()
+
+    async def attack():
+        SOURCE.set(attacker)
+        refused, ms = {}, []
+        began = time.monotonic()
+        for _ in range(n):
+            one = time.monotonic()
+            try:
+                c = await client(url, work, "opcua", "not-the-password")
+                await c.connect()
+                await c.disconnect()
+                kind = "logged in"
+            except Exception as e:
+                kind = type(e).__name__
+            refused[kind] = refused.get(kind, 0) + 1
+            ms.append(round((time.monotonic() - one) * 1000))
+        done.set()
+        return refused, round(time.monotonic() - began, 1), ms
+
+    async def operator():
+        ms, failed = [], []
+        while not done.is_set() or len(ms) + len(failed) < 5:
+            began = time.monotonic()
+            try:
+                c = await client(url, work, "opcua", right)
+                await c.connect()
+                ms.append(round((time.monotonic() - began) * 1000))
+                await c.disconnect()
+            except Exception as e:
+                failed.append(type(e).__name__)
+            await asyncio.sleep(1.0)
+        return ms, failed
+
+    (refused, took, attacker_ms), (ms, failed) = await asyncio.gather(attack(), operator())
+    say(step="siege", attacker=refused, seconds=took, attacker_ms=attacker_ms,
+        operator_ms=ms, operator_failed=failed)
 
 
 async def watch(url, creds: Path, work: Path, nodes):
@@ -442,6 +506,8 @@ def main():
         asyncio.run(throttle(url, creds, work, float(sys.argv[5])))
     elif what == "plant":
         asyncio.run(plant(url, creds, work, *sys.argv[5:8]))
+    elif what == "siege":
+        asyncio.run(siege(url, creds, work, sys.argv[5], int(sys.argv[6])))
     elif what == "watch":
         asyncio.run(watch(url, creds, work, sys.argv[5:]))
     else:

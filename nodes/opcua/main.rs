@@ -6,9 +6,11 @@
 //! operator says something changed, after a method call, and every
 //! `--poll-ms`, and serves what it saw as an address space whose
 //! subscribers are notified of each change (`space` computes it, `server`
-//! serves it, `users` says who may do what and `throttle` slows and locks
-//! failed logins, `packml` maps a cell onto PackML states).
+//! serves it, `front` admits clients by their address, `users` says who
+//! may do what and `throttle` slows and locks failed logins, `packml` maps
+//! a cell onto PackML states).
 
+mod front;
 mod packml;
 mod server;
 mod space;
@@ -80,10 +82,17 @@ struct Cli {
     /// and the plant's in a plant), 1 to 500.
     #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u16).range(1..=500))]
     journal_entries: u16,
-    /// How long a user name stays locked after 10 failed logins, in
-    /// seconds (failures 4 to 9 are answered after a growing delay).
+    /// How long a client address stays locked after 10 failed logins, in
+    /// seconds (failures 4 to 9 are answered after a growing delay; a
+    /// locked address's connections are refused).
     #[arg(long, default_value_t = 60)]
     login_lockout_s: u64,
+    /// Connections one client address may hold open at once.
+    #[arg(long, default_value_t = front::PER_ADDRESS, value_parser = clap::value_parser!(u32).range(1..))]
+    connections_per_address: u32,
+    /// New connections one client address may open in a minute.
+    #[arg(long, default_value_t = front::PER_MINUTE, value_parser = clap::value_parser!(u32).range(1..))]
+    connections_per_minute: u32,
     /// Also offer an endpoint without signing and encryption (commissioning
     /// only; passwords still cross encrypted with the server's key).
     #[arg(long)]
@@ -91,14 +100,15 @@ struct Cli {
 }
 
 fn main() -> ExitCode {
-    falc_node::init_tracing();
+    let (connection_tasks, tasks) = front::ConnectionTasks::new();
+    falc_node::init_tracing_with(connection_tasks, front::ConnectionTasks::filter);
     let cli = Cli::parse();
     match tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()
     {
-        Ok(rt) => match rt.block_on(run(cli)) {
+        Ok(rt) => match rt.block_on(run(cli, tasks)) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
                 tracing::error!("falc-opcua stops: {e}");
@@ -144,7 +154,10 @@ fn stations_of(t: &Topology) -> Vec<(StationName, falc_model::topology::StationK
         .collect()
 }
 
-async fn run(cli: Cli) -> Result<(), String> {
+async fn run(
+    cli: Cli,
+    tasks: tokio::sync::mpsc::UnboundedReceiver<tokio::task::Id>,
+) -> Result<(), String> {
     // A cell's topology, or a plant's: the gateway logs in where a console
     // does, and serves the one cell or the plant with each of its cells.
     let layout = Layout::load(&cli.node.topology).map_err(|e| e.to_string())?;
@@ -186,9 +199,27 @@ async fn run(cli: Cli) -> Result<(), String> {
         .users
         .clone()
         .unwrap_or_else(|| cli.node.credentials_dir.join("opcua-users.toml"));
+    let clients = Arc::new(front::Clients::new(
+        front::Limits {
+            per_address: cli.connections_per_address,
+            per_minute: cli.connections_per_minute,
+        },
+        Duration::from_secs(cli.login_lockout_s),
+    ));
     let users = users::Users::ensure(&users_path, &topology, cli.user.as_str(), ceiling)
         .map_err(|e| e.to_string())?
-        .with_lockout(Duration::from_secs(cli.login_lockout_s));
+        .with_clients(clients.clone());
+    // Clients reach the front on the public address; the server listens
+    // on loopback, for the front alone.
+    let public = tokio::net::TcpListener::bind((host.as_str(), port))
+        .await
+        .map_err(|e| format!("cannot listen on {host}:{port}: {e}"))?;
+    let inner = tokio::net::TcpListener::bind((std::net::Ipv4Addr::LOCALHOST, 0))
+        .await
+        .map_err(|e| format!("cannot listen on a loopback port for the OPC UA server: {e}"))?;
+    let inner_addr = inner
+        .local_addr()
+        .map_err(|e| format!("the OPC UA server's loopback port: {e}"))?;
     let settings = cli
         .node
         .settings(&topology, &cli.user)
@@ -212,10 +243,15 @@ async fn run(cli: Cli) -> Result<(), String> {
         bus.clone(),
         operator.clone(),
     )?;
-    let mut serving = tokio::spawn(opcua_server.run());
-    // The server lays out the address space once it runs.
+    let mut serving = tokio::spawn(opcua_server.run_with(inner));
+    // The server lays out the address space once it runs, then takes the
+    // loopback port for its own: its endpoint URLs (and the URL a client
+    // names, matched but for the host) must carry the public one.
     let laid_out = tokio::time::Instant::now() + Duration::from_secs(10);
-    while !running.laid_out() {
+    let server_port = &running.handle.info().port;
+    while !running.laid_out()
+        || server_port.load(std::sync::atomic::Ordering::Relaxed) != inner_addr.port()
+    {
         if tokio::time::Instant::now() > laid_out || serving.is_finished() {
             return Err(format!(
                 "the OPC UA server did not start at {}:{port} (see the log above)",
@@ -224,6 +260,8 @@ async fn run(cli: Cli) -> Result<(), String> {
         }
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
+    server_port.store(port, std::sync::atomic::Ordering::Relaxed);
+    let front = tokio::spawn(front::serve(public, inner_addr, clients, tasks));
     // The operator's word that its status changed: look at once.
     let poked = running.poked.clone();
     let _changed = bus
@@ -343,6 +381,7 @@ async fn run(cli: Cli) -> Result<(), String> {
         }
     }
     tracing::info!("falc-opcua stopping");
+    front.abort();
     running.handle.cancel();
     let _ = tokio::time::timeout(Duration::from_secs(5), serving).await;
     Ok(())

@@ -1,31 +1,24 @@
-//! Failed OPC UA logins, throttled (sans-I/O: the clock is passed in).
-//! async-opcua 0.18 gives the authenticator the user name and the endpoint,
-//! not the client's address, so the unit is the user name: every name the
-//! users file does not know shares one key ([`UNKNOWN`]), so guessing names
-//! is throttled as one user.
+//! Failed OPC UA logins, throttled per key (sans-I/O: the clock is passed
+//! in). The key is the client's address, as the gateway's front knows it
+//! (`front`): a guesser slows and locks its own address, never a user name
+//! for its real user logging in from elsewhere.
 //!
 //! - the first [`FREE_FAILURES`] failures of a key cost nothing;
 //! - each further failure is answered only after a delay that doubles from
 //!   [`FIRST_DELAY`] up to [`MAX_DELAY`];
 //! - after [`LOCK_AFTER`] failures the key is locked for the lockout time
 //!   (default [`LOCKOUT`]): every login of it is refused, the right
-//!   password too, without a check;
+//!   password too, without a check (and the front refuses its
+//!   connections);
 //! - [`FORGET_AFTER`] without a failure forgets a key's failures; a
 //!   lockout that ended allows [`FREE_FAILURES`] again. A success forgets
-//!   nothing: the name's real user logging in now and then must not wipe
-//!   a guesser's count (300 guesses in 104 s went unlocked so).
-//!
-//! What async-opcua 0.18 does not let the gateway do: tell one client from
-//! another (the authenticator is given no address and no application
-//! certificate), so a guesser's failures lock the name for its real user
-//! too (a lockout a stranger can cause, as with any per-name lock); and
-//! bound sessions per client application (only `max_sessions` in all).
+//!   nothing: a real user logging in now and then from the guesser's
+//!   address must not wipe the guesser's count (300 guesses in 104 s went
+//!   unlocked so).
 
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
-/// The key all user names the users file does not know share.
-pub const UNKNOWN: &str = "(unknown user names)";
 /// Failures of a key that cost no delay.
 pub const FREE_FAILURES: u32 = 3;
 /// The delay after the first failure beyond the free ones.

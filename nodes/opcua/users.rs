@@ -9,7 +9,8 @@
 //! user's role: the file is capped at it when it is made, and a user
 //! above it is refused when it is read.
 
-use crate::throttle::{self, LoginThrottle, Verdict};
+use crate::front::{Clients, Limits};
+use crate::throttle::{self, Verdict};
 use async_trait::async_trait;
 use falc_bus::credentials::{self, CredentialsError};
 use falc_model::api::Call;
@@ -24,8 +25,7 @@ use opcua::types::{Error, NodeId, StatusCode, UAString, UserTokenPolicy, UserTok
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::sync::Arc;
 
 /// One OPC UA user of the file.
 #[derive(Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -64,8 +64,8 @@ pub struct Users {
     by_name: BTreeMap<String, User>,
     /// The thumbprint of each user certificate, and whose it is.
     by_certificate: Vec<(Thumbprint, String)>,
-    /// Failed logins, throttled per user name.
-    throttle: Arc<Mutex<LoginThrottle>>,
+    /// The clients' addresses and their failed logins (`front`).
+    clients: Arc<Clients>,
 }
 
 impl Users {
@@ -161,13 +161,13 @@ impl Users {
         Ok(Self {
             by_name,
             by_certificate,
-            throttle: Arc::new(Mutex::new(LoginThrottle::new(throttle::LOCKOUT))),
+            clients: Arc::new(Clients::new(Limits::default(), throttle::LOCKOUT)),
         })
     }
 
-    /// Failed logins lock a user name for `lockout` ([`throttle`]).
-    pub fn with_lockout(mut self, lockout: Duration) -> Self {
-        self.throttle = Arc::new(Mutex::new(LoginThrottle::new(lockout)));
+    /// Logins are counted per client address by the front's `clients`.
+    pub fn with_clients(mut self, clients: Arc<Clients>) -> Self {
+        self.clients = clients;
         self
     }
 
@@ -210,21 +210,15 @@ impl AuthManager for Users {
         // A stranger's text: quoted short and escaped wherever it is
         // logged (here, and by async-opcua with the error).
         let quoted = falc_model::ids::excerpt(username);
-        let key = if self.by_name.contains_key(username) {
-            username
-        } else {
-            throttle::UNKNOWN
-        };
-        let verdict = match self.throttle.lock() {
-            Ok(mut t) => t.check(Instant::now(), key),
-            Err(_) => Verdict::Check,
-        };
-        if let Verdict::Locked(left) = verdict {
+        // The client's address (the front's): a guesser's failures lock
+        // its own address, never the name for its real user elsewhere.
+        let key = self.clients.login_key();
+        if let Verdict::Locked(left) = self.clients.check_login(&key) {
             // A source of its own: the lock is logged beside the failures.
             falc_bus::log_limit::warn(
                 &format!("{key} (locked)"),
                 &format!(
-                    "OPC UA login of \"{quoted}\" refused unchecked: locked for {} s more after {} failed logins (async-opcua 0.18 gives no client address)",
+                    "OPC UA login of \"{quoted}\" from {key} refused unchecked: the address is locked for {} s more after {} failed logins",
                     left.as_secs(),
                     throttle::LOCK_AFTER
                 ),
@@ -232,17 +226,18 @@ impl AuthManager for Users {
             return Err(Error::new(
                 StatusCode::BadUserAccessDenied,
                 format!(
-                    "\"{quoted}\" is locked for {} s after {} failed logins",
+                    "{key} is locked for {} s after {} failed logins",
                     left.as_secs().max(1),
                     throttle::LOCK_AFTER
                 ),
             ));
         }
         match self.by_name.get(username) {
-            // A success forgets no failure of the name (`throttle`).
+            // A success forgets no failure of the address (`throttle`).
             Some(u) if !u.password.is_empty() && same_secret(&u.password, password.get()) => {
                 tracing::info!(
                     user = username,
+                    from = %key,
                     endpoint = %endpoint.security_policy,
                     mode = %endpoint.security_mode,
                     "OPC UA session authenticated"
@@ -250,16 +245,13 @@ impl AuthManager for Users {
                 Ok(UserToken(u.name.clone()))
             }
             _ => {
-                let (failures, delay) = match self.throttle.lock() {
-                    Ok(mut t) => t.failed(Instant::now(), key),
-                    Err(_) => (0, throttle::MAX_DELAY),
-                };
+                let (failures, delay) = self.clients.failed_login(&key);
                 falc_bus::log_limit::warn(
-                    key,
+                    &key,
                     &format!(
-                        "OPC UA login of \"{quoted}\" refused: unknown user or wrong password ({failures} failed in a row; answered after {} ms{}; async-opcua 0.18 gives no client address)",
+                        "OPC UA login of \"{quoted}\" from {key} refused: unknown user or wrong password ({failures} failed from this address in a row; answered after {} ms{})",
                         delay.as_millis(),
-                        if failures >= throttle::LOCK_AFTER { ", now locked" } else { "" }
+                        if failures >= throttle::LOCK_AFTER { ", the address now locked" } else { "" }
                     ),
                 );
                 tokio::time::sleep(delay).await;
@@ -276,6 +268,17 @@ impl AuthManager for Users {
         _endpoint: &ServerEndpoint,
         signing_thumbprint: &Thumbprint,
     ) -> Result<UserToken, Error> {
+        let key = self.clients.login_key();
+        if let Verdict::Locked(left) = self.clients.check_login(&key) {
+            return Err(Error::new(
+                StatusCode::BadUserAccessDenied,
+                format!(
+                    "{key} is locked for {} s after {} failed logins",
+                    left.as_secs().max(1),
+                    throttle::LOCK_AFTER
+                ),
+            ));
+        }
         match self
             .by_certificate
             .iter()
@@ -284,14 +287,21 @@ impl AuthManager for Users {
             Some((_, name)) => {
                 tracing::info!(
                     user = name,
+                    from = %key,
                     "OPC UA session authenticated by user certificate"
                 );
                 Ok(UserToken(name.clone()))
             }
             None => {
-                tracing::warn!(
-                    "OPC UA login refused: a user certificate no user of the users file has"
+                let (failures, delay) = self.clients.failed_login(&key);
+                falc_bus::log_limit::warn(
+                    &key,
+                    &format!(
+                        "OPC UA login from {key} refused: a user certificate no user of the users file has ({failures} failed from this address in a row; answered after {} ms)",
+                        delay.as_millis()
+                    ),
                 );
+                tokio::time::sleep(delay).await;
                 Err(Error::new(
                     StatusCode::BadIdentityTokenRejected,
                     "unknown user certificate",

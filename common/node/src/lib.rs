@@ -180,6 +180,21 @@ pub fn init_tracing() {
         .try_init();
 }
 
+/// Logs to stderr ([`log_layer`]), and hands what `filter` lets through
+/// to a layer of the node's own (the OPC UA gateway hears of its server's
+/// connections so).
+pub fn init_tracing_with<L>(own: L, filter: fn(&tracing::Metadata<'_>) -> bool)
+where
+    L: tracing_subscriber::Layer<tracing_subscriber::Registry> + Send + Sync + 'static,
+{
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    let _ = tracing_subscriber::Registry::default()
+        .with(own.with_filter(tracing_subscriber::filter::filter_fn(filter)))
+        .with(log_layer())
+        .try_init();
+}
+
 /// The log of every FALC process, as a layer (the router adds its own
 /// beside it): to stderr, filtered by `log_filter` and the libraries'
 /// own warnings and errors rate-limited ([`library_log`]), colours only on a
