@@ -442,3 +442,79 @@ fn a_guesser_from_one_address_never_locks_the_real_user_out_from_another() {
     assert!((2..=6).contains(&named.len()), "{named:#?}");
     assert!(gateway.lines_containing("(address unknown)").is_empty());
 }
+
+/// Alarms & Conditions: the robot's emergency stop is an active,
+/// unacknowledged `AlarmConditionType` condition of severity 1000 at a
+/// subscribed client; a client that subscribes afterwards gets it by
+/// ConditionRefresh; an observer's Acknowledge is refused, the operator's
+/// acknowledges it in `falc alarms` (and a second is refused); released,
+/// it is no longer retained; then an order runs to done.
+#[test]
+fn an_emergency_stop_is_a_condition_a_late_client_refreshes_and_the_operator_acknowledges() {
+    let port = free_port();
+    let listen = format!("127.0.0.1:{port}");
+    let mut cell = LaunchedCell::start_with("50", &["--opcua", &listen]);
+    let url = format!("opc.tcp://{listen}/");
+    let mut c = client(&cell, "conditions", &url, &[]);
+    let t = Duration::from_secs(60);
+
+    step(&mut c, "listening", t);
+    cell.launcher.send("rcm estop");
+    cell.launcher
+        .expect_line("[rcm-welding] ok estop", Duration::from_secs(10));
+    let r = step(&mut c, "raised", t)["condition"].clone();
+    println!("raised: {r}");
+    assert_eq!(r["type"], "i=2915", "AlarmConditionType: {r}");
+    assert_eq!(r["severity"], 1000, "a safety alarm: {r}");
+    assert_eq!(r["class"], "Safety", "{r}");
+    assert_eq!(r["source"], "welding", "{r}");
+    assert_eq!(r["retain"], true, "{r}");
+    assert_eq!(r["active"], true, "{r}");
+    assert_eq!(r["acked"], false, "{r}");
+    assert_eq!(r["active_text"], "Active", "{r}");
+    let condition = r["condition"].as_str().expect("a ConditionId").to_string();
+    assert!(condition.contains("s=FALC.Conditions."), "{condition}");
+
+    let f = step(&mut c, "refreshed", t);
+    println!("refreshed: {f}");
+    assert_eq!(f["before"], 0, "nothing came before the refresh: {f}");
+    assert_eq!(f["condition"]["condition"], condition.as_str(), "{f}");
+    assert_eq!(f["condition"]["active"], true, "{f}");
+    assert_eq!(f["condition"]["acked"], false, "{f}");
+    let o = step(&mut c, "observer_ack", t);
+    assert_eq!(o["refused"], "BadUserAccessDenied", "{o}");
+    let (_, alarms) = cell.falc_as("observer", &["alarms"]);
+    assert!(
+        alarms.contains("needs ack"),
+        "not acknowledged by the observer: {alarms}"
+    );
+
+    c.send("acknowledge");
+    let a = step(&mut c, "acknowledged", t);
+    println!("acknowledged: {a}");
+    assert_eq!(a["refused"], Value::Null, "{a}");
+    assert_eq!(a["condition"]["acked"], true, "{a}");
+    assert_eq!(
+        a["condition"]["active"], true,
+        "the stop is still pressed: {a}"
+    );
+    assert_eq!(a["condition"]["retain"], true, "{a}");
+    assert_eq!(a["again"], "BadConditionBranchAlreadyAcked", "{a}");
+    let (_, alarms) = cell.falc_as("observer", &["alarms"]);
+    assert!(
+        alarms.contains("acknowledged by opcua"),
+        "the operator's view: {alarms}"
+    );
+
+    // The way back: released, the condition is no longer retained, and
+    // the next order runs to done.
+    cell.launcher.send("rcm estop-clear");
+    cell.launcher
+        .expect_line("[rcm-welding] ok estop-clear", Duration::from_secs(10));
+    c.send("released");
+    let g = step(&mut c, "released", t);
+    assert_eq!(g["condition"]["retain"], false, "{g}");
+    assert_eq!(g["condition"]["active"], false, "{g}");
+    let e = step(&mut c, "ended", Duration::from_secs(180));
+    assert_eq!(e["order_state"], "done", "{e}");
+}

@@ -21,6 +21,14 @@ asserts on them.
       a plant's gateway: browse the plant object FALC and cell CELL's
       object FALC.CELL; one order through CELL's own methods to done, cell
       OTHER's state watched meanwhile; the plant's orders with their cells.
+  opcua_client.py conditions URL CREDENTIALS_DIR WORK_DIR
+      Alarms & Conditions: the operator subscribes to conditions; the
+      robot's emergency stop (pressed after "listening") seen as an active,
+      unacknowledged condition; a late observer's ConditionRefresh sends
+      it again, its Acknowledge is refused; the operator's is taken (after
+      a line on stdin), and again refused as done; once the stop is
+      released (another line) the condition is no longer retained, and an
+      order runs to done.
   opcua_client.py siege URL CREDENTIALS_DIR WORK_DIR ATTACKER N
       N wrong passwords for user `opcua` from address ATTACKER (a second
       loopback address) while the real `opcua` logs in from 127.0.0.1 once
@@ -41,6 +49,7 @@ import tomllib
 from pathlib import Path
 
 from asyncua import Client, ua
+from asyncua.common.events import get_filter_from_event_type
 from asyncua.crypto.cert_gen import setup_self_signed_certificate
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from cryptography.x509.oid import ExtendedKeyUsageOID
@@ -411,6 +420,120 @@ async def throttle(url, creds: Path, work: Path, lockout: float):
     say(step="locked", locked=locked, after=after)
 
 
+ACKNOWLEDGE = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
+
+
+class ConditionEvents:
+    """The condition events of a subscription, as plain values."""
+
+    def __init__(self):
+        self.seen = []
+
+    def event_notification(self, e):
+        g = lambda n: getattr(e, n, None)
+        message = g("Message")
+        self.seen.append({
+            "condition": g("NodeId").to_string() if g("NodeId") is not None else None,
+            "event_id": g("EventId").hex() if g("EventId") else None,
+            "type": g("EventType").to_string() if g("EventType") is not None else None,
+            "active": g("ActiveState/Id"),
+            "active_text": str(g("ActiveState").Text) if g("ActiveState") else None,
+            "acked": g("AckedState/Id"),
+            "retain": g("Retain"),
+            "severity": g("Severity"),
+            "source": g("SourceName"),
+            "class": str(g("ConditionClassName").Text) if g("ConditionClassName") else None,
+            "message": str(message.Text) if message else None,
+        })
+
+    async def until(self, pred, limit: float):
+        end = time.monotonic() + limit
+        while time.monotonic() < end:
+            for e in self.seen:
+                if pred(e):
+                    return e
+            await asyncio.sleep(0.05)
+        return None
+
+
+async def alarm_filter(c):
+    """AlarmConditionType's fields, of events of ConditionType and its
+    subtypes (OfType: async-opcua 0.18 never matches the InList of event
+    types asyncua makes by default, docs/opcua.md)."""
+    f = await get_filter_from_event_type(
+        [c.get_node(ua.NodeId(ua.ObjectIds.AlarmConditionType))], where_clause_generation=False
+    )
+    of_type = ua.ContentFilterElement()
+    of_type.FilterOperator = ua.FilterOperator.OfType
+    of_type.FilterOperands = [ua.LiteralOperand(Value=ua.Variant(ua.NodeId(ua.ObjectIds.ConditionType)))]
+    f.WhereClause = ua.ContentFilter()
+    f.WhereClause.Elements = [of_type]
+    return f
+
+
+async def acknowledge(c, condition, comment):
+    """Acknowledge on the condition's node, naming its event; the refusal's
+    status name, or None."""
+    node = c.get_node(ua.NodeId.from_string(condition["condition"]))
+    try:
+        await node.call_method(
+            ACKNOWLEDGE,
+            ua.Variant(bytes.fromhex(condition["event_id"]), ua.VariantType.ByteString),
+            ua.LocalizedText(comment),
+        )
+        return None
+    except ua.UaStatusCodeError as e:
+        return type(e).__name__
+
+
+async def conditions(url, creds: Path, work: Path):
+    pw = users(creds)
+    await admit(url, creds, work)
+    a = await connect(url, work, "console", pw["console"])
+    ns = await a.get_namespace_index("urn:falc:falc1")
+    falc = await a.nodes.objects.get_child([f"{ns}:FALC"])
+    mine = ConditionEvents()
+    sub = await a.create_subscription(50, mine)
+    await sub.subscribe_events(ua.ObjectIds.Server, evfilter=await alarm_filter(a))
+    say(step="listening")
+    raised = await mine.until(lambda e: e["active"] is True and e["acked"] is False, 60)
+    say(step="raised", condition=raised)
+    if raised is None:
+        return
+
+    # A client that subscribes afterwards asks for what is retained.
+    o = await connect(url, work, "observer", pw["observer"])
+    late = ConditionEvents()
+    late_sub = await o.create_subscription(50, late)
+    await late_sub.subscribe_events(ua.ObjectIds.Server, evfilter=await alarm_filter(o))
+    await asyncio.sleep(0.5)
+    before = len(late.seen)
+    await o.get_node(ua.NodeId(ua.ObjectIds.ConditionType)).call_method(
+        ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh),
+        ua.Variant(late_sub.subscription_id, ua.VariantType.UInt32),
+    )
+    same = lambda e: e["condition"] == raised["condition"]
+    refreshed = await late.until(lambda e: same(e) and e["retain"] is True, 10)
+    say(step="refreshed", before=before, condition=refreshed)
+    say(step="observer_ack", refused=await acknowledge(o, raised, "an observer may not"))
+    await o.disconnect()
+
+    loop = asyncio.get_running_loop()
+    await loop.run_in_executor(None, sys.stdin.readline)
+    refused = await acknowledge(a, raised, "seen by the MES")
+    acked = await mine.until(lambda e: same(e) and e["acked"] is True, 20)
+    again = await acknowledge(a, acked or raised, "twice")
+    say(step="acknowledged", refused=refused, condition=acked, again=again)
+
+    await loop.run_in_executor(None, sys.stdin.readline)
+    gone = await mine.until(lambda e: same(e) and e["retain"] is False, 20)
+    say(step="released", condition=gone)
+
+    changes, seen = await subscribe(a, ns, falc)
+    await run_order(falc, ns, changes, seen)
+    await a.disconnect()
+
+
 # The address a connection is made from (None: the system's choice): the
 # siege's attacker connects from a second loopback address.
 SOURCE = contextvars.ContextVar("source", default=None)
@@ -506,6 +629,8 @@ def main():
         asyncio.run(throttle(url, creds, work, float(sys.argv[5])))
     elif what == "plant":
         asyncio.run(plant(url, creds, work, *sys.argv[5:8]))
+    elif what == "conditions":
+        asyncio.run(conditions(url, creds, work))
     elif what == "siege":
         asyncio.run(siege(url, creds, work, sys.argv[5], int(sys.argv[6])))
     elif what == "watch":

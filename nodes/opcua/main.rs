@@ -10,6 +10,8 @@
 //! may do what and `throttle` slows and locks failed logins, `packml` maps
 //! a cell onto PackML states).
 
+mod condition_methods;
+mod conditions;
 mod front;
 mod packml;
 mod server;
@@ -302,6 +304,11 @@ async fn run(
                     mirror.forget_values();
                 }
                 running.raise(&scope.root, &changes.events);
+                // Conditions follow the alarm list the operator gave (none
+                // while it does not answer: nothing is known to change).
+                if look.status.is_some() {
+                    running.conditions(at, scope, &alarms);
+                }
                 mirror.written(std::time::Instant::now(), &changes.values);
             }
         };

@@ -2,8 +2,11 @@
 //! the address space laid out by `space`, values written and alarm events
 //! raised as the look loop hands them over, and each object's methods
 //! (the one cell's, or the plant's and each of its cells') carried out as
-//! operator API calls for that cell, in the calling user's role.
+//! operator API calls for that cell, in the calling user's role; the
+//! alarms' conditions sent (`conditions`, `condition_methods`).
 
+use crate::condition_methods::{self, ConditionMethods};
+use crate::conditions::Conditions;
 use crate::space::{self, Arg, ArgType, Method, Scope, Value};
 use crate::users::Users;
 use async_trait::async_trait;
@@ -15,9 +18,10 @@ use falc_model::ids::StationName;
 use opcua::server::address_space::{
     AddressSpace, EventNotifier, MethodBuilder, NodeType, ObjectBuilder, VariableBuilder,
 };
-use opcua::server::diagnostics::NamespaceMetadata;
+use opcua::server::diagnostics::{DiagnosticsNodeManagerBuilder, NamespaceMetadata};
 use opcua::server::node_manager::memory::{
-    InMemoryNodeManager, InMemoryNodeManagerBuilder, InMemoryNodeManagerImpl,
+    CoreNodeManagerBuilder, InMemoryNodeManager, InMemoryNodeManagerBuilder,
+    InMemoryNodeManagerImpl,
 };
 use opcua::server::node_manager::{MethodCall, RequestContext, ServerContext};
 use opcua::server::{Server, ServerBuilder, ServerEndpoint, ServerHandle, SubscriptionCache};
@@ -94,7 +98,8 @@ fn data_type(v: &Value) -> (DataTypeId, i32) {
     }
 }
 
-fn time(ms: i64) -> DateTime {
+/// A time in ms since the Unix epoch as OPC UA's.
+pub fn time(ms: i64) -> DateTime {
     DateTime::from(chrono::DateTime::<chrono::Utc>::from_timestamp_millis(ms).unwrap_or_default())
 }
 
@@ -198,9 +203,19 @@ impl Nodes {
         }
     }
 
+    /// Its namespace's index.
+    pub fn namespace_index(&self) -> u16 {
+        self.namespace.namespace_index
+    }
+
+    /// The node ids of its scopes' objects (`FALC`, `FALC.falc2` …).
+    pub fn roots(&self) -> impl Iterator<Item = &str> {
+        self.scopes.iter().map(|s| s.root.as_str())
+    }
+
     /// Carries out one method call on scope `at`'s object as `token`'s
     /// user: the answer in words, or the status code that refuses it.
-    async fn call_one(
+    pub async fn call_one(
         &self,
         token: &opcua::server::authenticator::UserToken,
         at: usize,
@@ -400,6 +415,8 @@ pub struct Running {
     pub poked: Arc<Notify>,
     /// The operator's refusal of the last method call on each object.
     pub last_refusals: LastRefusals,
+    /// The alarms' conditions.
+    pub conditions: Arc<std::sync::Mutex<Conditions>>,
 }
 
 impl Running {
@@ -426,6 +443,19 @@ impl Running {
             self.ns,
             changes,
         )
+    }
+
+    /// Scope `at`'s alarm list as the operator gave it: the conditions
+    /// that changed are sent to their subscribers.
+    pub fn conditions(&self, at: usize, scope: &Scope, alarms: &[falc_model::alarm::Alarm]) {
+        let now_ms = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX));
+        let changed = match self.conditions.lock() {
+            Ok(mut c) => c.update(at, scope, alarms, now_ms),
+            Err(_) => return,
+        };
+        condition_methods::notify(self.subscriptions(), self.ns, &changed);
     }
 
     /// Raises alarm events on the cell object `root` (and the Server
@@ -496,8 +526,19 @@ pub fn build(
             }
         },
     );
+    let conditions = Arc::new(std::sync::Mutex::new(Conditions::default()));
+    let falc_nodes = Arc::new(std::sync::OnceLock::new());
+    let (conditions2, falc_nodes2) = (conditions.clone(), falc_nodes.clone());
     let path = "/";
+    // The conditions' methods first: they are answered before the core
+    // manager, which owns their nodes (`condition_methods`).
     let mut builder = ServerBuilder::new()
+        .without_node_managers()
+        .with_node_manager(move |context: ServerContext| {
+            ConditionMethods::new(&context, conditions2, falc_nodes2)
+        })
+        .with_node_manager(InMemoryNodeManagerBuilder::new(CoreNodeManagerBuilder))
+        .with_node_manager(DiagnosticsNodeManagerBuilder)
         .application_name(format!("FALC {what} {name}"))
         .application_uri(format!("urn:falc:{name}:opcua"))
         .product_uri("urn:falc:opcua")
@@ -579,6 +620,7 @@ pub fn build(
     let ns = handle
         .get_namespace_index(&uri)
         .ok_or("the FALC namespace is missing")?;
+    let _ = falc_nodes.set(nodes.clone());
     Ok((
         server,
         Running {
@@ -587,6 +629,7 @@ pub fn build(
             ns,
             poked,
             last_refusals,
+            conditions,
         },
     ))
 }
