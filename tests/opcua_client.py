@@ -494,7 +494,7 @@ async def conditions(url, creds: Path, work: Path):
     falc = await a.nodes.objects.get_child([f"{ns}:FALC"])
     mine = ConditionEvents()
     sub = await a.create_subscription(50, mine)
-    await sub.subscribe_events(ua.ObjectIds.Server, evfilter=await alarm_filter(a))
+    await sub.subscribe_events(ua.ObjectIds.Server, evfilter=await alarm_filter(a), queuesize=100)
     say(step="listening")
     raised = await mine.until(lambda e: e["active"] is True and e["acked"] is False, 60)
     say(step="raised", condition=raised)
@@ -505,7 +505,7 @@ async def conditions(url, creds: Path, work: Path):
     o = await connect(url, work, "observer", pw["observer"])
     late = ConditionEvents()
     late_sub = await o.create_subscription(50, late)
-    await late_sub.subscribe_events(ua.ObjectIds.Server, evfilter=await alarm_filter(o))
+    await late_sub.subscribe_events(ua.ObjectIds.Server, evfilter=await alarm_filter(o), queuesize=100)
     await asyncio.sleep(0.5)
     before = len(late.seen)
     await o.get_node(ua.NodeId(ua.ObjectIds.ConditionType)).call_method(

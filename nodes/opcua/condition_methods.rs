@@ -1,7 +1,7 @@
 //! The gateway's Alarms & Conditions on the wire: each condition state of
 //! `conditions` sent as an `AlarmConditionType` event, and the standard
 //! methods a client calls on conditions answered by a node manager of the
-//! gateway's own, placed before async-opcua's core one (async-opcua 0.18
+//! gateway's own, placed before async-opcua's core one (async-opcua 0.19
 //! has no A&C; its core manager owns the methods' nodes but carries out
 //! none of them):
 //! - Acknowledge (`i=9111`) on a condition: `falc ack N` for its alarm, in
@@ -202,16 +202,16 @@ pub fn event(ns: u16, c: &Condition) -> ConditionEvent {
     }
 }
 
-/// Sends condition states to subscribers of their cell's object and of
-/// the Server object.
+/// Sends condition states to subscribers of the Server object, where A&C
+/// clients subscribe. Not on the cell's object: async-opcua keeps one
+/// event per publishing interval for an item that asked for queue size 0
+/// or 1, so a condition beside each plain alarm event there would push
+/// the plain one out for such a client.
 pub fn notify(subscriptions: &SubscriptionCache, ns: u16, states: &[Condition]) {
     let server = NodeId::from(ObjectId::Server);
     for c in states {
         let e = event(ns, c);
-        let root = NodeId::new(ns, UAString::from(c.root.as_str()));
-        for emitter in [&root, &server] {
-            subscriptions.notify_events([(&e as &dyn Event, emitter)].into_iter());
-        }
+        subscriptions.notify_events([(&e as &dyn Event, &server)].into_iter());
     }
 }
 
@@ -308,11 +308,6 @@ impl ConditionMethods {
             .map(|c| c.retained())
             .unwrap_or_default();
         let server = NodeId::from(ObjectId::Server);
-        let roots: Vec<NodeId> = falc
-            .inner()
-            .roots()
-            .map(|r| NodeId::new(ns, UAString::from(r)))
-            .collect();
         let mark = |kind: ObjectTypeId, what: &str| {
             let e = BaseEventType::new_now(
                 kind,
@@ -322,11 +317,9 @@ impl ConditionMethods {
             .set_source_node(server.clone())
             .set_source_name(UAString::from("Server"))
             .set_severity(1);
-            for emitter in roots.iter().chain([&server]) {
-                context
-                    .subscriptions
-                    .notify_events([(&e as &dyn Event, emitter)].into_iter());
-            }
+            context
+                .subscriptions
+                .notify_events([(&e as &dyn Event, &server)].into_iter());
         };
         mark(ObjectTypeId::RefreshStartEventType, "refresh start");
         notify(&context.subscriptions, ns, &retained);

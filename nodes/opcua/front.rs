@@ -1,5 +1,5 @@
 //! The gateway's front door: every OPC UA client connects here first, and
-//! the front knows its address. async-opcua 0.18 gives neither its
+//! the front knows its address. async-opcua 0.19 gives neither its
 //! authenticator nor its session limits a client's address, so the front
 //! accepts on the public address, counts per client address (connections
 //! open, new connections in the last minute, failed logins), refuses an

@@ -303,12 +303,14 @@ async fn run(
                 if !running.set(&changes.values) {
                     mirror.forget_values();
                 }
-                running.raise(&scope.root, &changes.events);
                 // Conditions follow the alarm list the operator gave (none
-                // while it does not answer: nothing is known to change).
+                // while it does not answer: nothing is known to change);
+                // then the plain alarm events, last on the Server object
+                // for a client that keeps one event an interval.
                 if look.status.is_some() {
                     running.conditions(at, scope, &alarms);
                 }
+                running.raise(&scope.root, &changes.events);
                 mirror.written(std::time::Instant::now(), &changes.values);
             }
         };

@@ -208,11 +208,6 @@ impl Nodes {
         self.namespace.namespace_index
     }
 
-    /// The node ids of its scopes' objects (`FALC`, `FALC.falc2` …).
-    pub fn roots(&self) -> impl Iterator<Item = &str> {
-        self.scopes.iter().map(|s| s.root.as_str())
-    }
-
     /// Carries out one method call on scope `at`'s object as `token`'s
     /// user: the answer in words, or the status code that refuses it.
     pub async fn call_one(

@@ -763,7 +763,7 @@ fn event(a: &Alarm, what: &str) -> AlarmEvent {
 
 /// When, after the last write, the values written are written again,
 /// unchanged: covers sampling intervals up to 50 ms (asyncua's default)
-/// at once, up to 5 s eventually. async-opcua 0.18 holds back a change
+/// at once, up to 5 s eventually. async-opcua 0.19 holds back a change
 /// that comes within a monitored item's sampling interval of the previous
 /// one and, when its subscription ticks before the held value is due,
 /// forgets to tick it again (`Subscription::tick` drains
