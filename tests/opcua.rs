@@ -201,15 +201,15 @@ fn a_plant_client_browses_subscribes_and_runs_dikdroog_over_opcua() {
 }
 
 /// A gateway of the test's own beside the launched cell's, with the users
-/// file `users` and `extra` arguments, ready; and the client script doing
-/// `what` (with its arguments) against it.
+/// file `users` and `extra` arguments, ready; the client script doing
+/// `what` (with its arguments) against it; and where it listens.
 fn own_gateway(
     cell: &LaunchedCell,
     users: &str,
     extra: &[&str],
     (what, args): (&str, &[&str]),
     within: Duration,
-) -> (crate::support::Proc, crate::support::Proc) {
+) -> (crate::support::Proc, crate::support::Proc, String) {
     let own = cell.dir.path().join("gateway");
     falc_bus::credentials::private_dir(&own).expect("dir");
     let file = own.join("opcua-users.toml");
@@ -232,7 +232,7 @@ fn own_gateway(
         &cell.dir.path().join("opcua-client"),
         args,
     );
-    (gateway, client)
+    (gateway, client, listen)
 }
 
 #[test]
@@ -245,7 +245,7 @@ fn a_user_certificate_logs_in_as_its_user_and_role() {
         .expect("path")
         .to_string();
     // A gateway of the test's own, whose users file names the certificate.
-    let (mut gateway, mut c) = own_gateway(
+    let (mut gateway, mut c, _) = own_gateway(
         &cell,
         &format!(
             "[[user]]\nname = \"console\"\nrole = \"operator\"\npassword = \"console-secret\"\n\
@@ -329,7 +329,7 @@ fn the_gateway_rides_out_a_lost_operator_and_the_next_order_runs_through_it() {
 fn failed_logins_are_slowed_then_locked_and_the_user_logs_in_after_the_lockout() {
     let cell = LaunchedCell::start("50");
     let t = Duration::from_secs(90);
-    let (mut gateway, mut c) = own_gateway(
+    let (mut gateway, mut c, _) = own_gateway(
         &cell,
         "[[user]]\nname = \"console\"\nrole = \"operator\"\npassword = \"console-secret\"\n",
         &["--login-lockout-s", "3"],
@@ -390,12 +390,13 @@ fn failed_logins_are_slowed_then_locked_and_the_user_logs_in_after_the_lockout()
 /// the real `opcua` logs in from 127.0.0.1 once a second. Each of the real
 /// user's logins takes under a second; the guesser is slowed, then refused
 /// by the front before any handshake, and its address is named in a few
-/// log lines only.
+/// log lines only. A third address holding the limit of connections open
+/// is refused one more, with an OPC UA Error message saying why.
 #[test]
 fn a_guesser_from_one_address_never_locks_the_real_user_out_from_another() {
     let cell = LaunchedCell::start("50");
     let t = Duration::from_secs(180);
-    let (mut gateway, mut c) = own_gateway(
+    let (mut gateway, mut c, listen) = own_gateway(
         &cell,
         "[[user]]\nname = \"opcua\"\nrole = \"operator\"\npassword = \"opcua-secret\"\n\
          [[user]]\nname = \"console\"\nrole = \"operator\"\npassword = \"console-secret\"\n",
@@ -441,6 +442,56 @@ fn a_guesser_from_one_address_never_locks_the_real_user_out_from_another() {
     println!("log lines naming the guesser: {}", named.len());
     assert!((2..=6).contains(&named.len()), "{named:#?}");
     assert!(gateway.lines_containing("(address unknown)").is_empty());
+
+    // A third address holding 10 connections open (the limit) is refused
+    // an 11th before any handshake, told why in an OPC UA Error message.
+    let refusal = held_open_then_one_more(&listen, "127.0.0.3", 10);
+    assert_eq!(&refusal[..4], b"ERRF", "{refusal:?}");
+    assert_eq!(
+        refusal[8..12],
+        0x807D_0000u32.to_le_bytes(),
+        "BadTcpServerTooBusy"
+    );
+    let reason = String::from_utf8_lossy(&refusal[16..]);
+    assert!(reason.contains("10 connections open"), "{reason}");
+    assert!(gateway
+        .wait_line(
+            "OPC UA client 127.0.0.3 refused: it holds 10 connections open",
+            t
+        )
+        .is_some());
+}
+
+/// Opens `n` TCP connections from `from` to the gateway at `listen`, held
+/// open, then one more: what the gateway sends on that one.
+fn held_open_then_one_more(listen: &str, from: &str, n: usize) -> Vec<u8> {
+    use tokio::io::AsyncReadExt;
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
+    rt.block_on(async {
+        let to: std::net::SocketAddr = listen.parse().expect("address");
+        let open = || async {
+            let s = tokio::net::TcpSocket::new_v4().expect("socket");
+            s.bind(format!("{from}:0").parse().expect("source"))
+                .expect("bind");
+            s.connect(to).await.expect("connect")
+        };
+        let mut held = Vec::with_capacity(n);
+        for _ in 0..n {
+            held.push(open().await);
+        }
+        let mut over = open().await;
+        let mut got = vec![0u8; 512];
+        let len = tokio::time::timeout(Duration::from_secs(5), over.read(&mut got))
+            .await
+            .expect("answered within 5 s")
+            .expect("read");
+        got.truncate(len);
+        drop(held);
+        got
+    })
 }
 
 /// Alarms & Conditions: the robot's emergency stop is an active,
