@@ -252,13 +252,18 @@ async def plant(url, creds: Path, work: Path, name, cell, other):
     await c.disconnect()
 
 
+async def as_operator(url, creds: Path, work: Path):
+    """The client certificate admitted, a session of the operator user:
+    the session, the namespace index and the cell object."""
+    await admit(url, creds, work)
+    c = await connect(url, work, "console", users(creds)["console"])
+    ns = await c.get_namespace_index("urn:falc:falc1")
+    return c, ns, await c.nodes.objects.get_child([f"{ns}:FALC"])
+
+
 async def order(url, creds: Path, work: Path):
     """One order through the methods, as the operator user."""
-    pw = users(creds)
-    await admit(url, creds, work)
-    c = await connect(url, work, "console", pw["console"])
-    ns = await c.get_namespace_index("urn:falc:falc1")
-    falc = await c.nodes.objects.get_child([f"{ns}:FALC"])
+    c, ns, falc = await as_operator(url, creds, work)
     changes, seen = await subscribe(c, ns, falc)
     await run_order(falc, ns, changes, seen)
     await c.disconnect()
@@ -488,10 +493,7 @@ async def acknowledge(c, condition, comment):
 
 async def conditions(url, creds: Path, work: Path):
     pw = users(creds)
-    await admit(url, creds, work)
-    a = await connect(url, work, "console", pw["console"])
-    ns = await a.get_namespace_index("urn:falc:falc1")
-    falc = await a.nodes.objects.get_child([f"{ns}:FALC"])
+    a, ns, falc = await as_operator(url, creds, work)
     mine = ConditionEvents()
     sub = await a.create_subscription(50, mine)
     await sub.subscribe_events(ua.ObjectIds.Server, evfilter=await alarm_filter(a), queuesize=100)

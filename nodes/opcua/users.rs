@@ -190,6 +190,33 @@ impl Users {
     }
 }
 
+impl Users {
+    /// Refuses a login of `who` from client `key` unchecked while the
+    /// address is locked (a login already under way when it locked).
+    fn unlocked(&self, key: &str, who: &str) -> Result<(), Error> {
+        let Verdict::Locked(left) = self.clients.check_login(key) else {
+            return Ok(());
+        };
+        // A source of its own: the lock is logged beside the failures.
+        falc_bus::log_limit::warn(
+            &format!("{key} (locked)"),
+            &format!(
+                "OPC UA login of {who} from {key} refused unchecked: the address is locked for {} s more after {} failed logins",
+                left.as_secs(),
+                throttle::LOCK_AFTER
+            ),
+        );
+        Err(Error::new(
+            StatusCode::BadUserAccessDenied,
+            format!(
+                "{key} is locked for {} s after {} failed logins",
+                left.as_secs().max(1),
+                throttle::LOCK_AFTER
+            ),
+        ))
+    }
+}
+
 /// Compares two secrets in time that does not depend on where they differ.
 fn same_secret(a: &str, b: &str) -> bool {
     a.len() == b.len()
@@ -213,25 +240,7 @@ impl AuthManager for Users {
         // The client's address (the front's): a guesser's failures lock
         // its own address, never the name for its real user elsewhere.
         let key = self.clients.login_key();
-        if let Verdict::Locked(left) = self.clients.check_login(&key) {
-            // A source of its own: the lock is logged beside the failures.
-            falc_bus::log_limit::warn(
-                &format!("{key} (locked)"),
-                &format!(
-                    "OPC UA login of \"{quoted}\" from {key} refused unchecked: the address is locked for {} s more after {} failed logins",
-                    left.as_secs(),
-                    throttle::LOCK_AFTER
-                ),
-            );
-            return Err(Error::new(
-                StatusCode::BadUserAccessDenied,
-                format!(
-                    "{key} is locked for {} s after {} failed logins",
-                    left.as_secs().max(1),
-                    throttle::LOCK_AFTER
-                ),
-            ));
-        }
+        self.unlocked(&key, &format!("\"{quoted}\""))?;
         match self.by_name.get(username) {
             // A success forgets no failure of the address (`throttle`).
             Some(u) if !u.password.is_empty() && same_secret(&u.password, password.get()) => {
@@ -269,16 +278,7 @@ impl AuthManager for Users {
         signing_thumbprint: &Thumbprint,
     ) -> Result<UserToken, Error> {
         let key = self.clients.login_key();
-        if let Verdict::Locked(left) = self.clients.check_login(&key) {
-            return Err(Error::new(
-                StatusCode::BadUserAccessDenied,
-                format!(
-                    "{key} is locked for {} s after {} failed logins",
-                    left.as_secs().max(1),
-                    throttle::LOCK_AFTER
-                ),
-            ));
-        }
+        self.unlocked(&key, "a user certificate")?;
         match self
             .by_certificate
             .iter()
