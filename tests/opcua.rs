@@ -569,3 +569,65 @@ fn an_emergency_stop_is_a_condition_a_late_client_refreshes_and_the_operator_ack
     let e = step(&mut c, "ended", Duration::from_secs(180));
     assert_eq!(e["order_state"], "done", "{e}");
 }
+
+/// The cell as a machine of OPC 40001-1 Machinery, found by a client by
+/// browse names and type definitions in the DI and Machinery namespaces
+/// (never by FALC's node ids): its Identification from the topology's
+/// `[identification]` (the manufacturer left to its default, FALC's
+/// version as its software revision), its MachineryItemState and
+/// MachineryOperationMode following the cell's mode and state.
+#[test]
+fn the_cell_is_a_machinery_machine_with_its_identification_and_states() {
+    let port = free_port();
+    let listen = format!("127.0.0.1:{port}");
+    let cell = LaunchedCell::start_with("50", &["--opcua", &listen]);
+    let url = format!("opc.tcp://{listen}/");
+    let mut c = client(&cell, "machinery", &url, &[]);
+    let t = Duration::from_secs(60);
+    let m = step(&mut c, "machines-0", t);
+    println!("machines: {m}");
+    let falc1 = &m["machines"]["falc1"];
+    assert_eq!(falc1["identification_is_machinery_type"], true, "{m}");
+    let id = &falc1["identification"];
+    assert_eq!(id["Manufacturer"], "FALC", "{m}");
+    assert_eq!(id["Model"], "FALC welding and assembly cell", "{m}");
+    assert_eq!(id["SerialNumber"], "FALC-1992-0001", "{m}");
+    assert_eq!(id["SoftwareRevision"], env!("CARGO_PKG_VERSION"), "{m}");
+    assert!(
+        id["ProductInstanceUri"]
+            .as_str()
+            .is_some_and(|u| u.ends_with("FALC-1992-0001")),
+        "{m}"
+    );
+    let states = &falc1["states"];
+    assert_eq!(states["item"]["state"], "NotExecuting", "{m}");
+    assert_eq!(states["item"]["id_in_machinery"], true, "{m}");
+    assert_eq!(states["mode"]["state"], "Processing", "{m}");
+    assert_eq!(states["mode"]["id_in_machinery"], true, "{m}");
+
+    // Step mode is Setup, maintenance OutOfService and Maintenance; back in
+    // auto, Processing again. Each read again until it shows.
+    let mut n = 0;
+    let mut until = |want: (&str, &str)| {
+        for _ in 0..50 {
+            n += 1;
+            std::thread::sleep(Duration::from_millis(100));
+            c.send("again");
+            let m = step(&mut c, &format!("machines-{n}"), t);
+            let s = &m["machines"]["falc1"]["states"];
+            if s["item"]["state"] == want.0 && s["mode"]["state"] == want.1 {
+                return;
+            }
+        }
+        panic!("the machine's states never became {want:?}");
+    };
+    for (mode, want) in [
+        ("step", ("NotExecuting", "Setup")),
+        ("maintenance", ("OutOfService", "Maintenance")),
+        ("auto", ("NotExecuting", "Processing")),
+    ] {
+        let (code, out) = cell.falc_as("console", &["mode", mode]);
+        assert_eq!(code, 0, "{out}");
+        until(want);
+    }
+}

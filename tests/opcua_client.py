@@ -29,6 +29,12 @@ asserts on them.
       a line on stdin), and again refused as done; once the stop is
       released (another line) the condition is no longer retained, and an
       order runs to done.
+  opcua_client.py machinery URL CREDENTIALS_DIR WORK_DIR
+      the cells as machines of OPC 40001-1 Machinery, found by browse names
+      and type definitions in the DI and Machinery namespaces only: each
+      machine's Identification and its MachineryItemState and
+      MachineryOperationMode (step "machines-N"), read again after each
+      line on stdin.
   opcua_client.py siege URL CREDENTIALS_DIR WORK_DIR ATTACKER N
       N wrong passwords for user `opcua` from address ATTACKER (a second
       loopback address) while the real `opcua` logs in from 127.0.0.1 once
@@ -536,6 +542,70 @@ async def conditions(url, creds: Path, work: Path):
     await a.disconnect()
 
 
+MACHINERY = "http://opcfoundation.org/UA/Machinery/"
+DI = "http://opcfoundation.org/UA/DI/"
+
+
+async def typed_child(node, type_id):
+    """The child of `node` (any forward hierarchical reference) whose type
+    definition is `type_id`."""
+    for child in await node.get_children(refs=ua.ObjectIds.HierarchicalReferences):
+        if (await child.read_type_definition()) == type_id:
+            return child
+    return None
+
+
+async def machines(c):
+    """Every machine in Machinery's Machines folder: its Identification and
+    current states, found the standard way."""
+    m = await c.get_namespace_index(MACHINERY)
+    di = await c.get_namespace_index(DI)
+    folder = await c.nodes.objects.get_child([f"{m}:Machines"])
+    out = {}
+    for machine in await folder.get_children(refs=ua.ObjectIds.Organizes):
+        name = (await machine.read_browse_name()).Name
+        ident = await machine.get_child([f"{di}:Identification"])
+        ident_type = await ident.read_type_definition()
+        fields = {}
+        for prop in ["Manufacturer", "Model", "SerialNumber", "SoftwareRevision", "ProductInstanceUri"]:
+            v = await (await ident.get_child([f"{di}:{prop}"])).read_value()
+            fields[prop] = v.Text if isinstance(v, ua.LocalizedText) else v
+        blocks = await machine.get_child([f"{m}:MachineryBuildingBlocks"])
+        states = {}
+        for what, type_number in [("item", 1002), ("mode", 1008)]:
+            sm = await typed_child(blocks, ua.NodeId(type_number, m))
+            current = await sm.get_child(["0:CurrentState"])
+            state_id = await (await current.get_child(["0:Id"])).read_value()
+            states[what] = {
+                "browse": (await sm.read_browse_name()).to_string(),
+                "state": (await current.read_value()).Text,
+                "id": state_id.to_string(),
+                "id_in_machinery": state_id.NamespaceIndex == m,
+            }
+        out[name] = {
+            "identification_type": ident_type.to_string(),
+            "identification_is_machinery_type": ident_type == ua.NodeId(1012, m),
+            "identification": fields,
+            "states": states,
+        }
+    return out
+
+
+async def machinery(url, creds: Path, work: Path):
+    pw = users(creds)
+    await admit(url, creds, work)
+    c = await connect(url, work, "observer", pw["observer"])
+    loop = asyncio.get_running_loop()
+    n = 0
+    while True:
+        say(step=f"machines-{n}", machines=await machines(c))
+        n += 1
+        line = await loop.run_in_executor(None, sys.stdin.readline)
+        if not line:
+            break
+    await c.disconnect()
+
+
 # The address a connection is made from (None: the system's choice): the
 # siege's attacker connects from a second loopback address.
 SOURCE = contextvars.ContextVar("source", default=None)
@@ -633,6 +703,8 @@ def main():
         asyncio.run(plant(url, creds, work, *sys.argv[5:8]))
     elif what == "conditions":
         asyncio.run(conditions(url, creds, work))
+    elif what == "machinery":
+        asyncio.run(machinery(url, creds, work))
     elif what == "siege":
         asyncio.run(siege(url, creds, work, sys.argv[5], int(sys.argv[6])))
     elif what == "watch":

@@ -13,6 +13,7 @@
 mod condition_methods;
 mod conditions;
 mod front;
+mod machinery;
 mod packml;
 mod server;
 mod space;
@@ -156,6 +157,14 @@ fn stations_of(t: &Topology) -> Vec<(StationName, falc_model::topology::StationK
         .collect()
 }
 
+/// A cell's topology as a machine of OPC UA Machinery.
+fn machine_of(t: &Topology) -> machinery::Machine {
+    machinery::Machine {
+        name: t.cell().to_string(),
+        identification: t.identification().clone(),
+    }
+}
+
 async fn run(
     cli: Cli,
     tasks: tokio::sync::mpsc::UnboundedReceiver<tokio::task::Id>,
@@ -169,7 +178,10 @@ async fn run(
             let equipment = Equipment::of_topology(t)?;
             let scopes = Scope::one_cell(stations_of(t))
                 .into_iter()
-                .map(|s| s.with_equipment(equipment.clone()))
+                .map(|s| {
+                    s.with_equipment(equipment.clone())
+                        .with_machine(machine_of(t))
+                })
                 .collect();
             ("cell", scopes)
         }
@@ -183,7 +195,10 @@ async fn run(
             // The plant's own scope first, then one per cell in order.
             for (scope, cell) in scopes.iter_mut().skip(1).zip(p.cells()) {
                 let equipment = Equipment::of_topology(cell.topology())?;
-                *scope = scope.clone().with_equipment(equipment);
+                *scope = scope
+                    .clone()
+                    .with_equipment(equipment)
+                    .with_machine(machine_of(cell.topology()));
             }
             ("plant", scopes)
         }

@@ -7,6 +7,7 @@
 
 use crate::condition_methods::{self, ConditionMethods};
 use crate::conditions::Conditions;
+use crate::machinery;
 use crate::space::{self, Arg, ArgType, Method, Scope, Value};
 use crate::users::Users;
 use async_trait::async_trait;
@@ -20,8 +21,8 @@ use opcua::server::address_space::{
 };
 use opcua::server::diagnostics::{DiagnosticsNodeManagerBuilder, NamespaceMetadata};
 use opcua::server::node_manager::memory::{
-    CoreNodeManagerBuilder, InMemoryNodeManager, InMemoryNodeManagerBuilder,
-    InMemoryNodeManagerImpl,
+    simple_node_manager_imports, CoreNodeManagerBuilder, InMemoryNodeManager,
+    InMemoryNodeManagerBuilder, InMemoryNodeManagerImpl,
 };
 use opcua::server::node_manager::{MethodCall, RequestContext, ServerContext};
 use opcua::server::{Server, ServerBuilder, ServerEndpoint, ServerHandle, SubscriptionCache};
@@ -71,6 +72,9 @@ pub struct Nodes {
     operator: StationName,
     poked: Arc<Notify>,
     last_refusals: LastRefusals,
+    /// The namespaces of the cells as machines (None: Machinery's
+    /// namespace is missing, and no machine is laid out).
+    machinery: Option<machinery::Namespaces>,
 }
 
 /// Why the operator refused the last method call on each scope's object
@@ -95,6 +99,8 @@ fn data_type(v: &Value) -> (DataTypeId, i32) {
         Value::Int64s(_) => (DataTypeId::Int64, 1),
         Value::Texts(_) => (DataTypeId::String, 1),
         Value::Times(_) => (DataTypeId::DateTime, 1),
+        Value::Localized(_) => (DataTypeId::LocalizedText, -1),
+        Value::StateId(_) => (DataTypeId::NodeId, -1),
     }
 }
 
@@ -119,8 +125,17 @@ pub fn variant(v: &Value) -> Variant {
                 .collect::<Vec<_>>(),
         ),
         Value::Times(v) => Variant::from(v.iter().map(|&ms| time(ms)).collect::<Vec<_>>()),
+        Value::Localized(t) => Variant::from(LocalizedText::from(t.as_str())),
+        Value::StateId(n) => Variant::from(NodeId::new(
+            MACHINERY_NS.get().copied().unwrap_or_default(),
+            *n,
+        )),
     }
 }
+
+/// The server's index of OPC UA Machinery's namespace (set as the
+/// address space is laid out; the state Ids written are in it).
+static MACHINERY_NS: std::sync::OnceLock<u16> = std::sync::OnceLock::new();
 
 impl Nodes {
     fn build(&self, ns: u16, space_: &mut AddressSpace) {
@@ -150,6 +165,9 @@ impl Nodes {
         }
         for scope in &self.scopes {
             self.build_scope(ns, scope, space_);
+            if let (Some(m), Some(namespaces)) = (&scope.machine, self.machinery) {
+                machinery::build(space_, namespaces, m);
+            }
         }
     }
 
@@ -157,6 +175,10 @@ impl Nodes {
     fn build_scope(&self, ns: u16, scope: &Scope, space_: &mut AddressSpace) {
         let qn = |name: &str| QualifiedName::new(ns, name);
         for (id, v) in space::values(scope, &space::Look::default()) {
+            // A machine's nodes are typed ones of their own (`machinery`).
+            if id.starts_with(machinery::MACHINES) {
+                continue;
+            }
             let (parent, name) = id.rsplit_once('.').unwrap_or((&scope.root, &id));
             let (dt, rank) = data_type(&v);
             let b = VariableBuilder::new(&node(ns, &id), qn(name), name)
@@ -506,7 +528,30 @@ pub fn build(
                 .namespaces_mut()
                 .add_namespace(&namespace_uri);
             space_.add_namespace(&namespace_uri, index);
+            // The companion specifications' namespaces, registered by
+            // their node manager (before this one).
+            let machinery = {
+                let tree = context.type_tree.read();
+                let of = |uri: &str| tree.namespaces().get_index(uri);
+                match (
+                    of(falc_opcua_models::di::URI),
+                    of(falc_opcua_models::machinery::URI),
+                ) {
+                    (Some(di), Some(m)) => Some(machinery::Namespaces {
+                        own: index,
+                        di,
+                        machinery: m,
+                    }),
+                    _ => None,
+                }
+            };
+            if let Some(n) = machinery {
+                let _ = MACHINERY_NS.set(n.machinery);
+            } else {
+                tracing::warn!("OPC UA Machinery's namespace is missing: no machine is laid out");
+            }
             Nodes {
+                machinery,
                 namespace: NamespaceMetadata {
                     namespace_uri: namespace_uri.clone(),
                     namespace_index: index,
@@ -534,6 +579,15 @@ pub fn build(
         })
         .with_node_manager(InMemoryNodeManagerBuilder::new(CoreNodeManagerBuilder))
         .with_node_manager(DiagnosticsNodeManagerBuilder)
+        // The companion specifications' types, as published
+        // (`falc_opcua_models`).
+        .with_node_manager(simple_node_manager_imports(
+            vec![
+                Box::new(falc_opcua_models::di::DiNamespace),
+                Box::new(falc_opcua_models::machinery::MachineryNamespace),
+            ],
+            "companion specifications",
+        ))
         .application_name(format!("FALC {what} {name}"))
         .application_uri(format!("urn:falc:{name}:opcua"))
         .product_uri("urn:falc:opcua")

@@ -29,6 +29,7 @@
 //! Objects/FALC/<cell>               cell <cell>, as Objects/FALC of one cell
 //! ```
 
+use crate::machinery::Machine;
 use crate::packml;
 use falc_equipment::Equipment;
 use falc_model::alarm::{Alarm, AlarmClass};
@@ -55,6 +56,9 @@ pub struct Scope {
     pub root: String,
     /// What it is.
     pub part: Part,
+    /// A cell as a machine of OPC UA Machinery (the plant's scope has
+    /// none).
+    pub machine: Option<Machine>,
 }
 
 /// What a [`Scope`] is.
@@ -87,6 +91,7 @@ impl Scope {
                 stations,
                 equipment: BTreeMap::new(),
             },
+            machine: None,
         }]
     }
 
@@ -100,6 +105,7 @@ impl Scope {
             part: Part::Plant {
                 cells: cells.iter().map(|(c, _)| c.clone()).collect(),
             },
+            machine: None,
         }];
         for (id, stations) in cells {
             out.push(Scope {
@@ -109,6 +115,7 @@ impl Scope {
                     stations,
                     equipment: BTreeMap::new(),
                 },
+                machine: None,
             });
         }
         out
@@ -119,6 +126,14 @@ impl Scope {
     pub fn with_equipment(mut self, equipment: BTreeMap<StationName, Arc<Equipment>>) -> Self {
         if let Part::Cell { equipment: e, .. } = &mut self.part {
             *e = equipment;
+        }
+        self
+    }
+
+    /// The same as machine `m` (a cell's scope).
+    pub fn with_machine(mut self, m: Machine) -> Self {
+        if matches!(self.part, Part::Cell { .. }) {
+            self.machine = Some(m);
         }
         self
     }
@@ -196,6 +211,11 @@ pub enum Value {
     Texts(Vec<String>),
     /// DateTime[], as ms since the Unix epoch.
     Times(Vec<i64>),
+    /// LocalizedText (a state machine's CurrentState).
+    Localized(String),
+    /// NodeId of a state object of OPC UA Machinery's namespace (a
+    /// CurrentState's Id).
+    StateId(u32),
 }
 
 /// A folder or object of the layout, and the object it belongs to.
@@ -558,6 +578,9 @@ fn cell_values(
         None => (packml::State::Stopped, Default::default()),
     };
     let (unit_mode, unit_mode_name) = packml::unit_mode(mode);
+    if let Some(m) = &scope.machine {
+        crate::machinery::values(m, look, state, &mut put);
+    }
     let cell_station = stations
         .iter()
         .find(|(_, k)| *k == StationKind::Cell)

@@ -34,6 +34,9 @@ pub const TOPOLOGY: &str = r#"
 cell = "falc1"
 router = "ROUTER"
 lease_ms = 1000
+[identification]
+model = "FALC welding and assembly cell"
+serial_number = "FALC-1992-0001"
 [[station]]
 name = "operator"
 kind = "operator"

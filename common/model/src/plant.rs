@@ -68,6 +68,9 @@ struct RawCell {
     host: Option<IpAddr>,
     #[serde(rename = "station", default)]
     stations: Vec<Station>,
+    /// How the cell names itself as a machine (OPC UA Machinery).
+    #[serde(default)]
+    identification: Option<crate::topology::Identification>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -191,6 +194,7 @@ impl Plant {
                 consoles: raw.consoles,
                 utc_offset: raw.utc_offset.clone(),
                 shifts: raw.shifts.clone(),
+                identification: None,
             },
             origin,
         )?;
@@ -247,6 +251,7 @@ impl Plant {
                     consoles: factory.consoles().to_vec(),
                     utc_offset: raw.utc_offset.clone(),
                     shifts: raw.shifts.clone(),
+                    identification: c.identification,
                 },
                 &format!("{origin}, cell `{id}`"),
             )?;

@@ -123,6 +123,45 @@ pub(crate) struct RawTopology {
     /// The shift calendar (none: planned busy always).
     #[serde(rename = "shift", default)]
     pub(crate) shifts: Vec<RawShift>,
+    /// How the cell names itself as a machine (OPC UA Machinery).
+    #[serde(default)]
+    pub(crate) identification: Option<Identification>,
+}
+
+/// How a cell names itself as a machine to a plant's MES (OPC 40001-1
+/// Machinery's Identification; FALC's version is its software revision):
+/// `[identification]` in the topology, every field optional.
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Identification {
+    /// Who built the cell (default "FALC").
+    #[serde(default = "default_manufacturer")]
+    pub manufacturer: String,
+    /// What kind of cell it is (default "FALC flexible assembly cell").
+    #[serde(default = "default_model")]
+    pub model: String,
+    /// Its serial number (default: the cell id).
+    #[serde(default)]
+    pub serial_number: Option<String>,
+}
+
+fn default_manufacturer() -> String {
+    "FALC".into()
+}
+
+fn default_model() -> String {
+    "FALC flexible assembly cell".into()
+}
+
+impl Identification {
+    /// The defaults, for a topology without `[identification]`.
+    pub fn default_for() -> Self {
+        Self {
+            manufacturer: default_manufacturer(),
+            model: default_model(),
+            serial_number: None,
+        }
+    }
 }
 
 pub(crate) fn default_lease_ms() -> u64 {
@@ -139,6 +178,7 @@ pub struct Topology {
     consoles: Vec<Console>,
     index: BTreeMap<StationName, usize>,
     calendar: Calendar,
+    identification: Identification,
 }
 
 /// The link protocols a router endpoint may use: `tcp` on one machine or a
@@ -351,7 +391,15 @@ impl Topology {
             consoles: raw.consoles,
             index,
             calendar,
+            identification: raw
+                .identification
+                .unwrap_or_else(Identification::default_for),
         })
+    }
+
+    /// How the cell names itself as a machine.
+    pub fn identification(&self) -> &Identification {
+        &self.identification
     }
 
     /// The shift calendar the figures are planned against.
@@ -506,6 +554,24 @@ device = "/dev/ttyS0"
         )
         .expect_err("refused");
         assert!(e.to_string().contains("shift `late` end"), "{e}");
+    }
+
+    #[test]
+    fn a_cell_names_itself_as_a_machine_with_defaults_for_what_it_leaves_out() {
+        let t = Topology::parse(CELL, "cell.toml").expect("valid");
+        assert_eq!(t.identification(), &Identification::default_for());
+        // A table between the top-level keys and the stations.
+        let with = |stanza: &str| CELL.replacen("[[station]]", &format!("{stanza}[[station]]"), 1);
+        let t = Topology::parse(
+            &with("[identification]\nserial_number = \"S-1\"\n"),
+            "cell.toml",
+        )
+        .expect("valid");
+        assert_eq!(t.identification().manufacturer, "FALC");
+        assert_eq!(t.identification().serial_number.as_deref(), Some("S-1"));
+        let e = Topology::parse(&with("[identification]\nvendor = \"x\"\n"), "cell.toml")
+            .expect_err("refused");
+        assert!(e.to_string().contains("unknown field `vendor`"), "{e}");
     }
 
     #[test]

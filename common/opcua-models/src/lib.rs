@@ -1,0 +1,51 @@
+//! The OPC UA companion specifications the gateway serves, as
+//! async-opcua-codegen 0.19.0 generated them from the OPC Foundation's
+//! published NodeSet2 files (`codegen.yml`, `regenerate`; the versions
+//! are named in docs/opcua.md): OPC 10000-100 Devices (DI) 1.04.0 and
+//! OPC 40001-1 Machinery 1.03.0. Nothing under `src/generated` is written
+//! by hand; regenerate it instead of editing it.
+#![allow(
+    missing_docs,
+    non_camel_case_types,
+    unused_imports,
+    clippy::all,
+    clippy::pedantic,
+    clippy::unwrap_used,
+    clippy::expect_used
+)]
+
+#[path = "generated/di/ids.rs"]
+#[doc(hidden)]
+pub mod di_ids;
+#[path = "generated/di/nodeset/mod.rs"]
+mod di_nodeset;
+#[path = "generated/di/types/mod.rs"]
+#[doc(hidden)]
+pub mod di_types;
+#[path = "generated/machinery/ids.rs"]
+#[doc(hidden)]
+pub mod machinery_ids;
+#[path = "generated/machinery/nodeset/mod.rs"]
+mod machinery_nodeset;
+
+/// OPC 10000-100 Devices: the Identification building blocks.
+pub mod di {
+    /// Its node ids (namespace 0 in the `From` impls: give the server's
+    /// index of [`URI`] instead).
+    pub use crate::di_ids as ids;
+    pub use crate::di_nodeset::DiNamespace;
+    /// Its data types.
+    pub use crate::di_types as types;
+    /// Its namespace URI.
+    pub const URI: &str = "http://opcfoundation.org/UA/DI/";
+}
+
+/// OPC 40001-1 Machinery: machines, their identification and states.
+pub mod machinery {
+    /// Its node ids (namespace 0 in the `From` impls: give the server's
+    /// index of [`URI`] instead).
+    pub use crate::machinery_ids as ids;
+    pub use crate::machinery_nodeset::MachineryNamespace;
+    /// Its namespace URI.
+    pub const URI: &str = "http://opcfoundation.org/UA/Machinery/";
+}
