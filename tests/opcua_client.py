@@ -254,7 +254,8 @@ async def plant(url, creds: Path, work: Path, name, cell, other):
         cells=await node("FALC.Orders.Cells").read_value(),
         order=order,
         journal=await node(f"{root}.Journal.Texts").read_value(),
-        other_journal=await node(f"FALC.{other}.Journal.Texts").read_value())
+        other_journal=await node(f"FALC.{other}.Journal.Texts").read_value(),
+        machines={k: v["states"]["item"]["state"] for k, v in (await machines(c)).items()})
     await c.disconnect()
 
 

@@ -666,6 +666,13 @@ fn the_opcua_gateway_serves_the_plant_and_each_cell_with_its_own_state_and_metho
     );
     assert_eq!(p["ids"], serde_json::json!([order]), "{p}");
     assert_eq!(names(&p["cells"]), ["falc2"], "{p}");
+    // Each cell is a machine of OPC UA Machinery, idle again after the
+    // order.
+    assert_eq!(
+        p["machines"],
+        serde_json::json!({"falc1": "NotExecuting", "falc2": "NotExecuting"}),
+        "{p}"
+    );
     // Each cell's journal is its own: cell 2's holds its order's end,
     // cell 1's nothing of it.
     let done = format!("order {order} (dikdroog) done");
