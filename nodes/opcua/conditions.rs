@@ -207,7 +207,7 @@ impl Conditions {
 fn source_of(scope: &Scope, a: &Alarm) -> String {
     match &scope.part {
         space::Part::Cell { stations, .. } if stations.iter().any(|(s, _)| *s == a.station) => {
-            scope.id(&format!("Stations.{}", a.station))
+            space::station_id(scope, &a.station)
         }
         _ => scope.root.clone(),
     }

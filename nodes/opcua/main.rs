@@ -547,9 +547,7 @@ impl Poller {
     /// Asks for every cell's figures of the last day (the Admin values): after
     /// the journal moved, or [`FIGURES_AGE`] after the last time.
     async fn fetch_figures(&mut self, bus: &Bus, operator: &StationName) {
-        let now_ms = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX));
+        let now_ms = falc_node::now_ms();
         let request = ApiRequest::Figures(FigureQuery {
             since_ms: (now_ms - FIGURES_WINDOW_MS).max(0),
             until_ms: None,

@@ -110,7 +110,9 @@ pub fn time(ms: i64) -> DateTime {
 }
 
 /// The OPC UA variant of a value.
-pub fn variant(v: &Value) -> Variant {
+/// The OPC UA value of `v` (a state Id in Machinery's namespace,
+/// `machinery_ns`).
+pub fn variant(v: &Value, machinery_ns: u16) -> Variant {
     match v {
         Value::Bool(b) => Variant::from(*b),
         Value::Byte(b) => Variant::from(*b),
@@ -126,16 +128,9 @@ pub fn variant(v: &Value) -> Variant {
         ),
         Value::Times(v) => Variant::from(v.iter().map(|&ms| time(ms)).collect::<Vec<_>>()),
         Value::Localized(t) => Variant::from(LocalizedText::from(t.as_str())),
-        Value::StateId(n) => Variant::from(NodeId::new(
-            MACHINERY_NS.get().copied().unwrap_or_default(),
-            *n,
-        )),
+        Value::StateId(n) => Variant::from(NodeId::new(machinery_ns, *n)),
     }
 }
-
-/// The server's index of OPC UA Machinery's namespace (set as the
-/// address space is laid out; the state Ids written are in it).
-static MACHINERY_NS: std::sync::OnceLock<u16> = std::sync::OnceLock::new();
 
 impl Nodes {
     fn build(&self, ns: u16, space_: &mut AddressSpace) {
@@ -184,7 +179,7 @@ impl Nodes {
             let b = VariableBuilder::new(&node(ns, &id), qn(name), name)
                 .data_type(dt)
                 .value_rank(rank)
-                .value(variant(&v))
+                .value(variant(&v, self.machinery_ns()))
                 .has_type_definition(VariableTypeId::BaseDataVariableType)
                 .component_of(node(ns, parent));
             let b = if rank == 1 {
@@ -228,6 +223,12 @@ impl Nodes {
     /// Its namespace's index.
     pub fn namespace_index(&self) -> u16 {
         self.namespace.namespace_index
+    }
+
+    /// The index of OPC UA Machinery's namespace (0 while it is missing:
+    /// no machine is laid out then).
+    fn machinery_ns(&self) -> u16 {
+        self.machinery.map_or(0, |n| n.machinery)
     }
 
     /// Carries out one method call on scope `at`'s object as `token`'s
@@ -352,11 +353,10 @@ impl InMemoryNodeManagerImpl for Nodes {
                     .and_then(|w| w.get(at).cloned())
                     .unwrap_or_default();
                 let id = self.scopes[at].id("LastRefusal");
-                let ns = self.namespace.namespace_index;
                 if !write_values(
                     space_,
                     &context.subscriptions,
-                    ns,
+                    self,
                     &[(id, Value::Text(why))],
                 ) {
                     tracing::warn!("OPC UA: LastRefusal not written");
@@ -374,16 +374,17 @@ impl InMemoryNodeManagerImpl for Nodes {
     }
 }
 
-/// Writes values of our namespace `ns` into the address space and
+/// Writes values of `nodes`' namespace into the address space and
 /// notifies their subscribers: the look loop's changes, and a method's
 /// refusal before the method returns. False if a node is missing or not a
 /// variable (nothing after it is written).
 fn write_values(
     space_: &RwLock<AddressSpace>,
     subscriptions: &SubscriptionCache,
-    ns: u16,
+    nodes: &Nodes,
     changes: &[(String, Value)],
 ) -> bool {
+    let (ns, machinery_ns) = (nodes.namespace_index(), nodes.machinery_ns());
     let now = DateTime::now();
     let mut space_ = space_.write();
     let mut written = Vec::new();
@@ -392,7 +393,7 @@ fn write_values(
         match space_.find_mut(&id) {
             Some(NodeType::Variable(v)) => {
                 v.set_data_value(DataValue {
-                    value: Some(variant(value)),
+                    value: Some(variant(value, machinery_ns)),
                     status: Some(StatusCode::Good),
                     source_timestamp: Some(now),
                     server_timestamp: Some(now),
@@ -457,7 +458,7 @@ impl Running {
         write_values(
             self.nodes.address_space(),
             self.subscriptions(),
-            self.ns,
+            self.nodes.inner(),
             changes,
         )
     }
@@ -465,11 +466,8 @@ impl Running {
     /// Scope `at`'s alarm list as the operator gave it: the conditions
     /// that changed are sent to their subscribers.
     pub fn conditions(&self, at: usize, scope: &Scope, alarms: &[falc_model::alarm::Alarm]) {
-        let now_ms = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX));
         let changed = match self.conditions.lock() {
-            Ok(mut c) => c.update(at, scope, alarms, now_ms),
+            Ok(mut c) => c.update(at, scope, alarms, falc_node::now_ms()),
             Err(_) => return,
         };
         condition_methods::notify(self.subscriptions(), self.ns, &changed);
@@ -545,9 +543,7 @@ pub fn build(
                     _ => None,
                 }
             };
-            if let Some(n) = machinery {
-                let _ = MACHINERY_NS.set(n.machinery);
-            } else {
+            if machinery.is_none() {
                 tracing::warn!("OPC UA Machinery's namespace is missing: no machine is laid out");
             }
             Nodes {

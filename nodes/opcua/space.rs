@@ -263,7 +263,8 @@ pub fn layout(scopes: &[Scope]) -> Vec<Object> {
     out
 }
 
-fn station_id(scope: &Scope, name: &StationName) -> String {
+/// The node id of station `name`'s object under `scope`.
+pub fn station_id(scope: &Scope, name: &StationName) -> String {
     scope.id(&format!("Stations.{name}"))
 }
 

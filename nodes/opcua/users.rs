@@ -188,9 +188,7 @@ impl Users {
             None => Err(format!("user \"{}\" is not known", token.0)),
         }
     }
-}
 
-impl Users {
     /// Refuses a login of `who` from client `key` unchecked while the
     /// address is locked (a login already under way when it locked).
     fn unlocked(&self, key: &str, who: &str) -> Result<(), Error> {

@@ -419,6 +419,24 @@ commander = "cell"
     }
 
     #[test]
+    fn each_cell_names_itself_as_a_machine() {
+        let text = PLANT.replace(
+            "uplink = \"tcp/10.1.0.1:7446\"\n",
+            "uplink = \"tcp/10.1.0.1:7446\"\n[cell.identification]\nserial_number = \"S-2\"\n",
+        );
+        let plant = Plant::parse(&text, "factory.toml").expect("plant");
+        let [one, two] = plant.cells() else {
+            panic!("two cells");
+        };
+        assert_eq!(one.topology().identification().serial_number, None);
+        let two = two.topology().identification();
+        assert_eq!(two.serial_number.as_deref(), Some("S-2"));
+        assert_eq!(two.manufacturer, "FALC");
+        let unknown = text.replace("serial_number = \"S-2\"", "serial = \"S-2\"");
+        assert!(refused(&unknown).contains("unknown field `serial`"));
+    }
+
+    #[test]
     fn a_topology_file_is_read_as_a_cell_or_as_a_plant() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch");
         assert!(matches!(

@@ -171,6 +171,14 @@ impl NodeArgs {
     }
 }
 
+/// Milliseconds since the Unix epoch, now (0 before it, saturating far
+/// after it): the time stamps a node's shell hands its sans-I/O core.
+pub fn now_ms() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX))
+}
+
 /// Logs to stderr ([`log_layer`]).
 pub fn init_tracing() {
     use tracing_subscriber::layer::SubscriberExt;
