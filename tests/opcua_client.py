@@ -35,6 +35,18 @@ asserts on them.
       machine's Identification and its MachineryItemState and
       MachineryOperationMode (step "machines-N"), read again after each
       line on stdin.
+  opcua_client.py mes URL CREDENTIALS_DIR WORK_DIR CELL JOB
+      a manufacturing execution system nobody here wrote: finds machine
+      CELL in Machinery's Machines folder and its JobManagement by browse
+      names and type definitions of the Machinery, Job Management and
+      ISA-95 namespaces only, loads ISA-95's data types from the server,
+      reads the Identification and MachineryItemState, calls
+      StoreAndStart with an ISA95JobOrderDataType for dikdroog (job order
+      JOB), follows its state in JobOrderList to Ended (step "stored"
+      after the call, "ended" at the end), reads its job response with
+      RequestJobResponseByJobOrderID and JobOrderResponseList; and the
+      refusals: the same JobOrderID stored twice, an unknown one started,
+      an unknown parameter, an observer's StoreAndStart.
   opcua_client.py siege URL CREDENTIALS_DIR WORK_DIR ATTACKER N
       N wrong passwords for user `opcua` from address ATTACKER (a second
       loopback address) while the real `opcua` logs in from 127.0.0.1 once
@@ -607,6 +619,122 @@ async def machinery(url, creds: Path, work: Path):
     await c.disconnect()
 
 
+JOBS = "http://opcfoundation.org/UA/Machinery/Jobs/"
+ISA95 = "http://opcfoundation.org/UA/ISA95-JOBCONTROL_V2/"
+
+
+def plain(v):
+    """An asyncua value as JSON-friendly data."""
+    if isinstance(v, list):
+        return [plain(x) for x in v]
+    if isinstance(v, ua.LocalizedText):
+        return v.Text
+    if isinstance(v, ua.Variant):
+        return plain(v.Value)
+    if hasattr(v, "__dataclass_fields__"):
+        return {k: plain(getattr(v, k)) for k in v.__dataclass_fields__}
+    if isinstance(v, (str, int, float, bool)) or v is None:
+        return v
+    return str(v)
+
+
+async def job_management(c, cell):
+    """Machine `cell`'s JobOrderControl and JobOrderResults, found by browse
+    names and type definitions in the standards' namespaces."""
+    m = await c.get_namespace_index(MACHINERY)
+    jobs = await c.get_namespace_index(JOBS)
+    isa95 = await c.get_namespace_index(ISA95)
+    folder = await c.nodes.objects.get_child([f"{m}:Machines"])
+    machine = None
+    for node in await folder.get_children(refs=ua.ObjectIds.Organizes):
+        if (await node.read_browse_name()).Name == cell:
+            machine = node
+    management = await machine.get_child([f"{jobs}:JobManagement"])
+    assert await management.read_type_definition() == ua.NodeId(1003, jobs)
+    control = await management.get_child([f"{jobs}:JobOrderControl"])
+    assert await control.read_type_definition() == ua.NodeId(1002, isa95)
+    results = await management.get_child([f"{jobs}:JobOrderResults"])
+    assert await results.read_type_definition() == ua.NodeId(1003, isa95)
+    return control, results, isa95
+
+
+def job_order(job, recipe, parameters):
+    return ua.ISA95JobOrderDataType(
+        JobOrderID=job,
+        WorkMasterID=[ua.ISA95WorkMasterDataType(ID=recipe, Description=ua.LocalizedText("cell recipe"))],
+        Priority=5,
+        JobOrderParameters=[
+            ua.ISA95ParameterDataType(ID=k, Value=ua.Variant(v)) for k, v in parameters
+        ],
+    )
+
+
+async def call(node, isa95, method, *args):
+    """A JobOrderControl method's status code name and ReturnStatus: the
+    Call service itself, since a refused command is Uncertain with its
+    ReturnStatus (OPC 10031-4 B.2), which asyncua's call_method raises."""
+    request = ua.CallMethodRequest()
+    request.ObjectId = node.nodeid
+    request.MethodId = (await node.get_child(f"{isa95}:{method}")).nodeid
+    request.InputArguments = [a if isinstance(a, ua.Variant) else ua.Variant(a) for a in args]
+    result = (await node.session.call([request]))[0]
+    out = [v.Value for v in result.OutputArguments or []]
+    return result.StatusCode.name, out[-1] if out else None, out[:-1]
+
+
+async def mes(url, creds: Path, work: Path, cell, job):
+    pw = users(creds)
+    await admit(url, creds, work)
+    c = await connect(url, work, "console", pw["console"])
+    await c.load_data_type_definitions()
+    machine = (await machines(c))[cell]
+    control, results, isa95 = await job_management(c, cell)
+    job_list = await control.get_child([f"{isa95}:JobOrderList"])
+    response_list = await results.get_child([f"{isa95}:JobOrderResponseList"])
+    no_comment = ua.Variant([], ua.VariantType.LocalizedText)
+
+    # The refusals first: a job order nobody can run.
+    wrong = await call(control, isa95, "StoreAndStart",
+                       job_order(job + "-x", "dikdroog", [("Colour", "red")]), no_comment)
+    unknown = await call(control, isa95, "Start", job + "-nope", no_comment)
+    o = await connect(url, work, "observer", pw["observer"])
+    await o.load_data_type_definitions()
+    ocontrol, _, _ = await job_management(o, cell)
+    observer = await call(ocontrol, isa95, "StoreAndStart",
+                          job_order(job + "-o", "dikdroog", []), no_comment)
+    await o.disconnect()
+
+    states = []
+    changes = Changes()
+    sub = await c.create_subscription(50, changes)
+    await sub.subscribe_data_change([job_list], sampling_interval=0.0)
+    stored = await call(control, isa95, "StoreAndStart",
+                        job_order(job, "dikdroog", [("Count", ua.Variant(1, ua.VariantType.Int32)),
+                                                    ("Cell", cell)]), no_comment)
+    twice = await call(control, isa95, "Store", job_order(job, "dikdroog", []), no_comment)
+    say(step="stored", machine=machine, stored=stored[:2], twice=twice[:2], wrong=wrong[:2],
+        unknown=unknown[:2], observer=observer[:2])
+    began = time.monotonic()
+    while time.monotonic() - began < 240:
+        try:
+            ident, val, at = await asyncio.wait_for(changes.queue.get(), 1)
+        except asyncio.TimeoutError:
+            continue
+        for entry in val or []:
+            if entry.JobOrder.JobOrderID == job:
+                state = entry.State[0].StateText.Text
+                if not states or states[-1] != state:
+                    states.append(state)
+        if states and states[-1] in ("Ended", "Aborted"):
+            break
+    listed = [plain(e) for e in await job_list.read_value() if e.JobOrder.JobOrderID == job]
+    code, status, (response,) = await call(results, isa95, "RequestJobResponseByJobOrderID", job)
+    responses = [plain(r) for r in await response_list.read_value() if r.JobOrderID == job]
+    say(step="ended", states=states, listed=listed, response=plain(response),
+        response_status=[code, status], responses=responses)
+    await c.disconnect()
+
+
 # The address a connection is made from (None: the system's choice): the
 # siege's attacker connects from a second loopback address.
 SOURCE = contextvars.ContextVar("source", default=None)
@@ -706,6 +834,8 @@ def main():
         asyncio.run(conditions(url, creds, work))
     elif what == "machinery":
         asyncio.run(machinery(url, creds, work))
+    elif what == "mes":
+        asyncio.run(mes(url, creds, work, sys.argv[5], sys.argv[6]))
     elif what == "siege":
         asyncio.run(siege(url, creds, work, sys.argv[5], int(sys.argv[6])))
     elif what == "watch":

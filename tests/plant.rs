@@ -699,6 +699,111 @@ fn the_opcua_gateway_serves_the_plant_and_each_cell_with_its_own_state_and_metho
 }
 
 /// The plant's cells as `plant.status()` shows them: cell `cell`'s.
+/// A manufacturing execution system nobody here wrote (Python asyncua)
+/// dispatches a job order to cell 2 of a plant by the standards alone:
+/// OPC 40001-3 Job Management over OPC 10031-4 ISA-95 Job Control. The
+/// job order runs as a FALC order carrying its JobOrderID, and its job
+/// response names the recipe versions and workstation jobs of the order.
+#[test]
+fn a_foreign_mes_dispatches_an_isa95_job_order_to_cell_2_and_reads_its_response() {
+    use crate::support::opcua::{client_of, step};
+    use crate::support::{free_port, Proc};
+    use falc_model::records::OrderState;
+    let plant = TestPlant::start_text(&crate::support::plant::whole_plant());
+    let _one = plant.start_cell_nodes("falc1", "100");
+    let _two = plant.start_cell_nodes("falc2", "100");
+    let _operator = plant.start_operator();
+    let listen = format!("127.0.0.1:{}", free_port());
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_falc-opcua"));
+    cmd.arg("--topology")
+        .arg(&plant.path)
+        .arg("--credentials-dir")
+        .arg(plant.credentials_dir())
+        .args(["--listen", &listen]);
+    let mut gateway = Proc::spawn("opcua", cmd);
+    gateway.expect_line("EVENT ready", Duration::from_secs(30));
+    let job = "MES-4711";
+    let mut c = client_of(
+        "mes",
+        &format!("opc.tcp://{listen}/"),
+        &plant.credentials_dir(),
+        &plant.dir.path().join("opcua-client"),
+        &["falc2", job],
+    );
+    let t = Duration::from_secs(60);
+    let s = step(&mut c, "stored", t);
+    println!("stored: {s}");
+    // The machine as the MES reads it.
+    assert_eq!(
+        s["machine"]["identification_is_machinery_type"], true,
+        "{s}"
+    );
+    assert_eq!(
+        s["machine"]["states"]["item"]["id_in_machinery"], true,
+        "{s}"
+    );
+    // StoreAndStart took the job order: ReturnStatus 1, no error.
+    assert_eq!(s["stored"], serde_json::json!(["Good", 1]), "{s}");
+    // Refused, Uncertain with its ReturnStatus bit: the same id again
+    // (unable to accept), an unknown one (unknown JobOrderID), an unknown
+    // parameter (unable to accept); an observer is denied.
+    assert_eq!(s["twice"], serde_json::json!(["Uncertain", 16]), "{s}");
+    assert_eq!(s["unknown"], serde_json::json!(["Uncertain", 2]), "{s}");
+    assert_eq!(s["wrong"], serde_json::json!(["Uncertain", 16]), "{s}");
+    assert_eq!(s["observer"][0], "BadUserAccessDenied", "{s}");
+    // The cell's operator answers its question; the job order ends.
+    plant.answer_until(Duration::from_secs(240), "the job order's end", || {
+        c.wait_line("\"step\": \"ended\"", Duration::ZERO).is_some()
+    });
+    let e = step(&mut c, "ended", t);
+    println!("ended: {e}");
+    let states: Vec<&str> = e["states"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{e}"))
+        .iter()
+        .filter_map(|s| s.as_str())
+        .collect();
+    assert!(states.contains(&"Running"), "{states:?}");
+    assert_eq!(states.last(), Some(&"Ended"), "{states:?}");
+    // The job response: its state, its times, the cell as equipment, and
+    // the order's recipe versions and workstation jobs.
+    let r = &e["response"];
+    assert_eq!(e["response_status"], serde_json::json!(["Good", 1]), "{e}");
+    assert_eq!(r["JobOrderID"], job, "{e}");
+    assert_eq!(r["JobState"][0]["StateText"], "Ended", "{e}");
+    assert_eq!(r["JobState"][0]["StateNumber"], 5, "{e}");
+    assert_eq!(r["EquipmentActuals"][0]["ID"], "falc2", "{e}");
+    let data = r["JobResponseData"].to_string();
+    for want in [
+        "Recipe",
+        "dikdroog",
+        "RecipeVersion",
+        "DIKDROOG",
+        "Job",
+        "Outcome",
+        "done",
+    ] {
+        assert!(data.contains(want), "{want} in {data}");
+    }
+    assert_eq!(e["responses"][0]["JobOrderID"], job, "{e}");
+    assert_eq!(e["listed"][0]["State"][0]["StateText"], "Ended", "{e}");
+    // FALC's records name the MES's job order.
+    let orders = plant.orders();
+    assert_eq!(
+        orders.len(),
+        1,
+        "only the one job order became an order: {orders:#?}"
+    );
+    let o = &orders[0];
+    assert_eq!(
+        (o.state, o.cell.as_deref(), o.job_order.as_deref()),
+        (OrderState::Done, Some("falc2"), Some(job))
+    );
+    let shown = plant.falc(Some("falc2"), &["order", "show", &o.id.to_string()]);
+    assert!(shown.contains(&format!("job order: {job}")), "{shown}");
+    plant.assert_each_started_once(&orders);
+}
+
 fn cell_status(plant: &TestPlant, cell: &str) -> falc_model::api::CellStatus {
     plant
         .status()

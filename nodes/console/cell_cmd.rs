@@ -78,6 +78,7 @@ pub async fn run(cmd: CellCommand, args: ConsoleArgs) -> ExitCode {
                     cell,
                     priority,
                     due_ms,
+                    job_order: None,
                 },
                 count,
             }

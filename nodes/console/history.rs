@@ -318,6 +318,9 @@ pub fn show_record(r: &OrderRecord) -> String {
             .map(|c| format!("  on {}", printable(c)))
             .unwrap_or_default()
     ));
+    if let Some(job) = &o.job_order {
+        out.push(format!("  job order: {}", printable(job)));
+    }
     if let Some(result) = &o.result {
         out.push(format!("  result: {}", printable(result)));
     }

@@ -30,6 +30,9 @@ pub(crate) fn show_order(o: &Order) -> String {
         (None, Some(wanted)) => line.push_str(&format!("  for {}", printable(wanted))),
         (None, None) => {}
     }
+    if let Some(job) = &o.job_order {
+        line.push_str(&format!("  job order {}", printable(job)));
+    }
     if let Some(r) = &o.result {
         line.push_str(&format!("  ({})", printable(r)));
     }

@@ -39,7 +39,8 @@ impl Machine {
         format!("{MACHINES}.{}.{name}", self.name)
     }
 
-    fn object(&self) -> String {
+    /// Its object's node id.
+    pub fn object(&self) -> String {
         format!("{MACHINES}.{}", self.name)
     }
 }
@@ -53,6 +54,10 @@ pub struct Namespaces {
     pub di: u16,
     /// OPC 40001-1 Machinery.
     pub machinery: u16,
+    /// OPC 10031-4 ISA-95 Job Control.
+    pub isa95: u16,
+    /// OPC 40001-3 Machinery Job Management.
+    pub jobs: u16,
 }
 
 /// A state of a Machinery state machine: its name and its state object in

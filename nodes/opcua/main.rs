@@ -13,10 +13,13 @@
 mod condition_methods;
 mod conditions;
 mod front;
+mod job_management;
+mod jobs;
 mod machinery;
 mod packml;
 mod server;
 mod space;
+mod structures;
 mod throttle;
 mod users;
 
@@ -307,8 +310,16 @@ async fn run(
                 .lock()
                 .map(|s| s.clone())
                 .unwrap_or_default();
+            let cleared = running
+                .cleared_jobs
+                .lock()
+                .map(|c| c.clone())
+                .unwrap_or_default();
             for (at, (scope, mirror)) in scopes.iter().zip(mirrors.iter_mut()).enumerate() {
-                let look = poller.look(at, refusals.get(at).cloned().unwrap_or_default());
+                let look = space::Look {
+                    cleared_jobs: cleared.clone(),
+                    ..poller.look(at, refusals.get(at).cloned().unwrap_or_default())
+                };
                 let alarms = look
                     .status
                     .as_ref()
@@ -491,21 +502,10 @@ impl Poller {
                 return false;
             }
         };
-        // One cell's status answers for the one cell (or a plant's one
-        // cell); a plant's holds each cell's; the plant's object has none.
         let statuses = self
             .scopes
             .iter()
-            .map(|scope| match (&scope.part, &reply) {
-                (Part::Plant { .. }, _) => None,
-                (Part::Cell { .. }, Some(ApiReply::Status(s))) => Some(s.clone()),
-                (Part::Cell { id: Some(id), .. }, Some(ApiReply::Plant(p))) => p
-                    .cells
-                    .iter()
-                    .find(|(c, _)| c == id)
-                    .map(|(_, s)| s.clone()),
-                _ => None,
-            })
+            .map(|scope| space::status_of(scope, reply.as_ref()))
             .collect();
         let moved = self.journal_head != Some(head);
         self.head = Some(head);
@@ -576,6 +576,7 @@ impl Poller {
                 orders: self.orders.clone(),
                 journal: self.journals.get(at).cloned().unwrap_or_default(),
                 last_refusal,
+                cleared_jobs: Vec::new(),
                 figures: self.figures.as_ref().and_then(|(f, _)| {
                     let scope = self.scopes.get(at)?;
                     let Part::Cell { id, .. } = &scope.part else {

@@ -122,6 +122,7 @@ mod tests {
                 wanted: None,
                 priority: 0,
                 due_ms: None,
+                job_order: None,
             }),
             ..idle()
         }

@@ -7,14 +7,17 @@
 
 use crate::condition_methods::{self, ConditionMethods};
 use crate::conditions::Conditions;
+use crate::job_management::{self, JobMethod};
+use crate::jobs;
 use crate::machinery;
 use crate::space::{self, Arg, ArgType, Method, Scope, Value};
+use crate::structures::{self, Structures};
 use crate::users::Users;
 use async_trait::async_trait;
 use falc_bus::credentials;
 use falc_bus::operator_service::{CallError, CALL_LIMIT};
 use falc_bus::Bus;
-use falc_model::api::{ApiReply, ApiRequest};
+use falc_model::api::{ApiReply, ApiRequest, ListState};
 use falc_model::ids::StationName;
 use opcua::server::address_space::{
     AddressSpace, EventNotifier, MethodBuilder, NodeType, ObjectBuilder, VariableBuilder,
@@ -28,9 +31,9 @@ use opcua::server::node_manager::{MethodCall, RequestContext, ServerContext};
 use opcua::server::{Server, ServerBuilder, ServerEndpoint, ServerHandle, SubscriptionCache};
 use opcua::sync::RwLock;
 use opcua::types::{
-    AttributeId, BuildInfo, ByteString, DataTypeId, DataValue, DateTime, LocalizedText, NodeId,
-    ObjectId, ObjectTypeId, QualifiedName, StatusCode, TimestampsToReturn, UAString,
-    VariableTypeId, Variant,
+    AttributeId, BuildInfo, ByteString, DataTypeId, DataValue, DateTime, ExtensionObject,
+    LocalizedText, NodeId, ObjectId, ObjectTypeId, QualifiedName, StatusCode, TimestampsToReturn,
+    UAString, VariableTypeId, Variant,
 };
 use std::os::unix::fs::PermissionsExt;
 use std::path::PathBuf;
@@ -75,7 +78,15 @@ pub struct Nodes {
     /// The namespaces of the cells as machines (None: Machinery's
     /// namespace is missing, and no machine is laid out).
     machinery: Option<machinery::Namespaces>,
+    /// ISA-95's structures (None: its namespace is missing).
+    structures: Option<Arc<Structures>>,
+    /// The JobOrderIDs of the job orders cleared (Clear): no longer
+    /// listed (their orders' records stay).
+    cleared_jobs: ClearedJobs,
 }
+
+/// The JobOrderIDs of the job orders cleared, shared with the look loop.
+pub type ClearedJobs = Arc<std::sync::Mutex<Vec<String>>>;
 
 /// Why the operator refused the last method call on each scope's object
 /// (in the order of the scopes).
@@ -101,6 +112,7 @@ fn data_type(v: &Value) -> (DataTypeId, i32) {
         Value::Times(_) => (DataTypeId::DateTime, 1),
         Value::Localized(_) => (DataTypeId::LocalizedText, -1),
         Value::StateId(_) => (DataTypeId::NodeId, -1),
+        Value::JobOrders(_) | Value::JobResponses(_) => (DataTypeId::Structure, 1),
     }
 }
 
@@ -109,30 +121,56 @@ pub fn time(ms: i64) -> DateTime {
     DateTime::from(chrono::DateTime::<chrono::Utc>::from_timestamp_millis(ms).unwrap_or_default())
 }
 
-/// The OPC UA variant of a value.
-/// The OPC UA value of `v` (a state Id in Machinery's namespace,
-/// `machinery_ns`).
-pub fn variant(v: &Value, machinery_ns: u16) -> Variant {
-    match v {
-        Value::Bool(b) => Variant::from(*b),
-        Value::Byte(b) => Variant::from(*b),
-        Value::Int32(n) => Variant::from(*n),
-        Value::Int64(n) => Variant::from(*n),
-        Value::Text(t) => Variant::from(t.as_str()),
-        Value::Bools(v) => Variant::from(v.clone()),
-        Value::Int64s(v) => Variant::from(v.clone()),
-        Value::Texts(v) => Variant::from(
-            v.iter()
-                .map(|t| UAString::from(t.as_str()))
-                .collect::<Vec<_>>(),
-        ),
-        Value::Times(v) => Variant::from(v.iter().map(|&ms| time(ms)).collect::<Vec<_>>()),
-        Value::Localized(t) => Variant::from(LocalizedText::from(t.as_str())),
-        Value::StateId(n) => Variant::from(NodeId::new(machinery_ns, *n)),
-    }
-}
-
 impl Nodes {
+    /// The OPC UA value of `v` (a state Id in Machinery's namespace,
+    /// job orders as ISA-95's structures).
+    pub fn variant(&self, v: &Value) -> Variant {
+        match v {
+            Value::Bool(b) => Variant::from(*b),
+            Value::Byte(b) => Variant::from(*b),
+            Value::Int32(n) => Variant::from(*n),
+            Value::Int64(n) => Variant::from(*n),
+            Value::Text(t) => Variant::from(t.as_str()),
+            Value::Bools(v) => Variant::from(v.clone()),
+            Value::Int64s(v) => Variant::from(v.clone()),
+            Value::Texts(v) => Variant::from(
+                v.iter()
+                    .map(|t| UAString::from(t.as_str()))
+                    .collect::<Vec<_>>(),
+            ),
+            Value::Times(v) => Variant::from(v.iter().map(|&ms| time(ms)).collect::<Vec<_>>()),
+            Value::Localized(t) => Variant::from(LocalizedText::from(t.as_str())),
+            Value::StateId(n) => Variant::from(NodeId::new(self.machinery_ns(), *n)),
+            Value::JobOrders(jobs) => self.structures_of(jobs, |s, j| s.job_order_and_state(j)),
+            Value::JobResponses(jobs) => {
+                self.structures_of(jobs, |s, j| s.response(&jobs::response(j, None, &[])))
+            }
+        }
+    }
+
+    /// An array of a structure per job order (empty, and a warning, if
+    /// one cannot be made).
+    fn structures_of(
+        &self,
+        jobs: &[jobs::Job],
+        make: impl Fn(&Structures, &jobs::Job) -> Result<ExtensionObject, String>,
+    ) -> Variant {
+        let Some(s) = &self.structures else {
+            return Variant::from(Vec::<ExtensionObject>::new());
+        };
+        match jobs
+            .iter()
+            .map(|j| make(s, j))
+            .collect::<Result<Vec<_>, _>>()
+        {
+            Ok(all) => Variant::from(all),
+            Err(why) => {
+                tracing::warn!("OPC UA job orders not served: {why}");
+                Variant::from(Vec::<ExtensionObject>::new())
+            }
+        }
+    }
+
     fn build(&self, ns: u16, space_: &mut AddressSpace) {
         // Browse names in the gateway's namespace (`2:FALC`).
         let qn = |name: &str| QualifiedName::new(ns, name);
@@ -162,6 +200,7 @@ impl Nodes {
             self.build_scope(ns, scope, space_);
             if let (Some(m), Some(namespaces)) = (&scope.machine, self.machinery) {
                 machinery::build(space_, namespaces, m);
+                job_management::build(space_, namespaces, m);
             }
         }
     }
@@ -179,7 +218,7 @@ impl Nodes {
             let b = VariableBuilder::new(&node(ns, &id), qn(name), name)
                 .data_type(dt)
                 .value_rank(rank)
-                .value(variant(&v, self.machinery_ns()))
+                .value(self.variant(&v))
                 .has_type_definition(VariableTypeId::BaseDataVariableType)
                 .component_of(node(ns, parent));
             let b = if rank == 1 {
@@ -298,6 +337,265 @@ impl Nodes {
         }
     }
 
+    /// The scope whose machine is `m`.
+    fn scope_of(&self, m: &machinery::Machine) -> Option<usize> {
+        self.scopes
+            .iter()
+            .position(|s| s.machine.as_ref() == Some(m))
+    }
+
+    /// The machine method node `id` is, and its scope.
+    fn job_method(&self, id: &NodeId) -> Option<(usize, JobMethod)> {
+        if id.namespace != self.namespace_index() {
+            return None;
+        }
+        let opcua::types::Identifier::String(text) = &id.identifier else {
+            return None;
+        };
+        let (m, j) = job_management::method(
+            text.as_ref(),
+            self.scopes.iter().filter_map(|s| s.machine.as_ref()),
+        )?;
+        Some((self.scope_of(m)?, j))
+    }
+
+    /// Asks the operator `request` for scope `at`'s cell.
+    async fn ask(&self, at: usize, request: ApiRequest) -> Result<ApiReply, CallError> {
+        let cell = self.scopes.get(at).and_then(|s| s.cell().cloned());
+        self.bus
+            .clone()
+            .for_cell(cell)
+            .api(&self.operator, request, CALL_LIMIT)
+            .await
+    }
+
+    /// Scope `at`'s job orders now, with its list's state.
+    async fn jobs_now(&self, at: usize) -> Result<(Vec<jobs::Job>, ListState), String> {
+        let scope = &self.scopes[at];
+        // The whole plant's status and order list, as the look loop asks.
+        let status = self
+            .bus
+            .api(&self.operator, ApiRequest::Status, CALL_LIMIT)
+            .await
+            .map_err(|e| e.to_string())?;
+        let status = space::status_of(scope, Some(&status))
+            .ok_or_else(|| format!("no status of {}", scope.root))?;
+        let Ok(ApiReply::Orders(orders)) = self
+            .bus
+            .api(&self.operator, ApiRequest::OrderList, CALL_LIMIT)
+            .await
+        else {
+            return Err("the operator gave no order list".into());
+        };
+        let mine = space::cell_orders(scope.cell(), &orders);
+        Ok((jobs::jobs(&mine, status.list, status.mode), status.list))
+    }
+
+    /// A job command or request FALC refuses: Uncertain, with ReturnStatus
+    /// `bits`, and `why` in a warning and in `LastRefusal`.
+    fn refuse_job(
+        &self,
+        token: &opcua::server::authenticator::UserToken,
+        at: usize,
+        what: &str,
+        bits: u64,
+        why: String,
+    ) -> (StatusCode, u64) {
+        tracing::warn!(user = token.0, "OPC UA {what}: {why}");
+        self.refused(at, why);
+        (StatusCode::Uncertain, bits)
+    }
+
+    /// Carries out JobManagement method `j` of scope `at`'s machine as
+    /// `token`'s user: its status code and outputs. A command FALC
+    /// refuses is Uncertain, its ReturnStatus saying why in bits and
+    /// `LastRefusal` in words (OPC 10031-4 B.2).
+    async fn call_job(
+        &self,
+        token: &opcua::server::authenticator::UserToken,
+        at: usize,
+        j: JobMethod,
+        args: &[Variant],
+    ) -> (StatusCode, Vec<Variant>) {
+        let Some(structures) = self.structures.clone() else {
+            return (StatusCode::BadNotSupported, Vec::new());
+        };
+        let scope = &self.scopes[at];
+        let what = format!("{}.{}", scope.root, j.name());
+        let refuse = |bits: u64, why: String| self.refuse_job(token, at, &what, bits, why);
+        // Reading job responses is an observer's; commands an operator's.
+        let needs = match j {
+            JobMethod::Control(_) => falc_model::api::Call::OrderAdd,
+            _ => falc_model::api::Call::OrderShow,
+        };
+        if let Err(why) = self.users.may(token, needs) {
+            tracing::warn!("OPC UA {what}: {why}");
+            self.refused(at, why);
+            return (StatusCode::BadUserAccessDenied, Vec::new());
+        }
+        let (jobs_now, list) = match self.jobs_now(at).await {
+            Ok(j) => j,
+            Err(why) => {
+                tracing::warn!("OPC UA {what}: {why}");
+                self.refused(at, why);
+                return (StatusCode::BadCommunicationError, Vec::new());
+            }
+        };
+        match j {
+            JobMethod::Control(command) => {
+                let (code, bits) = self
+                    .command(token, at, command, args, &jobs_now, list, &structures)
+                    .await;
+                (code, vec![Variant::from(bits)])
+            }
+            JobMethod::ResponseById => {
+                let job = args
+                    .first()
+                    .map(structures::job_order_id)
+                    .transpose()
+                    .ok()
+                    .flatten()
+                    .and_then(|id| jobs_now.into_iter().find(|j| j.id == id));
+                let Some(job) = job else {
+                    let (code, bits) =
+                        refuse(jobs::status::UNKNOWN_JOB_ORDER, "no such job order".into());
+                    return (code, vec![ExtensionObject::null().into(), bits.into()]);
+                };
+                let response = self.response(at, &job, &structures).await;
+                match response {
+                    Ok(r) => (
+                        StatusCode::Good,
+                        vec![r.into(), Variant::from(jobs::status::NO_ERROR)],
+                    ),
+                    Err(why) => {
+                        let (code, bits) = refuse(jobs::status::INVALID_REQUEST, why);
+                        (code, vec![ExtensionObject::null().into(), bits.into()])
+                    }
+                }
+            }
+            JobMethod::ResponseByState => {
+                let wanted: Vec<u32> = match args.first() {
+                    Some(Variant::Array(a)) => a
+                        .values
+                        .iter()
+                        .filter_map(structures::state_number)
+                        .collect(),
+                    _ => Vec::new(),
+                };
+                let mut out = Vec::new();
+                for job in jobs_now
+                    .iter()
+                    .filter(|j| wanted.contains(&j.state.number()))
+                {
+                    match self.response(at, job, &structures).await {
+                        Ok(r) => out.push(r),
+                        Err(why) => {
+                            let (code, bits) = refuse(jobs::status::INVALID_REQUEST, why);
+                            return (code, vec![Variant::from(out), bits.into()]);
+                        }
+                    }
+                }
+                (
+                    StatusCode::Good,
+                    vec![Variant::from(out), Variant::from(jobs::status::NO_ERROR)],
+                )
+            }
+        }
+    }
+
+    /// One of JobOrderControl's commands: checked, planned (`jobs::plan`)
+    /// and carried out call by call.
+    #[allow(clippy::too_many_arguments)]
+    async fn command(
+        &self,
+        token: &opcua::server::authenticator::UserToken,
+        at: usize,
+        command: jobs::Command,
+        args: &[Variant],
+        jobs_now: &[jobs::Job],
+        list: ListState,
+        structures: &Structures,
+    ) -> (StatusCode, u64) {
+        use jobs::status::*;
+        let scope = &self.scopes[at];
+        let what = format!("{}.{}", scope.root, command.name());
+        let refuse = |bits: u64, why: String| self.refuse_job(token, at, &what, bits, why);
+        let cell = scope.cell();
+        let first = args.first().unwrap_or(&Variant::Empty);
+        let (order, id) = if command.takes_job_order() {
+            match structures::job_order(first, structures.isa95())
+                .and_then(|j| jobs::JobOrder::check(&j, cell))
+            {
+                Ok(o) => {
+                    let id = o.id.clone();
+                    (Some(o), id)
+                }
+                Err(why) => return refuse(UNABLE_TO_ACCEPT, why),
+            }
+        } else {
+            match structures::job_order_id(first) {
+                Ok(id) => (None, id),
+                Err(why) => return refuse(INVALID_REQUEST, why),
+            }
+        };
+        let calls = match jobs::plan(command, order.as_ref(), &id, cell, jobs_now, list) {
+            Ok(calls) => calls,
+            Err((bits, why)) => return refuse(bits, why),
+        };
+        for call in &calls {
+            if let Err(why) = self.users.may(token, call.call()) {
+                tracing::warn!("OPC UA {}: {why}", command.name());
+                self.refused(at, why);
+                return (StatusCode::BadUserAccessDenied, INVALID_REQUEST);
+            }
+        }
+        tracing::info!(
+            user = token.0,
+            "OPC UA job order {id}: {} = {calls:?}",
+            command.name()
+        );
+        for call in calls {
+            let adds = matches!(call, ApiRequest::OrderAdd { .. });
+            let result = self.ask(at, call).await;
+            self.poked.notify_one();
+            if let Err(e) = result {
+                let bits = if adds {
+                    UNABLE_TO_ACCEPT
+                } else {
+                    INVALID_STATUS
+                };
+                return refuse(bits, format!("job order {id}: {e}"));
+            }
+        }
+        if command == jobs::Command::Clear {
+            if let Ok(mut c) = self.cleared_jobs.lock() {
+                c.push(id);
+            }
+            self.poked.notify_one();
+        }
+        (StatusCode::Good, NO_ERROR)
+    }
+
+    /// The job response of `job` on scope `at`'s machine, with its
+    /// orders' records.
+    async fn response(
+        &self,
+        at: usize,
+        job: &jobs::Job,
+        structures: &Structures,
+    ) -> Result<ExtensionObject, String> {
+        let mut records = Vec::new();
+        for &id in &job.orders {
+            match self.ask(at, ApiRequest::OrderShow { id }).await {
+                Ok(ApiReply::OrderRecord(r)) => records.push(*r),
+                Ok(other) => return Err(format!("order {id}: the operator answered {other:?}")),
+                Err(e) => return Err(format!("order {id}: {e}")),
+            }
+        }
+        let cell = self.scopes[at].cell();
+        structures.response(&jobs::response(job, cell, &records))
+    }
+
     fn refused(&self, at: usize, why: String) {
         if let Ok(mut last) = self.last_refusals.lock() {
             if let Some(slot) = last.get_mut(at) {
@@ -313,6 +611,28 @@ impl Nodes {
             .iter()
             .enumerate()
             .find_map(|(at, scope)| Some((at, scope.method(id)?)))
+    }
+}
+
+impl Nodes {
+    /// Writes scope `at`'s `LastRefusal` before the method returns, so a
+    /// client reading it at once reads this refusal's words.
+    fn write_refusal(&self, context: &RequestContext, space_: &RwLock<AddressSpace>, at: usize) {
+        let why = self
+            .last_refusals
+            .lock()
+            .ok()
+            .and_then(|w| w.get(at).cloned())
+            .unwrap_or_default();
+        let id = self.scopes[at].id("LastRefusal");
+        if !write_values(
+            space_,
+            &context.subscriptions,
+            self,
+            &[(id, Value::Text(why))],
+        ) {
+            tracing::warn!("OPC UA: LastRefusal not written");
+        }
     }
 }
 
@@ -337,6 +657,16 @@ impl InMemoryNodeManagerImpl for Nodes {
         methods: &mut [&mut &mut MethodCall],
     ) -> Result<(), StatusCode> {
         for call in methods {
+            if let Some((at, j)) = self.job_method(call.method_id()) {
+                let args = call.arguments().to_vec();
+                let (code, outputs) = self.call_job(&context.token, at, j, &args).await;
+                self.write_refusal(context, space_, at);
+                if !outputs.is_empty() {
+                    call.set_outputs(outputs);
+                }
+                call.set_status(code);
+                continue;
+            }
             let Some((at, m)) = self.method(call.method_id()) else {
                 call.set_status(StatusCode::BadMethodInvalid);
                 continue;
@@ -344,23 +674,7 @@ impl InMemoryNodeManagerImpl for Nodes {
             let args = call.arguments().to_vec();
             let result = self.call_one(&context.token, at, m, &args).await;
             if result.is_err() {
-                // `LastRefusal` says why before the method returns, so a
-                // client reading it at once reads this refusal's words.
-                let why = self
-                    .last_refusals
-                    .lock()
-                    .ok()
-                    .and_then(|w| w.get(at).cloned())
-                    .unwrap_or_default();
-                let id = self.scopes[at].id("LastRefusal");
-                if !write_values(
-                    space_,
-                    &context.subscriptions,
-                    self,
-                    &[(id, Value::Text(why))],
-                ) {
-                    tracing::warn!("OPC UA: LastRefusal not written");
-                }
+                self.write_refusal(context, space_, at);
             }
             match result {
                 Ok(text) => {
@@ -384,7 +698,7 @@ fn write_values(
     nodes: &Nodes,
     changes: &[(String, Value)],
 ) -> bool {
-    let (ns, machinery_ns) = (nodes.namespace_index(), nodes.machinery_ns());
+    let ns = nodes.namespace_index();
     let now = DateTime::now();
     let mut space_ = space_.write();
     let mut written = Vec::new();
@@ -393,7 +707,7 @@ fn write_values(
         match space_.find_mut(&id) {
             Some(NodeType::Variable(v)) => {
                 v.set_data_value(DataValue {
-                    value: Some(variant(value, machinery_ns)),
+                    value: Some(nodes.variant(value)),
                     status: Some(StatusCode::Good),
                     source_timestamp: Some(now),
                     server_timestamp: Some(now),
@@ -435,6 +749,8 @@ pub struct Running {
     pub last_refusals: LastRefusals,
     /// The alarms' conditions.
     pub conditions: Arc<std::sync::Mutex<Conditions>>,
+    /// The job orders cleared.
+    pub cleared_jobs: ClearedJobs,
 }
 
 impl Running {
@@ -516,6 +832,8 @@ pub fn build(
     let poked = Arc::new(Notify::new());
     let last_refusals = Arc::new(std::sync::Mutex::new(vec![String::new(); scopes.len()]));
     let (poked2, refusal2) = (poked.clone(), last_refusals.clone());
+    let cleared_jobs = ClearedJobs::default();
+    let cleared2 = cleared_jobs.clone();
     let users2 = users.clone();
     let namespace_uri = uri.clone();
     let manager = InMemoryNodeManagerBuilder::new(
@@ -534,20 +852,40 @@ pub fn build(
                 match (
                     of(falc_opcua_models::di::URI),
                     of(falc_opcua_models::machinery::URI),
+                    of(falc_opcua_models::isa95::URI),
+                    of(falc_opcua_models::jobs::URI),
                 ) {
-                    (Some(di), Some(m)) => Some(machinery::Namespaces {
+                    (Some(di), Some(m), Some(isa95), Some(jobs)) => Some(machinery::Namespaces {
                         own: index,
                         di,
                         machinery: m,
+                        isa95,
+                        jobs,
                     }),
                     _ => None,
                 }
             };
             if machinery.is_none() {
-                tracing::warn!("OPC UA Machinery's namespace is missing: no machine is laid out");
+                tracing::warn!("OPC UA Machinery's namespaces are missing: no machine is laid out");
+            }
+            // ISA-95's structures, decoded in requests and encoded in
+            // values from their definitions (`structures`).
+            let structures = Structures::load(
+                context.type_tree.read().namespaces(),
+                &[
+                    &opcua::server::address_space::CoreNamespace,
+                    &falc_opcua_models::isa95::Isa95JobControlNamespace,
+                ],
+            )
+            .map(Arc::new);
+            match &structures {
+                Some(s) => context.info.add_type_loader(s.loader()),
+                None => tracing::warn!("OPC UA ISA-95's namespace is missing: no job orders"),
             }
             Nodes {
                 machinery,
+                structures,
+                cleared_jobs: cleared2,
                 namespace: NamespaceMetadata {
                     namespace_uri: namespace_uri.clone(),
                     namespace_index: index,
@@ -581,6 +919,8 @@ pub fn build(
             vec![
                 Box::new(falc_opcua_models::di::DiNamespace),
                 Box::new(falc_opcua_models::machinery::MachineryNamespace),
+                Box::new(falc_opcua_models::isa95::Isa95JobControlNamespace),
+                Box::new(falc_opcua_models::jobs::MachineryJobsNamespace),
             ],
             "companion specifications",
         ))
@@ -675,6 +1015,7 @@ pub fn build(
             poked,
             last_refusals,
             conditions,
+            cleared_jobs,
         },
     ))
 }

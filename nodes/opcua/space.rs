@@ -33,7 +33,7 @@ use crate::machinery::Machine;
 use crate::packml;
 use falc_equipment::Equipment;
 use falc_model::alarm::{Alarm, AlarmClass};
-use falc_model::api::{ApiRequest, Call, CellStatus};
+use falc_model::api::{ApiReply, ApiRequest, Call, CellStatus};
 use falc_model::figures::CellFigures;
 use falc_model::ids::{CellId, StationName};
 use falc_model::mms::vmd::VmdStatus;
@@ -216,6 +216,10 @@ pub enum Value {
     /// NodeId of a state object of OPC UA Machinery's namespace (a
     /// CurrentState's Id).
     StateId(u32),
+    /// ISA95JobOrderAndStateDataType[]: a machine's job orders.
+    JobOrders(Vec<crate::jobs::Job>),
+    /// ISA95JobResponseDataType[]: the responses of these job orders.
+    JobResponses(Vec<crate::jobs::Job>),
 }
 
 /// A folder or object of the layout, and the object it belongs to.
@@ -422,6 +426,8 @@ pub struct Look {
     pub last_refusal: String,
     /// This cell's figures of the last day (None: not known yet).
     pub figures: Option<CellFigures>,
+    /// The JobOrderIDs of job orders cleared (no longer listed).
+    pub cleared_jobs: Vec<String>,
 }
 
 /// Every value of `scope`'s part of the address space for this look: node
@@ -557,6 +563,36 @@ fn admin_values(
     );
 }
 
+/// The orders of `cell` (a cell of a plant of several, None: the one
+/// cell) among `orders`: a cell of a plant serves the orders it runs or
+/// ran, or that wait for it.
+pub fn cell_orders<'a>(cell: Option<&CellId>, orders: &'a [Order]) -> Vec<&'a Order> {
+    orders
+        .iter()
+        .filter(|o| {
+            cell.map_or(true, |c| {
+                o.cell.as_deref().or(o.wanted.as_deref()) == Some(c.as_str())
+            })
+        })
+        .collect()
+}
+
+/// Scope `scope`'s status in the operator's answer to `status`: one
+/// cell's status answers for the one cell (or a plant's one cell); a
+/// plant's holds each cell's; the plant's object has none.
+pub fn status_of(scope: &Scope, reply: Option<&ApiReply>) -> Option<CellStatus> {
+    match (&scope.part, reply) {
+        (Part::Plant { .. }, _) => None,
+        (Part::Cell { .. }, Some(ApiReply::Status(s))) => Some(s.clone()),
+        (Part::Cell { id: Some(id), .. }, Some(ApiReply::Plant(p))) => p
+            .cells
+            .iter()
+            .find(|(c, _)| c == id)
+            .map(|(_, s)| s.clone()),
+        _ => None,
+    }
+}
+
 /// A cell object's values (`cell`: which cell of a plant of several).
 fn cell_values(
     scope: &Scope,
@@ -579,9 +615,6 @@ fn cell_values(
         None => (packml::State::Stopped, Default::default()),
     };
     let (unit_mode, unit_mode_name) = packml::unit_mode(mode);
-    if let Some(m) = &scope.machine {
-        crate::machinery::values(m, look, state, &mut put);
-    }
     let cell_station = stations
         .iter()
         .find(|(_, k)| *k == StationKind::Cell)
@@ -620,14 +653,11 @@ fn cell_values(
     );
     put(r("LastRefusal"), Value::Text(look.last_refusal.clone()));
 
-    // A cell of a plant serves the orders it runs or ran, or that wait
-    // for it.
-    let mine = |o: &&Order| {
-        cell.map_or(true, |c| {
-            o.cell.as_deref().or(o.wanted.as_deref()) == Some(c.as_str())
-        })
-    };
-    let orders: Vec<&Order> = look.orders.iter().filter(mine).collect();
+    let orders = cell_orders(cell, &look.orders);
+    if let Some(m) = &scope.machine {
+        crate::machinery::values(m, look, state, &mut put);
+        crate::job_management::values(m, look, &orders, &mut put);
+    }
     order_values(scope, &orders, &mut put);
     admin_values(scope, &orders, s, look.figures.as_ref(), &mut put);
 
@@ -986,6 +1016,7 @@ mod tests {
                 wanted: None,
                 priority: 0,
                 due_ms: None,
+                job_order: None,
             }),
             queued: 2,
             question: Some("Gereed?".into()),

@@ -191,11 +191,12 @@ fn version_of(row: &Row<'_>) -> rusqlite::Result<RecipeVersion> {
 /// made before gets them at open (`ALTER TABLE … ADD COLUMN`), its orders
 /// reading as placed by default (any cell, priority 0, no due time).
 /// An alarm or journal entry with no cell is of the one cell there was.
-const ADDED_COLUMNS: [(&str, &str, &str); 6] = [
+const ADDED_COLUMNS: [(&str, &str, &str); 7] = [
     ("orders", "cell", "TEXT"),
     ("orders", "wanted", "TEXT"),
     ("orders", "priority", "INTEGER NOT NULL DEFAULT 0"),
     ("orders", "due_ms", "INTEGER"),
+    ("orders", "job_order", "TEXT"),
     ("journal", "cell", "TEXT"),
     ("alarms", "cell", "TEXT"),
 ];
@@ -232,7 +233,8 @@ fn alarm_of(row: &Row<'_>) -> rusqlite::Result<Alarm> {
 }
 
 const ORDER_COLUMNS: &str =
-    "id, recipe, state, added_by, started_ms, ended_ms, result, cell, wanted, priority, due_ms";
+    "id, recipe, state, added_by, started_ms, ended_ms, result, cell, wanted, priority, due_ms, \
+     job_order";
 
 fn order_of(row: &Row<'_>) -> rusqlite::Result<Order> {
     let state: String = row.get(2)?;
@@ -249,6 +251,7 @@ fn order_of(row: &Row<'_>) -> rusqlite::Result<Order> {
         wanted: row.get(8)?,
         priority: row.get(9)?,
         due_ms: row.get(10)?,
+        job_order: row.get(11)?,
     })
 }
 
@@ -483,15 +486,17 @@ impl Records for Database {
     ) -> Result<Order, Self::Error> {
         self.conn
             .execute(
-                "INSERT INTO orders (recipe, state, added_by, added_ms, wanted, priority, due_ms) \
-                 VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6)",
+                "INSERT INTO orders \
+                 (recipe, state, added_by, added_ms, wanted, priority, due_ms, job_order) \
+                 VALUES (?1, 'queued', ?2, ?3, ?4, ?5, ?6, ?7)",
                 params![
                     recipe,
                     who,
                     self.now,
                     placement.cell.as_ref().map(|c| c.as_str()),
                     placement.priority,
-                    placement.due_ms
+                    placement.due_ms,
+                    placement.job_order
                 ],
             )
             .map_err(self.fail("cannot add an order"))?;
@@ -1188,6 +1193,7 @@ mod tests {
         cell: None,
         priority: 0,
         due_ms: None,
+        job_order: None,
     };
 
     /// The file's dispatch order is the model's ([`Order::dispatch_key`]
@@ -1208,6 +1214,7 @@ mod tests {
                     .map(|c| falc_model::ids::CellId::new(c).expect("id")),
                 priority: (next() % 5) as i32 - 2,
                 due_ms: (next() % 2 == 0).then(|| next() % 4),
+                job_order: None,
             };
             db.add_order("dikdroog", "ann", &placement).expect("add");
         }
@@ -1362,14 +1369,35 @@ mod tests {
             .expect("next")
             .expect("the old order");
         assert_eq!(
-            (o.recipe.as_str(), o.priority, o.due_ms, o.wanted, o.cell),
-            ("dikdroog", 0, None, None, None)
+            (
+                o.recipe.as_str(),
+                o.priority,
+                o.due_ms,
+                o.wanted,
+                o.cell,
+                o.job_order
+            ),
+            ("dikdroog", 0, None, None, None, None)
         );
         db.set_running(o.id, "falc1", &[]).expect("run");
+        // An order of a manufacturing execution system's job order keeps
+        // its JobOrderID.
+        let job = db
+            .add_order(
+                "dikdroog",
+                "opcua",
+                &Placement {
+                    job_order: Some("MES-4711".into()),
+                    ..ANY
+                },
+            )
+            .expect("add");
         drop(db);
         let db = Database::open(&path, "falc1").expect("opened again");
         let o = db.order(o.id).expect("read").expect("there");
         assert_eq!(o.cell.as_deref(), Some("falc1"));
+        let job = db.order(job.id).expect("read").expect("there");
+        assert_eq!(job.job_order.as_deref(), Some("MES-4711"));
     }
 
     #[test]

@@ -415,6 +415,7 @@ pub mod memory {
                 wanted: placement.cell.as_ref().map(|c| c.to_string()),
                 priority: placement.priority,
                 due_ms: placement.due_ms,
+                job_order: placement.job_order.clone(),
             };
             self.orders.push(o.clone());
             self.live.insert(id);
@@ -1016,6 +1017,7 @@ mod tests {
             cell: cell.map(|c| CellId::new(c).expect("id")),
             priority,
             due_ms,
+            job_order: None,
         };
         let mut add = |p: Placement| m.add_order("dikdroog", "ann", &p).expect("add").id;
         let plain = add(place(None, 0, None));

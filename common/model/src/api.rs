@@ -250,7 +250,14 @@ pub struct Placement {
     pub priority: i32,
     /// When it is due (ms since the Unix epoch), if it is.
     pub due_ms: Option<i64>,
+    /// The job order of a manufacturing execution system it carries out
+    /// (its ISA-95 JobOrderID, at most [`MAX_JOB_ORDER_CHARS`]), kept in
+    /// the order's record.
+    #[serde(default)]
+    pub job_order: Option<String>,
 }
+/// The longest job order id an order may carry, in characters.
+pub const MAX_JOB_ORDER_CHARS: usize = 64;
 /// The longest cell recipe name an order may name, in characters.
 pub const MAX_RECIPE_NAME_CHARS: usize = 32;
 /// The latest time a `figures` range may reach: 2100-01-01 UTC (the
@@ -298,6 +305,19 @@ impl ApiRequest {
                 return Err(format!(
                     "priority {} is outside -{MAX_PRIORITY} to {MAX_PRIORITY}",
                     placement.priority
+                ));
+            }
+            Self::OrderAdd { placement, .. }
+                if placement.job_order.as_ref().is_some_and(|j| {
+                    j.is_empty()
+                        || j.chars().count() > MAX_JOB_ORDER_CHARS
+                        || j.chars().any(crate::ids::unprintable)
+                }) =>
+            {
+                return Err(format!(
+                    "job order id \"{}\" is empty, longer than {MAX_JOB_ORDER_CHARS} characters \
+                     or holds a control character: refused",
+                    excerpt(placement.job_order.as_deref().unwrap_or_default())
                 ));
             }
             Self::RecipePut { message, .. } | Self::RecipeRollback { message, .. }
@@ -503,6 +523,7 @@ mod tests {
                 cell: None,
                 priority,
                 due_ms: None,
+                job_order: None,
             },
             count,
         };
@@ -519,6 +540,20 @@ mod tests {
         for p in [i32::MIN, i32::MIN + 1, -100, i32::MAX] {
             let e = add(1, p).check_limits().expect_err("out of range");
             assert!(e.contains(&format!("priority {p}")), "{e}");
+        }
+        // A job order id: not empty, not too long, no control characters.
+        let job = |id: &str| ApiRequest::OrderAdd {
+            recipe: "dikdroog".into(),
+            placement: Placement {
+                job_order: Some(id.into()),
+                ..Placement::default()
+            },
+            count: 1,
+        };
+        assert!(job("MES-4711").check_limits().is_ok());
+        for bad in ["", "a\nb", &"x".repeat(MAX_JOB_ORDER_CHARS + 1)] {
+            let e = job(bad).check_limits().expect_err("refused");
+            assert!(e.contains("job order id"), "{e}");
         }
     }
 

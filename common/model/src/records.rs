@@ -82,6 +82,10 @@ pub struct Order {
     pub priority: i32,
     /// When it is due (ms since the Unix epoch), if it is.
     pub due_ms: Option<i64>,
+    /// The job order of a manufacturing execution system it carries out
+    /// (its ISA-95 JobOrderID), if it was added for one.
+    #[serde(default)]
+    pub job_order: Option<String>,
 }
 
 impl Order {

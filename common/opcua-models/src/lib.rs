@@ -1,9 +1,14 @@
 //! The OPC UA companion specifications the gateway serves, as
 //! async-opcua-codegen 0.19.0 generated them from the OPC Foundation's
 //! published NodeSet2 files (`codegen.yml`, `regenerate`; the versions
-//! are named in docs/opcua.md): OPC 10000-100 Devices (DI) 1.04.0 and
-//! OPC 40001-1 Machinery 1.03.0. Nothing under `src/generated` is written
-//! by hand; regenerate it instead of editing it.
+//! are named in docs/opcua.md): OPC 10000-100 Devices (DI) 1.04.0,
+//! OPC 40001-1 Machinery 1.03.0, OPC 10031-4 ISA-95 Job Control 2.0.0 and
+//! OPC 40001-3 Machinery Job Management 1.0.1. Nothing under
+//! `src/generated` is written by hand; regenerate it instead of editing
+//! it. ISA-95's and Job Management's data types are not generated as Rust
+//! types (async-opcua-codegen 0.19 ignores optional fields, which their
+//! structures have): the gateway decodes and encodes them from their
+//! DataTypeDefinitions at run time.
 #![allow(
     missing_docs,
     non_camel_case_types,
@@ -22,6 +27,16 @@ mod di_nodeset;
 #[path = "generated/di/types/mod.rs"]
 #[doc(hidden)]
 pub mod di_types;
+#[path = "generated/isa95/ids.rs"]
+#[doc(hidden)]
+pub mod isa95_ids;
+#[path = "generated/isa95/nodeset/mod.rs"]
+mod isa95_nodeset;
+#[path = "generated/jobs/ids.rs"]
+#[doc(hidden)]
+pub mod jobs_ids;
+#[path = "generated/jobs/nodeset/mod.rs"]
+mod jobs_nodeset;
 #[path = "generated/machinery/ids.rs"]
 #[doc(hidden)]
 pub mod machinery_ids;
@@ -48,4 +63,24 @@ pub mod machinery {
     pub use crate::machinery_nodeset::MachineryNamespace;
     /// Its namespace URI.
     pub const URI: &str = "http://opcfoundation.org/UA/Machinery/";
+}
+
+/// OPC 10031-4 ISA-95 Job Control: job orders, their states and responses.
+pub mod isa95 {
+    /// Its node ids (namespace 0 in the `From` impls: give the server's
+    /// index of [`URI`] instead).
+    pub use crate::isa95_ids as ids;
+    pub use crate::isa95_nodeset::Isa95JobControlNamespace;
+    /// Its namespace URI.
+    pub const URI: &str = "http://opcfoundation.org/UA/ISA95-JOBCONTROL_V2/";
+}
+
+/// OPC 40001-3 Machinery Job Management: a machine's JobManagement.
+pub mod jobs {
+    /// Its node ids (namespace 0 in the `From` impls: give the server's
+    /// index of [`URI`] instead).
+    pub use crate::jobs_ids as ids;
+    pub use crate::jobs_nodeset::MachineryJobsNamespace;
+    /// Its namespace URI.
+    pub const URI: &str = "http://opcfoundation.org/UA/Machinery/Jobs/";
 }

@@ -273,7 +273,7 @@ enum Busy {
         by: Option<Caller>,
         /// A restarted order as it was: what a refusal puts back (never
         /// the queue: it ran before).
-        previous: Option<Order>,
+        previous: Option<Box<Order>>,
     },
     Passing {
         by: Caller,

@@ -139,7 +139,7 @@ impl<R: Records, S: RecipeSource> OrderList<R, S> {
             order: order.clone(),
             started_ms,
             by: Some(by),
-            previous: Some(order),
+            previous: Some(Box::new(order)),
         };
         self.call(call, busy);
     }

@@ -1214,6 +1214,7 @@ fn placed_orders_run_by_priority_and_due_time_and_a_foreign_cell_is_refused() {
                 cell: cell.map(|c| CellId::new(c).expect("id")),
                 priority,
                 due_ms,
+                job_order: None,
             },
             count,
         };
