@@ -44,9 +44,11 @@ asserts on them.
       StoreAndStart with an ISA95JobOrderDataType for dikdroog (job order
       JOB), follows its state in JobOrderList to Ended (step "stored"
       after the call, "ended" at the end), reads its job response with
-      RequestJobResponseByJobOrderID and JobOrderResponseList; and the
-      refusals: the same JobOrderID stored twice, an unknown one started,
-      an unknown parameter, an observer's StoreAndStart.
+      RequestJobResponseByJobOrderID and JobOrderResponseList, the
+      order's result (OPC 40001-101) with GetLatestResult and
+      GetResultById and the ResultReadyEvent it heard; and the refusals:
+      the same JobOrderID stored twice, an unknown one started, an unknown
+      parameter, an observer's StoreAndStart.
   opcua_client.py siege URL CREDENTIALS_DIR WORK_DIR ATTACKER N
       N wrong passwords for user `opcua` from address ATTACKER (a second
       loopback address) while the real `opcua` logs in from 127.0.0.1 once
@@ -480,19 +482,25 @@ class ConditionEvents:
         return None
 
 
-async def alarm_filter(c):
-    """AlarmConditionType's fields, of events of ConditionType and its
-    subtypes (OfType: async-opcua 0.18 never matches the InList of event
-    types asyncua makes by default, docs/opcua.md)."""
-    f = await get_filter_from_event_type(
-        [c.get_node(ua.NodeId(ua.ObjectIds.AlarmConditionType))], where_clause_generation=False
-    )
+async def of_type_filter(c, fields, of):
+    """The fields of event type `fields`, of events of type `of` and its
+    subtypes (OfType: async-opcua never matches the InList of event types
+    asyncua makes by default, docs/opcua.md)."""
+    f = await get_filter_from_event_type([c.get_node(fields)], where_clause_generation=False)
     of_type = ua.ContentFilterElement()
     of_type.FilterOperator = ua.FilterOperator.OfType
-    of_type.FilterOperands = [ua.LiteralOperand(Value=ua.Variant(ua.NodeId(ua.ObjectIds.ConditionType)))]
+    of_type.FilterOperands = [ua.LiteralOperand(Value=ua.Variant(of))]
     f.WhereClause = ua.ContentFilter()
     f.WhereClause.Elements = [of_type]
     return f
+
+
+async def alarm_filter(c):
+    """AlarmConditionType's fields, of events of ConditionType and its
+    subtypes."""
+    return await of_type_filter(
+        c, ua.NodeId(ua.ObjectIds.AlarmConditionType), ua.NodeId(ua.ObjectIds.ConditionType)
+    )
 
 
 async def acknowledge(c, condition, comment):
@@ -620,6 +628,7 @@ async def machinery(url, creds: Path, work: Path):
 
 
 JOBS = "http://opcfoundation.org/UA/Machinery/Jobs/"
+RESULT = "http://opcfoundation.org/UA/Machinery/Result/"
 ISA95 = "http://opcfoundation.org/UA/ISA95-JOBCONTROL_V2/"
 
 
@@ -656,6 +665,29 @@ async def job_management(c, cell):
     results = await management.get_child([f"{jobs}:JobOrderResults"])
     assert await results.read_type_definition() == ua.NodeId(1003, isa95)
     return control, results, isa95
+
+
+class ResultEvents:
+    """ResultReadyEvents, as they arrive."""
+
+    def __init__(self):
+        self.results = []
+
+    def event_notification(self, event):
+        self.results.append(plain(event.Result))
+
+
+async def result_management(c, cell):
+    """Machine `cell`'s ResultManagement, found by browse name and type."""
+    m = await c.get_namespace_index(MACHINERY)
+    r = await c.get_namespace_index(RESULT)
+    folder = await c.nodes.objects.get_child([f"{m}:Machines"])
+    for node in await folder.get_children(refs=ua.ObjectIds.Organizes):
+        if (await node.read_browse_name()).Name == cell:
+            management = await node.get_child([f"{r}:ResultManagement"])
+            assert await management.read_type_definition() == ua.NodeId(1004, r)
+            return management, r
+    return None, r
 
 
 def job_order(job, recipe, parameters):
@@ -704,6 +736,13 @@ async def mes(url, creds: Path, work: Path, cell, job):
                           job_order(job + "-o", "dikdroog", []), no_comment)
     await o.disconnect()
 
+    management, r = await result_management(c, cell)
+    before = await call(management, r, "GetLatestResult", ua.Variant(0, ua.VariantType.Int32))
+    events = ResultEvents()
+    event_sub = await c.create_subscription(50, events)
+    ready = ua.NodeId(1002, r)
+    await event_sub.subscribe_events(c.nodes.server, evfilter=await of_type_filter(c, ready, ready))
+
     states = []
     changes = Changes()
     sub = await c.create_subscription(50, changes)
@@ -729,9 +768,20 @@ async def mes(url, creds: Path, work: Path, cell, job):
             break
     listed = [plain(e) for e in await job_list.read_value() if e.JobOrder.JobOrderID == job]
     code, status, (response,) = await call(results, isa95, "RequestJobResponseByJobOrderID", job)
-    responses = [plain(r) for r in await response_list.read_value() if r.JobOrderID == job]
+    responses = [plain(x) for x in await response_list.read_value() if x.JobOrderID == job]
+    latest_code, latest_error, (handle, latest) = await call(
+        management, r, "GetLatestResult", ua.Variant(0, ua.VariantType.Int32))
+    result_id = latest.ResultMetaData.ResultId if latest else None
+    by_id = await call(management, r, "GetResultById", result_id or "", ua.Variant(0, ua.VariantType.Int32))
+    unknown_result = await call(management, r, "GetResultById", "999999", ua.Variant(0, ua.VariantType.Int32))
+    began = time.monotonic()
+    while not events.results and time.monotonic() - began < 10:
+        await asyncio.sleep(0.1)
     say(step="ended", states=states, listed=listed, response=plain(response),
-        response_status=[code, status], responses=responses)
+        response_status=[code, status], responses=responses,
+        before=before[:2], latest=[latest_code, latest_error], result=plain(latest),
+        by_id=[by_id[0], by_id[1], plain(by_id[2][1]) if by_id[2] else None],
+        unknown_result=unknown_result[:2], events=events.results)
     await c.disconnect()
 
 

@@ -801,6 +801,37 @@ fn a_foreign_mes_dispatches_an_isa95_job_order_to_cell_2_and_reads_its_response(
     );
     let shown = plant.falc(Some("falc2"), &["order", "show", &o.id.to_string()]);
     assert!(shown.contains(&format!("job order: {job}")), "{shown}");
+    // Its result (OPC 40001-101): none before; the latest after, by id
+    // too, with the job order, the recipe and its version, OK, and the
+    // product record as content; sent as a ResultReadyEvent.
+    assert_eq!(e["before"], serde_json::json!(["Good", -1]), "{e}");
+    assert_eq!(e["latest"], serde_json::json!(["Good", 0]), "{e}");
+    let meta = &e["result"]["ResultMetaData"];
+    assert_eq!(meta["ResultId"], o.id.to_string(), "{e}");
+    assert_eq!(meta["JobId"], job, "{e}");
+    assert_eq!(meta["ExternalRecipeId"], "dikdroog", "{e}");
+    assert!(
+        meta["InternalRecipeId"]
+            .as_str()
+            .is_some_and(|v| v.starts_with("v1 ")),
+        "{e}"
+    );
+    assert_eq!(meta["ResultEvaluation"], 1, "{e}");
+    let content = e["result"]["ResultContent"].to_string();
+    assert!(
+        content.contains("DIKDROOG") && content.contains("DROOG_DIK"),
+        "{content}"
+    );
+    assert_eq!(e["by_id"][1], 0, "{e}");
+    assert_eq!(e["by_id"][2], e["result"], "{e}");
+    assert_eq!(e["unknown_result"], serde_json::json!(["Good", -1]), "{e}");
+    let events = e["events"].as_array().unwrap_or_else(|| panic!("{e}"));
+    assert_eq!(events.len(), 1, "{e}");
+    assert_eq!(
+        events[0]["ResultMetaData"]["ResultId"],
+        o.id.to_string(),
+        "{e}"
+    );
     plant.assert_each_started_once(&orders);
 }
 

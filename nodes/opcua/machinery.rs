@@ -58,6 +58,8 @@ pub struct Namespaces {
     pub isa95: u16,
     /// OPC 40001-3 Machinery Job Management.
     pub jobs: u16,
+    /// OPC 40001-101 Machinery Result Transfer.
+    pub result: u16,
 }
 
 /// A state of a Machinery state machine: its name and its state object in

@@ -17,6 +17,7 @@ mod job_management;
 mod jobs;
 mod machinery;
 mod packml;
+mod result_management;
 mod server;
 mod space;
 mod structures;
@@ -290,6 +291,8 @@ async fn run(
         .map_err(|e| e.to_string())?;
     let mut shutdown = Shutdown::new();
     let mut mirrors: Vec<space::Mirror> = scopes.iter().map(|_| space::Mirror::default()).collect();
+    let mut ended: Vec<result_management::Ended> =
+        scopes.iter().map(|_| Default::default()).collect();
     let mut poller = Poller::new(scopes.clone(), cli.journal_entries);
     let mut ready = false;
     let mut next_prune = std::time::Instant::now();
@@ -355,6 +358,14 @@ async fn run(
             };
             if lists {
                 write(&poller);
+                // Each order that ended since is a result that is ready.
+                let ready = tokio::select! {
+                    _ = poller.results_ready(&bus, &operator, &mut ended, &running) => true,
+                    _ = shutdown.requested() => false,
+                };
+                if !ready {
+                    break;
+                }
             }
         }
         // A stranger's every attempt leaves a rejected certificate: the
@@ -445,6 +456,45 @@ struct Poller {
 }
 
 impl Poller {
+    /// Sends a ResultReadyEvent for each order of a machine's cell that
+    /// ended since the order list was last fetched (`ended`: what each
+    /// scope saw), with its product record.
+    async fn results_ready(
+        &self,
+        bus: &Bus,
+        operator: &StationName,
+        ended: &mut [result_management::Ended],
+        running: &server::Running,
+    ) {
+        for (at, (scope, seen)) in self.scopes.iter().zip(ended.iter_mut()).enumerate() {
+            if scope.machine.is_none() {
+                continue;
+            }
+            let mine = space::cell_orders(scope.cell(), &self.orders);
+            for id in seen.update(&mine) {
+                let Some(order) = mine.iter().find(|o| o.id == id) else {
+                    continue;
+                };
+                let record = match bus
+                    .clone()
+                    .for_cell(scope.cell().cloned())
+                    .api(
+                        operator,
+                        ApiRequest::OrderShow { id },
+                        Duration::from_secs(2),
+                    )
+                    .await
+                {
+                    Ok(ApiReply::OrderRecord(r)) => Some(*r),
+                    _ => None,
+                };
+                if let Some(result) = result_management::of(order, record.as_ref()) {
+                    running.result_ready(at, &result);
+                }
+            }
+        }
+    }
+
     fn new(scopes: Vec<Scope>, keep: u16) -> Self {
         Self {
             journals: vec![Vec::new(); scopes.len()],

@@ -10,6 +10,7 @@ use crate::conditions::Conditions;
 use crate::job_management::{self, JobMethod};
 use crate::jobs;
 use crate::machinery;
+use crate::result_management::{self, ResultMethod, ResultReadyEvent};
 use crate::space::{self, Arg, ArgType, Method, Scope, Value};
 use crate::structures::{self, Structures};
 use crate::users::Users;
@@ -201,6 +202,7 @@ impl Nodes {
             if let (Some(m), Some(namespaces)) = (&scope.machine, self.machinery) {
                 machinery::build(space_, namespaces, m);
                 job_management::build(space_, namespaces, m);
+                result_management::build(space_, namespaces, m);
             }
         }
     }
@@ -357,6 +359,116 @@ impl Nodes {
             self.scopes.iter().filter_map(|s| s.machine.as_ref()),
         )?;
         Some((self.scope_of(m)?, j))
+    }
+
+    /// The ResultManagement method node `id` is, and its scope.
+    fn result_method(&self, id: &NodeId) -> Option<(usize, ResultMethod)> {
+        if id.namespace != self.namespace_index() {
+            return None;
+        }
+        let opcua::types::Identifier::String(text) = &id.identifier else {
+            return None;
+        };
+        let (m, r) = result_management::method(
+            text.as_ref(),
+            self.scopes.iter().filter_map(|s| s.machine.as_ref()),
+        )?;
+        Some((self.scope_of(m)?, r))
+    }
+
+    /// Answers ResultManagement method `r` of scope `at`'s machine as
+    /// `token`'s user: ResultHandle (0: FALC keeps every result), the
+    /// result and Error (0, or [`result_management::NO_RESULT`] /
+    /// [`result_management::NOT_ENDED`] with an empty result).
+    async fn call_result(
+        &self,
+        token: &opcua::server::authenticator::UserToken,
+        at: usize,
+        r: ResultMethod,
+        args: &[Variant],
+    ) -> (StatusCode, Vec<Variant>) {
+        let what = format!("{}.{}", self.scopes[at].root, r.name());
+        if let Err(why) = self.users.may(token, falc_model::api::Call::OrderShow) {
+            tracing::warn!("OPC UA {what}: {why}");
+            self.refused(at, why);
+            return (StatusCode::BadUserAccessDenied, Vec::new());
+        }
+        let answer = |error: i32, result: ExtensionObject| {
+            vec![Variant::from(0u32), result.into(), Variant::from(error)]
+        };
+        let Some(structures) = self.structures.clone() else {
+            return (StatusCode::BadNotSupported, Vec::new());
+        };
+        let orders = match self
+            .bus
+            .api(&self.operator, ApiRequest::OrderList, CALL_LIMIT)
+            .await
+        {
+            Ok(ApiReply::Orders(orders)) => orders,
+            Ok(other) => {
+                tracing::warn!("OPC UA {what}: the operator answered {other:?}");
+                return (StatusCode::BadCommunicationError, Vec::new());
+            }
+            Err(e) => {
+                tracing::warn!("OPC UA {what}: {e}");
+                return (StatusCode::BadCommunicationError, Vec::new());
+            }
+        };
+        let mine = space::cell_orders(self.scopes[at].cell(), &orders);
+        let order = match r {
+            ResultMethod::Latest => result_management::latest(&mine),
+            ResultMethod::ById => match args.first() {
+                Some(Variant::String(id)) => mine
+                    .iter()
+                    .copied()
+                    .find(|o| Some(o.id.to_string().as_str()) == id.value().as_deref()),
+                _ => None,
+            },
+        };
+        let Some(order) = order else {
+            return (
+                StatusCode::Good,
+                answer(result_management::NO_RESULT, ExtensionObject::null()),
+            );
+        };
+        let record = match self.ask(at, ApiRequest::OrderShow { id: order.id }).await {
+            Ok(ApiReply::OrderRecord(r)) => Some(*r),
+            _ => None,
+        };
+        let Some(result) = result_management::of(order, record.as_ref()) else {
+            return (
+                StatusCode::Good,
+                answer(result_management::NOT_ENDED, ExtensionObject::null()),
+            );
+        };
+        match structures.result(&result) {
+            Ok(o) => (StatusCode::Good, answer(result_management::OK, o)),
+            Err(why) => {
+                tracing::warn!("OPC UA {what}: {why}");
+                (StatusCode::BadInternalError, Vec::new())
+            }
+        }
+    }
+
+    /// The ResultReadyEvent of `result` of scope `at`'s machine (None:
+    /// no machine, or Result Transfer's types are missing).
+    pub fn result_ready(
+        &self,
+        at: usize,
+        result: &result_management::Result,
+    ) -> Option<ResultReadyEvent> {
+        let (ns, m) = (self.machinery?, self.scopes.get(at)?.machine.as_ref()?);
+        let encoded = match self.structures.as_ref()?.result(result) {
+            Ok(o) => o,
+            Err(why) => {
+                tracing::warn!("OPC UA result {} not sent: {why}", result.id);
+                return None;
+            }
+        };
+        let source = NodeId::new(ns.own, UAString::from(m.object()));
+        Some(ResultReadyEvent::new(
+            ns.result, source, &m.name, &result.id, encoded,
+        ))
     }
 
     /// Asks the operator `request` for scope `at`'s cell.
@@ -657,6 +769,16 @@ impl InMemoryNodeManagerImpl for Nodes {
         methods: &mut [&mut &mut MethodCall],
     ) -> Result<(), StatusCode> {
         for call in methods {
+            if let Some((at, r)) = self.result_method(call.method_id()) {
+                let args = call.arguments().to_vec();
+                let (code, outputs) = self.call_result(&context.token, at, r, &args).await;
+                self.write_refusal(context, space_, at);
+                if !outputs.is_empty() {
+                    call.set_outputs(outputs);
+                }
+                call.set_status(code);
+                continue;
+            }
             if let Some((at, j)) = self.job_method(call.method_id()) {
                 let args = call.arguments().to_vec();
                 let (code, outputs) = self.call_job(&context.token, at, j, &args).await;
@@ -789,6 +911,17 @@ impl Running {
         condition_methods::notify(self.subscriptions(), self.ns, &changed);
     }
 
+    /// Sends the ResultReadyEvent of scope `at`'s `result` on the Server
+    /// object.
+    pub fn result_ready(&self, at: usize, result: &result_management::Result) {
+        if let Some(e) = self.nodes.inner().result_ready(at, result) {
+            tracing::info!("OPC UA result {} ready: {}", result.id, result.details);
+            let server = NodeId::from(ObjectId::Server);
+            self.subscriptions()
+                .notify_events([(&e as &dyn opcua::nodes::Event, &server)].into_iter());
+        }
+    }
+
     /// Raises alarm events on the cell object `root` (and the Server
     /// object, where clients listening to everything subscribe).
     pub fn raise(&self, root: &str, events: &[space::AlarmEvent]) {
@@ -854,14 +987,18 @@ pub fn build(
                     of(falc_opcua_models::machinery::URI),
                     of(falc_opcua_models::isa95::URI),
                     of(falc_opcua_models::jobs::URI),
+                    of(falc_opcua_models::result::URI),
                 ) {
-                    (Some(di), Some(m), Some(isa95), Some(jobs)) => Some(machinery::Namespaces {
-                        own: index,
-                        di,
-                        machinery: m,
-                        isa95,
-                        jobs,
-                    }),
+                    (Some(di), Some(m), Some(isa95), Some(jobs), Some(result)) => {
+                        Some(machinery::Namespaces {
+                            own: index,
+                            di,
+                            machinery: m,
+                            isa95,
+                            jobs,
+                            result,
+                        })
+                    }
                     _ => None,
                 }
             };
@@ -875,6 +1012,7 @@ pub fn build(
                 &[
                     &opcua::server::address_space::CoreNamespace,
                     &falc_opcua_models::isa95::Isa95JobControlNamespace,
+                    &falc_opcua_models::result::MachineryResultNamespace,
                 ],
             )
             .map(Arc::new);
@@ -921,6 +1059,7 @@ pub fn build(
                 Box::new(falc_opcua_models::machinery::MachineryNamespace),
                 Box::new(falc_opcua_models::isa95::Isa95JobControlNamespace),
                 Box::new(falc_opcua_models::jobs::MachineryJobsNamespace),
+                Box::new(falc_opcua_models::result::MachineryResultNamespace),
             ],
             "companion specifications",
         ))

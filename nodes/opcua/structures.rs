@@ -26,6 +26,8 @@ use std::sync::Arc;
 pub struct Structures {
     tree: Arc<DataTypeTree>,
     isa95: u16,
+    /// Result Transfer's namespace (None: not among the imports).
+    result: Option<u16>,
 }
 
 impl Structures {
@@ -76,6 +78,9 @@ impl Structures {
         let isa95 = mapper
             .namespaces()
             .get_index(falc_opcua_models::isa95::URI)?;
+        let result = mapper
+            .namespaces()
+            .get_index(falc_opcua_models::result::URI);
         let mut tree = DataTypeTree::new(parents);
         for d in data_types {
             let Some(definition) = d.data_type_definition().cloned() else {
@@ -110,6 +115,7 @@ impl Structures {
         Some(Structures {
             tree: Arc::new(tree),
             isa95,
+            result,
         })
     }
 
@@ -126,20 +132,87 @@ impl Structures {
     /// A structure of ISA-95's type `t` with `fields` (the others absent:
     /// only optional ones may be).
     fn make(&self, t: Isa95Type, fields: Vec<(&str, Variant)>) -> Result<ExtensionObject, String> {
-        let id = NodeId::new(self.isa95, t as u32);
-        let Some(info) = self.tree.get_struct_type(&id) else {
-            return Err(format!("OPC UA data type {t:?} is not loaded"));
+        self.make_of(&NodeId::new(self.isa95, t as u32), fields)
+    }
+
+    /// A structure of data type `id` with `fields` (the others absent:
+    /// only optional ones may be).
+    fn make_of(
+        &self,
+        id: &NodeId,
+        fields: Vec<(&str, Variant)>,
+    ) -> Result<ExtensionObject, String> {
+        let Some(info) = self.tree.get_struct_type(id) else {
+            return Err(format!("OPC UA data type {id} is not loaded"));
         };
         let mut data = vec![Variant::Empty; info.fields.len()];
         for (name, value) in fields {
             let Some(at) = info.fields.iter().position(|f| f.name == name) else {
-                return Err(format!("{t:?} has no field {name}"));
+                return Err(format!("{} has no field {name}", info.name));
             };
             data[at] = value;
         }
         DynamicStructure::new_struct(info.clone(), self.tree.clone(), data)
             .map(ExtensionObject::new)
-            .map_err(|e| format!("{t:?}: {e}"))
+            .map_err(|e| format!("{}: {e}", info.name))
+    }
+
+    /// A result of Result Transfer (ResultDataType).
+    pub fn result(&self, r: &crate::result_management::Result) -> Result<ExtensionObject, String> {
+        use falc_opcua_models::result::ids::DataTypeId as T;
+        let Some(ns) = self.result else {
+            return Err("Result Transfer's namespace is not loaded".into());
+        };
+        let of = |t: T| NodeId::new(ns, t as u32);
+        let time = crate::server::time;
+        let mut times = vec![("EndTime", Variant::from(time(r.ended_ms)))];
+        times.push((
+            "StartTime",
+            r.started_ms.map_or_else(DateTime::null, time).into(),
+        ));
+        let mut meta = vec![
+            ("ResultId", Variant::from(r.id.as_str())),
+            ("IsPartial", false.into()),
+            ("IsSimulated", false.into()),
+            ("ExternalRecipeId", r.recipe.as_str().into()),
+            ("CreationTime", time(r.ended_ms).into()),
+            (
+                "ProcessingTimes",
+                self.make_of(&of(T::ProcessingTimesDataType), times)?.into(),
+            ),
+            // ResultEvaluationEnum: OK 1, NotOK 2.
+            (
+                "ResultEvaluation",
+                Variant::from(if r.ok { 1i32 } else { 2i32 }),
+            ),
+            (
+                "ResultEvaluationDetails",
+                LocalizedText::from(r.details.as_str()).into(),
+            ),
+        ];
+        if let Some(job) = &r.job {
+            meta.push(("JobId", job.as_str().into()));
+        }
+        if let Some(v) = &r.recipe_version {
+            meta.push(("InternalRecipeId", v.as_str().into()));
+        }
+        let content: Vec<Variant> = r
+            .content
+            .iter()
+            .map(|c| Variant::Variant(Box::new(Variant::from(c.as_str()))))
+            .collect();
+        let content = opcua::types::Array::new(opcua::types::VariantScalarTypeId::Variant, content)
+            .map_err(|e| e.to_string())?;
+        sealed(self.make_of(
+            &of(T::ResultDataType),
+            vec![
+                (
+                    "ResultMetaData",
+                    self.make_of(&of(T::ResultMetaDataType), meta)?.into(),
+                ),
+                ("ResultContent", Variant::Array(Box::new(content))),
+            ],
+        )?)
     }
 
     /// A job order's state: ISA95StateDataType[], the top level state
