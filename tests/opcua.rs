@@ -631,3 +631,70 @@ fn the_cell_is_a_machinery_machine_with_its_identification_and_states() {
         until(want);
     }
 }
+
+/// A job order's states through JobOrderControl's commands on the one
+/// cell (OPC 10031-4's state machine over FALC's orders), and the way
+/// back after an Abort: the next job order runs to Ended.
+#[test]
+fn job_orders_are_stored_cancelled_paused_aborted_and_the_next_one_ends() {
+    let port = free_port();
+    let listen = format!("127.0.0.1:{port}");
+    let cell = LaunchedCell::start_with("50", &["--opcua", &listen]);
+    let url = format!("opc.tcp://{listen}/");
+    let mut c = client(&cell, "job-states", &url, &["falc1"]);
+    let t = Duration::from_secs(60);
+    let ok = serde_json::json!(["Good", 1]);
+    let s = step(&mut c, "stored", t);
+    assert_eq!(s["calls"], serde_json::json!([ok, ok]), "{s}");
+    assert_eq!(
+        s["listed"],
+        serde_json::json!({"J-1": "NotAllowedToStart", "J-2": "NotAllowedToStart"}),
+        "{s}"
+    );
+    // Cancelled, J-2 is gone: starting it is an unknown job order.
+    let s = step(&mut c, "cancelled", t);
+    assert_eq!(s["calls"], serde_json::json!([ok, ["Uncertain", 2]]), "{s}");
+    assert_eq!(
+        s["listed"],
+        serde_json::json!({"J-1": "NotAllowedToStart"}),
+        "{s}"
+    );
+    // Started it runs; paused, the cell is in step mode and the job order
+    // Interrupted; a second Pause is refused (invalid state).
+    let s = step(&mut c, "paused", Duration::from_secs(120));
+    assert_eq!(s["calls"], serde_json::json!([ok, ok]), "{s}");
+    assert_eq!(
+        (s["running"].as_bool(), s["interrupted"].as_bool()),
+        (Some(true), Some(true)),
+        "{s}"
+    );
+    assert_eq!(s["pause_again"], serde_json::json!(["Uncertain", 8]), "{s}");
+    let (code, out) = cell.falc_as("console", &["status"]);
+    assert_eq!(code, 0, "{out}");
+    assert!(out.contains("mode: step"), "Pause is step mode: {out}");
+    c.send("resume");
+    // Resumed it runs again; aborted, it is Aborted, and a Cancel of it
+    // is refused.
+    let s = step(&mut c, "aborted", Duration::from_secs(120));
+    assert_eq!(s["calls"], serde_json::json!([ok, ok]), "{s}");
+    assert_eq!(
+        (s["running"].as_bool(), s["aborted"].as_bool()),
+        (Some(true), Some(true)),
+        "{s}"
+    );
+    assert_eq!(
+        s["cancel_ended"],
+        serde_json::json!(["Uncertain", 8]),
+        "{s}"
+    );
+    // The way back: the next job order runs to Ended, and is cleared.
+    let s = step(&mut c, "ended", Duration::from_secs(240));
+    assert_eq!(s["calls"], serde_json::json!([ok, ok]), "{s}");
+    assert_eq!(s["ended"], true, "{s}");
+    assert_eq!(s["listed"], serde_json::json!({"J-1": "Aborted"}), "{s}");
+    let orders = cell.falc_as("console", &["order", "list"]).1;
+    assert!(
+        orders.contains("job order J-3") && orders.contains("done"),
+        "{orders}"
+    );
+}

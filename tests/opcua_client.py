@@ -49,6 +49,14 @@ asserts on them.
       GetResultById and the ResultReadyEvent it heard; and the refusals:
       the same JobOrderID stored twice, an unknown one started, an unknown
       parameter, an observer's StoreAndStart.
+  opcua_client.py job-states URL CREDENTIALS_DIR WORK_DIR CELL
+      a job order's states through JobOrderControl's commands on the one
+      cell CELL: two stored (NotAllowedToStart), one cancelled (gone), the
+      other started (Running), paused (Interrupted: step mode), resumed
+      (after a line on stdin) and aborted (Aborted); then the way back: a third StoreAndStart runs
+      to Ended (the cell's question answered through FALC's Answer), and
+      is cleared. Steps "stored", "cancelled", "paused", "aborted",
+      "ended", each with the ReturnStatus of its calls.
   opcua_client.py siege URL CREDENTIALS_DIR WORK_DIR ATTACKER N
       N wrong passwords for user `opcua` from address ATTACKER (a second
       loopback address) while the real `opcua` logs in from 127.0.0.1 once
@@ -785,6 +793,71 @@ async def mes(url, creds: Path, work: Path, cell, job):
     await c.disconnect()
 
 
+async def job_states(url, creds: Path, work: Path, cell):
+    pw = users(creds)
+    await admit(url, creds, work)
+    c = await connect(url, work, "console", pw["console"])
+    await c.load_data_type_definitions()
+    control, _, isa95 = await job_management(c, cell)
+    job_list = await control.get_child([f"{isa95}:JobOrderList"])
+    ns = await c.get_namespace_index(f"urn:falc:{cell}")
+    falc = await c.nodes.objects.get_child([f"{ns}:FALC"])
+    question = c.get_node(ua.NodeId("FALC.Question", ns))
+    none = ua.Variant([], ua.VariantType.LocalizedText)
+
+    async def listed():
+        return {e.JobOrder.JobOrderID: e.State[0].StateText.Text for e in await job_list.read_value()}
+
+    async def until(job, want, answer=False, limit=120):
+        began = time.monotonic()
+        while time.monotonic() - began < limit:
+            now = await listed()
+            if now.get(job) == want:
+                return True
+            if answer and await question.read_value():
+                await falc.call_method(f"{ns}:Answer", "ja")
+            await asyncio.sleep(0.1)
+        return False
+
+    async def command(method, job):
+        return (await call(control, isa95, method, job, none))[:2]
+
+    async def store(method, job):
+        return (await call(control, isa95, method, job_order(job, "dikdroog", []), none))[:2]
+
+    async def until_gone(job, limit=30):
+        began = time.monotonic()
+        while job in await listed() and time.monotonic() - began < limit:
+            await asyncio.sleep(0.1)
+
+    stored = [await store("Store", "J-1"), await store("Store", "J-2")]
+    await until("J-2", "NotAllowedToStart", limit=30)
+    say(step="stored", calls=stored, listed=await listed())
+    cancelled = [await command("Cancel", "J-2"), await command("Start", "J-2")]
+    await until_gone("J-2")
+    say(step="cancelled", calls=cancelled, listed=await listed())
+    started = await command("Start", "J-1")
+    running = await until("J-1", "Running")
+    paused = await command("Pause", "J-1")
+    interrupted = await until("J-1", "Interrupted")
+    say(step="paused", calls=[started, paused], running=running, interrupted=interrupted,
+        pause_again=await command("Pause", "J-1"))
+    # Held until the test has looked at the cell (a line on stdin).
+    await asyncio.get_running_loop().run_in_executor(None, sys.stdin.readline)
+    resumed = await command("Resume", "J-1")
+    running_again = await until("J-1", "Running")
+    aborted = await command("Abort", "J-1")
+    ended_aborted = await until("J-1", "Aborted")
+    say(step="aborted", calls=[resumed, aborted], running=running_again, aborted=ended_aborted,
+        cancel_ended=await command("Cancel", "J-1"))
+    again = await store("StoreAndStart", "J-3")
+    ended = await until("J-3", "Ended", answer=True, limit=180)
+    cleared = await command("Clear", "J-3")
+    await until_gone("J-3")
+    say(step="ended", calls=[again, cleared], ended=ended, listed=await listed())
+    await c.disconnect()
+
+
 # The address a connection is made from (None: the system's choice): the
 # siege's attacker connects from a second loopback address.
 SOURCE = contextvars.ContextVar("source", default=None)
@@ -886,6 +959,8 @@ def main():
         asyncio.run(machinery(url, creds, work))
     elif what == "mes":
         asyncio.run(mes(url, creds, work, sys.argv[5], sys.argv[6]))
+    elif what == "job-states":
+        asyncio.run(job_states(url, creds, work, sys.argv[5]))
     elif what == "siege":
         asyncio.run(siege(url, creds, work, sys.argv[5], int(sys.argv[6])))
     elif what == "watch":
