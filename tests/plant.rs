@@ -582,21 +582,12 @@ fn an_emergency_stop_in_one_cell_stops_that_cell_only_and_its_way_back_is_its_ow
 #[test]
 fn the_opcua_gateway_serves_the_plant_and_each_cell_with_its_own_state_and_methods() {
     use crate::support::opcua::{client_of, step};
-    use crate::support::{free_port, Proc};
     use falc_model::records::OrderState;
     let plant = TestPlant::start_text(&crate::support::plant::whole_plant());
     let _one = plant.start_cell_nodes("falc1", "100");
     let _two = plant.start_cell_nodes("falc2", "100");
     let _operator = plant.start_operator();
-    let listen = format!("127.0.0.1:{}", free_port());
-    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_falc-opcua"));
-    cmd.arg("--topology")
-        .arg(&plant.path)
-        .arg("--credentials-dir")
-        .arg(plant.credentials_dir())
-        .args(["--listen", &listen]);
-    let mut gateway = Proc::spawn("opcua", cmd);
-    gateway.expect_line("EVENT ready", Duration::from_secs(30));
+    let (_gateway, listen) = plant.start_gateway();
     let mut c = client_of(
         "plant",
         &format!("opc.tcp://{listen}/"),
@@ -698,7 +689,6 @@ fn the_opcua_gateway_serves_the_plant_and_each_cell_with_its_own_state_and_metho
     plant.assert_each_started_once(&orders);
 }
 
-/// The plant's cells as `plant.status()` shows them: cell `cell`'s.
 /// A manufacturing execution system nobody here wrote (Python asyncua)
 /// dispatches a job order to cell 2 of a plant by the standards alone:
 /// OPC 40001-3 Job Management over OPC 10031-4 ISA-95 Job Control. The
@@ -707,21 +697,12 @@ fn the_opcua_gateway_serves_the_plant_and_each_cell_with_its_own_state_and_metho
 #[test]
 fn a_foreign_mes_dispatches_an_isa95_job_order_to_cell_2_and_reads_its_response() {
     use crate::support::opcua::{client_of, step};
-    use crate::support::{free_port, Proc};
     use falc_model::records::OrderState;
     let plant = TestPlant::start_text(&crate::support::plant::whole_plant());
     let _one = plant.start_cell_nodes("falc1", "100");
     let _two = plant.start_cell_nodes("falc2", "100");
     let _operator = plant.start_operator();
-    let listen = format!("127.0.0.1:{}", free_port());
-    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_falc-opcua"));
-    cmd.arg("--topology")
-        .arg(&plant.path)
-        .arg("--credentials-dir")
-        .arg(plant.credentials_dir())
-        .args(["--listen", &listen]);
-    let mut gateway = Proc::spawn("opcua", cmd);
-    gateway.expect_line("EVENT ready", Duration::from_secs(30));
+    let (_gateway, listen) = plant.start_gateway();
     let job = "MES-4711";
     let mut c = client_of(
         "mes",
@@ -835,6 +816,7 @@ fn a_foreign_mes_dispatches_an_isa95_job_order_to_cell_2_and_reads_its_response(
     plant.assert_each_started_once(&orders);
 }
 
+/// The plant's cells as `plant.status()` shows them: cell `cell`'s.
 fn cell_status(plant: &TestPlant, cell: &str) -> falc_model::api::CellStatus {
     plant
         .status()

@@ -98,10 +98,7 @@ pub struct Result {
 /// The result of `order`, with its product record `record` if the
 /// operator gave it; None while the order has not ended.
 pub fn of(order: &Order, record: Option<&OrderRecord>) -> Option<Result> {
-    let ended_ms = order.ended_ms?;
-    if matches!(order.state, OrderState::Queued | OrderState::Running) {
-        return None;
-    }
+    let ended_ms = order.ended_ms.filter(|_| finished(order))?;
     let recipe_version = record
         .and_then(|r| r.runs.last())
         .and_then(|run| run.recipes.first())
@@ -129,15 +126,18 @@ pub fn of(order: &Order, record: Option<&OrderRecord>) -> Option<Result> {
     })
 }
 
+/// Whether `o` has finished: it has a result.
+fn finished(o: &Order) -> bool {
+    o.ended_ms.is_some() && !matches!(o.state, OrderState::Queued | OrderState::Running)
+}
+
 /// The order whose result is the latest among `orders`: the one that
 /// ended last.
 pub fn latest<'a>(orders: &[&'a Order]) -> Option<&'a Order> {
     orders
         .iter()
         .copied()
-        .filter(|o| {
-            o.ended_ms.is_some() && !matches!(o.state, OrderState::Queued | OrderState::Running)
-        })
+        .filter(|o| finished(o))
         .max_by_key(|o| (o.ended_ms, o.id))
 }
 
@@ -153,9 +153,7 @@ impl Ended {
     pub fn update(&mut self, orders: &[&Order]) -> Vec<i64> {
         let now: BTreeSet<i64> = orders
             .iter()
-            .filter(|o| {
-                o.ended_ms.is_some() && !matches!(o.state, OrderState::Queued | OrderState::Running)
-            })
+            .filter(|o| finished(o))
             .map(|o| o.id)
             .collect();
         let new = match &self.seen {
@@ -279,8 +277,13 @@ impl opcua::nodes::Event for ResultReadyEvent {
         index_range: &NumericRange,
         browse_path: &[QualifiedName],
     ) -> Variant {
-        if self.is_result(browse_path) && attribute_id == AttributeId::Value {
-            return self.result.clone();
+        if self.is_result(browse_path) {
+            return opcua::nodes::EventField::get_value(
+                self,
+                attribute_id,
+                index_range,
+                browse_path,
+            );
         }
         opcua::nodes::Event::get_field(
             &self.base,

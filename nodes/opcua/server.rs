@@ -346,34 +346,37 @@ impl Nodes {
             .position(|s| s.machine.as_ref() == Some(m))
     }
 
-    /// The machine method node `id` is, and its scope.
-    fn job_method(&self, id: &NodeId) -> Option<(usize, JobMethod)> {
+    /// The method of a machine that node `id` is (`find`: which, among
+    /// the machines), and its scope.
+    fn machine_method<'a, T>(
+        &'a self,
+        id: &NodeId,
+        find: impl FnOnce(
+            &str,
+            &mut dyn Iterator<Item = &'a machinery::Machine>,
+        ) -> Option<(&'a machinery::Machine, T)>,
+    ) -> Option<(usize, T)> {
         if id.namespace != self.namespace_index() {
             return None;
         }
         let opcua::types::Identifier::String(text) = &id.identifier else {
             return None;
         };
-        let (m, j) = job_management::method(
-            text.as_ref(),
-            self.scopes.iter().filter_map(|s| s.machine.as_ref()),
-        )?;
-        Some((self.scope_of(m)?, j))
+        let mut machines = self.scopes.iter().filter_map(|s| s.machine.as_ref());
+        let (m, t) = find(text.as_ref(), &mut machines)?;
+        Some((self.scope_of(m)?, t))
+    }
+
+    /// The JobManagement method node `id` is, and its scope.
+    fn job_method(&self, id: &NodeId) -> Option<(usize, JobMethod)> {
+        self.machine_method(id, |text, machines| job_management::method(text, machines))
     }
 
     /// The ResultManagement method node `id` is, and its scope.
     fn result_method(&self, id: &NodeId) -> Option<(usize, ResultMethod)> {
-        if id.namespace != self.namespace_index() {
-            return None;
-        }
-        let opcua::types::Identifier::String(text) = &id.identifier else {
-            return None;
-        };
-        let (m, r) = result_management::method(
-            text.as_ref(),
-            self.scopes.iter().filter_map(|s| s.machine.as_ref()),
-        )?;
-        Some((self.scope_of(m)?, r))
+        self.machine_method(id, |text, machines| {
+            result_management::method(text, machines)
+        })
     }
 
     /// Answers ResultManagement method `r` of scope `at`'s machine as

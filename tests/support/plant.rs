@@ -317,6 +317,21 @@ impl TestPlant {
         }
     }
 
+    /// Starts the plant's OPC UA gateway on a free port of 127.0.0.1
+    /// and waits until it is ready: the process and its `--listen`.
+    pub fn start_gateway(&self) -> (Proc, String) {
+        let listen = format!("127.0.0.1:{}", free_port());
+        let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_falc-opcua"));
+        cmd.arg("--topology")
+            .arg(&self.path)
+            .arg("--credentials-dir")
+            .arg(self.credentials_dir())
+            .args(["--listen", &listen]);
+        let mut gateway = Proc::spawn("opcua", cmd);
+        gateway.expect_line("EVENT ready", Duration::from_secs(30));
+        (gateway, listen)
+    }
+
     /// The operator of the whole plant (recipes copied into the test's
     /// directory, the order list there); ready once every cell has its
     /// recipes.
