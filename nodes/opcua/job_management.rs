@@ -1,7 +1,6 @@
 //! Each machine's JobManagement (OPC 40001-3 Machinery Job Management):
 //! its JobOrderControl (an ISA95JobOrderReceiverObjectType of OPC 10031-4,
-//! with the job order list, the cell recipes as work masters and the
-//! Store … Abort methods) and its JobOrderResults (an
+//! with the job order list and the Store … Abort methods) and its JobOrderResults (an
 //! ISA95JobResponseProviderObjectType: the job responses). This module
 //! lays them out, gives their values for a look and names the method a
 //! node id is; `jobs` decides what a method does and `server` does it.

@@ -73,7 +73,7 @@ pub fn method<'a>(
 
 /// A result as FALC makes it (ResultDataType: the fields it fills).
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Result {
+pub struct MachineResult {
     /// ResultId: the order's id.
     pub id: String,
     /// JobId: the job order it carried out, if any.
@@ -97,13 +97,13 @@ pub struct Result {
 
 /// The result of `order`, with its product record `record` if the
 /// operator gave it; None while the order has not ended.
-pub fn of(order: &Order, record: Option<&OrderRecord>) -> Option<Result> {
+pub fn of(order: &Order, record: Option<&OrderRecord>) -> Option<MachineResult> {
     let ended_ms = order.ended_ms.filter(|_| finished(order))?;
     let recipe_version = record
         .and_then(|r| r.runs.last())
         .and_then(|run| run.recipes.first())
         .map(|u| format!("v{} {}", u.version, u.hash));
-    Some(Result {
+    Some(MachineResult {
         id: order.id.to_string(),
         job: order.job_order.clone(),
         recipe: order.recipe.clone(),

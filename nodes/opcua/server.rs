@@ -458,7 +458,7 @@ impl Nodes {
     pub fn result_ready(
         &self,
         at: usize,
-        result: &result_management::Result,
+        result: &result_management::MachineResult,
     ) -> Option<ResultReadyEvent> {
         let (ns, m) = (self.machinery?, self.scopes.get(at)?.machine.as_ref()?);
         let encoded = match self.structures.as_ref()?.result(result) {
@@ -916,7 +916,7 @@ impl Running {
 
     /// Sends the ResultReadyEvent of scope `at`'s `result` on the Server
     /// object.
-    pub fn result_ready(&self, at: usize, result: &result_management::Result) {
+    pub fn result_ready(&self, at: usize, result: &result_management::MachineResult) {
         if let Some(e) = self.nodes.inner().result_ready(at, result) {
             tracing::info!("OPC UA result {} ready: {}", result.id, result.details);
             let server = NodeId::from(ObjectId::Server);

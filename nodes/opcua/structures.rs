@@ -1,6 +1,6 @@
-//! ISA-95 Job Control's structures as the gateway reads and writes them:
-//! a job order a client sends, the job order list and the job responses
-//! the gateway serves. They are decoded and encoded from the
+//! ISA-95 Job Control's and Result Transfer's structures as the gateway
+//! reads and writes them: a job order a client sends, the job order list,
+//! the job responses and the results the gateway serves. They are decoded and encoded from the
 //! DataTypeDefinitions of the published NodeSet2 files at run time
 //! (async-opcua's `DynamicTypeLoader` and `DynamicStructure`), not from
 //! generated Rust types: async-opcua-codegen 0.19 ignores a structure's
@@ -158,7 +158,10 @@ impl Structures {
     }
 
     /// A result of Result Transfer (ResultDataType).
-    pub fn result(&self, r: &crate::result_management::Result) -> Result<ExtensionObject, String> {
+    pub fn result(
+        &self,
+        r: &crate::result_management::MachineResult,
+    ) -> Result<ExtensionObject, String> {
         use falc_opcua_models::result::ids::DataTypeId as T;
         let Some(ns) = self.result else {
             return Err("Result Transfer's namespace is not loaded".into());
