@@ -51,7 +51,7 @@ asserts on them.
       parameter, an observer's StoreAndStart.
   opcua_client.py job-states URL CREDENTIALS_DIR WORK_DIR CELL
       a job order's states through JobOrderControl's commands on the one
-      cell CELL: two stored (NotAllowedToStart), one cancelled (gone), the
+      cell CELL: one JobOrderID stored twice at once (one taken), two stored (NotAllowedToStart), one cancelled (gone), the
       other started (Running), paused (Interrupted: step mode), resumed
       (after a line on stdin) and aborted (Aborted); then the way back: a third StoreAndStart runs
       to Ended (the cell's question answered through FALC's Answer), and
@@ -830,9 +830,14 @@ async def job_states(url, creds: Path, work: Path, cell):
         while job in await listed() and time.monotonic() - began < limit:
             await asyncio.sleep(0.1)
 
+    # The same JobOrderID twice at once: one is taken, the other refused.
+    twins = sorted(await asyncio.gather(store("Store", "J-T"), store("Store", "J-T")))
+    twin_cancelled = await command("Cancel", "J-T")
+    await until_gone("J-T")
     stored = [await store("Store", "J-1"), await store("Store", "J-2")]
     await until("J-2", "NotAllowedToStart", limit=30)
-    say(step="stored", calls=stored, listed=await listed())
+    say(step="stored", calls=stored, listed=await listed(), twins=twins,
+        twin_cancelled=twin_cancelled)
     cancelled = [await command("Cancel", "J-2"), await command("Start", "J-2")]
     await until_gone("J-2")
     say(step="cancelled", calls=cancelled, listed=await listed())

@@ -84,6 +84,9 @@ pub struct Nodes {
     /// The JobOrderIDs of the job orders cleared (Clear): no longer
     /// listed (their orders' records stay).
     cleared_jobs: ClearedJobs,
+    /// Held while a job order command looks at the job orders and acts,
+    /// so that two at once cannot both find a JobOrderID new.
+    job_commands: tokio::sync::Mutex<()>,
 }
 
 /// The JobOrderIDs of the job orders cleared, shared with the look loop.
@@ -548,6 +551,12 @@ impl Nodes {
             self.refused(at, why);
             return (StatusCode::BadUserAccessDenied, Vec::new());
         }
+        // Commands one at a time, from the look at the job orders to the
+        // last call (requests for responses need no turn).
+        let _turn = match j {
+            JobMethod::Control(_) => Some(self.job_commands.lock().await),
+            _ => None,
+        };
         let (jobs_now, list) = match self.jobs_now(at).await {
             Ok(j) => j,
             Err(why) => {
@@ -1027,6 +1036,7 @@ pub fn build(
                 machinery,
                 structures,
                 cleared_jobs: cleared2,
+                job_commands: tokio::sync::Mutex::new(()),
                 namespace: NamespaceMetadata {
                     namespace_uri: namespace_uri.clone(),
                     namespace_index: index,
