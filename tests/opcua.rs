@@ -647,7 +647,11 @@ fn job_orders_are_stored_cancelled_paused_aborted_and_the_next_one_ends() {
     let s = step(&mut c, "stored", t);
     // Two Stores of one JobOrderID at once: the gateway takes them one at
     // a time, so one is taken and the other refused (16).
-    assert_eq!(s["twins"], serde_json::json!([ok, ["Uncertain", 16]]), "{s}");
+    assert_eq!(
+        s["twins"],
+        serde_json::json!([ok, ["Uncertain", 16]]),
+        "{s}"
+    );
     assert_eq!(s["twin_cancelled"], ok, "{s}");
     assert_eq!(s["calls"], serde_json::json!([ok, ok]), "{s}");
     assert_eq!(
