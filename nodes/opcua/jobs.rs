@@ -574,6 +574,16 @@ pub fn plan(
     }
 }
 
+/// The ReturnStatus of a command whose operator call `call` was refused:
+/// an order not added is a job order not accepted; any other call, one
+/// whose state did not allow the command.
+pub fn refused_status(call: &ApiRequest) -> u64 {
+    match call {
+        ApiRequest::OrderAdd { .. } => status::UNABLE_TO_ACCEPT,
+        _ => status::INVALID_STATUS,
+    }
+}
+
 /// A parameter of a job response: ID, value, and parameters under it.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Param {
@@ -902,6 +912,12 @@ mod tests {
                 .0,
             status::INVALID_REQUEST
         );
+        // An operator's refusal, by the call refused.
+        assert_eq!(
+            refused_status(&o.add(cell.as_ref())),
+            status::UNABLE_TO_ACCEPT
+        );
+        assert_eq!(refused_status(&ApiRequest::Start), status::INVALID_STATUS);
         assert_eq!(
             plan_(Command::Clear, &stored, ListState::Idle)
                 .unwrap_err()

@@ -405,18 +405,10 @@ impl Nodes {
         let Some(structures) = self.structures.clone() else {
             return (StatusCode::BadNotSupported, Vec::new());
         };
-        let orders = match self
-            .bus
-            .api(&self.operator, ApiRequest::OrderList, CALL_LIMIT)
-            .await
-        {
-            Ok(ApiReply::Orders(orders)) => orders,
-            Ok(other) => {
-                tracing::warn!("OPC UA {what}: the operator answered {other:?}");
-                return (StatusCode::BadCommunicationError, Vec::new());
-            }
-            Err(e) => {
-                tracing::warn!("OPC UA {what}: {e}");
+        let orders = match self.orders_now().await {
+            Ok(orders) => orders,
+            Err(why) => {
+                tracing::warn!("OPC UA {what}: {why}");
                 return (StatusCode::BadCommunicationError, Vec::new());
             }
         };
@@ -498,15 +490,24 @@ impl Nodes {
             .map_err(|e| e.to_string())?;
         let status = space::status_of(scope, Some(&status))
             .ok_or_else(|| format!("no status of {}", scope.root))?;
-        let Ok(ApiReply::Orders(orders)) = self
+        let orders = self.orders_now().await?;
+        let mine = space::cell_orders(scope.cell(), &orders);
+        Ok((jobs::jobs(&mine, status.list, status.mode), status.list))
+    }
+
+    /// The whole order list now (each scope takes its cell's).
+    async fn orders_now(&self) -> Result<Vec<falc_model::records::Order>, String> {
+        match self
             .bus
             .api(&self.operator, ApiRequest::OrderList, CALL_LIMIT)
             .await
-        else {
-            return Err("the operator gave no order list".into());
-        };
-        let mine = space::cell_orders(scope.cell(), &orders);
-        Ok((jobs::jobs(&mine, status.list, status.mode), status.list))
+        {
+            Ok(ApiReply::Orders(orders)) => Ok(orders),
+            Ok(other) => Err(format!(
+                "the operator answered {other:?}, not the order list"
+            )),
+            Err(e) => Err(e.to_string()),
+        }
     }
 
     /// A job command or request FALC refuses: Uncertain, with ReturnStatus
@@ -679,15 +680,10 @@ impl Nodes {
             command.name()
         );
         for call in calls {
-            let adds = matches!(call, ApiRequest::OrderAdd { .. });
+            let bits = jobs::refused_status(&call);
             let result = self.ask(at, call).await;
             self.poked.notify_one();
             if let Err(e) = result {
-                let bits = if adds {
-                    UNABLE_TO_ACCEPT
-                } else {
-                    INVALID_STATUS
-                };
                 return refuse(bits, format!("job order {id}: {e}"));
             }
         }
